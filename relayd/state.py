@@ -1,0 +1,187 @@
+"""The one state object every reader reads.
+
+Tasks that do I/O write into `RelayState`; the HTTP API, the metrics collector, the
+live page and the simulator's trace only read it. Everything here is plain data on
+the event loop thread: no locks, and a reader never waits for a device.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from dataclasses import dataclass, field
+from enum import StrEnum
+from typing import Any, Protocol
+
+from relayd import __version__
+
+SONAR_COUNT = 16
+
+
+class Mode(StrEnum):
+    FOLLOW = "follow"
+    HOLD = "hold"
+    MANUAL = "manual"
+
+
+class DriveState(StrEnum):
+    DRIVING = "driving"
+    STOPPED = "stopped"
+    AVOIDING = "avoiding"
+    LEADER_LOST = "leader_lost"
+    FAULT = "fault"
+
+
+@dataclass(slots=True)
+class DeviceHealth:
+    """Per-device health as /status and /metrics report it."""
+
+    connected: bool = False
+    last_data_t: float | None = None
+    errors: int = 0
+    reconnects: int = 0
+    last_error: str | None = None
+
+    def age_s(self, now: float) -> float | None:
+        return None if self.last_data_t is None else max(0.0, now - self.last_data_t)
+
+
+@dataclass(frozen=True, slots=True)
+class ScanRecord:
+    """One finished scan: what the Yagi heard where, and what the estimator made of it."""
+
+    t: float
+    angles_deg: tuple[float, ...]
+    rssi_dbm: tuple[float, ...]
+    bearing_deg: float
+    rssi_leader_dbm: float
+    situation: int
+    period_s: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class LinkInfo:
+    """Link quality of one airOS radio, as last polled."""
+
+    signal_dbm: float | None = None
+    rssi: float | None = None
+    noise_dbm: float | None = None
+    ccq_pct: float | None = None
+    tx_mbps: float | None = None
+    rx_mbps: float | None = None
+    t: float | None = None
+    stations: tuple[dict[str, Any], ...] = ()
+
+
+class Controls(Protocol):
+    """What the API may ask of the daemon (the controller task implements it)."""
+
+    def set_mode(self, mode: Mode) -> None: ...
+
+    def manual_drive(self, left_mm_s: float, right_mm_s: float) -> None:
+        """Raise `ModeError` unless in manual mode; the command expires after the dead-man time."""
+
+
+class ModeError(RuntimeError):
+    """A request that the current mode does not allow (API: 409)."""
+
+
+@dataclass(slots=True)
+class RelayState:
+    """Everything relayd knows right now. Times are clock seconds (see drivers.clock)."""
+
+    started_t: float = 0.0
+    mode: Mode = Mode.FOLLOW
+    state: DriveState = DriveState.STOPPED
+    reason: str = "starting"
+    bearing_deg: float | None = None
+    link_bearing_deg: float | None = None
+    rssi_leader_dbm: float | None = None
+    rssi_behind_dbm: float | None = None
+    situation: int = 0
+    wheels_left_mm_s: float = 0.0
+    wheels_right_mm_s: float = 0.0
+    x_mm: float | None = None
+    y_mm: float | None = None
+    theta_deg: float | None = None
+    battery_v: float | None = None
+    motors_enabled: bool = False
+    sonar_mm: list[int | None] = field(default_factory=lambda: [None] * SONAR_COUNT)
+    last_scan: ScanRecord | None = None
+    scan_count: int = 0
+    links: dict[str, LinkInfo] = field(default_factory=dict)
+    health: dict[str, DeviceHealth] = field(default_factory=dict)
+    loop_tick_t: float | None = None
+    robot_name: str | None = None
+    thresholds: dict[str, float] = field(default_factory=dict)
+    #: Bumped on every change a live view cares about; `changed` is set with it.
+    revision: int = 0
+    changed: asyncio.Event = field(default_factory=asyncio.Event, repr=False)
+
+    def device(self, name: str) -> DeviceHealth:
+        health = self.health.get(name)
+        if health is None:
+            health = self.health[name] = DeviceHealth()
+        return health
+
+    def touch(self) -> None:
+        """Tell live readers (SSE, trace) that something changed."""
+        self.revision += 1
+        self.changed.set()
+        self.changed = asyncio.Event()
+
+    def snapshot(self, now: float) -> dict[str, Any]:
+        """The /status document. No secret is ever stored here, so none can leak."""
+        scan = self.last_scan
+        return {
+            "version": __version__,
+            "robot": self.robot_name,
+            "uptime_s": round(now - self.started_t, 3),
+            "mode": str(self.mode),
+            "state": str(self.state),
+            "reason": self.reason,
+            "bearing_deg": self.bearing_deg,
+            "link_bearing_deg": self.link_bearing_deg,
+            "rssi_leader_dbm": self.rssi_leader_dbm,
+            "rssi_behind_dbm": self.rssi_behind_dbm,
+            "situation": self.situation,
+            "wheels_mm_s": {"left": self.wheels_left_mm_s, "right": self.wheels_right_mm_s},
+            "pose": {"x_mm": self.x_mm, "y_mm": self.y_mm, "theta_deg": self.theta_deg},
+            "battery_v": self.battery_v,
+            "motors_enabled": self.motors_enabled,
+            "sonar_mm": list(self.sonar_mm),
+            "last_scan": None
+            if scan is None
+            else {
+                "t": scan.t,
+                "age_s": round(now - scan.t, 3),
+                "angles": list(scan.angles_deg),
+                "rssi": list(scan.rssi_dbm),
+                "bearing_deg": scan.bearing_deg,
+                "rssi_leader_dbm": scan.rssi_leader_dbm,
+                "period_s": scan.period_s,
+            },
+            "scan_count": self.scan_count,
+            "links": {
+                name: {
+                    "signal_dbm": li.signal_dbm,
+                    "rssi": li.rssi,
+                    "noise_dbm": li.noise_dbm,
+                    "ccq_pct": li.ccq_pct,
+                    "tx_mbps": li.tx_mbps,
+                    "rx_mbps": li.rx_mbps,
+                    "age_s": None if li.t is None else round(now - li.t, 3),
+                }
+                for name, li in self.links.items()
+            },
+            "health": {
+                name: {
+                    "connected": h.connected,
+                    "age_s": None if (a := h.age_s(now)) is None else round(a, 3),
+                    "errors": h.errors,
+                    "reconnects": h.reconnects,
+                    "last_error": h.last_error,
+                }
+                for name, h in self.health.items()
+            },
+            "thresholds": dict(self.thresholds),
+        }
