@@ -1,0 +1,61 @@
+"""`relayd run [-c FILE]`: the daemon, as systemd starts it."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import os
+import signal
+import sys
+
+import structlog
+
+from relayd.config import DEFAULT_CONFIG_PATH, ConfigError, load_settings
+from relayd.logsetup import setup_logging
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("-c", "--config", default=str(DEFAULT_CONFIG_PATH),
+                        help=f"TOML config (default {DEFAULT_CONFIG_PATH})")
+    parser.add_argument("--log-format", choices=["json", "console"], default=None,
+                        help="override log.format")
+
+
+def _config_error(path: str, exc: ConfigError) -> int:
+    print(f"{path}: {len(exc.errors)} error(s)", file=sys.stderr)
+    for line in exc.errors:
+        print(f"  {line}", file=sys.stderr)
+    return 2
+
+
+async def run(args: argparse.Namespace) -> int:
+    try:
+        settings = load_settings(args.config)
+    except ConfigError as exc:
+        return _config_error(args.config, exc)
+    setup_logging(settings.log.level, args.log_format or settings.log.format)
+    from relayd.daemon import Daemon
+    from relayd.sdnotify import SdNotifier
+
+    try:
+        daemon = Daemon(settings, env=os.environ, notifier=SdNotifier())
+    except ConfigError as exc:
+        return _config_error(args.config, exc)
+    log = structlog.get_logger("relayd")
+    log.info("starting", config=args.config, robot=settings.robot.port, pantilt=settings.pantilt.port)
+    main = asyncio.current_task()
+    assert main is not None
+    loop = asyncio.get_running_loop()
+    task = asyncio.create_task(daemon.run(), name="relayd:daemon")
+
+    def _stop(signame: str) -> None:
+        log.info("signal", signal=signame)
+        task.cancel()
+
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        loop.add_signal_handler(sig, _stop, sig.name)
+    try:
+        await task
+    except asyncio.CancelledError:
+        pass
+    return 0

@@ -1,0 +1,306 @@
+"""relayd's settings: pydantic models for every key of SPEC 4.2, TOML loading, check-config.
+
+Every key has the default the spec gives; unknown keys are errors (a typo such as
+`kpp = 2` must not silently leave kp at its default on a robot). Secrets never live
+in the TOML: a section names an environment variable (`password_env`, `token_env`)
+or a file (`password_file`, `token_file`) and `resolve_secret` reads it at start-up.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+DEFAULT_CONFIG_PATH = Path("/etc/relayd/relayd.toml")
+BAUD_RATES = (9600, 19200, 38400, 57600, 115200)
+
+PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+Dbm = Annotated[float, Field(ge=-120, le=20, allow_inf_nan=False)]
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class RobotSettings(_Section):
+    enabled: bool = True
+    port: str = "/dev/relay/base"
+    baud: Literal[9600, 19200, 38400, 57600, 115200] = 9600
+    subclass: Literal["p3at", "p3at-sh"] | None = None
+    lost_after_s: PositiveFloat = 0.5
+
+
+PulseTriple = tuple[
+    Annotated[int, Field(ge=400, le=2600)],
+    Annotated[int, Field(ge=400, le=2600)],
+    Annotated[int, Field(ge=400, le=2600)],
+]
+
+
+def _check_pulses(v: PulseTriple) -> PulseTriple:
+    lo, mid, hi = v
+    # Decreasing triples are legal: a servo mounted upside down turns the other way.
+    if not (lo < mid < hi or lo > mid > hi):
+        raise ValueError("pulse widths at -90, 0, +90 degrees must be strictly monotonic")
+    return v
+
+
+class PanTiltSettings(_Section):
+    enabled: bool = True
+    port: str = "/dev/relay/servo"
+    protocol: Literal["maestro", "ssc32"] = "maestro"
+    baud: Literal[9600, 19200, 38400, 57600, 115200] = 115200
+    scan_channel: Annotated[int, Field(ge=0, le=31)] = 0
+    link_channel: Annotated[int, Field(ge=0, le=31)] = 1
+    scan_pulse_us: PulseTriple = (1000, 1500, 2000)
+    link_pulse_us: PulseTriple = (1000, 1500, 2000)
+    limits_deg: tuple[Annotated[float, Field(ge=-180, le=180)], Annotated[float, Field(ge=-180, le=180)]] = (-90.0, 90.0)
+    speed_deg_s: Annotated[float, Field(gt=0, le=2000)] = 180.0
+
+    _pulses = field_validator("scan_pulse_us", "link_pulse_us")(_check_pulses)
+
+    @field_validator("limits_deg")
+    @classmethod
+    def _limits_ordered(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if not v[0] < v[1]:
+            raise ValueError("limits_deg must be [low, high] with low < high")
+        return v
+
+    @model_validator(mode="after")
+    def _distinct_channels(self) -> PanTiltSettings:
+        if self.scan_channel == self.link_channel:
+            raise ValueError("scan_channel and link_channel must differ")
+        return self
+
+
+class WifiSettings(_Section):
+    enabled: bool = True
+    source: Literal["nl80211", "procfs", "iw"] = "nl80211"
+    interface: Annotated[str, Field(min_length=1, max_length=15)] = "wlan1"
+    procfs_path: str = "/proc/net/wireless"
+    sample_hz: Annotated[float, Field(gt=0, le=1000)] = 20.0
+
+
+class ApSettings(_Section):
+    enabled: bool = True
+    url: str
+    username: str = "ubnt"
+    password_env: str | None = None
+    password_file: str | None = None
+    poll_s: PositiveFloat = 1.0
+    timeout_s: PositiveFloat = 2.0
+    legacy_tls: bool = False
+    #: rear AP only: the MAC of the node behind; None = the strongest station.
+    station_mac: str | None = None
+
+    @field_validator("url")
+    @classmethod
+    def _http(cls, v: str) -> str:
+        if not v.startswith(("http://", "https://")):
+            raise ValueError("url must start with http:// or https://")
+        return v.rstrip("/")
+
+    @model_validator(mode="after")
+    def _one_secret_source(self) -> ApSettings:
+        if (self.password_env is None) == (self.password_file is None):
+            raise ValueError("set exactly one of password_env or password_file")
+        return self
+
+
+class ApSection(_Section):
+    rear: ApSettings | None = None
+    front: ApSettings | None = None
+
+
+class ScanSettings(_Section):
+    samples: Annotated[int, Field(ge=3, le=361)] = 25
+    width_deg: Annotated[float, Field(gt=0, le=360)] = 180.0
+    gamma: PositiveFloat = 10.0
+    mode: Literal["step", "continuous"] = "step"
+    settle_s: NonNegFloat = 0.05
+
+
+class ControlSettings(_Section):
+    mode: Literal["follow", "hold", "manual"] = "follow"
+    threshold_l_dbm: Dbm = -30.0
+    threshold_b_dbm: Dbm = -60.0
+    hysteresis_db: NonNegFloat = 2.0
+    rear_link: Literal["require", "ignore"] = "require"
+    kp: NonNegFloat = 1.0
+    kd: NonNegFloat = 0.3
+    w1: NonNegFloat = 10.0
+    w2: float = 150.0
+    v_max_mm_s: Annotated[float, Field(gt=0, le=1500)] = 400.0
+    threshold_o_m: PositiveFloat = 0.8
+    stop_distance_m: NonNegFloat = 0.3
+    detect_range_m: PositiveFloat = 3.0
+    gamma_o_m: PositiveFloat = 1.0
+    alpha_db: NonNegFloat = 30.0
+    beta_per_m: NonNegFloat = 1.0
+    lost_rssi_dbm: Dbm = -85.0
+    manual_deadman_s: PositiveFloat = 0.5
+    #: RSSI^b older than this many rear-AP polls is stale (not in the spec; 3 polls).
+    rear_stale_polls: Annotated[int, Field(ge=1, le=100)] = 3
+
+    @model_validator(mode="after")
+    def _ordered_distances(self) -> ControlSettings:
+        if not self.stop_distance_m < self.threshold_o_m < self.detect_range_m:
+            raise ValueError("need stop_distance_m < threshold_o_m < detect_range_m")
+        return self
+
+    @model_validator(mode="after")
+    def _w2_finite(self) -> ControlSettings:
+        if not math.isfinite(self.w2):
+            raise ValueError("w2 must be finite")
+        return self
+
+
+class ApiSettings(_Section):
+    enabled: bool = True
+    bind: str = "0.0.0.0"  # noqa: S104 - answering on the bridge is the point
+    port: Annotated[int, Field(ge=0, le=65535)] = 8080
+    token_env: str | None = "RELAYD_API_TOKEN"
+    token_file: str | None = None
+
+
+class LogSettings(_Section):
+    level: Literal["debug", "info", "warning", "error"] = "info"
+    format: Literal["json", "console"] = "json"
+
+
+class Settings(_Section):
+    robot: RobotSettings = RobotSettings()
+    pantilt: PanTiltSettings = PanTiltSettings()
+    wifi: WifiSettings = WifiSettings()
+    ap: ApSection = ApSection()
+    scan: ScanSettings = ScanSettings()
+    control: ControlSettings = ControlSettings()
+    api: ApiSettings = ApiSettings()
+    log: LogSettings = LogSettings()
+
+
+class ConfigError(Exception):
+    """A config that cannot be used; `errors` lists every problem as 'key.path: message'."""
+
+    def __init__(self, errors: list[str]) -> None:
+        super().__init__("\n".join(errors))
+        self.errors = errors
+
+
+def _loc(loc: tuple[int | str, ...]) -> str:
+    # pydantic puts union/type tags into loc ("function-after[...]"); keep only real keys.
+    parts = [str(p) for p in loc if not (isinstance(p, str) and ("[" in p or p.startswith("function-")))]
+    return ".".join(parts) or "(top level)"
+
+
+def validation_messages(exc: ValidationError) -> list[str]:
+    return [f"{_loc(e['loc'])}: {e['msg']}" for e in exc.errors()]
+
+
+def parse_settings(data: Mapping[str, Any]) -> Settings:
+    try:
+        return Settings.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(validation_messages(exc)) from None
+
+
+def load_settings(path: str | os.PathLike[str]) -> Settings:
+    """Read and validate a TOML config, or raise ConfigError naming every bad key."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError([f"{p}: cannot read: {exc.strerror or exc}"]) from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError([f"{p}: not valid TOML: {exc}"]) from None
+    return parse_settings(data)
+
+
+@dataclass(frozen=True, slots=True)
+class SecretRef:
+    """Where a secret comes from; `describe()` says so without ever showing it."""
+
+    key: str
+    env: str | None
+    file: str | None
+
+    def describe(self, environ: Mapping[str, str]) -> str:
+        if self.env is not None:
+            return f"env {self.env} ({'set' if environ.get(self.env) else 'NOT SET'})"
+        if self.file is not None:
+            return f"file {self.file} ({'readable' if os.access(self.file, os.R_OK) else 'NOT READABLE'})"
+        return "none"
+
+
+def resolve_secret(ref: SecretRef, environ: Mapping[str, str]) -> str | None:
+    """The secret's value, or None when it is not configured; ConfigError if configured but missing."""
+    if ref.env is not None:
+        value = environ.get(ref.env)
+        if not value:
+            raise ConfigError([f"{ref.key}: environment variable {ref.env} is not set"])
+        return value
+    if ref.file is not None:
+        try:
+            value = Path(ref.file).read_text(encoding="utf-8").strip()
+        except OSError as exc:
+            raise ConfigError([f"{ref.key}: cannot read {ref.file}: {exc.strerror or exc}"]) from None
+        if not value:
+            raise ConfigError([f"{ref.key}: {ref.file} is empty"])
+        return value
+    return None
+
+
+def secret_refs(settings: Settings) -> list[SecretRef]:
+    refs = []
+    for name in ("rear", "front"):
+        ap = getattr(settings.ap, name)
+        if ap is not None and ap.enabled:
+            refs.append(SecretRef(f"ap.{name}.password_env", ap.password_env, ap.password_file))
+    if settings.api.enabled:
+        refs.append(SecretRef("api.token_env", settings.api.token_env, settings.api.token_file))
+    return refs
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    return repr(v)
+
+
+def render_settings(settings: Settings, environ: Mapping[str, str]) -> str:
+    """The effective settings as TOML, with where each secret comes from (never its value)."""
+    lines: list[str] = []
+
+    def section(title: str, values: Mapping[str, Any]) -> None:
+        lines.append(f"[{title}]")
+        for k, v in values.items():
+            if v is not None:
+                lines.append(f"{k} = {_toml_value(v)}")
+        lines.append("")
+
+    data = settings.model_dump(mode="json")
+    for name, values in data.items():
+        if name == "ap":
+            for side, ap in values.items():
+                if ap is not None:
+                    section(f"ap.{side}", ap)
+        else:
+            section(name, values)
+    lines.append("# secrets (values never shown):")
+    for ref in secret_refs(settings):
+        lines.append(f"#   {ref.key}: {ref.describe(environ)}")
+    return "\n".join(lines) + "\n"

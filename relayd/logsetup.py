@@ -1,0 +1,56 @@
+"""structlog configuration: one event per line, key=value on a terminal, JSON for the journal.
+
+In JSON mode each line is prefixed with the syslog priority (`<4>`), which journald
+parses from stdout by default, so `journalctl -p warning -u relayd` works.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+from typing import Any
+
+import structlog
+
+_PRIORITY = {"debug": 7, "info": 6, "warning": 4, "error": 3, "critical": 2, "exception": 3}
+
+
+def _journal_priority(_: Any, method: str, rendered: str) -> str:
+    return f"<{_PRIORITY.get(method, 6)}>{rendered}"
+
+
+def setup_logging(level: str = "info", fmt: str = "console", stream: Any = None) -> None:
+    """Configure structlog and route stdlib loggers (aiohttp, asyncio) through it."""
+    stream = stream or sys.stdout
+    numeric = getattr(logging, level.upper())
+    shared: list[Any] = [
+        structlog.contextvars.merge_contextvars,
+        structlog.processors.add_log_level,
+        structlog.processors.TimeStamper(fmt="iso", utc=True),
+    ]
+    if fmt == "json":
+        renderer: list[Any] = [
+            structlog.processors.dict_tracebacks,
+            structlog.processors.JSONRenderer(),
+            _journal_priority,
+        ]
+    else:
+        renderer = [structlog.dev.ConsoleRenderer(colors=stream.isatty())]
+    structlog.configure(
+        processors=[*shared, structlog.processors.StackInfoRenderer(), *renderer],
+        wrapper_class=structlog.make_filtering_bound_logger(numeric),
+        logger_factory=structlog.PrintLoggerFactory(stream),
+        cache_logger_on_first_use=False,
+    )
+    handler = logging.StreamHandler(stream)
+    handler.setFormatter(
+        structlog.stdlib.ProcessorFormatter(
+            foreign_pre_chain=shared,
+            processors=[structlog.stdlib.ProcessorFormatter.remove_processors_meta,
+                        *(renderer[:-1] if fmt == "json" else renderer)],
+        )
+    )
+    root = logging.getLogger()
+    root.handlers[:] = [handler]
+    root.setLevel(max(numeric, logging.INFO))
+    logging.getLogger("aiohttp.access").setLevel(logging.WARNING)
