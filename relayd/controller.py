@@ -1,0 +1,277 @@
+"""How should the wheels turn? The pure control core (SPEC 2.2-2.5 and 3).
+
+`control_step` takes one snapshot of what the robot knows (`ControlInputs`), the
+settings and a small memory from the previous step, and returns the wheel speeds,
+the drive state, a short reason and the new memory. The control task calls it on
+every SIP; nothing here does I/O, reads a clock or logs.
+
+Order of decisions, first match wins:
+1. Fail-safes, in every mode: no SIP yet or older than sip_timeout_s -> FAULT "no_sip".
+   In follow mode also: RSSI older than rssi_timeout_s -> "rssi_stale"; scan servo not
+   answering -> "scan_servo"; rear link required and RSSI^b missing or older than
+   rear_timeout_s -> "rear_link_stale". Wheels zero; everything resumes by itself when
+   the data is fresh again (this function keeps no fault state).
+2. hold -> STOPPED "hold".
+3. manual -> the manual command, each wheel clamped to +-v_max, while it is younger
+   than manual_deadman_s, else zero "deadman". Decision: a guarded teleop, as ARIA's
+   is: when a forward sonar sees something closer than stop_distance, the forward
+   part of the command is dropped (turning and backing off stay) with reason
+   "obstacle". Otherwise reason "manual"; state DRIVING when a wheel moves.
+4. follow: leader_lost -> LEADER_LOST; no bearing or RSSI^l yet -> STOPPED
+   "no_scan_yet"; the link rule says stop -> STOPPED "leader_near"/"rear_weak";
+   situation 1 -> AVOIDING "obstacle"; else DRIVING "driving".
+
+Link rule (SPEC 2.4 with hysteresis): while driving, stop when RSSI^l >= threshold_l
+("leader_near") or RSSI^b <= threshold_b ("rear_weak"); while stopped, resume only
+when RSSI^l < threshold_l - hysteresis AND RSSI^b > threshold_b + hysteresis. RSSI^b
+is ignored when rear_link_required is False (rear_link = "ignore"). The latch starts
+False, so a robot starts only from inside the band's safe side. The latch in
+`ControlMemory` changes only through the link rule: faults, hold and manual leave it.
+
+Situation 1 (d_min < threshold_o): the steering angle is the sonar avoidance
+centroid; forward speed is the background speed scaled linearly from 1 at
+threshold_o to 0 at stop_distance; below stop_distance the robot only turns (the PD
+term still turns it in place toward the open side). The D term uses the previous
+avoidance steering angle, kept in `ControlMemory.prev_steer_deg`, which is cleared
+whenever the robot is not avoiding so a stale angle never kicks the D term.
+Situations 0 and 2 steer by the scan bearing (already PRSSI-aware from the
+estimator) with the scan before as B'.
+
+Wheel law (SPEC 2.3): v = clamp(-w1*RSSI^l - w2, 0, v_max);
+V_L = v - kp*B - kd*(B - B'), V_R = v + kp*B + kd*(B - B'); each wheel clamped to
++-v_max. Positive B (leader to the left) gives V_R > V_L: a left turn.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+from relayd.estimator import (
+    SonarReading,
+    avoidance_bearing,
+    classify_situation,
+    nearest_front_m,
+)
+from relayd.state import DriveState, Mode
+
+
+@dataclass(frozen=True, slots=True)
+class ControlParams:
+    """Controller settings; defaults are SPEC 2's."""
+
+    kp: float = 1.0
+    kd: float = 0.3
+    w1: float = 10.0
+    w2: float = 150.0
+    v_max_mm_s: float = 400.0
+    threshold_l_dbm: float = -30.0
+    threshold_b_dbm: float = -60.0
+    hysteresis_db: float = 2.0
+    rear_link_required: bool = True
+    threshold_o_m: float = 0.8
+    stop_distance_m: float = 0.3
+    detect_range_m: float = 3.0
+    gamma_o_m: float = 1.0
+    sip_timeout_s: float = 0.5  # robot.lost_after_s
+    rssi_timeout_s: float = 5.0  # two scan periods (the daemon computes it)
+    rear_timeout_s: float = 3.0  # RSSI^b older than this is stale
+    manual_deadman_s: float = 0.5
+
+
+@dataclass(frozen=True, slots=True)
+class ControlInputs:
+    """One snapshot of everything the controller looks at."""
+
+    mode: Mode
+    sip_age_s: float | None  # None: no SIP yet
+    rssi_age_s: float | None  # age of the newest fresh RSSI sample; None: none yet
+    scan_servo_ok: bool
+    # Latest scan bearing, already corrected into the current robot frame; None before the first scan.
+    bearing_deg: float | None
+    prev_bearing_deg: float | None  # the scan before (B'), same frame
+    rssi_leader_dbm: float | None
+    rssi_behind_dbm: float | None
+    rear_age_s: float | None  # age of RSSI^b; None: never received
+    front_sonar: tuple[SonarReading, ...]
+    leader_lost: bool
+    manual_left_mm_s: float | None = None
+    manual_right_mm_s: float | None = None
+    manual_age_s: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class ControlMemory:
+    """What one control step hands to the next."""
+
+    #: Stop-rule latch: True while the link rule allows driving (hysteresis).
+    link_drive: bool = False
+    #: Previous steering angle used for the D term in situation 1.
+    prev_steer_deg: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class ControlOutput:
+    """The wheel command of one step and why."""
+
+    left_mm_s: float
+    right_mm_s: float
+    state: DriveState
+    reason: str  # short snake_case cause
+    situation: int
+    memory: ControlMemory
+
+
+def _clamp(value: float, low: float, high: float) -> float:
+    return min(max(value, low), high)
+
+
+def background_speed(rssi_leader_dbm: float, w1: float, w2: float, v_max_mm_s: float) -> float:
+    """v = -w1 * RSSI^l - w2, clamped to [0, v_max]: faster the fainter the leader."""
+    return _clamp(-w1 * rssi_leader_dbm - w2, 0.0, v_max_mm_s)
+
+
+def wheel_law(
+    v_mm_s: float,
+    bearing_deg: float,
+    prev_bearing_deg: float | None,
+    kp: float,
+    kd: float,
+    v_max_mm_s: float,
+) -> tuple[float, float]:
+    """(V_L, V_R) from the PD law on the bearing; positive bearing turns left."""
+    derivative = 0.0 if prev_bearing_deg is None else bearing_deg - prev_bearing_deg
+    turn = kp * bearing_deg + kd * derivative
+    return (
+        _clamp(v_mm_s - turn, -v_max_mm_s, v_max_mm_s),
+        _clamp(v_mm_s + turn, -v_max_mm_s, v_max_mm_s),
+    )
+
+
+def link_rule(
+    rssi_leader_dbm: float | None,
+    rssi_behind_dbm: float | None,
+    params: ControlParams,
+    was_driving: bool,
+    rear_required: bool,
+) -> tuple[bool, str]:
+    """(may drive, reason): the SPEC 2.4 stop rule with a hysteresis band around both thresholds."""
+    if rssi_leader_dbm is None or math.isnan(rssi_leader_dbm):
+        return False, "no_scan_yet"
+    if rear_required and (rssi_behind_dbm is None or math.isnan(rssi_behind_dbm)):
+        return False, "rear_link_stale"
+    # While stopped, both thresholds move by the band towards "keep standing".
+    margin = 0.0 if was_driving else params.hysteresis_db
+    if rssi_leader_dbm >= params.threshold_l_dbm - margin:
+        return False, "leader_near"
+    if rear_required:
+        assert rssi_behind_dbm is not None  # checked above; narrows the type
+        if rssi_behind_dbm <= params.threshold_b_dbm + margin:
+            return False, "rear_weak"
+    return True, "driving"
+
+
+def speed_scale(d_min_m: float, threshold_o_m: float, stop_distance_m: float) -> float:
+    """1 at threshold_o (and beyond), falling linearly to 0 at stop_distance (and below)."""
+    span = threshold_o_m - stop_distance_m
+    if span <= 0:
+        return 1.0 if d_min_m >= threshold_o_m else 0.0
+    return _clamp((d_min_m - stop_distance_m) / span, 0.0, 1.0)
+
+
+def _stopped(
+    state: DriveState, reason: str, situation: int, memory: ControlMemory
+) -> ControlOutput:
+    return ControlOutput(0.0, 0.0, state, reason, situation, replace(memory, prev_steer_deg=None))
+
+
+def _stale(age_s: float | None, timeout_s: float) -> bool:
+    return age_s is None or math.isnan(age_s) or age_s > timeout_s
+
+
+def _manual(
+    inputs: ControlInputs, params: ControlParams, situation: int, memory: ControlMemory
+) -> ControlOutput:
+    left, right = inputs.manual_left_mm_s, inputs.manual_right_mm_s
+    if (
+        left is None
+        or right is None
+        or not (math.isfinite(left) and math.isfinite(right))
+        or _stale(inputs.manual_age_s, params.manual_deadman_s)
+    ):
+        return _stopped(DriveState.STOPPED, "deadman", situation, memory)
+    v_max = params.v_max_mm_s
+    left, right = _clamp(left, -v_max, v_max), _clamp(right, -v_max, v_max)
+    reason = "manual"
+    d_min = nearest_front_m(inputs.front_sonar)
+    forward = (left + right) / 2.0
+    if d_min is not None and d_min < params.stop_distance_m and forward > 0:
+        # Keep the turn and any backing off, drop only the part that drives into the object.
+        left, right = left - forward, right - forward
+        reason = "obstacle"
+    state = DriveState.DRIVING if (left != 0.0 or right != 0.0) else DriveState.STOPPED
+    return ControlOutput(
+        left, right, state, reason, situation, replace(memory, prev_steer_deg=None)
+    )
+
+
+def control_step(
+    inputs: ControlInputs, params: ControlParams, memory: ControlMemory
+) -> ControlOutput:
+    """One control decision; see the module docstring for the order of rules."""
+    situation = classify_situation(inputs.front_sonar, params.threshold_o_m, params.detect_range_m)
+
+    if _stale(inputs.sip_age_s, params.sip_timeout_s):
+        return _stopped(DriveState.FAULT, "no_sip", situation, memory)
+    if inputs.mode is Mode.FOLLOW:
+        if _stale(inputs.rssi_age_s, params.rssi_timeout_s):
+            return _stopped(DriveState.FAULT, "rssi_stale", situation, memory)
+        if not inputs.scan_servo_ok:
+            return _stopped(DriveState.FAULT, "scan_servo", situation, memory)
+        if params.rear_link_required and (
+            _stale(inputs.rear_age_s, params.rear_timeout_s) or inputs.rssi_behind_dbm is None
+        ):
+            return _stopped(DriveState.FAULT, "rear_link_stale", situation, memory)
+
+    if inputs.mode is Mode.HOLD:
+        return _stopped(DriveState.STOPPED, "hold", situation, memory)
+    if inputs.mode is Mode.MANUAL:
+        return _manual(inputs, params, situation, memory)
+
+    if inputs.leader_lost:
+        return _stopped(DriveState.LEADER_LOST, "leader_lost", situation, memory)
+    bearing, rssi_l = inputs.bearing_deg, inputs.rssi_leader_dbm
+    if bearing is None or rssi_l is None:
+        return _stopped(DriveState.STOPPED, "no_scan_yet", situation, memory)
+
+    drive, reason = link_rule(
+        rssi_l, inputs.rssi_behind_dbm, params, memory.link_drive, params.rear_link_required
+    )
+    memory = replace(memory, link_drive=drive)
+    if not drive:
+        return _stopped(DriveState.STOPPED, reason, situation, memory)
+
+    v = background_speed(rssi_l, params.w1, params.w2, params.v_max_mm_s)
+    if situation == 1:
+        d_min = nearest_front_m(inputs.front_sonar)
+        assert d_min is not None  # situation 1 means a forward sonar echoed
+        steer = avoidance_bearing(inputs.front_sonar, params.gamma_o_m)
+        v *= speed_scale(d_min, params.threshold_o_m, params.stop_distance_m)
+        left, right = wheel_law(
+            v, steer, memory.prev_steer_deg, params.kp, params.kd, params.v_max_mm_s
+        )
+        return ControlOutput(
+            left,
+            right,
+            DriveState.AVOIDING,
+            "obstacle",
+            situation,
+            replace(memory, prev_steer_deg=steer),
+        )
+
+    left, right = wheel_law(
+        v, bearing, inputs.prev_bearing_deg, params.kp, params.kd, params.v_max_mm_s
+    )
+    return ControlOutput(
+        left, right, DriveState.DRIVING, "driving", situation, replace(memory, prev_steer_deg=None)
+    )
