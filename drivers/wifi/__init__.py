@@ -1,0 +1,63 @@
+"""Wi-Fi RSSI of the Yagi's USB adapter: nl80211, /proc/net/wireless and `iw` sources.
+
+`make_source(kind, interface)` builds the source the config names; every source gives
+`RssiSample(t, rssi_dbm, fresh)` through `await read()` or `stream(sample_hz)`.
+`ProcfsWriter` is the fake adapter (a /proc/net/wireless-format file) for tests and
+the simulator.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Literal
+
+from drivers.clock import REAL_CLOCK, Clock
+from drivers.wifi.fake import ProcfsWriter
+from drivers.wifi.parsers import RSSI_MIN_DBM, plausible_rssi_dbm
+from drivers.wifi.sources import (
+    PROC_NET_WIRELESS,
+    IwSource,
+    Nl80211Source,
+    ProcfsSource,
+    RssiSample,
+    RssiSource,
+)
+
+SourceKind = Literal["nl80211", "procfs", "iw"]
+SOURCE_KINDS: tuple[str, ...] = ("nl80211", "procfs", "iw")
+
+
+def make_source(kind: str, interface: str, *, path: str | os.PathLike[str] | None = None,
+                clock: Clock = REAL_CLOCK, min_dbm: float = RSSI_MIN_DBM) -> RssiSource:
+    """The RSSI source of `kind` for `interface`.
+
+    `path` is the /proc/net/wireless-format file for "procfs" (default the kernel's) and
+    the `iw` binary for "iw" (default `iw` on PATH); "nl80211" takes no path.
+    """
+    if kind == "nl80211":
+        if path is not None:
+            raise ValueError("the nl80211 source takes no path")
+        return Nl80211Source(interface, clock=clock, min_dbm=min_dbm)
+    if kind == "procfs":
+        return ProcfsSource(interface, path=PROC_NET_WIRELESS if path is None else path,
+                            clock=clock, min_dbm=min_dbm)
+    if kind == "iw":
+        return IwSource(interface, clock=clock, min_dbm=min_dbm,
+                        iw_path="iw" if path is None else os.fspath(path))
+    raise ValueError(f"unknown RSSI source {kind!r}; expected one of {', '.join(SOURCE_KINDS)}")
+
+
+__all__ = [
+    "PROC_NET_WIRELESS",
+    "RSSI_MIN_DBM",
+    "SOURCE_KINDS",
+    "IwSource",
+    "Nl80211Source",
+    "ProcfsSource",
+    "ProcfsWriter",
+    "RssiSample",
+    "RssiSource",
+    "SourceKind",
+    "make_source",
+    "plausible_rssi_dbm",
+]

@@ -1,0 +1,438 @@
+"""RSSI sources for the Yagi's Wi-Fi adapter: nl80211, /proc/net/wireless and `iw` text.
+
+All three sit behind `RssiSource`: `await read()` gives one `RssiSample` now,
+`stream(sample_hz)` gives samples on the clock. The base class owns the rules the
+daemon relies on, so every source behaves the same:
+
+* freshness: `fresh=True` only when the source saw a new update since the previous
+  `read()` of the same object (a changed counter/line, never a timer);
+* plausibility: impossible levels (0, -128, -256, positive, below `min_dbm`) are
+  counted in `rejected` and never passed on (`rssi_dbm=None, fresh=False`);
+* failure: a missing interface or a failing read sets `available=False` /
+  `last_error`, counts in `errors`, returns an empty sample, and is retried on the
+  next read. Nothing but cancellation escapes `read()` or `stream()`.
+"""
+
+from __future__ import annotations
+
+import abc
+import asyncio
+import errno
+import os
+import socket
+from collections.abc import AsyncIterator, Callable, Hashable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, ClassVar
+
+import structlog
+
+from drivers.clock import REAL_CLOCK, Clock
+from drivers.wifi.parsers import (
+    RSSI_MIN_DBM,
+    parse_iw_link,
+    parse_iw_stations,
+    parse_proc_net_wireless,
+    plausible_rssi_dbm,
+    wrap_u8_dbm,
+)
+
+log = structlog.get_logger(__name__)
+
+PROC_NET_WIRELESS = "/proc/net/wireless"
+
+
+@dataclass(frozen=True, slots=True)
+class RssiSample:
+    """One RSSI reading: clock seconds, dBm (None when there is no believable value)."""
+
+    t: float
+    rssi_dbm: float | None
+    fresh: bool
+
+
+class InterfaceMissing(Exception):
+    """The wireless interface is not there (unplugged adapter, renamed, wrong name)."""
+
+
+class SourceError(Exception):
+    """A read failed for another reason (timeout, tool error, unreadable file)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Observation:
+    """What one poll of the device showed, before the base class judges it.
+
+    `level_dbm` None means "associated to nothing / no level". `update_key` is
+    anything that changes when the device received a new frame (counters, the text
+    line); `updated` is False when the device itself says the value is old.
+    """
+
+    level_dbm: float | None
+    update_key: Hashable
+    updated: bool = True
+
+
+class RssiSource(abc.ABC):
+    """Common behaviour of the RSSI sources; subclasses implement `_observe()`."""
+
+    kind: ClassVar[str]
+
+    def __init__(self, interface: str, *, clock: Clock = REAL_CLOCK,
+                 min_dbm: float = RSSI_MIN_DBM) -> None:
+        self.interface = interface
+        self.clock = clock
+        self.min_dbm = min_dbm
+        self.samples = 0    # fresh, accepted samples
+        self.rejected = 0   # updates carrying an impossible value
+        self.errors = 0     # reads that failed (interface missing, I/O, timeout)
+        self.reads = 0
+        self.available = False
+        self.associated = False
+        self.last_error: str | None = None
+        self._prev_key: Hashable = None
+        self._have_prev = False
+
+    @property
+    def _log(self) -> Any:
+        # Bound at use, not in __init__: the daemon may configure structlog after
+        # building its sources, and a bound logger freezes the configuration.
+        return log.bind(source=self.kind, interface=self.interface)
+
+    @property
+    def counters(self) -> dict[str, int]:
+        return {"reads": self.reads, "samples": self.samples,
+                "rejected": self.rejected, "errors": self.errors}
+
+    @abc.abstractmethod
+    async def _observe(self) -> Observation:
+        """Poll the device once; raise InterfaceMissing or SourceError on failure."""
+
+    async def close(self) -> None:
+        """Release resources (sockets); the source can still be read afterwards."""
+        return None
+
+    async def read(self) -> RssiSample:
+        """One sample now. Never raises except on cancellation."""
+        t = self.clock.now()
+        self.reads += 1
+        try:
+            obs = await self._observe()
+        except InterfaceMissing as exc:
+            return self._fail(t, f"interface missing: {exc}", vanished=True)
+        except SourceError as exc:
+            return self._fail(t, str(exc), vanished=False)
+        except Exception as exc:  # noqa: BLE001 - a bad read must never end the scanner task
+            self._log.exception("wifi_read_unexpected_error")
+            return self._fail(t, f"{type(exc).__name__}: {exc}", vanished=False)
+        if not self.available:
+            self._log.info("wifi_source_available")
+        self.available = True
+        self.last_error = None
+        return self._judge(t, obs)
+
+    def _fail(self, t: float, message: str, *, vanished: bool) -> RssiSample:
+        self.errors += 1
+        if message != self.last_error:
+            self._log.warning("wifi_read_failed", error=message)
+        else:
+            self._log.debug("wifi_read_failed", error=message)
+        self.last_error = message
+        if vanished:
+            self.available = False
+            self.associated = False
+            # Whatever the interface shows when it comes back is new to us.
+            self._have_prev = False
+        return RssiSample(t, None, False)
+
+    def _judge(self, t: float, obs: Observation) -> RssiSample:
+        new = obs.updated and (not self._have_prev or obs.update_key != self._prev_key)
+        self._prev_key = obs.update_key
+        self._have_prev = True
+        if obs.level_dbm is None:
+            if self.associated:
+                self._log.warning("wifi_not_associated")
+            self.associated = False
+            self.last_error = "not associated"
+            return RssiSample(t, None, False)
+        self.associated = True
+        level = wrap_u8_dbm(float(obs.level_dbm))
+        good = plausible_rssi_dbm(level, min_dbm=self.min_dbm)
+        if not new:
+            return RssiSample(t, level if good else None, False)
+        if not good:
+            self.rejected += 1
+            self._log.info("wifi_rssi_rejected", raw=obs.level_dbm, dbm=level)
+            return RssiSample(t, None, False)
+        self.samples += 1
+        return RssiSample(t, level, True)
+
+    async def stream(self, sample_hz: float) -> AsyncIterator[RssiSample]:
+        """Samples at `sample_hz` on the clock, forever; never raises but CancelledError."""
+        if not sample_hz > 0:
+            raise ValueError(f"sample_hz must be > 0, got {sample_hz!r}")
+        period = 1.0 / sample_hz
+        deadline = self.clock.now()
+        while True:
+            yield await self.read()
+            deadline += period
+            delay = deadline - self.clock.now()
+            if delay < 0:
+                # Fell behind (slow read, busy loop): restart the grid, don't burst.
+                deadline = self.clock.now()
+                delay = 0.0
+            await self.clock.sleep(delay)
+
+
+# --------------------------------------------------------------------------------------
+
+
+class ProcfsSource(RssiSource):
+    """The level column of /proc/net/wireless (or any file in that format).
+
+    A sample is new when the level carries the '.' UPDATED mark and the interface's
+    row differs from the previous read: cfg80211 prints the mark on every read, so the
+    mark alone cannot tell a repeat; a changed row (level or a drop/failure counter)
+    can. The fake `ProcfsWriter` bumps a counter on every update for this reason.
+    """
+
+    kind = "procfs"
+
+    def __init__(self, interface: str, *, path: str | os.PathLike[str] = PROC_NET_WIRELESS,
+                 clock: Clock = REAL_CLOCK, min_dbm: float = RSSI_MIN_DBM) -> None:
+        super().__init__(interface, clock=clock, min_dbm=min_dbm)
+        self.path = Path(path)
+
+    async def _observe(self) -> Observation:
+        # A small text file (procfs or tmpfs): reading it inline is faster than a thread hop.
+        try:
+            text = self.path.read_text(encoding="ascii", errors="replace")
+        except FileNotFoundError as exc:
+            # No /proc/net/wireless at all means no wireless extension device either.
+            raise InterfaceMissing(f"{self.path} does not exist") from exc
+        except OSError as exc:
+            raise SourceError(f"cannot read {self.path}: {exc}") from exc
+        row = parse_proc_net_wireless(text).get(self.interface)
+        if row is None:
+            raise InterfaceMissing(f"{self.interface} not listed in {self.path}")
+        if not row.level_updated and row.level == 0:
+            # Not associated (or not in managed mode): the kernel prints zeros, no marks.
+            return Observation(None, row.line, updated=False)
+        return Observation(row.level, row.line, updated=row.level_updated)
+
+
+# --------------------------------------------------------------------------------------
+
+
+class IwSource(RssiSource):
+    """`iw` text through a subprocess: diagnostics and a fallback without netlink code.
+
+    `mode="link"` runs `iw dev IF link`, `"dump"` `iw dev IF station dump`, `"get"`
+    `iw dev IF station get BSSID`. New = the rx packet / beacon counters or the signal
+    changed.
+    """
+
+    kind = "iw"
+
+    def __init__(self, interface: str, *, clock: Clock = REAL_CLOCK,
+                 min_dbm: float = RSSI_MIN_DBM, iw_path: str = "iw", mode: str = "link",
+                 bssid: str | None = None, timeout_s: float = 1.0) -> None:
+        super().__init__(interface, clock=clock, min_dbm=min_dbm)
+        if mode not in ("link", "dump", "get"):
+            raise ValueError(f"iw mode must be link, dump or get, got {mode!r}")
+        if mode == "get" and not bssid:
+            raise ValueError("iw mode 'get' needs the bssid")
+        self.iw_path = iw_path
+        self.mode = mode
+        self.bssid = bssid
+        self.timeout_s = timeout_s
+
+    def command(self) -> list[str]:
+        base = [self.iw_path, "dev", self.interface]
+        if self.mode == "link":
+            return [*base, "link"]
+        if self.mode == "dump":
+            return [*base, "station", "dump"]
+        return [*base, "station", "get", str(self.bssid)]
+
+    async def _run(self) -> str:
+        argv = self.command()
+        try:
+            proc = await asyncio.create_subprocess_exec(
+                *argv, stdin=asyncio.subprocess.DEVNULL, stdout=asyncio.subprocess.PIPE,
+                stderr=asyncio.subprocess.PIPE,
+                env={**os.environ, "LC_ALL": "C"})
+        except OSError as exc:
+            raise SourceError(f"cannot run {self.iw_path}: {exc}") from exc
+        try:
+            async with self.clock.timeout(self.timeout_s):
+                out, err = await proc.communicate()
+        except TimeoutError as exc:
+            proc.kill()
+            await proc.wait()
+            raise SourceError(f"{' '.join(argv)} timed out after {self.timeout_s} s") from exc
+        except asyncio.CancelledError:
+            if proc.returncode is None:
+                proc.kill()
+                await proc.wait()
+            raise
+        stderr = err.decode("utf-8", "replace").strip()
+        if "No such device" in stderr or "No such device" in out.decode("utf-8", "replace"):
+            raise InterfaceMissing(stderr or "No such device")
+        if proc.returncode != 0:
+            raise SourceError(f"{' '.join(argv)} exited {proc.returncode}: {stderr[:200]}")
+        return out.decode("utf-8", "replace")
+
+    async def _observe(self) -> Observation:
+        text = await self._run()
+        if self.mode == "link":
+            link = parse_iw_link(text)
+            if link is None:
+                raise SourceError(f"unrecognised `iw link` output: {text[:80]!r}")
+            if not link.connected:
+                return Observation(None, None, updated=False)
+            return Observation(link.signal_dbm, (link.rx_packets, link.signal_dbm),
+                               updated=link.signal_dbm is not None)
+        stations = parse_iw_stations(text)
+        if self.bssid is not None:
+            stations = [s for s in stations if s.mac.lower() == self.bssid.lower()]
+        if not stations:
+            return Observation(None, None, updated=False)
+        # Several peers (not the managed-mode case): the one heard most recently.
+        sta = min(stations, key=lambda s: s.inactive_time_ms if s.inactive_time_ms is not None
+                  else 1 << 62)
+        key = (sta.mac, sta.rx_packets, sta.beacon_rx, sta.signal_dbm)
+        return Observation(sta.signal_dbm, key, updated=sta.signal_dbm is not None)
+
+
+# --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class StationReading:
+    """The fields of one nl80211 station-info message that the RSSI source uses."""
+
+    mac: str | None
+    signal_dbm: int | None
+    signal_avg_dbm: int | None
+    chain_signal_dbm: tuple[int, ...]
+    rx_packets: int | None
+    beacon_rx: int | None
+    inactive_time_ms: int | None
+
+
+def _get_attr(msg: Any, name: str) -> Any:
+    """`get_attr` for pyroute2 messages, or a lookup in a plain `{'attrs': [...]}` dict."""
+    if msg is None:
+        return None
+    getter = getattr(msg, "get_attr", None)
+    if callable(getter):
+        return getter(name)
+    if isinstance(msg, dict):
+        for pair in msg.get("attrs", ()):
+            if len(pair) >= 2 and pair[0] == name:
+                return pair[1]
+    return None
+
+
+def _as_int(value: Any) -> int | None:
+    return value if isinstance(value, int) and not isinstance(value, bool) else None
+
+
+def station_reading(msg: Any) -> StationReading:
+    """Extract a `StationReading` from an NL80211_CMD_NEW_STATION message (or dict)."""
+    info = _get_attr(msg, "NL80211_ATTR_STA_INFO")
+    chains = _get_attr(info, "NL80211_STA_INFO_CHAIN_SIGNAL")
+    mac = _get_attr(msg, "NL80211_ATTR_MAC")
+    return StationReading(
+        mac=mac if isinstance(mac, str) else None,
+        signal_dbm=_as_int(_get_attr(info, "NL80211_STA_INFO_SIGNAL")),
+        signal_avg_dbm=_as_int(_get_attr(info, "NL80211_STA_INFO_SIGNAL_AVG")),
+        chain_signal_dbm=tuple(c for c in chains if isinstance(c, int))
+        if isinstance(chains, list | tuple) else (),
+        rx_packets=_as_int(_get_attr(info, "NL80211_STA_INFO_RX_PACKETS")),
+        beacon_rx=_as_int(_get_attr(info, "NL80211_STA_INFO_BEACON_RX")),
+        inactive_time_ms=_as_int(_get_attr(info, "NL80211_STA_INFO_INACTIVE_TIME")),
+    )
+
+
+def observe_stations(msgs: Sequence[Any], bssid: str | None = None) -> Observation:
+    """Turn a station dump into an Observation: the AP's last-frame signal + counters."""
+    readings = [station_reading(m) for m in msgs]
+    if bssid is not None:
+        readings = [r for r in readings if r.mac and r.mac.lower() == bssid.lower()]
+    if not readings:
+        return Observation(None, None, updated=False)
+    sta = min(readings, key=lambda r: r.inactive_time_ms if r.inactive_time_ms is not None
+              else 1 << 62)
+    key = (sta.mac, sta.rx_packets, sta.beacon_rx, sta.signal_dbm)
+    return Observation(sta.signal_dbm, key, updated=sta.signal_dbm is not None)
+
+
+def _default_iw_factory() -> Any:
+    from pyroute2 import AsyncIW  # pyroute2 >= 0.9.3: the asyncio nl80211 socket
+
+    return AsyncIW()
+
+
+class Nl80211Source(RssiSource):
+    """nl80211 GET_STATION dump through pyroute2's `AsyncIW` (the default source).
+
+    The signal is `NL80211_STA_INFO_SIGNAL` (last frame, no averaging: right for a
+    sweeping Yagi); a sample is new when RX_PACKETS / BEACON_RX / the signal changed.
+    The netlink socket is opened lazily and dropped after any failure, so an adapter
+    that comes back is picked up on the next read.
+    """
+
+    kind = "nl80211"
+
+    def __init__(self, interface: str, *, clock: Clock = REAL_CLOCK,
+                 min_dbm: float = RSSI_MIN_DBM, bssid: str | None = None,
+                 timeout_s: float = 0.5,
+                 iw_factory: Callable[[], Any] = _default_iw_factory,
+                 ifindex_of: Callable[[str], int] = socket.if_nametoindex) -> None:
+        super().__init__(interface, clock=clock, min_dbm=min_dbm)
+        self.bssid = bssid
+        self.timeout_s = timeout_s
+        self._iw_factory = iw_factory
+        self._ifindex_of = ifindex_of
+        self._iw: Any = None
+
+    async def close(self) -> None:
+        iw, self._iw = self._iw, None
+        if iw is not None:
+            try:
+                iw.close()
+            except Exception as exc:  # noqa: BLE001 - closing a dead socket is best effort
+                self._log.debug("nl80211_close_failed", error=str(exc))
+
+    async def _dump(self, ifindex: int) -> list[Any]:
+        if self._iw is None:
+            self._iw = self._iw_factory()
+        async with self.clock.timeout(self.timeout_s):
+            return [m async for m in await self._iw.get_stations(ifindex)]
+
+    async def _observe(self) -> Observation:
+        try:
+            ifindex = self._ifindex_of(self.interface)
+        except OSError as exc:
+            raise InterfaceMissing(f"{self.interface}: {exc.strerror or exc}") from exc
+        try:
+            msgs = await self._dump(ifindex)
+        except TimeoutError as exc:
+            await self.close()
+            raise SourceError(f"nl80211 station dump timed out after {self.timeout_s} s") from exc
+        except (asyncio.CancelledError, KeyboardInterrupt):
+            raise
+        except Exception as exc:
+            await self.close()
+            code = getattr(exc, "code", None)
+            if code == errno.ENODEV:
+                raise InterfaceMissing(f"{self.interface}: nl80211 says no such device") from exc
+            if code == errno.ENOENT:
+                raise InterfaceMissing("nl80211 is not available (no cfg80211 wireless "
+                                       "device or generic netlink family)") from exc
+            if code == errno.EOPNOTSUPP:
+                raise InterfaceMissing(f"{self.interface} is not a wireless interface") from exc
+            raise SourceError(f"nl80211 station dump failed: {type(exc).__name__}: {exc}") from exc
+        return observe_stations(msgs, self.bssid)

@@ -1,0 +1,79 @@
+"""`relayd probe wifi`: sample the Yagi adapter's RSSI with one source, no convoy logic.
+
+Prints one line per sample at the sample rate: with `--json` an object
+`{"t", "rssi_dbm", "fresh"}` (t in seconds since the probe started), otherwise a
+readable line. Exits 0 when at least one fresh sample was seen, 1 otherwise (with the
+source's last error on stderr), so it doubles as a bring-up check.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+
+import structlog
+
+from drivers.clock import REAL_CLOCK
+from drivers.wifi import SOURCE_KINDS, make_source
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--source", choices=SOURCE_KINDS, default="nl80211",
+                        help="where the RSSI comes from (default nl80211)")
+    parser.add_argument("--interface", default="wlan1", help="wireless interface (default wlan1)")
+    parser.add_argument("--path", default=None,
+                        help="procfs: the /proc/net/wireless-format file; iw: the iw binary")
+    parser.add_argument("--seconds", type=float, default=10.0,
+                        help="how long to sample (default 10)")
+    parser.add_argument("--hz", type=float, default=20.0, help="sample rate (default 20)")
+    parser.add_argument("--json", action="store_true", help="one JSON object per line")
+
+
+async def run(args: argparse.Namespace) -> int:
+    if not args.hz > 0 or not args.seconds >= 0:
+        print("relayd probe wifi: --hz must be > 0 and --seconds >= 0", file=sys.stderr)
+        return 2
+    configured_here = False
+    if not structlog.is_configured():
+        # Keep stdout for the samples (parseable with --json); warnings go to stderr.
+        structlog.configure(
+            wrapper_class=structlog.make_filtering_bound_logger(logging.WARNING),
+            logger_factory=structlog.PrintLoggerFactory(sys.stderr))
+        configured_here = True
+    try:
+        return await _sample(args)
+    finally:
+        if configured_here:
+            structlog.reset_defaults()
+
+
+async def _sample(args: argparse.Namespace) -> int:
+    clock = REAL_CLOCK
+    source = make_source(args.source, args.interface, path=args.path, clock=clock)
+    t0 = clock.now()
+    fresh_seen = 0
+    try:
+        async for sample in source.stream(args.hz):
+            t = round(sample.t - t0, 3)
+            if t > args.seconds:
+                break
+            fresh_seen += sample.fresh
+            if args.json:
+                print(json.dumps({"t": t, "rssi_dbm": sample.rssi_dbm, "fresh": sample.fresh}),
+                      flush=True)
+            else:
+                level = "   --" if sample.rssi_dbm is None else f"{sample.rssi_dbm:5.0f}"
+                print(f"{t:8.3f} s  {level} dBm  {'fresh' if sample.fresh else 'stale'}",
+                      flush=True)
+    finally:
+        await source.close()
+    counters = " ".join(f"{k}={v}" for k, v in source.counters.items())
+    if fresh_seen == 0:
+        print(f"relayd probe wifi: no fresh sample from {args.source} on {args.interface}"
+              f" ({source.last_error or 'no update seen'}; {counters})", file=sys.stderr)
+        return 1
+    if not args.json:
+        print(f"# {counters}", file=sys.stderr)
+    return 0
