@@ -1,0 +1,105 @@
+"""Config: defaults from the spec, every error named by its key, secrets never printed."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from relayd.cli import main
+from relayd.config import (
+    ConfigError,
+    SecretRef,
+    Settings,
+    load_settings,
+    parse_settings,
+    resolve_secret,
+)
+
+EXAMPLE = Path(__file__).resolve().parents[1] / "config" / "relayd.toml"
+
+
+def test_defaults_are_the_specs() -> None:
+    s = Settings()
+    c = s.control
+    assert (c.threshold_l_dbm, c.threshold_b_dbm, c.hysteresis_db) == (-30, -60, 2)
+    assert (c.kp, c.kd, c.w1, c.w2, c.v_max_mm_s) == (1.0, 0.3, 10, 150, 400)
+    assert (c.threshold_o_m, c.stop_distance_m, c.detect_range_m, c.gamma_o_m) == (0.8, 0.3, 3.0, 1.0)
+    assert (c.alpha_db, c.beta_per_m, c.lost_rssi_dbm, c.manual_deadman_s) == (30, 1.0, -85, 0.5)
+    assert (s.scan.samples, s.scan.width_deg, s.scan.gamma, s.scan.mode) == (25, 180, 10.0, "step")
+    assert s.robot.lost_after_s == 0.5 and s.pantilt.limits_deg == (-90, 90)
+    assert (s.api.bind, s.api.port) == ("0.0.0.0", 8080)
+
+
+def test_example_config_has_every_key_and_is_valid(capsys: pytest.CaptureFixture[str]) -> None:
+    settings = load_settings(EXAMPLE)
+    data = settings.model_dump()
+    # Every key of every section is written out in the example (so it documents them all).
+    text = EXAMPLE.read_text()
+    for section, values in data.items():
+        if section == "ap":
+            continue
+        for key in values:
+            # Optional keys with no default value are shown commented out.
+            assert f"\n{key} =" in text or f"{key} = " in text, f"{section}.{key} missing from the example config"
+    assert main(["check-config", str(EXAMPLE)]) == 0
+    out = capsys.readouterr().out
+    assert "[control]" in out and "threshold_l_dbm = -30" in out
+
+
+def test_every_error_is_listed_with_its_key(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text(
+        '[control]\nkpp = 2\nkp = "fast"\nrear_link = "maybe"\n'
+        '[robot]\nbaud = 1234\n[pantilt]\nscan_pulse_us = [1500, 1500, 2000]\n'
+        '[ap.rear]\nurl = "ftp://x"\npassword_env = "A"\n'
+    )
+    assert main(["check-config", str(bad)]) == 2
+    err = capsys.readouterr().err
+    for key in ("control.kpp", "control.kp", "control.rear_link", "robot.baud",
+                "pantilt.scan_pulse_us", "ap.rear.url"):
+        assert key in err, key
+
+
+def test_cross_field_rules() -> None:
+    with pytest.raises(ConfigError, match="stop_distance_m"):
+        parse_settings({"control": {"stop_distance_m": 1.0}})
+    with pytest.raises(ConfigError, match="differ"):
+        parse_settings({"pantilt": {"scan_channel": 1, "link_channel": 1}})
+    with pytest.raises(ConfigError, match="password_env or password_file"):
+        parse_settings({"ap": {"rear": {"url": "http://192.0.2.1"}}})
+    with pytest.raises(ConfigError, match="control.kp"):
+        parse_settings({"control": {"kp": float("nan")}})
+
+
+def test_unreadable_and_malformed_files(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="cannot read"):
+        load_settings(tmp_path / "missing.toml")
+    broken = tmp_path / "broken.toml"
+    broken.write_text("[robot\nport = 1\n")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        load_settings(broken)
+
+
+def test_secrets_from_env_or_file_and_never_rendered(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    ref = SecretRef("ap.rear.password_env", "PW", None)
+    assert resolve_secret(ref, {"PW": "hunter2"}) == "hunter2"
+    with pytest.raises(ConfigError, match="ap.rear.password_env: environment variable PW is not set"):
+        resolve_secret(ref, {})
+    f = tmp_path / "pw"
+    f.write_text("s3cret\n")
+    assert resolve_secret(SecretRef("k", None, str(f)), {}) == "s3cret"
+    monkeypatch.setenv("RELAYD_AP_REAR_PASSWORD", "hunter2-value")
+    monkeypatch.setenv("RELAYD_API_TOKEN", "token-value")
+    assert main(["check-config", str(EXAMPLE)]) == 0
+    out = capsys.readouterr().out
+    assert "hunter2-value" not in out and "token-value" not in out
+    assert "RELAYD_AP_REAR_PASSWORD (set)" in out
+
+
+def test_run_refuses_a_bad_config_before_touching_devices(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[robot]\nport = 5\n")
+    assert main(["run", "-c", str(bad)]) == 2
+    assert "robot.port" in capsys.readouterr().err
