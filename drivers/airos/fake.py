@@ -1,0 +1,485 @@
+"""FakeAirOs: an aiohttp server on loopback that behaves like an airOS 6 or airOS 8 radio.
+
+It speaks the real login flows (see client.py) and serves a real status.cgi capture, or
+live values for the simulator (`set_link`, `set_stations`) written into that capture's
+shape with the radio's own units (ccq per-mille, rates as strings, rssi = signal + 96).
+
+Answers that are not documented anywhere are marked UNVERIFIED: the v6 failed-login page
+(the firmware shows its login page again), v8's 401 for bad credentials and for requests
+without a session (python-airos treats 401/403 alike).
+
+Failure switches for tests and the simulator: `expire_sessions()`, `slow_s`, `malformed`,
+`await set_down(True/False)` (refuse new connections and cut kept-alive ones).
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import secrets
+from collections.abc import Awaitable, Callable, Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import structlog
+from aiohttp import web
+
+from drivers.airos.model import RSSI_OFFSET_DB, Station
+from drivers.clock import REAL_CLOCK, Clock
+
+log = structlog.get_logger(__name__)
+
+_Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
+
+#: The login page lighttpd serves on airOS 5/6 (trimmed; the fields are the real ones).
+LOGIN_PAGE = """<!DOCTYPE html>
+<html><head><title>Login</title></head><body>
+<form enctype="multipart/form-data" id="loginform" method="post" action="/login.cgi">
+<input type="hidden" name="uri" value="{uri}" />
+<input type="text" name="username" id="username" />
+<input type="password" name="password" id="password" />
+<input type="submit" value="Login" />
+</form>{error}
+</body></html>
+"""
+
+#: NanoStation loco M5 XM v6.3.16 station, /status.cgi (shared/fixtures/airos), used when no
+#: fixture is given.
+DEFAULT_STATUS: dict[str, Any] = {'host': {'uptime': 1974859,
+          'time': '2025-10-20 15:33:05',
+          'fwversion': 'v6.3.16',
+          'fwprefix': 'XM',
+          'hostname': 'NanoStation loco M5 Client',
+          'devmodel': 'NanoStation loco M5 ',
+          'netrole': 'bridge',
+          'totalram': 30220288,
+          'freeram': 8753152,
+          'cpuload': 100.0,
+          'cputotal': 197455604,
+          'cpubusy': 11150046},
+ 'wireless': {'mode': 'sta',
+              'essid': 'SOMETHING',
+              'hide_essid': 0,
+              'apmac': 'XX:XX:XX:XX:XX:XX',
+              'countrycode': 616,
+              'channel': 140,
+              'frequency': '5700 MHz',
+              'dfs': '0',
+              'opmode': '11naht40minus',
+              'antenna': 'Built in - 13 dBi',
+              'chains': '2X2',
+              'signal': -46,
+              'rssi': 50,
+              'noisef': -89,
+              'txpower': 2,
+              'ack': 28,
+              'distance': 600,
+              'ccq': 738,
+              'txrate': '243',
+              'rxrate': '180',
+              'security': 'WPA2',
+              'qos': 'No QoS',
+              'rstatus': 5,
+              'count': 1,
+              'cac_nol': 0,
+              'nol_chans': 0,
+              'polling': {'enabled': 1,
+                          'quality': 84,
+                          'capacity': 55,
+                          'priority': 0,
+                          'noack': 0,
+                          'airsync_mode': 0,
+                          'airsync_connections': 0,
+                          'airsync_down_util': 0,
+                          'airsync_up_util': 0,
+                          'airselect': 0,
+                          'airselect_interval': 1000,
+                          'ff_mode': 0,
+                          'ff_duration': 0,
+                          'ff_dlulratio': 0,
+                          'atpc_status': 0},
+              'stats': {'rx_nwids': 0,
+                        'rx_crypts': 0,
+                        'rx_frags': 0,
+                        'tx_retries': 0,
+                        'missed_beacons': 0,
+                        'err_other': 0},
+              'wds': 1,
+              'aprepeater': 0,
+              'chwidth': 20,
+              'chanbw': 40,
+              'cwmmode': 0,
+              'rx_chainmask': 3,
+              'tx_chainmask': 3,
+              'chainrssi': [50, 47, 0],
+              'chainrssimgmt': [50, 47, 0],
+              'chainrssiext': [50, 47, 0]},
+ 'airview': {'enabled': 0},
+ 'services': {'dhcpc': 0, 'dhcpd': 0, 'pppoe': 0},
+ 'firewall': {'iptables': 0, 'ebtables': 1, 'ip6tables': 0, 'eb6tables': 0},
+ 'genuine': '/images/genuine.png',
+ 'unms': {'status': 0, 'timestamp': '', 'link': ''},
+ 'interfaces': [{'ifname': 'lo',
+                 'hwaddr': '00:00:00:00:00:00',
+                 'enabled': True,
+                 'status': {'plugged': 1, 'speed': 0, 'duplex': 255},
+                 'services': {'dhcpc': False, 'dhcpd': False, 'pppoe': False}},
+                {'ifname': 'eth0',
+                 'hwaddr': 'YY:YY:YY:YY:YY:YY',
+                 'enabled': True,
+                 'status': {'plugged': 0, 'speed': 0, 'duplex': 0},
+                 'services': {'dhcpc': False, 'dhcpd': False, 'pppoe': False}},
+                {'ifname': 'wifi0',
+                 'hwaddr': 'YY:YY:YY:YY:YY:YY',
+                 'enabled': True,
+                 'status': {'plugged': 1, 'speed': 0, 'duplex': 255},
+                 'services': {'dhcpc': False, 'dhcpd': False, 'pppoe': False}},
+                {'ifname': 'ath0',
+                 'hwaddr': 'YY:YY:YY:YY:YY:YY',
+                 'enabled': True,
+                 'status': {'plugged': 1, 'speed': 300, 'duplex': 255},
+                 'services': {'dhcpc': False, 'dhcpd': False, 'pppoe': False}},
+                {'ifname': 'br0',
+                 'hwaddr': 'YY:YY:YY:YY:YY:YY',
+                 'enabled': True,
+                 'status': {'plugged': 1, 'speed': 0, 'duplex': 255},
+                 'services': {'dhcpc': False, 'dhcpd': False, 'pppoe': False}}]}
+
+
+@dataclass(slots=True)
+class _Session:
+    authed: bool = False
+    csrf_id: str | None = None
+
+
+def load_fixture(fixture: str | Path | Mapping[str, Any] | None) -> dict[str, Any]:
+    """A deep copy of a status.cgi document: a path, a dict, or the built-in capture."""
+    if fixture is None:
+        return copy.deepcopy(DEFAULT_STATUS)
+    if isinstance(fixture, Mapping):
+        return copy.deepcopy(dict(fixture))
+    doc = json.loads(Path(fixture).read_text(encoding="utf-8"))
+    if not isinstance(doc, dict) or not isinstance(doc.get("wireless"), dict):
+        raise ValueError(f"{fixture}: not an airOS status.cgi document (no 'wireless' object)")
+    return doc
+
+
+def _rate(mbps: float) -> str:
+    # status.cgi writes rates as strings: "243", "144.4".
+    return f"{mbps:g}"
+
+
+def station_entry(station: Station, index: int = 0) -> dict[str, Any]:
+    """One /sta.cgi (wstalist) object in the firmware's shape and units."""
+    signal = None if station.signal_dbm is None else round(station.signal_dbm)
+    rssi = None if signal is None else signal + RSSI_OFFSET_DB
+    return {
+        "mac": station.mac or f"00:27:22:00:00:{index + 1:02X}",
+        "name": station.name or f"station-{index + 1}",
+        "lastip": f"192.168.1.{30 + index}",
+        "associd": index + 1,
+        "aprepeater": 0,
+        "tx": station.tx_mbps,
+        "rx": station.rx_mbps,
+        "signal": signal,
+        "rssi": rssi,
+        "chainrssi": [rssi, rssi, 0] if rssi is not None else [0, 0, 0],
+        "rx_chainmask": 3,
+        "ccq": None if station.ccq_pct is None else round(station.ccq_pct),
+        "idle": 0,
+        "tx_latency": 1,
+        "uptime": 3600,
+        "ack": 28,
+        "distance": 600,
+        "txpower": 20,
+        "noisefloor": None if station.noise_dbm is None else round(station.noise_dbm),
+        "airmax": {"priority": 0, "quality": 85, "beam": 0, "signal": 0, "capacity": 60},
+        "stats": {"rx_data": 0, "rx_bytes": 0, "rx_pps": 0, "tx_data": 0, "tx_bytes": 0, "tx_pps": 0},
+        "rates": ["MCS0", "MCS15"],
+        "signals": [signal, signal],
+    }
+
+
+class FakeAirOs:
+    """An airOS radio on 127.0.0.1: `await start()` returns its base URL."""
+
+    def __init__(
+        self,
+        username: str = "ubnt",
+        password: str = "ubnt",
+        *,
+        fixture: str | Path | Mapping[str, Any] | None = None,
+        version: int = 6,
+        clock: Clock = REAL_CLOCK,
+        host: str = "127.0.0.1",
+        port: int = 0,
+    ) -> None:
+        if version not in (6, 8):
+            raise ValueError(f"version must be 6 or 8, got {version!r}")
+        self.username = username
+        self._password = password
+        self.version = version
+        self.status_doc = load_fixture(fixture)
+        self.stations: list[dict[str, Any]] | None = None  # None: mirror the link on an AP
+        self._clock = clock
+        self.host = host
+        self.port = port
+        self.slow_s = 0.0
+        self.malformed = False
+        self.down = False
+        self.counters: dict[str, int] = {
+            "requests": 0,
+            "logins": 0,
+            "failed_logins": 0,
+            "status": 0,
+            "sta": 0,
+            "redirects": 0,
+            "logouts": 0,
+        }
+        self._sessions: dict[str, _Session] = {}
+        self._cookie_name = "AIROS_SESSIONID" if version == 6 else f"AIROS_{secrets.token_hex(6).upper()}"
+        self._runner: web.AppRunner | None = None
+        self._site: web.TCPSite | None = None
+        self.base_url: str | None = None
+
+    def __repr__(self) -> str:
+        return f"FakeAirOs(url={self.base_url!r}, version={self.version}, username={self.username!r})"
+
+    # -- live values -----------------------------------------------------------------------
+
+    def set_link(
+        self,
+        signal_dbm: float,
+        noise_dbm: float = -95,
+        ccq_pct: float | None = None,
+        tx_mbps: float | None = None,
+        rx_mbps: float | None = None,
+    ) -> None:
+        """Write a link into status.cgi in the radio's units (ccq per-mille, rate strings)."""
+        w = self.status_doc.setdefault("wireless", {})
+        signal = round(signal_dbm)
+        rssi = signal + RSSI_OFFSET_DB
+        w["signal"] = signal
+        w["rssi"] = rssi
+        w["noisef"] = round(noise_dbm)
+        chain = max(0, rssi)
+        w["chainrssi"] = [chain, max(0, chain - 3), 0]
+        w["chainrssimgmt"] = list(w["chainrssi"])
+        w["chainrssiext"] = list(w["chainrssi"])
+        if ccq_pct is not None:
+            w["ccq"] = round(ccq_pct * 10)
+        if tx_mbps is not None:
+            w["txrate"] = _rate(tx_mbps)
+        if rx_mbps is not None:
+            w["rxrate"] = _rate(rx_mbps)
+
+    def set_stations(self, stations: Iterable[Station | Mapping[str, Any]]) -> None:
+        """Serve this station list on /sta.cgi (Station objects or raw wstalist dicts)."""
+        out: list[dict[str, Any]] = []
+        for i, s in enumerate(stations):
+            out.append(station_entry(s, i) if isinstance(s, Station) else dict(s))
+        self.stations = out
+        w = self.status_doc.setdefault("wireless", {})
+        w["count"] = len(out)
+
+    def _station_list(self) -> list[dict[str, Any]]:
+        if self.stations is not None:
+            return self.stations
+        w = self.status_doc.get("wireless", {})
+        if not w.get("count", 1):
+            return []
+        ccq = w.get("ccq")
+        mirrored = Station(
+            mac="00:27:22:00:00:01",
+            signal_dbm=w.get("signal"),
+            ccq_pct=None if not isinstance(ccq, int | float) else ccq / 10,
+            tx_mbps=_to_float(w.get("txrate")),
+            rx_mbps=_to_float(w.get("rxrate")),
+            noise_dbm=w.get("noisef"),
+        )
+        return [station_entry(mirrored)]
+
+    # -- failure switches ------------------------------------------------------------------
+
+    def expire_sessions(self) -> None:
+        """Forget every session: the next request is sent to the login page."""
+        self._sessions.clear()
+
+    async def set_down(self, down: bool) -> None:
+        """Down: refuse connections and cut the kept-alive ones; up: listen on the same port."""
+        if down == self.down:
+            return
+        self.down = down
+        if down:
+            if self._site is not None:
+                await self._site.stop()
+                self._site = None
+        else:
+            await self._listen()
+
+    # -- lifecycle -------------------------------------------------------------------------
+
+    async def start(self) -> str:
+        app = web.Application(middlewares=[self._middleware])
+        app.router.add_get("/", self._root)
+        app.router.add_get("/index.cgi", self._root)
+        app.router.add_get("/login.cgi", self._login_page)
+        app.router.add_post("/login.cgi", self._login_v6)
+        app.router.add_get("/logout.cgi", self._logout)
+        app.router.add_get("/status.cgi", self._status)
+        app.router.add_get("/sta.cgi", self._sta)
+        if self.version == 8:
+            app.router.add_post("/api/auth", self._login_v8)
+        self._runner = web.AppRunner(app, access_log=None, handle_signals=False)
+        await self._runner.setup()
+        await self._listen()
+        return self.base_url or ""
+
+    async def _listen(self) -> None:
+        assert self._runner is not None
+        self._site = web.TCPSite(self._runner, self.host, self.port, reuse_address=True)
+        await self._site.start()
+        if self.port == 0:
+            self.port = int(self._runner.addresses[0][1])
+        self.base_url = f"http://{self.host}:{self.port}"
+
+    async def stop(self) -> None:
+        if self._runner is not None:
+            await self._runner.cleanup()
+        self._runner = None
+        self._site = None
+
+    async def __aenter__(self) -> FakeAirOs:
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.stop()
+
+    # -- HTTP ------------------------------------------------------------------------------
+
+    @web.middleware
+    async def _middleware(self, request: web.Request, handler: _Handler) -> web.StreamResponse:
+        if self.down:
+            # A kept-alive connection opened before set_down(True): cut it like a dead radio.
+            if request.transport is not None:
+                request.transport.close()
+            raise web.HTTPServiceUnavailable()
+        self.counters["requests"] += 1
+        if self.slow_s > 0:
+            await self._clock.sleep(self.slow_s)
+        return await handler(request)
+
+    def _session(self, request: web.Request) -> tuple[str | None, _Session | None]:
+        for name, value in request.cookies.items():
+            if name.startswith("AIROS") and value in self._sessions:
+                return value, self._sessions[value]
+        return None, None
+
+    def _new_session(self, response: web.StreamResponse) -> str:
+        token = secrets.token_hex(16)
+        self._sessions[token] = _Session()
+        response.set_cookie(self._cookie_name, token, path="/")
+        return token
+
+    def _authorised(self, request: web.Request) -> bool:
+        _, session = self._session(request)
+        if session is None or not session.authed:
+            return False
+        return self.version == 6 or request.headers.get("X-CSRF-ID") == session.csrf_id
+
+    def _not_logged_in(self, request: web.Request) -> web.StreamResponse:
+        self.counters["redirects"] += 1
+        if self.version == 8:
+            return web.json_response({"error": "unauthorized"}, status=401)  # UNVERIFIED body
+        response = web.HTTPFound(f"/login.cgi?uri={request.path}")
+        if self._session(request)[1] is None:
+            self._new_session(response)
+        return response
+
+    async def _root(self, request: web.Request) -> web.StreamResponse:
+        if self._authorised(request):
+            return web.Response(text="<html><body>airOS</body></html>", content_type="text/html")
+        response = web.HTTPFound("/login.cgi?uri=/index.cgi")
+        if self._session(request)[1] is None:
+            self._new_session(response)
+        return response
+
+    async def _login_page(self, request: web.Request, error: str = "") -> web.StreamResponse:
+        uri = request.query.get("uri", "/index.cgi")
+        response = web.Response(text=LOGIN_PAGE.format(uri=uri, error=error), content_type="text/html")
+        if self._session(request)[1] is None:
+            self._new_session(response)
+        return response
+
+    async def _login_v6(self, request: web.Request) -> web.StreamResponse:
+        form = await request.post()
+        _, session = self._session(request)
+        username, password = form.get("username"), form.get("password")
+        if session is None or username != self.username or password != self._password:
+            self.counters["failed_logins"] += 1
+            # The firmware answers a failed login with its login page again (C.1).
+            return await self._login_page(request, error='<p class="error">Invalid credentials.</p>')
+        session.authed = True
+        self.counters["logins"] += 1
+        uri = form.get("uri")
+        target = uri if isinstance(uri, str) and uri.startswith("/") else "/index.cgi"
+        return web.HTTPFound(target)
+
+    async def _login_v8(self, request: web.Request) -> web.StreamResponse:
+        try:
+            body = await request.json()
+        except ValueError:
+            body = None
+        if not isinstance(body, dict) or body.get("username") != self.username or body.get(
+            "password"
+        ) != self._password:
+            self.counters["failed_logins"] += 1
+            return web.json_response({"error": "Invalid credentials"}, status=401)  # UNVERIFIED
+        response = web.json_response({"ok": True, "fwversion": "v8.7.18"})
+        token = self._new_session(response)
+        session = self._sessions[token]
+        session.authed = True
+        session.csrf_id = secrets.token_hex(16)
+        response.headers["X-CSRF-ID"] = session.csrf_id
+        self.counters["logins"] += 1
+        return response
+
+    async def _logout(self, request: web.Request) -> web.StreamResponse:
+        token, _ = self._session(request)
+        if token is not None:
+            self._sessions.pop(token, None)
+            self.counters["logouts"] += 1
+        return web.HTTPFound("/login.cgi")
+
+    def _json(self, doc: object) -> web.Response:
+        text = json.dumps(doc, indent=1)
+        if self.malformed:
+            text = text[: len(text) // 2]  # cut mid-document, as a dying connection would
+        return web.Response(text=text, content_type="application/json")
+
+    async def _status(self, request: web.Request) -> web.StreamResponse:
+        if not self._authorised(request):
+            return self._not_logged_in(request)
+        self.counters["status"] += 1
+        return self._json(self.status_doc)
+
+    async def _sta(self, request: web.Request) -> web.StreamResponse:
+        if not self._authorised(request):
+            return self._not_logged_in(request)
+        self.counters["sta"] += 1
+        return self._json(self._station_list())
+
+
+def _to_float(value: object) -> float | None:
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, int | float):
+        return float(value)
+    if isinstance(value, str):
+        try:
+            return float(value.split()[0])
+        except (ValueError, IndexError):
+            return None
+    return None

@@ -1,0 +1,211 @@
+"""Poll one airOS radio forever and keep its latest link quality, state and counters.
+
+The poller is the long-running task the daemon supervises: `run()` never raises except
+`CancelledError`. Policy per failure class:
+
+* session expired (redirect to login, 401/403, HTML answer): log in again at once, once;
+  a second expiry straight after a fresh login backs off like a network error;
+* network error / timeout: capped exponential backoff (drivers.backoff), state "unreachable";
+* malformed JSON / not a status document: counted, state "bad_data", log in again on the next
+  try (the doc's "non-JSON -> re-login once, then back off"), with backoff;
+* wrong credentials: state "auth_failed", and only one more try every `auth_retry_s` (60 s),
+  so a typo in the config does not hammer the radio (airOS rate-limits / locks out logins).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import aiohttp
+import structlog
+from pydantic import SecretStr
+
+from drivers.airos.client import (
+    AirOsAuthError,
+    AirOsClient,
+    AirOsConnectionError,
+    AirOsSessionExpired,
+    AirOsTimeoutError,
+    Firmware,
+)
+from drivers.airos.model import AirOsDataError, LinkQuality
+from drivers.backoff import Backoff
+from drivers.clock import REAL_CLOCK, Clock
+
+log = structlog.get_logger(__name__)
+
+STATES = ("connecting", "ok", "unreachable", "auth_failed", "bad_data")
+
+
+class AirOsPoller:
+    """Keeps `latest` fresh at one poll every `poll_s` clock seconds."""
+
+    def __init__(
+        self,
+        url: str,
+        username: str,
+        password: str | SecretStr,
+        *,
+        poll_s: float = 1.0,
+        legacy_tls: bool = False,
+        timeout_s: float = 2.0,
+        clock: Clock = REAL_CLOCK,
+        on_update: Callable[[LinkQuality], None] | None = None,
+        firmware: Firmware = "auto",
+        session: aiohttp.ClientSession | None = None,
+        auth_retry_s: float = 60.0,
+        backoff: Backoff | None = None,
+    ) -> None:
+        if not poll_s > 0:
+            raise ValueError(f"poll_s must be > 0, got {poll_s!r}")
+        self.client = AirOsClient(
+            url,
+            username,
+            password,
+            firmware=firmware,
+            legacy_tls=legacy_tls,
+            timeout_s=timeout_s,
+            clock=clock,
+            session=session,
+        )
+        self.url = str(self.client.base_url)
+        self.poll_s = poll_s
+        self.auth_retry_s = auth_retry_s
+        self._clock = clock
+        self._on_update = on_update
+        self._backoff = backoff or Backoff(initial_s=min(1.0, poll_s), maximum_s=30.0)
+        self.latest: LinkQuality | None = None
+        self.state: str = "connecting"
+        self.last_error: str | None = None
+        self.last_update_t: float | None = None
+        self.counters: dict[str, int] = {
+            "polls": 0,
+            "errors": 0,
+            "logins": 0,
+            "relogins": 0,
+            "timeouts": 0,
+            "bad_json": 0,
+            "auth_failures": 0,
+            "callback_errors": 0,
+        }
+        self._had_session = False
+        self._expired_in_row = 0
+        self._healthy = False
+
+    def __repr__(self) -> str:
+        return f"AirOsPoller(url={self.url!r}, username={self.client.username!r}, state={self.state!r})"
+
+    def age_s(self) -> float | None:
+        """Clock seconds since the last good poll, None before the first."""
+        return None if self.last_update_t is None else self._clock.now() - self.last_update_t
+
+    def is_fresh(self, max_age_s: float) -> bool:
+        age = self.age_s()
+        return age is not None and age <= max_age_s
+
+    async def run(self) -> None:
+        """Poll forever; on cancel, log out and close the session."""
+        try:
+            next_t = self._clock.now()
+            while True:
+                delay = await self.poll_once()
+                if self._healthy:
+                    # Fixed rate while healthy: the request's own latency is not added.
+                    next_t += self.poll_s
+                    now = self._clock.now()
+                    if next_t < now:
+                        next_t = now
+                    await self._clock.sleep(next_t - now)
+                else:
+                    await self._clock.sleep(delay)
+                    next_t = self._clock.now()
+        finally:
+            await self.close()
+
+    async def close(self) -> None:
+        try:
+            async with self._clock.timeout(self.client.timeout_s + 1.0):
+                await self.client.close()
+        except (TimeoutError, AirOsConnectionError, aiohttp.ClientError) as exc:
+            log.debug("airos_close_failed", url=self.url, error=str(exc))
+
+    def _set_state(self, state: str, error: str | None) -> None:
+        if state != self.state:
+            if state == "ok":
+                log.info("airos_link_up", url=self.url, previous=self.state)
+            else:
+                log.warning("airos_link_" + state, url=self.url, error=error)
+        elif error is not None:
+            log.debug("airos_still_" + state, url=self.url, error=error)
+        self.state = state
+        self.last_error = error
+
+    async def poll_once(self) -> float:
+        """One attempt (login if needed, then fetch). Returns the clock seconds to wait."""
+        self._healthy = False
+        try:
+            if not self.client.logged_in:
+                await self.client.login()
+                self.counters["logins"] += 1
+                if self._had_session:
+                    self.counters["relogins"] += 1
+                self._had_session = True
+            quality = await self.client.fetch()
+        except AirOsAuthError as exc:
+            self.counters["errors"] += 1
+            self.counters["auth_failures"] += 1
+            if self.state != "auth_failed":
+                log.error(
+                    "airos_auth_failed",
+                    url=self.url,
+                    error=str(exc),
+                    retry_in_s=self.auth_retry_s,
+                    hint="check the username and password; not retrying sooner",
+                )
+            self.state = "auth_failed"
+            self.last_error = f"{exc}; next try in {self.auth_retry_s:g} s"
+            return self.auth_retry_s
+        except AirOsSessionExpired as exc:
+            self._expired_in_row += 1
+            self.client.logged_in = False
+            if self._expired_in_row == 1:
+                log.info("airos_session_expired", url=self.url, error=str(exc))
+                return 0.0
+            self.counters["errors"] += 1
+            self._set_state("bad_data", f"session refused right after login: {exc}")
+            return self._backoff.next_delay()
+        except AirOsTimeoutError as exc:
+            self.counters["errors"] += 1
+            self.counters["timeouts"] += 1
+            self._set_state("unreachable", str(exc))
+            return self._backoff.next_delay()
+        except AirOsConnectionError as exc:
+            self.counters["errors"] += 1
+            self._set_state("unreachable", str(exc))
+            return self._backoff.next_delay()
+        except AirOsDataError as exc:
+            self.counters["errors"] += 1
+            self.counters["bad_json"] += 1
+            self.client.logged_in = False  # the doc's remedy: log in again, then back off
+            self._set_state("bad_data", str(exc))
+            return self._backoff.next_delay()
+        except Exception as exc:  # a long-running task must survive anything
+            self.counters["errors"] += 1
+            log.exception("airos_poll_crashed", url=self.url)
+            self._set_state("unreachable", f"{type(exc).__name__}: {exc}")
+            return self._backoff.next_delay()
+
+        self._expired_in_row = 0
+        self._healthy = True
+        self.counters["polls"] += 1
+        self.latest = quality
+        self.last_update_t = quality.t
+        self._backoff.reset()
+        self._set_state("ok", None)
+        if self._on_update is not None:
+            try:
+                self._on_update(quality)
+            except Exception:  # a consumer bug must not stop the polling
+                self.counters["callback_errors"] += 1
+                log.exception("airos_on_update_failed", url=self.url)
+        return self.poll_s
