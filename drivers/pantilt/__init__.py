@@ -1,0 +1,40 @@
+"""Pan-tilt servo controllers in degrees: one interface, Maestro and SSC-32 back-ends.
+
+`make_pantilt()` picks the back-end by name; relayd only sees `PanTilt` (angles,
+slew speed, moving state, health). The fakes in `drivers.pantilt.fake` play the
+controllers' side of the wire for tests and the simulator.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, Literal
+
+from drivers.clock import REAL_CLOCK, Clock
+from drivers.pantilt.base import PanTilt, PanTiltError, ReplyError, ServoCalibration
+from drivers.pantilt.maestro import MaestroPanTilt
+from drivers.pantilt.ssc32 import Ssc32PanTilt
+
+PROTOCOLS: dict[str, type[PanTilt]] = {"maestro": MaestroPanTilt, "ssc32": Ssc32PanTilt}
+#: Baud rate when none is configured: the Maestro's USB command port ignores it; the
+#: SSC-32U ships at 9600.
+DEFAULT_BAUD: dict[str, int] = {"maestro": 115200, "ssc32": 9600}
+
+
+def make_pantilt(protocol: Literal["maestro", "ssc32"] | str, url: str, baud: int | None,
+                 calibrations: Mapping[int, ServoCalibration], *, clock: Clock = REAL_CLOCK,
+                 **options: Any) -> PanTilt:
+    """A pan-tilt driver for `protocol` on `url`; `options` go to the driver
+    (reply_timeout_s, max_timeouts, poll_s)."""
+    try:
+        cls = PROTOCOLS[protocol]
+    except KeyError:
+        raise ValueError(f"unknown pan-tilt protocol {protocol!r}; "
+                         f"expected one of {sorted(PROTOCOLS)}") from None
+    return cls(url, baud or DEFAULT_BAUD[protocol], calibrations, clock=clock, **options)
+
+
+__all__ = [
+    "DEFAULT_BAUD", "PROTOCOLS", "MaestroPanTilt", "PanTilt", "PanTiltError", "ReplyError",
+    "ServoCalibration", "Ssc32PanTilt", "make_pantilt",
+]

@@ -1,0 +1,443 @@
+"""The pan-tilt interface in degrees, servo calibration, and the shared serial session.
+
+relayd speaks degrees (counter-clockwise positive: positive = to the robot's left);
+the controllers speak pulse widths. `ServoCalibration` maps one to the other per
+servo, piecewise linear through the pulse widths measured at -90, 0 and +90 degrees,
+and clamps to the servo's limits. `PanTilt` owns the one serial port shared by both
+servos (scan and link): every command goes through one `asyncio.Lock`, requests
+register their waiter before writing, and silence turns into a disconnect so `run()`
+reconnects with backoff. The back-ends (`maestro.py`, `ssc32.py`) only say how to
+encode a command and how long each reply is.
+"""
+
+from __future__ import annotations
+
+import abc
+import asyncio
+import contextlib
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import structlog
+
+from drivers.backoff import Backoff
+from drivers.clock import REAL_CLOCK, Clock
+from drivers.link import LinkError, open_link
+
+log = structlog.get_logger(__name__)
+
+#: Replies are awaited at least this long in *wall* seconds: pty and USB latency do
+#: not shrink when the simulator runs its clock faster than real time.
+MIN_REAL_REPLY_S = 0.05
+#: Bytes kept while waiting for a reply; anything beyond is line noise.
+MAX_RX_BUFFER = 256
+
+
+class PanTiltError(Exception):
+    """A servo command could not be carried out: not connected, no reply, bad reply."""
+
+
+class ReplyError(ValueError):
+    """A controller reply that does not decode (wrong length, impossible value)."""
+
+
+@dataclass(frozen=True, slots=True)
+class ServoCalibration:
+    """Pulse widths of one servo at -90, 0 and +90 degrees, and its allowed range.
+
+    The pulses may decrease with the angle (a servo mounted upside down). Angles
+    beyond +-90 are extrapolated along the outer segment, so limits wider than 90
+    degrees work when the servo travels that far.
+    """
+
+    pulse_us: tuple[float, float, float] = (1000.0, 1500.0, 2000.0)
+    limits_deg: tuple[float, float] = (-90.0, 90.0)
+
+    def __post_init__(self) -> None:
+        pulses = tuple(float(p) for p in self.pulse_us)
+        limits = tuple(float(a) for a in self.limits_deg)
+        if len(pulses) != 3:
+            raise ValueError(f"pulse_us needs 3 values (-90, 0, +90 deg), got {self.pulse_us!r}")
+        if len(limits) != 2:
+            raise ValueError(f"limits_deg needs 2 values (min, max), got {self.limits_deg!r}")
+        if not all(math.isfinite(p) and p > 0 for p in pulses):
+            raise ValueError(f"pulse_us must be positive and finite, got {pulses!r}")
+        lo, mid, hi = pulses
+        if not (lo < mid < hi or lo > mid > hi):
+            raise ValueError(f"pulse_us must be strictly monotonic, got {pulses!r}")
+        if not all(math.isfinite(a) for a in limits) or not limits[0] < limits[1]:
+            raise ValueError(f"limits_deg must be finite with min < max, got {limits!r}")
+        # Normalise lists from TOML/pydantic into the declared tuple types.
+        object.__setattr__(self, "pulse_us", pulses)
+        object.__setattr__(self, "limits_deg", limits)
+
+    def clamp(self, angle_deg: float) -> float:
+        lo, hi = self.limits_deg
+        return min(hi, max(lo, angle_deg))
+
+    def angle_to_pulse_us(self, angle_deg: float) -> float:
+        lo, mid, hi = self.pulse_us
+        if angle_deg <= 0.0:
+            return mid + (mid - lo) * angle_deg / 90.0
+        return mid + (hi - mid) * angle_deg / 90.0
+
+    def pulse_us_to_angle(self, pulse_us: float) -> float:
+        lo, mid, hi = self.pulse_us
+        d = pulse_us - mid
+        if d == 0.0:
+            return 0.0
+        # Which side of centre: the -90 side lies towards `lo` whichever way pulses run.
+        if (d < 0) == (lo < mid):
+            return 90.0 * d / (mid - lo)
+        return 90.0 * d / (hi - mid)
+
+    @property
+    def us_per_deg(self) -> float:
+        """Mean slope over the whole travel, used to turn deg/s into pulse change per second."""
+        return abs(self.pulse_us[2] - self.pulse_us[0]) / 180.0
+
+    def pulse_range_us(self) -> tuple[float, float]:
+        """Smallest and largest pulse width this calibration can ever command."""
+        a = self.angle_to_pulse_us(self.limits_deg[0])
+        b = self.angle_to_pulse_us(self.limits_deg[1])
+        return (min(a, b), max(a, b))
+
+
+def check_angle(angle_deg: float) -> float:
+    angle = float(angle_deg)
+    if not math.isfinite(angle):
+        raise ValueError(f"angle_deg must be finite, got {angle_deg!r}")
+    return angle
+
+
+def check_speed(deg_s: float) -> float:
+    """Validate a slew speed: >= 0 deg/s; 0 and +inf both mean unlimited (returned as 0)."""
+    speed = float(deg_s)
+    if math.isnan(speed) or speed < 0:
+        raise ValueError(f"speed must be >= 0 deg/s (0 = unlimited), got {deg_s!r}")
+    return 0.0 if math.isinf(speed) else speed
+
+
+class _SerialProtocol(asyncio.Protocol):
+    """Forwards port events to its PanTilt; never raises into the event loop."""
+
+    def __init__(self, owner: PanTilt) -> None:
+        self._owner = owner
+
+    def data_received(self, data: bytes) -> None:
+        self._owner._on_data(data)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self._owner._on_lost(exc)
+
+
+class PanTilt(abc.ABC):
+    """Two (or more) hobby servos on one serial servo controller, addressed in degrees.
+
+    Call `run()` as a long-lived task (it connects, polls the controller for health,
+    and reconnects with backoff), or `connect()` once for a one-shot tool. Commands
+    raise `PanTiltError` when not connected or when the controller does not answer.
+    """
+
+    protocol_name: ClassVar[str] = ""
+
+    def __init__(self, url: str, baud: int, calibrations: Mapping[int, ServoCalibration], *,
+                 clock: Clock = REAL_CLOCK, reply_timeout_s: float = 0.25,
+                 max_timeouts: int = 3, poll_s: float = 1.0,
+                 backoff: Backoff | None = None) -> None:
+        if not calibrations:
+            raise ValueError("at least one servo channel needs a calibration")
+        self.url = url
+        self.baud = int(baud)
+        self._cal: dict[int, ServoCalibration] = dict(calibrations)
+        for channel, cal in self._cal.items():
+            self._check_channel_range(channel, cal)
+        self._clock = clock
+        self.reply_timeout_s = reply_timeout_s
+        self.max_timeouts = max_timeouts
+        self.poll_s = poll_s
+        self._backoff = backoff or Backoff(initial_s=0.2, maximum_s=5.0)
+        self._speed_deg_s: dict[int, float] = {}
+        self._lock = asyncio.Lock()
+        self._transport: asyncio.Transport | None = None
+        self._lost = asyncio.Event()
+        self._lost.set()
+        self._rx = bytearray()
+        self._waiter: tuple[int, asyncio.Future[bytes]] | None = None
+        self._consecutive_timeouts = 0
+        self._closed = False
+        self._ever_connected = False
+        self.last_error: str | None = None
+        self.counters: dict[str, int] = {
+            "commands": 0, "timeouts": 0, "errors": 0, "reconnects": 0, "clamped": 0,
+            "stray_bytes": 0,
+        }
+        self._log = log.bind(device="pantilt", protocol=self.protocol_name, port=url)
+
+    # ---- back-end hooks ---------------------------------------------------------------
+
+    @abc.abstractmethod
+    def _check_channel_range(self, channel: int, cal: ServoCalibration) -> None:
+        """Raise ValueError if the controller cannot address `channel` or reach its pulses."""
+
+    @abc.abstractmethod
+    async def _send_target(self, channel: int, pulse_us: float) -> None: ...
+
+    @abc.abstractmethod
+    async def _send_speed(self, channel: int, us_per_s: float) -> None: ...
+
+    @abc.abstractmethod
+    async def _read_pulse_us(self, channel: int) -> float: ...
+
+    @abc.abstractmethod
+    async def _read_moving(self) -> bool: ...
+
+    async def _on_connected(self) -> None:
+        """Prove the controller answers and restore per-connection settings."""
+        await self._read_moving()
+        for channel, deg_s in self._speed_deg_s.items():
+            await self._send_speed(channel, deg_s * self._cal[channel].us_per_deg)
+
+    async def _poll(self) -> None:
+        """Periodic health check while connected (a silent controller is dropped)."""
+        await self._read_moving()
+
+    # ---- public API ------------------------------------------------------------------
+
+    @property
+    def connected(self) -> bool:
+        return self._transport is not None
+
+    @property
+    def channels(self) -> tuple[int, ...]:
+        return tuple(sorted(self._cal))
+
+    def calibration(self, channel: int) -> ServoCalibration:
+        try:
+            return self._cal[channel]
+        except KeyError:
+            raise PanTiltError(f"servo channel {channel} is not configured "
+                               f"(configured: {self.channels})") from None
+
+    def limits(self, channel: int) -> tuple[float, float]:
+        lo, hi = self.calibration(channel).limits_deg
+        return (lo, hi)
+
+    def speed_deg_s(self, channel: int) -> float:
+        """The slew speed last asked for (0 = unlimited)."""
+        self.calibration(channel)
+        return self._speed_deg_s.get(channel, 0.0)
+
+    async def set_angle(self, channel: int, angle_deg: float) -> float:
+        """Command `channel` to `angle_deg`; returns the (clamped) angle actually commanded."""
+        cal = self.calibration(channel)
+        wanted = check_angle(angle_deg)
+        angle = cal.clamp(wanted)
+        if angle != wanted:
+            self.counters["clamped"] += 1
+            self._log.warning("angle_clamped", channel=channel, asked_deg=wanted,
+                              commanded_deg=angle, limits_deg=cal.limits_deg)
+        await self._send_target(channel, cal.angle_to_pulse_us(angle))
+        return angle
+
+    async def set_speed(self, channel: int, deg_s: float) -> None:
+        """Limit the slew of `channel` to `deg_s` (0 = unlimited).
+
+        Remembered and re-sent on every (re)connect, so it may be called before `run()`
+        has connected; when connected it is sent at once.
+        """
+        cal = self.calibration(channel)
+        speed = check_speed(deg_s)
+        self._speed_deg_s[channel] = speed
+        if self.connected:
+            await self._send_speed(channel, speed * cal.us_per_deg)
+
+    async def get_angle(self, channel: int) -> float:
+        """The angle the controller is currently driving `channel` to (read back, not assumed)."""
+        cal = self.calibration(channel)
+        pulse = await self._read_pulse_us(channel)
+        if pulse <= 0:
+            raise PanTiltError(f"servo channel {channel} is not being driven (no pulses)")
+        return cal.pulse_us_to_angle(pulse)
+
+    async def is_moving(self) -> bool:
+        """True while any servo of the controller is still slewing to its target."""
+        return await self._read_moving()
+
+    async def wait_stopped(self, timeout_s: float, poll_s: float = 0.02) -> bool:
+        """Poll until no servo moves; False if still moving after `timeout_s` clock seconds."""
+        deadline = self._clock.now() + timeout_s
+        while await self._read_moving():
+            if self._clock.now() >= deadline:
+                return False
+            await self._clock.sleep(poll_s)
+        return True
+
+    async def connect(self) -> None:
+        """Open the port once and check that the controller answers."""
+        if self.connected:
+            return
+        transport, _ = await open_link(self.url, self.baud, lambda: _SerialProtocol(self))
+        self._transport = transport
+        self._lost.clear()
+        self._rx.clear()
+        self._consecutive_timeouts = 0
+        try:
+            await self._on_connected()
+        except BaseException:
+            await self._drop()
+            raise
+        if self._ever_connected:
+            self.counters["reconnects"] += 1
+        self._ever_connected = True
+        self._log.info("pantilt_connected", reconnects=self.counters["reconnects"])
+
+    async def run(self) -> None:
+        """Connect, poll, reconnect with backoff, until `close()`; raises only CancelledError."""
+        self._closed = False
+        failures = 0
+        try:
+            while not self._closed:
+                try:
+                    await self.connect()
+                    failures = 0
+                    await self._serve()
+                except (PanTiltError, LinkError) as exc:
+                    self._note_error(str(exc))
+                    log_fn = self._log.warning if failures == 0 else self._log.debug
+                    log_fn("pantilt_connect_failed", error=str(exc), attempt=failures + 1)
+                    failures += 1
+                except Exception as exc:  # noqa: BLE001
+                    # A bug, not a device problem: keep the servo task alive, but say so loudly.
+                    self._note_error(f"unexpected: {exc!r}")
+                    self._log.exception("pantilt_unexpected_error")
+                    failures += 1
+                if self._closed:
+                    break
+                await self._clock.sleep(self._backoff.next_delay())
+        finally:
+            await self._drop()
+
+    async def close(self) -> None:
+        """Close the port; a running `run()` returns instead of reconnecting."""
+        self._closed = True
+        await self._drop()
+
+    # ---- session internals ---------------------------------------------------------
+
+    async def _serve(self) -> None:
+        while self.connected and not self._closed:
+            with contextlib.suppress(PanTiltError):
+                await self._poll()
+            with contextlib.suppress(TimeoutError):
+                async with self._clock.timeout(self.poll_s):
+                    await self._lost.wait()
+        if not self._closed:
+            self._log.warning("pantilt_link_lost", error=self.last_error)
+
+    async def _drop(self) -> None:
+        transport, self._transport = self._transport, None
+        if transport is not None:
+            transport.close()
+        if not self._lost.is_set():
+            # Wait for the port to really close before anyone reopens it (flock); the
+            # serial transport closes in an executor and reports connection_lost after.
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(1.0):
+                    await self._lost.wait()
+        self._fail_waiter(PanTiltError("connection closed"))
+        self._lost.set()
+
+    def _note_error(self, message: str) -> None:
+        self.counters["errors"] += 1
+        self.last_error = message
+
+    def _fail_waiter(self, exc: Exception) -> None:
+        if self._waiter is not None and not self._waiter[1].done():
+            self._waiter[1].set_exception(exc)
+
+    def _on_data(self, data: bytes) -> None:
+        waiter = self._waiter
+        if waiter is None or waiter[1].done():
+            self.counters["stray_bytes"] += len(data)
+            return
+        self._rx += data
+        if len(self._rx) > MAX_RX_BUFFER:
+            self.counters["stray_bytes"] += len(self._rx) - MAX_RX_BUFFER
+            del self._rx[:-MAX_RX_BUFFER]
+        size, fut = waiter
+        if len(self._rx) >= size:
+            reply = bytes(self._rx[:size])
+            extra = len(self._rx) - size
+            self._rx.clear()
+            if extra:
+                self.counters["stray_bytes"] += extra
+            fut.set_result(reply)
+
+    def _on_lost(self, exc: Exception | None) -> None:
+        if self._transport is not None:
+            self._note_error(f"link lost: {exc}" if exc else "link closed")
+        self._transport = None
+        self._fail_waiter(PanTiltError(f"link lost: {exc}" if exc else "link closed"))
+        self._lost.set()
+
+    def _require_transport(self) -> asyncio.Transport:
+        if self._transport is None or self._transport.is_closing():
+            raise PanTiltError(f"pan-tilt controller on {self.url} is not connected")
+        return self._transport
+
+    async def _write(self, frame: bytes) -> None:
+        """Send a command that has no reply."""
+        async with self._lock:
+            self._require_transport().write(frame)
+            self.counters["commands"] += 1
+
+    async def _request(self, frame: bytes, reply_len: int) -> bytes:
+        """Send `frame` and return exactly `reply_len` reply bytes, or raise PanTiltError."""
+        async with self._lock:
+            transport = self._require_transport()
+            fut: asyncio.Future[bytes] = asyncio.get_running_loop().create_future()
+            # A late reply to an earlier, timed-out request must not answer this one.
+            self._rx.clear()
+            self._waiter = (reply_len, fut)
+            timeout_s = max(self.reply_timeout_s, MIN_REAL_REPLY_S * self._clock.speed)
+            try:
+                transport.write(frame)
+                self.counters["commands"] += 1
+                async with self._clock.timeout(timeout_s):
+                    reply = await fut
+            except TimeoutError:
+                self._on_timeout(frame)
+                raise PanTiltError(f"no reply to {frame!r} within {self.reply_timeout_s} s "
+                                   f"from {self.url}") from None
+            finally:
+                self._waiter = None
+                self._rx.clear()
+        self._consecutive_timeouts = 0
+        self._backoff.reset()
+        return reply
+
+    def _on_timeout(self, frame: bytes) -> None:
+        self.counters["timeouts"] += 1
+        self._consecutive_timeouts += 1
+        self._note_error(f"no reply to {frame!r}")
+        self._log.warning("pantilt_reply_timeout", frame=frame.hex(" "),
+                          consecutive=self._consecutive_timeouts)
+        if self._consecutive_timeouts >= self.max_timeouts and self._transport is not None:
+            self._log.warning("pantilt_silent_dropping_link", timeouts=self._consecutive_timeouts)
+            self._note_error(f"controller silent: {self._consecutive_timeouts} unanswered requests")
+            self._consecutive_timeouts = 0
+            transport, self._transport = self._transport, None
+            transport.abort()
+
+    def _reply_error(self, exc: ReplyError) -> PanTiltError:
+        self._note_error(f"bad reply: {exc}")
+        self._log.warning("pantilt_bad_reply", error=str(exc))
+        return PanTiltError(f"bad reply from {self.url}: {exc}")
+
+    def snapshot(self) -> dict[str, Any]:
+        """Health for /status: connection, counters, last error."""
+        return {"connected": self.connected, "counters": dict(self.counters),
+                "last_error": self.last_error}

@@ -1,0 +1,392 @@
+"""Byte-true fake servo controllers (Pololu Maestro, Lynxmotion SSC-32) on a real pty.
+
+Each fake plays the controller's side of the wire: it parses the byte stream as the
+firmware does, answers queries with the same bytes, and rejects malformed input the
+way the device does (the Maestro sets its serial-protocol error bit; the SSC-32
+ignores a line it cannot read). Simulated servos slew from where they are to their
+target at the configured speed in clock time; positions are evaluated lazily from
+the time of the last command, so no timer runs while nothing is asked.
+
+Known simplifications: a new target or speed mid-move restarts the ramp from rest
+at the current position (the Maestro keeps the current velocity), and a "silent"
+fake ignores its input entirely, like a controller whose logic has hung.
+"""
+
+from __future__ import annotations
+
+import abc
+import math
+import os
+from dataclasses import dataclass
+
+import structlog
+
+from drivers.clock import REAL_CLOCK, Clock
+from drivers.fakeio import PtyPort
+from drivers.pantilt import maestro as mc
+from drivers.pantilt import ssc32 as sc
+
+log = structlog.get_logger(__name__)
+
+#: Longest SSC-32 line kept; the rest of an over-long line is dropped until CR.
+MAX_LINE = 256
+
+
+def travelled_us(distance_us: float, elapsed_s: float, speed_us_s: float,
+                 accel_us_s2: float) -> float:
+    """How far a ramp that started at rest has gone after `elapsed_s` (0 = unlimited)."""
+    d = distance_us
+    if elapsed_s <= 0 or d <= 0:
+        return 0.0
+    if accel_us_s2 <= 0:
+        return d if speed_us_s <= 0 else min(d, speed_us_s * elapsed_s)
+    a = accel_us_s2
+    t_acc = math.inf if speed_us_s <= 0 else speed_us_s / a
+    if a * t_acc * t_acc >= d:  # never reaches the speed limit: triangular profile
+        t_half = math.sqrt(d / a)
+        if elapsed_s < t_half:
+            return 0.5 * a * elapsed_s**2
+        if elapsed_s < 2 * t_half:
+            return d - 0.5 * a * (2 * t_half - elapsed_s) ** 2
+        return d
+    v = speed_us_s
+    d_acc = 0.5 * a * t_acc**2
+    t_cruise = (d - 2 * d_acc) / v
+    if elapsed_s < t_acc:
+        return 0.5 * a * elapsed_s**2
+    if elapsed_s < t_acc + t_cruise:
+        return d_acc + v * (elapsed_s - t_acc)
+    t_end = 2 * t_acc + t_cruise
+    if elapsed_s < t_end:
+        return d - 0.5 * a * (t_end - elapsed_s) ** 2
+    return d
+
+
+@dataclass(slots=True)
+class SimServo:
+    """One servo output: pulses off (0) or slewing from `start_us` to `target_us`."""
+
+    start_us: float = 0.0
+    target_us: float = 0.0
+    t0: float = 0.0
+    speed_us_s: float = 0.0
+    accel_us_s2: float = 0.0
+
+    def position_us(self, now: float) -> float:
+        if self.target_us <= 0 or self.start_us <= 0:
+            return self.target_us
+        d = abs(self.target_us - self.start_us)
+        s = travelled_us(d, now - self.t0, self.speed_us_s, self.accel_us_s2)
+        return self.start_us + math.copysign(s, self.target_us - self.start_us)
+
+    def moving(self, now: float) -> bool:
+        return self.position_us(now) != self.target_us
+
+    def retarget(self, now: float, target_us: float) -> None:
+        self.start_us = self.position_us(now)
+        self.t0 = now
+        self.target_us = target_us
+
+    def set_profile(self, now: float, speed_us_s: float, accel_us_s2: float) -> None:
+        # Rebase so the new limits apply from here on, not retroactively.
+        self.start_us = self.position_us(now)
+        self.t0 = now
+        self.speed_us_s = speed_us_s
+        self.accel_us_s2 = accel_us_s2
+
+
+class _FakeController(abc.ABC):
+    """Shared plumbing: the pty, silence, servos, the bytes the driver sent."""
+
+    def __init__(self, channels: int, initial_us: float | None, clock: Clock) -> None:
+        self._clock = clock
+        self.servos = [SimServo() for _ in range(channels)]
+        if initial_us:
+            for s in self.servos:
+                s.start_us = s.target_us = initial_us
+        self.silent = False
+        self.received = bytearray()
+        self.replies = 0
+        self._port: PtyPort | None = None
+
+    @property
+    def channel_count(self) -> int:
+        return len(self.servos)
+
+    def serve_pty(self, link_path: str | os.PathLike[str] | None = None) -> str:
+        """Open a pty for the driver; returns the path to open (the stable link if given)."""
+        self._port = PtyPort(self.feed, link_path=link_path)
+        return self._port.open()
+
+    @property
+    def path(self) -> str:
+        return self._port.path if self._port is not None else ""
+
+    def hang_up(self) -> None:
+        """Drop the port as a pulled USB cable does; servo state is kept."""
+        if self._port is not None:
+            self._port.hang_up()
+        self._reset_parser()
+
+    def reappear(self) -> str:
+        """Plug back in (same stable link path when one was given)."""
+        if self._port is None:
+            raise RuntimeError("serve_pty() first")
+        return self._port.open()
+
+    def close(self) -> None:
+        if self._port is not None:
+            self._port.close()
+
+    def position_us(self, channel: int) -> float:
+        return self.servos[channel].position_us(self._clock.now())
+
+    def target_us(self, channel: int) -> float:
+        return self.servos[channel].target_us
+
+    def moving(self) -> bool:
+        now = self._clock.now()
+        return any(s.moving(now) for s in self.servos)
+
+    def feed(self, data: bytes) -> None:
+        """Bytes as they arrive from the driver (the pty calls this)."""
+        if self.silent:
+            return
+        self.received += data
+        self._feed(data)
+
+    def _reply(self, data: bytes) -> None:
+        self.replies += 1
+        if self._port is not None:
+            self._port.write(data)
+
+    @abc.abstractmethod
+    def _feed(self, data: bytes) -> None:
+        """Parse bytes as the controller's firmware does."""
+
+    @abc.abstractmethod
+    def _reset_parser(self) -> None:
+        """Forget a half-received frame (the cable was pulled mid-frame)."""
+
+
+# Data bytes after the command byte, per compact command.
+_MAESTRO_DATA_LEN: dict[int, int] = {
+    mc.MaestroCommand.SET_TARGET: 3, mc.MaestroCommand.SET_SPEED: 3,
+    mc.MaestroCommand.SET_ACCELERATION: 3, mc.MaestroCommand.GET_POSITION: 1,
+    mc.MaestroCommand.GET_MOVING_STATE: 0, mc.MaestroCommand.GET_ERRORS: 0,
+    mc.MaestroCommand.GO_HOME: 0,
+}
+
+
+class FakeMaestro(_FakeController):
+    """A Pololu Maestro in USB Dual Port mode: compact, Pololu and Mini SSC protocols.
+
+    `range_us` is the per-channel min/max the Maestro clamps targets to (factory
+    992..2000 us); `home_us` maps channels to their home pulse (0 = off; channels not
+    listed are "ignore"), used by Go Home and whenever an error bit gets set.
+    """
+
+    def __init__(self, *, clock: Clock = REAL_CLOCK, channels: int = 6,
+                 initial_us: float | None = None, range_us: tuple[float, float] = (992.0, 2000.0),
+                 home_us: dict[int, float] | None = None,
+                 device_number: int = mc.DEFAULT_DEVICE_NUMBER) -> None:
+        super().__init__(channels, initial_us, clock)
+        self.range_us = range_us
+        self.home_us = dict(home_us or {})
+        self.device_number = device_number
+        self.error_bits = 0
+        self.speed_units = [0] * channels
+        self.accel_units = [0] * channels
+        #: Decoded commands in arrival order, e.g. ("set_target", 0, 6000).
+        self.commands: list[tuple[object, ...]] = []
+        self._frame = bytearray()
+
+    def _reset_parser(self) -> None:
+        self._frame.clear()
+
+    def raise_error(self, bits: int) -> None:
+        """Set error bits as the firmware does (and send every channel home)."""
+        self.error_bits |= bits
+        now = self._clock.now()
+        for ch, home in self.home_us.items():
+            self.servos[ch].retarget(now, home)
+
+    def _protocol_error(self, why: str) -> None:
+        log.debug("fake_maestro_protocol_error", why=why)
+        self._frame.clear()
+        self.raise_error(mc.MaestroError.SERIAL_PROTOCOL)
+
+    def _feed(self, data: bytes) -> None:
+        for b in data:
+            self._byte(b)
+
+    def _byte(self, b: int) -> None:
+        frame = self._frame
+        if frame and frame[0] == mc.MINI_SSC_START:
+            # Mini SSC data bytes may have the top bit set (targets up to 254).
+            frame.append(b)
+            if len(frame) == 3:
+                self._mini_ssc(frame[1], frame[2])
+                frame.clear()
+            return
+        if b & 0x80:
+            if frame:
+                self._protocol_error("command byte inside an unfinished frame")
+            frame.append(b)
+            if b not in _MAESTRO_DATA_LEN and b not in (mc.POLOLU_START, mc.MINI_SSC_START):
+                self._protocol_error(f"unknown command {b:#04x}")
+                return
+        else:
+            if not frame:
+                self._protocol_error(f"data byte {b:#04x} without a command")
+                return
+            frame.append(b)
+        self._try_frame()
+
+    def _try_frame(self) -> None:
+        frame = self._frame
+        if frame[0] == mc.POLOLU_START:
+            if len(frame) < 3:
+                return
+            cmd = frame[2] | 0x80
+            if cmd not in _MAESTRO_DATA_LEN:
+                self._protocol_error(f"unknown Pololu-protocol command {frame[2]:#04x}")
+                return
+            if len(frame) < 3 + _MAESTRO_DATA_LEN[cmd]:
+                return
+            device, body = frame[1], bytes(frame[3:])
+            frame.clear()
+            if device == self.device_number:
+                self._execute(cmd, body)
+            return
+        cmd = frame[0]
+        if len(frame) < 1 + _MAESTRO_DATA_LEN[cmd]:
+            return
+        body = bytes(frame[1:])
+        frame.clear()
+        self._execute(cmd, body)
+
+    def _execute(self, cmd: int, body: bytes) -> None:
+        now = self._clock.now()
+        if body and body[0] >= self.channel_count:
+            self.raise_error(mc.MaestroError.SERIAL_PROTOCOL)
+            return
+        if cmd == mc.MaestroCommand.SET_TARGET:
+            ch, value = body[0], mc.decode_14bit(body[1], body[2])
+            self.commands.append(("set_target", ch, value))
+            target = value / 4.0
+            if target:
+                target = min(self.range_us[1], max(self.range_us[0], target))
+            self.servos[ch].retarget(now, target)
+        elif cmd == mc.MaestroCommand.SET_SPEED:
+            ch, value = body[0], mc.decode_14bit(body[1], body[2])
+            self.commands.append(("set_speed", ch, value))
+            self.speed_units[ch] = value
+            self._apply_profile(ch, now)
+        elif cmd == mc.MaestroCommand.SET_ACCELERATION:
+            ch, value = body[0], mc.decode_14bit(body[1], body[2])
+            self.commands.append(("set_acceleration", ch, value))
+            # The firmware caps acceleration at 255.
+            self.accel_units[ch] = min(255, value)
+            self._apply_profile(ch, now)
+        elif cmd == mc.MaestroCommand.GET_POSITION:
+            ch = body[0]
+            self.commands.append(("get_position", ch))
+            quarter = round(self.servos[ch].position_us(now) * 4)
+            self._reply(bytes((quarter & 0xFF, (quarter >> 8) & 0xFF)))
+        elif cmd == mc.MaestroCommand.GET_MOVING_STATE:
+            self.commands.append(("get_moving_state",))
+            self._reply(b"\x01" if self.moving() else b"\x00")
+        elif cmd == mc.MaestroCommand.GET_ERRORS:
+            self.commands.append(("get_errors",))
+            bits, self.error_bits = self.error_bits, 0
+            self._reply(bytes((bits & 0xFF, (bits >> 8) & 0xFF)))
+        elif cmd == mc.MaestroCommand.GO_HOME:
+            self.commands.append(("go_home",))
+            for ch, home in self.home_us.items():
+                self.servos[ch].retarget(now, home)
+
+    def _apply_profile(self, ch: int, now: float) -> None:
+        self.servos[ch].set_profile(now, self.speed_units[ch] * mc.US_PER_S_PER_SPEED_UNIT,
+                                    self.accel_units[ch] * mc.US_PER_S2_PER_ACCEL_UNIT)
+
+    def _mini_ssc(self, servo: int, target8: int) -> None:
+        # Default Mini SSC offset 0, neutral 1500 us, range 476.25 us (formula UNVERIFIED).
+        if servo >= self.channel_count or target8 > 254:
+            self.raise_error(mc.MaestroError.SERIAL_PROTOCOL)
+            return
+        self.commands.append(("mini_ssc", servo, target8))
+        target = 1500.0 + (target8 - 127) / 127 * 476.25
+        self.servos[servo].retarget(self._clock.now(), target)
+
+
+class FakeSsc32(_FakeController):
+    """A Lynxmotion SSC-32/SSC-32U: ASCII lines, group moves, Q and QP queries."""
+
+    def __init__(self, *, clock: Clock = REAL_CLOCK, channels: int = sc.MAX_CHANNELS,
+                 initial_us: float | None = None) -> None:
+        super().__init__(channels, initial_us, clock)
+        #: Parsed commands in arrival order.
+        self.commands: list[sc.Ssc32Command] = []
+        #: Lines the controller could not read and therefore ignored.
+        self.ignored_lines = 0
+        self._line = bytearray()
+        self._overlong = False
+
+    def _reset_parser(self) -> None:
+        self._line.clear()
+        self._overlong = False
+
+    def _feed(self, data: bytes) -> None:
+        for b in data:
+            if b == 0x0D:
+                line, overlong = bytes(self._line), self._overlong
+                self._reset_parser()
+                if overlong:
+                    self.ignored_lines += 1
+                else:
+                    self._line_received(line)
+            elif len(self._line) >= MAX_LINE:
+                self._overlong = True
+            else:
+                self._line.append(b)
+
+    def _line_received(self, line: bytes) -> None:
+        try:
+            cmd = sc.parse_command(line)
+        except sc.Ssc32SyntaxError as exc:
+            self.ignored_lines += 1
+            log.debug("fake_ssc32_ignored_line", error=str(exc))
+            return
+        if isinstance(cmd, sc.Ssc32GroupMove) and any(
+                m.channel >= self.channel_count for m in cmd.moves):
+            self.ignored_lines += 1
+            return
+        self.commands.append(cmd)
+        now = self._clock.now()
+        if isinstance(cmd, sc.Ssc32QueryMovement):
+            self._reply(b"+" if self.moving() else b".")
+        elif isinstance(cmd, sc.Ssc32QueryPulse):
+            self._reply(bytes(min(255, round(self.servos[ch].position_us(now) / 10))
+                              for ch in cmd.channels))
+        else:
+            self._group_move(cmd, now)
+
+    def _group_move(self, cmd: sc.Ssc32GroupMove, now: float) -> None:
+        # All servos of a group start together and arrive together: the group lasts as
+        # long as its slowest member (or T, if longer), each servo slews linearly.
+        durations = []
+        for m in cmd.moves:
+            start = self.servos[m.channel].position_us(now)
+            dist = abs(m.pulse_us - start) if start > 0 else 0.0
+            durations.append(dist / m.speed_us_s if m.speed_us_s else 0.0)
+        duration = max([*durations, (cmd.time_ms or 0) / 1000.0])
+        for m in cmd.moves:
+            servo = self.servos[m.channel]
+            start = servo.position_us(now)
+            dist = abs(m.pulse_us - start) if start > 0 else 0.0
+            servo.set_profile(now, dist / duration if duration > 0 and dist > 0 else 0.0, 0.0)
+            servo.retarget(now, float(m.pulse_us))
+
+
+__all__ = ["FakeMaestro", "FakeSsc32", "SimServo", "travelled_us"]
