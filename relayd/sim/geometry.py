@@ -1,0 +1,222 @@
+"""2-D geometry of the simulated world: segments, boxes, ray casting, footprint collision.
+
+Pure and allocation-light: the world calls these for every sonar ray and every motion
+step of every robot, so everything is plain floats and tuples (no numpy). Units are
+metres and degrees (counter-clockwise positive, x east, y north); the simulator converts
+to the robot's millimetres at the boundary.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+Point = tuple[float, float]
+Polygon = tuple[Point, ...]
+
+_EPS = 1e-12
+
+
+@dataclass(frozen=True, slots=True)
+class Segment:
+    """A straight wall piece from (x1, y1) to (x2, y2) made of `material`."""
+
+    x1: float
+    y1: float
+    x2: float
+    y2: float
+    material: str = "brick"
+
+    @property
+    def length_m(self) -> float:
+        return math.hypot(self.x2 - self.x1, self.y2 - self.y1)
+
+    def bbox(self) -> tuple[float, float, float, float]:
+        return (min(self.x1, self.x2), min(self.y1, self.y2),
+                max(self.x1, self.x2), max(self.y1, self.y2))
+
+
+@dataclass(frozen=True, slots=True)
+class Box:
+    """An axis-aligned rectangular obstacle (a crate, a parked car, a pillar)."""
+
+    x_min: float
+    y_min: float
+    x_max: float
+    y_max: float
+    material: str = "box"
+
+    def __post_init__(self) -> None:
+        if not (self.x_min < self.x_max and self.y_min < self.y_max):
+            raise ValueError(f"box needs x_min < x_max and y_min < y_max, got {self!r}")
+
+    def corners(self) -> Polygon:
+        return ((self.x_min, self.y_min), (self.x_max, self.y_min),
+                (self.x_max, self.y_max), (self.x_min, self.y_max))
+
+    def segments(self) -> tuple[Segment, ...]:
+        return polygon_segments(self.corners(), self.material)
+
+
+def polygon_segments(poly: Sequence[Point], material: str = "body") -> tuple[Segment, ...]:
+    """The closed outline of a polygon as segments."""
+    n = len(poly)
+    return tuple(Segment(poly[i][0], poly[i][1], poly[(i + 1) % n][0], poly[(i + 1) % n][1], material)
+                 for i in range(n))
+
+
+def ray_segment_distance(ox: float, oy: float, dx: float, dy: float,
+                         x1: float, y1: float, x2: float, y2: float) -> float | None:
+    """Distance along the unit ray (ox, oy) + t (dx, dy), t >= 0, to the segment, or None."""
+    ex, ey = x2 - x1, y2 - y1
+    denom = dx * ey - dy * ex
+    if abs(denom) < _EPS:
+        return None  # parallel (a grazing ray along a wall does not echo)
+    wx, wy = x1 - ox, y1 - oy
+    t = (wx * ey - wy * ex) / denom
+    if t < 0.0:
+        return None
+    u = (wx * dy - wy * dx) / denom
+    if u < 0.0 or u > 1.0:
+        return None
+    return t
+
+
+def ray_circle_distance(ox: float, oy: float, dx: float, dy: float,
+                        cx: float, cy: float, r: float) -> float | None:
+    """Distance along the unit ray to the first intersection with a circle, or None."""
+    fx, fy = ox - cx, oy - cy
+    b = fx * dx + fy * dy
+    c = fx * fx + fy * fy - r * r
+    disc = b * b - c
+    if disc < 0.0:
+        return None
+    sq = math.sqrt(disc)
+    t = -b - sq
+    if t >= 0.0:
+        return t
+    t = -b + sq
+    return 0.0 if t >= 0.0 else None  # origin inside the circle: touching
+
+
+def cast_ray(ox: float, oy: float, heading_deg: float, max_range_m: float,
+             segments: Iterable[Segment], circles: Iterable[tuple[float, float, float]] = ()) -> float | None:
+    """Nearest hit of a ray against segments and circles (cx, cy, r) within max_range_m."""
+    a = math.radians(heading_deg)
+    dx, dy = math.cos(a), math.sin(a)
+    best = max_range_m
+    hit = False
+    for s in segments:
+        t = ray_segment_distance(ox, oy, dx, dy, s.x1, s.y1, s.x2, s.y2)
+        if t is not None and t <= best:
+            best, hit = t, True
+    for cx, cy, r in circles:
+        t = ray_circle_distance(ox, oy, dx, dy, cx, cy, r)
+        if t is not None and t <= best:
+            best, hit = t, True
+    return best if hit else None
+
+
+def _orient(ax: float, ay: float, bx: float, by: float, cx: float, cy: float) -> float:
+    return (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+
+
+def segments_intersect(p1: Point, p2: Point, q1: Point, q2: Point) -> bool:
+    """True if the closed segments p1-p2 and q1-q2 share a point (touching counts)."""
+    d1 = _orient(q1[0], q1[1], q2[0], q2[1], p1[0], p1[1])
+    d2 = _orient(q1[0], q1[1], q2[0], q2[1], p2[0], p2[1])
+    d3 = _orient(p1[0], p1[1], p2[0], p2[1], q1[0], q1[1])
+    d4 = _orient(p1[0], p1[1], p2[0], p2[1], q2[0], q2[1])
+    if ((d1 > 0) != (d2 > 0) and d1 != 0 and d2 != 0) and ((d3 > 0) != (d4 > 0) and d3 != 0 and d4 != 0):
+        return True
+
+    def on_seg(a: Point, b: Point, c: Point, d: float) -> bool:
+        return abs(d) < 1e-12 and min(a[0], b[0]) - 1e-12 <= c[0] <= max(a[0], b[0]) + 1e-12 \
+            and min(a[1], b[1]) - 1e-12 <= c[1] <= max(a[1], b[1]) + 1e-12
+
+    return (on_seg(q1, q2, p1, d1) or on_seg(q1, q2, p2, d2)
+            or on_seg(p1, p2, q1, d3) or on_seg(p1, p2, q2, d4))
+
+
+def crossings(p: Point, q: Point, segments: Iterable[Segment]) -> list[Segment]:
+    """The walls the straight path p -> q crosses (each counted once)."""
+    out = []
+    for s in segments:
+        if segments_intersect(p, q, (s.x1, s.y1), (s.x2, s.y2)):
+            out.append(s)
+    return out
+
+
+def footprint(x_m: float, y_m: float, theta_deg: float, length_m: float, width_m: float) -> Polygon:
+    """The rectangle a robot covers, centred on its pose, long axis along its heading."""
+    a = math.radians(theta_deg)
+    c, s = math.cos(a), math.sin(a)
+    hl, hw = length_m / 2.0, width_m / 2.0
+    return tuple((x_m + c * lx - s * ly, y_m + s * lx + c * ly)
+                 for lx, ly in ((hl, hw), (-hl, hw), (-hl, -hw), (hl, -hw)))
+
+
+def point_in_polygon(pt: Point, poly: Sequence[Point]) -> bool:
+    """Even-odd rule; points on the boundary may go either way (edges are tested separately)."""
+    x, y = pt
+    inside = False
+    n = len(poly)
+    j = n - 1
+    for i in range(n):
+        xi, yi = poly[i]
+        xj, yj = poly[j]
+        if (yi > y) != (yj > y) and x < (xj - xi) * (y - yi) / (yj - yi) + xi:
+            inside = not inside
+        j = i
+    return inside
+
+
+def polygon_hits_segment(poly: Sequence[Point], s: Segment) -> bool:
+    """True if a convex polygon touches or contains any part of the segment."""
+    a, b = (s.x1, s.y1), (s.x2, s.y2)
+    n = len(poly)
+    for i in range(n):
+        if segments_intersect(poly[i], poly[(i + 1) % n], a, b):
+            return True
+    return point_in_polygon(a, poly)
+
+
+def polygons_overlap(p: Sequence[Point], q: Sequence[Point]) -> bool:
+    """True if two simple polygons touch, cross or one contains the other."""
+    n, m = len(p), len(q)
+    for i in range(n):
+        for j in range(m):
+            if segments_intersect(p[i], p[(i + 1) % n], q[j], q[(j + 1) % m]):
+                return True
+    return point_in_polygon(p[0], q) or point_in_polygon(q[0], p)
+
+
+def polygon_hits_circle(poly: Sequence[Point], cx: float, cy: float, r: float) -> bool:
+    """True if a polygon and a disc overlap."""
+    if point_in_polygon((cx, cy), poly):
+        return True
+    n = len(poly)
+    for i in range(n):
+        if point_segment_distance((cx, cy), poly[i], poly[(i + 1) % n]) <= r:
+            return True
+    return False
+
+
+def point_segment_distance(p: Point, a: Point, b: Point) -> float:
+    ex, ey = b[0] - a[0], b[1] - a[1]
+    L2 = ex * ex + ey * ey
+    if L2 < _EPS:
+        return math.hypot(p[0] - a[0], p[1] - a[1])
+    t = max(0.0, min(1.0, ((p[0] - a[0]) * ex + (p[1] - a[1]) * ey) / L2))
+    return math.hypot(p[0] - a[0] - t * ex, p[1] - a[1] - t * ey)
+
+
+def wrap_deg(a: float) -> float:
+    """An angle in degrees wrapped to (-180, 180]."""
+    a = math.fmod(a, 360.0)
+    if a > 180.0:
+        a -= 360.0
+    elif a <= -180.0:
+        a += 360.0
+    return a

@@ -1,0 +1,175 @@
+"""Radio propagation of the simulated world: path loss, walls, shadowing, fading, antennas.
+
+Received power of a link (SPEC 5; numbers from the paper, section IV-E, and the
+802.11g standard's receiver sensitivity table):
+
+    P = L0 - 10 n log10(d) - sum(wall losses) + shadowing + fading + antenna gains
+
+L0 is the power at 1 m between two antennas at boresight (-15 dBm indoors, -20 dBm
+outdoors, the paper's own measurements); antenna gains here are *relative* to that
+reference (0 dB at boresight, the Yagi's cos^2 pattern off axis, omni APs 0 dB).
+Shadowing is a seeded, smooth random field over the plane (a sum of random plane
+waves, so its spatial correlation is Gaussian with the configured length and it costs
+O(K) per query with no grid); fast fading is a seeded random draw per sample,
+Rician when the direct path crosses no wall, Rayleigh otherwise. Rates and link
+state are computed from the local-mean power (without fast fading), as 802.11 rate
+adaptation averages over fades; the RSSI the Wi-Fi adapter and the APs report includes
+fading averaged over a few frames (`fading_avg_frames`).
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+
+from relayd.sim.geometry import Point, Segment, crossings
+
+#: 802.11g OFDM receiver minimum sensitivity (dBm) -> PHY rate (Mbps), fastest first.
+RATE_TABLE_80211G: tuple[tuple[float, float], ...] = (
+    (-65.0, 54.0), (-66.0, 48.0), (-70.0, 36.0), (-74.0, 24.0),
+    (-77.0, 18.0), (-79.0, 12.0), (-81.0, 9.0), (-82.0, 6.0),
+)
+MAC_EFFICIENCY = 0.5
+#: Below this a hop is down (the slowest rate's sensitivity).
+HOP_DOWN_DBM = RATE_TABLE_80211G[-1][0]
+
+DEFAULT_WALL_LOSS_DB: Mapping[str, float] = {"brick": 10.0, "light": 3.0, "concrete": 15.0,
+                                             "glass": 2.0, "box": 3.0}
+
+
+def phy_rate_mbps(power_dbm: float) -> float:
+    """The fastest 802.11g rate whose sensitivity `power_dbm` meets; 0 when the hop is down."""
+    for sens, rate in RATE_TABLE_80211G:
+        if power_dbm >= sens:
+            return rate
+    return 0.0
+
+
+def throughput_mbps(power_dbm: float) -> float:
+    """Application throughput of one hop: PHY rate times the MAC efficiency."""
+    return phy_rate_mbps(power_dbm) * MAC_EFFICIENCY
+
+
+def yagi_gain_db(off_axis_deg: float, floor_db: float = -20.0) -> float:
+    """The Yagi's relative gain: 10 log10(cos^2) of the off-axis angle, floored (back lobe)."""
+    a = abs(math.remainder(off_axis_deg, 360.0))
+    if a >= 90.0:
+        return floor_db
+    c = math.cos(math.radians(a))
+    if c <= 0.0:
+        return floor_db
+    return max(floor_db, 20.0 * math.log10(c))
+
+
+def patch_gain_db(off_axis_deg: float, floor_db: float = -10.0) -> float:
+    """The NanoStation's relative gain: the same cos^2 law with a shallower floor.
+
+    A NanoStation loco M2 is an 8 dBi patch with a ~60 degree beam and a real back lobe;
+    for the data link only its pointing error matters, so a modest pattern suffices.
+    """
+    return yagi_gain_db(off_axis_deg, floor_db)
+
+
+@dataclass(frozen=True, slots=True)
+class RadioParams:
+    """Everything configurable about propagation (scenario `[radio]`)."""
+
+    l0_dbm: float = -15.0
+    exponent: float = 3.0
+    wall_loss_db: Mapping[str, float] = field(default_factory=lambda: dict(DEFAULT_WALL_LOSS_DB))
+    shadow_sigma_db: float = 4.0
+    shadow_corr_m: float = 2.0
+    rician_k_db: float = 6.0
+    fading: bool = True
+    fading_avg_frames: int = 4
+    noise_floor_dbm: float = -95.0
+    yagi_floor_db: float = -20.0
+    patch_floor_db: float = -10.0
+    min_distance_m: float = 0.5
+
+    @classmethod
+    def indoor(cls, **kw: object) -> RadioParams:
+        return cls(**kw)  # type: ignore[arg-type]
+
+    @classmethod
+    def outdoor(cls, **kw: object) -> RadioParams:
+        base: dict[str, object] = {"l0_dbm": -20.0, "exponent": 2.5}
+        base.update(kw)
+        return cls(**base)  # type: ignore[arg-type]
+
+
+class ShadowField:
+    """A smooth zero-mean, unit-variance Gaussian-like random field over the plane.
+
+    Sum of K plane waves with wave vectors drawn from N(0, 1/corr^2) per axis and uniform
+    phases: its autocorrelation is exp(-d^2 / (2 corr^2)), so two points `corr_m` apart
+    are correlated 0.61 and points 2*corr apart 0.14.
+    """
+
+    __slots__ = ("_waves",)
+
+    def __init__(self, seed: int, corr_m: float, waves: int = 48) -> None:
+        rng = random.Random(seed)
+        k = 1.0 / max(corr_m, 1e-6)
+        amp = math.sqrt(2.0 / waves)
+        self._waves = tuple((rng.gauss(0.0, k), rng.gauss(0.0, k), rng.uniform(0.0, 2 * math.pi), amp)
+                            for _ in range(waves))
+
+    def value(self, x_m: float, y_m: float) -> float:
+        return sum(a * math.cos(kx * x_m + ky * y_m + ph) for kx, ky, ph, a in self._waves)
+
+
+class Radio:
+    """Link budgets in one world: deterministic for a given seed and geometry."""
+
+    def __init__(self, params: RadioParams, walls: Iterable[Segment], seed: int = 0) -> None:
+        self.params = params
+        self.walls = tuple(walls)
+        self._shadow = ShadowField(seed, params.shadow_corr_m)
+        self._rng = random.Random(seed ^ 0x5EED)
+        for w in self.walls:
+            if w.material not in params.wall_loss_db:
+                raise ValueError(f"wall material {w.material!r} has no loss in radio.wall_loss_db")
+
+    def wall_loss_db(self, a: Point, b: Point) -> tuple[float, int]:
+        """Total loss of the walls the direct path crosses, and how many it crosses."""
+        hit = crossings(a, b, self.walls)
+        return sum(self.params.wall_loss_db[w.material] for w in hit), len(hit)
+
+    def shadowing_db(self, a: Point, b: Point) -> float:
+        """Slow shadowing of the link a-b: symmetric, smooth as either end moves."""
+        s = (self._shadow.value(*a) + self._shadow.value(*b)) / math.sqrt(2.0)
+        return self.params.shadow_sigma_db * s
+
+    def mean_power_dbm(self, a: Point, b: Point, gain_db: float = 0.0) -> tuple[float, bool]:
+        """Local-mean received power (no fast fading) and whether the path is line of sight."""
+        p = self.params
+        d = max(p.min_distance_m, math.hypot(b[0] - a[0], b[1] - a[1]))
+        loss, n_walls = self.wall_loss_db(a, b)
+        power = p.l0_dbm - 10.0 * p.exponent * math.log10(d) - loss + self.shadowing_db(a, b) + gain_db
+        return power, n_walls == 0
+
+    def fading_db(self, los: bool) -> float:
+        """One fast-fading draw: Rician (K = rician_k_db) on LOS, Rayleigh otherwise, averaged
+        over `fading_avg_frames` frames in linear power as an adapter's signal average is."""
+        p = self.params
+        if not p.fading:
+            return 0.0
+        k = 10.0 ** (p.rician_k_db / 10.0) if los else 0.0
+        los_amp = math.sqrt(k / (k + 1.0))
+        sc = math.sqrt(1.0 / (2.0 * (k + 1.0)))
+        frames = max(1, p.fading_avg_frames)
+        total = 0.0
+        g = self._rng.gauss
+        for _ in range(frames):
+            re = los_amp + sc * g(0.0, 1.0)
+            im = sc * g(0.0, 1.0)
+            total += re * re + im * im
+        return 10.0 * math.log10(max(total / frames, 1e-9))
+
+    def sample_dbm(self, a: Point, b: Point, gain_db: float = 0.0) -> float:
+        """A reported RSSI: local mean plus a fast-fading draw, never below the noise floor."""
+        mean, los = self.mean_power_dbm(a, b, gain_db)
+        return max(self.params.noise_floor_dbm, mean + self.fading_db(los))

@@ -1,0 +1,224 @@
+"""Scenario files: the TOML format of a simulated world, its loader and its validation.
+
+A scenario names the geometry (walls as polylines with a material, boxes), the radio
+environment, the command center, a scripted leader and the start pose of every relay.
+The format is documented in docs/SIMULATOR.md; shipped scenarios live in
+relayd/sim/scenarios/. Every validation error names the offending key
+(`leader.waypoints.2.x: ...`), the same way `relayd check-config` does.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from importlib import resources
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from relayd.sim.geometry import Box, Segment, polygon_segments
+from relayd.sim.radio import DEFAULT_WALL_LOSS_DB, RadioParams
+
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+
+
+class ScenarioError(Exception):
+    """A scenario that cannot be loaded; `errors` lists every problem, each naming its key."""
+
+    def __init__(self, errors: list[str]) -> None:
+        super().__init__("; ".join(errors))
+        self.errors = errors
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Waypoint(_Model):
+    x: Finite
+    y: Finite
+    pause_s: NonNeg = 0.0
+
+
+class LeaderSpec(_Model):
+    kind: Literal["person", "robot"] = "person"
+    speed_m_s: Positive = 0.2
+    start_s: NonNeg = 0.0
+    radius_m: Positive = 0.25
+    waypoints: list[Waypoint] = Field(min_length=1)
+
+
+class NodeSpec(_Model):
+    x: Finite
+    y: Finite
+
+
+class WallSpec(_Model):
+    points: list[tuple[Finite, Finite]] = Field(min_length=2)
+    material: str = "brick"
+    closed: bool = False
+
+
+class BoxSpec(_Model):
+    min: tuple[Finite, Finite]
+    max: tuple[Finite, Finite]
+    material: str = "box"
+
+    @model_validator(mode="after")
+    def _ordered(self) -> BoxSpec:
+        if not (self.min[0] < self.max[0] and self.min[1] < self.max[1]):
+            raise ValueError("box min must be below and left of max")
+        return self
+
+
+class RelaySpec(_Model):
+    name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_-]+$")
+    x: Finite
+    y: Finite
+    theta_deg: Finite = 0.0
+    control: dict[str, Any] = Field(default_factory=dict)
+
+
+class RadioSpec(_Model):
+    l0_dbm: Finite | None = None
+    exponent: Positive | None = None
+    wall_loss_db: dict[str, NonNeg] = Field(default_factory=dict)
+    shadow_sigma_db: NonNeg = 4.0
+    shadow_corr_m: Positive = 2.0
+    rician_k_db: Finite = 6.0
+    fading: bool = True
+    fading_avg_frames: Annotated[int, Field(ge=1, le=1000)] = 4
+    noise_floor_dbm: Finite = -95.0
+    yagi_floor_db: Annotated[float, Field(le=0)] = -20.0
+    patch_floor_db: Annotated[float, Field(le=0)] = -10.0
+
+
+class SonarSpec(_Model):
+    rays: Annotated[int, Field(ge=1, le=15)] = 3
+    beam_deg: Annotated[float, Field(gt=0, le=60)] = 30.0
+    noise_mm: NonNeg = 10.0
+    max_range_m: Positive = 5.0
+    min_range_m: NonNeg = 0.1
+
+
+class Scenario(_Model):
+    """A validated scenario."""
+
+    name: str = Field(min_length=1)
+    description: str = ""
+    environment: Literal["indoor", "outdoor"] = "indoor"
+    duration_s: Positive = 300.0
+    relays: Annotated[int, Field(ge=0, le=8)] = 1
+    goal_radius_m: Positive = 0.5
+    tick_hz: Annotated[float, Field(gt=0, le=100)] = 20.0
+    command_center: NodeSpec
+    leader: LeaderSpec
+    relay: list[RelaySpec] = Field(default_factory=list)
+    walls: list[WallSpec] = Field(default_factory=list)
+    boxes: list[BoxSpec] = Field(default_factory=list)
+    radio: RadioSpec = RadioSpec()
+    sonar: SonarSpec = SonarSpec()
+    control: dict[str, Any] = Field(default_factory=dict)
+    scan: dict[str, Any] = Field(default_factory=dict)
+
+    @field_validator("relay")
+    @classmethod
+    def _unique_names(cls, v: list[RelaySpec]) -> list[RelaySpec]:
+        names = [r.name for r in v]
+        if len(set(names)) != len(names):
+            raise ValueError("relay names must be unique")
+        return v
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Scenario:
+        if self.relays > len(self.relay):
+            raise ValueError(f"relays = {self.relays} but only {len(self.relay)} [[relay]] start poses")
+        losses = self.wall_losses()
+        for i, w in enumerate(self.walls):
+            if w.material not in losses:
+                raise ValueError(f"walls.{i}.material: unknown material {w.material!r} "
+                                 f"(known: {', '.join(sorted(losses))})")
+        for i, b in enumerate(self.boxes):
+            if b.material not in losses:
+                raise ValueError(f"boxes.{i}.material: unknown material {b.material!r}")
+        return self
+
+    def wall_losses(self) -> dict[str, float]:
+        out = dict(DEFAULT_WALL_LOSS_DB)
+        out.update(self.radio.wall_loss_db)
+        return out
+
+    def radio_params(self) -> RadioParams:
+        r = self.radio
+        indoor = self.environment == "indoor"
+        return RadioParams(
+            l0_dbm=r.l0_dbm if r.l0_dbm is not None else (-15.0 if indoor else -20.0),
+            exponent=r.exponent if r.exponent is not None else (3.0 if indoor else 2.5),
+            wall_loss_db=self.wall_losses(), shadow_sigma_db=r.shadow_sigma_db,
+            shadow_corr_m=r.shadow_corr_m, rician_k_db=r.rician_k_db, fading=r.fading,
+            fading_avg_frames=r.fading_avg_frames, noise_floor_dbm=r.noise_floor_dbm,
+            yagi_floor_db=r.yagi_floor_db, patch_floor_db=r.patch_floor_db)
+
+    def wall_segments(self) -> list[Segment]:
+        out: list[Segment] = []
+        for w in self.walls:
+            pts = list(w.points)
+            if w.closed:
+                out.extend(polygon_segments(pts, w.material))
+            else:
+                out.extend(Segment(a[0], a[1], b[0], b[1], w.material) for a, b in zip(pts, pts[1:], strict=False))
+        return out
+
+    def box_shapes(self) -> list[Box]:
+        return [Box(b.min[0], b.min[1], b.max[0], b.max[1], b.material) for b in self.boxes]
+
+    def with_relays(self, n: int) -> Scenario:
+        """The same world with the first `n` relays (counted from the leader backwards)."""
+        if not 0 <= n <= len(self.relay):
+            raise ScenarioError([f"relays: {n} asked, scenario {self.name!r} has {len(self.relay)} start poses"])
+        return self.model_copy(update={"relays": n})
+
+
+def _messages(exc: ValidationError) -> list[str]:
+    out = []
+    for e in exc.errors():
+        loc = ".".join(str(p) for p in e["loc"])
+        msg = e["msg"].removeprefix("Value error, ")
+        out.append(f"{loc}: {msg}" if loc else msg)
+    return out
+
+
+def parse_scenario(data: dict[str, Any]) -> Scenario:
+    try:
+        return Scenario.model_validate(data)
+    except ValidationError as exc:
+        raise ScenarioError(_messages(exc)) from None
+
+
+def builtin_names() -> list[str]:
+    folder = resources.files("relayd.sim") / "scenarios"
+    return sorted(p.name.removesuffix(".toml") for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def load_scenario(name_or_path: str | Path) -> Scenario:
+    """Load a shipped scenario by name (`corridor`) or any scenario file by path."""
+    text: str
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.exists():
+        try:
+            text = p.read_text(encoding="utf-8")
+        except OSError as exc:
+            raise ScenarioError([f"{p}: {exc.strerror or exc}"]) from None
+    else:
+        res = resources.files("relayd.sim") / "scenarios" / f"{name_or_path}.toml"
+        if not res.is_file():
+            raise ScenarioError([f"scenario: no scenario named {str(name_or_path)!r} "
+                                 f"(shipped: {', '.join(builtin_names())})"])
+        text = res.read_text(encoding="utf-8")
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError([f"{name_or_path}: not valid TOML: {exc}"]) from None
+    return parse_scenario(data)

@@ -1,0 +1,341 @@
+"""The simulated world: a scripted leader, relay bodies, sonar rays, collisions, radio chain.
+
+Pure and deterministic for a seed: no asyncio, no clock. The runner owns time and the
+fake devices; it tells the world the current time (`advance`), the true pose of every
+relay (read from the FakeRobots) and where each relay's servos point, and asks it for
+sonar ranges (the FakeRobot's `sonar_fn`), whether a motion step is allowed (its
+`motion_guard`), the RSSI the Yagi hears, and the per-hop link budget.
+
+Nodes of the chain, front to back: node 0 is the leader (end user), nodes 1..N are the
+relays (relay 1 follows the leader, relay k follows relay k-1), node N+1 is the
+command center. Hop k joins node k and node k+1.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from dataclasses import dataclass, field
+
+from relayd.sim.geometry import (
+    Point,
+    Polygon,
+    Segment,
+    cast_ray,
+    footprint,
+    polygon_hits_circle,
+    polygon_hits_segment,
+    polygon_segments,
+    polygons_overlap,
+    wrap_deg,
+)
+from relayd.sim.radio import HOP_DOWN_DBM, Radio, patch_gain_db, throughput_mbps, yagi_gain_db
+from relayd.sim.scenario import Scenario
+
+#: P3-AT body (protocols/p3at-arcos.md 6.1: RobotLength 626 mm, RobotWidth 505 mm).
+ROBOT_LENGTH_M = 0.626
+ROBOT_WIDTH_M = 0.505
+#: P3-AT sonar ring (protocols/p3at-arcos.md 6.2): x forward, y left (mm), heading (deg, ccw).
+SONAR_POSES: tuple[tuple[float, float, float], ...] = (
+    (147, 136, 90), (193, 119, 50), (227, 79, 30), (245, 27, 10),
+    (245, -27, -10), (227, -79, -30), (193, -119, -50), (147, -136, -90),
+    (-144, -136, -90), (-189, -119, -130), (-223, -79, -150), (-241, -27, -170),
+    (-241, 27, 170), (-223, 79, 150), (-189, 119, 130), (-144, 136, 90),
+)
+
+
+@dataclass(frozen=True, slots=True)
+class LeaderPose:
+    x_m: float
+    y_m: float
+    heading_deg: float
+    moving: bool
+    done: bool
+
+
+class LeaderScript:
+    """A leader walking waypoints at a constant speed, pausing where told. Pure in time."""
+
+    def __init__(self, waypoints: list[tuple[float, float, float]], speed_m_s: float,
+                 start_s: float = 0.0) -> None:
+        if not waypoints:
+            raise ValueError("a leader script needs at least one waypoint")
+        if speed_m_s <= 0:
+            raise ValueError("leader speed must be > 0")
+        self.speed_m_s = speed_m_s
+        # Legs: (t_start, t_end, from, to, heading); a pause is a leg with from == to.
+        self._legs: list[tuple[float, float, Point, Point, float]] = []
+        t = start_s
+        x0, y0, pause0 = waypoints[0]
+        heading = 0.0
+        if len(waypoints) > 1:
+            heading = math.degrees(math.atan2(waypoints[1][1] - y0, waypoints[1][0] - x0))
+        if start_s > 0:
+            self._legs.append((0.0, start_s, (x0, y0), (x0, y0), heading))
+        if pause0 > 0:
+            self._legs.append((t, t + pause0, (x0, y0), (x0, y0), heading))
+            t += pause0
+        for (xa, ya, _), (xb, yb, pause) in zip(waypoints, waypoints[1:], strict=False):
+            d = math.hypot(xb - xa, yb - ya)
+            if d > 0:
+                heading = math.degrees(math.atan2(yb - ya, xb - xa))
+                self._legs.append((t, t + d / speed_m_s, (xa, ya), (xb, yb), heading))
+                t += d / speed_m_s
+            if pause > 0:
+                self._legs.append((t, t + pause, (xb, yb), (xb, yb), heading))
+                t += pause
+        self.end_s = t
+        self._start = (x0, y0, heading)
+        self._final = (waypoints[-1][0], waypoints[-1][1], heading)
+
+    @property
+    def goal(self) -> Point:
+        return self._final[0], self._final[1]
+
+    def pose(self, t: float) -> LeaderPose:
+        if t >= self.end_s:
+            x, y, h = self._final
+            return LeaderPose(x, y, h, False, True)
+        for t0, t1, a, b, h in self._legs:
+            if t0 <= t < t1:
+                if a == b:
+                    return LeaderPose(a[0], a[1], h, False, False)
+                f = (t - t0) / (t1 - t0)
+                return LeaderPose(a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1]), h, True, False)
+        x, y, h = self._start
+        return LeaderPose(x, y, h, False, False)
+
+
+@dataclass(slots=True)
+class RelayBody:
+    """What the world knows of one relay robot: its true pose and servo pointing."""
+
+    name: str
+    x_m: float
+    y_m: float
+    theta_deg: float
+    scan_deg: float = 0.0
+    link_deg: float = 0.0
+    collisions: int = 0
+    in_contact: bool = False
+    rejected_steps: int = 0
+
+    @property
+    def pos(self) -> Point:
+        return self.x_m, self.y_m
+
+    def polygon(self) -> Polygon:
+        return footprint(self.x_m, self.y_m, self.theta_deg, ROBOT_LENGTH_M, ROBOT_WIDTH_M)
+
+
+@dataclass(frozen=True, slots=True)
+class Hop:
+    """One hop of the chain, between node `front` and node `front + 1`."""
+
+    front: int
+    power_dbm: float
+    rate_mbps: float
+    walls: int
+
+    @property
+    def up(self) -> bool:
+        return self.power_dbm >= HOP_DOWN_DBM
+
+
+@dataclass(slots=True)
+class LinkBudget:
+    hops: list[Hop] = field(default_factory=list)
+
+    @property
+    def e2e_mbps(self) -> float:
+        return min((h.rate_mbps for h in self.hops), default=0.0)
+
+    @property
+    def broken(self) -> bool:
+        return any(not h.up for h in self.hops)
+
+
+class World:
+    """One scenario's world with `scenario.relays` relays."""
+
+    def __init__(self, scenario: Scenario, seed: int = 0) -> None:
+        self.scenario = scenario
+        self.seed = seed
+        self.walls: list[Segment] = scenario.wall_segments()
+        self.boxes = scenario.box_shapes()
+        self.obstacles: list[Segment] = list(self.walls)
+        for b in self.boxes:
+            self.obstacles.extend(b.segments())
+        # Boxes attenuate too (a crate or a car is in the way of the radio path).
+        self.radio = Radio(scenario.radio_params(), self.obstacles, seed)
+        lead = scenario.leader
+        self.leader_script = LeaderScript([(w.x, w.y, w.pause_s) for w in lead.waypoints],
+                                          lead.speed_m_s, lead.start_s)
+        self.leader_kind = lead.kind
+        self.leader_radius_m = lead.radius_m
+        self.cc: Point = (scenario.command_center.x, scenario.command_center.y)
+        self.relays = [RelayBody(r.name, r.x, r.y, r.theta_deg) for r in scenario.relay[: scenario.relays]]
+        self._sonar_rng = random.Random(seed ^ 0x50AA)
+        self.t = 0.0
+        self.leader = self.leader_script.pose(0.0)
+        self._sonar_cfg = scenario.sonar
+
+    # --- time and poses -------------------------------------------------------------
+    def advance(self, t: float) -> None:
+        """Move the scripted leader to time t (clock seconds since the run started)."""
+        self.t = t
+        self.leader = self.leader_script.pose(t)
+
+    def set_pose(self, i: int, x_mm: float, y_mm: float, theta_deg: float) -> None:
+        r = self.relays[i]
+        r.x_m, r.y_m, r.theta_deg = x_mm / 1000.0, y_mm / 1000.0, theta_deg
+
+    def set_servos(self, i: int, scan_deg: float, link_deg: float) -> None:
+        r = self.relays[i]
+        r.scan_deg, r.link_deg = scan_deg, link_deg
+
+    def node_pos(self, k: int) -> Point:
+        """Position of chain node k (0 leader, 1..N relays, N+1 command center)."""
+        if k == 0:
+            return self.leader.x_m, self.leader.y_m
+        if k <= len(self.relays):
+            return self.relays[k - 1].pos
+        return self.cc
+
+    # --- bodies ---------------------------------------------------------------------
+    def leader_polygon(self) -> Polygon | None:
+        if self.leader_kind != "robot":
+            return None
+        return footprint(self.leader.x_m, self.leader.y_m, self.leader.heading_deg,
+                         ROBOT_LENGTH_M, ROBOT_WIDTH_M)
+
+    def _collides(self, i: int, poly: Polygon) -> bool:
+        xs = [p[0] for p in poly]
+        ys = [p[1] for p in poly]
+        x0, x1, y0, y1 = min(xs), max(xs), min(ys), max(ys)
+        for s in self.obstacles:
+            if (max(s.x1, s.x2) < x0 or min(s.x1, s.x2) > x1
+                    or max(s.y1, s.y2) < y0 or min(s.y1, s.y2) > y1):
+                continue
+            if polygon_hits_segment(poly, s):
+                return True
+        lp = self.leader_polygon()
+        if lp is not None:
+            if polygons_overlap(poly, lp):
+                return True
+        elif polygon_hits_circle(poly, self.leader.x_m, self.leader.y_m, self.leader_radius_m):
+            return True
+        for j, other in enumerate(self.relays):
+            if j != i and polygons_overlap(poly, other.polygon()):
+                return True
+        return False
+
+    def motion_ok(self, i: int, new_x_mm: float, new_y_mm: float, new_theta_deg: float) -> bool:
+        """The motion guard of relay i: False (and a counted collision) if the step hits."""
+        r = self.relays[i]
+        poly = footprint(new_x_mm / 1000.0, new_y_mm / 1000.0, new_theta_deg, ROBOT_LENGTH_M, ROBOT_WIDTH_M)
+        if not self._collides(i, poly):
+            r.in_contact = False
+            return True
+        if self._collides(i, r.polygon()):
+            # Already touching (something moved into us): let the robot move so it can get free.
+            return True
+        r.rejected_steps += 1
+        if not r.in_contact:
+            r.collisions += 1
+            r.in_contact = True
+        return False
+
+    # --- sensors --------------------------------------------------------------------
+    def sonar_mm(self, i: int, x_mm: float, y_mm: float, theta_deg: float) -> list[int]:
+        """The 16 sonar ranges of relay i at that pose: nearest hit of a few rays across each
+        sonar's beam, plus noise, clamped to the sonar's range (max range when no echo)."""
+        cfg = self._sonar_cfg
+        x, y = x_mm / 1000.0, y_mm / 1000.0
+        reach = cfg.max_range_m + 0.5
+        segs = [s for s in self.obstacles
+                if not (max(s.x1, s.x2) < x - reach or min(s.x1, s.x2) > x + reach
+                        or max(s.y1, s.y2) < y - reach or min(s.y1, s.y2) > y + reach)]
+        circles: list[tuple[float, float, float]] = []
+        lp = self.leader_polygon()
+        if lp is not None:
+            segs.extend(polygon_segments(lp))
+        else:
+            circles.append((self.leader.x_m, self.leader.y_m, self.leader_radius_m))
+        for j, other in enumerate(self.relays):
+            if j != i and math.hypot(other.x_m - x, other.y_m - y) < reach + 1.0:
+                segs.extend(polygon_segments(other.polygon()))
+        a = math.radians(theta_deg)
+        c, s = math.cos(a), math.sin(a)
+        n = cfg.rays
+        offsets = [0.0] if n == 1 else [-cfg.beam_deg / 2 + k * cfg.beam_deg / (n - 1) for k in range(n)]
+        max_mm = int(cfg.max_range_m * 1000)
+        min_mm = int(cfg.min_range_m * 1000)
+        out: list[int] = []
+        for sx, sy, sh in SONAR_POSES:
+            ox = x + (c * sx - s * sy) / 1000.0
+            oy = y + (s * sx + c * sy) / 1000.0
+            best: float | None = None
+            for off in offsets:
+                d = cast_ray(ox, oy, theta_deg + sh + off, cfg.max_range_m, segs, circles)
+                if d is not None and (best is None or d < best):
+                    best = d
+            if best is None:
+                out.append(max_mm)
+                continue
+            mm = best * 1000.0 + self._sonar_rng.gauss(0.0, cfg.noise_mm)
+            out.append(int(min(max_mm, max(min_mm, mm))))
+        return out
+
+    def yagi_rssi_dbm(self, i: int, scan_deg: float | None = None) -> float:
+        """What relay i's Yagi hears from its leader's transmitter with the scan servo at
+        `scan_deg` (default: where the world last saw it)."""
+        r = self.relays[i]
+        ang = r.scan_deg if scan_deg is None else scan_deg
+        lx, ly = self.node_pos(i)  # relay i is node i+1; its leader is node i
+        bearing_world = math.degrees(math.atan2(ly - r.y_m, lx - r.x_m))
+        off = wrap_deg(bearing_world - (r.theta_deg + ang))
+        gain = yagi_gain_db(off, self.radio.params.yagi_floor_db)
+        return self.radio.sample_dbm(r.pos, (lx, ly), gain)
+
+    def true_bearing_deg(self, i: int) -> float:
+        """The leader's bearing in relay i's frame (what a perfect estimator would say)."""
+        r = self.relays[i]
+        lx, ly = self.node_pos(i)
+        return wrap_deg(math.degrees(math.atan2(ly - r.y_m, lx - r.x_m)) - r.theta_deg)
+
+    def gap_m(self, i: int) -> float:
+        """Distance from relay i to its leader (centre to centre)."""
+        r = self.relays[i]
+        lx, ly = self.node_pos(i)
+        return math.hypot(lx - r.x_m, ly - r.y_m)
+
+    # --- the chain ------------------------------------------------------------------
+    def _hop_gain_db(self, k: int) -> float:
+        """Antenna gain of hop k: the back node's NanoStation pointing error if it is a relay
+        (its link servo aims at its leader, node k); omni APs and the command center 0 dB."""
+        back = k + 1
+        if 1 <= back <= len(self.relays):
+            r = self.relays[back - 1]
+            fx, fy = self.node_pos(k)
+            want = math.degrees(math.atan2(fy - r.y_m, fx - r.x_m))
+            off = wrap_deg(want - (r.theta_deg + r.link_deg))
+            return patch_gain_db(off, self.radio.params.patch_floor_db)
+        return 0.0
+
+    def hop(self, k: int) -> Hop:
+        a, b = self.node_pos(k), self.node_pos(k + 1)
+        power, _ = self.radio.mean_power_dbm(a, b, self._hop_gain_db(k))
+        _, n_walls = self.radio.wall_loss_db(a, b)
+        return Hop(k, power, throughput_mbps(power), n_walls)
+
+    def links(self) -> LinkBudget:
+        return LinkBudget([self.hop(k) for k in range(len(self.relays) + 1)])
+
+    def hop_sample_dbm(self, k: int) -> float:
+        """A reported (faded) signal level of hop k, as an airOS radio shows it."""
+        a, b = self.node_pos(k), self.node_pos(k + 1)
+        return self.radio.sample_dbm(a, b, self._hop_gain_db(k))
+
+    def collisions(self) -> int:
+        return sum(r.collisions for r in self.relays)
