@@ -1,0 +1,336 @@
+"""The HTTP API, live page and metrics endpoint of one relayd (SPEC 4.3).
+
+The app only reads `RelayState` and calls `Controls`; every handler answers from
+memory without waiting on a device, so /status stays fast while the control loop runs.
+Control endpoints need the configured bearer token: none configured means disabled
+(403), never open. No secret is ever put in a response or a log line.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hmac
+import json
+import math
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any, TypeVar
+
+import structlog
+from aiohttp import web
+from prometheus_client.aiohttp import make_aiohttp_handler
+from pydantic import BaseModel, ValidationError
+
+from drivers.clock import Clock
+from relayd.api.models import DriveRequest, ModeRequest
+from relayd.api.openapi import build_openapi
+from relayd.metrics import Metrics
+from relayd.state import Controls, ModeError, RelayState
+
+log = structlog.get_logger(__name__)
+_M = TypeVar("_M", bound=BaseModel)
+
+#: The P3-AT's absolute wheel speed limit (ARIA p3at.p MaxVelocity); the controller
+#: clamps further to v_max, this only rejects nonsense at the door.
+DEFAULT_MAX_DRIVE_MM_S = 1200.0
+#: Control bodies are a few dozen bytes; anything large is a mistake or an attack.
+MAX_BODY_BYTES = 16 * 1024
+STATIC_DIR = Path(str(resources.files("relayd.api") / "static"))
+
+
+@dataclass(slots=True)
+class ApiContext:
+    """What the handlers share; stored in the app under `CONTEXT`."""
+
+    state: RelayState
+    controls: Controls
+    clock: Clock
+    token: str | None
+    metrics: Metrics
+    healthz_max_age_s: float
+    max_drive_mm_s: float
+    sse_heartbeat_s: float
+    sse_min_interval_s: float
+    openapi_body: bytes
+    index_body: bytes
+    sse_tasks: set[asyncio.Task[Any]] = field(default_factory=set)
+
+
+CONTEXT: web.AppKey[ApiContext] = web.AppKey("relayd_api", ApiContext)
+
+
+def _scrub(value: Any) -> Any:
+    """Non-finite floats become null so the document stays valid JSON."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _scrub(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_scrub(v) for v in value]
+    return value
+
+
+def dumps(value: Any) -> str:
+    """Compact JSON; a NaN that slipped into the state turns into null instead of invalid JSON."""
+    try:
+        return json.dumps(value, allow_nan=False, separators=(",", ":"))
+    except ValueError:
+        return json.dumps(_scrub(value), allow_nan=False, separators=(",", ":"))
+
+
+def _json(value: Any, status: int = 200, headers: dict[str, str] | None = None) -> web.Response:
+    return web.Response(text=dumps(value), status=status, content_type="application/json",
+                        headers=headers)
+
+
+def _error(status: int, message: str, field_name: str | None = None, **extra: Any) -> web.Response:
+    body: dict[str, Any] = {"error": message, "field": field_name, **extra}
+    headers = {"WWW-Authenticate": 'Bearer realm="relayd"'} if status == 401 else None
+    return _json(body, status, headers)
+
+
+class _BadRequest(Exception):
+    def __init__(self, message: str, field_name: str | None) -> None:
+        super().__init__(message)
+        self.field_name = field_name
+
+
+def _reject_constant(name: str) -> float:
+    raise ValueError(f"{name} is not a JSON number")
+
+
+async def _parse_body(request: web.Request, model: type[_M]) -> _M:
+    raw = await request.read()
+    try:
+        data = json.loads(raw, parse_constant=_reject_constant)
+    except (ValueError, RecursionError) as exc:
+        raise _BadRequest(f"body is not valid JSON: {exc}", None) from exc
+    if not isinstance(data, dict):
+        raise _BadRequest("body must be a JSON object", None)
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        first = exc.errors(include_url=False, include_input=False)[0]
+        loc = ".".join(str(part) for part in first["loc"]) or None
+        raise _BadRequest(first["msg"], loc) from exc
+
+
+def _authorize(ctx: ApiContext, request: web.Request) -> web.Response | None:
+    """None when the bearer token matches; otherwise the 401/403 to send."""
+    if not ctx.token:
+        return _error(403, "control endpoints are disabled: no API token is configured")
+    scheme, _, presented = request.headers.get("Authorization", "").partition(" ")
+    presented = presented.strip()
+    if scheme.lower() != "bearer" or not presented:
+        log.warning("api_auth_missing", path=request.path, peer=request.remote)
+        return _error(401, "missing bearer token")
+    # Compare bytes: compare_digest refuses non-ASCII str, and a header may hold anything.
+    if not hmac.compare_digest(presented.encode("utf-8", "backslashreplace"),
+                               ctx.token.encode("utf-8")):
+        log.warning("api_auth_failed", path=request.path, peer=request.remote)
+        return _error(401, "wrong bearer token")
+    return None
+
+
+async def handle_status(request: web.Request) -> web.Response:
+    ctx = request.app[CONTEXT]
+    return _json(ctx.state.snapshot(ctx.clock.now()))
+
+
+async def handle_healthz(request: web.Request) -> web.Response:
+    ctx = request.app[CONTEXT]
+    st = ctx.state
+    body: dict[str, Any] = {"mode": str(st.mode), "state": str(st.state),
+                            "max_age_s": ctx.healthz_max_age_s}
+    if st.loop_tick_t is None:
+        return _json({"ok": False, "reason": "control loop has not ticked yet",
+                      "loop_age_s": None, **body}, 503)
+    age_s = max(0.0, ctx.clock.now() - st.loop_tick_t)
+    body["loop_age_s"] = round(age_s, 3)
+    if age_s > ctx.healthz_max_age_s:
+        return _json({"ok": False, "reason": f"control loop stalled: last tick {age_s:.3f} s ago",
+                      **body}, 503)
+    return _json({"ok": True, "reason": "control loop alive", **body})
+
+
+async def handle_openapi(request: web.Request) -> web.Response:
+    return web.Response(body=request.app[CONTEXT].openapi_body, content_type="application/json")
+
+
+async def handle_index(request: web.Request) -> web.Response:
+    return web.Response(
+        body=request.app[CONTEXT].index_body,
+        content_type="text/html",
+        charset="utf-8",
+        headers={
+            # Everything the page needs comes from this server: it must work offline.
+            "Content-Security-Policy": "default-src 'self'; img-src 'self' data:; "
+                                       "style-src 'self'; script-src 'self'; connect-src 'self'",
+            "Cache-Control": "no-cache",
+        },
+    )
+
+
+async def handle_mode(request: web.Request) -> web.Response:
+    ctx = request.app[CONTEXT]
+    denied = _authorize(ctx, request)
+    if denied is not None:
+        return denied
+    try:
+        req = await _parse_body(request, ModeRequest)
+    except _BadRequest as exc:
+        return _error(400, str(exc), exc.field_name)
+    try:
+        ctx.controls.set_mode(req.mode)
+    except ModeError as exc:
+        return _error(409, str(exc), "mode", mode=str(ctx.state.mode))
+    log.info("api_mode_set", mode=str(req.mode), peer=request.remote)
+    return _json({"ok": True, "mode": str(req.mode)})
+
+
+async def handle_drive(request: web.Request) -> web.Response:
+    ctx = request.app[CONTEXT]
+    denied = _authorize(ctx, request)
+    if denied is not None:
+        return denied
+    try:
+        req = await _parse_body(request, DriveRequest)
+    except _BadRequest as exc:
+        return _error(400, str(exc), exc.field_name)
+    for name in ("left_mm_s", "right_mm_s"):
+        value = getattr(req, name)
+        if abs(value) > ctx.max_drive_mm_s:
+            return _error(400, f"{name} must be within ±{ctx.max_drive_mm_s:g} mm/s", name)
+    try:
+        ctx.controls.manual_drive(req.left_mm_s, req.right_mm_s)
+    except ModeError as exc:
+        return _error(409, str(exc), None, mode=str(ctx.state.mode))
+    log.debug("api_drive", left_mm_s=req.left_mm_s, right_mm_s=req.right_mm_s, peer=request.remote)
+    return _json({"ok": True, "left_mm_s": req.left_mm_s, "right_mm_s": req.right_mm_s})
+
+
+def _sse(event: str, data: str, event_id: int | None = None) -> bytes:
+    head = f"id: {event_id}\n" if event_id is not None else ""
+    return f"{head}event: {event}\ndata: {data}\n\n".encode()
+
+
+async def handle_events(request: web.Request) -> web.StreamResponse:
+    """Push the status document whenever `state.touch()` fires; heartbeat while idle."""
+    ctx = request.app[CONTEXT]
+    state, clock = ctx.state, ctx.clock
+    resp = web.StreamResponse(headers={
+        "Content-Type": "text/event-stream",
+        "Cache-Control": "no-cache",
+        # Tell reverse proxies not to buffer the stream.
+        "X-Accel-Buffering": "no",
+    })
+    task = asyncio.current_task()
+    if task is not None:
+        ctx.sse_tasks.add(task)
+    try:
+        await resp.prepare(request)
+        # Clients reconnect after 2 s if the robot restarts.
+        await resp.write(b"retry: 2000\n\n")
+        sent_rev = state.revision
+        await resp.write(_sse("status", dumps(state.snapshot(clock.now())), sent_rev))
+        while True:
+            changed = state.changed  # touch() replaces the event: take it before checking
+            if state.revision == sent_rev:
+                try:
+                    async with clock.timeout(ctx.sse_heartbeat_s):
+                        await changed.wait()
+                except TimeoutError:
+                    beat = {"uptime_s": round(clock.now() - state.started_t, 3),
+                            "revision": state.revision}
+                    await resp.write(_sse("heartbeat", dumps(beat)))
+                continue
+            sent_rev = state.revision
+            await resp.write(_sse("status", dumps(state.snapshot(clock.now())), sent_rev))
+            # Coalesce bursts of touches (10 Hz SIPs plus scans) into a bounded event rate.
+            await clock.sleep(ctx.sse_min_interval_s)
+    except (ConnectionResetError, ConnectionError):
+        log.debug("sse_client_gone", peer=request.remote)
+    finally:
+        if task is not None:
+            ctx.sse_tasks.discard(task)
+    return resp
+
+
+async def _close_streams(app: web.Application) -> None:
+    """Event streams never end by themselves: cancel them so shutdown does not wait."""
+    for task in list(app[CONTEXT].sse_tasks):
+        task.cancel()
+
+
+@web.middleware
+async def _headers_middleware(request: web.Request, handler: Any) -> web.StreamResponse:
+    response: web.StreamResponse = await handler(request)
+    response.headers.setdefault("X-Content-Type-Options", "nosniff")
+    return response
+
+
+def make_app(
+    state: RelayState,
+    controls: Controls,
+    *,
+    clock: Clock,
+    token: str | None,
+    metrics: Metrics | None = None,
+    healthz_max_age_s: float = 1.0,
+    max_drive_mm_s: float = DEFAULT_MAX_DRIVE_MM_S,
+    sse_heartbeat_s: float = 10.0,
+    sse_min_interval_s: float = 0.1,
+) -> web.Application:
+    """The relayd web application. `metrics` defaults to a fresh `Metrics(state, clock)`."""
+    if metrics is None:
+        metrics = Metrics(state, clock)
+    ctx = ApiContext(
+        state=state,
+        controls=controls,
+        clock=clock,
+        token=token or None,
+        metrics=metrics,
+        healthz_max_age_s=healthz_max_age_s,
+        max_drive_mm_s=max_drive_mm_s,
+        sse_heartbeat_s=sse_heartbeat_s,
+        sse_min_interval_s=sse_min_interval_s,
+        openapi_body=json.dumps(build_openapi(max_drive_mm_s), indent=1).encode(),
+        index_body=(STATIC_DIR / "index.html").read_bytes(),
+    )
+    app = web.Application(client_max_size=MAX_BODY_BYTES, middlewares=[_headers_middleware])
+    app[CONTEXT] = ctx
+    app.router.add_get("/", handle_index)
+    app.router.add_get("/status", handle_status)
+    app.router.add_get("/healthz", handle_healthz)
+    app.router.add_get("/metrics", make_aiohttp_handler(metrics.registry))
+    app.router.add_get("/openapi.json", handle_openapi)
+    app.router.add_get("/events", handle_events)
+    app.router.add_post("/api/mode", handle_mode)
+    app.router.add_post("/api/drive", handle_drive)
+    app.router.add_static("/static/", STATIC_DIR, append_version=False)
+    app.on_shutdown.append(_close_streams)
+    return app
+
+
+async def start_api(app: web.Application, host: str, port: int) -> tuple[web.AppRunner, int]:
+    """Serve `app` on host:port (0 = ephemeral); returns the runner and the bound port.
+
+    Stop with `await runner.cleanup()`. The access log is off: the live page and
+    Prometheus poll constantly, and control requests are logged by their handlers.
+    """
+    runner = web.AppRunner(app, access_log=None, shutdown_timeout=2.0)
+    await runner.setup()
+    site = web.TCPSite(runner, host, port)
+    try:
+        await site.start()
+    except BaseException:
+        await runner.cleanup()
+        raise
+    bound = port
+    for address in runner.addresses:
+        if isinstance(address, tuple) and len(address) >= 2:
+            bound = int(address[1])
+            break
+    log.info("api_listening", host=host, port=bound)
+    return runner, bound

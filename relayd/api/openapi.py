@@ -1,0 +1,210 @@
+"""The OpenAPI 3.0 description of relayd's HTTP API, served at /openapi.json.
+
+Hand-written rather than generated: pydantic emits JSON Schema 2020-12 (`anyOf` with
+`null`), which OpenAPI 3.0 tools read differently from 3.0's `nullable: true`. The
+request schemas here must agree with the pydantic models in `relayd.api.models`;
+tests/test_api.py checks both against the same inputs, and schemathesis checks every
+response against this document.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from relayd import __version__
+from relayd.state import SONAR_COUNT, DriveState, Mode
+
+
+def _num(nullable: bool = True, **extra: Any) -> dict[str, Any]:
+    return {"type": "number", "nullable": nullable, **extra}
+
+
+def _obj(props: dict[str, Any], *, nullable: bool = False, required: bool = True) -> dict[str, Any]:
+    schema: dict[str, Any] = {"type": "object", "properties": props}
+    if required:
+        schema["required"] = list(props)
+    if nullable:
+        schema["nullable"] = True
+    return schema
+
+
+def _error(description: str) -> dict[str, Any]:
+    return {"description": description,
+            "content": {"application/json": {"schema": {"$ref": "#/components/schemas/Error"}}}}
+
+
+def _json(description: str, ref: str) -> dict[str, Any]:
+    return {"description": description,
+            "content": {"application/json": {"schema": {"$ref": f"#/components/schemas/{ref}"}}}}
+
+
+_LINK = _obj({
+    "signal_dbm": _num(), "rssi": _num(), "noise_dbm": _num(), "ccq_pct": _num(),
+    "tx_mbps": _num(), "rx_mbps": _num(), "age_s": _num(),
+})
+_HEALTH = _obj({
+    "connected": {"type": "boolean"},
+    "age_s": _num(),
+    "errors": {"type": "integer", "minimum": 0},
+    "reconnects": {"type": "integer", "minimum": 0},
+    "last_error": {"type": "string", "nullable": True},
+})
+_SCAN = _obj({
+    "t": _num(False), "age_s": _num(False),
+    "angles": {"type": "array", "items": {"type": "number"}},
+    "rssi": {"type": "array", "items": {"type": "number"}},
+    "bearing_deg": _num(False), "rssi_leader_dbm": _num(False), "period_s": _num(),
+}, nullable=True)
+
+STATUS_SCHEMA: dict[str, Any] = _obj({
+    "version": {"type": "string"},
+    "robot": {"type": "string", "nullable": True},
+    "uptime_s": _num(False),
+    "mode": {"type": "string", "enum": [m.value for m in Mode]},
+    "state": {"type": "string", "enum": [s.value for s in DriveState]},
+    "reason": {"type": "string"},
+    "bearing_deg": _num(description="leader bearing, robot frame, counter-clockwise positive"),
+    "link_bearing_deg": _num(description="where the link antenna (servo 2) points"),
+    "rssi_leader_dbm": _num(description="RSSI^l: best RSSI of the last scan"),
+    "rssi_behind_dbm": _num(description="RSSI^b: RSSI of the node behind"),
+    "situation": {"type": "integer", "enum": [0, 1, 2]},
+    "wheels_mm_s": _obj({"left": _num(False), "right": _num(False)}),
+    "pose": _obj({"x_mm": _num(), "y_mm": _num(), "theta_deg": _num()}),
+    "battery_v": _num(),
+    "motors_enabled": {"type": "boolean"},
+    "sonar_mm": {"type": "array", "minItems": SONAR_COUNT, "maxItems": SONAR_COUNT,
+                 "items": {"type": "integer", "nullable": True}},
+    "last_scan": _SCAN,
+    "scan_count": {"type": "integer", "minimum": 0},
+    "links": {"type": "object", "additionalProperties": _LINK},
+    "health": {"type": "object", "additionalProperties": _HEALTH},
+    "thresholds": {"type": "object", "additionalProperties": {"type": "number"}},
+})
+
+
+def build_openapi(max_drive_mm_s: float) -> dict[str, Any]:
+    """The document for an app whose drive limit is `max_drive_mm_s`."""
+    wheel = {"type": "number", "minimum": -max_drive_mm_s, "maximum": max_drive_mm_s}
+    secured: list[dict[str, list[str]]] = [{"bearer": []}]
+    control_errors = {
+        "400": _error("bad JSON, or a missing, unknown, wrong-typed or out-of-range field (named in `field`)"),
+        "401": _error("no or wrong bearer token"),
+        "403": _error("no API token is configured: control endpoints are disabled"),
+        "409": _error("the current mode does not allow this request"),
+        "413": {"description": "request body too large"},
+    }
+    return {
+        "openapi": "3.0.3",
+        "info": {
+            "title": "relayd",
+            "version": __version__,
+            "description": "Status and control of one Wi-Fi relay robot.",
+        },
+        "paths": {
+            "/status": {"get": {
+                "summary": "Everything the robot knows right now",
+                "operationId": "getStatus",
+                "responses": {"200": _json("the status document", "Status")},
+            }},
+            "/healthz": {"get": {
+                "summary": "Liveness of the control loop",
+                "operationId": "getHealthz",
+                "responses": {
+                    "200": _json("the control loop ticked recently", "Health"),
+                    "503": _json("the control loop is not ticking; `reason` says why", "Health"),
+                },
+            }},
+            "/metrics": {"get": {
+                "summary": "Prometheus metrics",
+                "operationId": "getMetrics",
+                "responses": {"200": {"description": "Prometheus text exposition",
+                                      "content": {"text/plain": {"schema": {"type": "string"}}}}},
+            }},
+            "/events": {"get": {
+                "summary": "Server-Sent Events: `status` events carrying the status document, "
+                           "`heartbeat` events while nothing changes",
+                "operationId": "getEvents",
+                "responses": {"200": {"description": "an endless event stream",
+                                      "content": {"text/event-stream": {"schema": {"type": "string"}}}}},
+            }},
+            "/openapi.json": {"get": {
+                "summary": "This document",
+                "operationId": "getOpenapi",
+                "responses": {"200": {"description": "OpenAPI 3.0 document",
+                                      "content": {"application/json": {"schema": {"type": "object"}}}}},
+            }},
+            "/": {"get": {
+                "summary": "The live page",
+                "operationId": "getLivePage",
+                "responses": {"200": {"description": "HTML page",
+                                      "content": {"text/html": {"schema": {"type": "string"}}}}},
+            }},
+            "/api/mode": {"post": {
+                "summary": "Change the operating mode",
+                "operationId": "setMode",
+                "security": secured,
+                "requestBody": {"required": True, "content": {"application/json": {
+                    "schema": {"$ref": "#/components/schemas/ModeRequest"}}}},
+                "responses": {"200": _json("mode changed", "ModeResponse"), **control_errors},
+            }},
+            "/api/drive": {"post": {
+                "summary": "Drive the wheels (manual mode only; expires after the dead-man time)",
+                "operationId": "drive",
+                "security": secured,
+                "requestBody": {"required": True, "content": {"application/json": {
+                    "schema": {"$ref": "#/components/schemas/DriveRequest"}}}},
+                "responses": {"200": _json("command accepted", "DriveResponse"), **control_errors},
+            }},
+        },
+        "components": {
+            "securitySchemes": {"bearer": {"type": "http", "scheme": "bearer"}},
+            "schemas": {
+                "Status": STATUS_SCHEMA,
+                "Health": {
+                    "type": "object",
+                    "required": ["ok"],
+                    "properties": {
+                        "ok": {"type": "boolean"},
+                        "reason": {"type": "string"},
+                        "loop_age_s": _num(),
+                        "max_age_s": _num(False),
+                        "mode": {"type": "string", "enum": [m.value for m in Mode]},
+                        "state": {"type": "string", "enum": [s.value for s in DriveState]},
+                    },
+                },
+                "Error": {
+                    "type": "object",
+                    "required": ["error"],
+                    "properties": {
+                        "error": {"type": "string"},
+                        "field": {"type": "string", "nullable": True},
+                        "mode": {"type": "string", "enum": [m.value for m in Mode]},
+                    },
+                },
+                "ModeRequest": {
+                    "type": "object",
+                    "required": ["mode"],
+                    "additionalProperties": False,
+                    "properties": {"mode": {"type": "string", "enum": [m.value for m in Mode]}},
+                },
+                "ModeResponse": {
+                    "type": "object",
+                    "required": ["ok", "mode"],
+                    "properties": {"ok": {"type": "boolean"},
+                                   "mode": {"type": "string", "enum": [m.value for m in Mode]}},
+                },
+                "DriveRequest": {
+                    "type": "object",
+                    "required": ["left_mm_s", "right_mm_s"],
+                    "additionalProperties": False,
+                    "properties": {"left_mm_s": wheel, "right_mm_s": wheel},
+                },
+                "DriveResponse": {
+                    "type": "object",
+                    "required": ["ok", "left_mm_s", "right_mm_s"],
+                    "properties": {"ok": {"type": "boolean"},
+                                   "left_mm_s": {"type": "number"}, "right_mm_s": {"type": "number"}},
+                },
+            },
+        },
+    }
