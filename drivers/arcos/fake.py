@@ -1,0 +1,452 @@
+"""FakeRobot: the robot side of the ARCOS protocol, for tests and the simulator.
+
+Built on the same codec as the driver. It mirrors MobileSim (protocol doc 8 and 10)
+and adds what MobileSim lacks: the real 2 s watchdog stop, SIP type 0x33 while moving,
+and a sonar that reports a few sonars per SIP. Sonar policy: `sonars_per_sip`
+readings per SIP (default 8), taken round-robin from the front and rear rings in
+parallel (0, 8, 1, 9, ...), so the whole ring refreshes every 200 ms; 16 = all every
+SIP like MobileSim. No echo (None from `sonar_fn`) is reported as 5000 mm.
+
+The fake keeps a TRUE world pose for the simulator and, separately, odometry that
+starts at 0,0,0 at OPEN and is reported in robot units (mm / DistConvFactor, 15-bit
+wrapped). A pty hang-up leaves the robot in its session (it will answer the next
+SYNC0 with SIPs, as a real robot does after a pulled cable); a TCP client going away
+ends the session, as MobileSim does.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import random
+from collections import deque
+from collections.abc import Callable, Coroutine, Sequence
+
+import structlog
+
+from drivers.arcos.codec import (
+    Arg,
+    CodecError,
+    Command,
+    Decoder,
+    PacketType,
+    decode_command,
+    encode_packet,
+    split_vel2,
+)
+from drivers.arcos.sip import (
+    ANGLE_CONV_RAD,
+    FLAG_ESTOP,
+    FLAG_MOTORS,
+    FLAG_SONARS,
+    MAX_RVEL_DEG_S,
+    MAX_VEL_MM_S,
+    NO_ECHO_MM,
+    STALL_LEFT,
+    STALL_RIGHT,
+    VEL2_DIVISOR_MM_S,
+    RawSip,
+    RobotIdentity,
+    conv_factors,
+    encode_config,
+    encode_identity,
+    normalize_deg,
+    vel_rvel_to_wheels,
+    wheel_to_vel_rvel,
+)
+from drivers.arcos.sonar import SONAR_COUNT
+from drivers.clock import REAL_CLOCK, Clock
+from drivers.fakeio import PtyPort, TcpPort
+
+log = structlog.get_logger(__name__)
+
+Pose = tuple[float, float, float]
+SonarFn = Callable[[float, float, float], Sequence[float | None]]
+MotionGuard = Callable[[Pose, Pose], bool]
+
+SIP_PERIOD_S = 0.1
+FIRING_ORDER = tuple(i for pair in zip(range(8), range(8, 16), strict=True) for i in pair)
+
+
+class FakeRobot:
+    """A protocol-true P3-AT served over a pty and/or loopback TCP."""
+
+    def __init__(self, name: str = "relay", robot_class: str = "Pioneer", subclass: str = "p3at",
+                 *, clock: Clock = REAL_CLOCK, sonar_fn: SonarFn | None = None,
+                 motion_guard: MotionGuard | None = None, pose: Pose = (0.0, 0.0, 0.0),
+                 battery_v: float = 13.0, trans_accel_mm_s2: float = 300.0,
+                 rot_accel_deg_s2: float = 100.0, sonars_per_sip: int = 8,
+                 watchdog_s: float = 2.0, old_session: bool = False, seed: int | None = None) -> None:
+        self.identity = RobotIdentity(name, robot_class, subclass)
+        self.factors = conv_factors(subclass)
+        self.clock = clock
+        self.sonar_fn = sonar_fn
+        self.motion_guard = motion_guard
+        self.x_mm, self.y_mm, self.theta_deg = (float(v) for v in pose)
+        self.battery_v = battery_v
+        self.trans_accel_mm_s2 = trans_accel_mm_s2
+        self.rot_accel_deg_s2 = rot_accel_deg_s2
+        self.sonars_per_sip = max(1, min(SONAR_COUNT, sonars_per_sip))
+        self.watchdog_s = watchdog_s
+
+        #: every command received, in order, as (command number, argument)
+        self.commands: list[tuple[int, Arg]] = []
+        self.bad_commands = 0
+        self.sips_sent = 0
+        self.sessions = 0
+
+        # adversarial switches
+        self.split_writes = False  # write each packet in random pieces
+        self.garbage = False  # random bytes (never 0xFA) between packets
+        self.corrupt_rate = 0.0  # probability of a corrupted checksum per packet
+        self.silent = False  # deaf and mute: no replies, no SIPs
+        self.estop_pressed = False  # the red STOP button (FLAGS bit 5)
+
+        self.synced = False
+        self.opened = False
+        self.motors_enabled = False
+        self.sonar_on = False
+        self.target_vel_mm_s = 0.0
+        self.target_rvel_deg_s = 0.0
+        self.vel_mm_s = 0.0
+        self.rvel_deg_s = 0.0
+        self.stalled = False
+        self._sync_state = 0
+        self._odo: list[float] = [0.0, 0.0, 0.0]
+        self._last_cmd_t = clock.now()
+        self._watchdog_tripped = False
+        self._fire_pos = 0
+        self._rng = random.Random(seed)
+        self._decoder = Decoder()
+        self._pty: PtyPort | None = None
+        self._tcp: TcpPort | None = None
+        self._task: asyncio.Task[None] | None = None
+        self._bg: set[asyncio.Task[object]] = set()
+        self._out: deque[bytes] = deque()
+        self._draining = False
+        if old_session:
+            self.start_old_session()
+
+    # ------------------------------------------------------------------ world and serving
+
+    @property
+    def pose(self) -> Pose:
+        return (self.x_mm, self.y_mm, self.theta_deg)
+
+    def set_pose(self, x_mm: float, y_mm: float, theta_deg: float) -> None:
+        """Move the robot in the world (odometry does not see it, as with a kidnapped robot)."""
+        self.x_mm, self.y_mm, self.theta_deg = float(x_mm), float(y_mm), normalize_deg(theta_deg)
+
+    @property
+    def odometry_mm_deg(self) -> Pose:
+        """The robot's own odometric pose (mm, deg) since OPEN."""
+        return (self._odo[0], self._odo[1], self._odo[2])
+
+    @property
+    def port_path(self) -> str | None:
+        return self._pty.path if self._pty is not None else None
+
+    @property
+    def url(self) -> str | None:
+        return self._tcp.url if self._tcp is not None else None
+
+    def serve_pty(self, link_path: str | None = None) -> str:
+        """Serve on a new pty (a stable symlink at `link_path` if given). Returns the path."""
+        if self._pty is None:
+            self._pty = PtyPort(self._on_data, link_path)
+        path = self._pty.open()
+        self._ensure_task()
+        return path
+
+    async def serve_tcp(self, port: int = 0) -> str:
+        """Serve on 127.0.0.1:`port` (0 = any). Returns the socket:// URL."""
+        if self._tcp is None:
+            self._tcp = TcpPort(self._on_data, port=port, on_connect=self._on_tcp_connect)
+        url = await self._tcp.open()
+        self._ensure_task()
+        return url
+
+    async def start(self) -> None:
+        self._ensure_task()
+
+    async def stop(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+            self._task = None
+        for task in list(self._bg):
+            task.cancel()
+        if self._pty is not None:
+            self._pty.close()
+        if self._tcp is not None:
+            await self._tcp.close()
+
+    def hang_up(self) -> None:
+        """The cable is pulled: the pty disappears / the TCP listener and client go away."""
+        if self._pty is not None:
+            self._pty.hang_up()
+        if self._tcp is not None:
+            self._end_session()
+            self._spawn(self._tcp.close())
+
+    def reappear(self) -> None:
+        """The cable is back (same pty link path / same TCP port)."""
+        if self._pty is not None:
+            self._pty.open()
+        if self._tcp is not None:
+            self._spawn(self._tcp.open())
+
+    def start_old_session(self) -> None:
+        """Behave as a robot whose last client never sent CLOSE: already OPEN, streaming SIPs."""
+        self.synced = True
+        self.opened = True
+        self.sonar_on = True
+        self._last_cmd_t = self.clock.now()
+
+    def _spawn(self, coro: Coroutine[object, object, object]) -> None:
+        task: asyncio.Task[object] = asyncio.ensure_future(coro)
+        self._bg.add(task)
+        task.add_done_callback(self._bg.discard)
+
+    def _ensure_task(self) -> None:
+        if self._task is None or self._task.done():
+            self._task = asyncio.get_running_loop().create_task(self._sip_loop(), name="fake-robot")
+
+    def _on_tcp_connect(self) -> None:
+        # MobileSim: each TCP client starts from scratch.
+        self._end_session()
+        self._decoder.reset()
+        self._out.clear()
+
+    # ------------------------------------------------------------------ commands
+
+    def _on_data(self, data: bytes) -> None:
+        if self.silent:
+            return
+        for pkt in self._decoder.feed(data):
+            try:
+                cmd, arg = decode_command(pkt)
+            except CodecError as exc:
+                self.bad_commands += 1
+                log.debug("fake_robot_bad_command", error=str(exc))
+                continue
+            self.commands.append((cmd, arg))
+            self._last_cmd_t = self.clock.now()
+            self._watchdog_tripped = False
+            self._handle(cmd, arg)
+
+    def _handle(self, cmd: int, arg: Arg) -> None:
+        if not self.opened:
+            self._handle_sync(cmd)
+            return
+        iarg = arg if isinstance(arg, int) else None
+        if cmd == Command.SYNC2:  # CLOSE
+            self._end_session()
+        elif cmd == Command.ENABLE:
+            self.motors_enabled = bool(iarg)
+            if not self.motors_enabled:
+                self._halt(hard=True)
+        elif cmd == Command.VEL and iarg is not None and self._can_move():
+            self.target_vel_mm_s = float(max(-MAX_VEL_MM_S, min(MAX_VEL_MM_S, iarg)))
+        elif cmd in (Command.RVEL, Command.ROTATE) and iarg is not None and self._can_move():
+            self.target_rvel_deg_s = float(max(-MAX_RVEL_DEG_S, min(MAX_RVEL_DEG_S, iarg)))
+        elif cmd == Command.VEL2 and iarg is not None and self._can_move():
+            left, right = split_vel2(iarg)
+            vel, rvel = wheel_to_vel_rvel(left * VEL2_DIVISOR_MM_S, right * VEL2_DIVISOR_MM_S)
+            self.target_vel_mm_s, self.target_rvel_deg_s = float(vel), float(rvel)
+        elif cmd == Command.STOP:
+            self._halt(hard=False)
+        elif cmd == Command.E_STOP:
+            self._halt(hard=True)
+        elif cmd == Command.SONAR:
+            self.sonar_on = iarg is None or iarg != 0
+        elif cmd == Command.CONFIG:
+            self._emit(encode_packet(PacketType.CONFIG, encode_config(
+                self.identity, watchdog_ms=round(self.watchdog_s * 1000),
+                trans_accel=round(self.trans_accel_mm_s2), rot_accel=round(self.rot_accel_deg_s2))))
+        elif cmd == Command.SETO:
+            self._odo = [0.0, 0.0, 0.0]
+        # PULSE, OPEN and everything else: recorded only (MobileSim ignores unknown numbers).
+
+    def _handle_sync(self, cmd: int) -> None:
+        if cmd == Command.SYNC0:
+            self._sync_state = 1
+            self.synced = False
+            self._emit(encode_packet(PacketType.SYNC0))
+        elif cmd == Command.SYNC1 and self._sync_state == 1:
+            self._sync_state = 2
+            self._emit(encode_packet(PacketType.SYNC1))
+        elif cmd == Command.SYNC2 and self._sync_state >= 2:
+            self._sync_state = 3
+            self.synced = True
+            self._emit(encode_packet(PacketType.SYNC2, encode_identity(self.identity)))
+        elif cmd == Command.SYNC1 and self.synced:  # OPEN
+            self._open_session()
+
+    def _open_session(self) -> None:
+        self.opened = True
+        self.sessions += 1
+        self.motors_enabled = False  # motors are off after every connect (doc 2.1 step 5)
+        self.sonar_on = True  # "ARIA assumes sonar are on at start" (MobileSim)
+        self._odo = [0.0, 0.0, 0.0]
+        self._halt(hard=True)
+        self._last_cmd_t = self.clock.now()
+
+    def _end_session(self) -> None:
+        self.opened = False
+        self.synced = False
+        self._sync_state = 0
+        self.motors_enabled = False
+        self._halt(hard=True)
+
+    def _can_move(self) -> bool:
+        return self.motors_enabled and not self.estop_pressed
+
+    def _halt(self, *, hard: bool) -> None:
+        self.target_vel_mm_s = self.target_rvel_deg_s = 0.0
+        if hard:
+            self.vel_mm_s = self.rvel_deg_s = 0.0
+
+    # ------------------------------------------------------------------ physics and SIPs
+
+    async def _sip_loop(self) -> None:
+        last = next_t = self.clock.now()
+        while True:
+            next_t += SIP_PERIOD_S
+            await self.clock.sleep(next_t - self.clock.now())
+            now = self.clock.now()
+            if now - next_t > 5 * SIP_PERIOD_S:
+                next_t = now  # we were starved; do not burst to catch up
+            try:
+                self.step(now - last, now)
+                last = now
+                if self.opened and not self.silent:
+                    self._send_sip()
+            except Exception:  # a sonar_fn/motion_guard bug must not kill the robot
+                log.exception("fake_robot_step_error")
+                last = now
+
+    def step(self, dt: float, now: float | None = None) -> None:
+        """Advance the physics by `dt` clock seconds (the SIP loop calls this)."""
+        now = self.clock.now() if now is None else now
+        if self.opened and now - self._last_cmd_t > self.watchdog_s and not self._watchdog_tripped:
+            # The ARCOS watchdog: no packet for `watchdog_s` stops the robot.
+            self._watchdog_tripped = True
+            self._halt(hard=False)
+            log.info("fake_robot_watchdog_stop")
+        if not self._can_move():
+            self._halt(hard=True)
+        self.vel_mm_s = _approach(self.vel_mm_s, self.target_vel_mm_s, self.trans_accel_mm_s2 * dt)
+        self.rvel_deg_s = _approach(self.rvel_deg_s, self.target_rvel_deg_s, self.rot_accel_deg_s2 * dt)
+        if dt <= 0 or (self.vel_mm_s == 0 and self.rvel_deg_s == 0):
+            self.stalled = False
+            return
+        dth = self.rvel_deg_s * dt
+        mid = math.radians(self.theta_deg + dth / 2.0)
+        ds = self.vel_mm_s * dt
+        old = self.pose
+        new = (self.x_mm + ds * math.cos(mid), self.y_mm + ds * math.sin(mid),
+               normalize_deg(self.theta_deg + dth))
+        self.stalled = False
+        if self.motion_guard is not None and not self.motion_guard(old, new):
+            self.stalled = True
+            ds = 0.0
+            new = (old[0], old[1], normalize_deg(self.theta_deg + dth))
+            if dth == 0 or not self.motion_guard(old, new):
+                dth = 0.0
+                new = old
+        self.x_mm, self.y_mm, self.theta_deg = new
+        # Odometry sees the same wheel motion, in its own frame.
+        omid = math.radians(self._odo[2] + dth / 2.0)
+        self._odo[0] += ds * math.cos(omid)
+        self._odo[1] += ds * math.sin(omid)
+        self._odo[2] = normalize_deg(self._odo[2] + dth)
+
+    def _sonar_readings(self) -> tuple[tuple[int, int], ...]:
+        if not self.sonar_on:
+            return ()
+        ranges: Sequence[float | None] = (
+            self.sonar_fn(self.x_mm, self.y_mm, self.theta_deg) if self.sonar_fn is not None
+            else [None] * SONAR_COUNT)
+        out = []
+        for _ in range(self.sonars_per_sip):
+            idx = FIRING_ORDER[self._fire_pos % SONAR_COUNT]
+            self._fire_pos += 1
+            r = ranges[idx] if idx < len(ranges) else None
+            out.append((idx, NO_ECHO_MM if r is None else max(0, min(NO_ECHO_MM, round(r)))))
+        return tuple(out)
+
+    def build_sip(self) -> RawSip:
+        dist = self.factors.dist_mm_per_unit
+        vel = 0.0 if self.stalled else self.vel_mm_s
+        left, right = vel_rvel_to_wheels(vel, self.rvel_deg_s)
+        flags = (FLAG_MOTORS if self.motors_enabled else 0) | (FLAG_SONARS if self.sonar_on else 0)
+        flags |= FLAG_ESTOP if self.estop_pressed else 0
+        th_units = round(math.radians(self._odo[2]) / ANGLE_CONV_RAD)
+        return RawSip(
+            moving=abs(vel) > 0 or abs(self.rvel_deg_s) > 0,
+            x_raw=round(self._odo[0] / dist) & 0x7FFF, y_raw=round(self._odo[1] / dist) & 0x7FFF,
+            th_raw=max(-2048, min(2047, th_units)) if th_units != 2048 else -2048,
+            left_raw=round(left), right_raw=round(right),
+            battery_dv=max(0, min(255, round(self.battery_v * 10))),
+            stall_bumpers=(STALL_LEFT | STALL_RIGHT) if self.stalled else 0, control=0,
+            flags=flags, compass=0, sonar=self._sonar_readings(),
+            battery_x10=round(self.battery_v * 10), charge_state=0,
+            rotvel_x10=round(self.rvel_deg_s * 10), fault_flags=0)
+
+    def _send_sip(self) -> None:
+        ptype, payload = self.build_sip().encode()
+        self._emit(encode_packet(ptype, payload))
+        self.sips_sent += 1
+
+    # ------------------------------------------------------------------ output
+
+    def _emit(self, data: bytes) -> None:
+        if self.silent:
+            return
+        if self.corrupt_rate and self._rng.random() < self.corrupt_rate:
+            data = data[:-1] + bytes(((data[-1] + 1 + self._rng.randrange(255)) & 0xFF,))
+        if self.garbage:
+            # Never 0xFA: a false header would stall the stream until 255 bytes arrived.
+            junk = bytes(self._rng.choice([b for b in range(256) if b != 0xFA])
+                         for _ in range(self._rng.randint(1, 8)))
+            data = junk + data
+        if self.split_writes and len(data) > 1:
+            cuts = sorted(self._rng.sample(range(1, len(data)), min(3, len(data) - 1)))
+            pieces = [data[a:b] for a, b in zip([0, *cuts], [*cuts, len(data)], strict=True)]
+            self._out.extend(pieces)
+        else:
+            self._out.append(data)
+        if not self._draining:
+            if self.split_writes:
+                self._draining = True
+                asyncio.get_running_loop().call_later(0.001, self._drain)
+            else:
+                self._flush()
+
+    def _flush(self) -> None:
+        while self._out:
+            self._write(self._out.popleft())
+
+    def _drain(self) -> None:
+        # One piece per wakeup so the driver really sees partial packets.
+        if self._out:
+            self._write(self._out.popleft())
+        if self._out:
+            asyncio.get_running_loop().call_later(0.001, self._drain)
+        else:
+            self._draining = False
+
+    def _write(self, data: bytes) -> None:
+        if self._pty is not None:
+            self._pty.write(data)
+        if self._tcp is not None:
+            self._tcp.write(data)
+
+
+def _approach(value: float, target: float, max_step: float) -> float:
+    if value < target:
+        return min(target, value + max_step)
+    return max(target, value - max_step)
