@@ -32,7 +32,8 @@ function svg(tag, attrs, parent) {
 
 function fmt(value, digits, unit) {
   if (value === null || value === undefined || Number.isNaN(value)) return "—";
-  return `${Number(value).toFixed(digits)}${unit ? " " + unit : ""}`;
+  const sep = unit && unit !== "°" && unit !== "%" ? " " : "";
+  return `${Number(value).toFixed(digits)}${unit ? sep + unit : ""}`;
 }
 
 function setText(id, text) {
@@ -151,7 +152,10 @@ function renderSonar(s) {
     svg("path", { d: `M ${sx} ${sy} L ${lx.toFixed(0)} ${ly.toFixed(0)} L ${rx.toFixed(0)} ${ry.toFixed(0)} Z`,
       class: `beam ${cls}` }, g);
     svg("line", { x1: sx, y1: sy, x2: ex.toFixed(0), y2: ey.toFixed(0), class: `ray ${cls}` }, g);
-    const label = svg("text", { x: (ex * 1.0).toFixed(0), y: (ey * 1.0).toFixed(0), class: "range-label" }, g);
+    // Labels sit just inside the ray's end and inside the view so none is clipped.
+    const lr = Math.min(reach + 160, SONAR_VIEW_MM - 180);
+    const tx = -(y + lr * Math.sin(a)), ty = -(x + lr * Math.cos(a)) + 40;
+    const label = svg("text", { x: tx.toFixed(0), y: ty.toFixed(0), class: "range-label" }, g);
     label.textContent = (range / 1000).toFixed(2);
   });
   setText("sonar-min", frontMin === null ? "" : `front min ${(frontMin / 1000).toFixed(2)} m`);
@@ -221,8 +225,8 @@ function render(s) {
   renderGauge("bar-l", "rssi-l", "thr-l", s.rssi_leader_dbm, thr.threshold_l_dbm, true);
   renderGauge("bar-b", "rssi-b", "thr-b", s.rssi_behind_dbm, thr.threshold_b_dbm, false);
   fillTable("links", Object.entries(s.links || {}).map(([name, l]) => [
-    name, fmt(l.signal_dbm, 0, "dBm"), fmt(l.noise_dbm, 0, "dBm"), fmt(l.ccq_pct, 0, "%"),
-    fmt(l.tx_mbps, 1, "Mb/s"), fmt(l.rx_mbps, 1, "Mb/s"), fmt(l.age_s, 1, "s"),
+    name, fmt(l.signal_dbm, 0), fmt(l.noise_dbm, 0), fmt(l.ccq_pct, 0),
+    fmt(l.tx_mbps, 1), fmt(l.rx_mbps, 1), fmt(l.age_s, 1),
   ]));
 
   const vmax = thr.v_max_mm_s || 400;
@@ -239,7 +243,7 @@ function render(s) {
   fillTable("health", Object.entries(s.health || {}).map(([name, h]) => [
     name,
     { text: h.connected ? "up" : "down", cls: h.connected ? "ok" : "bad" },
-    fmt(h.age_s, 2, "s"), String(h.errors), String(h.reconnects), h.last_error || "",
+    fmt(h.age_s, 2), String(h.errors), String(h.reconnects), h.last_error || "",
   ]));
 }
 
