@@ -228,7 +228,7 @@ def test_proc_unmarked_and_biased_levels() -> None:
 
 _LINE_BREAKS = "\n\r\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029"
 _garbage_line = st.text(
-    alphabet=st.characters(blacklist_categories=("Cs",), blacklist_characters=_LINE_BREAKS),
+    alphabet=st.characters(exclude_categories=["Cs"], exclude_characters=_LINE_BREAKS),
     max_size=80)
 _format_chars = st.sampled_from(list("\t :.-[],()<>0123456789abcdefdBmStation\n"))
 _format_text = st.lists(_format_chars, max_size=300).map("".join)
