@@ -1,0 +1,364 @@
+"""ArcosRobot against FakeRobot over real ptys and loopback TCP, on a 10x clock."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+from collections.abc import AsyncIterator, Callable
+
+import pytest
+
+from drivers.arcos import ArcosRobot, FakeRobot, HandshakeError
+from drivers.arcos.codec import CLOSE, Command, encode_command, encode_packet
+from drivers.arcos.sip import Sip
+from drivers.backoff import Backoff
+from drivers.clock import Clock
+from drivers.link import LinkError, open_link
+
+SPEED = 10.0
+
+
+async def until(cond: Callable[[], object], wall_s: float = 3.0) -> None:
+    async with asyncio.timeout(wall_s):
+        while not cond():
+            await asyncio.sleep(0.005)
+
+
+@contextlib.asynccontextmanager
+async def running(robot: ArcosRobot) -> AsyncIterator[asyncio.Task[None]]:
+    task = asyncio.create_task(robot.run())
+    try:
+        yield task
+    finally:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+
+
+@pytest.fixture
+def clock() -> Clock:
+    return Clock(SPEED)
+
+
+async def serve(fake: FakeRobot, kind: str) -> str:
+    return fake.serve_pty() if kind == "pty" else await fake.serve_tcp()
+
+
+@pytest.mark.parametrize("kind", ["pty", "tcp"])
+async def test_handshake_identity_sonar_and_pose(kind: str, clock: Clock) -> None:
+    ranges = [1000 + 100 * i for i in range(16)]
+    ranges[5] = None  # type: ignore[call-overload]
+    fake = FakeRobot("relay7", subclass="p3at-sh", clock=clock, pose=(1000, 2000, 90),
+                     sonar_fn=lambda x, y, th: ranges)
+    url = await serve(fake, kind)
+    robot = ArcosRobot(url, clock=clock, enable_motors=True)
+    seen: list[Sip] = []
+    robot.add_listener(seen.append)
+    try:
+        async with running(robot):
+            await until(lambda: robot.connected and robot.last_sip is not None)
+            assert robot.identity is not None
+            assert (robot.identity.name, robot.identity.robot_class, robot.identity.subclass) == (
+                "relay7", "Pioneer", "p3at-sh")
+            assert robot.config is not None and robot.config.watchdog_ms == 2000
+            assert not robot.stale
+            await until(lambda: None not in robot.sonar.ranges_mm)
+            assert robot.sonar.ranges_mm[0] == 1000 and robot.sonar.ranges_mm[15] == 2500
+            assert robot.sonar.ranges_mm[5] == 5000 and not robot.sonar.has_echo(5)
+            assert robot.sonar.front_min_mm() == 1000
+            # drive an arc: v = 150 mm/s, RVEL = 10 deg/s
+            robot.set_wheels(100, 200)
+            await asyncio.sleep(4.0 / SPEED)
+            assert fake.target_vel_mm_s == 150 and fake.target_rvel_deg_s == 10
+            sip = robot.last_sip
+            assert sip is not None and sip.moving and sip.motors_enabled
+            # odometry started at 0 at OPEN; the world pose started at (1000, 2000, 90)
+            ox, oy, oth = fake.odometry_mm_deg
+            assert sip.x_mm == pytest.approx(ox, abs=20) and sip.y_mm == pytest.approx(oy, abs=20)
+            assert sip.theta_deg == pytest.approx(oth, abs=2)
+            dist = math.hypot(fake.x_mm - 1000, fake.y_mm - 2000)
+            assert dist == pytest.approx(math.hypot(ox, oy), abs=1)
+            assert fake.theta_deg == pytest.approx(90 + oth, abs=0.01)
+            assert 300 < math.hypot(sip.x_mm, sip.y_mm) < 650
+            assert sip.left_mm_s == pytest.approx(100, abs=8)
+            assert sip.right_mm_s == pytest.approx(200, abs=8)
+    finally:
+        await fake.stop()
+    assert seen and all(s.t <= seen[-1].t for s in seen)
+    assert robot.counters["sips"] == len(seen)
+    assert robot.counters["checksum_errors"] == 0
+
+
+async def test_motors_not_enabled_unless_asked(clock: Clock) -> None:
+    fake = FakeRobot(clock=clock)
+    robot = ArcosRobot(fake.serve_pty(), clock=clock)
+    try:
+        async with running(robot):
+            await until(lambda: robot.connected and robot.last_sip is not None)
+            robot.set_wheels(200, 200)
+            await asyncio.sleep(1.0 / SPEED)
+            assert (Command.ENABLE, 1) not in fake.commands
+            assert not fake.motors_enabled and fake.vel_mm_s == 0  # VEL dropped while disabled
+            robot.enable_motors(True)
+            await until(lambda: fake.vel_mm_s > 0)
+            assert robot.last_sip is not None
+            await until(lambda: robot.last_sip is not None and robot.last_sip.motors_enabled)
+    finally:
+        await fake.stop()
+
+
+async def test_driver_keeps_the_watchdog_fed(clock: Clock) -> None:
+    fake = FakeRobot(clock=clock, trans_accel_mm_s2=1000)
+    robot = ArcosRobot(fake.serve_pty(), clock=clock, enable_motors=True)
+    try:
+        async with running(robot):
+            await until(lambda: robot.connected)
+            robot.set_wheels(300, 300)  # once; nothing else calls set_wheels
+            await asyncio.sleep(3.5 / SPEED)
+            assert fake.vel_mm_s == 300 and not fake._watchdog_tripped
+            vels = [a for c, a in fake.commands if c == Command.VEL]
+            assert vels.count(300) >= 5  # re-sent at least every 500 ms
+            robot.set_wheels(0, 0)
+            await asyncio.sleep(1.5 / SPEED)
+            pulses = len([c for c, _ in fake.commands if c == 0])
+            assert pulses >= 1  # idle: PULSE keeps the session alive
+    finally:
+        await fake.stop()
+
+
+async def test_fake_watchdog_stops_an_unattended_robot(clock: Clock) -> None:
+    """The fake itself: a raw client that goes quiet gets its robot stopped after 2 s."""
+    fake = FakeRobot(clock=clock, trans_accel_mm_s2=3000)
+    path = fake.serve_pty()
+
+    class Sink(asyncio.Protocol):
+        def data_received(self, data: bytes) -> None:
+            pass
+
+    transport, _ = await open_link(path, 9600, Sink)
+    try:
+        for cmd in (0, 1, 2):
+            transport.write(encode_command(cmd))
+            await asyncio.sleep(0.01)
+        for cmd, arg in ((1, 1), (Command.ENABLE, 1), (Command.VEL, 200)):
+            transport.write(encode_command(cmd, arg))
+            await asyncio.sleep(0.01)
+        await until(lambda: fake.vel_mm_s == 200)
+        await asyncio.sleep(1.5 / SPEED)
+        assert fake.vel_mm_s == 200
+        await until(lambda: fake.vel_mm_s == 0, wall_s=2.0 / SPEED + 1)
+        assert fake._watchdog_tripped
+    finally:
+        transport.close()
+        await fake.stop()
+
+
+@pytest.mark.parametrize("kind", ["pty", "tcp"])
+async def test_reconnect_after_hang_up(kind: str, clock: Clock, tmp_path) -> None:
+    fake = FakeRobot(clock=clock)
+    url = fake.serve_pty(str(tmp_path / "robot")) if kind == "pty" else await fake.serve_tcp()
+    robot = ArcosRobot(url, clock=clock, enable_motors=True,
+                       backoff=Backoff(initial_s=0.1, maximum_s=0.5, jitter=0))
+    try:
+        async with running(robot):
+            await until(lambda: robot.connected and robot.last_sip is not None)
+            robot.set_wheels(100, 100)
+            fake.hang_up()
+            await until(lambda: not robot.connected)
+            assert robot.stale and robot.last_error is not None
+            await asyncio.sleep(1.0 / SPEED)
+            assert not robot.connected  # nothing to connect to while hung up
+            fake.reappear()
+            await until(lambda: robot.connected and not robot.stale, wall_s=5)
+            assert robot.counters["reconnects"] == 1
+            # the wish survives: motors re-enabled and the wheels commanded again
+            await until(lambda: fake.motors_enabled and fake.target_vel_mm_s == 100)
+    finally:
+        await fake.stop()
+    if kind == "pty":  # the real robot never saw CLOSE: it was still in the old session
+        assert robot.counters["old_sessions"] >= 1
+
+
+async def test_old_session_is_closed_then_reopened(clock: Clock) -> None:
+    fake = FakeRobot(clock=clock, old_session=True)
+    robot = ArcosRobot(fake.serve_pty(), clock=clock)
+    try:
+        await asyncio.sleep(0.3 / SPEED)
+        assert fake.sips_sent > 0  # streaming before anyone connects
+        async with running(robot):
+            await until(lambda: robot.connected and robot.last_sip is not None)
+        assert robot.counters["old_sessions"] == 1
+        first_close = fake.commands.index((CLOSE, 1))
+        assert (0, None) in fake.commands[first_close:]  # SYNC0 again after the CLOSE
+        assert fake.sessions == 1
+    finally:
+        await fake.stop()
+
+
+@pytest.mark.parametrize(("subclass", "override", "factor"),
+                         [("p3at", None, 1.0), ("p3at-sh", None, 1.0), ("p3at-sh", "p3at", 0.465)])
+async def test_odometry_scale_per_subclass(subclass: str, override: str | None, factor: float,
+                                           clock: Clock) -> None:
+    fake = FakeRobot(clock=clock, subclass=subclass, trans_accel_mm_s2=2000)
+    robot = ArcosRobot(fake.serve_pty(), clock=clock, enable_motors=True, subclass_override=override)
+    try:
+        async with running(robot):
+            await until(lambda: robot.connected and robot.last_sip is not None)
+            robot.set_wheels(500, 500)
+            await until(lambda: fake.odometry_mm_deg[0] > 1000, wall_s=5)
+            robot.stop()
+            await until(lambda: robot.last_sip is not None and not robot.last_sip.moving)
+            await asyncio.sleep(0.3 / SPEED)
+            assert robot.last_sip is not None
+            # the robot reports odometry / DistConvFactor(true subclass); the driver multiplies
+            # by the factor of the subclass it believes: right unless overridden wrongly
+            assert robot.last_sip.x_mm == pytest.approx(fake.odometry_mm_deg[0] * factor, abs=3)
+    finally:
+        await fake.stop()
+
+
+async def test_stale_after_silence_then_session_dropped_and_recovered(clock: Clock) -> None:
+    fake = FakeRobot(clock=clock)
+    robot = ArcosRobot(fake.serve_pty(), clock=clock, lost_after_s=0.5, drop_after_s=1.5,
+                       backoff=Backoff(initial_s=0.1, maximum_s=0.3, jitter=0), sync_timeout_s=0.3)
+    try:
+        async with running(robot):
+            await until(lambda: robot.connected and not robot.stale)
+            fake.silent = True
+            t0 = clock.now()
+            await until(lambda: robot.stale)
+            assert clock.now() - t0 < 0.5 + 0.3  # lost_after_s plus one SIP period and a tick
+            assert robot.connected  # stale first; the session is only dropped later
+            await until(lambda: not robot.connected)
+            assert "no SIP" in (robot.last_error or "")
+            fake.silent = False
+            await until(lambda: robot.connected and not robot.stale, wall_s=5)
+    finally:
+        await fake.stop()
+
+
+async def test_controller_reset_packet_ends_session(clock: Clock) -> None:
+    fake = FakeRobot(clock=clock)
+    robot = ArcosRobot(fake.serve_pty(), clock=clock,
+                       backoff=Backoff(initial_s=0.1, maximum_s=0.3, jitter=0))
+    try:
+        async with running(robot):
+            await until(lambda: robot.connected and robot.last_sip is not None)
+            fake._emit(encode_packet(0xFF))
+            await until(lambda: "controller reset" in (robot.last_error or ""))
+            await until(lambda: robot.connected and robot.counters["reconnects"] == 1, wall_s=5)
+    finally:
+        await fake.stop()
+
+
+async def test_adversarial_stream_split_garbage_corruption(clock: Clock) -> None:
+    fake = FakeRobot(clock=clock, seed=7, sonars_per_sip=16)
+    fake.split_writes = True
+    fake.garbage = True
+    robot = ArcosRobot(fake.serve_pty(), clock=clock)
+    try:
+        async with running(robot):
+            await until(lambda: robot.connected and robot.last_sip is not None, wall_s=5)
+            fake.corrupt_rate = 0.3
+            n0 = robot.counters["sips"]
+            await asyncio.sleep(3.0 / SPEED)
+            got = robot.counters["sips"] - n0
+            assert 10 <= got <= 30
+            assert robot.counters["checksum_errors"] >= 1
+            assert robot.counters["resyncs"] >= 10 and robot.counters["garbage_bytes"] > 0
+            assert robot.connected and all(r == 5000 for r in robot.sonar.ranges_mm)
+    finally:
+        await fake.stop()
+
+
+async def test_safe_stop_on_cancel(clock: Clock) -> None:
+    fake = FakeRobot(clock=clock)
+    robot = ArcosRobot(fake.serve_pty(), clock=clock, enable_motors=True)
+    try:
+        async with running(robot):
+            await until(lambda: robot.connected)
+            robot.set_wheels(200, 250)
+            await until(lambda: fake.vel_mm_s > 0)
+        # the context manager cancelled run(); the safe stop happened before the port closed
+        await until(lambda: (CLOSE, 1) in fake.commands, wall_s=1)
+        tail = fake.commands[-4:]
+        assert tail == [(Command.VEL, 0), (Command.RVEL, 0), (Command.ENABLE, 0), (CLOSE, 1)]
+        assert not fake.opened and not fake.motors_enabled
+        assert not robot.connected
+    finally:
+        await fake.stop()
+
+
+async def test_shutdown_is_idempotent_and_ends_run(clock: Clock) -> None:
+    fake = FakeRobot(clock=clock)
+    robot = ArcosRobot(await fake.serve_tcp(), clock=clock)
+    try:
+        task = asyncio.create_task(robot.run())
+        await until(lambda: robot.connected)
+        loop = asyncio.get_running_loop()
+        t0 = loop.time()
+        await robot.shutdown()
+        assert loop.time() - t0 < 0.2
+        await robot.shutdown()
+        await asyncio.wait_for(task, 1)  # run() returned by itself
+        assert fake.commands[-2:] == [(Command.ENABLE, 0), (CLOSE, 1)]
+        assert fake.commands.count((CLOSE, 1)) == 1
+    finally:
+        await fake.stop()
+
+
+async def test_stop_jumps_the_queue(clock: Clock) -> None:
+    fake = FakeRobot(clock=clock, trans_accel_mm_s2=5000)
+    robot = ArcosRobot(fake.serve_pty(), clock=clock, enable_motors=True)
+    try:
+        async with running(robot):
+            await until(lambda: robot.connected)
+            robot.set_wheels(400, 400)
+            await until(lambda: fake.vel_mm_s == 400)
+            robot.enable_motors(True)  # queue some normal traffic
+            robot.stop()
+            await until(lambda: fake.target_vel_mm_s == 0, wall_s=1)
+            assert robot.wheels_wish == (0.0, 0.0)
+    finally:
+        await fake.stop()
+
+
+async def test_listener_errors_do_not_stop_the_driver(clock: Clock) -> None:
+    fake = FakeRobot(clock=clock)
+    robot = ArcosRobot(fake.serve_pty(), clock=clock)
+
+    def broken(sip: Sip) -> None:
+        raise RuntimeError("listener bug")
+
+    good: list[Sip] = []
+    unsubscribe = robot.add_listener(broken)
+    robot.add_listener(good.append)
+    try:
+        async with running(robot):
+            await until(lambda: len(good) >= 3)
+            unsubscribe()
+            n = robot.counters["listener_errors"]
+            await until(lambda: len(good) >= 6)
+            assert n >= 3 and robot.counters["listener_errors"] == n
+    finally:
+        await fake.stop()
+
+
+async def test_silent_robot_handshake_gives_up(clock: Clock) -> None:
+    fast = Clock(40)
+    fake = FakeRobot(clock=fast)
+    fake.silent = True
+    robot = ArcosRobot(fake.serve_pty(), clock=fast, max_misses=4)
+    try:
+        with pytest.raises(HandshakeError, match="never answered SYNC0"):
+            await robot.connect()
+        assert robot.current_baud != 9600  # it cycled to another rate after two misses
+    finally:
+        await fake.stop()
+
+
+async def test_missing_port_names_the_port(tmp_path) -> None:
+    robot = ArcosRobot(str(tmp_path / "nope"))
+    with pytest.raises(LinkError, match="nope"):
+        await robot.connect()
