@@ -197,10 +197,7 @@ def polygon_hits_circle(poly: Sequence[Point], cx: float, cy: float, r: float) -
     if point_in_polygon((cx, cy), poly):
         return True
     n = len(poly)
-    for i in range(n):
-        if point_segment_distance((cx, cy), poly[i], poly[(i + 1) % n]) <= r:
-            return True
-    return False
+    return any(point_segment_distance((cx, cy), poly[i], poly[(i + 1) % n]) <= r for i in range(n))
 
 
 def point_segment_distance(p: Point, a: Point, b: Point) -> float:

@@ -9,6 +9,7 @@ relayd/sim/scenarios/. Every validation error names the offending key
 
 from __future__ import annotations
 
+import itertools
 import tomllib
 from importlib import resources
 from pathlib import Path
@@ -168,7 +169,7 @@ class Scenario(_Model):
             if w.closed:
                 out.extend(polygon_segments(pts, w.material))
             else:
-                out.extend(Segment(a[0], a[1], b[0], b[1], w.material) for a, b in zip(pts, pts[1:], strict=False))
+                out.extend(Segment(a[0], a[1], b[0], b[1], w.material) for a, b in itertools.pairwise(pts))
         return out
 
     def box_shapes(self) -> list[Box]:

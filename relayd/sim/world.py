@@ -13,6 +13,7 @@ command center. Hop k joins node k and node k+1.
 
 from __future__ import annotations
 
+import itertools
 import math
 import random
 from dataclasses import dataclass, field
@@ -75,7 +76,7 @@ class LeaderScript:
         if pause0 > 0:
             self._legs.append((t, t + pause0, (x0, y0), (x0, y0), heading))
             t += pause0
-        for (xa, ya, _), (xb, yb, pause) in zip(waypoints, waypoints[1:], strict=False):
+        for (xa, ya, _), (xb, yb, pause) in itertools.pairwise(waypoints):
             d = math.hypot(xb - xa, yb - ya)
             if d > 0:
                 heading = math.degrees(math.atan2(yb - ya, xb - xa))
@@ -230,20 +231,31 @@ class World:
                 return True
         return False
 
-    def motion_ok(self, i: int, new_x_mm: float, new_y_mm: float, new_theta_deg: float) -> bool:
-        """The motion guard of relay i: False (and a counted collision) if the step hits."""
+    def motion_ok(self, i: int, new_x_mm: float, new_y_mm: float, new_theta_deg: float,
+                  old: tuple[float, float, float] | None = None) -> bool:
+        """The motion guard of relay i: False if the step from `old` (mm, mm, deg; default
+        the last known pose) to the new pose makes the footprint touch anything.
+
+        A contact is counted once per episode: pushing on against a wall, or turning in
+        place while touching it, is the same collision; a translation that is accepted
+        ends the episode.
+        """
         r = self.relays[i]
+        if old is None:
+            old = (r.x_m * 1000.0, r.y_m * 1000.0, r.theta_deg)
         poly = footprint(new_x_mm / 1000.0, new_y_mm / 1000.0, new_theta_deg, ROBOT_LENGTH_M, ROBOT_WIDTH_M)
         if not self._collides(i, poly):
-            r.in_contact = False
+            if (new_x_mm, new_y_mm) != (old[0], old[1]):
+                r.in_contact = False
             return True
-        if self._collides(i, r.polygon()):
-            # Already touching (something moved into us): let the robot move so it can get free.
-            return True
-        r.rejected_steps += 1
         if not r.in_contact:
             r.collisions += 1
             r.in_contact = True
+        old_poly = footprint(old[0] / 1000.0, old[1] / 1000.0, old[2], ROBOT_LENGTH_M, ROBOT_WIDTH_M)
+        if self._collides(i, old_poly):
+            # Already touching (something moved into us): let the robot move so it can get free.
+            return True
+        r.rejected_steps += 1
         return False
 
     # --- sensors --------------------------------------------------------------------

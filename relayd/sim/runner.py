@@ -1,0 +1,349 @@
+"""The simulation runner: real relayd daemons driving fake devices in a simulated world.
+
+For each relay it starts a FakeRobot on a pty (its true pose integrated by the fake,
+sonar and collisions answered by the world), a FakeMaestro on a pty, a procfs-format
+RSSI file and two FakeAirOs radios on loopback, generates that relay's Settings and
+runs a `relayd.daemon.Daemon` on them in this event loop, exactly as `relayd run`
+would on a robot. One `Clock(speed)` is shared by all of them and by the world.
+
+The world ticks at the scenario's `tick_hz` (clock time): it moves the scripted leader,
+reads every robot's true pose and servo angles, writes the Yagi's RSSI into each
+relay's procfs file, updates the airOS link values, and records the trace. The summary
+(`summarize`) is a pure function of the trace.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import math
+import secrets
+import tempfile
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import structlog
+
+from drivers.clock import Clock
+from relayd.sim.scenario import Scenario
+from relayd.sim.world import World
+
+log = structlog.get_logger(__name__)
+
+#: Pulse widths at -90 / 0 / +90 degrees in the generated config (SPEC 4.2 default).
+PULSE_US = (1000.0, 1500.0, 2000.0)
+AP_PASSWORD_ENV = "RELAYD_SIM_AP_PASSWORD"
+API_TOKEN_ENV = "RELAYD_SIM_API_TOKEN"
+#: How often the airOS fakes get new link values (clock s); the pollers poll at 1 s.
+AIROS_UPDATE_S = 0.5
+#: Trace records per clock second.
+TRACE_HZ = 10.0
+#: After the leader reaches its goal, keep running this long (clock s) so relays settle.
+SETTLE_AFTER_GOAL_S = 10.0
+
+
+def pulse_to_deg(pulse_us: float, pulse: Sequence[float] = PULSE_US) -> float:
+    """Invert the piecewise-linear servo calibration (pulse widths at -90, 0, +90 deg)."""
+    lo, mid, hi = pulse
+    if (pulse_us - mid) * (hi - mid) >= 0:
+        return 90.0 * (pulse_us - mid) / (hi - mid)
+    return -90.0 * (pulse_us - mid) / (lo - mid)
+
+
+def _pose3(p: Any) -> tuple[float, float, float]:
+    """A pose from the FakeRobot: a (x_mm, y_mm, theta_deg) tuple or an object with them."""
+    if isinstance(p, tuple | list):
+        return float(p[0]), float(p[1]), float(p[2])
+    return float(p.x_mm), float(p.y_mm), float(p.theta_deg)
+
+
+def relay_settings(*, robot_port: str, servo_port: str, procfs_path: str, rear_url: str,
+                   front_url: str, control: dict[str, Any], scan: dict[str, Any]) -> dict[str, Any]:
+    """The config document (SPEC 4.2 sections and keys) of one simulated relay."""
+    return {
+        "robot": {"port": robot_port, "baud": 9600},
+        "pantilt": {"port": servo_port, "protocol": "maestro", "scan_channel": 0, "link_channel": 1,
+                    "scan_pulse_us": list(map(int, PULSE_US)), "link_pulse_us": list(map(int, PULSE_US))},
+        "wifi": {"source": "procfs", "interface": "wlan1", "procfs_path": procfs_path, "sample_hz": 20},
+        "ap": {
+            "rear": {"url": rear_url, "username": "ubnt", "password_env": AP_PASSWORD_ENV},
+            "front": {"url": front_url, "username": "ubnt", "password_env": AP_PASSWORD_ENV},
+        },
+        "scan": dict(scan),
+        "control": dict(control),
+        "api": {"bind": "127.0.0.1", "port": 0, "token_env": API_TOKEN_ENV},
+        "log": {"level": "warning", "format": "console"},
+    }
+
+
+@dataclass(slots=True)
+class SimRelay:
+    """One simulated relay: its fakes and its daemon."""
+
+    name: str
+    robot: Any
+    maestro: Any
+    procfs: Any
+    rear: Any
+    front: Any
+    daemon: Any
+    task: asyncio.Task[None] | None = None
+
+
+@dataclass(slots=True)
+class SimResult:
+    summary: dict[str, Any]
+    records: list[dict[str, Any]]
+    api_ports: dict[str, int | None] = field(default_factory=dict)
+
+
+def summarize(records: Sequence[dict[str, Any]], *, scenario: str, relays: int, goal: tuple[float, float],
+              goal_radius_m: float, collisions: int, followers: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """summary.json from the trace: SPEC 5's keys plus a few that help reading a run.
+
+    goal_reached: the leader got within goal_radius_m of its final waypoint while the
+    end-to-end link had held all the way (the paper's "reached the destination while
+    staying connected"). link_broken_at_s: the first record with any hop down.
+    """
+    broken_at = next((r["t"] for r in records if r["broken"]), None)
+    arrived_at = next((r["t"] for r in records
+                       if math.hypot(r["leader"]["x"] - goal[0], r["leader"]["y"] - goal[1]) <= goal_radius_m),
+                      None)
+    reached = arrived_at is not None and (broken_at is None or broken_at > arrived_at)
+    e2e = [r["e2e_mbps"] for r in records]
+    last = records[-1] if records else None
+    out_followers = []
+    for i, f in enumerate(followers):
+        gaps = [r["relays"][i]["gap_m"] for r in records]
+        out_followers.append({
+            "name": f["name"],
+            "max_gap_m": round(max(gaps), 3) if gaps else None,
+            "final_gap_m": round(gaps[-1], 3) if gaps else None,
+            "stopped_reason": None if last is None else last["relays"][i]["reason"],
+            "final_state": None if last is None else last["relays"][i]["state"],
+            "collisions": f["collisions"],
+            "travelled_m": round(f["travelled_m"], 3),
+            "api_port": f.get("api_port"),
+        })
+    return {
+        "scenario": scenario,
+        "relays": relays,
+        "sim_seconds": round(last["t"], 2) if last else 0.0,
+        "goal_reached": reached,
+        "goal_reached_at_s": arrived_at,
+        "link_broken_at_s": broken_at,
+        "min_e2e_mbps": min(e2e) if e2e else 0.0,
+        "final_e2e_mbps": e2e[-1] if e2e else 0.0,
+        "collisions": collisions,
+        "followers": out_followers,
+    }
+
+
+class SimRunner:
+    """Runs one scenario with real daemons; `await run()` returns the summary and trace."""
+
+    def __init__(self, scenario: Scenario, *, speed: float = 10.0, seed: int = 1,
+                 seconds: float | None = None, out_dir: Path | None = None,
+                 workdir: Path | None = None,
+                 on_progress: Callable[[dict[str, Any]], None] | None = None,
+                 on_ready: Callable[[dict[str, int | None]], None] | None = None) -> None:
+        self.scenario = scenario
+        self.clock = Clock(speed)
+        self.seed = seed
+        self.seconds = scenario.duration_s if seconds is None else seconds
+        self.out_dir = out_dir
+        self.workdir = workdir
+        self.on_progress = on_progress
+        self.on_ready = on_ready
+        self.world = World(scenario, seed=seed)
+        self.relays: list[SimRelay] = []
+        self.records: list[dict[str, Any]] = []
+        self._password = secrets.token_hex(8)
+        self._travelled = [0.0] * len(self.world.relays)
+
+    # -- bring-up ---------------------------------------------------------------------
+    async def _start_relay(self, i: int, work: Path) -> SimRelay:
+        from drivers.airos.fake import FakeAirOs
+        from drivers.arcos.fake import FakeRobot
+        from drivers.pantilt.fake import FakeMaestro
+        from drivers.wifi.fake import ProcfsWriter
+        from relayd.config import Settings
+        from relayd.daemon import Daemon
+
+        body = self.world.relays[i]
+        world = self.world
+        clock = self.clock
+
+        def sonar_fn(x_mm: float, y_mm: float, theta_deg: float) -> list[int]:
+            return world.sonar_mm(i, x_mm, y_mm, theta_deg)
+
+        def motion_guard(old: Any, new: Any) -> bool:
+            return world.motion_ok(i, *_pose3(new), old=_pose3(old))
+
+        robot = FakeRobot(name=body.name, clock=clock, sonar_fn=sonar_fn, motion_guard=motion_guard,
+                          pose=(body.x_m * 1000.0, body.y_m * 1000.0, body.theta_deg))
+        robot_port = robot.serve_pty(str(work / f"{body.name}-base"))
+        await robot.start()
+        maestro = FakeMaestro(clock=clock, initial_us=PULSE_US[1])
+        servo_port = maestro.serve_pty(str(work / f"{body.name}-servo"))
+        procfs = ProcfsWriter(work / f"{body.name}-wireless", "wlan1")
+        procfs.write(world.yagi_rssi_dbm(i, 0.0))
+        rear = FakeAirOs("ubnt", self._password, clock=clock)
+        front = FakeAirOs("ubnt", self._password, clock=clock)
+        rear_url = await rear.start()
+        front_url = await front.start()
+        control = dict(self.scenario.control)
+        control.update(self.scenario.relay[i].control)
+        doc = relay_settings(robot_port=robot_port, servo_port=servo_port, procfs_path=str(procfs.path),
+                             rear_url=rear_url, front_url=front_url, control=control,
+                             scan=dict(self.scenario.scan))
+        settings = Settings.model_validate(doc)
+        env = {AP_PASSWORD_ENV: self._password, API_TOKEN_ENV: secrets.token_hex(8)}
+        daemon = Daemon(settings, clock=clock, env=env)
+        relay = SimRelay(body.name, robot, maestro, procfs, rear, front, daemon)
+        self._update_links()
+        return relay
+
+    async def _wait_ports(self) -> dict[str, int | None]:
+        async with asyncio.timeout(10.0):
+            while any(r.daemon.api_port is None for r in self.relays):
+                await asyncio.sleep(0.01)
+        return {r.name: r.daemon.api_port for r in self.relays}
+
+    # -- the world tick ---------------------------------------------------------------
+    def _sync_bodies(self) -> None:
+        for i, r in enumerate(self.relays):
+            body = self.world.relays[i]
+            x, y, th = float(r.robot.x_mm), float(r.robot.y_mm), float(r.robot.theta_deg)
+            self._travelled[i] += math.hypot(x / 1000.0 - body.x_m, y / 1000.0 - body.y_m)
+            self.world.set_pose(i, x, y, th)
+            self.world.set_servos(i, pulse_to_deg(r.maestro.position_us(0)),
+                                  pulse_to_deg(r.maestro.position_us(1)))
+
+    def _write_rssi(self) -> None:
+        for i, r in enumerate(self.relays):
+            r.procfs.write(self.world.yagi_rssi_dbm(i))
+
+    def _update_links(self) -> None:
+        w = self.world
+        noise = w.radio.params.noise_floor_dbm
+        n = len(self.relays)
+        for i, r in enumerate(self.relays):
+            # relay i is node i+1: its front link is hop i, its rear AP hears hop i+1.
+            for ap, k in ((r.front, i), (r.rear, i + 1)):
+                if k > n:
+                    continue
+                level = w.hop_sample_dbm(k)
+                rate = w.hop(k).rate_mbps / 0.5
+                ap.set_link(level, noise_dbm=noise, ccq_pct=95.0 if rate else 0.0,
+                            tx_mbps=rate, rx_mbps=rate)
+
+    def _record(self, t: float) -> dict[str, Any]:
+        w = self.world
+        links = w.links()
+        relays = []
+        for i, r in enumerate(self.relays):
+            body = w.relays[i]
+            st = r.daemon.state
+            relays.append({
+                "name": body.name, "x": round(body.x_m, 3), "y": round(body.y_m, 3),
+                "theta_deg": round(body.theta_deg, 1), "state": str(st.state), "reason": st.reason,
+                "bearing_deg": st.bearing_deg, "true_bearing_deg": round(w.true_bearing_deg(i), 1),
+                "rssi_l_dbm": st.rssi_leader_dbm, "rssi_b_dbm": st.rssi_behind_dbm,
+                "scan_deg": round(body.scan_deg, 1), "link_deg": round(body.link_deg, 1),
+                "gap_m": round(w.gap_m(i), 3), "collisions": body.collisions,
+                "wheels": [round(st.wheels_left_mm_s), round(st.wheels_right_mm_s)],
+                "situation": st.situation,
+            })
+        return {
+            "t": round(t, 2),
+            "leader": {"x": round(w.leader.x_m, 3), "y": round(w.leader.y_m, 3), "moving": w.leader.moving},
+            "relays": relays,
+            "hops": [{"dbm": round(h.power_dbm, 1), "mbps": h.rate_mbps, "walls": h.walls} for h in links.hops],
+            "e2e_mbps": links.e2e_mbps,
+            "broken": links.broken,
+        }
+
+    async def _world_loop(self) -> None:
+        clock = self.clock
+        dt = 1.0 / self.scenario.tick_hz
+        t0 = clock.now()
+        next_t = t0
+        next_airos = 0.0
+        next_trace = 0.0
+        end = self.seconds
+        done_at: float | None = None
+        while True:
+            t = clock.now() - t0
+            self.world.advance(t)
+            self._sync_bodies()
+            self._write_rssi()
+            if t >= next_airos:
+                self._update_links()
+                next_airos = t + AIROS_UPDATE_S
+            if t >= next_trace:
+                rec = self._record(t)
+                self.records.append(rec)
+                next_trace += 1.0 / TRACE_HZ
+                if self.on_progress is not None:
+                    self.on_progress(rec)
+            if self.world.leader.done and done_at is None:
+                done_at = t
+            if t >= end or (done_at is not None and t >= done_at + SETTLE_AFTER_GOAL_S):
+                break
+            next_t += dt
+            await clock.sleep(next_t - clock.now())
+
+    # -- run --------------------------------------------------------------------------
+    async def run(self) -> SimResult:
+        with contextlib.ExitStack() as stack:
+            work = self.workdir
+            if work is None:
+                work = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="relayd-sim-")))
+            try:
+                for i in range(len(self.world.relays)):
+                    self.relays.append(await self._start_relay(i, work))
+                for r in self.relays:
+                    r.task = asyncio.create_task(r.daemon.run(), name=f"sim-daemon-{r.name}")
+                ports = await self._wait_ports() if self.relays else {}
+                if self.on_ready is not None:
+                    self.on_ready(ports)
+                await self._world_loop()
+            finally:
+                await self._teardown()
+        result = SimResult(self._summary(ports), self.records, ports)
+        if self.out_dir is not None:
+            self.write_outputs(result, self.out_dir)
+        return result
+
+    async def _teardown(self) -> None:
+        for r in self.relays:
+            if r.task is not None:
+                r.task.cancel()
+        for r in self.relays:
+            if r.task is not None:
+                with contextlib.suppress(asyncio.CancelledError, Exception):
+                    await r.task
+        for r in self.relays:
+            for closer in (r.robot.stop, r.rear.stop, r.front.stop):
+                with contextlib.suppress(Exception):
+                    await closer()
+            with contextlib.suppress(Exception):
+                r.maestro.close()
+
+    def _summary(self, ports: dict[str, int | None]) -> dict[str, Any]:
+        followers = [{"name": b.name, "collisions": b.collisions, "travelled_m": self._travelled[i],
+                      "api_port": ports.get(b.name)} for i, b in enumerate(self.world.relays)]
+        return summarize(self.records, scenario=self.scenario.name, relays=len(self.world.relays),
+                         goal=self.world.leader_script.goal, goal_radius_m=self.scenario.goal_radius_m,
+                         collisions=self.world.collisions(), followers=followers)
+
+    def write_outputs(self, result: SimResult, out: Path) -> None:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "summary.json").write_text(json.dumps(result.summary, indent=2) + "\n", encoding="utf-8")
+        with (out / "trace.jsonl").open("w", encoding="utf-8") as f:
+            for rec in result.records:
+                f.write(json.dumps(rec, separators=(",", ":")) + "\n")
