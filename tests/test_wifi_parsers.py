@@ -233,7 +233,7 @@ _garbage_line = st.text(
 _format_chars = st.sampled_from(list("\t :.-[],()<>0123456789abcdefdBmStation\n"))
 _format_text = st.lists(_format_chars, max_size=300).map("".join)
 _any_text = st.one_of(st.text(max_size=400), _format_text)
-_FUZZ = settings(max_examples=2000, deadline=None,
+_FUZZ = settings(max_examples=1200, deadline=None,
                  suppress_health_check=[HealthCheck.too_slow])
 
 
@@ -281,7 +281,7 @@ def test_fuzz_garbled_fixtures(name: str, seed: int) -> None:
             assert sta.signal_dbm is None or isinstance(sta.signal_dbm, int)
 
 
-@settings(max_examples=1000, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=600, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.lists(_garbage_line, max_size=6), st.sampled_from(FILES))
 def test_fuzz_valid_text_after_garbage_still_parses(garbage: list[str], name: str) -> None:
     for g in garbage:

@@ -1,0 +1,77 @@
+"""`relayd probe wifi` end to end through relayd.cli.main, on a ProcfsWriter file."""
+
+from __future__ import annotations
+
+import json
+import threading
+from pathlib import Path
+
+import pytest
+
+from drivers.wifi import ProcfsWriter
+from relayd.cli import main
+
+
+def _lines(out: str) -> list[dict[str, object]]:
+    return [json.loads(line) for line in out.splitlines() if line.strip()]
+
+
+def test_probe_wifi_procfs_json(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "wireless"
+    w = ProcfsWriter(path, "wlan1")
+    w.write(-60)
+    stop = threading.Event()
+
+    def updates() -> None:
+        level = -60
+        while not stop.wait(0.03):
+            level = -61 if level == -60 else -60
+            w.write(level)
+
+    th = threading.Thread(target=updates)
+    th.start()
+    try:
+        code = main(["probe", "wifi", "--source", "procfs", "--interface", "wlan1",
+                     "--path", str(path), "--seconds", "0.3", "--hz", "20", "--json"])
+    finally:
+        stop.set()
+        th.join()
+    out = capsys.readouterr().out
+    samples = _lines(out)  # every stdout line is JSON: logs stay off stdout
+    assert code == 0
+    assert 4 <= len(samples) <= 8
+    assert all(set(s) == {"t", "rssi_dbm", "fresh"} for s in samples)
+    assert samples[0] == {"t": 0.0, "rssi_dbm": -60.0, "fresh": True}
+    assert all(s["rssi_dbm"] in (-60.0, -61.0) for s in samples)
+    assert sum(bool(s["fresh"]) for s in samples) >= 2
+    ts = [float(s["t"]) for s in samples]  # type: ignore[arg-type]
+    assert ts == sorted(ts) and ts[-1] <= 0.3
+
+
+def test_probe_wifi_missing_interface_exits_1(tmp_path: Path,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "wireless"
+    ProcfsWriter(path, "wlan0").write(-50)
+    code = main(["probe", "wifi", "--source", "procfs", "--interface", "wlan1",
+                 "--path", str(path), "--seconds", "0.1", "--json"])
+    captured = capsys.readouterr()
+    assert code == 1
+    samples = _lines(captured.out)
+    assert samples and all(s["rssi_dbm"] is None and s["fresh"] is False for s in samples)
+    assert "wlan1 not listed" in captured.err
+
+
+def test_probe_wifi_human_output(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "wireless"
+    ProcfsWriter(path, "wlan1").write(-47)
+    code = main(["probe", "wifi", "--source", "procfs", "--interface", "wlan1",
+                 "--path", str(path), "--seconds", "0"])
+    captured = capsys.readouterr()
+    assert code == 0
+    assert captured.out.splitlines() == ["   0.000 s    -47 dBm  fresh"]
+    assert "samples=1" in captured.err
+
+
+def test_probe_wifi_rejects_bad_rate(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["probe", "wifi", "--source", "procfs", "--hz", "0"]) == 2
+    assert "--hz" in capsys.readouterr().err
