@@ -162,6 +162,9 @@ class PanTilt(abc.ABC):
         self._speed_deg_s: dict[int, float] = {}
         self._lock = asyncio.Lock()
         self._transport: asyncio.Transport | None = None
+        # Connected = port open AND the controller answered the handshake.
+        self._ready = False
+        self._handshaking = False
         self._lost = asyncio.Event()
         self._lost.set()
         self._rx = bytearray()
@@ -208,7 +211,7 @@ class PanTilt(abc.ABC):
 
     @property
     def connected(self) -> bool:
-        return self._transport is not None
+        return self._transport is not None and self._ready
 
     @property
     def channels(self) -> tuple[int, ...]:
@@ -284,11 +287,15 @@ class PanTilt(abc.ABC):
         self._lost.clear()
         self._rx.clear()
         self._consecutive_timeouts = 0
+        self._handshaking = True
         try:
             await self._on_connected()
         except BaseException:
             await self._drop()
             raise
+        finally:
+            self._handshaking = False
+        self._ready = True
         if self._ever_connected:
             self.counters["reconnects"] += 1
         self._ever_connected = True
@@ -338,6 +345,7 @@ class PanTilt(abc.ABC):
             self._log.warning("pantilt_link_lost", error=self.last_error)
 
     async def _drop(self) -> None:
+        self._ready = False
         transport, self._transport = self._transport, None
         if transport is not None:
             transport.close()
@@ -380,11 +388,13 @@ class PanTilt(abc.ABC):
         if self._transport is not None:
             self._note_error(f"link lost: {exc}" if exc else "link closed")
         self._transport = None
+        self._ready = False
         self._fail_waiter(PanTiltError(f"link lost: {exc}" if exc else "link closed"))
         self._lost.set()
 
     def _require_transport(self) -> asyncio.Transport:
-        if self._transport is None or self._transport.is_closing():
+        if (self._transport is None or self._transport.is_closing()
+                or not (self._ready or self._handshaking)):
             raise PanTiltError(f"pan-tilt controller on {self.url} is not connected")
         return self._transport
 
@@ -429,6 +439,7 @@ class PanTilt(abc.ABC):
             self._log.warning("pantilt_silent_dropping_link", timeouts=self._consecutive_timeouts)
             self._note_error(f"controller silent: {self._consecutive_timeouts} unanswered requests")
             self._consecutive_timeouts = 0
+            self._ready = False
             transport, self._transport = self._transport, None
             transport.abort()
 

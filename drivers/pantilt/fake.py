@@ -19,14 +19,10 @@ import math
 import os
 from dataclasses import dataclass
 
-import structlog
-
 from drivers.clock import REAL_CLOCK, Clock
 from drivers.fakeio import PtyPort
 from drivers.pantilt import maestro as mc
 from drivers.pantilt import ssc32 as sc
-
-log = structlog.get_logger(__name__)
 
 #: Longest SSC-32 line kept; the rest of an over-long line is dropped until CR.
 MAX_LINE = 256
@@ -105,8 +101,9 @@ class _FakeController(abc.ABC):
             for s in self.servos:
                 s.start_us = s.target_us = initial_us
         self.silent = False
+        #: Every byte the driver sent (while not silent) and every reply byte sent back.
         self.received = bytearray()
-        self.replies = 0
+        self.sent = bytearray()
         self._port: PtyPort | None = None
 
     @property
@@ -156,7 +153,7 @@ class _FakeController(abc.ABC):
         self._feed(data)
 
     def _reply(self, data: bytes) -> None:
-        self.replies += 1
+        self.sent += data
         if self._port is not None:
             self._port.write(data)
 
@@ -199,6 +196,8 @@ class FakeMaestro(_FakeController):
         self.accel_units = [0] * channels
         #: Decoded commands in arrival order, e.g. ("set_target", 0, 6000).
         self.commands: list[tuple[object, ...]] = []
+        #: Why the last frame was rejected (the firmware only sets the error bit).
+        self.last_protocol_error = ""
         self._frame = bytearray()
 
     def _reset_parser(self) -> None:
@@ -212,7 +211,7 @@ class FakeMaestro(_FakeController):
             self.servos[ch].retarget(now, home)
 
     def _protocol_error(self, why: str) -> None:
-        log.debug("fake_maestro_protocol_error", why=why)
+        self.last_protocol_error = why
         self._frame.clear()
         self.raise_error(mc.MaestroError.SERIAL_PROTOCOL)
 
@@ -260,6 +259,8 @@ class FakeMaestro(_FakeController):
                 self._execute(cmd, body)
             return
         cmd = frame[0]
+        if cmd == mc.MINI_SSC_START:
+            return  # its two data bytes are taken raw by _byte()
         if len(frame) < 1 + _MAESTRO_DATA_LEN[cmd]:
             return
         body = bytes(frame[1:])
@@ -352,11 +353,12 @@ class FakeSsc32(_FakeController):
                 self._line.append(b)
 
     def _line_received(self, line: bytes) -> None:
+        if not line.strip(b" \t\n"):
+            return  # a bare CR is not an error, just nothing to do
         try:
             cmd = sc.parse_command(line)
-        except sc.Ssc32SyntaxError as exc:
+        except sc.Ssc32SyntaxError:
             self.ignored_lines += 1
-            log.debug("fake_ssc32_ignored_line", error=str(exc))
             return
         if isinstance(cmd, sc.Ssc32GroupMove) and any(
                 m.channel >= self.channel_count for m in cmd.moves):

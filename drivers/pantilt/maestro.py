@@ -59,14 +59,8 @@ class MaestroError(IntFlag):
 
 def error_names(flags: int) -> tuple[str, ...]:
     """Lower-case names of the set error bits, lowest bit first; unknown bits as bitN."""
-    names = []
-    for bit in range(16):
-        if flags & (1 << bit):
-            try:
-                names.append(str(MaestroError(1 << bit).name).lower())
-            except ValueError:
-                names.append(f"bit{bit}")
-    return tuple(names)
+    known = {int(m): str(m.name).lower() for m in MaestroError}
+    return tuple(known.get(1 << bit, f"bit{bit}") for bit in range(16) if flags & (1 << bit))
 
 
 def encode_14bit(value: int) -> bytes:

@@ -1,0 +1,239 @@
+"""The pan-tilt drivers against the byte-true fakes over real pseudo-terminals."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+from collections.abc import AsyncIterator, Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from drivers.clock import Clock
+from drivers.pantilt import PanTilt, PanTiltError, ServoCalibration, make_pantilt
+from drivers.pantilt.fake import FakeMaestro, FakeSsc32
+from drivers.pantilt.maestro import MaestroPanTilt
+
+SPEED = 10.0  # clock runs 10x faster than wall time
+FAKES = {"maestro": FakeMaestro, "ssc32": FakeSsc32}
+#: Read-back resolution: quarter-us on the Maestro, 10 us (~1.8 deg) on the SSC-32.
+TOL_DEG = {"maestro": 0.1, "ssc32": 1.0}
+
+
+@dataclass
+class Rig:
+    protocol: str
+    clock: Clock
+    fake: FakeMaestro | FakeSsc32
+    pt: PanTilt
+    task: asyncio.Task[None]
+    tol: float
+
+
+async def until(pred: Callable[[], bool], timeout_s: float = 5.0) -> None:
+    async with asyncio.timeout(timeout_s):
+        while not pred():
+            await asyncio.sleep(0.005)
+
+
+async def flush(pt: PanTilt) -> None:
+    """Commands have no reply: a query answered means the fake has read all before it."""
+    await pt.is_moving()
+
+
+async def make_rig(protocol: str, tmp_path: Path, **options: float) -> Rig:
+    clock = Clock(SPEED)
+    fake = FAKES[protocol](clock=clock)
+    path = fake.serve_pty(tmp_path / f"{protocol}-servo")
+    opts: dict[str, float] = {"reply_timeout_s": 3.0, "poll_s": 1000.0}
+    opts.update(options)
+    pt = make_pantilt(protocol, path, None,
+                      {0: ServoCalibration(), 1: ServoCalibration(pulse_us=(2000, 1500, 1000))},
+                      clock=clock, **opts)
+    task = asyncio.create_task(pt.run())
+    await until(lambda: pt.connected)
+    return Rig(protocol, clock, fake, pt, task, TOL_DEG[protocol])
+
+
+@pytest.fixture(params=["maestro", "ssc32"])
+async def rig(request: pytest.FixtureRequest, tmp_path: Path) -> AsyncIterator[Rig]:
+    r = await make_rig(request.param, tmp_path)
+    yield r
+    await r.pt.close()
+    await asyncio.wait_for(r.task, 5)
+    r.fake.close()
+
+
+async def test_set_and_read_back_angle(rig: Rig) -> None:
+    assert await rig.pt.set_angle(0, 30) == 30
+    await flush(rig.pt)
+    assert await rig.pt.get_angle(0) == pytest.approx(30, abs=rig.tol)
+    assert rig.fake.target_us(0) == pytest.approx(1500 + 500 / 3, abs=0.5)
+    # Channel 1 is mounted reversed: +30 deg is a shorter pulse.
+    await rig.pt.set_angle(1, 30)
+    await flush(rig.pt)
+    assert rig.fake.target_us(1) == pytest.approx(1500 - 500 / 3, abs=0.5)
+    assert await rig.pt.get_angle(1) == pytest.approx(30, abs=rig.tol)
+    assert not await rig.pt.is_moving()
+    assert rig.pt.counters["timeouts"] == 0 and rig.pt.counters["errors"] == 0
+
+
+async def test_position_evolves_at_the_slew_rate(rig: Rig) -> None:
+    pt, fake, clock = rig.pt, rig.fake, rig.clock
+    await pt.set_angle(0, 0)
+    await pt.set_speed(0, 90)  # 90 deg/s = 500 us/s with 1000 us per 180 deg
+    t0 = clock.now()
+    await pt.set_angle(0, 45)  # 250 us: half a second of clock time
+    assert await pt.is_moving()
+    await clock.sleep(0.25)
+    mid = await pt.get_angle(0)
+    assert 8 < mid < 40
+    elapsed = clock.now() - t0
+    assert fake.position_us(0) == pytest.approx(1500 + 500 * min(elapsed, 0.5), abs=30)
+    assert await pt.wait_stopped(5.0)
+    took = clock.now() - t0
+    assert 0.45 < took < 2.0
+    assert not await pt.is_moving()
+    assert await pt.get_angle(0) == pytest.approx(45, abs=rig.tol)
+
+
+async def test_out_of_limit_angles_are_clamped_never_sent(rig: Rig) -> None:
+    pt, fake = rig.pt, rig.fake
+    assert await pt.set_angle(0, 120) == 90
+    assert await pt.set_angle(1, -500) == -90
+    assert pt.counters["clamped"] == 2
+    await flush(pt)
+    assert fake.target_us(0) == 2000 and fake.target_us(1) == 2000
+    assert await pt.get_angle(0) == pytest.approx(90, abs=rig.tol)
+    with pytest.raises(ValueError):
+        await pt.set_angle(0, float("nan"))
+    with pytest.raises(PanTiltError):
+        await pt.set_angle(7, 0)  # not configured
+    assert pt.limits(0) == (-90, 90)
+
+
+async def test_two_channels_interleaved_without_crosstalk(rig: Rig) -> None:
+    pt = rig.pt
+
+    async def worker(channel: int, angles: list[float]) -> None:
+        for a in angles:
+            await pt.set_angle(channel, a)
+            assert await pt.get_angle(channel) == pytest.approx(a, abs=rig.tol)
+            await asyncio.sleep(0)
+
+    await asyncio.gather(worker(0, [-80, -40, 0, 40, 80] * 3),
+                         worker(1, [70, 35, -35, -70, 10] * 3),
+                         *(pt.is_moving() for _ in range(10)))
+    assert pt.counters["stray_bytes"] == 0 and pt.counters["timeouts"] == 0
+
+
+@pytest.mark.parametrize("protocol", ["maestro", "ssc32"])
+async def test_silent_controller_times_out_then_reconnects(tmp_path: Path, protocol: str) -> None:
+    r = await make_rig(protocol, tmp_path, reply_timeout_s=1.0)
+    try:
+        r.fake.silent = True
+        with pytest.raises(PanTiltError, match="no reply"):
+            await r.pt.get_angle(0)
+        assert r.pt.counters["timeouts"] == 1
+        assert r.pt.connected
+        assert "no reply" in (r.pt.last_error or "")
+        for _ in range(2):
+            with pytest.raises(PanTiltError):
+                await r.pt.is_moving()
+        # Three unanswered requests in a row: the link is dropped.
+        assert not r.pt.connected
+        with pytest.raises(PanTiltError, match="not connected"):
+            await r.pt.set_angle(0, 10)
+        r.fake.silent = False
+        await until(lambda: r.pt.connected)
+        assert r.pt.counters["reconnects"] == 1
+        assert await r.pt.set_angle(0, -20) == -20
+        assert await r.pt.get_angle(0) == pytest.approx(-20, abs=r.tol)
+    finally:
+        await r.pt.close()
+        await asyncio.wait_for(r.task, 5)
+        r.fake.close()
+
+
+async def test_reconnects_after_hang_up(rig: Rig) -> None:
+    pt, fake = rig.pt, rig.fake
+    await pt.set_speed(0, 45)
+    await pt.set_angle(0, 10)
+    await flush(pt)  # bytes still in the pty when the cable is pulled are lost, as on hardware
+    fake.hang_up()
+    await until(lambda: not pt.connected)
+    with pytest.raises(PanTiltError):
+        await pt.get_angle(0)
+    assert pt.last_error is not None
+    fake.reappear()
+    await until(lambda: pt.connected)
+    assert pt.counters["reconnects"] == 1
+    await flush(pt)
+    if isinstance(fake, FakeMaestro):
+        # The slew limit is sent again on reconnect (a replugged Maestro forgets it).
+        assert fake.commands.count(("set_speed", 0, 10)) == 2, str(fake.commands)
+    await pt.set_angle(0, -10)
+    assert await pt.wait_stopped(5.0)  # still slewing at 45 deg/s after the reconnect
+    assert await pt.get_angle(0) == pytest.approx(-10, abs=rig.tol)
+
+
+async def test_not_connected_is_an_error() -> None:
+    pt = make_pantilt("ssc32", "/nonexistent/tty", None, {0: ServoCalibration()})
+    with pytest.raises(PanTiltError, match="not connected"):
+        await pt.set_angle(0, 0)
+    with pytest.raises(PanTiltError):
+        await pt.is_moving()
+    await pt.set_speed(0, 30)  # remembered for the connection
+    assert pt.speed_deg_s(0) == 30
+    with pytest.raises(ValueError):
+        make_pantilt("ptu", "/dev/null", None, {0: ServoCalibration()})
+    with pytest.raises(ValueError):  # the SSC-32 cannot make 3000 us
+        make_pantilt("ssc32", "/dev/null", None, {0: ServoCalibration(pulse_us=(1000, 2000, 3000))})
+
+
+async def test_run_backs_off_while_the_port_is_missing(tmp_path: Path) -> None:
+    clock = Clock(SPEED)
+    link = tmp_path / "servo"
+    pt = make_pantilt("maestro", str(link), None, {0: ServoCalibration()}, clock=clock,
+                      poll_s=1000.0)
+    task = asyncio.create_task(pt.run())
+    await until(lambda: pt.counters["errors"] >= 2)
+    assert "cannot open" in (pt.last_error or "")
+    fake = FakeMaestro(clock=clock)
+    fake.serve_pty(link)
+    await until(lambda: pt.connected)
+    assert pt.counters["reconnects"] == 0  # the first connection is not a reconnect
+    task.cancel()
+    with pytest.raises(asyncio.CancelledError):
+        await task
+    assert not pt.connected
+    fake.close()
+
+
+async def test_maestro_error_bits_reported(tmp_path: Path) -> None:
+    r = await make_rig("maestro", tmp_path, poll_s=0.5)
+    pt = r.pt
+    assert isinstance(pt, MaestroPanTilt)
+    try:
+        assert await pt.get_errors() == ()
+        # Another writer puts an unknown command byte on the wire: the Maestro flags it.
+        fd = os.open(r.fake.path, os.O_WRONLY | os.O_NOCTTY)
+        try:
+            os.write(fd, b"\x80")
+        finally:
+            os.close(fd)
+        # The periodic poll (every 0.5 clock s) picks it up and names the bit.
+        await until(lambda: pt.maestro_errors == ("serial_protocol",))
+        assert pt.counters["device_errors"] == 1
+        assert "serial_protocol" in (pt.last_error or "")
+        assert await pt.get_errors() == ()  # reading cleared it
+        assert pt.maestro_errors == ("serial_protocol",)  # last report stays visible
+        await pt.go_home()
+        await pt.set_acceleration(0, 100)
+        await flush(pt)
+        assert r.fake.accel_units[0] == 2  # 100 deg/s^2 * 5.56 us/deg / 312.5
+    finally:
+        await pt.close()
+        await asyncio.wait_for(r.task, 5)
+        r.fake.close()
