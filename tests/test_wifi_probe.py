@@ -75,3 +75,15 @@ def test_probe_wifi_human_output(tmp_path: Path, capsys: pytest.CaptureFixture[s
 def test_probe_wifi_rejects_bad_rate(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["probe", "wifi", "--source", "procfs", "--hz", "0"]) == 2
     assert "--hz" in capsys.readouterr().err
+
+
+def test_probe_wifi_iw_source_with_a_fake_binary(tmp_path: Path,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    iw = tmp_path / "iw"
+    iw.write_text("#!/bin/sh\nprintf 'Connected to f4:f2:6d:22:7c:f0 (on wlan1)\\n"
+                  "\\tsignal: -52 dBm\\n'\n")
+    iw.chmod(0o755)
+    code = main(["probe", "wifi", "--source", "iw", "--iw", str(iw), "--seconds", "0",
+                 "--json"])
+    assert code == 0
+    assert _lines(capsys.readouterr().out) == [{"t": 0.0, "rssi_dbm": -52.0, "fresh": True}]

@@ -241,13 +241,15 @@ async def test_stream_rejects_a_bad_rate(proc: Any) -> None:
 def test_make_source_kinds(tmp_path: Path) -> None:
     assert isinstance(make_source("procfs", "wlan1", path=tmp_path / "w"), ProcfsSource)
     assert make_source("procfs", "wlan1").path == Path("/proc/net/wireless")  # type: ignore[attr-defined]
-    iw = make_source("iw", "wlan1", path="/opt/iw")
+    iw = make_source("iw", "wlan1", iw_path="/opt/iw")
     assert isinstance(iw, IwSource) and iw.iw_path == "/opt/iw"
     assert isinstance(make_source("nl80211", "wlan1"), Nl80211Source)
+    # The daemon passes [wifi] procfs_path whatever the source: only procfs uses it.
+    assert isinstance(make_source("nl80211", "wlan1", path="/proc/net/wireless"), Nl80211Source)
+    iw = make_source("iw", "wlan1", path="/proc/net/wireless")
+    assert isinstance(iw, IwSource) and iw.iw_path == "iw"
     with pytest.raises(ValueError, match="unknown RSSI source"):
         make_source("radiotap", "wlan1")
-    with pytest.raises(ValueError, match="no path"):
-        make_source("nl80211", "wlan1", path="x")
 
 
 # ------------------------------------------------------------------------ IwSource

@@ -28,22 +28,21 @@ SOURCE_KINDS: tuple[str, ...] = ("nl80211", "procfs", "iw")
 
 
 def make_source(kind: str, interface: str, *, path: str | os.PathLike[str] | None = None,
-                clock: Clock = REAL_CLOCK, min_dbm: float = RSSI_MIN_DBM) -> RssiSource:
+                clock: Clock = REAL_CLOCK, min_dbm: float = RSSI_MIN_DBM,
+                iw_path: str = "iw") -> RssiSource:
     """The RSSI source of `kind` for `interface`.
 
-    `path` is the /proc/net/wireless-format file for "procfs" (default the kernel's) and
-    the `iw` binary for "iw" (default `iw` on PATH); "nl80211" takes no path.
+    `path` is the /proc/net/wireless-format file of the "procfs" source (default the
+    kernel's); the other kinds ignore it, so a daemon can pass `[wifi] procfs_path`
+    whatever the source. `iw_path` is the `iw` binary of the "iw" source.
     """
     if kind == "nl80211":
-        if path is not None:
-            raise ValueError("the nl80211 source takes no path")
         return Nl80211Source(interface, clock=clock, min_dbm=min_dbm)
     if kind == "procfs":
         return ProcfsSource(interface, path=PROC_NET_WIRELESS if path is None else path,
                             clock=clock, min_dbm=min_dbm)
     if kind == "iw":
-        return IwSource(interface, clock=clock, min_dbm=min_dbm,
-                        iw_path="iw" if path is None else os.fspath(path))
+        return IwSource(interface, clock=clock, min_dbm=min_dbm, iw_path=iw_path)
     raise ValueError(f"unknown RSSI source {kind!r}; expected one of {', '.join(SOURCE_KINDS)}")
 
 

@@ -24,7 +24,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="where the RSSI comes from (default nl80211)")
     parser.add_argument("--interface", default="wlan1", help="wireless interface (default wlan1)")
     parser.add_argument("--path", default=None,
-                        help="procfs: the /proc/net/wireless-format file; iw: the iw binary")
+                        help="procfs source: the /proc/net/wireless-format file to read")
+    parser.add_argument("--iw", default="iw", help="iw source: the iw binary (default: on PATH)")
     parser.add_argument("--seconds", type=float, default=10.0,
                         help="how long to sample (default 10)")
     parser.add_argument("--hz", type=float, default=20.0, help="sample rate (default 20)")
@@ -51,7 +52,8 @@ async def run(args: argparse.Namespace) -> int:
 
 async def _sample(args: argparse.Namespace) -> int:
     clock = REAL_CLOCK
-    source = make_source(args.source, args.interface, path=args.path, clock=clock)
+    source = make_source(args.source, args.interface, path=args.path, clock=clock,
+                         iw_path=args.iw)
     t0 = clock.now()
     fresh_seen = 0
     try:
