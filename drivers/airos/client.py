@@ -20,6 +20,7 @@ pydantic `SecretStr` and never appears in a message, a log line or a repr.
 from __future__ import annotations
 
 import ssl
+import warnings
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -78,7 +79,9 @@ def legacy_tls_context() -> ssl.SSLContext:
     ctx.check_hostname = False
     ctx.verify_mode = ssl.CERT_NONE
     try:
-        ctx.minimum_version = ssl.TLSVersion.TLSv1
+        with warnings.catch_warnings():  # TLS 1.0 is deprecated: that is the point here
+            warnings.simplefilter("ignore", DeprecationWarning)
+            ctx.minimum_version = ssl.TLSVersion.TLSv1
     except (ValueError, ssl.SSLError):  # a build without TLS 1.0 at all: keep its minimum
         log.warning("airos_tls10_unavailable")
     try:

@@ -17,6 +17,7 @@ from __future__ import annotations
 import copy
 import json
 import secrets
+import ssl
 from collections.abc import Awaitable, Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -214,6 +215,7 @@ class FakeAirOs:
         clock: Clock = REAL_CLOCK,
         host: str = "127.0.0.1",
         port: int = 0,
+        ssl_context: ssl.SSLContext | None = None,
     ) -> None:
         if version not in (6, 8):
             raise ValueError(f"version must be 6 or 8, got {version!r}")
@@ -225,6 +227,8 @@ class FakeAirOs:
         self._clock = clock
         self.host = host
         self.port = port
+        self.ssl_context = ssl_context  # serve https (e.g. a TLS 1.0-only airOS 6 lighttpd)
+        self.login_content_types: list[str] = []  # what POST /login.cgi bodies were sent as
         self.slow_s = 0.0
         self.malformed = False
         self.down = False
@@ -338,11 +342,14 @@ class FakeAirOs:
 
     async def _listen(self) -> None:
         assert self._runner is not None
-        self._site = web.TCPSite(self._runner, self.host, self.port, reuse_address=True)
+        self._site = web.TCPSite(
+            self._runner, self.host, self.port, reuse_address=True, ssl_context=self.ssl_context
+        )
         await self._site.start()
         if self.port == 0:
             self.port = int(self._runner.addresses[0][1])
-        self.base_url = f"http://{self.host}:{self.port}"
+        scheme = "https" if self.ssl_context is not None else "http"
+        self.base_url = f"{scheme}://{self.host}:{self.port}"
 
     async def stop(self) -> None:
         if self._runner is not None:
@@ -414,6 +421,7 @@ class FakeAirOs:
         return response
 
     async def _login_v6(self, request: web.Request) -> web.StreamResponse:
+        self.login_content_types.append(request.content_type)
         form = await request.post()
         _, session = self._session(request)
         username, password = form.get("username"), form.get("password")
