@@ -241,8 +241,11 @@ def control_step(
     if inputs.leader_lost:
         return _stopped(DriveState.LEADER_LOST, "leader_lost", situation, memory)
     bearing, rssi_l = inputs.bearing_deg, inputs.rssi_leader_dbm
-    if bearing is None or rssi_l is None:
+    if bearing is None or rssi_l is None or not (math.isfinite(bearing) and math.isfinite(rssi_l)):
         return _stopped(DriveState.STOPPED, "no_scan_yet", situation, memory)
+    prev = inputs.prev_bearing_deg
+    if prev is not None and not math.isfinite(prev):
+        prev = None  # a broken B' only loses the D term for one scan
 
     drive, reason = link_rule(
         rssi_l, inputs.rssi_behind_dbm, params, memory.link_drive, params.rear_link_required
@@ -269,9 +272,7 @@ def control_step(
             replace(memory, prev_steer_deg=steer),
         )
 
-    left, right = wheel_law(
-        v, bearing, inputs.prev_bearing_deg, params.kp, params.kd, params.v_max_mm_s
-    )
+    left, right = wheel_law(v, bearing, prev, params.kp, params.kd, params.v_max_mm_s)
     return ControlOutput(
         left, right, DriveState.DRIVING, "driving", situation, replace(memory, prev_steer_deg=None)
     )

@@ -323,9 +323,19 @@ def test_follow_drives_with_the_wheel_law() -> None:
 def test_follow_leader_lost_and_no_scan_yet() -> None:
     out = step(leader_lost=True)
     assert zero(out) and out.state is DriveState.LEADER_LOST and out.reason == "leader_lost"
-    for inputs in (healthy(bearing_deg=None, prev_bearing_deg=None), healthy(rssi_leader_dbm=None)):
+    for inputs in (
+        healthy(bearing_deg=None, prev_bearing_deg=None),
+        healthy(rssi_leader_dbm=None),
+        healthy(bearing_deg=math.nan),
+        healthy(rssi_leader_dbm=math.inf),
+    ):
         out = control_step(inputs, P, DRIVING)
         assert zero(out) and out.state is DriveState.STOPPED and out.reason == "no_scan_yet"
+
+
+def test_broken_previous_bearing_only_drops_the_d_term() -> None:
+    out = step(prev_bearing_deg=math.nan)
+    assert (out.left_mm_s, out.right_mm_s) == pytest.approx((340.0, 360.0))
 
 
 def test_follow_stop_rule_and_latch_through_control_step() -> None:
