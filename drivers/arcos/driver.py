@@ -148,6 +148,7 @@ class ArcosRobot:
         self._closing = False
         self._closed = asyncio.Event()
         self._fail_streak = 0
+        self._good_baud: int | None = None
 
     # ------------------------------------------------------------------ public API
 
@@ -228,8 +229,8 @@ class ArcosRobot:
             identity = await self._handshake()
             await self._open_session(identity)
         except BaseException:
-            self._opened = False
-            await self._close_port()
+            # Cancelled after OPEN went out: the robot must still hear ENABLE 0 and CLOSE.
+            await self._safe_stop()
             raise
         return identity
 
@@ -277,7 +278,9 @@ class ArcosRobot:
 
     async def _handshake(self) -> RobotIdentity:
         is_serial = not self.url.startswith(("socket://", "rfc2217://"))
-        bauds = [self.baud] + [b for b in STANDARD_BAUDS if b != self.baud] if is_serial else [self.baud]
+        # The configured rate first, then the last rate that worked, then the standard ones.
+        first = [self.baud] if self._good_baud in (None, self.baud) else [self.baud, self._good_baud]
+        bauds = first + [b for b in STANDARD_BAUDS if b not in first] if is_serial else [self.baud]
         baud_i = 0
         misses = misses_here = sent = 0
         state = 0
@@ -314,7 +317,9 @@ class ArcosRobot:
                         state += 1
                         continue
                     try:
-                        return decode_identity(pkt.payload)
+                        identity = decode_identity(pkt.payload)
+                        self._good_baud = bauds[baud_i]
+                        return identity
                     except CodecError as exc:
                         log.warning("robot_bad_sync2", url=self.url, error=str(exc))
                         state = 0

@@ -21,7 +21,7 @@ import contextlib
 import math
 import random
 from collections import deque
-from collections.abc import Callable, Coroutine, Sequence
+from collections.abc import Awaitable, Callable, Coroutine, Sequence
 
 import structlog
 
@@ -125,6 +125,7 @@ class FakeRobot:
         self._bg: set[asyncio.Task[object]] = set()
         self._out: deque[bytes] = deque()
         self._draining = False
+        self._tcp_lock = asyncio.Lock()
         if old_session:
             self.start_old_session()
 
@@ -189,14 +190,14 @@ class FakeRobot:
             self._pty.hang_up()
         if self._tcp is not None:
             self._end_session()
-            self._spawn(self._tcp.close())
+            self._spawn(self._tcp_op(self._tcp.close))
 
     def reappear(self) -> None:
         """The cable is back (same pty link path / same TCP port)."""
         if self._pty is not None:
             self._pty.open()
         if self._tcp is not None:
-            self._spawn(self._tcp.open())
+            self._spawn(self._tcp_op(self._tcp.open))
 
     def start_old_session(self) -> None:
         """Behave as a robot whose last client never sent CLOSE: already OPEN, streaming SIPs."""
@@ -204,6 +205,11 @@ class FakeRobot:
         self.opened = True
         self.sonar_on = True
         self._last_cmd_t = self.clock.now()
+
+    async def _tcp_op(self, op: Callable[[], Awaitable[object]]) -> None:
+        # hang_up()/reappear() are synchronous: run their TCP halves strictly in order.
+        async with self._tcp_lock:
+            await op()
 
     def _spawn(self, coro: Coroutine[object, object, object]) -> None:
         task: asyncio.Task[object] = asyncio.ensure_future(coro)
