@@ -10,7 +10,7 @@ from collections.abc import AsyncIterator, Callable
 import pytest
 
 from drivers.arcos import ArcosRobot, FakeRobot, HandshakeError
-from drivers.arcos.codec import CLOSE, Command, encode_command, encode_packet
+from drivers.arcos.codec import CLOSE, Command, encode_command, encode_packet, vel2_arg
 from drivers.arcos.sip import Sip
 from drivers.backoff import Backoff
 from drivers.clock import Clock
@@ -362,3 +362,48 @@ async def test_missing_port_names_the_port(tmp_path) -> None:
     robot = ArcosRobot(str(tmp_path / "nope"))
     with pytest.raises(LinkError, match="nope"):
         await robot.connect()
+
+
+async def test_motion_guard_rejection_sets_stall_bits(clock: Clock) -> None:
+    fake = FakeRobot(clock=clock, trans_accel_mm_s2=2000,
+                     motion_guard=lambda old, new: new[0] < 300)
+    robot = ArcosRobot(fake.serve_pty(), clock=clock, enable_motors=True)
+    try:
+        async with running(robot):
+            await until(lambda: robot.connected)
+            robot.set_wheels(400, 400)
+            await until(lambda: robot.last_sip is not None and robot.last_sip.stall_left, wall_s=3)
+            sip = robot.last_sip
+            assert sip is not None and sip.stall_right and sip.left_mm_s == 0
+            assert fake.x_mm < 300 and sip.x_mm == pytest.approx(fake.x_mm, abs=2)
+            # turning in place is still allowed against the wall
+            robot.set_wheels(-100, 100)
+            await until(lambda: fake.theta_deg > 5)
+    finally:
+        await fake.stop()
+
+
+async def test_fake_vel2_estop_seto_and_disable() -> None:
+    fake = FakeRobot(trans_accel_mm_s2=1e6, rot_accel_deg_s2=1e6)
+    fake._handle(0, None)
+    fake._handle(1, None)
+    fake._handle(2, None)
+    fake._handle(1, 1)  # OPEN
+    assert fake.opened and not fake.motors_enabled
+    fake._handle(Command.VEL, 200)
+    assert fake.target_vel_mm_s == 0  # dropped while disabled
+    fake._handle(Command.ENABLE, 1)
+    fake._handle(Command.VEL2, vel2_arg(5, 10))  # left 100, right 200 mm/s
+    assert fake.target_vel_mm_s == 150 and fake.target_rvel_deg_s == 10
+    fake.step(0.1)
+    assert fake.vel_mm_s == 150 and fake.build_sip().moving
+    fake._handle(Command.E_STOP, None)
+    assert fake.vel_mm_s == 0 and fake.target_vel_mm_s == 0
+    fake._handle(Command.SETO, None)
+    assert fake.odometry_mm_deg == (0.0, 0.0, 0.0)
+    fake._handle(Command.VEL, 100)
+    fake.step(0.1)
+    fake._handle(Command.ENABLE, 0)
+    assert fake.vel_mm_s == 0 and not fake.build_sip().moving
+    fake._handle(CLOSE, None)
+    assert not fake.opened
