@@ -232,6 +232,7 @@ async def test_maestro_error_bits_reported(tmp_path: Path) -> None:
         await pt.go_home()
         await pt.set_acceleration(0, 100)
         await flush(pt)
+        assert isinstance(r.fake, FakeMaestro)
         assert r.fake.accel_units[0] == 2  # 100 deg/s^2 * 5.56 us/deg / 312.5
     finally:
         await pt.close()

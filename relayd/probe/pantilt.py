@@ -1,0 +1,110 @@
+"""`relayd probe pantilt`: move (optionally) and read back one servo of the pan-tilt controller.
+
+With `--angle` the servo is commanded (clamped to `--limits`), the probe waits for the
+move to finish (at most `--wait` seconds) and then reads the angle back from the
+controller. With `--json` it prints one line `{"channel","angle_deg","moving"}`.
+Exit codes: 0 read, 1 the controller could not be opened or did not answer (reason on
+stderr), 2 usage error (bad calibration, channel the controller does not have).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from collections.abc import Callable
+
+import structlog
+
+from drivers.link import LinkError
+from drivers.pantilt import PROTOCOLS, MaestroPanTilt, PanTiltError, ServoCalibration, make_pantilt
+
+
+def _floats(count: int) -> Callable[[str], tuple[float, ...]]:
+    def parse(text: str) -> tuple[float, ...]:
+        try:
+            values = tuple(float(v) for v in text.split(","))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {count} comma-separated numbers") from None
+        if len(values) != count:
+            raise argparse.ArgumentTypeError(f"expected {count} comma-separated numbers")
+        return values
+    return parse
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--port", required=True,
+                        help="serial device or socket:// URL of the servo controller")
+    parser.add_argument("--protocol", choices=sorted(PROTOCOLS), required=True,
+                        help="controller protocol: Pololu Maestro compact or Lynxmotion SSC-32")
+    parser.add_argument("--channel", type=int, required=True, help="servo channel on the controller")
+    parser.add_argument("--angle", type=float, default=None,
+                        help="move the servo to this angle in degrees (counter-clockwise positive)")
+    parser.add_argument("--speed", type=float, default=None,
+                        help="slew speed in deg/s for the move (default: the controller's)")
+    parser.add_argument("--baud", type=int, default=None,
+                        help="baud rate (default 115200 for maestro, 9600 for ssc32)")
+    parser.add_argument("--pulse-us", type=_floats(3), default=(1000.0, 1500.0, 2000.0),
+                        metavar="P1,P2,P3", help="pulse widths at -90,0,+90 deg (default 1000,1500,2000)")
+    parser.add_argument("--limits", type=_floats(2), default=(-90.0, 90.0), metavar="LO,HI",
+                        help="allowed angle range in degrees (default -90,90)")
+    parser.add_argument("--wait", type=float, default=5.0,
+                        help="longest wait for the move to finish, seconds (default 5)")
+    parser.add_argument("--timeout", type=float, default=0.5,
+                        help="reply timeout in seconds (default 0.5)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+def _err(message: str) -> None:
+    print(f"relayd probe pantilt: {message}", file=sys.stderr)
+
+
+async def run(args: argparse.Namespace) -> int:
+    configured_here = False
+    if not structlog.is_configured():
+        # Before the driver binds its logger: stdout is for the answer (parseable with
+        # --json), warnings go to stderr.
+        structlog.configure(
+            wrapper_class=structlog.make_filtering_bound_logger(logging.WARNING),
+            logger_factory=structlog.PrintLoggerFactory(sys.stderr))
+        configured_here = True
+    try:
+        cal = ServoCalibration(pulse_us=args.pulse_us, limits_deg=args.limits)
+        pt = make_pantilt(args.protocol, args.port, args.baud, {args.channel: cal},
+                          reply_timeout_s=args.timeout)
+    except ValueError as exc:
+        _err(str(exc))
+        if configured_here:
+            structlog.reset_defaults()
+        return 2
+    try:
+        await pt.connect()
+        if args.speed is not None:
+            await pt.set_speed(args.channel, args.speed)
+        if args.angle is not None:
+            commanded = await pt.set_angle(args.channel, args.angle)
+            if commanded != args.angle:
+                _err(f"{args.angle:g} deg is outside the limits {cal.limits_deg}; "
+                     f"commanded {commanded:g} deg")
+            await pt.wait_stopped(args.wait)
+        angle = await pt.get_angle(args.channel)
+        moving = await pt.is_moving()
+        errors = await pt.get_errors() if isinstance(pt, MaestroPanTilt) else ()
+    except (LinkError, PanTiltError) as exc:
+        _err(str(exc))
+        return 1
+    except ValueError as exc:
+        _err(str(exc))
+        return 2
+    finally:
+        await pt.close()
+        if configured_here:
+            structlog.reset_defaults()
+    if args.json:
+        print(json.dumps({"channel": args.channel, "angle_deg": round(angle, 2), "moving": moving}),
+              flush=True)
+    else:
+        print(f"channel {args.channel}: {angle:.2f} deg, {'moving' if moving else 'still'}"
+              + (f", controller errors: {', '.join(errors)}" if errors else ""), flush=True)
+    return 0

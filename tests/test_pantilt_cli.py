@@ -1,0 +1,74 @@
+"""`relayd probe pantilt` through relayd.cli.main against `relayd fake pantilt` in a subprocess."""
+
+from __future__ import annotations
+
+import json
+import select
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from relayd.cli import main
+
+
+@pytest.fixture(params=["maestro", "ssc32"])
+def served(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[tuple[str, str]]:
+    link = tmp_path / "servo"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "relayd", "fake", "pantilt", "--protocol", request.param,
+         "--link", str(link)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        ready, _, _ = select.select([proc.stdout], [], [], 20)
+        assert ready, "the fake did not print its path"
+        path = proc.stdout.readline().strip()
+        assert path == str(link) and link.exists()
+        yield request.param, path
+    finally:
+        proc.terminate()
+        proc.wait(10)
+    assert not link.exists()  # the fake removed its link on the way out
+
+
+def probe(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
+    code = main(["probe", "pantilt", *argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_probe_moves_waits_and_reads_back(served: tuple[str, str],
+                                          capsys: pytest.CaptureFixture[str]) -> None:
+    protocol, path = served
+    base = ["--port", path, "--protocol", protocol, "--channel", "1", "--json"]
+    code, out, err = probe(capsys, *base, "--angle", "0")
+    assert code == 0, err
+    assert json.loads(out) == {"channel": 1, "angle_deg": 0.0, "moving": False}
+    # 36 deg at 180 deg/s: the probe waits ~0.2 s for the move, then reads it back.
+    code, out, _ = probe(capsys, *base, "--angle", "36", "--speed", "180")
+    assert code == 0
+    reply = json.loads(out)
+    assert reply["moving"] is False
+    assert reply["angle_deg"] == pytest.approx(36, abs=1.0)
+    # Outside the limits: clamped, said on stderr, and the clamped angle is what moved.
+    code, out, err = probe(capsys, *base, "--angle", "150")
+    assert code == 0
+    assert "outside the limits" in err
+    assert json.loads(out)["angle_deg"] == pytest.approx(90, abs=1.0)
+    # Read only, human output.
+    code, out, _ = probe(capsys, "--port", path, "--protocol", protocol, "--channel", "1")
+    assert code == 0 and out.startswith("channel 1: 90.")
+
+
+def test_probe_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = probe(capsys, "--port", str(tmp_path / "nothing"), "--protocol", "maestro",
+                           "--channel", "0")
+    assert code == 1 and out == "" and "cannot open" in err
+    code, _, err = probe(capsys, "--port", "/dev/null", "--protocol", "ssc32", "--channel", "40")
+    assert code == 2 and "channel out of range" in err
+    code, _, err = probe(capsys, "--port", "/dev/null", "--protocol", "ssc32", "--channel", "0",
+                         "--pulse-us", "1000,900,2000")
+    assert code == 2 and "monotonic" in err
