@@ -102,6 +102,11 @@ async def run_one(scenario: Any, relays: int, args: argparse.Namespace, out: Pat
     return result.summary, result.records, runner.world
 
 
+def _open_log(out: Path) -> Any:
+    out.mkdir(parents=True, exist_ok=True)
+    return (out / "sim.log").open("w", encoding="utf-8")
+
+
 async def run(args: argparse.Namespace) -> int:
     from relayd.logsetup import setup_logging
     from relayd.sim import plots as sim_plots
@@ -117,8 +122,7 @@ async def run(args: argparse.Namespace) -> int:
             print(f"  {line}", file=sys.stderr)
         return 2
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    log_file = (out / "sim.log").open("w", encoding="utf-8")
+    log_file = _open_log(out)
     try:
         setup_logging(args.log_level, "json", stream=log_file)
         plots = not args.no_plots and sim_plots.available()
@@ -143,5 +147,7 @@ async def run(args: argparse.Namespace) -> int:
                                           f"{scenario.name}: end-to-end throughput by number of relays")
         print(f"outputs in {out}/", flush=True)
     finally:
+        # Never leave structlog writing into a closed file.
+        setup_logging("warning", "console", stream=sys.stderr)
         log_file.close()
     return 0

@@ -20,7 +20,7 @@ def available() -> bool:
         import matplotlib
 
         matplotlib.use("Agg")
-        import matplotlib.pyplot  # noqa: F401
+        import matplotlib.pyplot
     except ImportError:
         return False
     return True

@@ -209,7 +209,8 @@ class SimRunner:
 
     async def _wait_ports(self) -> dict[str, int | None]:
         async with asyncio.timeout(10.0):
-            while any(r.daemon.api_port is None for r in self.relays):
+            # The Daemon publishes its port as an attribute once bound; poll it briefly.
+            while any(r.daemon.api_port is None for r in self.relays):  # noqa: ASYNC110
                 await asyncio.sleep(0.01)
         return {r.name: r.daemon.api_port for r in self.relays}
 
@@ -256,6 +257,8 @@ class SimRunner:
                 "scan_deg": round(body.scan_deg, 1), "link_deg": round(body.link_deg, 1),
                 "gap_m": round(w.gap_m(i), 3), "collisions": body.collisions,
                 "wheels": [round(st.wheels_left_mm_s), round(st.wheels_right_mm_s)],
+                "v_mm_s": round(float(r.robot.vel_mm_s)),
+                "rssi_l_mean_dbm": round(w.radio.mean_power_dbm(body.pos, w.node_pos(i))[0], 1),
                 "situation": st.situation,
             })
         return {

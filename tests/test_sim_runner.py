@@ -1,0 +1,149 @@
+"""Tests of the simulation runner's pure helpers and of `relayd sim` end to end (short runs)."""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+
+import pytest
+
+from relayd.cli import main
+from relayd.commands.sim import format_summary
+from relayd.sim.progress import ProgressLine, progress_text
+from relayd.sim.runner import PULSE_US, pulse_to_deg, relay_settings, summarize
+
+
+def test_pulse_to_deg_inverts_the_default_calibration() -> None:
+    assert pulse_to_deg(1500) == 0.0
+    assert pulse_to_deg(2000) == 90.0
+    assert pulse_to_deg(1000) == -90.0
+    assert pulse_to_deg(1750) == 45.0
+    assert pulse_to_deg(1250) == -45.0
+    # an upside-down servo (decreasing pulses) turns the other way
+    assert pulse_to_deg(1000, (2000, 1500, 1000)) == 90.0
+    assert pulse_to_deg(1800, (2000, 1500, 1000)) == pytest.approx(-54.0)
+
+
+def test_generated_settings_validate() -> None:
+    from relayd.config import Settings
+
+    doc = relay_settings(robot_port="/tmp/x-base", servo_port="/tmp/x-servo", procfs_path="/tmp/x-wl",
+                         rear_url="http://127.0.0.1:1", front_url="http://127.0.0.1:2",
+                         control={"threshold_l_dbm": -30}, scan={})
+    s = Settings.model_validate(doc)
+    assert s.robot.port == "/tmp/x-base"
+    assert s.pantilt.protocol == "maestro"
+    assert tuple(s.pantilt.scan_pulse_us) == tuple(int(p) for p in PULSE_US)
+    assert s.wifi.source == "procfs"
+    assert s.api.port == 0 and s.api.bind == "127.0.0.1"
+    assert s.ap.rear is not None and s.ap.rear.password_env
+
+
+def _rec(t: float, lx: float, e2e: float, broken: bool, gaps: list[float], state: str = "driving") -> dict:
+    return {"t": t, "leader": {"x": lx, "y": 0.0, "moving": True}, "e2e_mbps": e2e, "broken": broken,
+            "relays": [{"name": f"r{i}", "gap_m": g, "state": state, "reason": "why", "rssi_l_dbm": -40.0}
+                       for i, g in enumerate(gaps)]}
+
+
+def test_summarize_reached_and_broken() -> None:
+    recs = [_rec(0, 0, 27, False, [2.0]), _rec(1, 5, 12, False, [4.0]), _rec(2, 10, 6, False, [3.0])]
+    f = [{"name": "r0", "collisions": 0, "travelled_m": 3.0}]
+    s = summarize(recs, scenario="x", relays=1, goal=(10, 0), goal_radius_m=0.5, collisions=0, followers=f)
+    assert s["goal_reached"] is True and s["link_broken_at_s"] is None
+    assert s["min_e2e_mbps"] == 6 and s["final_e2e_mbps"] == 6
+    assert s["followers"][0]["max_gap_m"] == 4.0 and s["followers"][0]["stopped_reason"] == "why"
+    for key in ("scenario", "relays", "sim_seconds", "goal_reached", "link_broken_at_s", "min_e2e_mbps",
+                "final_e2e_mbps", "collisions", "followers"):
+        assert key in s
+    recs[1]["broken"] = True
+    recs[1]["e2e_mbps"] = 0
+    s = summarize(recs, scenario="x", relays=1, goal=(10, 0), goal_radius_m=0.5, collisions=0, followers=f)
+    assert s["goal_reached"] is False and s["link_broken_at_s"] == 1 and s["min_e2e_mbps"] == 0
+    # never got there
+    s = summarize(recs[:2], scenario="x", relays=1, goal=(10, 0), goal_radius_m=0.5, collisions=0, followers=f)
+    assert s["goal_reached"] is False and s["goal_reached_at_s"] is None
+    assert "goal NOT reached" in format_summary(s | {"followers": [
+        {"name": "r0", "max_gap_m": 4.0, "final_gap_m": 3.0, "travelled_m": 3.0,
+         "final_state": "stopped", "stopped_reason": "rear_weak"}]})
+
+
+def test_progress_line_only_on_a_terminal() -> None:
+    rec = _rec(12.5, 3, 18, False, [2.5])
+    assert "t=  12.5" in progress_text(rec, 100) and "r0:driving/-40dBm" in progress_text(rec, 100)
+    buf = io.StringIO()
+    p = ProgressLine(100, stream=buf)
+    p(rec)
+    p.close()
+    assert buf.getvalue() == ""
+    p = ProgressLine(100, stream=buf, every_s=0.0, enabled=True)
+    p(rec)
+    p(rec)
+    p.close()
+    assert buf.getvalue().count("\r") == 2 and buf.getvalue().endswith("\n")
+
+
+def test_cli_bad_scenario_and_bad_relays(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["sim", "--scenario", "atlantis", "--out", str(tmp_path)]) == 2
+    assert "no scenario named" in capsys.readouterr().err
+    assert main(["sim", "--scenario", "corridor", "--relays", "7", "--out", str(tmp_path)]) == 2
+    with pytest.raises(SystemExit):
+        main(["sim", "--relays", "many"])
+    with pytest.raises(SystemExit):
+        main(["sim", "--speed", "0"])
+
+
+def test_cli_corridor_without_relays_writes_every_output(tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    # No daemons: the world alone, so a high speed is fine.
+    out = tmp_path / "o"
+    assert main(["sim", "--scenario", "corridor", "--relays", "0", "--speed", "200", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "link broke at" in text and "goal NOT reached" in text
+    s = json.loads((out / "summary.json").read_text())
+    assert s["relays"] == 0 and s["goal_reached"] is False and s["link_broken_at_s"] is not None
+    lines = (out / "trace.jsonl").read_text().splitlines()
+    assert len(lines) > 100
+    first = json.loads(lines[0])
+    assert {"t", "leader", "relays", "hops", "e2e_mbps", "broken"} <= first.keys()
+    for png in ("map.png", "throughput.png"):
+        assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+TINY = """
+name = "tiny"
+environment = "outdoor"
+duration_s = 8
+relays = 1
+[command_center]
+x = -3.0
+y = 0.0
+[leader]
+kind = "robot"
+start_s = 1.0
+waypoints = [{ x = 0.0, y = 0.0 }, { x = 1.0, y = 0.0 }]
+[[relay]]
+name = "solo"
+x = -1.5
+y = 0.0
+"""
+
+
+@pytest.mark.slow
+def test_cli_relays_all_runs_each_count_with_real_daemons(tmp_path: Path,
+                                                           capsys: pytest.CaptureFixture[str]) -> None:
+    scen = tmp_path / "tiny.toml"
+    scen.write_text(TINY)
+    out = tmp_path / "o"
+    assert main(["sim", "--scenario", str(scen), "--relays", "all", "--speed", "4", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "solo: API and live page at http://127.0.0.1:" in text
+    top = json.loads((out / "summary.json").read_text())
+    assert [r["relays"] for r in top["runs"]] == [0, 1]
+    one = json.loads((out / "relays-1" / "summary.json").read_text())
+    assert one["followers"][0]["name"] == "solo"
+    assert one["followers"][0]["api_port"] > 0
+    recs = [json.loads(x) for x in (out / "relays-1" / "trace.jsonl").read_text().splitlines()]
+    # the daemon really ran: it scanned and reported a bearing and RSSI^l
+    assert any(r["relays"][0]["rssi_l_dbm"] is not None for r in recs)
+    assert (out / "throughput.png").exists() and (out / "relays-1" / "rssi_bearing.png").exists()
