@@ -400,7 +400,7 @@ class FakeAirOs:
         self.counters["redirects"] += 1
         if self.version == 8:
             return web.json_response({"error": "unauthorized"}, status=401)  # UNVERIFIED body
-        response = web.HTTPFound(f"/login.cgi?uri={request.path}")
+        response = _redirect(f"/login.cgi?uri={request.path}")
         if self._session(request)[1] is None:
             self._new_session(response)
         return response
@@ -408,7 +408,7 @@ class FakeAirOs:
     async def _root(self, request: web.Request) -> web.StreamResponse:
         if self._authorised(request):
             return web.Response(text="<html><body>airOS</body></html>", content_type="text/html")
-        response = web.HTTPFound("/login.cgi?uri=/index.cgi")
+        response = _redirect("/login.cgi?uri=/index.cgi")
         if self._session(request)[1] is None:
             self._new_session(response)
         return response
@@ -433,7 +433,7 @@ class FakeAirOs:
         self.counters["logins"] += 1
         uri = form.get("uri")
         target = uri if isinstance(uri, str) and uri.startswith("/") else "/index.cgi"
-        return web.HTTPFound(target)
+        return _redirect(target)
 
     async def _login_v8(self, request: web.Request) -> web.StreamResponse:
         try:
@@ -459,7 +459,7 @@ class FakeAirOs:
         if token is not None:
             self._sessions.pop(token, None)
             self.counters["logouts"] += 1
-        return web.HTTPFound("/login.cgi")
+        return _redirect("/login.cgi")
 
     def _json(self, doc: object) -> web.Response:
         text = json.dumps(doc, indent=1)
@@ -478,6 +478,10 @@ class FakeAirOs:
             return self._not_logged_in(request)
         self.counters["sta"] += 1
         return self._json(self._station_list())
+
+
+def _redirect(location: str) -> web.Response:
+    return web.Response(status=302, headers={"Location": location})
 
 
 def _to_float(value: object) -> float | None:
