@@ -133,13 +133,14 @@ async def test_status_turns_non_finite_numbers_into_null(client: TestClient[Any,
 
 
 async def test_no_response_contains_the_token(client: TestClient[Any, Any]) -> None:
-    for method, path, kwargs in [
+    cases: list[tuple[str, str, dict[str, Any]]] = [
         ("GET", "/status", {}), ("GET", "/healthz", {}), ("GET", "/metrics", {}),
         ("GET", "/openapi.json", {}), ("GET", "/", {}),
         ("POST", "/api/mode", {"json": {"mode": "hold"}, "headers": AUTH}),
         ("POST", "/api/mode", {"json": {"mode": "hold"}, "headers": {"Authorization": "Bearer nope"}}),
         ("POST", "/api/drive", {"json": {"left_mm_s": TOKEN, "right_mm_s": 0}, "headers": AUTH}),
-    ]:
+    ]
+    for method, path, kwargs in cases:
         resp = await client.request(method, path, **kwargs)
         body = await resp.text()
         assert TOKEN not in body, path
