@@ -167,6 +167,18 @@ async def test_wrong_password_is_an_auth_error(version: int) -> None:
         assert SECRET not in text and "ubnt" in text
 
 
+@pytest.mark.parametrize("api_auth_status", [404, 403, 302])
+async def test_auto_firmware_falls_back_to_the_v6_form(api_auth_status: int) -> None:
+    async with FakeAirOs("ubnt", SECRET) as fake:
+        fake.v6_api_auth_status = api_auth_status
+        client = AirOsClient(fake.base_url or "", "ubnt", SECRET)
+        try:
+            assert (await client.fetch()).signal_dbm == -46
+            assert client.firmware == 6 and fake.counters["logins"] == 1
+        finally:
+            await client.close()
+
+
 async def test_expired_session_is_detected(fake6: FakeAirOs) -> None:
     client = AirOsClient(fake6.base_url or "", "ubnt", SECRET)
     try:

@@ -208,6 +208,8 @@ class AirOsClient:
                 if (resp.content_length or 0) > MAX_BODY_BYTES:
                     raise AirOsDataError(f"{method} {path}: answer of {resp.content_length} bytes")
                 body = await resp.read()
+                if len(body) > MAX_BODY_BYTES:  # chunked answers carry no Content-Length
+                    raise AirOsDataError(f"{method} {path}: answer of {len(body)} bytes")
                 for name, morsel in resp.cookies.items():
                     if name.upper().startswith("AIROS"):
                         self._cookie = (name, morsel.value)
@@ -216,7 +218,7 @@ class AirOsClient:
                     content_type=resp.headers.get("Content-Type", "").lower(),
                     location=resp.headers.get("Location", ""),
                     csrf_id=resp.headers.get("X-CSRF-ID"),
-                    body=body[: MAX_BODY_BYTES + 1],
+                    body=body,
                 )
         except TimeoutError:
             raise AirOsTimeoutError(
@@ -248,7 +250,11 @@ class AirOsClient:
             "/api/auth",
             json_body={"username": self.username, "password": self._password.get_secret_value()},
         )
-        if answer.status in (401, 403):
+        refused = answer.status in (401, 403)
+        # An airOS 8 refusal is a JSON answer of its API; in "auto" mode a bare 401/403 page
+        # may be an airOS 5/6 lighttpd guarding a path it does not have (UNVERIFIED), so
+        # only the JSON kind is taken as wrong credentials there.
+        if refused and (self.firmware_setting == 8 or "json" in answer.content_type):
             raise AirOsAuthError(f"airOS 8 login refused for user {self.username!r} (HTTP {answer.status})")
         if answer.status == 200 and answer.csrf_id:
             self._csrf_id = answer.csrf_id

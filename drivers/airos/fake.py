@@ -229,6 +229,9 @@ class FakeAirOs:
         self.port = port
         self.ssl_context = ssl_context  # serve https (e.g. a TLS 1.0-only airOS 6 lighttpd)
         self.login_content_types: list[str] = []  # what POST /login.cgi bodies were sent as
+        # What an airOS 5/6 radio answers at airOS 8's /api/auth: 404 here, UNVERIFIED on
+        # real firmware (a redirect or a 403 page are as plausible; the client copes with all).
+        self.v6_api_auth_status = 404
         self.slow_s = 0.0
         self.malformed = False
         self.down = False
@@ -333,8 +336,7 @@ class FakeAirOs:
         app.router.add_get("/logout.cgi", self._logout)
         app.router.add_get("/status.cgi", self._status)
         app.router.add_get("/sta.cgi", self._sta)
-        if self.version == 8:
-            app.router.add_post("/api/auth", self._login_v8)
+        app.router.add_post("/api/auth", self._login_v8)
         self._runner = web.AppRunner(app, access_log=None, handle_signals=False)
         await self._runner.setup()
         await self._listen()
@@ -436,6 +438,12 @@ class FakeAirOs:
         return _redirect(target)
 
     async def _login_v8(self, request: web.Request) -> web.StreamResponse:
+        if self.version == 6:
+            status = self.v6_api_auth_status
+            if status in (301, 302, 303, 307):
+                return _redirect("/login.cgi?uri=/api/auth")
+            return web.Response(status=status, text=f"<html><body>{status}</body></html>",
+                                content_type="text/html")
         try:
             body = await request.json()
         except ValueError:
