@@ -458,3 +458,20 @@ async def test_password_never_appears_anywhere() -> None:
     assert not leaks
     assert "**" in repr(SecretStr(SECRET))
 
+
+
+async def test_poller_backs_off_when_a_fresh_session_is_refused_at_once() -> None:
+    clock = Clock(speed=20)
+    async with FakeAirOs("ubnt", SECRET, clock=clock) as fake:
+        # A radio that accepts the login but then sends every status request back to the
+        # login page (e.g. a firmware that wants another header): no tight login loop.
+        fake._authorised = lambda request: False  # type: ignore[method-assign]
+        poller = _poller(fake, clock)
+        task = asyncio.create_task(poller.run())
+        await until(lambda: poller.state == "bad_data")
+        assert "refused right after login" in (poller.last_error or "")
+        logins0 = fake.counters["logins"]
+        await asyncio.sleep(clock.to_real(14.0))
+        assert fake.counters["logins"] - logins0 <= 5  # backoff 1, 2, 4, 8 s
+        assert poller.counters["polls"] == 0 and poller.latest is None
+        await _stop(task)
