@@ -41,8 +41,6 @@ API_TOKEN_ENV = "RELAYD_SIM_API_TOKEN"
 AIROS_UPDATE_S = 0.5
 #: Trace records per clock second.
 TRACE_HZ = 10.0
-#: After the leader reaches its goal, keep running this long (clock s) so relays settle.
-SETTLE_AFTER_GOAL_S = 10.0
 
 
 def pulse_to_deg(pulse_us: float, pulse: Sequence[float] = PULSE_US) -> float:
@@ -295,7 +293,7 @@ class SimRunner:
                     self.on_progress(rec)
             if self.world.leader.done and done_at is None:
                 done_at = t
-            if t >= end or (done_at is not None and t >= done_at + SETTLE_AFTER_GOAL_S):
+            if t >= end or (done_at is not None and t >= done_at + self.scenario.settle_after_goal_s):
                 break
             next_t += dt
             await clock.sleep(next_t - clock.now())

@@ -113,6 +113,8 @@ class Scenario(_Model):
     duration_s: Positive = 300.0
     relays: Annotated[int, Field(ge=0, le=8)] = 1
     goal_radius_m: Positive = 0.5
+    #: keep running this long (clock s) after the leader reaches its goal, so relays settle
+    settle_after_goal_s: NonNeg = 10.0
     tick_hz: Annotated[float, Field(gt=0, le=100)] = 20.0
     command_center: NodeSpec
     leader: LeaderSpec
