@@ -238,3 +238,38 @@ async def test_maestro_error_bits_reported(tmp_path: Path) -> None:
         await pt.close()
         await asyncio.wait_for(r.task, 5)
         r.fake.close()
+
+
+class GarblingSsc32(FakeSsc32):
+    """An SSC-32 behind a noisy cable: the next reply is replaced by `garble`."""
+
+    garble: bytes = b""
+
+    def _reply(self, data: bytes) -> None:
+        if self.garble:
+            data, self.garble = self.garble, b""
+        super()._reply(data)
+
+
+async def test_garbled_and_unsolicited_bytes_are_counted_not_fatal(tmp_path: Path) -> None:
+    clock = Clock(SPEED)
+    fake = GarblingSsc32(clock=clock)
+    pt = make_pantilt("ssc32", fake.serve_pty(tmp_path / "servo"), None,
+                      {0: ServoCalibration()}, clock=clock, reply_timeout_s=3.0, poll_s=1000.0)
+    task = asyncio.create_task(pt.run())
+    try:
+        await until(lambda: pt.connected)
+        fake.garble = b"x"
+        with pytest.raises(PanTiltError, match="bad reply"):
+            await pt.is_moving()
+        assert pt.counters["errors"] == 1 and pt.connected
+        # Bytes nobody asked for are dropped and counted; the next answer is still right.
+        fake.send_noise(b"+++")
+        await until(lambda: pt.counters["stray_bytes"] == 3)
+        await pt.set_angle(0, 45)
+        assert await pt.get_angle(0) == pytest.approx(45, abs=1.0)
+        assert not await pt.is_moving()
+    finally:
+        await pt.close()
+        await asyncio.wait_for(task, 5)
+        fake.close()

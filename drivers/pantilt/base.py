@@ -335,12 +335,14 @@ class PanTilt(abc.ABC):
     # ---- session internals ---------------------------------------------------------
 
     async def _serve(self) -> None:
+        # The handshake has just proved the controller answers: first poll after poll_s.
         while self.connected and not self._closed:
-            with contextlib.suppress(PanTiltError):
-                await self._poll()
             with contextlib.suppress(TimeoutError):
                 async with self._clock.timeout(self.poll_s):
                     await self._lost.wait()
+            if self.connected and not self._closed:
+                with contextlib.suppress(PanTiltError):
+                    await self._poll()
         if not self._closed:
             self._log.warning("pantilt_link_lost", error=self.last_error)
 

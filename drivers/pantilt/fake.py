@@ -152,6 +152,10 @@ class _FakeController(abc.ABC):
         self.received += data
         self._feed(data)
 
+    def send_noise(self, data: bytes) -> None:
+        """Put bytes on the wire that no request asked for (line noise, a reset banner)."""
+        self._reply(data)
+
     def _reply(self, data: bytes) -> None:
         self.sent += data
         if self._port is not None:
