@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from drivers.backoff import Backoff
 from drivers.clock import Clock
 from drivers.pantilt import PanTilt, PanTiltError, ServoCalibration, make_pantilt
 from drivers.pantilt.fake import FakeMaestro, FakeSsc32
@@ -273,3 +274,13 @@ async def test_garbled_and_unsolicited_bytes_are_counted_not_fatal(tmp_path: Pat
         await pt.close()
         await asyncio.wait_for(task, 5)
         fake.close()
+
+
+async def test_close_ends_run_even_while_backing_off(tmp_path: Path) -> None:
+    pt = make_pantilt("maestro", str(tmp_path / "absent"), None, {0: ServoCalibration()},
+                      backoff=Backoff(initial_s=60.0, maximum_s=60.0))
+    task = asyncio.create_task(pt.run())
+    await until(lambda: pt.counters["errors"] >= 1)
+    await pt.close()
+    await asyncio.wait_for(task, 2)  # returned, did not sit out the 60 s backoff
+    assert not pt.connected

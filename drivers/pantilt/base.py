@@ -171,6 +171,7 @@ class PanTilt(abc.ABC):
         self._waiter: tuple[int, asyncio.Future[bytes]] | None = None
         self._consecutive_timeouts = 0
         self._closed = False
+        self._close_requested = asyncio.Event()
         self._ever_connected = False
         self.last_error: str | None = None
         self.counters: dict[str, int] = {
@@ -304,6 +305,7 @@ class PanTilt(abc.ABC):
     async def run(self) -> None:
         """Connect, poll, reconnect with backoff, until `close()`; raises only CancelledError."""
         self._closed = False
+        self._close_requested.clear()
         failures = 0
         try:
             while not self._closed:
@@ -323,13 +325,17 @@ class PanTilt(abc.ABC):
                     failures += 1
                 if self._closed:
                     break
-                await self._clock.sleep(self._backoff.next_delay())
+                # Back off, but let close() end the wait at once.
+                with contextlib.suppress(TimeoutError):
+                    async with self._clock.timeout(self._backoff.next_delay()):
+                        await self._close_requested.wait()
         finally:
             await self._drop()
 
     async def close(self) -> None:
         """Close the port; a running `run()` returns instead of reconnecting."""
         self._closed = True
+        self._close_requested.set()
         await self._drop()
 
     # ---- session internals ---------------------------------------------------------
