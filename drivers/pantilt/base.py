@@ -314,7 +314,8 @@ class PanTilt(abc.ABC):
                     failures = 0
                     await self._serve()
                 except (PanTiltError, LinkError) as exc:
-                    self._note_error(str(exc))
+                    if isinstance(exc, LinkError):
+                        self._note_error(str(exc))  # PanTiltErrors were counted where raised
                     log_fn = self._log.warning if failures == 0 else self._log.debug
                     log_fn("pantilt_connect_failed", error=str(exc), attempt=failures + 1)
                     failures += 1
