@@ -7,6 +7,7 @@ two-speed consistency test reuses the obstacle run.
 
 from __future__ import annotations
 
+import itertools
 import math
 from typing import Any
 
@@ -34,7 +35,7 @@ def _pause_windows(runner: SimRunner) -> list[tuple[float, float]]:
     t = spec.start_s
     out = []
     pts = spec.waypoints
-    for a, b in zip(pts, pts[1:], strict=False):
+    for a, b in itertools.pairwise(pts):
         t += math.hypot(b.x - a.x, b.y - a.y) / spec.speed_m_s
         if b.pause_s > 0:
             out.append((t, t + b.pause_s))
@@ -54,7 +55,7 @@ async def test_convoy_followers_track_and_stop_during_pauses() -> None:
     pauses = _pause_windows(runner)
     assert len(pauses) == 2
     for t0, t1 in pauses:
-        # the last 4 s of each 20 s pause: every follower stands still behind its leader
+        # the last 4 s of each 30 s pause: every follower stands still behind its leader
         window = [r for r in recs if t1 - 4.0 <= r["t"] <= t1]
         assert window
         for i in range(2):

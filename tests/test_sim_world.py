@@ -335,3 +335,30 @@ def test_corridor_without_relays_breaks_before_the_goal() -> None:
             broke = t
             break
     assert broke is not None and broke < w.leader_script.end_s
+
+
+def test_turning_in_place_against_a_wall_is_one_contact() -> None:
+    d = _minimal()
+    d["relays"] = 1
+    d["relay"] = [{"name": "r", "x": 0, "y": 0}]
+    d["walls"] = [{"points": [[1.0, -3], [1.0, 3]]}]
+    d["leader"] = {"waypoints": [{"x": -4, "y": 0}]}
+    w = World(parse_scenario(d), seed=0)
+    old = (600.0, 0.0, 0.0)
+    for _ in range(5):
+        # the FakeRobot's pattern: translation rejected, then rotation in place accepted
+        assert not w.motion_ok(0, 700, 0, 0, old=old)
+        assert w.motion_ok(0, 600, 0, 2, old=old)
+    assert w.collisions() == 1
+    assert w.relays[0].rejected_steps == 5
+
+
+def test_a_robot_already_touching_may_move_away() -> None:
+    d = _minimal()
+    d["relays"] = 2
+    d["relay"] = [{"name": "a", "x": 0, "y": 0}, {"name": "b", "x": 0.5, "y": 0}]
+    d["leader"] = {"waypoints": [{"x": -4, "y": 0}]}
+    w = World(parse_scenario(d), seed=0)
+    # b was placed overlapping a: it is allowed to move (and the contact is counted)
+    assert w.motion_ok(1, 600, 0, 0, old=(500, 0, 0))
+    assert w.collisions() == 1
