@@ -370,12 +370,16 @@ async def test_motion_guard_rejection_sets_stall_bits(clock: Clock) -> None:
     robot = ArcosRobot(fake.serve_pty(), clock=clock, enable_motors=True)
     try:
         async with running(robot):
-            await until(lambda: robot.connected)
+            # the driver's origin is its first SIP (as ARIA's): wait for it before moving
+            await until(lambda: robot.connected and robot.last_sip is not None)
             robot.set_wheels(400, 400)
             await until(lambda: robot.last_sip is not None and robot.last_sip.stall_left, wall_s=3)
+            # it creeps up to the wall (within 1/32 of a 40 mm step), stalled all the way
+            await until(lambda: robot.last_sip is not None and robot.last_sip.x_mm > 298)
+            await asyncio.sleep(0.3 / SPEED)  # and keeps pushing against it
             sip = robot.last_sip
-            assert sip is not None and sip.stall_right and sip.left_mm_s == 0
-            assert fake.x_mm < 300 and sip.x_mm == pytest.approx(fake.x_mm, abs=2)
+            assert sip is not None and sip.stall_left and sip.stall_right and sip.left_mm_s == 0
+            assert 298 < fake.x_mm < 300 and sip.x_mm == pytest.approx(fake.x_mm, abs=1)
             # turning in place is still allowed against the wall
             robot.set_wheels(-100, 100)
             await until(lambda: fake.theta_deg > 5)

@@ -357,12 +357,23 @@ class FakeRobot:
                normalize_deg(self.theta_deg + dth))
         self.stalled = False
         if self.motion_guard is not None and not self.motion_guard(old, new):
+            # Blocked: the wheels stall. Move as far as allowed (halving the step a few
+            # times), so the robot ends up against the obstacle, not a step short of it.
             self.stalled = True
-            ds = 0.0
+            full_ds, ds = ds, 0.0
             new = (old[0], old[1], normalize_deg(self.theta_deg + dth))
-            if dth == 0 or not self.motion_guard(old, new):
+            if dth != 0 and not self.motion_guard(old, new):
                 dth = 0.0
                 new = old
+            turned = math.radians(new[2] - dth / 2.0)
+            frac = 0.5
+            for _ in range(5):
+                trial = (old[0] + frac * full_ds * math.cos(turned),
+                         old[1] + frac * full_ds * math.sin(turned), new[2])
+                if self.motion_guard(old, trial):
+                    ds, new = frac * full_ds, trial
+                    break
+                frac /= 2.0
         self.x_mm, self.y_mm, self.theta_deg = new
         # Odometry sees the same wheel motion, in its own frame.
         omid = math.radians(self._odo[2] + dth / 2.0)
