@@ -59,7 +59,12 @@ def plot_map(world: World, records: Sequence[dict[str, Any]], path: Path) -> Non
             c = colors[i % len(colors)]
             ax.plot(xs, ys, color=c, lw=1.5, label=body.name)
             ax.plot(xs[-1], ys[-1], marker="o", color=c, ms=9, ls="")
-        marks = [r for r in records if abs(r["t"] / 20.0 - round(r["t"] / 20.0)) < 0.051]
+        marks = []
+        next_mark = 0.0
+        for r in records:
+            if r["t"] >= next_mark:
+                marks.append(r)
+                next_mark += 20.0
         for r in marks:
             ax.plot(r["leader"]["x"], r["leader"]["y"], marker="o", mfc="white", mec="red", ms=5, ls="")
             for rel in r["relays"]:
