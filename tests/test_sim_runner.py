@@ -68,6 +68,20 @@ def test_summarize_reached_and_broken() -> None:
          "final_state": "stopped", "stopped_reason": "rear_weak"}]})
 
 
+def test_unapplied_command_time() -> None:
+    from relayd.sim.runner import unapplied_command_s
+
+    def rec(t: float, wheels: list[int], v: int) -> dict:
+        return {"t": t, "relays": [{"wheels": wheels, "v_mm_s": v, "w_deg_s": 0.0}]}
+
+    recs = [rec(0.1 * k, [200, 200], 0) for k in range(31)]          # 3 s commanded, never moving
+    assert unapplied_command_s(recs, 0) == pytest.approx(2.0, abs=0.15)
+    moving = [rec(0.1 * k, [200, 200], 0 if k < 3 else 150) for k in range(31)]
+    assert unapplied_command_s(moving, 0) == 0.0
+    idle = [rec(0.1 * k, [0, 0], 0) for k in range(31)]
+    assert unapplied_command_s(idle, 0) == 0.0
+
+
 def test_progress_line_only_on_a_terminal() -> None:
     rec = _rec(12.5, 3, 18, False, [2.5])
     assert "t=  12.5" in progress_text(rec, 100) and "r0:driving/-40dBm" in progress_text(rec, 100)

@@ -98,6 +98,32 @@ class SimResult:
     api_ports: dict[str, int | None] = field(default_factory=dict)
 
 
+def unapplied_command_s(records: Sequence[dict[str, Any]], i: int, grace_s: float = 1.0) -> float:
+    """Clock seconds relay i's daemon commanded wheel motion the robot never started on.
+
+    The fake robot accelerates within a few tenths of a second, so a daemon that has
+    commanded more than 50 mm/s for longer than `grace_s` while the true speed is still
+    zero has commands stuck on their way (a queue backlog, a dead link). Stalls against
+    an obstacle do not count: the robot's speed stays set while the world rejects it.
+    """
+    total = 0.0
+    since: float | None = None
+    prev_t: float | None = None
+    for r in records:
+        rel = r["relays"][i]
+        wheels = rel.get("wheels") or [0, 0]
+        stuck = max(abs(wheels[0]), abs(wheels[1])) > 50 and rel.get("v_mm_s", 0) == 0 \
+            and abs(rel.get("w_deg_s", 0)) == 0
+        if stuck:
+            since = r["t"] if since is None else since
+            if prev_t is not None and r["t"] - since > grace_s:
+                total += r["t"] - prev_t
+        else:
+            since = None
+        prev_t = r["t"]
+    return round(total, 2)
+
+
 def summarize(records: Sequence[dict[str, Any]], *, scenario: str, relays: int, goal: tuple[float, float],
               goal_radius_m: float, collisions: int, followers: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """summary.json from the trace: SPEC 5's keys plus a few that help reading a run.
@@ -124,6 +150,7 @@ def summarize(records: Sequence[dict[str, Any]], *, scenario: str, relays: int, 
             "final_state": None if last is None else last["relays"][i]["state"],
             "collisions": f["collisions"],
             "travelled_m": round(f["travelled_m"], 3),
+            "unapplied_command_s": unapplied_command_s(records, i) if records else 0.0,
             "api_port": f.get("api_port"),
         })
     return {
@@ -256,6 +283,7 @@ class SimRunner:
                 "gap_m": round(w.gap_m(i), 3), "collisions": body.collisions,
                 "wheels": [round(st.wheels_left_mm_s), round(st.wheels_right_mm_s)],
                 "v_mm_s": round(float(r.robot.vel_mm_s)),
+                "w_deg_s": round(float(r.robot.rvel_deg_s), 1),
                 "rssi_l_mean_dbm": round(w.radio.mean_power_dbm(body.pos, w.node_pos(i))[0], 1),
                 "situation": st.situation,
             })
