@@ -161,3 +161,36 @@ def test_cli_relays_all_runs_each_count_with_real_daemons(tmp_path: Path,
     # the daemon really ran: it scanned and reported a bearing and RSSI^l
     assert any(r["relays"][0]["rssi_l_dbm"] is not None for r in recs)
     assert (out / "throughput.png").exists() and (out / "relays-1" / "rssi_bearing.png").exists()
+
+
+@pytest.mark.slow
+async def test_each_relay_serves_its_api_while_the_sim_runs(tmp_path: Path) -> None:
+    import asyncio
+
+    import aiohttp
+
+    from relayd.sim.runner import SimRunner
+    from relayd.sim.scenario import load_scenario
+
+    scen = tmp_path / "tiny.toml"
+    scen.write_text(TINY)
+    seen: dict[str, dict] = {}
+    tasks: list[asyncio.Task[None]] = []
+
+    async def fetch(name: str, port: int) -> None:
+        await asyncio.sleep(0.3)
+        async with aiohttp.ClientSession() as http, http.get(f"http://127.0.0.1:{port}/status") as resp:
+            assert resp.status == 200
+            seen[name] = await resp.json()
+
+    def ready(ports: dict[str, int | None]) -> None:
+        for name, port in ports.items():
+            assert port is not None
+            tasks.append(asyncio.create_task(fetch(name, port)))
+
+    runner = SimRunner(load_scenario(scen), speed=4, seconds=4, on_ready=ready, out_dir=tmp_path / "o")
+    await runner.run()
+    await asyncio.gather(*tasks)
+    assert set(seen) == {"solo"}
+    assert seen["solo"]["mode"] == "follow"
+    assert (tmp_path / "o" / "summary.json").exists()
