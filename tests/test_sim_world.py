@@ -307,7 +307,10 @@ def test_motion_guard_rejects_and_counts_contact() -> None:
     assert not w.motion_ok(0, 700, 0, 0)
     assert not w.motion_ok(0, 710, 0, 0)        # still pushing: one contact, not two
     assert w.collisions() == 1
-    assert w.motion_ok(0, 500, 0, 0)            # backing off is fine
+    assert w.motion_ok(0, 680, 0, 0)            # creeping up to the wall: the same contact
+    assert not w.motion_ok(0, 700, 0, 0, old=(680, 0, 0))
+    assert w.collisions() == 1
+    assert w.motion_ok(0, 500, 0, 0)            # backing off clear of the wall ends it
     assert not w.motion_ok(0, 720, 0, 0)
     assert w.collisions() == 2
 
@@ -344,11 +347,11 @@ def test_turning_in_place_against_a_wall_is_one_contact() -> None:
     d["walls"] = [{"points": [[1.0, -3], [1.0, 3]]}]
     d["leader"] = {"waypoints": [{"x": -4, "y": 0}]}
     w = World(parse_scenario(d), seed=0)
-    old = (600.0, 0.0, 0.0)
+    old = (680.0, 0.0, 0.0)                     # front bumper 7 mm from the wall
     for _ in range(5):
         # the FakeRobot's pattern: translation rejected, then rotation in place accepted
-        assert not w.motion_ok(0, 700, 0, 0, old=old)
-        assert w.motion_ok(0, 600, 0, 2, old=old)
+        assert not w.motion_ok(0, 780, 0, 0, old=old)
+        assert w.motion_ok(0, 680, 0, 1, old=old)
     assert w.collisions() == 1
     assert w.relays[0].rejected_steps == 5
 

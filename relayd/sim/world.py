@@ -36,6 +36,8 @@ from relayd.sim.scenario import Scenario
 #: P3-AT body (protocols/p3at-arcos.md 6.1: RobotLength 626 mm, RobotWidth 505 mm).
 ROBOT_LENGTH_M = 0.626
 ROBOT_WIDTH_M = 0.505
+#: A contact episode ends once the footprint is this far from everything again.
+CONTACT_CLEAR_M = 0.02
 #: P3-AT sonar ring (protocols/p3at-arcos.md 6.2): x forward, y left (mm), heading (deg, ccw).
 SONAR_POSES: tuple[tuple[float, float, float], ...] = (
     (147, 136, 90), (193, 119, 50), (227, 79, 30), (245, 27, 10),
@@ -236,16 +238,18 @@ class World:
         """The motion guard of relay i: False if the step from `old` (mm, mm, deg; default
         the last known pose) to the new pose makes the footprint touch anything.
 
-        A contact is counted once per episode: pushing on against a wall, or turning in
-        place while touching it, is the same collision; a translation that is accepted
-        ends the episode.
+        A contact is counted once per episode: pushing on against a wall, creeping up to
+        it, or turning in place while touching it, is the same collision; the episode ends
+        when the robot is CONTACT_CLEAR_M clear of everything again.
         """
         r = self.relays[i]
         if old is None:
             old = (r.x_m * 1000.0, r.y_m * 1000.0, r.theta_deg)
         poly = footprint(new_x_mm / 1000.0, new_y_mm / 1000.0, new_theta_deg, ROBOT_LENGTH_M, ROBOT_WIDTH_M)
         if not self._collides(i, poly):
-            if (new_x_mm, new_y_mm) != (old[0], old[1]):
+            if r.in_contact and not self._collides(i, footprint(
+                    new_x_mm / 1000.0, new_y_mm / 1000.0, new_theta_deg,
+                    ROBOT_LENGTH_M + 2 * CONTACT_CLEAR_M, ROBOT_WIDTH_M + 2 * CONTACT_CLEAR_M)):
                 r.in_contact = False
             return True
         if not r.in_contact:
