@@ -66,11 +66,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     module.configure(known._parser)
     args = parser.parse_args(argv)
     runner = module.run
+    # Probes and tools print data on stdout: their logs go to stderr. `run` and `sim`
+    # configure their own logging from the config.
+    from relayd.logsetup import StdStream, setup_logging
+
+    setup_logging("info", "console", stream=StdStream("stderr"))
     try:
-        if inspect.iscoroutinefunction(runner):
-            code = asyncio.run(runner(args))
-        else:
-            code = runner(args)
+        code = asyncio.run(runner(args)) if inspect.iscoroutinefunction(runner) else runner(args)
     except KeyboardInterrupt:
         code = 130
     return int(code or 0)

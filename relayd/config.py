@@ -165,7 +165,7 @@ class ControlSettings(_Section):
 
 class ApiSettings(_Section):
     enabled: bool = True
-    bind: str = "0.0.0.0"  # noqa: S104 - answering on the bridge is the point
+    bind: str = "0.0.0.0"
     port: Annotated[int, Field(ge=0, le=65535)] = 8080
     token_env: str | None = "RELAYD_API_TOKEN"
     token_file: str | None = None

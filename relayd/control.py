@@ -19,7 +19,13 @@ from collections.abc import Callable
 import structlog
 
 from drivers.clock import REAL_CLOCK, Clock
-from relayd.controller import ControlInputs, ControlMemory, ControlOutput, ControlParams, control_step
+from relayd.controller import (
+    ControlInputs,
+    ControlMemory,
+    ControlOutput,
+    ControlParams,
+    control_step,
+)
 from relayd.estimator import front_readings
 from relayd.state import DriveState, Mode, ModeError, RelayState
 
@@ -147,12 +153,15 @@ class ControlLoop:
 
     def _apply(self, out: ControlOutput, now: float) -> None:
         robot, st = self._robot, self._state
+        prev = self.last_output
         if robot is not None:
             if out.left_mm_s == 0.0 and out.right_mm_s == 0.0:
-                robot.stop()  # type: ignore[attr-defined]
+                # The urgent stop goes out on the transition to zero; while stopped, the
+                # driver keeps reflecting zero (PULSE), so the serial line is not flooded.
+                if prev is None or prev.left_mm_s != 0.0 or prev.right_mm_s != 0.0:
+                    robot.stop()  # type: ignore[attr-defined]
             else:
                 robot.set_wheels(out.left_mm_s, out.right_mm_s)  # type: ignore[attr-defined]
-        prev = self.last_output
         self.last_output = out
         st.loop_tick_t = now
         st.wheels_left_mm_s = out.left_mm_s

@@ -16,17 +16,19 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import os
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import structlog
 
+from drivers.airos.model import LinkQuality
 from drivers.clock import REAL_CLOCK, Clock
 from relayd.config import SecretRef, Settings, resolve_secret
 from relayd.control import ControlLoop
 from relayd.controller import ControlParams
-from relayd.estimator import EstimatorParams
+from relayd.estimator import EstimatorParams, ScanEstimate
 from relayd.scanner import RssiMonitor, Scanner, scan_period_nominal_s
 from relayd.state import LinkInfo, Mode, RelayState
 from relayd.supervisor import Supervisor
@@ -63,20 +65,16 @@ def estimator_params(settings: Settings) -> EstimatorParams:
     )
 
 
-def behind_signal(quality: Any, station_mac: str | None) -> float | None:
-    """RSSI^b from the rear AP: the configured station, else the strongest one heard."""
-    stations = list(getattr(quality, "stations", ()) or ())
+def behind_signal(quality: LinkQuality, station_mac: str | None) -> float | None:
+    """RSSI^b from the rear AP: the configured station, else the strongest one heard.
+
+    A rear radio in station mode has no station list; its own signal is then the
+    link's, unless a particular station was asked for.
+    """
     if station_mac is not None:
-        mac = station_mac.lower()
-        stations = [s for s in stations if str(getattr(s, "mac", "")).lower() == mac]
-        if not stations:
-            return None
-    signals = [s.signal_dbm for s in stations if getattr(s, "signal_dbm", None) is not None]
-    if signals:
-        return float(max(signals))
-    if station_mac is None and getattr(quality, "signal_dbm", None) is not None:
-        return float(quality.signal_dbm)
-    return None
+        return quality.station_signal_dbm(station_mac)
+    best = quality.best_station_signal_dbm
+    return best if best is not None else quality.signal_dbm
 
 
 class Daemon:
@@ -104,7 +102,7 @@ class Daemon:
         self.state.thresholds = {
             "threshold_l_dbm": c.threshold_l_dbm, "threshold_b_dbm": c.threshold_b_dbm,
             "hysteresis_db": c.hysteresis_db, "lost_rssi_dbm": c.lost_rssi_dbm,
-            "threshold_o_m": c.threshold_o_m,
+            "threshold_o_m": c.threshold_o_m, "v_max_mm_s": c.v_max_mm_s,
         }
         self.api_port: int | None = None
         self.notifier = notifier
@@ -137,11 +135,16 @@ class Daemon:
             from drivers.pantilt import ServoCalibration, make_pantilt
 
             limits = (float(s.pantilt.limits_deg[0]), float(s.pantilt.limits_deg[1]))
+
+            def calibration(pulse_us: Sequence[float]) -> ServoCalibration:
+                lo, mid, hi = (float(p) for p in pulse_us)
+                return ServoCalibration((lo, mid, hi), limits)
+
             self.pantilt = make_pantilt(
                 s.pantilt.protocol, s.pantilt.port, s.pantilt.baud,
                 {
-                    s.pantilt.scan_channel: ServoCalibration(tuple(s.pantilt.scan_pulse_us), limits),
-                    s.pantilt.link_channel: ServoCalibration(tuple(s.pantilt.link_pulse_us), limits),
+                    s.pantilt.scan_channel: calibration(s.pantilt.scan_pulse_us),
+                    s.pantilt.link_channel: calibration(s.pantilt.link_pulse_us),
                 },
                 clock=clock,
             )
@@ -158,7 +161,7 @@ class Daemon:
             ap = getattr(s.ap, side)
             poller = AirOsPoller(ap.url, ap.username, password, poll_s=ap.poll_s,
                                  legacy_tls=ap.legacy_tls, timeout_s=ap.timeout_s, clock=clock,
-                                 on_update=lambda q, side=side: self._on_link(side, q))
+                                 on_update=functools.partial(self._on_link, side))
             self.pollers[side] = poller
             self.supervisor.add(f"ap.{side}", poller.run, device=f"ap.{side}")
         if self.pantilt is not None and self.monitor is not None:
@@ -170,7 +173,7 @@ class Daemon:
                 speed_deg_s=s.pantilt.speed_deg_s, settle_s=s.scan.settle_s, mode=s.scan.mode,
                 params=estimator_params(s), lost_rssi_dbm=s.control.lost_rssi_dbm,
                 heading_deg=self._heading, sonar_mm=self._sonar,
-                on_scan=lambda est, now: self.metrics.observe_scan_period(self.scanner.last_period_s or 0.0),
+                on_scan=self._on_scan,
             )
             self.supervisor.add("scanner", self.scanner.run, device="pantilt")
         self.control = ControlLoop(
@@ -182,6 +185,10 @@ class Daemon:
         self.supervisor.add("health", self._health_loop)
 
     # -- data in ------------------------------------------------------------------------
+
+    def _on_scan(self, estimate: ScanEstimate, now: float) -> None:
+        if self.scanner is not None and self.scanner.last_period_s is not None:
+            self.metrics.observe_scan_period(self.scanner.last_period_s)
 
     def _heading(self) -> float | None:
         sip = getattr(self.robot, "last_sip", None)
@@ -203,7 +210,7 @@ class Daemon:
         health.last_data_t = sip.t
         self.metrics.sip_received()
 
-    def _on_link(self, side: str, quality: Any) -> None:
+    def _on_link(self, side: str, quality: LinkQuality) -> None:
         st = self.state
         st.links[side] = LinkInfo(
             signal_dbm=quality.signal_dbm, rssi=quality.rssi, noise_dbm=quality.noise_dbm,
@@ -268,8 +275,8 @@ class Daemon:
             app = make_app(self.state, self.control, clock=self.clock, token=self._token,
                            metrics=self.metrics, healthz_max_age_s=max(1.0, 5 * 0.1))
             self._runner, self.api_port = await start_api(app, s.api.bind, s.api.port)
-            log.info("api_listening", bind=s.api.bind, port=self.api_port,
-                     control=("enabled" if self._token else "disabled (no token)"))
+            log.info("api_control", enabled=self._token is not None,
+                     note=None if self._token else "no token configured: POST endpoints answer 403")
         if self.notifier is not None:
             self.notifier.ready()
             self.notifier.status("running; devices connecting")

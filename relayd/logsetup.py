@@ -19,9 +19,40 @@ def _journal_priority(_: Any, method: str, rendered: str) -> str:
     return f"<{_PRIORITY.get(method, 6)}>{rendered}"
 
 
+class StdStream:
+    """sys.stdout or sys.stderr looked up at each write, not at configuration time.
+
+    Logging configured once must survive the process swapping its standard streams
+    (pytest's capture does, per test); holding the old object would write into a
+    closed file.
+    """
+
+    def __init__(self, name: str) -> None:
+        if name not in ("stdout", "stderr"):
+            raise ValueError(f"not a standard stream: {name!r}")
+        self._name = name
+
+    @property
+    def _stream(self) -> Any:
+        return getattr(sys, self._name)
+
+    def write(self, text: str) -> int:
+        return int(self._stream.write(text))
+
+    def flush(self) -> None:
+        self._stream.flush()
+
+    def isatty(self) -> bool:
+        return bool(getattr(self._stream, "isatty", lambda: False)())
+
+
 def setup_logging(level: str = "info", fmt: str = "console", stream: Any = None) -> None:
-    """Configure structlog and route stdlib loggers (aiohttp, asyncio) through it."""
-    stream = stream or sys.stdout
+    """Configure structlog and route stdlib loggers (aiohttp, asyncio) through it.
+
+    Logs go to stdout by default (journald reads it); pass `StdStream("stderr")` for
+    commands whose stdout is data.
+    """
+    stream = stream or StdStream("stdout")
     numeric = getattr(logging, level.upper())
     shared: list[Any] = [
         structlog.contextvars.merge_contextvars,

@@ -20,8 +20,9 @@ from __future__ import annotations
 import asyncio
 import bisect
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass
+from typing import Protocol, TypeVar
 
 import structlog
 
@@ -40,6 +41,33 @@ from relayd.state import RelayState, ScanRecord
 
 log = structlog.get_logger(__name__)
 
+T = TypeVar("T")
+
+
+class ServoController(Protocol):
+    """What the scanner needs of a pan-tilt driver (drivers.pantilt.PanTilt, or a test double)."""
+
+    @property
+    def connected(self) -> bool: ...
+    async def set_angle(self, channel: int, angle_deg: float) -> float: ...
+    async def set_speed(self, channel: int, deg_s: float) -> None: ...
+    async def get_angle(self, channel: int) -> float: ...
+
+
+class RssiReading(Protocol):
+    @property
+    def t(self) -> float: ...
+    @property
+    def rssi_dbm(self) -> float | None: ...
+    @property
+    def fresh(self) -> bool: ...
+
+
+class RssiReader(Protocol):
+    """What the monitor needs of an RSSI source (drivers.wifi sources)."""
+
+    async def read(self) -> RssiReading: ...
+
 
 @dataclass(frozen=True, slots=True)
 class TimedRssi:
@@ -50,7 +78,7 @@ class TimedRssi:
 class RssiMonitor:
     """Samples an RSSI source continuously; keeps the fresh samples of the last few seconds."""
 
-    def __init__(self, source: object, sample_hz: float, state: RelayState, clock: Clock = REAL_CLOCK,
+    def __init__(self, source: RssiReader, sample_hz: float, state: RelayState, clock: Clock = REAL_CLOCK,
                  history_s: float = 10.0) -> None:
         self._source = source
         self._period_s = 1.0 / sample_hz
@@ -68,7 +96,7 @@ class RssiMonitor:
         health = self._state.device("wifi")
         next_t = self._clock.now()
         while True:
-            sample = await self._source.read()  # type: ignore[attr-defined]
+            sample = await self._source.read()
             health.connected = bool(getattr(self._source, "available", True))
             health.errors = int(getattr(self._source, "errors", 0)) + int(getattr(self._source, "rejected", 0))
             health.last_error = getattr(self._source, "last_error", None)
@@ -137,7 +165,7 @@ class Scanner:
     def __init__(
         self,
         *,
-        pantilt: object,
+        pantilt: ServoController,
         monitor: RssiMonitor,
         state: RelayState,
         clock: Clock,
@@ -199,9 +227,9 @@ class Scanner:
             turned = heading - self.bearing_heading_deg
         return self.bearing_deg - turned, self._width
 
-    async def _servo(self, coro: object) -> object:
+    async def _servo(self, coro: Awaitable[T]) -> T:
         try:
-            result = await coro  # type: ignore[misc]
+            result = await coro
         except Exception as exc:
             self.servo_ok = False
             self._state.device("pantilt").last_error = f"{type(exc).__name__}: {exc}"
@@ -211,12 +239,12 @@ class Scanner:
 
     async def prepare(self) -> None:
         """Set both servos' slew rate; the scan timing assumes it."""
-        await self._servo(self._pt.set_speed(self._scan_ch, self._speed))  # type: ignore[attr-defined]
-        await self._servo(self._pt.set_speed(self._link_ch, self._speed))  # type: ignore[attr-defined]
+        await self._servo(self._pt.set_speed(self._scan_ch, self._speed))
+        await self._servo(self._pt.set_speed(self._link_ch, self._speed))
 
     async def run(self) -> None:
         while True:
-            if not getattr(self._pt, "connected", True):
+            if not self._pt.connected:
                 self.servo_ok = False
                 await self._clock.sleep(0.1)
                 continue
@@ -257,9 +285,9 @@ class Scanner:
         # Point the data-link antenna at the leader; a failure here is the link servo's,
         # not the scan's, so it is logged and the scan goes on.
         try:
-            commanded = await self._pt.set_angle(self._link_ch, estimate.bearing_deg)  # type: ignore[attr-defined]
+            commanded = await self._pt.set_angle(self._link_ch, estimate.bearing_deg)
             self._state.link_bearing_deg = float(commanded)
-        except Exception as exc:
+        except Exception as exc:  # noqa: BLE001 - the link servo failing must not end scanning
             self._state.device("pantilt").errors += 1
             log.warning("link_servo_error", error=str(exc))
         return estimate
@@ -292,7 +320,7 @@ class Scanner:
         samples: list[ScanSample] = []
         wait_s = 4.0 * self._monitor.period_s + 0.2
         for target in angles:
-            commanded = float(await self._servo(self._pt.set_angle(self._scan_ch, target)))  # type: ignore[attr-defined]
+            commanded = float(await self._servo(self._pt.set_angle(self._scan_ch, target)))
             t_cmd = self._clock.now()
             ready_t = t_cmd + self._travel_s(commanded) + self._settle
             self._angle = commanded
@@ -301,17 +329,17 @@ class Scanner:
                 continue  # no fresh RSSI: the controller's freshness fail-safe handles it
             samples.append(ScanSample(commanded, sample.rssi_dbm, self._heading_or(samples)))
         # The servo really answered during this sweep? A position read proves it.
-        await self._servo(self._pt.get_angle(self._scan_ch))  # type: ignore[attr-defined]
+        await self._servo(self._pt.get_angle(self._scan_ch))
         return samples
 
     async def _sweep_continuous(self, angles: Sequence[float]) -> list[ScanSample]:
         start, end = angles[0], angles[-1]
         if self._angle is None or abs(self._angle - start) > 0.5:
-            first = float(await self._servo(self._pt.set_angle(self._scan_ch, start)))  # type: ignore[attr-defined]
+            first = float(await self._servo(self._pt.set_angle(self._scan_ch, start)))
             await self._clock.sleep(self._travel_s(first) + self._settle)
             self._angle = first
         start = self._angle
-        commanded_end = float(await self._servo(self._pt.set_angle(self._scan_ch, end)))  # type: ignore[attr-defined]
+        commanded_end = float(await self._servo(self._pt.set_angle(self._scan_ch, end)))
         t0 = self._clock.now()
         duration = abs(commanded_end - start) / self._speed
         samples: list[ScanSample] = []
@@ -329,7 +357,7 @@ class Scanner:
                 break
             await self._clock.sleep(self._monitor.period_s)
         self._angle = commanded_end
-        await self._servo(self._pt.get_angle(self._scan_ch))  # type: ignore[attr-defined]
+        await self._servo(self._pt.get_angle(self._scan_ch))
         return samples
 
     def _heading_or(self, samples: list[ScanSample]) -> float:

@@ -15,6 +15,7 @@ from drivers.airos.model import (
     AirOsDataError,
     LinkQuality,
     Station,
+    _signal_pair,
     decode_stations,
     decode_status,
     parse_stations,
@@ -232,3 +233,9 @@ def test_bulk_random_documents() -> None:
                 except AirOsDataError:
                     pass
     assert parsed > 0  # some of them were real documents, not only errors
+
+
+def test_rssi_that_means_an_impossible_signal_gives_no_signal() -> None:
+    # Found by the fuzzer: rssi 107 would be +11 dBm.
+    assert _signal_pair(None, 107) == (None, 107.0)
+    assert _signal_pair(None, 50) == (-46.0, 50.0)

@@ -68,7 +68,7 @@ def test_cross_field_rules() -> None:
         parse_settings({"pantilt": {"scan_channel": 1, "link_channel": 1}})
     with pytest.raises(ConfigError, match="password_env or password_file"):
         parse_settings({"ap": {"rear": {"url": "http://192.0.2.1"}}})
-    with pytest.raises(ConfigError, match="control.kp"):
+    with pytest.raises(ConfigError, match=r"control\.kp"):
         parse_settings({"control": {"kp": float("nan")}})
 
 
@@ -85,7 +85,7 @@ def test_secrets_from_env_or_file_and_never_rendered(tmp_path: Path, capsys: pyt
                                                      monkeypatch: pytest.MonkeyPatch) -> None:
     ref = SecretRef("ap.rear.password_env", "PW", None)
     assert resolve_secret(ref, {"PW": "hunter2"}) == "hunter2"
-    with pytest.raises(ConfigError, match="ap.rear.password_env: environment variable PW is not set"):
+    with pytest.raises(ConfigError, match=r"ap\.rear\.password_env: environment variable PW is not set"):
         resolve_secret(ref, {})
     f = tmp_path / "pw"
     f.write_text("s3cret\n")

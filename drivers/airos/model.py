@@ -177,7 +177,9 @@ def _signal_pair(signal: object, rssi: object) -> tuple[float | None, float | No
     signal_dbm = _number(signal, _DBM_RANGE)
     rssi_v = _number(rssi, _RSSI_RANGE)
     if signal_dbm is None and rssi_v is not None:
-        signal_dbm = rssi_v - RSSI_OFFSET_DB
+        derived = rssi_v - RSSI_OFFSET_DB
+        # An rssi the radio could report (0..127) can still mean an impossible signal.
+        signal_dbm = derived if _DBM_RANGE[0] <= derived <= _DBM_RANGE[1] else None
     elif rssi_v is None and signal_dbm is not None:
         candidate = signal_dbm + RSSI_OFFSET_DB
         rssi_v = candidate if _RSSI_RANGE[0] <= candidate <= _RSSI_RANGE[1] else None

@@ -187,7 +187,11 @@ class ArcosRobot:
         self._normal = deque(item for item in self._normal
                              if item[0] not in (Command.VEL, Command.RVEL, Command.VEL2))
         if self._opened:
-            self._queue_urgent(encode_command(Command.VEL, 0), encode_command(Command.RVEL, 0))
+            vel0, rvel0 = encode_command(Command.VEL, 0), encode_command(Command.RVEL, 0)
+            # Idempotent: a stop still waiting to be written is not queued twice, so a
+            # caller that asserts "stopped" on every tick cannot grow the queue.
+            if not (vel0 in self._urgent and rvel0 in self._urgent):
+                self._queue_urgent(vel0, rvel0)
             self._sent_motion = (0, 0)
             self._motion_t = self.clock.now()
 

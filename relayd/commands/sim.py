@@ -108,7 +108,7 @@ def _open_log(out: Path) -> Any:
 
 
 async def run(args: argparse.Namespace) -> int:
-    from relayd.logsetup import setup_logging
+    from relayd.logsetup import StdStream, setup_logging
     from relayd.sim import plots as sim_plots
     from relayd.sim.scenario import ScenarioError, load_scenario
 
@@ -148,6 +148,6 @@ async def run(args: argparse.Namespace) -> int:
         print(f"outputs in {out}/", flush=True)
     finally:
         # Never leave structlog writing into a closed file.
-        setup_logging("warning", "console", stream=sys.stderr)
+        setup_logging("warning", "console", stream=StdStream("stderr"))
         log_file.close()
     return 0
