@@ -33,6 +33,7 @@ FAKES: dict[str, tuple[str, str]] = {
     "robot": ("relayd.fakes.robot", "serve a protocol-true fake P3-AT on a pty or TCP port"),
     "pantilt": ("relayd.fakes.pantilt", "serve a fake Maestro or SSC-32 servo controller on a pty"),
     "ap": ("relayd.fakes.ap", "serve a fake airOS radio over HTTP on loopback"),
+    "rig": ("relayd.fakes.rig_cmd", "all of one relay's devices faked, with a leader; writes a config for `relayd run`"),
 }
 
 

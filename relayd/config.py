@@ -170,6 +170,16 @@ class ApiSettings(_Section):
     token_env: str | None = "RELAYD_API_TOKEN"
     token_file: str | None = None
 
+    @model_validator(mode="before")
+    @classmethod
+    def _one_token_source(cls, data: Any) -> Any:
+        # token_env has a default; naming a token_file replaces it unless both were written.
+        if isinstance(data, dict) and data.get("token_file") is not None:
+            if data.get("token_env") is not None:
+                raise ValueError("set at most one of token_env or token_file")
+            data = {**data, "token_env": None}
+        return data
+
 
 class LogSettings(_Section):
     level: Literal["debug", "info", "warning", "error"] = "info"
