@@ -8,10 +8,14 @@ an `asyncio.Protocol` runs unchanged on a USB adapter, a pty, MobileSim or ser2n
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import os
 from collections.abc import Callable
 from typing import TypeVar
 
 import serial_asyncio_fast
+
+from drivers.clock import Clock
 
 P = TypeVar("P", bound=asyncio.Protocol)
 
@@ -34,6 +38,38 @@ async def open_link(url: str, baudrate: int, protocol_factory: Callable[[], P]) 
     except (OSError, ValueError, Exception) as exc:  # serial.SerialException is an IOError
         raise LinkError(f"cannot open {url}: {exc}") from exc
     return transport, protocol  # type: ignore[return-value]
+
+
+def port_missing(url: str) -> bool:
+    """True when `url` is a device path that is not there now (USB adapter unplugged)."""
+    if "://" in url:
+        return False
+    return not os.path.exists(url)
+
+
+#: How often a reconnect loop looks for an unplugged port to come back (clock seconds).
+REPLUG_POLL_S = 0.1
+
+
+async def wait_before_retry(url: str, delay_s: float, clock: Clock, stop: asyncio.Event) -> None:
+    """Wait `delay_s` clock seconds before the next open of `url`, or less.
+
+    Returns early when `stop` is set, and also as soon as an unplugged port (its path
+    missing when the wait began) exists again: a replugged adapter is retried at once
+    instead of after a backoff that grew while it was away. Looking for a path is
+    cheap, so the short poll costs nothing; a port that is present but failing still
+    waits the whole backoff.
+    """
+    absent = port_missing(url)
+    with contextlib.suppress(TimeoutError):
+        async with clock.timeout(delay_s):
+            if not absent:
+                await stop.wait()
+                return
+            while not stop.is_set() and port_missing(url):
+                with contextlib.suppress(TimeoutError):
+                    async with clock.timeout(REPLUG_POLL_S):
+                        await stop.wait()
 
 
 def set_baudrate(transport: asyncio.BaseTransport, baudrate: int) -> None:

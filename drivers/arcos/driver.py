@@ -48,7 +48,7 @@ from drivers.arcos.sip import (
 from drivers.arcos.sonar import SonarRing
 from drivers.backoff import Backoff
 from drivers.clock import REAL_CLOCK, Clock
-from drivers.link import LinkError, open_link, set_baudrate
+from drivers.link import LinkError, open_link, set_baudrate, wait_before_retry
 
 log = structlog.get_logger(__name__)
 
@@ -264,10 +264,9 @@ class ArcosRobot:
                 self.connected = False
                 self.stale = True
                 await self._close_port()
-                delay = self.backoff.next_delay()
-                with contextlib.suppress(TimeoutError):
-                    async with self.clock.timeout(delay):
-                        await self._closed.wait()
+                # A replugged adapter is retried at once (wait_before_retry), not after
+                # the backoff that grew while it was away.
+                await wait_before_retry(self.url, self.backoff.next_delay(), self.clock, self._closed)
         except asyncio.CancelledError:
             await self._safe_stop()
             raise

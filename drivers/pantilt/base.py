@@ -24,7 +24,7 @@ import structlog
 
 from drivers.backoff import Backoff
 from drivers.clock import REAL_CLOCK, Clock
-from drivers.link import LinkError, open_link
+from drivers.link import LinkError, open_link, wait_before_retry
 
 log = structlog.get_logger(__name__)
 
@@ -326,10 +326,10 @@ class PanTilt(abc.ABC):
                     failures += 1
                 if self._closed:
                     break
-                # Back off, but let close() end the wait at once.
-                with contextlib.suppress(TimeoutError):
-                    async with self._clock.timeout(self._backoff.next_delay()):
-                        await self._close_requested.wait()
+                # Back off, but let close() end the wait at once, and retry a replugged
+                # adapter as soon as its path is back.
+                await wait_before_retry(self.url, self._backoff.next_delay(), self._clock,
+                                        self._close_requested)
         finally:
             await self._drop()
 
