@@ -1,22 +1,24 @@
-"""/status and /metrics across a Linux bridge, from a command-center network namespace.
+"""/status and /metrics of a real relayd, from a command-center network namespace across a Linux bridge.
 
 Three namespaces with unique names per run: `br` holds a bridge, `robot` and `cc` each
 have a veth whose peer is a bridge port, addresses from 192.0.2.0/24 (TEST-NET-1) only.
-The server runs inside `robot`, bound to its bridge address; the fetch runs inside `cc`
-with the venv's Python. Everything is removed in `finally`.
+Inside `robot` run `relayd fake rig` (the fake base, servo controller, RSSI file and
+airOS radios; the radios listen on the namespace's loopback) and `relayd run -c` on the
+config it writes, API bound to the robot's bridge address. From `cc`, the venv's Python
+polls /status until the relay reports its name, every device up and scans arriving,
+then reads /metrics. Every process and namespace is removed in `finally`.
 
-`SERVER_CMD` is the one thing to change to run the real daemon (`relayd run -c ...` on
-the fakes) instead of the demo server; it must print a line containing `LISTENING_MARK`
-once the API is bound (or adapt `_wait_listening`). Needs root and iproute2: under
-CI=true their absence fails the test; locally it skips.
+Needs root and iproute2: under CI=true their absence fails the test; locally it skips.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import secrets
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -24,6 +26,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from prometheus_client.parser import text_string_to_metric_families
 
 pytestmark = pytest.mark.netns
 
@@ -33,19 +36,39 @@ ROBOT_ADDR = "192.0.2.10"
 CC_ADDR = "192.0.2.20"
 PREFIX_LEN = 24
 API_PORT = 8080
-#: The robot-side server, formatted with host/port. Swap for `relayd run` when it lands.
-SERVER_CMD = [PYTHON, "-m", "relayd.api.demo", "--host", "{host}", "--port", "{port}"]
-LISTENING_MARK = "listening on"
+#: Generous: the daemon's first scan takes a few seconds, and the machine is shared.
+READY_TIMEOUT_S = 60.0
+DEVICES = ("robot", "pantilt", "wifi", "ap.rear", "ap.front")
 
+#: Runs in the cc namespace: poll /status until the relay is up and has finished two
+#: scans (so scans are seen *arriving*), then read /metrics. Prints one JSON object.
 FETCH_SCRIPT = """
-import json, sys, urllib.request
-base = sys.argv[1]
-with urllib.request.urlopen(base + "/status", timeout=5) as r:
-    status = json.load(r)
+import json, sys, time, urllib.request
+base, timeout_s, devices = sys.argv[1], float(sys.argv[2]), sys.argv[3].split(",")
+deadline = time.monotonic() + timeout_s
+first_scan, status, last_error = None, None, None
+while time.monotonic() < deadline:
+    try:
+        with urllib.request.urlopen(base + "/status", timeout=5) as r:
+            status = json.load(r)
+    except OSError as exc:
+        last_error = repr(exc)
+        time.sleep(0.2)
+        continue
+    up = all(status["health"].get(d, {}).get("connected") for d in devices)
+    if up and status["last_scan"] is not None:
+        if first_scan is None:
+            first_scan = status["scan_count"]
+        elif status["scan_count"] > first_scan:
+            break
+    time.sleep(0.2)
+else:
+    sys.exit(f"relay not ready in {timeout_s} s; last /status {status!r}; last error {last_error}")
 with urllib.request.urlopen(base + "/metrics", timeout=5) as r:
     metrics = r.read().decode()
     ctype = r.headers["Content-Type"]
-print(json.dumps({"status": status, "metrics": metrics, "metrics_type": ctype}))
+print(json.dumps({"first_scan": first_scan, "status": status, "metrics": metrics,
+                  "metrics_type": ctype}))
 """
 
 
@@ -103,49 +126,84 @@ def bridged() -> Iterator[tuple[str, str]]:
             subprocess.run(["ip", "netns", "del", ns], capture_output=True, timeout=10, check=False)
 
 
-def _wait_listening(proc: subprocess.Popen[str], timeout_s: float = 20.0) -> None:
-    assert proc.stdout is not None
-    deadline = time.monotonic() + timeout_s
-    seen: list[str] = []
-    while time.monotonic() < deadline:
-        line = proc.stdout.readline()
-        if not line:
-            if proc.poll() is not None:
-                break
-            continue
-        seen.append(line)
-        if LISTENING_MARK in line:
+def _start(ns: str, args: list[str], log: Path) -> subprocess.Popen[bytes]:
+    """`python -m relayd ARGS` inside `ns`, in its own process group, output to `log`."""
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    with log.open("wb") as out:
+        return subprocess.Popen(["ip", "netns", "exec", ns, PYTHON, "-m", "relayd", *args], cwd=ROOT,
+                                env=env, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                start_new_session=True)
+
+
+def _stop(proc: subprocess.Popen[bytes]) -> None:
+    """SIGTERM its process group (the daemon's safe shutdown), SIGKILL if it lingers."""
+    if proc.poll() is None:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGTERM)
+        try:
+            proc.wait(10)
             return
-    raise AssertionError(f"server did not come up (exit {proc.poll()}):\n{''.join(seen)}")
+        except subprocess.TimeoutExpired:
+            pass
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait(5)
 
 
-def test_status_and_metrics_across_the_bridge(bridged: tuple[str, str]) -> None:
+def _config_path(rig: subprocess.Popen[bytes], out: Path, timeout_s: float = 30.0) -> Path:
+    """The config path `relayd fake rig` prints as its first stdout line."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        for line in out.read_text(errors="replace").splitlines():
+            if line.endswith(".toml") and Path(line).is_file():
+                return Path(line)
+        if rig.poll() is not None:
+            break
+        time.sleep(0.05)
+    raise AssertionError(f"relayd fake rig wrote no config (exit {rig.poll()}):\n{out.read_text()}")
+
+
+def test_status_and_metrics_across_the_bridge(bridged: tuple[str, str], tmp_path: Path) -> None:
     ns_robot, ns_cc = bridged
-    cmd = [part.format(host=ROBOT_ADDR, port=API_PORT) for part in SERVER_CMD]
-    env = {**os.environ, "PYTHONUNBUFFERED": "1", "RELAYD_API_TOKEN": "netns-test-token"}
-    server = subprocess.Popen(["ip", "netns", "exec", ns_robot, *cmd], cwd=ROOT, env=env,
-                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    work = tmp_path / "rig"
+    rig_out, run_out = tmp_path / "rig.out", tmp_path / "run.out"
+    procs: list[subprocess.Popen[bytes]] = []
     try:
-        _wait_listening(server)
+        procs.append(_start(ns_robot, ["fake", "rig", "--dir", str(work), "--api-bind", ROBOT_ADDR,
+                                       "--api-port", str(API_PORT)], rig_out))
+        config = _config_path(procs[0], rig_out)
+        token = (work / "relay1-api-token").read_text().strip()
+        procs.append(_start(ns_robot, ["run", "-c", str(config)], run_out))
         fetch = subprocess.run(
-            ["ip", "netns", "exec", ns_cc, PYTHON, "-c", FETCH_SCRIPT, f"http://{ROBOT_ADDR}:{API_PORT}"],
-            capture_output=True, text=True, timeout=30, check=False)
-        assert fetch.returncode == 0, fetch.stderr
+            ["ip", "netns", "exec", ns_cc, PYTHON, "-c", FETCH_SCRIPT, f"http://{ROBOT_ADDR}:{API_PORT}",
+             str(READY_TIMEOUT_S), ",".join(DEVICES)],
+            capture_output=True, text=True, timeout=READY_TIMEOUT_S + 30, check=False)
+        assert fetch.returncode == 0, (f"{fetch.stderr}\n--- relayd run:\n{run_out.read_text()}"
+                                       f"\n--- fake rig:\n{rig_out.read_text()}")
+        assert procs[1].poll() is None, "relayd run exited"
         result = json.loads(fetch.stdout)
         status = result["status"]
-        assert status["state"] in {"driving", "stopped", "avoiding", "leader_lost", "fault"}
+        assert status["robot"] == "relay1"  # the fake base's name, read over its serial link
+        assert status["scan_count"] > result["first_scan"] >= 1
+        assert len(status["last_scan"]["angles"]) == len(status["last_scan"]["rssi"]) > 0
+        assert status["rssi_behind_dbm"] == -55.0  # the rig's rear radio default
+        assert status["state"] in {"driving", "stopped", "avoiding", "leader_lost"}
         assert len(status["sonar_mm"]) == 16
-        assert "netns-test-token" not in fetch.stdout
-        assert result["metrics_type"].startswith("text/plain")
-        assert "relayd_build_info" in result["metrics"]
-        assert "relayd_device_connected" in result["metrics"]
+        password = (work / "relay1-ap-password").read_text().strip()
+        assert token not in fetch.stdout and password not in fetch.stdout
+        assert token not in run_out.read_text() and password not in run_out.read_text()
 
+        assert result["metrics_type"].startswith("text/plain")
+        samples = {(s.name, tuple(sorted(s.labels.items()))): s.value
+                   for fam in text_string_to_metric_families(result["metrics"]) for s in fam.samples}
+        for device in DEVICES:
+            assert samples[("relayd_device_connected", (("device", device),))] == 1.0, device
+        assert samples[("relayd_sips_received_total", ())] > 0
+        assert samples[("relayd_scans_total", ())] >= status["scan_count"]
+        assert samples[("relayd_scan_period_seconds_count", ())] >= 1
+        assert samples[("relayd_control_latency_seconds_count", ())] > 0
+        assert all(name.startswith("relayd_") for name, _ in samples)
     finally:
-        server.terminate()
-        try:
-            server.wait(10)
-        except subprocess.TimeoutExpired:
-            server.kill()
-            server.wait(5)
-        if server.stdout is not None:
-            server.stdout.close()
+        # The daemon first (it stops the fake robot's wheels over the link), then the rig.
+        for proc in reversed(procs):
+            _stop(proc)
