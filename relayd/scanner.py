@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import asyncio
 import bisect
+import math
 from collections import deque
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass
@@ -202,13 +203,26 @@ class Scanner:
         self._on_scan = on_scan
         self._ascending = True
         self._angle: float | None = None  # last commanded scan angle
-        self.servo_ok = False
+        #: The controller answered the scanner's latest request; a write alone never sets it.
+        self._answered = False
         self.lost_count = 0
         self.bearing_deg: float | None = None
         self.bearing_heading_deg: float | None = None
         self.prev_bearing_deg: float | None = None
         self.prev_heading_deg: float | None = None
         self.last_period_s: float | None = None
+
+    @property
+    def servo_ok(self) -> bool:
+        """The scan servo answers: our last request was answered and the driver saw no timeout since.
+
+        Writes (set_angle, set_speed) have no reply, so they succeed on a controller whose
+        logic has hung; only a read proves it alive. The driver's own state is looked at
+        too, so a pulled cable or a timed-out health poll stops the wheels at the next
+        control tick instead of at the end of the sweep.
+        """
+        pt = self._pt
+        return self._answered and bool(pt.connected) and bool(getattr(pt, "answering", True))
 
     @property
     def leader_lost(self) -> bool:
@@ -227,25 +241,33 @@ class Scanner:
             turned = heading - self.bearing_heading_deg
         return self.bearing_deg - turned, self._width
 
-    async def _servo(self, coro: Awaitable[T]) -> T:
+    async def _servo(self, coro: Awaitable[T], *, answered: bool = False) -> T:
+        """Run one servo operation; `answered`: it is a request the controller replied to."""
         try:
             result = await coro
         except Exception as exc:
-            self.servo_ok = False
+            self._answered = False
             self._state.device("pantilt").last_error = f"{type(exc).__name__}: {exc}"
             raise ScanServoError(str(exc)) from exc
-        self.servo_ok = True
+        if answered:
+            self._answered = True
         return result
 
     async def prepare(self) -> None:
-        """Set both servos' slew rate; the scan timing assumes it."""
+        """Set both servos' slew rate (the scan timing assumes it), then prove the controller answers."""
         await self._servo(self._pt.set_speed(self._scan_ch, self._speed))
         await self._servo(self._pt.set_speed(self._link_ch, self._speed))
+        # A moving-state read answers whether or not a channel is pulsing yet (a position
+        # read fails on a channel that was never driven). Doubles without it prove the
+        # controller alive at the first sweep's end instead.
+        is_moving = getattr(self._pt, "is_moving", None)
+        if is_moving is not None:
+            await self._servo(is_moving(), answered=True)
 
     async def run(self) -> None:
         while True:
             if not self._pt.connected:
-                self.servo_ok = False
+                self._answered = False
                 await self._clock.sleep(0.1)
                 continue
             try:
@@ -329,7 +351,7 @@ class Scanner:
                 continue  # no fresh RSSI: the controller's freshness fail-safe handles it
             samples.append(ScanSample(commanded, sample.rssi_dbm, self._heading_or(samples)))
         # The servo really answered during this sweep? A position read proves it.
-        await self._servo(self._pt.get_angle(self._scan_ch))
+        await self._servo(self._pt.get_angle(self._scan_ch), answered=True)
         return samples
 
     async def _sweep_continuous(self, angles: Sequence[float]) -> list[ScanSample]:
@@ -342,22 +364,34 @@ class Scanner:
         commanded_end = float(await self._servo(self._pt.set_angle(self._scan_ch, end)))
         t0 = self._clock.now()
         duration = abs(commanded_end - start) / self._speed
+        end_t = t0 + duration
+        # A source stamps its reading before awaiting the device (netlink, `iw`), so a
+        # sample can land after the scanner has looked past its timestamp: samples are
+        # taken by "newer than the last one used", never by the time we looked. Reads
+        # are sequential, so once a sample stamped at or after the sweep's end is in,
+        # none from inside the sweep is still on its way; that sample (the servo at the
+        # end) is the sweep's last.
+        deadline = end_t + 4.0 * self._monitor.period_s + 0.2
         samples: list[ScanSample] = []
-        t_last = t0
+        last_t = -math.inf
+        done = False
         while True:
             now = self._clock.now()
-            for s in self._monitor.between(t_last, now):
-                if s.t <= t_last and samples:
+            for s in self._monitor.between(t0, math.inf):
+                if s.t <= last_t:
                     continue
                 frac = 1.0 if duration <= 0 else min(1.0, max(0.0, (s.t - t0) / duration))
                 samples.append(ScanSample(start + (commanded_end - start) * frac, s.rssi_dbm,
                                           self._heading_or(samples)))
-            t_last = max(t_last, now) + 1e-9
-            if now >= t0 + duration:
+                last_t = s.t
+                if s.t >= end_t:
+                    done = True
+                    break
+            if done or now >= deadline:
                 break
             await self._clock.sleep(self._monitor.period_s)
         self._angle = commanded_end
-        await self._servo(self._pt.get_angle(self._scan_ch))
+        await self._servo(self._pt.get_angle(self._scan_ch), answered=True)
         return samples
 
     def _heading_or(self, samples: list[ScanSample]) -> float:

@@ -215,6 +215,11 @@ class PanTilt(abc.ABC):
         return self._transport is not None and self._ready
 
     @property
+    def answering(self) -> bool:
+        """Connected, and the latest request got its reply (no timeout since)."""
+        return self.connected and self._consecutive_timeouts == 0
+
+    @property
     def channels(self) -> tuple[int, ...]:
         return tuple(sorted(self._cal))
 
