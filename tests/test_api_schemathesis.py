@@ -1,80 +1,102 @@
-"""Property-based API test: schemathesis generates requests from /openapi.json.
+"""Property-based API test: schemathesis generates requests from a real daemon's /openapi.json.
 
-The app is served on an ephemeral 127.0.0.1 port from a background event loop (schemathesis
-calls it synchronously with requests). Every response must be a non-5xx, match the status
-codes, content types and schemas the document declares, reject what the schema forbids and
-accept what it allows. /events is excluded: it is an endless stream (tests/test_api.py covers it).
+A `Daemon` driving a `FakeRig` runs on a background event loop (schemathesis calls it
+synchronously with requests), API on an ephemeral 127.0.0.1 port. It starts in manual
+mode and has finished a scan, so /status carries every optional part (last scan, links,
+all devices) for the response schemas to be checked against, and every valid drive
+command is accepted (200) and sent to the fake robot. POST /api/mode runs last, so its
+mode switches cannot turn later drive commands into 409s. Every response must be a
+non-5xx, match the status codes, content types and schemas the document declares,
+reject what the schema forbids and accept what it allows. /events is excluded: it is an
+endless stream (tests/test_api.py covers it).
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import tempfile
 import threading
 from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
 
 import pytest
 import schemathesis
 from hypothesis import HealthCheck, given, settings
 from schemathesis import GenerationMode
 
-from drivers.clock import Clock
-from relayd.api import make_app, start_api
-from relayd.api.demo import populate
-from relayd.state import Mode, RelayState
+from drivers.arcos.codec import Command
+from relayd.config import parse_settings
+from relayd.daemon import Daemon
+from relayd.fakes.rig import FakeRig
 
-TOKEN = "schemathesis-token"
-#: Per operation; bounded so the whole test runs in seconds on a loaded 2-core machine.
+#: Per operation and generation mode; bounded so the test runs in seconds on a loaded 2-core machine.
 MAX_EXAMPLES = 25
+#: Generous: the first scan takes a few seconds, longer on a shared machine.
+READY_TIMEOUT_S = 40.0
 
 
-class AcceptingControls:
-    """Keeps the robot in manual mode so every valid drive command is accepted (200)."""
-
-    def __init__(self) -> None:
-        self.calls = 0
-
-    def set_mode(self, mode: Mode) -> None:
-        self.calls += 1
-
-    def manual_drive(self, left_mm_s: float, right_mm_s: float) -> None:
-        self.calls += 1
+@dataclass
+class Served:
+    base_url: str
+    token: str
+    rig: FakeRig
+    daemon: Daemon
 
 
 @pytest.fixture(scope="module")
-def base_url() -> Iterator[str]:
+def served() -> Iterator[Served]:
     loop = asyncio.new_event_loop()
-    ready = threading.Event()
+    thread = threading.Thread(target=loop.run_forever, name="daemon-loop", daemon=True)
+    thread.start()
     box: dict[str, object] = {}
 
-    async def serve() -> None:
-        clock = Clock()
-        state = RelayState()
-        populate(state, clock)
-        state.mode = Mode.MANUAL
-        app = make_app(state, AcceptingControls(), clock=clock, token=TOKEN, healthz_max_age_s=3600)
-        runner, port = await start_api(app, "127.0.0.1", 0)
-        box["runner"], box["port"] = runner, port
-        ready.set()
+    async def start(work: Path) -> Served:
+        rig = FakeRig(work)
+        box["rig"] = rig
+        await rig.start()
+        daemon = Daemon(parse_settings(rig.config_doc(api_port=0, control={"mode": "manual"})),
+                        env=rig.env)
+        task = asyncio.create_task(daemon.run(), name="daemon")
+        box["task"] = task
+        async with asyncio.timeout(READY_TIMEOUT_S):
+            while daemon.api_port is None or daemon.state.last_scan is None \
+                    or not daemon.state.device("robot").connected:
+                if task.done():
+                    task.result()
+                await asyncio.sleep(0.1)
+        return Served(f"http://127.0.0.1:{daemon.api_port}", rig.api_token, rig, daemon)
 
-    thread = threading.Thread(target=loop.run_forever, daemon=True)
-    thread.start()
-    asyncio.run_coroutine_threadsafe(serve(), loop).result(10)
-    assert ready.wait(10)
-    try:
-        yield f"http://127.0.0.1:{box['port']}"
-    finally:
-        runner = box["runner"]
-        asyncio.run_coroutine_threadsafe(runner.cleanup(), loop).result(10)  # type: ignore[attr-defined]
-        loop.call_soon_threadsafe(loop.stop)
-        thread.join(5)
-        loop.close()
+    async def stop() -> None:
+        task = box.get("task")
+        if isinstance(task, asyncio.Task):
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+        rig = box.get("rig")
+        if isinstance(rig, FakeRig):
+            await rig.stop()
+
+    with tempfile.TemporaryDirectory(prefix="relayd-st-") as work:
+        try:
+            yield asyncio.run_coroutine_threadsafe(start(Path(work)), loop).result(READY_TIMEOUT_S + 10)
+        finally:
+            asyncio.run_coroutine_threadsafe(stop(), loop).result(30)
+            loop.call_soon_threadsafe(loop.stop)
+            thread.join(5)
+            loop.close()
 
 
-def test_every_operation_conforms_to_openapi(base_url: str) -> None:
+def test_every_operation_conforms_to_openapi(served: Served) -> None:
+    base_url = served.base_url
     schema = schemathesis.openapi.from_url(f"{base_url}/openapi.json").exclude(path="/events")
     operations = [result.ok() for result in schema.get_all_operations()]  # type: ignore[union-attr]
     labels = {op.label for op in operations}
     assert {"GET /status", "GET /healthz", "GET /metrics", "POST /api/mode", "POST /api/drive"} <= labels
+    # Mode changes last: until then the daemon stays in manual mode.
+    operations.sort(key=lambda op: op.label == "POST /api/mode")
+    commands_before = len(served.rig.robot.commands)
 
     for operation in operations:
         # Negative data only exists for operations that take input (the POST bodies).
@@ -84,6 +106,11 @@ def test_every_operation_conforms_to_openapi(base_url: str) -> None:
                       suppress_health_check=list(HealthCheck))
             @given(case=operation.as_strategy(mode))
             def check(case: schemathesis.Case) -> None:
-                case.call_and_validate(base_url=base_url, headers={"Authorization": f"Bearer {TOKEN}"})
+                case.call_and_validate(base_url=base_url, headers={"Authorization": f"Bearer {served.token}"})
 
             check()
+
+    # The accepted drive commands reached the fake robot as motion.
+    moved = [arg for cmd, arg in served.rig.robot.commands[commands_before:]
+             if cmd in (Command.VEL, Command.RVEL) and arg != 0]
+    assert moved, "no accepted drive command reached the robot"
