@@ -1,12 +1,17 @@
-"""The live page in a real headless Chromium (Debian's /usr/bin/chromium via Playwright).
+"""The live page of a real daemon on the fakes, in a real headless Chromium.
 
-The page must load with no network but the robot's own, show the state, and redraw the
-polar plot when a new scan arrives over /events, without a reload. Under CI=true a
-missing chromium is a failure; locally it is a skip.
+Debian's /usr/bin/chromium driven by Playwright. A `Daemon` drives a `FakeRig` in this
+test's event loop, in hold mode so the fake robot stands still. The page must load with
+no network but the robot's own, show the daemon's state, and, when the rig's leader
+moves to the other side and the daemon's next sweep finds it there, redraw the polar
+plot from the new scan over /events, without a reload. Under CI=true a missing
+chromium is a failure; locally it is a skip.
 """
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import os
 from collections.abc import AsyncIterator
 from pathlib import Path
@@ -14,16 +19,17 @@ from typing import Any
 
 import pytest
 
-from drivers.clock import Clock
-from relayd.api import make_app, start_api
-from relayd.api.demo import DemoControls, populate, synthetic_scan
-from relayd.state import DriveState, RelayState
+from relayd.config import parse_settings
+from relayd.daemon import Daemon
+from relayd.fakes.rig import FakeRig
 
 pytestmark = pytest.mark.browser
 
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
                  "--disable-component-update", "--disable-sync", "--no-first-run"]
+#: Generous: a sweep takes a few seconds, more on a shared machine.
+SCAN_TIMEOUT_MS = 30_000
 
 
 def _require_chromium() -> None:
@@ -36,69 +42,83 @@ def _require_chromium() -> None:
 
 
 @pytest.fixture
-async def served() -> AsyncIterator[tuple[str, RelayState, Clock]]:
-    clock = Clock()
-    state = RelayState()
-    populate(state, clock)
-    runner, port = await start_api(make_app(state, DemoControls(state), clock=clock, token=None),
-                                   "127.0.0.1", 0)
-    try:
-        yield f"http://127.0.0.1:{port}", state, clock
-    finally:
-        await runner.cleanup()
-
-
-async def test_live_page_shows_state_and_redraws_on_new_scan(
-        served: tuple[str, RelayState, Clock], tmp_path: Path) -> None:
+async def served(tmp_path: Path) -> AsyncIterator[tuple[str, FakeRig, Daemon]]:
     _require_chromium()
+    rig = FakeRig(tmp_path, leader_xy_m=(6.0, 2.0))  # 18 deg to the left
+    await rig.start()
+    task: asyncio.Task[None] | None = None
+    try:
+        daemon = Daemon(parse_settings(rig.config_doc(api_port=0, control={"mode": "hold"})),
+                        env=rig.env)
+        task = asyncio.create_task(daemon.run(), name="daemon")
+        async with asyncio.timeout(20):
+            while daemon.api_port is None:
+                if task.done():
+                    task.result()
+                await asyncio.sleep(0.05)
+        yield f"http://127.0.0.1:{daemon.api_port}", rig, daemon
+    finally:
+        if task is not None:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+        await rig.stop()
+
+
+async def test_live_page_shows_the_daemon_and_redraws_on_a_new_scan(
+        served: tuple[str, FakeRig, Daemon], tmp_path: Path) -> None:
     from playwright.async_api import async_playwright
 
-    url, state, clock = served
+    url, rig, daemon = served
+    state = daemon.state
     problems: list[str] = []
     requests: list[str] = []
     async with async_playwright() as pw:
         browser = await pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
         try:
+            # Predicates are functions, not expression strings: Playwright evals strings in
+            # the page, which the page's CSP (no 'unsafe-eval') rightly refuses.
             page = await browser.new_page(viewport={"width": 1400, "height": 1000})
             page.on("console", lambda m: problems.append(m.text) if m.type == "error" else None)
             page.on("pageerror", lambda e: problems.append(str(e)))
             page.on("request", lambda r: requests.append(r.url))
             await page.goto(url + "/")
 
+            # The daemon's first sweep arrives and is drawn.
             await page.wait_for_function(
-                "document.getElementById('drive-state').textContent === 'driving'", timeout=10_000)
-            assert await page.text_content("#robot-name") == "relay-demo"
-            assert await page.text_content("#mode") == "follow"
-            assert (await page.text_content("#reason") or "").startswith("demo:")
-            assert await page.text_content("#rssi-b") == "-52.0 dBm"
-            assert await page.text_content("#thr-l") == "-30 dBm"
-            assert await page.locator("#scan-points circle").count() == 25
+                "() => document.querySelectorAll('#scan-points circle').length > 0", timeout=SCAN_TIMEOUT_MS)
+            assert state.last_scan is not None
+            assert await page.text_content("#robot-name") == rig.name
+            assert await page.text_content("#mode") == "hold"
+            assert await page.text_content("#drive-state") == "stopped"
+            assert await page.text_content("#reason") == "hold"
+            assert await page.text_content("#rssi-b") == "-55.0 dBm"  # the rig's rear radio
+            thr_l = daemon.settings.control.threshold_l_dbm
+            assert await page.text_content("#thr-l") == f"{thr_l:.0f} dBm"
+            assert await page.text_content("#battery") == f"{rig.robot.battery_v:.1f} V"
+            assert await page.locator("#scan-points circle").count() == daemon.settings.scan.samples
             assert await page.locator("#sonar-rays line").count() == 16
-            assert await page.locator("#health tbody tr").count() == 5
+            # One row per device and per radio, all up.
+            assert await page.locator("#health tbody tr").count() == len(state.health) == 5
+            await page.wait_for_function(
+                "() => [...document.querySelectorAll('#health tbody tr')].every("
+                "r => r.textContent.includes('up'))", timeout=10_000)
             assert await page.locator("#links tbody tr").count() == 2
             old_points = await page.get_attribute("#scan-trace", "points")
             old_x2 = float(await page.get_attribute("#bearing-line", "x2") or "nan")
-            assert old_points and old_x2 < 0  # leader 20 deg to the left: line leans left
+            assert old_points and old_x2 < 0  # leader to the left: the bearing line leans left
+            seen_scans = int(await page.text_content("#scan-count") or "0")
+            assert seen_scans >= 1
 
-            # A new scan with the leader 60 deg to the right arrives.
-            scan = synthetic_scan(clock.now(), -60.0, peak_dbm=-35.0)
-            state.last_scan = scan
-            state.scan_count += 1
-            state.bearing_deg = scan.bearing_deg
-            state.rssi_leader_dbm = scan.rssi_leader_dbm
-            state.state = DriveState.LEADER_LOST
-            state.reason = "leader lost: widening scan"
-            state.touch()
-
+            # The leader walks over to the right; the next sweeps find it there.
+            rig.leader_xy_m = (2.0, -6.0)
             await page.wait_for_function(
-                "(old) => document.getElementById('scan-trace').getAttribute('points') !== old",
-                arg=old_points, timeout=10_000)
-            await page.wait_for_function(
-                "document.getElementById('drive-state').textContent === 'leader_lost'", timeout=10_000)
-            new_x2 = float(await page.get_attribute("#bearing-line", "x2") or "nan")
-            assert new_x2 > 0  # now leans right
-            assert await page.text_content("#reason") == "leader lost: widening scan"
-            assert "state-leader_lost" in (await page.get_attribute("#drive-state", "class") or "")
+                "() => parseFloat(document.getElementById('bearing-line').getAttribute('x2')) > 50",
+                timeout=SCAN_TIMEOUT_MS)
+            new_points = await page.get_attribute("#scan-trace", "points")
+            assert new_points != old_points
+            assert int(await page.text_content("#scan-count") or "0") > seen_scans
+            assert state.bearing_deg is not None and state.bearing_deg < -45  # daemon agrees
             await page.screenshot(path=str(tmp_path / "live.png"), full_page=True)
         finally:
             await browser.close()
