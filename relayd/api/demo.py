@@ -1,9 +1,9 @@
 """Serve the API and live page on a plausible, moving `RelayState` without any device.
 
 `python -m relayd.api.demo --host 127.0.0.1 --port 8080 [--token T]` is for working on
-the live page and for network tests (tests/test_bridge_netns.py runs it inside a
-network namespace). The state is synthetic and says so in `reason`; nothing here is
-used by the daemon.
+the live page's layout; `populate` gives unit tests (tests/test_api.py) a full state.
+The state is synthetic and says so in `reason`; nothing here is used by the daemon.
+For the real thing without hardware: `relayd fake rig` and `relayd run -c` on its config.
 """
 
 from __future__ import annotations
