@@ -292,6 +292,8 @@ class Daemon:
         if self.notifier is not None:
             self.notifier.stopping()
         log.info("shutting_down")
+        # The robot's run() returns after its safe stop below: not a failure to restart.
+        self.supervisor.begin_stop()
         if self.robot is not None:
             self.robot.stop()
             with contextlib.suppress(Exception):

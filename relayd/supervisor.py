@@ -70,9 +70,13 @@ class Supervisor:
             except asyncio.CancelledError:
                 raise
             except Exception as exc:
+                if self._stopping:
+                    return
                 self._record_failure(entry, f"{type(exc).__name__}: {exc}")
                 log.exception("task_failed", task=entry.name, restarts=entry.restarts)
             else:
+                if self._stopping:
+                    return  # e.g. the robot driver ending run() after its safe stop
                 # Long-lived tasks do not return; one that does is restarted like a failure.
                 self._record_failure(entry, "task returned")
                 log.warning("task_exited", task=entry.name, restarts=entry.restarts)
@@ -86,6 +90,10 @@ class Supervisor:
             health = self._state.device(entry.device)
             health.errors += 1
             health.last_error = message
+
+    def begin_stop(self) -> None:
+        """Shutdown has begun: a task ending from now on is neither restarted nor reported."""
+        self._stopping = True
 
     async def stop(self, timeout_s: float = 1.0) -> None:
         """Cancel every task, newest first, waiting at most `timeout_s` (wall) for each."""

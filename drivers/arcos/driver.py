@@ -253,6 +253,8 @@ class ArcosRobot:
                     self.backoff.reset()
                     await self._serve()
                 except (ArcosError, LinkError, OSError, CodecError) as exc:
+                    if self._closing:
+                        break  # shutdown() closed the port under the session: not a failure
                     self._note_failure(exc)
                 except Exception as exc:  # a driver bug must not end the task
                     log.exception("robot_unexpected_error", url=self.url)
