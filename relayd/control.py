@@ -59,6 +59,8 @@ class ControlLoop:
         self._on_latency = on_latency
         self._memory = ControlMemory()
         self._manual: tuple[float, float, float] | None = None
+        self._halted = False
+        self._remove_listener: Callable[[], None] | None = None
         self.last_output: ControlOutput | None = None
 
     # -- Controls (called by the API) -------------------------------------------------
@@ -78,6 +80,18 @@ class ControlLoop:
         self._manual = (float(left_mm_s), float(right_mm_s), self._clock.now())
         self.step()
 
+    def halt(self) -> None:
+        """Shutdown: never command the wheels again; the robot driver's safe stop follows.
+
+        Synchronous on purpose: a SIP arriving while the driver writes VEL 0, ENABLE 0
+        and CLOSE must not slip a non-zero VEL in between, and cancelling the task only
+        takes effect at its next await.
+        """
+        self._halted = True
+        if self._remove_listener is not None:
+            self._remove_listener()
+            self._remove_listener = None
+
     # -- the loop -----------------------------------------------------------------------
 
     def on_sip(self, _sip: object) -> None:
@@ -88,16 +102,16 @@ class ControlLoop:
 
     async def run(self) -> None:
         """The periodic tick; also registers the SIP callback."""
-        remove = None
-        if self._robot is not None:
-            remove = self._robot.add_listener(self.on_sip)  # type: ignore[attr-defined]
+        if self._robot is not None and not self._halted:
+            self._remove_listener = self._robot.add_listener(self.on_sip)  # type: ignore[attr-defined]
         try:
             while True:
                 self.step()
                 await self._clock.sleep(self._tick_s)
         finally:
-            if remove is not None:
-                remove()
+            if self._remove_listener is not None:
+                self._remove_listener()
+                self._remove_listener = None
 
     def inputs(self, now: float) -> ControlInputs:
         robot, scanner, st = self._robot, self._scanner, self._state
@@ -140,6 +154,10 @@ class ControlLoop:
 
     def step(self) -> ControlOutput:
         now = self._clock.now()
+        if self._halted:
+            out = ControlOutput(0.0, 0.0, DriveState.STOPPED, "shutdown", self._state.situation, self._memory)
+            self._apply(out, now)
+            return out
         try:
             out = control_step(self.inputs(now), self._params, self._memory)
         except Exception as exc:
@@ -154,7 +172,7 @@ class ControlLoop:
     def _apply(self, out: ControlOutput, now: float) -> None:
         robot, st = self._robot, self._state
         prev = self.last_output
-        if robot is not None:
+        if robot is not None and not self._halted:
             if out.left_mm_s == 0.0 and out.right_mm_s == 0.0:
                 # The urgent stop goes out on the transition to zero; while stopped, the
                 # driver keeps reflecting zero (PULSE), so the serial line is not flooded.

@@ -294,6 +294,9 @@ class Daemon:
         log.info("shutting_down")
         # The robot's run() returns after its safe stop below: not a failure to restart.
         self.supervisor.begin_stop()
+        # The controller first, synchronously: a SIP handled during the safe stop must not
+        # put a non-zero VEL between the stop's VEL 0 and its ENABLE 0.
+        self.control.halt()
         if self.robot is not None:
             self.robot.stop()
             with contextlib.suppress(Exception):

@@ -318,3 +318,24 @@ async def test_run_ticks_without_sips_and_unregisters_its_listener() -> None:
     with pytest.raises(asyncio.CancelledError):
         await task
     assert robot.listeners == []
+
+
+async def test_halt_stops_commanding_the_robot_at_once() -> None:
+    """Shutdown: after halt() no SIP or tick may command the wheels (the safe stop follows)."""
+    w = make_world()
+    task = asyncio.create_task(w.loop.run())
+    async with asyncio.timeout(10):
+        while not w.robot.listeners or not w.robot.wheels:
+            await asyncio.sleep(0.005)
+    w.loop.halt()
+    assert w.robot.listeners == []  # synchronously: no SIP callback can run a step any more
+    calls = (w.robot.stops, len(w.robot.wheels))
+    w.fresh()
+    out = w.loop.step()
+    assert (out.state, out.reason) == (DriveState.STOPPED, "shutdown")
+    assert (w.state.wheels_left_mm_s, w.state.wheels_right_mm_s) == (0.0, 0.0)
+    await asyncio.sleep(0.3)  # several ticks of the still-running task
+    assert (w.robot.stops, len(w.robot.wheels)) == calls
+    task.cancel()
+    with pytest.raises(asyncio.CancelledError):
+        await task
