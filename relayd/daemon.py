@@ -90,11 +90,13 @@ class Daemon:
         for side in ("rear", "front"):
             ap = getattr(settings.ap, side)
             if ap is not None and ap.enabled:
-                secret = resolve_secret(SecretRef(f"ap.{side}.password_env", ap.password_env, ap.password_file), env)
+                key = f"ap.{side}.password_file" if ap.password_file else f"ap.{side}.password_env"
+                secret = resolve_secret(SecretRef(key, ap.password_env, ap.password_file), env)
                 assert secret is not None
                 self._ap_passwords[side] = secret
         api = settings.api
-        self._token = resolve_secret(SecretRef("api.token_env", api.token_env, api.token_file), env) \
+        token_key = "api.token_file" if api.token_file else "api.token_env"
+        self._token = resolve_secret(SecretRef(token_key, api.token_env, api.token_file), env) \
             if api.enabled and (api.token_env or api.token_file) and _configured(api, env) else None
 
         c = settings.control

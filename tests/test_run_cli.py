@@ -201,3 +201,20 @@ async def test_run_with_a_missing_secret_exits_2_naming_the_key_before_touching_
         await asyncio.sleep(0.2)
         assert rig.robot.commands == [], "the robot was touched"
         assert not rig.maestro.received, "the servo controller was touched"
+
+
+async def test_run_with_an_unreadable_secret_file_names_that_key(tmp_path: Path) -> None:
+    async with FakeRig(tmp_path) as rig:
+        config = rig.write_config(secrets_in_files=True, scan=SCAN)
+        missing = tmp_path / f"{rig.name}-ap-password"
+        missing.unlink()
+        relayd = await Relayd.start("run", "-c", str(config))
+        try:
+            code = await relayd.wait(30)
+        finally:
+            await relayd.kill()
+        err = "\n".join(relayd.stderr)
+        assert code == 2, relayd.output()
+        assert "ap.rear.password_file" in err and str(missing) in err, err
+        await asyncio.sleep(0.2)
+        assert rig.robot.commands == [], "the robot was touched"
