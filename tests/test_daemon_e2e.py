@@ -87,14 +87,16 @@ def reason(daemon: Daemon) -> tuple[DriveState, str]:
 
 @contextlib.asynccontextmanager
 async def relay(tmp_path: Path, *, leader_deg: float = 0.0, distance_m: float = 6.0,
-                control: dict[str, Any] | None = None) -> AsyncIterator[tuple[FakeRig, Daemon]]:
+                control: dict[str, Any] | None = None, scan: dict[str, Any] | None = None,
+                pantilt: dict[str, Any] | None = None) -> AsyncIterator[tuple[FakeRig, Daemon]]:
     a = math.radians(leader_deg)
     rig = FakeRig(tmp_path, leader_xy_m=(distance_m * math.cos(a), distance_m * math.sin(a)))
     await rig.start()
     daemon: Daemon | None = None
     task: asyncio.Task[None] | None = None
     try:
-        settings = parse_settings(rig.config_doc(scan=SCAN, control=control, pantilt=PANTILT))
+        settings = parse_settings(rig.config_doc(scan={**SCAN, **(scan or {})}, control=control,
+                                                 pantilt={**PANTILT, **(pantilt or {})}))
         daemon = Daemon(settings, env=rig.env)
         task = asyncio.create_task(daemon.run())
         yield rig, daemon
@@ -111,10 +113,13 @@ async def driving(rig: FakeRig, daemon: Daemon) -> None:
                 "the relay drives")
 
 
-@pytest.mark.parametrize("leader_deg", [25.0, -25.0])
-async def test_bearing_converges_and_the_robot_turns_toward_the_leader(tmp_path: Path, leader_deg: float) -> None:
+@pytest.mark.parametrize(("leader_deg", "mode"), [(25.0, "step"), (-25.0, "step"), (25.0, "continuous")])
+async def test_bearing_converges_and_the_robot_turns_toward_the_leader(
+        tmp_path: Path, leader_deg: float, mode: str) -> None:
     side = math.copysign(1.0, leader_deg)
-    async with relay(tmp_path, leader_deg=leader_deg) as (rig, daemon):
+    # A continuous sweep samples at 20 Hz while moving: slew slowly enough for ~13 samples.
+    speed = {"speed_deg_s": 180} if mode == "continuous" else None
+    async with relay(tmp_path, leader_deg=leader_deg, scan={"mode": mode}, pantilt=speed) as (rig, daemon):
         st = daemon.state
         await until(lambda: st.scan_count >= 3, "three scans")
         # From then on every scan's bearing is within 6 degrees of the truth at its end.
