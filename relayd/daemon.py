@@ -235,7 +235,14 @@ class Daemon:
     async def _health_loop(self) -> None:
         """Copy driver counters into the state for /status and /metrics, twice a second."""
         st = self.state
+        rear_timeout_s = control_params(self.settings).rear_timeout_s
         while True:
+            rear = st.links.get("rear")
+            if st.rssi_behind_dbm is not None and (
+                    rear is None or rear.t is None or self.clock.now() - rear.t > rear_timeout_s):
+                # /status must not show a value the controller already refuses as stale.
+                st.rssi_behind_dbm = None
+                st.touch()
             if self.robot is not None:
                 h = st.device("robot")
                 h.connected = bool(self.robot.connected) and not bool(self.robot.stale)

@@ -19,6 +19,7 @@ pydantic `SecretStr` and never appears in a message, a log line or a repr.
 
 from __future__ import annotations
 
+import asyncio
 import ssl
 import warnings
 from dataclasses import dataclass
@@ -46,6 +47,8 @@ Firmware = Literal["auto", 6, 8]
 
 #: Answers larger than this are not status documents (the real ones are ~3 KiB).
 MAX_BODY_BYTES = 1 << 20
+#: Wall seconds a closing client waits for its logout (the daemon's whole shutdown has 0.5 s).
+LOGOUT_BUDGET_S = 0.1
 
 
 class AirOsAuthError(AirOsError):
@@ -300,11 +303,24 @@ class AirOsClient:
         self._cookie = None
         self._csrf_id = None
 
-    async def close(self) -> None:
-        await self.logout()
-        if self._own_session and self._session is not None:
-            await self._session.close()
-        self._session = None
+    async def close(self, logout_budget_s: float = LOGOUT_BUDGET_S) -> None:
+        """Log out (best effort, at most `logout_budget_s` wall seconds) and close our session.
+
+        The logout is a courtesy to the radio's session table; a slow or dead radio must
+        not hold up the daemon's shutdown, nor leave the HTTP session open.
+        """
+        try:
+            async with asyncio.timeout(logout_budget_s):
+                await self.logout()
+        except TimeoutError:
+            log.debug("airos_logout_skipped", url=str(self.base_url), budget_s=logout_budget_s)
+            self.logged_in = False
+            self._cookie = None
+            self._csrf_id = None
+        finally:
+            if self._own_session and self._session is not None:
+                await self._session.close()
+            self._session = None
 
     # -- data ------------------------------------------------------------------------------
 
