@@ -275,9 +275,12 @@ def secret_refs(settings: Settings) -> list[SecretRef]:
     for name in ("rear", "front"):
         ap = getattr(settings.ap, name)
         if ap is not None and ap.enabled:
-            refs.append(SecretRef(f"ap.{name}.password_env", ap.password_env, ap.password_file))
-    if settings.api.enabled:
-        refs.append(SecretRef("api.token_env", settings.api.token_env, settings.api.token_file))
+            key = f"ap.{name}.password_file" if ap.password_file else f"ap.{name}.password_env"
+            refs.append(SecretRef(key, ap.password_env, ap.password_file))
+    api = settings.api
+    if api.enabled:
+        key = "api.token_file" if api.token_file else "api.token_env"
+        refs.append(SecretRef(key, api.token_env, api.token_file))
     return refs
 
 
