@@ -110,15 +110,20 @@ async def test_live_page_shows_the_daemon_and_redraws_on_a_new_scan(
             seen_scans = int(await page.text_content("#scan-count") or "0")
             assert seen_scans >= 1
 
-            # The leader walks over to the right; the next sweeps find it there.
-            rig.leader_xy_m = (2.0, -6.0)
+            # The leader walks over to the right. The sweep under way when it moves sees
+            # it in both places; the one after that sees only the new place.
+            rig.leader_xy_m = (5.0, -5.0)
+            full_sweep = state.scan_count + 2
             await page.wait_for_function(
-                "() => parseFloat(document.getElementById('bearing-line').getAttribute('x2')) > 50",
-                timeout=SCAN_TIMEOUT_MS)
+                "(n) => parseInt(document.getElementById('scan-count').textContent) >= n",
+                arg=full_sweep, timeout=2 * SCAN_TIMEOUT_MS)
             new_points = await page.get_attribute("#scan-trace", "points")
             assert new_points != old_points
-            assert int(await page.text_content("#scan-count") or "0") > seen_scans
-            assert state.bearing_deg is not None and state.bearing_deg < -45  # daemon agrees
+            assert float(await page.get_attribute("#bearing-line", "x2") or "nan") > 50  # leans right
+            assert state.bearing_deg is not None
+            assert state.bearing_deg == pytest.approx(rig.true_bearing_deg(), abs=10)  # -45 deg
+            shown = float((await page.text_content("#bearing") or "nan").rstrip("°"))
+            assert shown == pytest.approx(state.bearing_deg, abs=2)  # a later sweep may differ a bit
             await page.screenshot(path=str(tmp_path / "live.png"), full_page=True)
         finally:
             await browser.close()
