@@ -18,6 +18,7 @@ import asyncio
 import contextlib
 import json
 import math
+import os
 import secrets
 import tempfile
 from collections.abc import Callable, Sequence
@@ -41,6 +42,21 @@ API_TOKEN_ENV = "RELAYD_SIM_API_TOKEN"
 AIROS_UPDATE_S = 0.5
 #: Trace records per clock second.
 TRACE_HZ = 10.0
+
+
+def scratch_root() -> str | None:
+    """Where the simulated relays' ptys and RSSI files go: a RAM filesystem when there is one.
+
+    Each world tick rewrites every relay's procfs-format RSSI file (write + atomic
+    rename). On a disk filesystem such as ext4 a rename over an existing file starts a
+    write-back of the new data, which blocked the event loop for ~10 ms per tick and
+    made the simulation lag its clock at speed 10 and above. /dev/shm (tmpfs) makes it a
+    memory copy. None: the platform's default temporary directory.
+    """
+    shm = "/dev/shm"
+    if os.path.isdir(shm) and os.access(shm, os.W_OK | os.X_OK):
+        return shm
+    return None
 
 
 def pulse_to_deg(pulse_us: float, pulse: Sequence[float] = PULSE_US) -> float:
@@ -331,7 +347,8 @@ class SimRunner:
         with contextlib.ExitStack() as stack:
             work = self.workdir
             if work is None:
-                work = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="relayd-sim-")))
+                work = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="relayd-sim-",
+                                                                            dir=scratch_root())))
             try:
                 for i in range(len(self.world.relays)):
                     self.relays.append(await self._start_relay(i, work))

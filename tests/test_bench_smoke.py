@@ -1,0 +1,127 @@
+"""The benchmarks in bench/ still run and return sane numbers (tiny configurations).
+
+Not a performance test: no figure is compared with its target here (the machine is
+shared and its load unknown). Each check is a plausibility range that a broken
+benchmark (no cycles measured, a daemon that never started, a zero or absurd reading)
+falls outside of. The live benchmarks run concurrently to keep the file short.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import os
+
+import pytest
+
+from bench import estimator as bench_estimator
+from bench import latency as bench_latency
+from bench import scan as bench_scan
+from bench import sim as bench_sim
+from bench import status as bench_status
+from bench import steady as bench_steady
+from bench.common import BenchOutput, Result, percentile
+from bench.run import BENCHES, main, render, table
+from drivers.arcos.fake import FakeRobot
+from relayd.sim.runner import scratch_root
+
+#: A short continuous sweep so the first scans (which the live benches wait for) come quickly.
+FAST_SCAN = {"mode": "continuous", "width_deg": 60.0}
+
+
+@pytest.mark.timeout(90)
+async def test_live_benchmarks_return_sane_figures() -> None:
+    lat, scan, status, steady = await asyncio.gather(
+        bench_latency.measure(cycles=20, load_rps=200.0, scan=FAST_SCAN),
+        bench_scan.measure_mode("continuous", scans=2, width_deg=60.0),
+        bench_status.measure(seconds=0.5, rounds=1, scan=FAST_SCAN),
+        bench_steady.measure(seconds=1.0, config={"scan": FAST_SCAN}),
+    )
+
+    for run in (lat["alone"], lat["loaded"]):
+        assert 20 <= run["cycles"] <= 30
+        # Nearly every SIP causes a command the probe matches to it by value.
+        assert len(run["first_ms"]) >= 15, run
+        assert run["unmatched"] <= 2, run
+        assert all(0.0 < x < 1000.0 for x in run["first_ms"]), run["first_ms"]
+        # The RVEL goes out at least the driver's 5 ms command spacing after the VEL.
+        assert percentile(run["pair_ms"], 50) >= percentile(run["first_ms"], 50) + 4.0, run
+    assert lat["load"]["rps"] > 50 and lat["load"]["errors"] == 0, lat["load"]
+    assert lat["final_state"] == "avoiding"
+
+    assert len(scan["intervals"]) >= 1
+    pmin = bench_scan.physical_min_s("continuous", 60.0, 180.0, 25, 20.0)
+    assert all(0.8 * pmin < iv < 10 * pmin for iv in scan["intervals"]), (scan, pmin)
+
+    for name in ("bare", "relayd"):
+        (r,) = status["runs"][name]
+        assert r["requests"] > 10 and r["errors"] == 0 and r["p99_ms"] > 0, (name, r)
+    assert status["payload_bytes"] > 500
+
+    assert 0.0 < steady["cpu_pct"] < 100.0, steady
+    assert 10.0 < steady["rss_mb_max"] < 500.0, steady
+    assert steady["rss_mb_mean"] <= steady["rss_mb_max"]
+
+
+def test_sim_benchmark_runs_a_short_convoy() -> None:
+    d = bench_sim.measure(speed=20.0, seconds=10.0)
+    assert d["sim_seconds"] == pytest.approx(10.0, abs=1.0)
+    assert 0.3 < d["wall_s"] < 30.0
+    assert d["collisions"] == 0
+    ok, why = bench_sim.faithful(d, d, full_length=False)
+    assert ok, why
+
+
+def test_estimator_benchmark_figures() -> None:
+    errs = bench_estimator.noise_free([0.0, 20.0, 60.0], [0.0, 45.0])
+    assert abs(errs[(0.0, 0.0)]) < 0.5  # symmetric: no bias straight ahead
+    assert abs(errs[(20.0, 45.0)]) < 2.0  # converged from another start
+    assert errs[(60.0, 0.0)] < -1.0  # the WCA pulls towards the window's centre
+    noisy = bench_estimator.noisy([0.0, 30.0], seeds=3)
+    assert len(noisy) == 6 and all(math.isfinite(e) and abs(e) < 60.0 for e in noisy)
+    assert any(abs(e) > 1e-6 for e in noisy)  # the noise really reaches the estimate
+
+
+def test_scan_minimum_and_theorem1() -> None:
+    assert bench_scan.physical_min_s("step", 180, 180, 25, 20) == pytest.approx(2.25)
+    assert bench_scan.physical_min_s("continuous", 180, 180, 25, 20) == pytest.approx(1.05)
+    assert bench_scan.grid_min_s(180, 180, 25, 20, 0.05) == pytest.approx(2.45)
+    v_rel, v_perp = bench_scan.theorem1(2.0, 180.0, 1.6)
+    assert v_rel == pytest.approx(0.8)  # d / period when theta_max is the window
+    assert v_perp == pytest.approx(math.pi / 2.0 * 1.6)
+
+
+def test_report_renders_table_and_keeps_discussion(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    out = BenchOutput("estimator", [Result("estimator", "x | y", 1.234, "ms", "< 2 ms", True, "a|b"),
+                                    Result("estimator", "broken", None, "", "", False)])
+    text = table(out.results)
+    assert "| x \\| y |" in text and "a\\|b" in text  # a '|' in a cell does not split it
+    assert "1.23 ms" in text and "pass" in text and "**FAIL**" in text and "n/a" in text
+    md = render([out], {"cpu": "test cpu"}, quick=True, argv=["--quick"], keep="my discussion\n")
+    assert "- cpu: test cpu" in md and md.rstrip().endswith("my discussion")
+    assert main(["--list"]) == 0
+    assert set(capsys.readouterr().out.split()) >= set(BENCHES)
+
+
+def test_sim_scratch_files_go_to_memory_when_possible() -> None:
+    # The RSSI files are rewritten every world tick; on a disk filesystem each atomic
+    # rename blocked the simulation's event loop for ~10 ms (see scratch_root).
+    root = scratch_root()
+    if os.path.isdir("/dev/shm") and os.access("/dev/shm", os.W_OK | os.X_OK):
+        assert root == "/dev/shm"
+    else:
+        assert root is None
+
+
+@pytest.mark.timeout(30)
+async def test_fake_robot_sip_period_is_settable(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    robot = FakeRobot(old_session=True)  # already OPEN: streams SIPs without a handshake
+    robot.sip_period_s = 0.01
+    robot.serve_pty(str(tmp_path / "base"))
+    try:
+        # 20 SIPs at the default 100 ms would take 2 s; at 10 ms they come in ~0.2 s.
+        async with asyncio.timeout(1.5):
+            while robot.sips_sent < 20:
+                await asyncio.sleep(0.01)
+    finally:
+        await robot.stop()
