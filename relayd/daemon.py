@@ -260,6 +260,8 @@ class Daemon:
                 h.errors = int(pc.get("timeouts", 0)) + int(pc.get("errors", 0))
                 h.reconnects = int(pc.get("reconnects", 0))
                 h.last_error = self.pantilt.last_error or h.last_error
+                if self.pantilt.last_reply_t is not None:
+                    h.last_data_t = self.pantilt.last_reply_t
             for side, poller in self.pollers.items():
                 h = st.device(f"ap.{side}")
                 h.connected = getattr(poller, "state", "") == "ok"

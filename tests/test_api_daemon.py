@@ -204,7 +204,7 @@ async def test_status_carries_the_fakes_values(relay: Relay) -> None:
     for name, health in doc["health"].items():
         assert health["connected"] is True, name
         assert health["errors"] == 0 and health["last_error"] is None, name
-    for name in ("robot", "wifi", "ap.rear", "ap.front"):
+    for name in ("robot", "pantilt", "wifi", "ap.rear", "ap.front"):
         assert 0 <= doc["health"][name]["age_s"] < 5.0, name
     assert doc["thresholds"]["threshold_l_dbm"] == relay.daemon.settings.control.threshold_l_dbm
 

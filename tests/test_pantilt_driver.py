@@ -139,6 +139,9 @@ async def test_silent_controller_times_out_then_reconnects(tmp_path: Path, proto
         assert r.pt.counters["timeouts"] == 1
         assert r.pt.connected
         assert "no reply" in (r.pt.last_error or "")
+        # The last proof of life is the handshake's reply, not the unanswered request.
+        answered_t = r.pt.last_reply_t
+        assert answered_t is not None and answered_t < r.clock.now() - 0.9
         for _ in range(2):
             with pytest.raises(PanTiltError):
                 await r.pt.is_moving()
@@ -151,6 +154,7 @@ async def test_silent_controller_times_out_then_reconnects(tmp_path: Path, proto
         assert r.pt.counters["reconnects"] == 1
         assert await r.pt.set_angle(0, -20) == -20
         assert await r.pt.get_angle(0) == pytest.approx(-20, abs=r.tol)
+        assert r.pt.last_reply_t is not None and r.pt.last_reply_t > answered_t
     finally:
         await r.pt.close()
         await asyncio.wait_for(r.task, 5)

@@ -174,6 +174,8 @@ class PanTilt(abc.ABC):
         self._close_requested = asyncio.Event()
         self._ever_connected = False
         self.last_error: str | None = None
+        #: Clock time of the controller's last complete reply (its proof of life).
+        self.last_reply_t: float | None = None
         self.counters: dict[str, int] = {
             "commands": 0, "timeouts": 0, "errors": 0, "reconnects": 0, "clamped": 0,
             "stray_bytes": 0,
@@ -441,6 +443,7 @@ class PanTilt(abc.ABC):
                 self._rx.clear()
         self._consecutive_timeouts = 0
         self._backoff.reset()
+        self.last_reply_t = self._clock.now()
         return reply
 
     def _on_timeout(self, frame: bytes) -> None:
