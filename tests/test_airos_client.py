@@ -418,6 +418,24 @@ async def test_poller_backs_off_while_down_then_recovers() -> None:
         await _stop(task)
 
 
+async def test_poller_notices_a_radio_back_within_seconds_after_a_long_outage() -> None:
+    # The relay may be held still while RSSI^b is unknown: after minutes of outage the
+    # backoff must still be short enough to see the radio back within a few seconds.
+    clock = Clock(speed=50)
+    async with FakeAirOs("ubnt", SECRET, clock=clock) as fake:
+        poller = _poller(fake, clock)
+        task = asyncio.create_task(poller.run())
+        await until(lambda: poller.state == "ok")
+        await fake.set_down(True)
+        await asyncio.sleep(clock.to_real(120.0))
+        assert poller.state == "unreachable"
+        await fake.set_down(False)
+        t_back = clock.now()
+        await until(lambda: poller.state == "ok", timeout_s=10)
+        assert clock.now() - t_back <= 6.0, clock.now() - t_back
+        await _stop(task)
+
+
 async def test_poller_survives_a_failing_callback(fake6: FakeAirOs) -> None:
     clock = Clock(speed=20)
 

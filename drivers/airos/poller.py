@@ -73,7 +73,10 @@ class AirOsPoller:
         self.auth_retry_s = auth_retry_s
         self._clock = clock
         self._on_update = on_update
-        self._backoff = backoff or Backoff(initial_s=min(1.0, poll_s), maximum_s=30.0)
+        # Capped low: while RSSI^b is unknown the relay may be held still (rear_link =
+        # "require"), so a radio that is back must be noticed within seconds, and one
+        # HTTP request every few seconds costs nothing on the bridge.
+        self._backoff = backoff or Backoff(initial_s=min(1.0, poll_s), maximum_s=max(5.0, 4.0 * poll_s))
         self.latest: LinkQuality | None = None
         self.state: str = "connecting"
         self.last_error: str | None = None
