@@ -65,6 +65,7 @@ def run_benches(names: Sequence[str], quick: bool,
     outputs = []
     for name in names:
         progress(f"== {name}: {DESCRIPTIONS[name]} ...")
+        load0 = _load1()
         t0 = time.perf_counter()
         try:
             out: BenchOutput = importlib.import_module(BENCHES[name]).run(quick=quick)
@@ -73,9 +74,19 @@ def run_benches(names: Sequence[str], quick: bool,
             out = BenchOutput(name, [Result(name, "benchmark failed", None, "", "", False,
                                             f"{type(exc).__name__}: {exc}"[:300])])
         out.wall_s = time.perf_counter() - t0
+        # Other processes on the machine move these figures; say how busy it was.
+        out.details.append(f"Machine load average (1 min) {load0} at the start, {_load1()} at the end "
+                           f"of this benchmark, on {os.cpu_count()} logical CPUs.")
         progress(f"   {name} done in {out.wall_s:.0f} s")
         outputs.append(out)
     return outputs
+
+
+def _load1() -> str:
+    try:
+        return f"{os.getloadavg()[0]:.2f}"
+    except OSError:
+        return "n/a"
 
 
 def render(outputs: Sequence[BenchOutput], machine: dict[str, str], *, quick: bool, argv: Sequence[str],
