@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from typing import Any, Protocol
 
 import structlog
 
@@ -32,15 +33,62 @@ from relayd.state import DriveState, Mode, ModeError, RelayState
 log = structlog.get_logger(__name__)
 
 
+class SipView(Protocol):
+    @property
+    def t(self) -> float: ...
+    @property
+    def theta_deg(self) -> float: ...
+
+
+class SonarView(Protocol):
+    @property
+    def ranges_mm(self) -> Sequence[int | None]: ...
+
+
+class WheelBase(Protocol):
+    """What the loop needs of the robot driver (drivers.arcos.ArcosRobot, or a test double)."""
+
+    @property
+    def last_sip(self) -> SipView | None: ...
+    @property
+    def stale(self) -> bool: ...
+    @property
+    def sonar(self) -> SonarView: ...
+    def add_listener(self, cb: Callable[[Any], None]) -> Callable[[], None]: ...
+    def stop(self) -> None: ...
+    def set_wheels(self, left_mm_s: float, right_mm_s: float) -> None: ...
+
+
+class BearingSource(Protocol):
+    """What the loop needs of the scanner (relayd.scanner.Scanner)."""
+
+    @property
+    def servo_ok(self) -> bool: ...
+    @property
+    def leader_lost(self) -> bool: ...
+    @property
+    def bearing_deg(self) -> float | None: ...
+    @property
+    def bearing_heading_deg(self) -> float | None: ...
+    @property
+    def prev_bearing_deg(self) -> float | None: ...
+    @property
+    def prev_heading_deg(self) -> float | None: ...
+
+
+class RssiFreshness(Protocol):
+    def age_s(self, now: float) -> float | None: ...
+
+
 class ControlLoop:
     """Glue between the robot driver, the scanner's latest estimate and the pure controller."""
 
     def __init__(
         self,
         *,
-        robot: object | None,
-        scanner: object | None,
-        monitor: object | None,
+        robot: WheelBase | None,
+        scanner: BearingSource | None,
+        monitor: RssiFreshness | None,
         state: RelayState,
         params: ControlParams,
         clock: Clock = REAL_CLOCK,
@@ -103,7 +151,7 @@ class ControlLoop:
     async def run(self) -> None:
         """The periodic tick; also registers the SIP callback."""
         if self._robot is not None and not self._halted:
-            self._remove_listener = self._robot.add_listener(self.on_sip)  # type: ignore[attr-defined]
+            self._remove_listener = self._robot.add_listener(self.on_sip)
         try:
             while True:
                 self.step()
@@ -115,21 +163,21 @@ class ControlLoop:
 
     def inputs(self, now: float) -> ControlInputs:
         robot, scanner, st = self._robot, self._scanner, self._state
-        sip = getattr(robot, "last_sip", None) if robot is not None else None
+        sip = robot.last_sip if robot is not None else None
         sip_age = None if sip is None else now - sip.t
-        if robot is not None and getattr(robot, "stale", False) and sip_age is not None:
+        if robot is not None and robot.stale and sip_age is not None:
             sip_age = max(sip_age, self._params.sip_timeout_s + 1e-6)
         heading = None if sip is None else sip.theta_deg
-        ranges = list(robot.sonar.ranges_mm) if robot is not None else [None] * 16  # type: ignore[attr-defined]
+        ranges = list(robot.sonar.ranges_mm) if robot is not None else [None] * 16
         bearing = prev = None
         lost = False
         servo_ok = True
         if scanner is not None:
-            servo_ok = bool(scanner.servo_ok)  # type: ignore[attr-defined]
-            lost = bool(scanner.leader_lost)  # type: ignore[attr-defined]
-            bearing = _in_current_frame(scanner.bearing_deg, scanner.bearing_heading_deg, heading)  # type: ignore[attr-defined]
-            prev = _in_current_frame(scanner.prev_bearing_deg, scanner.prev_heading_deg, heading)  # type: ignore[attr-defined]
-        rssi_age = self._monitor.age_s(now) if self._monitor is not None else None  # type: ignore[attr-defined]
+            servo_ok = scanner.servo_ok
+            lost = scanner.leader_lost
+            bearing = _in_current_frame(scanner.bearing_deg, scanner.bearing_heading_deg, heading)
+            prev = _in_current_frame(scanner.prev_bearing_deg, scanner.prev_heading_deg, heading)
+        rssi_age = self._monitor.age_s(now) if self._monitor is not None else None
         rssi_b, rear_t = self._rear()
         manual_l = manual_r = manual_age = None
         if self._manual is not None:
@@ -177,9 +225,9 @@ class ControlLoop:
                 # The urgent stop goes out on the transition to zero; while stopped, the
                 # driver keeps reflecting zero (PULSE), so the serial line is not flooded.
                 if prev is None or prev.left_mm_s != 0.0 or prev.right_mm_s != 0.0:
-                    robot.stop()  # type: ignore[attr-defined]
+                    robot.stop()
             else:
-                robot.set_wheels(out.left_mm_s, out.right_mm_s)  # type: ignore[attr-defined]
+                robot.set_wheels(out.left_mm_s, out.right_mm_s)
         self.last_output = out
         st.loop_tick_t = now
         st.wheels_left_mm_s = out.left_mm_s
