@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Iterator
+from typing import TypeGuard
 
 from prometheus_client import CollectorRegistry, Counter, Histogram
 from prometheus_client.core import (
@@ -38,7 +39,7 @@ CONTROL_LATENCY_BUCKETS_S = (
 SCAN_PERIOD_BUCKETS_S = (0.25, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 20.0)
 
 
-def _finite(value: float | None) -> bool:
+def _finite(value: float | None) -> TypeGuard[float]:
     return value is not None and math.isfinite(value)
 
 
@@ -84,17 +85,17 @@ class _StateCollector(Collector):
                                     "Leader bearing, robot frame, counter-clockwise positive",
                                     labels=["antenna"])
         if _finite(st.bearing_deg):
-            bearing.add_metric(["scan"], st.bearing_deg)  # type: ignore[arg-type]
+            bearing.add_metric(["scan"], st.bearing_deg)
         if _finite(st.link_bearing_deg):
-            bearing.add_metric(["link"], st.link_bearing_deg)  # type: ignore[arg-type]
+            bearing.add_metric(["link"], st.link_bearing_deg)
         yield bearing
 
         rssi = GaugeMetricFamily("relayd_rssi_dbm", "Best RSSI of the last scan (leader) and RSSI of the node behind",
                                  labels=["peer"])
         if _finite(st.rssi_leader_dbm):
-            rssi.add_metric(["leader"], st.rssi_leader_dbm)  # type: ignore[arg-type]
+            rssi.add_metric(["leader"], st.rssi_leader_dbm)
         if _finite(st.rssi_behind_dbm):
-            rssi.add_metric(["behind"], st.rssi_behind_dbm)  # type: ignore[arg-type]
+            rssi.add_metric(["behind"], st.rssi_behind_dbm)
         yield rssi
 
         thresholds = GaugeMetricFamily("relayd_rssi_threshold_dbm", "Configured stop thresholds",
@@ -102,7 +103,7 @@ class _StateCollector(Collector):
         for key, peer in (("threshold_l_dbm", "leader"), ("threshold_b_dbm", "behind")):
             value = st.thresholds.get(key)
             if _finite(value):
-                thresholds.add_metric([peer], float(value))  # type: ignore[arg-type]
+                thresholds.add_metric([peer], float(value))
         yield thresholds
 
         wheels = GaugeMetricFamily("relayd_wheel_speed_meters_per_second", "Commanded wheel speed",
@@ -131,13 +132,13 @@ class _StateCollector(Collector):
                                  labels=["link", "direction"])
         for name, link in st.links.items():
             if _finite(link.signal_dbm):
-                signal.add_metric([name], link.signal_dbm)  # type: ignore[arg-type]
+                signal.add_metric([name], link.signal_dbm)
             if _finite(link.ccq_pct):
-                ccq.add_metric([name], link.ccq_pct / 100.0)  # type: ignore[operator]
+                ccq.add_metric([name], link.ccq_pct / 100.0)
             if _finite(link.tx_mbps):
-                rate.add_metric([name, "tx"], link.tx_mbps * 1e6)  # type: ignore[operator]
+                rate.add_metric([name, "tx"], link.tx_mbps * 1e6)
             if _finite(link.rx_mbps):
-                rate.add_metric([name, "rx"], link.rx_mbps * 1e6)  # type: ignore[operator]
+                rate.add_metric([name, "rx"], link.rx_mbps * 1e6)
         yield signal
         yield ccq
         yield rate
