@@ -6,13 +6,13 @@ from __future__ import annotations
 import asyncio
 import ssl
 import warnings
-from collections.abc import Callable
 from pathlib import Path
 
 import aiohttp
 import pytest
 from pydantic import SecretStr
 from structlog.testing import capture_logs
+from support import until
 
 from drivers.airos import (
     AirOsAuthError,
@@ -85,13 +85,6 @@ w1nMTDVGeBXH05TZBWKk4QkI+sFLTisWSx/i/g5HRkJAm0xcvW/BlwfTqz+GnyDz
 +tWXNWvBt0vzwZyN7XMSJhFv
 -----END PRIVATE KEY-----
 """
-
-
-async def until(cond: Callable[[], bool], timeout_s: float = 5.0) -> None:
-    """Wait (wall time) for a condition the poller/fake reach by themselves."""
-    async with asyncio.timeout(timeout_s):
-        while not cond():
-            await asyncio.sleep(0.005)
 
 
 @pytest.fixture

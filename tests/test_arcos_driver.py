@@ -5,9 +5,10 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator
 
 import pytest
+from support import until
 
 from drivers.arcos import ArcosRobot, FakeRobot, HandshakeError
 from drivers.arcos.codec import CLOSE, Command, encode_command, encode_packet, vel2_arg
@@ -17,12 +18,6 @@ from drivers.clock import Clock
 from drivers.link import LinkError, open_link
 
 SPEED = 10.0
-
-
-async def until(cond: Callable[[], object], wall_s: float = 3.0) -> None:
-    async with asyncio.timeout(wall_s):
-        while not cond():
-            await asyncio.sleep(0.005)
 
 
 @contextlib.asynccontextmanager
@@ -147,7 +142,7 @@ async def test_fake_watchdog_stops_an_unattended_robot(clock: Clock) -> None:
         await until(lambda: fake.vel_mm_s == 200)
         await asyncio.sleep(1.5 / SPEED)
         assert fake.vel_mm_s == 200
-        await until(lambda: fake.vel_mm_s == 0, wall_s=2.0 / SPEED + 1)
+        await until(lambda: fake.vel_mm_s == 0, timeout_s=2.0 / SPEED + 1)
         assert fake._watchdog_tripped
     finally:
         transport.close()
@@ -170,7 +165,7 @@ async def test_reconnect_after_hang_up(kind: str, clock: Clock, tmp_path) -> Non
             await asyncio.sleep(1.0 / SPEED)
             assert not robot.connected  # nothing to connect to while hung up
             fake.reappear()
-            await until(lambda: robot.connected and not robot.stale, wall_s=5)
+            await until(lambda: robot.connected and not robot.stale, timeout_s=5)
             assert robot.counters["reconnects"] == 1
             # the wish survives: motors re-enabled and the wheels commanded again
             await until(lambda: fake.motors_enabled and fake.target_vel_mm_s == 100)
@@ -206,7 +201,7 @@ async def test_odometry_scale_per_subclass(subclass: str, override: str | None, 
         async with running(robot):
             await until(lambda: robot.connected and robot.last_sip is not None)
             robot.set_wheels(500, 500)
-            await until(lambda: fake.odometry_mm_deg[0] > 1000, wall_s=5)
+            await until(lambda: fake.odometry_mm_deg[0] > 1000, timeout_s=5)
             robot.stop()
             await until(lambda: robot.last_sip is not None and not robot.last_sip.moving)
             await asyncio.sleep(0.3 / SPEED)
@@ -233,7 +228,7 @@ async def test_stale_after_silence_then_session_dropped_and_recovered(clock: Clo
             await until(lambda: not robot.connected)
             assert "no SIP" in (robot.last_error or "")
             fake.silent = False
-            await until(lambda: robot.connected and not robot.stale, wall_s=5)
+            await until(lambda: robot.connected and not robot.stale, timeout_s=5)
     finally:
         await fake.stop()
 
@@ -247,7 +242,7 @@ async def test_controller_reset_packet_ends_session(clock: Clock) -> None:
             await until(lambda: robot.connected and robot.last_sip is not None)
             fake._emit(encode_packet(0xFF))
             await until(lambda: "controller reset" in (robot.last_error or ""))
-            await until(lambda: robot.connected and robot.counters["reconnects"] == 1, wall_s=5)
+            await until(lambda: robot.connected and robot.counters["reconnects"] == 1, timeout_s=5)
     finally:
         await fake.stop()
 
@@ -259,7 +254,7 @@ async def test_adversarial_stream_split_garbage_corruption(clock: Clock) -> None
     robot = ArcosRobot(fake.serve_pty(), clock=clock)
     try:
         async with running(robot):
-            await until(lambda: robot.connected and robot.last_sip is not None, wall_s=5)
+            await until(lambda: robot.connected and robot.last_sip is not None, timeout_s=5)
             fake.corrupt_rate = 0.3
             n0 = robot.counters["sips"]
             await asyncio.sleep(3.0 / SPEED)
@@ -281,7 +276,7 @@ async def test_safe_stop_on_cancel(clock: Clock) -> None:
             robot.set_wheels(200, 250)
             await until(lambda: fake.vel_mm_s > 0)
         # the context manager cancelled run(); the safe stop happened before the port closed
-        await until(lambda: (CLOSE, 1) in fake.commands, wall_s=1)
+        await until(lambda: (CLOSE, 1) in fake.commands, timeout_s=1)
         tail = fake.commands[-4:]
         assert tail == [(Command.VEL, 0), (Command.RVEL, 0), (Command.ENABLE, 0), (CLOSE, 1)]
         assert not fake.opened and not fake.motors_enabled
@@ -318,7 +313,7 @@ async def test_stop_jumps_the_queue(clock: Clock) -> None:
             await until(lambda: fake.vel_mm_s == 400)
             robot.enable_motors(True)  # queue some normal traffic
             robot.stop()
-            await until(lambda: fake.target_vel_mm_s == 0, wall_s=1)
+            await until(lambda: fake.target_vel_mm_s == 0, timeout_s=1)
             assert robot.wheels_wish == (0.0, 0.0)
     finally:
         await fake.stop()
@@ -373,7 +368,7 @@ async def test_motion_guard_rejection_sets_stall_bits(clock: Clock) -> None:
             # the driver's origin is its first SIP (as ARIA's): wait for it before moving
             await until(lambda: robot.connected and robot.last_sip is not None)
             robot.set_wheels(400, 400)
-            await until(lambda: robot.last_sip is not None and robot.last_sip.stall_left, wall_s=3)
+            await until(lambda: robot.last_sip is not None and robot.last_sip.stall_left, timeout_s=3)
             # it creeps up to the wall (within 1/32 of a 40 mm step), stalled all the way
             await until(lambda: robot.last_sip is not None and robot.last_sip.x_mm > 298)
             await asyncio.sleep(0.3 / SPEED)  # and keeps pushing against it

@@ -77,6 +77,12 @@ def test_estimator_benchmark_figures() -> None:
     assert abs(errs[(0.0, 0.0)]) < 0.5  # symmetric: no bias straight ahead
     assert abs(errs[(20.0, 45.0)]) < 2.0  # converged from another start
     assert errs[(60.0, 0.0)] < -1.0  # the WCA pulls towards the window's centre
+    # Turning toward its estimate, the relay removes that pull: within 5 deg even at the edge.
+    from relayd.sim.radio import Radio, RadioParams
+
+    radio = Radio(RadioParams.outdoor(fading=False, shadow_sigma_db=0.0), [], seed=0)
+    for leader, start in ((90.0, -90.0), (-75.0, 0.0), (60.0, 0.0)):
+        assert abs(bench_estimator.closed_loop_error(radio, leader, start)) < 5.0, (leader, start)
     noisy = bench_estimator.noisy([0.0, 30.0], seeds=3)
     assert len(noisy) == 6 and all(math.isfinite(e) and abs(e) < 60.0 for e in noisy)
     assert any(abs(e) > 1e-6 for e in noisy)  # the noise really reaches the estimate

@@ -16,11 +16,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
 
 import pytest
+from support import running, until
 
 from relayd.config import parse_settings
 from relayd.daemon import Daemon, control_params
@@ -60,15 +61,6 @@ class Transitions:
             await self._task
 
 
-async def until(pred: Callable[[], bool], what: str, timeout_s: float = TIMEOUT_S) -> None:
-    try:
-        async with asyncio.timeout(timeout_s):
-            while not pred():
-                await asyncio.sleep(0.01)
-    except TimeoutError:
-        raise AssertionError(f"timed out after {timeout_s} s waiting for: {what}") from None
-
-
 def leader_at(rig: FakeRig, bearing_deg: float, distance_m: float) -> tuple[float, float]:
     """A floor point at `bearing_deg` (robot frame, ccw +) and `distance_m` from the robot now."""
     r = rig.robot
@@ -91,21 +83,12 @@ async def relay(tmp_path: Path, *, leader_deg: float = 0.0, distance_m: float = 
                 pantilt: dict[str, Any] | None = None) -> AsyncIterator[tuple[FakeRig, Daemon]]:
     a = math.radians(leader_deg)
     rig = FakeRig(tmp_path, leader_xy_m=(distance_m * math.cos(a), distance_m * math.sin(a)))
-    await rig.start()
-    daemon: Daemon | None = None
-    task: asyncio.Task[None] | None = None
-    try:
+    async with rig:
         settings = parse_settings(rig.config_doc(scan={**SCAN, **(scan or {})}, control=control,
                                                  pantilt={**PANTILT, **(pantilt or {})}))
         daemon = Daemon(settings, env=rig.env)
-        task = asyncio.create_task(daemon.run())
-        yield rig, daemon
-    finally:
-        if task is not None:
-            task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
-        await rig.stop()
+        async with running(daemon):
+            yield rig, daemon
 
 
 async def driving(rig: FakeRig, daemon: Daemon) -> None:

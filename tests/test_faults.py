@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 import aiohttp
+from support import until
 
 from drivers.clock import REAL_CLOCK
 from drivers.link import port_missing, wait_before_retry
@@ -81,17 +82,6 @@ class Run:
         assert not self.task.done(), self.task
         sup = self.daemon.supervisor
         assert {n: sup.restarts(n) for n in sup.names} == dict.fromkeys(sup.names, 0)
-
-
-async def until(pred: Callable[[], bool], what: str, timeout_s: float = 10.0) -> float:
-    """Poll `pred` every 5 ms; returns the wall time (monotonic) it became true."""
-    try:
-        async with asyncio.timeout(timeout_s):
-            while not pred():
-                await asyncio.sleep(0.005)
-    except TimeoutError:
-        raise AssertionError(f"timed out after {timeout_s} s waiting for {what}") from None
-    return time.monotonic()
 
 
 def zero(s: Step) -> bool:

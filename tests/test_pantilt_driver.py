@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import asyncio
 import os
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from support import until
 
 from drivers.backoff import Backoff
 from drivers.clock import Clock
@@ -30,12 +31,6 @@ class Rig:
     pt: PanTilt
     task: asyncio.Task[None]
     tol: float
-
-
-async def until(pred: Callable[[], bool], timeout_s: float = 5.0) -> None:
-    async with asyncio.timeout(timeout_s):
-        while not pred():
-            await asyncio.sleep(0.005)
 
 
 async def flush(pt: PanTilt) -> None:

@@ -17,10 +17,11 @@ import re
 import signal
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 import pytest
+from support import until
 
 from drivers.arcos.codec import CLOSE, Command
 from relayd.fakes.rig import AP_PASSWORD_ENV, FakeRig, dump_toml
@@ -92,15 +93,6 @@ def clean_env() -> dict[str, str]:
     env = {k: v for k, v in os.environ.items() if not k.startswith("RELAYD_")}
     env["PYTHONUNBUFFERED"] = "1"
     return env
-
-
-async def until(pred: Callable[[], bool], what: str, timeout_s: float = 30.0, poll_s: float = 0.01) -> None:
-    try:
-        async with asyncio.timeout(timeout_s):
-            while not pred():
-                await asyncio.sleep(poll_s)
-    except TimeoutError:
-        raise AssertionError(f"timed out after {timeout_s} s waiting for: {what}") from None
 
 
 def find_stop_sequence(commands: Sequence[tuple[int, object]]) -> tuple[int, int, int] | None:

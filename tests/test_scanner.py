@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
+from support import until
 
 from drivers.backoff import Backoff
 from drivers.clock import REAL_CLOCK, Clock
@@ -127,12 +128,6 @@ class Bench:
     state: RelayState
     scanner: Scanner
     heading: list[float] = field(default_factory=lambda: [0.0])
-
-
-async def until(pred: Callable[[], bool], timeout_s: float = 10.0) -> None:
-    async with asyncio.timeout(timeout_s):
-        while not pred():
-            await asyncio.sleep(0.005)
 
 
 @contextlib.asynccontextmanager

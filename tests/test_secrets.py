@@ -25,6 +25,7 @@ from typing import Any
 
 import aiohttp
 import structlog
+from support import until
 
 from relayd.config import load_settings
 from relayd.daemon import Daemon
@@ -56,15 +57,6 @@ def captured_logs() -> Iterator[io.StringIO]:
         structlog.configure(**old_structlog)
         root.handlers[:] = old_handlers
         root.setLevel(old_level)
-
-
-async def until(pred: Any, what: str, timeout_s: float = 20.0) -> None:
-    try:
-        async with asyncio.timeout(timeout_s):
-            while not pred():
-                await asyncio.sleep(0.02)
-    except TimeoutError:
-        raise AssertionError(f"timed out after {timeout_s} s waiting for {what}") from None
 
 
 async def _exchange(session: aiohttp.ClientSession, method: str, url: str,
