@@ -132,6 +132,8 @@ class Daemon:
                                     subclass_override=s.robot.subclass,
                                     lost_after_s=s.robot.lost_after_s, enable_motors=True)
             self.robot.add_listener(self._on_sip)
+            # SPEC 6's control latency: SIP bytes in to the wheel command it caused written.
+            self.robot.on_command_latency = self.metrics.observe_control_latency
             self.supervisor.add("robot", self.robot.run, device="robot")
         if s.pantilt.enabled:
             from drivers.pantilt import ServoCalibration, make_pantilt
@@ -181,7 +183,7 @@ class Daemon:
         self.control = ControlLoop(
             robot=self.robot, scanner=self.scanner, monitor=self.monitor, state=state,
             params=control_params(s), clock=clock, rear_rssi=self._rear_rssi,
-            on_latency=self.metrics.observe_control_latency,
+            on_latency=self.metrics.observe_control_step,
         )
         self.supervisor.add("control", self.control.run)
         self.supervisor.add("health", self._health_loop)

@@ -177,6 +177,12 @@ class Metrics:
             buckets=CONTROL_LATENCY_BUCKETS_S,
             registry=self.registry,
         )
+        self._control_step = Histogram(
+            "relayd_control_step_seconds",
+            "Controller evaluation on one SIP (inputs gathered, control law, command queued)",
+            buckets=CONTROL_LATENCY_BUCKETS_S,
+            registry=self.registry,
+        )
         self._scan_period = Histogram(
             "relayd_scan_period_seconds",
             "Duration of one scan (servo sweep with RSSI samples)",
@@ -192,6 +198,10 @@ class Metrics:
     def observe_control_latency(self, seconds: float) -> None:
         if math.isfinite(seconds) and seconds >= 0:
             self._control_latency.observe(seconds)
+
+    def observe_control_step(self, seconds: float) -> None:
+        if math.isfinite(seconds) and seconds >= 0:
+            self._control_step.observe(seconds)
 
     def observe_scan_period(self, seconds: float) -> None:
         if math.isfinite(seconds) and seconds >= 0:

@@ -406,3 +406,38 @@ async def test_fake_vel2_estop_seto_and_disable() -> None:
     assert fake.vel_mm_s == 0 and not fake.build_sip().moving
     fake._handle(CLOSE, None)
     assert not fake.opened
+
+
+async def test_control_latency_is_measured_from_the_sip_to_the_command_it_caused(clock: Clock) -> None:
+    """A wheel command set inside a SIP listener is timed from that SIP's bytes to its write."""
+    fake = FakeRobot(clock=clock)
+    url = fake.serve_pty()
+    robot = ArcosRobot(url, clock=clock, enable_motors=True)
+    latencies: list[float] = []
+    robot.on_command_latency = latencies.append
+    speeds = iter(range(100, 10_000, 10))
+    last: list[int] = []
+
+    def on_sip(_sip: Sip) -> None:
+        last.append(next(speeds))
+        robot.set_wheels(last[-1], last[-1])  # a new command on every SIP
+
+    try:
+        async with running(robot):
+            await until(lambda: robot.connected and robot.last_sip is not None)
+            # Outside a SIP callback a new command is not a control-latency sample.
+            robot.set_wheels(50, 50)
+            await until(lambda: fake.target_vel_mm_s == 50)
+            assert latencies == []
+            remove = robot.add_listener(on_sip)
+            await until(lambda: len(latencies) >= 5)
+            remove()
+            await until(lambda: fake.target_vel_mm_s == last[-1])  # the last one is written
+            # One sample per SIP-caused command, each a real, small, positive duration.
+            assert all(0.0 < s < 0.5 for s in latencies), latencies
+            n = len(latencies)
+            robot.set_wheels(60, 60)  # again outside a SIP: no new sample
+            await until(lambda: fake.target_vel_mm_s == 60)
+            assert len(latencies) == n
+    finally:
+        await fake.stop()

@@ -46,6 +46,10 @@ async def test_live_benchmarks_return_sane_figures() -> None:
         assert all(0.0 < x < 1000.0 for x in run["first_ms"]), run["first_ms"]
         # The RVEL goes out at least the driver's 5 ms command spacing after the VEL.
         assert percentile(run["pair_ms"], 50) >= percentile(run["first_ms"], 50) + 4.0, run
+        # relayd's own histogram counted the SIP-caused commands of the same cycles.
+        inside = run["in_relayd"]
+        assert 15 <= inside["count"] <= 40, inside
+        assert 0.0 <= inside["within_target"] <= 1.0 and inside["p99_le_ms"] > 0, inside
     assert lat["load"]["rps"] > 50 and lat["load"]["errors"] == 0, lat["load"]
     assert lat["final_state"] == "avoiding"
 
@@ -86,6 +90,16 @@ def test_estimator_benchmark_figures() -> None:
     noisy = bench_estimator.noisy([0.0, 30.0], seeds=3)
     assert len(noisy) == 6 and all(math.isfinite(e) and abs(e) < 60.0 for e in noisy)
     assert any(abs(e) > 1e-6 for e in noisy)  # the noise really reaches the estimate
+
+
+def test_in_relayd_latency_from_histogram_snapshots() -> None:
+    inf = float("inf")
+    before = {0.001: 10.0, 0.002: 10.0, 0.005: 10.0, inf: 10.0}
+    after = {0.001: 60.0, 0.002: 108.0, 0.005: 110.0, inf: 110.0}
+    fig = bench_latency.in_relayd(before, after)
+    assert fig["count"] == 100 and fig["within_target"] == pytest.approx(0.98)
+    assert fig["p50_le_ms"] == 1.0 and fig["p99_le_ms"] == 5.0
+    assert bench_latency.in_relayd(after, after)["count"] == 0
 
 
 def test_scan_minimum_and_theorem1() -> None:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
+import time
 from collections import deque
 from collections.abc import Callable
 
@@ -51,6 +52,9 @@ from drivers.clock import REAL_CLOCK, Clock
 from drivers.link import LinkError, open_link, set_baudrate, wait_before_retry
 
 log = structlog.get_logger(__name__)
+
+#: Command numbers whose write ends a control-latency measurement.
+MOTION_COMMANDS = frozenset({int(Command.VEL), int(Command.RVEL), int(Command.VEL2)})
 
 #: The robot may lose commands closer than 3-5 ms apart (AROS manual; doc pitfall 16).
 CMD_SPACING_S = 0.005
@@ -123,6 +127,13 @@ class ArcosRobot:
         self._motors_wish = enable_motors
         self._wheels: tuple[float, float] = (0.0, 0.0)
         self._listeners: list[Listener] = []
+        #: Called with the seconds from a SIP's bytes arriving to the wheel command it
+        #: caused being written (SPEC 6's control latency), measured on the host's
+        #: performance counter, not the clock: it is real time even in the simulator.
+        self.on_command_latency: Callable[[float], None] | None = None
+        self._rx_perf = 0.0
+        self._in_sip: float | None = None  # rx time of the SIP whose listeners are running
+        self._latency_t0: float | None = None  # rx time of the SIP behind the pending command
         self._decoder = Decoder()
         self._stats = {"bytes_tx": 0, "sips": 0, "reconnects": 0, "old_sessions": 0,
                        "handshake_failures": 0, "link_errors": 0, "bad_sips": 0,
@@ -178,11 +189,20 @@ class ArcosRobot:
         """Wish for these wheel speeds; reflected as VEL + RVEL within one tick."""
         if not (math.isfinite(left_mm_s) and math.isfinite(right_mm_s)):
             raise ValueError(f"wheel speeds must be finite, got {left_mm_s!r}, {right_mm_s!r}")
-        self._wheels = (float(left_mm_s), float(right_mm_s))
+        wish = (float(left_mm_s), float(right_mm_s))
+        if wish != self._wheels and self._in_sip is not None:
+            self._latency_t0 = self._in_sip
+        self._wheels = wish
+        if self._opened:
+            # Queue the command now rather than on the tick task's next turn: a wheel
+            # command follows the SIP that caused it with as little delay as possible.
+            self._reflect(self.clock.now())
         self._wake.set()
 
     def stop(self) -> None:
         """Wheels to zero now: VEL 0 + RVEL 0 ahead of anything queued."""
+        if self._wheels != (0.0, 0.0) and self._in_sip is not None:
+            self._latency_t0 = self._in_sip
         self._wheels = (0.0, 0.0)
         self._normal = deque(item for item in self._normal
                              if item[0] not in (Command.VEL, Command.RVEL, Command.VEL2))
@@ -459,6 +479,10 @@ class ArcosRobot:
         if tr is None or tr.is_closing():
             return
         tr.write(data)
+        if self._latency_t0 is not None and len(data) > 3 and data[3] in MOTION_COMMANDS:
+            latency_s, self._latency_t0 = time.perf_counter() - self._latency_t0, None
+            if self.on_command_latency is not None:
+                self.on_command_latency(latency_s)
         self._stats["bytes_tx"] += len(data)
         self._any_tx_t = self.clock.now()
 
@@ -476,6 +500,7 @@ class ArcosRobot:
         return self._rxq.popleft()
 
     def _on_bytes(self, data: bytes) -> None:
+        self._rx_perf = time.perf_counter()
         for pkt in self._decoder.feed(data):
             try:
                 self._on_packet(pkt)
@@ -512,12 +537,16 @@ class ArcosRobot:
             log.info("robot_fresh", url=self.url)
         self.stale = False
         self._stats["sips"] += 1
-        for cb in tuple(self._listeners):
-            try:
-                cb(sip)
-            except Exception:  # a listener bug must not stop odometry
-                self._stats["listener_errors"] += 1
-                log.exception("robot_listener_error")
+        self._in_sip = self._rx_perf
+        try:
+            for cb in tuple(self._listeners):
+                try:
+                    cb(sip)
+                except Exception:  # a listener bug must not stop odometry
+                    self._stats["listener_errors"] += 1
+                    log.exception("robot_listener_error")
+        finally:
+            self._in_sip = None
 
     def _on_link_lost(self, exc: Exception | None) -> None:
         self._port_closed.set()
