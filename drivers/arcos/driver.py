@@ -156,6 +156,8 @@ class ArcosRobot:
         self._sent_motion: tuple[int, int] | None = None
         self._motion_t = -math.inf
         self._any_tx_t = -math.inf
+        self._last_write_t = -math.inf  # clock time of the last write, for command spacing
+        self._tx_idle = False  # the tx task is parked waiting for work
         self._closing = False
         self._closed = asyncio.Event()
         self._fail_streak = 0
@@ -194,9 +196,11 @@ class ArcosRobot:
             self._latency_t0 = self._in_sip
         self._wheels = wish
         if self._opened:
-            # Queue the command now rather than on the tick task's next turn: a wheel
-            # command follows the SIP that caused it with as little delay as possible.
+            # Queue the command now rather than on the tick task's next turn, and write
+            # it at once if the line is free: a wheel command follows the SIP that
+            # caused it with as little delay as possible.
             self._reflect(self.clock.now())
+            self._flush_now()
         self._wake.set()
 
     def stop(self) -> None:
@@ -212,6 +216,7 @@ class ArcosRobot:
             # caller that asserts "stopped" on every tick cannot grow the queue.
             if not (vel0 in self._urgent and rvel0 in self._urgent):
                 self._queue_urgent(vel0, rvel0)
+                self._flush_now()
             self._sent_motion = (0, 0)
             self._motion_t = self.clock.now()
 
@@ -221,6 +226,7 @@ class ArcosRobot:
         self._normal.clear()
         if self._opened:
             self._queue_urgent(encode_command(Command.E_STOP))
+            self._flush_now()
             self._sent_motion = (0, 0)
             self._motion_t = self.clock.now()
 
@@ -246,6 +252,7 @@ class ArcosRobot:
         self._decoder.reset()
         self._urgent.clear()
         self._normal.clear()
+        self._tx_idle = False
         transport, _ = await open_link(self.url, self.baud, lambda: _Link(self))
         self._transport = transport
         self.current_baud = self.baud
@@ -428,11 +435,35 @@ class ArcosRobot:
     async def _tx_loop(self) -> None:
         while True:
             while not (self._urgent or self._normal):
+                self._tx_idle = True
                 self._tx_event.clear()
                 await self._tx_event.wait()
+            self._tx_idle = False
+            # Commands are spaced as the ARCOS manual asks, counting one written
+            # directly by _flush_now too.
+            wait_s = self._last_write_t + CMD_SPACING_S - self.clock.now()
+            if wait_s > 0:
+                await self.clock.sleep(wait_s)
+                continue
             data = self._urgent.popleft() if self._urgent else self._normal.popleft()[1]
             self._write(data)
-            await self.clock.sleep(CMD_SPACING_S)
+
+    def _flush_now(self) -> None:
+        """Write the head of the queue at once if the line is free.
+
+        A wheel command caused by a SIP, or a stop, goes out from the caller's stack
+        instead of waiting for the tx task's next turn behind whatever else the event
+        loop has ready (HTTP requests under load): that wait was most of the control
+        latency's tail.
+        """
+        if not (self._tx_idle and self._opened):
+            return
+        if self.clock.now() - self._last_write_t < CMD_SPACING_S:
+            return
+        if self._urgent:
+            self._write(self._urgent.popleft())
+        elif self._normal:
+            self._write(self._normal.popleft()[1])
 
     async def _tick_loop(self) -> None:
         tick = min(0.05, self.lost_after_s / 5.0)
@@ -479,6 +510,7 @@ class ArcosRobot:
         if tr is None or tr.is_closing():
             return
         tr.write(data)
+        self._last_write_t = self.clock.now()
         if self._latency_t0 is not None and len(data) > 3 and data[3] in MOTION_COMMANDS:
             latency_s, self._latency_t0 = time.perf_counter() - self._latency_t0, None
             if self.on_command_latency is not None:
