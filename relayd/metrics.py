@@ -33,7 +33,8 @@ from relayd.state import DriveState, Mode, RelayState
 
 #: SIP received -> wheel command written: sub-millisecond on a healthy loop, 2 ms is the target p99.
 CONTROL_LATENCY_BUCKETS_S = (
-    0.0001, 0.00025, 0.0005, 0.001, 0.002, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25,
+    0.0001, 0.00025, 0.0005, 0.00075, 0.001, 0.0015, 0.002, 0.003, 0.005, 0.01, 0.025, 0.05,
+    0.1, 0.25,
 )
 #: A 25-step sweep at 180 deg/s with a 20 Hz RSSI source takes a couple of seconds.
 SCAN_PERIOD_BUCKETS_S = (0.25, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 20.0)
