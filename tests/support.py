@@ -9,11 +9,14 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import time
-from collections.abc import AsyncIterator, Callable
-from typing import TYPE_CHECKING
+from collections.abc import AsyncIterator, Awaitable, Callable
+from typing import Protocol
 
-if TYPE_CHECKING:
-    from relayd.daemon import Daemon
+
+class Runs(Protocol):
+    """A daemon or driver whose `run()` goes on until cancelled."""
+
+    def run(self) -> Awaitable[None]: ...
 
 
 async def until(pred: Callable[[], object], what: str = "the condition", timeout_s: float = 30.0,
@@ -32,12 +35,34 @@ async def until(pred: Callable[[], object], what: str = "the condition", timeout
 
 
 @contextlib.asynccontextmanager
-async def running(daemon: Daemon) -> AsyncIterator[asyncio.Task[None]]:
-    """Run `daemon` in a task for the block; cancel it (its safe shutdown) afterwards."""
-    task = asyncio.create_task(daemon.run(), name="daemon")
+async def running(runner: Runs) -> AsyncIterator[asyncio.Task[None]]:
+    """Run `runner.run()` in a task for the block; cancel it (its safe shutdown) afterwards."""
+
+    async def run() -> None:
+        await runner.run()
+
+    task = asyncio.create_task(run(), name=f"{type(runner).__name__}.run")
     try:
         yield task
     finally:
         task.cancel()
         with contextlib.suppress(asyncio.CancelledError):
             await task
+
+
+def parse_unit(text: str) -> dict[str, dict[str, list[str]]]:
+    """A systemd unit file as {section: {key: [values in order]}}; asserts its shape."""
+    sections: dict[str, dict[str, list[str]]] = {}
+    current: dict[str, list[str]] | None = None
+    for raw in text.splitlines():
+        line = raw.strip()
+        if not line or line.startswith(("#", ";")):
+            continue
+        if line.startswith("[") and line.endswith("]"):
+            current = sections.setdefault(line[1:-1], {})
+            continue
+        assert current is not None, f"directive outside a section: {line}"
+        key, sep, value = line.partition("=")
+        assert sep, f"not a key=value line: {line}"
+        current.setdefault(key.strip(), []).append(value.strip())
+    return sections

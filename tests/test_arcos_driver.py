@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import math
-from collections.abc import AsyncIterator
 
 import pytest
-from support import until
+from support import running, until
 
 from drivers.arcos import ArcosRobot, FakeRobot, HandshakeError
 from drivers.arcos.codec import CLOSE, Command, encode_command, encode_packet, vel2_arg
@@ -18,17 +16,6 @@ from drivers.clock import Clock
 from drivers.link import LinkError, open_link
 
 SPEED = 10.0
-
-
-@contextlib.asynccontextmanager
-async def running(robot: ArcosRobot) -> AsyncIterator[asyncio.Task[None]]:
-    task = asyncio.create_task(robot.run())
-    try:
-        yield task
-    finally:
-        task.cancel()
-        with contextlib.suppress(asyncio.CancelledError):
-            await task
 
 
 @pytest.fixture

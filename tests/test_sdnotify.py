@@ -12,6 +12,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from support import parse_unit
 
 from relayd.sdnotify import SdNotifier
 
@@ -98,25 +99,8 @@ def test_unreachable_socket_is_counted_not_raised(tmp_path: Path) -> None:
 
 # --- systemd unit ------------------------------------------------------------------------
 
-def _parse_unit(text: str) -> dict[str, dict[str, list[str]]]:
-    sections: dict[str, dict[str, list[str]]] = {}
-    current: dict[str, list[str]] | None = None
-    for raw in text.splitlines():
-        line = raw.strip()
-        if not line or line.startswith(("#", ";")):
-            continue
-        if line.startswith("[") and line.endswith("]"):
-            current = sections.setdefault(line[1:-1], {})
-            continue
-        assert current is not None, f"directive outside a section: {line}"
-        key, sep, value = line.partition("=")
-        assert sep, f"not a key=value line: {line}"
-        current.setdefault(key.strip(), []).append(value.strip())
-    return sections
-
-
 def test_unit_file_directives() -> None:
-    unit = _parse_unit((ROOT / "systemd" / "relayd.service").read_text())
+    unit = parse_unit((ROOT / "systemd" / "relayd.service").read_text())
     svc = unit["Service"]
 
     def one(key: str) -> str:

@@ -37,6 +37,7 @@ from typing import Any
 
 import pytest
 from aiohttp import ClientSession
+from support import parse_unit
 
 from relayd.cli import build_parser
 from relayd.config import parse_settings
@@ -49,20 +50,7 @@ UNIT = ROOT / "systemd" / "relayd.service"
 
 
 def _unit() -> dict[str, dict[str, list[str]]]:
-    sections: dict[str, dict[str, list[str]]] = {}
-    current: dict[str, list[str]] | None = None
-    for raw in UNIT.read_text().splitlines():
-        line = raw.strip()
-        if not line or line.startswith(("#", ";")):
-            continue
-        if line.startswith("[") and line.endswith("]"):
-            current = sections.setdefault(line[1:-1], {})
-            continue
-        assert current is not None, f"directive outside a section: {line}"
-        key, sep, value = line.partition("=")
-        assert sep, f"not a key=value line: {line}"
-        current.setdefault(key.strip(), []).append(value.strip())
-    return sections
+    return parse_unit(UNIT.read_text())
 
 
 def _service(key: str) -> str:
