@@ -158,22 +158,27 @@ async def test_run_drives_and_sigterm_zeroes_wheels_disables_and_closes(tmp_path
         assert complaints == [], complaints
 
 
+async def refused(rig: FakeRig, config: Path, env: dict[str, str] | None = None) -> str:
+    """Run `relayd run -c config`; assert it exits 2 without touching a device; its output."""
+    relayd = await Relayd.start("run", "-c", str(config), env=env)
+    try:
+        code = await relayd.wait(30)
+    finally:
+        await relayd.kill()
+    assert code == 2, relayd.output()
+    await asyncio.sleep(0.2)  # anything written to the ptys has been read by now
+    assert rig.robot.commands == [], "the robot was touched"
+    assert not rig.maestro.received, "the servo controller was touched"
+    return relayd.output()
+
+
 async def test_run_with_a_bad_config_exits_2_naming_the_key_before_touching_devices(tmp_path: Path) -> None:
     async with FakeRig(tmp_path) as rig:
         doc = rig.config_doc(scan=SCAN, control={"kpp": 2.0, "threshold_b_dbm": 50.0})
         config = tmp_path / "bad.toml"
         config.write_text(dump_toml(doc), encoding="utf-8")
-        relayd = await Relayd.start("run", "-c", str(config), env={**clean_env(), **rig.env})
-        try:
-            code = await relayd.wait(30)
-        finally:
-            await relayd.kill()
-        err = "\n".join(relayd.stderr)
-        assert code == 2, relayd.output()
+        err = await refused(rig, config, {**clean_env(), **rig.env})
         assert "control.kpp" in err and "control.threshold_b_dbm" in err, err
-        await asyncio.sleep(0.2)  # anything written to the ptys has been read by now
-        assert rig.robot.commands == [], "the robot was touched"
-        assert not rig.maestro.received, "the servo controller was touched"
 
 
 async def test_run_with_a_missing_secret_exits_2_naming_the_key_before_touching_devices(tmp_path: Path) -> None:
@@ -181,18 +186,9 @@ async def test_run_with_a_missing_secret_exits_2_naming_the_key_before_touching_
         config = rig.write_config(scan=SCAN)  # AP passwords come from the environment...
         env = clean_env()
         env.pop(AP_PASSWORD_ENV, None)  # ...which does not have them
-        relayd = await Relayd.start("run", "-c", str(config), env=env)
-        try:
-            code = await relayd.wait(30)
-        finally:
-            await relayd.kill()
-        err = "\n".join(relayd.stderr)
-        assert code == 2, relayd.output()
+        err = await refused(rig, config, env)
         assert "ap.rear.password_env" in err and AP_PASSWORD_ENV in err, err
-        assert rig.ap_password not in relayd.output()
-        await asyncio.sleep(0.2)
-        assert rig.robot.commands == [], "the robot was touched"
-        assert not rig.maestro.received, "the servo controller was touched"
+        assert rig.ap_password not in err
 
 
 async def test_run_with_an_unreadable_secret_file_names_that_key(tmp_path: Path) -> None:
@@ -200,13 +196,5 @@ async def test_run_with_an_unreadable_secret_file_names_that_key(tmp_path: Path)
         config = rig.write_config(secrets_in_files=True, scan=SCAN)
         missing = tmp_path / f"{rig.name}-ap-password"
         missing.unlink()
-        relayd = await Relayd.start("run", "-c", str(config))
-        try:
-            code = await relayd.wait(30)
-        finally:
-            await relayd.kill()
-        err = "\n".join(relayd.stderr)
-        assert code == 2, relayd.output()
+        err = await refused(rig, config)
         assert "ap.rear.password_file" in err and str(missing) in err, err
-        await asyncio.sleep(0.2)
-        assert rig.robot.commands == [], "the robot was touched"
