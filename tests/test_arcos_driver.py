@@ -51,8 +51,11 @@ async def test_handshake_identity_sonar_and_pose(kind: str, clock: Clock) -> Non
             assert robot.sonar.front_min_mm() == 1000
             # drive an arc: v = 150 mm/s, RVEL = 10 deg/s
             robot.set_wheels(100, 200)
+            # Polled, not slept: on a 10x clock a loaded machine's stall of 0.2 s wall
+            # is the fake's 2 s watchdog, which zeroes the target until the next refresh.
+            await until(lambda: fake.target_vel_mm_s == 150 and fake.target_rvel_deg_s == 10,
+                        "VEL 150 and RVEL 10 at the fake")
             await asyncio.sleep(4.0 / SPEED)
-            assert fake.target_vel_mm_s == 150 and fake.target_rvel_deg_s == 10
             sip = robot.last_sip
             assert sip is not None and sip.moving and sip.motors_enabled
             # odometry started at 0 at OPEN; the world pose started at (1000, 2000, 90)
