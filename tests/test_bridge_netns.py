@@ -27,6 +27,7 @@ from pathlib import Path
 
 import pytest
 from prometheus_client.parser import text_string_to_metric_families
+from support import skip_or_fail
 
 pytestmark = pytest.mark.netns
 
@@ -80,10 +81,7 @@ def _need_root() -> None:
         missing.append("iproute2 (ip)")
     if not missing:
         return
-    message = "network-namespace test needs " + " and ".join(missing)
-    if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
-        pytest.fail(message)
-    pytest.skip(message)
+    skip_or_fail("network-namespace test needs " + " and ".join(missing))
 
 
 def _ip(*args: str) -> None:
@@ -116,9 +114,7 @@ def bridged() -> Iterator[tuple[str, str]]:
     except RuntimeError as exc:
         for ns in reversed(created):
             subprocess.run(["ip", "netns", "del", ns], capture_output=True, timeout=10, check=False)
-        if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
-            pytest.fail(f"cannot build the namespaces: {exc}")
-        pytest.skip(f"cannot build the namespaces here: {exc}")
+        skip_or_fail(f"cannot build the namespaces here: {exc}")
     try:
         yield ns_robot, ns_cc
     finally:

@@ -12,12 +12,12 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import os
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
 
 import pytest
+from support import skip_or_fail
 
 from relayd.config import parse_settings
 from relayd.daemon import Daemon
@@ -35,10 +35,7 @@ SCAN_TIMEOUT_MS = 30_000
 def _require_chromium() -> None:
     if CHROMIUM.exists():
         return
-    message = f"{CHROMIUM} is missing (apt-get install chromium)"
-    if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
-        pytest.fail(message)
-    pytest.skip(message)
+    skip_or_fail(f"{CHROMIUM} is missing (apt-get install chromium)")
 
 
 @pytest.fixture
