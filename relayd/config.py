@@ -270,17 +270,18 @@ def resolve_secret(ref: SecretRef, environ: Mapping[str, str]) -> str | None:
     return None
 
 
-def secret_refs(settings: Settings) -> list[SecretRef]:
-    refs = []
+def secret_refs(settings: Settings) -> dict[str, SecretRef]:
+    """Where each secret in use comes from, by owner: "ap.rear", "ap.front", "api"."""
+    refs: dict[str, SecretRef] = {}
     for name in ("rear", "front"):
         ap = getattr(settings.ap, name)
         if ap is not None and ap.enabled:
             key = f"ap.{name}.password_file" if ap.password_file else f"ap.{name}.password_env"
-            refs.append(SecretRef(key, ap.password_env, ap.password_file))
+            refs[f"ap.{name}"] = SecretRef(key, ap.password_env, ap.password_file)
     api = settings.api
     if api.enabled:
         key = "api.token_file" if api.token_file else "api.token_env"
-        refs.append(SecretRef(key, api.token_env, api.token_file))
+        refs["api"] = SecretRef(key, api.token_env, api.token_file)
     return refs
 
 
@@ -314,6 +315,6 @@ def render_settings(settings: Settings, environ: Mapping[str, str]) -> str:
         else:
             section(name, values)
     lines.append("# secrets (values never shown):")
-    for ref in secret_refs(settings):
+    for ref in secret_refs(settings).values():
         lines.append(f"#   {ref.key}: {ref.describe(environ)}")
     return "\n".join(lines) + "\n"

@@ -25,7 +25,7 @@ import structlog
 
 from drivers.airos.model import LinkQuality
 from drivers.clock import REAL_CLOCK, Clock
-from relayd.config import SecretRef, Settings, resolve_secret
+from relayd.config import Settings, resolve_secret, secret_refs
 from relayd.control import ControlLoop
 from relayd.controller import ControlParams
 from relayd.estimator import EstimatorParams, ScanEstimate
@@ -86,18 +86,17 @@ class Daemon:
         self.clock = clock
         env = os.environ if env is None else env
         # Resolve every secret first: a missing one must stop us before a device moves.
+        refs = secret_refs(settings)
         self._ap_passwords: dict[str, str] = {}
         for side in ("rear", "front"):
-            ap = getattr(settings.ap, side)
-            if ap is not None and ap.enabled:
-                key = f"ap.{side}.password_file" if ap.password_file else f"ap.{side}.password_env"
-                secret = resolve_secret(SecretRef(key, ap.password_env, ap.password_file), env)
+            ref = refs.get(f"ap.{side}")
+            if ref is not None:
+                secret = resolve_secret(ref, env)
                 assert secret is not None
                 self._ap_passwords[side] = secret
-        api = settings.api
-        token_key = "api.token_file" if api.token_file else "api.token_env"
-        self._token = resolve_secret(SecretRef(token_key, api.token_env, api.token_file), env) \
-            if api.enabled and (api.token_env or api.token_file) and _configured(api, env) else None
+        token_ref = refs.get("api")
+        self._token = resolve_secret(token_ref, env) \
+            if token_ref is not None and _configured(settings.api, env) else None
 
         c = settings.control
         self.state = RelayState(started_t=clock.now(), mode=Mode(c.mode))
