@@ -50,9 +50,12 @@ class ServoController(Protocol):
 
     @property
     def connected(self) -> bool: ...
+    @property
+    def answering(self) -> bool: ...
     async def set_angle(self, channel: int, angle_deg: float) -> float: ...
     async def set_speed(self, channel: int, deg_s: float) -> None: ...
     async def get_angle(self, channel: int) -> float: ...
+    async def is_moving(self) -> bool: ...
 
 
 class RssiReading(Protocol):
@@ -221,8 +224,7 @@ class Scanner:
         too, so a pulled cable or a timed-out health poll stops the wheels at the next
         control tick instead of at the end of the sweep.
         """
-        pt = self._pt
-        return self._answered and bool(pt.connected) and bool(getattr(pt, "answering", True))
+        return self._answered and self._pt.connected and self._pt.answering
 
     @property
     def leader_lost(self) -> bool:
@@ -258,11 +260,8 @@ class Scanner:
         await self._servo(self._pt.set_speed(self._scan_ch, self._speed))
         await self._servo(self._pt.set_speed(self._link_ch, self._speed))
         # A moving-state read answers whether or not a channel is pulsing yet (a position
-        # read fails on a channel that was never driven). Doubles without it prove the
-        # controller alive at the first sweep's end instead.
-        is_moving = getattr(self._pt, "is_moving", None)
-        if is_moving is not None:
-            await self._servo(is_moving(), answered=True)
+        # read fails on a channel that was never driven).
+        await self._servo(self._pt.is_moving(), answered=True)
 
     async def run(self) -> None:
         while True:

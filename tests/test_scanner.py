@@ -100,6 +100,13 @@ class RecordingServo:
     def connected(self) -> bool:
         return self.pt.connected
 
+    @property
+    def answering(self) -> bool:
+        return self.pt.answering
+
+    async def is_moving(self) -> bool:
+        return await self.pt.is_moving()
+
     async def set_angle(self, channel: int, angle_deg: float) -> float:
         angle = await self.pt.set_angle(channel, angle_deg)
         self.commands.append((self.clock.now(), channel, angle))
