@@ -26,6 +26,7 @@ import pytest
 import pytest_asyncio
 from aiohttp import ClientSession
 from prometheus_client.parser import text_string_to_metric_families
+from support import running as run_daemon
 
 from drivers.arcos.codec import Command
 from drivers.arcos.sip import wheel_to_vel_rvel
@@ -107,28 +108,19 @@ async def running(work: Path, *, with_token: bool = True, **config: Any) -> Asyn
 
     `with_token=False` leaves the API token's variable out of the daemon's environment.
     """
-    rig = FakeRig(work)
-    await rig.start()
-    task: asyncio.Task[None] | None = None
-    try:
+    async with FakeRig(work) as rig:
         env = rig.env if with_token else {k: v for k, v in rig.env.items() if k != API_TOKEN_ENV}
         daemon = Daemon(parse_settings(rig.config_doc(api_port=0, **config)), env=env)
-        task = asyncio.create_task(daemon.run(), name="test-daemon")
+        async with run_daemon(daemon) as task:
 
-        async def bound() -> int | None:
-            if task is not None and task.done():
-                task.result()  # surface a start-up failure
-            return daemon.api_port
+            async def bound() -> int | None:
+                if task.done():
+                    task.result()  # surface a start-up failure
+                return daemon.api_port
 
-        port = await until(bound, "the API to bind")
-        async with ClientSession() as session:
-            yield Relay(rig, daemon, session, f"http://127.0.0.1:{port}", rig.api_token)
-    finally:
-        if task is not None:
-            task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
-        await rig.stop()
+            port = await until(bound, "the API to bind")
+            async with ClientSession() as session:
+                yield Relay(rig, daemon, session, f"http://127.0.0.1:{port}", rig.api_token)
 
 
 @pytest_asyncio.fixture(scope="module", loop_scope="module")

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 import aiohttp
+from support import running as run_daemon
 from support import until
 
 from drivers.clock import REAL_CLOCK
@@ -96,11 +97,7 @@ async def running(work: Path, *, wrong_ap_password: bool = False, drive: bool = 
     `wrong_ap_password`: the config is written as `relayd run` reads it, secrets in
     files, and the AP password file then holds a wrong password.
     """
-    rig = FakeRig(work)
-    await rig.start()
-    task: asyncio.Task[None] | None = None
-    session = aiohttp.ClientSession()
-    try:
+    async with FakeRig(work) as rig, aiohttp.ClientSession() as session:
         config.setdefault("scan", FAST_SCAN)
         config.setdefault("ap", FAST_AP)
         if wrong_ap_password:
@@ -114,28 +111,22 @@ async def running(work: Path, *, wrong_ap_password: bool = False, drive: bool = 
             settings = parse_settings(rig.config_doc(**config))
             env = rig.env
         daemon = Daemon(settings, env=env)
-        run = Run(rig, daemon, asyncio.create_task(daemon.run(), name="fault-daemon"), session)
-        task = run.task
+        steps: list[Step] = []
         apply = daemon.control._apply
 
         def record(out: ControlOutput, now: float) -> None:
-            run.steps.append(Step(now, out.reason, out.left_mm_s, out.right_mm_s))
+            steps.append(Step(now, out.reason, out.left_mm_s, out.right_mm_s))
             apply(out, now)
 
         daemon.control._apply = record  # type: ignore[method-assign]
-        await until(lambda: daemon.api_port is not None or task.done(), "the API", START_TIMEOUT_S)
-        if drive:
-            await until(lambda: daemon.state.reason == "driving" or task.done(), "driving",
-                        START_TIMEOUT_S)
-        assert not task.done(), task
-        yield run
-    finally:
-        if task is not None:
-            task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
-        await session.close()
-        await rig.stop()
+        async with run_daemon(daemon) as task:
+            run = Run(rig, daemon, task, session, steps)
+            await until(lambda: daemon.api_port is not None or task.done(), "the API", START_TIMEOUT_S)
+            if drive:
+                await until(lambda: daemon.state.reason == "driving" or task.done(), "driving",
+                            START_TIMEOUT_S)
+            assert not task.done(), task
+            yield run
 
 
 # ---------------------------------------------------------------- the robot's port vanishes

@@ -10,14 +10,12 @@ chromium is a failure; locally it is a skip.
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-from support import skip_or_fail
+from support import running, skip_or_fail, until
 
 from relayd.config import parse_settings
 from relayd.daemon import Daemon
@@ -41,25 +39,14 @@ def _require_chromium() -> None:
 @pytest.fixture
 async def served(tmp_path: Path) -> AsyncIterator[tuple[str, FakeRig, Daemon]]:
     _require_chromium()
-    rig = FakeRig(tmp_path, leader_xy_m=(6.0, 2.0))  # 18 deg to the left
-    await rig.start()
-    task: asyncio.Task[None] | None = None
-    try:
+    async with FakeRig(tmp_path, leader_xy_m=(6.0, 2.0)) as rig:  # 18 deg to the left
         daemon = Daemon(parse_settings(rig.config_doc(api_port=0, control={"mode": "hold"})),
                         env=rig.env)
-        task = asyncio.create_task(daemon.run(), name="daemon")
-        async with asyncio.timeout(20):
-            while daemon.api_port is None:
-                if task.done():
-                    task.result()
-                await asyncio.sleep(0.05)
-        yield f"http://127.0.0.1:{daemon.api_port}", rig, daemon
-    finally:
-        if task is not None:
-            task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
-        await rig.stop()
+        async with running(daemon) as task:
+            await until(lambda: daemon.api_port is not None or task.done(), "the API to bind", 20.0)
+            if task.done():
+                task.result()  # surface a start-up failure
+            yield f"http://127.0.0.1:{daemon.api_port}", rig, daemon
 
 
 async def test_live_page_shows_the_daemon_and_redraws_on_a_new_scan(
