@@ -166,7 +166,10 @@ async def test_stops_within_one_sip_period_of_rssi_going_stale_and_resumes(tmp_p
             timeout = control_params(daemon.settings).rssi_timeout_s  # two scan periods
             frozen_t = daemon.clock.now()
             rig.rssi_frozen = True
-            await until(lambda: reason(daemon) == (DriveState.FAULT, "rssi_stale"), "fault, rssi_stale")
+            # Wait on the recorder, not the state: the recorder's task may not have run yet
+            # when the state already shows the fault.
+            await until(lambda: rec.first("rssi_stale", frozen_t) is not None, "fault, rssi_stale")
+            assert reason(daemon) == (DriveState.FAULT, "rssi_stale")
             stop_t = rec.first("rssi_stale", frozen_t)
             last_fresh = daemon.monitor.last_fresh_t
             assert stop_t is not None and last_fresh is not None
