@@ -292,7 +292,28 @@ def _toml_value(v: Any) -> str:
         return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
     if isinstance(v, (list, tuple)):
         return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    return repr(v)
+    if isinstance(v, (int, float)):
+        return repr(v)
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def dump_toml(doc: Mapping[str, Any]) -> str:
+    """A config document (sections of scalars, lists and sub-tables) as TOML."""
+    lines: list[str] = []
+
+    def table(prefix: str, d: Mapping[str, Any]) -> None:
+        scalars = {k: v for k, v in d.items() if not isinstance(v, Mapping) and v is not None}
+        if scalars or not any(isinstance(v, Mapping) for v in d.values()):
+            lines.append(f"[{prefix}]")
+            lines.extend(f"{k} = {_toml_value(v)}" for k, v in scalars.items())
+            lines.append("")
+        for k, v in d.items():
+            if isinstance(v, Mapping):
+                table(f"{prefix}.{k}", v)
+
+    for name, section in doc.items():
+        table(name, section)
+    return "\n".join(lines)
 
 
 def render_settings(settings: Settings, environ: Mapping[str, str]) -> str:

@@ -24,7 +24,8 @@ import pytest
 from support import until
 
 from drivers.arcos.codec import CLOSE, Command
-from relayd.fakes.rig import AP_PASSWORD_ENV, FakeRig, dump_toml
+from relayd.config import dump_toml
+from relayd.fakes.rig import AP_PASSWORD_ENV, FakeRig
 
 pytestmark = pytest.mark.slow
 

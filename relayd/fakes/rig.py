@@ -31,6 +31,7 @@ from drivers.arcos.fake import FakeRobot
 from drivers.clock import REAL_CLOCK, Clock
 from drivers.pantilt.fake import FakeMaestro
 from drivers.wifi.fake import ProcfsWriter
+from relayd.config import dump_toml
 from relayd.sim.radio import yagi_gain_db
 
 #: Servo calibration shared by the fake and the generated config.
@@ -44,36 +45,6 @@ def pulse_to_deg(pulse_us: float) -> float:
     if pulse_us >= mid:
         return (pulse_us - mid) / (hi - mid) * 90.0
     return (pulse_us - mid) / (mid - lo) * 90.0
-
-
-def dump_toml(doc: Mapping[str, Any]) -> str:
-    """A config document (nested dicts of scalars and lists) as TOML."""
-    lines: list[str] = []
-
-    def value(v: Any) -> str:
-        if isinstance(v, bool):
-            return "true" if v else "false"
-        if isinstance(v, str):
-            return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-        if isinstance(v, list | tuple):
-            return "[" + ", ".join(value(x) for x in v) + "]"
-        if isinstance(v, int | float):
-            return repr(v)
-        raise TypeError(f"cannot write {type(v).__name__} to TOML")
-
-    def table(prefix: str, d: Mapping[str, Any]) -> None:
-        scalars = {k: v for k, v in d.items() if not isinstance(v, Mapping) and v is not None}
-        if scalars or not any(isinstance(v, Mapping) for v in d.values()):
-            lines.append(f"[{prefix}]")
-            lines.extend(f"{k} = {value(v)}" for k, v in scalars.items())
-            lines.append("")
-        for k, v in d.items():
-            if isinstance(v, Mapping):
-                table(f"{prefix}.{k}", v)
-
-    for name, section in doc.items():
-        table(name, section)
-    return "\n".join(lines)
 
 
 class FakeRig:
