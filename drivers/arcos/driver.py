@@ -157,6 +157,9 @@ class ArcosRobot:
         self._motion_t = -math.inf
         self._any_tx_t = -math.inf
         self._last_write_t = -math.inf  # clock time of the last write, for command spacing
+        #: The safe stop owns the line: no queued or reflected command may slip in
+        #: between its VEL 0, ENABLE 0 and CLOSE. Cleared when a new session opens.
+        self._safe_stopping = False
         self._closing = False
         self._closed = asyncio.Event()
         self._fail_streak = 0
@@ -251,6 +254,7 @@ class ArcosRobot:
         self._decoder.reset()
         self._urgent.clear()
         self._normal.clear()
+        self._safe_stopping = False
         transport, _ = await open_link(self.url, self.baud, lambda: _Link(self))
         self._transport = transport
         self.current_baud = self.baud
@@ -438,8 +442,8 @@ class ArcosRobot:
             # Commands are spaced as the ARCOS manual asks, counting one written
             # directly by _flush_now too.
             wait_s = self._last_write_t + CMD_SPACING_S - self.clock.now()
-            if wait_s > 0:
-                await self.clock.sleep(wait_s)
+            if wait_s > 0 or self._safe_stopping:
+                await self.clock.sleep(max(wait_s, CMD_SPACING_S))
                 continue
             data = self._urgent.popleft() if self._urgent else self._normal.popleft()[1]
             self._write(data)
@@ -454,7 +458,7 @@ class ArcosRobot:
         """
         # Safe whether or not the tx task is parked: it re-checks the spacing against
         # _last_write_t right before each of its own writes.
-        if not self._opened:
+        if not self._opened or self._safe_stopping:
             return
         if self.clock.now() - self._last_write_t < CMD_SPACING_S:
             return
@@ -482,6 +486,8 @@ class ArcosRobot:
 
     def _reflect(self, now: float) -> None:
         """ARIA state reflection: VEL+RVEL on change or every 500 ms while moving, else PULSE."""
+        if self._safe_stopping:
+            return
         motion = wheel_to_vel_rvel(*self._wheels)
         due = now - self._motion_t >= REFRESH_S
         if motion != self._sent_motion or (motion != (0, 0) and due):
@@ -601,6 +607,9 @@ class ArcosRobot:
 
     async def _safe_stop(self) -> None:
         """Wheels 0, ENABLE 0, CLOSE (paced, ~20 ms), then close the port."""
+        self._safe_stopping = True
+        self._urgent.clear()
+        self._normal.clear()
         self._wheels = (0.0, 0.0)
         tr = self._transport
         if tr is not None and self._opened and not tr.is_closing():
