@@ -28,7 +28,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from relayd.controller import ControlInputs, ControlMemory, ControlOutput, ControlParams, control_step
+from relayd.controller import (
+    ControlInputs,
+    ControlMemory,
+    ControlOutput,
+    ControlParams,
+    control_step,
+)
 from relayd.estimator import (
     LOST_AFTER_SCANS,
     EstimatorParams,

@@ -11,9 +11,9 @@ event loop thread: no locks, and a reader never waits for a device.
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import StrEnum
-from collections.abc import Callable
 from typing import Any, Protocol
 
 from relayd import __version__

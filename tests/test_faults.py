@@ -17,7 +17,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import time
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -29,8 +29,8 @@ from support import until
 from drivers.clock import REAL_CLOCK
 from drivers.link import port_missing, wait_before_retry
 from relayd.config import load_settings, parse_settings
-from relayd.controller import ControlOutput
 from relayd.daemon import Daemon, control_params
+from relayd.events import Action, Decision, Event
 from relayd.fakes.rig import FakeRig
 
 #: A short scan (60 deg, 5 steps: ~0.8 s) so "two scan periods" of RSSI staleness is ~1.7 s.
@@ -112,13 +112,15 @@ async def running(work: Path, *, wrong_ap_password: bool = False, drive: bool = 
             env = rig.env
         daemon = Daemon(settings, env=env)
         steps: list[Step] = []
-        apply = daemon.control._apply
+        on_actions = daemon._on_actions
 
-        def record(out: ControlOutput, now: float) -> None:
-            steps.append(Step(now, out.reason, out.left_mm_s, out.right_mm_s))
-            apply(out, now)
+        def record(event: Event, actions: Sequence[Action]) -> None:
+            for a in actions:
+                if isinstance(a, Decision):
+                    steps.append(Step(a.t, a.reason, a.left_mm_s, a.right_mm_s))
+            on_actions(event, actions)
 
-        daemon.control._apply = record  # type: ignore[method-assign]
+        daemon.bus.connect(daemon.brain.handle, record)
         async with run_daemon(daemon) as task:
             run = Run(rig, daemon, task, session, steps)
             await until(lambda: daemon.api_port is not None or task.done(), "the API", START_TIMEOUT_S)
