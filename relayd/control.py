@@ -15,6 +15,7 @@ Thin I/O around the brain (`relayd.brain`), which decides everything:
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable, Sequence
 from typing import Protocol
 
@@ -63,6 +64,7 @@ class ControlShell:
 
     def __init__(self, *, bus: Publisher, brain: Brain, robot: WheelBase | None, clock: Clock = REAL_CLOCK,
                  tick_s: float = 0.1, on_latency: Callable[[float], None] | None = None,
+                 on_step: Callable[[float], None] | None = None,
                  servo_up: Callable[[], bool] | None = None,
                  robot_name: Callable[[], str | None] | None = None,
                  on_tick: Callable[[float], None] | None = None) -> None:
@@ -72,6 +74,7 @@ class ControlShell:
         self._clock = clock
         self._tick_s = tick_s
         self._on_latency = on_latency
+        self._on_step = on_step
         self._servo_up = servo_up
         self._robot_name = robot_name or (lambda: None)
         self._on_tick = on_tick
@@ -109,9 +112,13 @@ class ControlShell:
     # -- events in ----------------------------------------------------------------------
 
     def on_sip(self, sip: Sip) -> None:
+        started = time.perf_counter()
         robot = self._robot
         sonar = tuple(robot.sonar.ranges_mm) if robot is not None else ()
         self._bus.publish(SipEvent(sip.t, sip, sonar))
+        if self._on_step is not None:
+            # The cost of one SIP's whole route (brain step, actions, fan-out) on this host.
+            self._on_step(time.perf_counter() - started)
 
     def check_devices(self) -> None:
         """Publish the robot's and the scan servo's up/down changes (the drivers have no events)."""

@@ -175,7 +175,7 @@ class Daemon:
         robot_ = self.robot
         self.control = ControlShell(
             bus=self.bus, brain=self.brain, robot=robot_, clock=clock, tick_s=TICK_S,
-            on_latency=self.metrics.observe_control_latency,
+            on_latency=self.metrics.observe_control_latency, on_step=self.metrics.observe_control_step,
             servo_up=None if self.scanner is None else (lambda: self.scanner is not None and self.scanner.servo_ok),
             robot_name=lambda: None if robot_ is None or robot_.identity is None else robot_.identity.name,
             on_tick=self._on_tick,
