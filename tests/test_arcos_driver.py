@@ -24,10 +24,12 @@ def clock() -> Clock:
 
 
 async def serve(fake: FakeRobot, kind: str) -> str:
+    if kind == "memory":
+        return fake.serve_memory("robot")
     return fake.serve_pty() if kind == "pty" else await fake.serve_tcp()
 
 
-@pytest.mark.parametrize("kind", ["pty", "tcp"])
+@pytest.mark.parametrize("kind", ["pty", "tcp", "memory"])
 async def test_handshake_identity_sonar_and_pose(kind: str, clock: Clock) -> None:
     ranges = [1000 + 100 * i for i in range(16)]
     ranges[5] = None  # type: ignore[call-overload]
@@ -139,10 +141,10 @@ async def test_fake_watchdog_stops_an_unattended_robot(clock: Clock) -> None:
         await fake.stop()
 
 
-@pytest.mark.parametrize("kind", ["pty", "tcp"])
+@pytest.mark.parametrize("kind", ["pty", "tcp", "memory"])
 async def test_reconnect_after_hang_up(kind: str, clock: Clock, tmp_path) -> None:
     fake = FakeRobot(clock=clock)
-    url = fake.serve_pty(str(tmp_path / "robot")) if kind == "pty" else await fake.serve_tcp()
+    url = fake.serve_pty(str(tmp_path / "robot")) if kind == "pty" else await serve(fake, kind)
     robot = ArcosRobot(url, clock=clock, enable_motors=True,
                        backoff=Backoff(initial_s=0.1, maximum_s=0.5, jitter=0))
     try:
@@ -161,7 +163,7 @@ async def test_reconnect_after_hang_up(kind: str, clock: Clock, tmp_path) -> Non
             await until(lambda: fake.motors_enabled and fake.target_vel_mm_s == 100)
     finally:
         await fake.stop()
-    if kind == "pty":  # the real robot never saw CLOSE: it was still in the old session
+    if kind != "tcp":  # the real robot never saw CLOSE: it was still in the old session
         assert robot.counters["old_sessions"] >= 1
 
 

@@ -38,10 +38,13 @@ async def flush(pt: PanTilt) -> None:
     await pt.is_moving()
 
 
-async def make_rig(protocol: str, tmp_path: Path, **options: float) -> Rig:
+async def make_rig(protocol: str, tmp_path: Path, kind: str = "pty", **options: float) -> Rig:
     clock = Clock(SPEED)
     fake = FAKES[protocol](clock=clock)
-    path = fake.serve_pty(tmp_path / f"{protocol}-servo")
+    if kind == "memory":
+        path = fake.serve_memory(f"{protocol}-servo")
+    else:
+        path = fake.serve_pty(tmp_path / f"{protocol}-servo")
     opts: dict[str, float] = {"reply_timeout_s": 3.0, "poll_s": 1000.0}
     opts.update(options)
     pt = make_pantilt(protocol, path, None,
@@ -52,12 +55,14 @@ async def make_rig(protocol: str, tmp_path: Path, **options: float) -> Rig:
     return Rig(protocol, clock, fake, pt, task, TOL_DEG[protocol])
 
 
-@pytest.fixture(params=["maestro", "ssc32"])
+@pytest.fixture(params=["maestro-pty", "ssc32-pty", "maestro-memory", "ssc32-memory"])
 async def rig(request: pytest.FixtureRequest, tmp_path: Path) -> AsyncIterator[Rig]:
-    r = await make_rig(request.param, tmp_path)
+    protocol, kind = request.param.split("-")
+    r = await make_rig(protocol, tmp_path, kind)
     yield r
     await r.pt.close()
     await asyncio.wait_for(r.task, 5)
+    r.fake.close()
     r.fake.close()
 
 

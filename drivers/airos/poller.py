@@ -31,6 +31,7 @@ from drivers.airos.client import (
 from drivers.airos.model import AirOsDataError, LinkQuality
 from drivers.backoff import Backoff
 from drivers.clock import REAL_CLOCK, Clock
+from drivers.health import DeviceHealth, LinkState
 
 log = structlog.get_logger(__name__)
 
@@ -97,6 +98,19 @@ class AirOsPoller:
 
     def __repr__(self) -> str:
         return f"AirOsPoller(url={self.url!r}, username={self.client.username!r}, state={self.state!r})"
+
+    def health(self) -> DeviceHealth:
+        """The radio link's health now (see drivers.health); `state` keeps the finer story."""
+        if self.state == "ok":
+            state = LinkState.UP
+        elif self.state == "connecting":
+            state = LinkState.CONNECTING
+        else:
+            state = LinkState.DOWN
+        return DeviceHealth(
+            device="ap", state=state, last_error=self.last_error,
+            errors=self.counters["errors"], reconnects=self.counters["relogins"],
+            last_rx_t=self.last_update_t, counters=self.counters)
 
     def age_s(self) -> float | None:
         """Clock seconds since the last good poll, None before the first."""

@@ -49,6 +49,7 @@ from drivers.arcos.sip import (
 from drivers.arcos.sonar import SonarRing
 from drivers.backoff import Backoff
 from drivers.clock import REAL_CLOCK, Clock
+from drivers.health import DeviceHealth, LinkState
 from drivers.link import LinkError, open_link, set_baudrate, wait_before_retry
 
 log = structlog.get_logger(__name__)
@@ -170,6 +171,22 @@ class ArcosRobot:
     @property
     def counters(self) -> dict[str, int]:
         return {**self._decoder.counters(), **self._stats}
+
+    def health(self) -> DeviceHealth:
+        """The robot link's health now (see drivers.health)."""
+        if self._closing:
+            state = LinkState.CLOSED
+        elif self.connected:
+            state = LinkState.STALE if self.stale else LinkState.UP
+        else:
+            state = LinkState.DOWN if self._fail_streak else LinkState.CONNECTING
+        counters = self.counters
+        return DeviceHealth(
+            device="robot", state=state, last_error=self.last_error,
+            errors=sum(v for k, v in counters.items() if k.endswith(("errors", "resyncs"))),
+            reconnects=counters["reconnects"],
+            last_rx_t=self.last_sip.t if self.last_sip is not None else None,
+            counters=counters)
 
     @property
     def motors_wish(self) -> bool:

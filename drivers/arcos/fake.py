@@ -58,6 +58,7 @@ from drivers.arcos.sip import (
 from drivers.arcos.sonar import SONAR_COUNT
 from drivers.clock import REAL_CLOCK, Clock
 from drivers.fakeio import PtyPort, TcpPort
+from drivers.memlink import LinkFaults, MemoryPort
 
 log = structlog.get_logger(__name__)
 
@@ -70,7 +71,7 @@ FIRING_ORDER = tuple(i for pair in zip(range(8), range(8, 16), strict=True) for 
 
 
 class FakeRobot:
-    """A protocol-true P3-AT served over a pty and/or loopback TCP."""
+    """A protocol-true P3-AT served over a pty, loopback TCP and/or an in-memory link."""
 
     def __init__(self, name: str = "relay", robot_class: str = "Pioneer", subclass: str = "p3at",
                  *, clock: Clock = REAL_CLOCK, sonar_fn: SonarFn | None = None,
@@ -124,6 +125,7 @@ class FakeRobot:
         self._decoder = Decoder()
         self._pty: PtyPort | None = None
         self._tcp: TcpPort | None = None
+        self._mem: MemoryPort | None = None
         self._task: asyncio.Task[None] | None = None
         self._bg: set[asyncio.Task[object]] = set()
         self._out: deque[bytes] = deque()
@@ -171,6 +173,21 @@ class FakeRobot:
         self._ensure_task()
         return url
 
+    def serve_memory(self, name: str, *, faults_to_driver: LinkFaults | None = None,
+                     faults_to_device: LinkFaults | None = None) -> str:
+        """Serve on an in-memory link (unit tests). Returns the `memory://` URL."""
+        if self._mem is None:
+            self._mem = MemoryPort(self._on_data, name, faults_to_driver=faults_to_driver,
+                                   faults_to_device=faults_to_device)
+        url = self._mem.open()
+        self._ensure_task()
+        return url
+
+    @property
+    def memory_port(self) -> MemoryPort | None:
+        """The in-memory port (to inject faults into its current connection)."""
+        return self._mem
+
     async def start(self) -> None:
         self._ensure_task()
 
@@ -184,6 +201,8 @@ class FakeRobot:
             task.cancel()
         if self._pty is not None:
             self._pty.close()
+        if self._mem is not None:
+            self._mem.close()
         if self._tcp is not None:
             await self._tcp.close()
 
@@ -191,6 +210,8 @@ class FakeRobot:
         """The cable is pulled: the pty disappears / the TCP listener and client go away."""
         if self._pty is not None:
             self._pty.hang_up()
+        if self._mem is not None:
+            self._mem.hang_up()
         if self._tcp is not None:
             self._end_session()
             self._spawn(self._tcp_op(self._tcp.close))
@@ -199,6 +220,8 @@ class FakeRobot:
         """The cable is back (same pty link path / same TCP port)."""
         if self._pty is not None:
             self._pty.open()
+        if self._mem is not None:
+            self._mem.open()
         if self._tcp is not None:
             self._spawn(self._tcp_op(self._tcp.open))
 
@@ -462,6 +485,8 @@ class FakeRobot:
     def _write(self, data: bytes) -> None:
         if self._pty is not None:
             self._pty.write(data)
+        if self._mem is not None:
+            self._mem.write(data)
         if self._tcp is not None:
             self._tcp.write(data)
 

@@ -18,12 +18,13 @@ import contextlib
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import structlog
 
 from drivers.backoff import Backoff
 from drivers.clock import REAL_CLOCK, Clock
+from drivers.health import DeviceHealth, LinkState
 from drivers.link import LinkError, open_link, wait_before_retry
 
 log = structlog.get_logger(__name__)
@@ -465,7 +466,17 @@ class PanTilt(abc.ABC):
         self._log.warning("pantilt_bad_reply", error=str(exc))
         return PanTiltError(f"bad reply from {self.url}: {exc}")
 
-    def snapshot(self) -> dict[str, Any]:
-        """Health for /status: connection, counters, last error."""
-        return {"connected": self.connected, "counters": dict(self.counters),
-                "last_error": self.last_error}
+    def health(self) -> DeviceHealth:
+        """The servo controller's health now (see drivers.health)."""
+        if self._closed:
+            state = LinkState.CLOSED
+        elif self.connected:
+            state = LinkState.UP if self._consecutive_timeouts == 0 else LinkState.STALE
+        else:
+            state = LinkState.DOWN if self.counters["errors"] or self.counters["timeouts"] \
+                else LinkState.CONNECTING
+        return DeviceHealth(
+            device="pantilt", state=state, last_error=self.last_error,
+            errors=self.counters["timeouts"] + self.counters["errors"],
+            reconnects=self.counters["reconnects"], last_rx_t=self.last_reply_t,
+            counters=self.counters)

@@ -28,6 +28,7 @@ from typing import Any, ClassVar
 import structlog
 
 from drivers.clock import REAL_CLOCK, Clock
+from drivers.health import DeviceHealth, LinkState
 from drivers.wifi.parsers import (
     RSSI_MIN_DBM,
     parse_iw_link,
@@ -90,6 +91,8 @@ class RssiSource(abc.ABC):
         self.available = False
         self.associated = False
         self.last_error: str | None = None
+        #: Clock time of the last fresh, accepted sample (None before any).
+        self.last_sample_t: float | None = None
         self._prev_key: Hashable = None
         self._have_prev = False
 
@@ -103,6 +106,21 @@ class RssiSource(abc.ABC):
     def counters(self) -> dict[str, int]:
         return {"reads": self.reads, "samples": self.samples,
                 "rejected": self.rejected, "errors": self.errors}
+
+    def health(self) -> DeviceHealth:
+        """The adapter's health now (see drivers.health).
+
+        UP while the interface is there and associated; STALE when it is there but
+        not associated (no level to read); DOWN when reads fail.
+        """
+        if self.available:
+            state = LinkState.UP if self.associated else LinkState.STALE
+        else:
+            state = LinkState.DOWN if self.errors else LinkState.CONNECTING
+        return DeviceHealth(
+            device="wifi", state=state, last_error=self.last_error,
+            errors=self.errors + self.rejected, reconnects=0,
+            last_rx_t=self.last_sample_t, counters=self.counters)
 
     @abc.abstractmethod
     async def _observe(self) -> Observation:
@@ -165,6 +183,7 @@ class RssiSource(abc.ABC):
             self._log.info("wifi_rssi_rejected", raw=obs.level_dbm, dbm=level)
             return RssiSample(t, None, False)
         self.samples += 1
+        self.last_sample_t = t
         return RssiSample(t, level, True)
 
     async def stream(self, sample_hz: float) -> AsyncIterator[RssiSample]:
