@@ -35,7 +35,7 @@ from relayd.bus import Bus
 from relayd.config import ApiSettings, Settings, resolve_secret, secret_refs
 from relayd.control import ControlShell
 from relayd.events import Action, Event, LinkEvent, LinkSide, ScanPlan, ServoTarget, WheelCommand
-from relayd.health import pantilt_health, poller_health, robot_health, wifi_health
+from relayd.health import device_health
 from relayd.metrics import Metrics
 from relayd.params import brain_params, control_params, estimator_params
 from relayd.scanner import RssiMonitor, Scanner
@@ -118,8 +118,7 @@ class Daemon:
             robot = self.robot = ArcosRobot(s.robot.port, s.robot.baud, clock=clock,
                                             subclass_override=s.robot.subclass,
                                             lost_after_s=s.robot.lost_after_s, enable_motors=True)
-            state.health_sources["robot"] = lambda: robot_health(
-                robot, None if robot.last_sip is None else robot.last_sip.t)
+            state.health_sources["robot"] = lambda: device_health(robot)
             self.supervisor.add("robot", robot.run, device="robot")
         if s.pantilt.enabled:
             from drivers.pantilt import ServoCalibration, make_pantilt
@@ -145,7 +144,7 @@ class Daemon:
             source = self.source = make_source(s.wifi.source, s.wifi.interface, path=s.wifi.procfs_path,
                                                clock=clock)
             monitor = self.monitor = RssiMonitor(source, s.wifi.sample_hz, self.bus, clock)
-            state.health_sources["wifi"] = lambda: wifi_health(source, monitor.last_fresh_t)
+            state.health_sources["wifi"] = lambda: device_health(source, last_data_t=monitor.last_fresh_t)
             self.supervisor.add("wifi", monitor.run, device="wifi")
         for side, password in self._ap_passwords.items():
             ap = s.ap.rear if side == "rear" else s.ap.front
@@ -155,7 +154,7 @@ class Daemon:
                                  legacy_tls=ap.legacy_tls, timeout_s=ap.timeout_s, clock=clock,
                                  on_update=functools.partial(self._on_link, LinkSide(side)))
             self.pollers[side] = poller
-            state.health_sources[f"ap.{side}"] = functools.partial(poller_health, poller)
+            state.health_sources[f"ap.{side}"] = functools.partial(device_health, poller)
             self.supervisor.add(f"ap.{side}", poller.run, device=f"ap.{side}")
         pantilt = self.pantilt
         if pantilt is not None and self.monitor is not None:
@@ -169,9 +168,9 @@ class Daemon:
             self.supervisor.add("scanner", scanner.run, device="pantilt")
         if pantilt is not None:
             scanner_ = self.scanner
-            state.health_sources["pantilt"] = lambda: pantilt_health(
-                pantilt, scanner_ is None or scanner_.servo_ok,
-                0 if scanner_ is None else scanner_.link_errors)
+            state.health_sources["pantilt"] = lambda: device_health(
+                pantilt, usable=scanner_ is None or scanner_.servo_ok,
+                extra_errors=0 if scanner_ is None else scanner_.link_errors)
         robot_ = self.robot
         self.control = ControlShell(
             bus=self.bus, brain=self.brain, robot=robot_, clock=clock, tick_s=TICK_S,
