@@ -30,6 +30,7 @@ from relayd.events import (
     RssiEvent,
     ScanDone,
     ScanPlan,
+    ScanReady,
     ScanResult,
     ScanSampleEvent,
     ServoTarget,
@@ -220,6 +221,8 @@ def test_the_shell_observes_latency_only_for_sip_caused_commands() -> None:
 def test_a_finished_scan_points_the_link_antenna_and_plans_around_the_bearing() -> None:
     cfg = config(samples=7, width_deg=60.0)
     s = Script(Brain(brain_params(cfg)))
+    # The scanner is ready before the servo answers: the plan waits for the servo.
+    assert s.feed(ScanReady(s.t)) == []
     first = s.feed(DeviceEvent(s.t, PANTILT, DeviceStatus.UP))
     plan0 = next(a for a in first if isinstance(a, ScanPlan))
     assert plan0.angles_deg[0] == pytest.approx(-30.0) and plan0.angles_deg[-1] == pytest.approx(30.0)
@@ -227,29 +230,28 @@ def test_a_finished_scan_points_the_link_antenna_and_plans_around_the_bearing() 
     actions = s.scan(leader_deg=20.0)
     result = next(a for a in actions if isinstance(a, ScanResult))
     target = next(a for a in actions if isinstance(a, ServoTarget))
-    plan = next(a for a in actions if isinstance(a, ScanPlan))
     assert 10.0 < result.estimate.bearing_deg < 30.0
     assert target.channel == cfg.pantilt.link_channel and target.angle_deg == result.estimate.bearing_deg
-    centre = (plan.angles_deg[0] + plan.angles_deg[-1]) / 2.0
-    assert centre == pytest.approx(result.estimate.bearing_deg)
-    assert plan.angles_deg[0] > plan.angles_deg[-1]  # sweeps alternate direction
-    # The robot turns 15 degrees left: the next window follows the leader in the new frame.
+    # The robot turns 15 degrees left before the next sweep starts: its window follows
+    # the leader into the new frame (planned when the scanner is ready, not at the scan's end).
     s.feed(sip(s.t, theta_deg=15.0))
+    plan = next(a for a in s.feed(ScanReady(s.t)) if isinstance(a, ScanPlan))
+    centre = (plan.angles_deg[0] + plan.angles_deg[-1]) / 2.0
+    assert centre == pytest.approx(result.estimate.bearing_deg - 15.0)
+    assert plan.angles_deg[0] > plan.angles_deg[-1]  # sweeps alternate direction
     s.feed(ScanSampleEvent(s.t, 0.0, -60.0))
-    s.feed(ScanDone(s.t, s.t, 1))  # too few samples: no estimate, but a new plan
-    plan2 = s.brain._plan()
-    assert (plan2.angles_deg[0] + plan2.angles_deg[-1]) / 2.0 == pytest.approx(result.estimate.bearing_deg - 15.0)
+    assert not any(isinstance(a, ScanResult) for a in s.feed(ScanDone(s.t, s.t, 1)))  # too few samples
 
 
 def test_leader_lost_after_three_weak_scans_widens_the_window() -> None:
     cfg = config(samples=7, width_deg=60.0)
     s = Script(Brain(brain_params(cfg)))
     s.feed(DeviceEvent(s.t, PANTILT, DeviceStatus.UP))
-    plans = []
     for _ in range(3):
-        plans += [a for a in s.scan(level_dbm=-100.0) if isinstance(a, ScanPlan)]
+        s.scan(level_dbm=-100.0)
     assert s.brain.leader_lost
-    lo, hi = sorted((plans[-1].angles_deg[0], plans[-1].angles_deg[-1]))
+    plan = next(a for a in s.feed(ScanReady(s.t)) if isinstance(a, ScanPlan))
+    lo, hi = sorted((plan.angles_deg[0], plan.angles_deg[-1]))
     assert (lo, hi) == (pytest.approx(-90.0), pytest.approx(90.0))
     s.run(0.3, rssi_hz=20.0)
     assert s.brain.last_output is not None and s.brain.last_output.reason == "leader_lost"

@@ -16,8 +16,9 @@ The test itself is a plain function, so no pytest-asyncio loop is involved.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Awaitable, Callable
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import pytest
 
@@ -39,3 +40,19 @@ class VirtualTime:
 @pytest.fixture
 def vtime() -> VirtualTime:
     return VirtualTime()
+
+
+def virtual(fn: Callable[..., Awaitable[T]]) -> Callable[..., T]:
+    """Run an async test function on a fresh virtual-time loop (a plain test to pytest).
+
+    Its fixtures still arrive as arguments; inside, `LoopClock()` is its clock.
+    """
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> T:
+        async def main() -> T:
+            return await fn(*args, **kwargs)
+
+        return run(main())
+
+    return wrapper
