@@ -19,12 +19,13 @@ import contextlib
 import functools
 import os
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import structlog
 from aiohttp import web
 
-from drivers.airos import AirOsPoller
+from drivers.airos import AirOsClient, AirOsPoller
 from drivers.airos.model import LinkQuality
 from drivers.arcos import ArcosRobot
 from drivers.clock import REAL_CLOCK, Clock
@@ -43,7 +44,7 @@ from relayd.state import Mode, RelayState
 from relayd.statewriter import StateWriter
 from relayd.supervisor import Supervisor
 
-__all__ = ["Daemon", "control_params", "estimator_params"]
+__all__ = ["Daemon", "DeviceOverrides", "control_params", "estimator_params"]
 
 log = structlog.get_logger(__name__)
 
@@ -53,6 +54,18 @@ SAFE_STOP_BUDGET_S = 0.3
 TICK_S = 0.1
 #: How often the systemd watchdog is petted while the control loop ticks (clock s).
 WATCHDOG_PET_S = 0.5
+
+
+@dataclass(frozen=True, slots=True)
+class DeviceOverrides:
+    """In-process stand-ins for devices without a `memory://` link (the simulator on virtual time).
+
+    `rssi_source` replaces the configured RSSI source; `airos_clients[side]` replaces
+    that poller's HTTP client (same interface, see relayd.sim.inproc).
+    """
+
+    rssi_source: RssiSource | None = None
+    airos_clients: Mapping[str, AirOsClient] = field(default_factory=dict)
 
 
 class Notifier(Protocol):
@@ -68,9 +81,11 @@ class Daemon:
     """One relay's daemon. `await run()` until cancelled; cancellation is the safe shutdown."""
 
     def __init__(self, settings: Settings, *, clock: Clock = REAL_CLOCK,
-                 env: Mapping[str, str] | None = None, notifier: Notifier | None = None) -> None:
+                 env: Mapping[str, str] | None = None, notifier: Notifier | None = None,
+                 devices: DeviceOverrides | None = None) -> None:
         self.settings = settings
         self.clock = clock
+        self._devices = devices or DeviceOverrides()
         env = os.environ if env is None else env
         # Resolve every secret first: a missing one must stop us before a device moves.
         refs = secret_refs(settings)
@@ -141,8 +156,8 @@ class Daemon:
         if s.wifi.enabled:
             from drivers.wifi import make_source
 
-            source = self.source = make_source(s.wifi.source, s.wifi.interface, path=s.wifi.procfs_path,
-                                               clock=clock)
+            source = self.source = self._devices.rssi_source or make_source(
+                s.wifi.source, s.wifi.interface, path=s.wifi.procfs_path, clock=clock)
             monitor = self.monitor = RssiMonitor(source, s.wifi.sample_hz, self.bus, clock)
             state.health_sources["wifi"] = lambda: device_health(source, last_data_t=monitor.last_fresh_t)
             self.supervisor.add("wifi", monitor.run, device="wifi")
@@ -153,6 +168,9 @@ class Daemon:
             poller = AirOsPoller(ap.url, ap.username, password, poll_s=ap.poll_s,
                                  legacy_tls=ap.legacy_tls, timeout_s=ap.timeout_s, clock=clock,
                                  on_update=functools.partial(self._on_link, LinkSide(side)))
+            client = self._devices.airos_clients.get(side)
+            if client is not None:
+                poller.client = client
             self.pollers[side] = poller
             state.health_sources[f"ap.{side}"] = functools.partial(device_health, poller)
             self.supervisor.add(f"ap.{side}", poller.run, device=f"ap.{side}")

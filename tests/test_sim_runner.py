@@ -156,7 +156,8 @@ def test_cli_relays_all_runs_each_count_with_real_daemons(tmp_path: Path,
     assert [r["relays"] for r in top["runs"]] == [0, 1]
     one = json.loads((out / "relays-1" / "summary.json").read_text())
     assert one["followers"][0]["name"] == "solo"
-    assert one["followers"][0]["api_port"] > 0
+    ports = json.loads((out / "relays-1" / "ports.json").read_text())
+    assert ports["solo"] > 0
     recs = [json.loads(x) for x in (out / "relays-1" / "trace.jsonl").read_text().splitlines()]
     # the daemon really ran: it scanned and reported a bearing and RSSI^l
     assert any(r["relays"][0]["rssi_l_dbm"] is not None for r in recs)
