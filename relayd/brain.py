@@ -68,6 +68,7 @@ from relayd.events import (
     Tick,
     WheelCommand,
 )
+from relayd.leader import LeaderParams, Window, make_model
 from relayd.state import DriveState, Mode, ScanRecord
 
 SONAR_COUNT = 16
@@ -96,6 +97,8 @@ class BrainParams:
     control: ControlParams = field(default_factory=ControlParams)
     estimator: EstimatorParams = field(default_factory=EstimatorParams)
     scan: ScanParams = field(default_factory=ScanParams)
+    #: Which bearing estimator and scan window (`relayd.leader`): "wca"/"full" by default.
+    leader: LeaderParams = field(default_factory=LeaderParams)
     #: A scan servo is configured: until it answers, follow mode stops on "scan_servo".
     has_scanner: bool = True
     #: RSSI^b from this station of the rear AP; None: the strongest station heard.
@@ -131,6 +134,9 @@ class Brain:
         self._servo_ok = not params.has_scanner
         self._ascending = True
         self._scan: list[ScanSample] = []
+        self._scan_t: list[float] = []
+        #: The bearing estimator behind the bearing memory below (`relayd.leader`).
+        self._model = make_model(params.leader)
         #: The scanner asked for a plan while the servo was not answering: plan when it is.
         self._scan_wanted = False
         self._last_scan_t: float | None = None
@@ -176,13 +182,14 @@ class Brain:
                     self._rssi_fresh_t = s.t
                 return []
             case ScanReady():
-                self._scan = []
+                self._scan, self._scan_t = [], []
                 if not self._servo_ok:
                     self._scan_wanted = True
                     return []
-                return [self._plan()]
+                return [self._plan(event.t)]
             case ScanSampleEvent():
                 self._scan.append(ScanSample(event.angle_deg, event.rssi_dbm, self._sample_heading()))
+                self._scan_t.append(event.t)
                 return []
             case ScanDone():
                 return self._on_scan_done(event)
@@ -236,7 +243,7 @@ class Brain:
             actions = self._step(ev.t, None)
             if up and not was_ok and self._scan_wanted:
                 self._scan_wanted = False
-                actions.append(self._plan())  # the scanner was waiting for the servo
+                actions.append(self._plan(ev.t))  # the scanner was waiting for the servo
             return actions
         return []
 
@@ -265,28 +272,35 @@ class Brain:
 
     # -- scans ----------------------------------------------------------------------------
 
-    def _center(self) -> tuple[float, float]:
-        """Centre and width of the next window: previous bearing, or the full range when lost."""
-        sp = self.params.scan
-        if self.leader_lost or self.bearing_deg is None:
-            lo, hi = sp.limits_deg
-            if self.leader_lost:
-                return (lo + hi) / 2.0, hi - lo
-            return 0.0, sp.width_deg
-        turned = 0.0
-        if self._heading is not None and self.bearing_heading_deg is not None:
-            turned = self._heading - self.bearing_heading_deg
-        return self.bearing_deg - turned, sp.width_deg
+    def _lost(self, now: float) -> bool:
+        """Leader lost: RSSI^l too low for 3 scans, or the tracking filter lost it."""
+        # A filter that lost its leader because no scan completes says so as "scan_stale".
+        return self.leader_lost or (self._model.lost(now, self._heading) and not self._scan_stale(now))
 
-    def _plan(self) -> ScanPlan:
+    def _window(self, now: float) -> Window:
+        """The next window: the full servo range when lost, else as the bearing model says,
+        else the configured width centred on the bearing (the last scan's, in today's frame)."""
         sp = self.params.scan
-        center, width = self._center()
-        angles = plan_scan(center, width, sp.samples, sp.limits_deg, self._ascending)
+        lo, hi = sp.limits_deg
+        full = Window((lo + hi) / 2.0, hi - lo, sp.samples)
+        if self._lost(now):
+            return full
+        planned = self._model.window(now, self._heading, full)
+        if planned is not None:
+            return planned
+        bearing = self._bearing_now(now)
+        return Window(0.0 if bearing is None else bearing, sp.width_deg, sp.samples)
+
+    def _plan(self, now: float) -> ScanPlan:
+        sp = self.params.scan
+        w = self._window(now)
+        angles = plan_scan(w.centre_deg, w.width_deg, w.samples, sp.limits_deg, self._ascending)
         self._ascending = not self._ascending
         return ScanPlan(angles)
 
     def _on_scan_done(self, ev: ScanDone) -> list[Action]:
         samples, self._scan = self._scan, []
+        times, self._scan_t = self._scan_t, []
         actions: list[Action] = []
         if len(samples) >= 3:
             heading_end = self._heading
@@ -295,6 +309,9 @@ class Brain:
                                     front_readings(self._sonar), self.params.estimator)
             except ValueError:
                 est = None  # bad sonar data: this scan is lost, the next one is planned
+            if est is not None:
+                est = self._model.scan_done(ev.t, heading_end if heading_end is not None
+                                            else samples[-1].heading_deg, est, times)
             if est is not None:
                 period_s = ev.t - ev.started_t
                 self.prev_bearing_deg, self.prev_heading_deg = self.bearing_deg, self.bearing_heading_deg
@@ -331,17 +348,24 @@ class Brain:
             sip_age_s=sip_age,
             rssi_age_s=None if self._rssi_fresh_t is None else now - self._rssi_fresh_t,
             scan_servo_ok=self._servo_ok,
-            bearing_deg=in_current_frame(self.bearing_deg, self.bearing_heading_deg, heading),
+            bearing_deg=self._bearing_now(now),
             prev_bearing_deg=in_current_frame(self.prev_bearing_deg, self.prev_heading_deg, heading),
             rssi_leader_dbm=self.rssi_leader_dbm,
             rssi_behind_dbm=self._rear_dbm,
             rear_age_s=None if self._rear_t is None else now - self._rear_t,
             front_sonar=front_readings(self._sonar),
-            leader_lost=self.leader_lost,
+            leader_lost=self._lost(now),
             manual_left_mm_s=manual_l,
             manual_right_mm_s=manual_r,
             manual_age_s=manual_age,
         )
+
+    def _bearing_now(self, now: float) -> float | None:
+        """The bearing to steer by: the filter's prediction, else the last scan's in the current frame."""
+        predicted = self._model.bearing_now(now, self._heading)
+        if predicted is not None:
+            return predicted
+        return in_current_frame(self.bearing_deg, self.bearing_heading_deg, self._heading)
 
     def _scan_stale(self, now: float) -> bool:
         limit = self.params.scan.scan_timeout_s

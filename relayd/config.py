@@ -126,6 +126,18 @@ class ScanSettings(_Section):
     gamma: PositiveFloat = 10.0
     mode: Literal["step", "continuous"] = "step"
     settle_s: NonNegFloat = 0.05
+    #: Bearing estimator: "wca" (the paper's weighted centroid) or "lobe" (main-lobe fit
+    #: and tracking filter, docs/CONTROL.md section 9).
+    estimator: Literal["wca", "lobe"] = "lobe"
+    #: "full": every sweep `width_deg` wide; "adaptive": narrower around a confident
+    #: prediction (needs estimator "lobe").
+    window: Literal["full", "adaptive"] = "adaptive"
+
+    @model_validator(mode="after")
+    def _adaptive_needs_tracking(self) -> ScanSettings:
+        if self.window == "adaptive" and self.estimator != "lobe":
+            raise ValueError('window "adaptive" needs estimator "lobe" (the WCA has no confidence to narrow on)')
+        return self
 
 
 class ControlSettings(_Section):

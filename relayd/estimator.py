@@ -106,6 +106,8 @@ class ScanEstimate:
     angles_deg: tuple[float, ...]  # sample angles in the robot frame at scan end
     rssi_dbm: tuple[float, ...]  # raw
     nrssi_dbm: tuple[float, ...]  # after the PRSSI penalty (== raw when situation != 2)
+    #: The bearing's standard deviation when a tracking filter made it (None: the WCA has none).
+    bearing_sd_deg: float | None = None
 
 
 def wrap_deg(angle_deg: float) -> float:

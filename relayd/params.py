@@ -18,6 +18,7 @@ from relayd.brain import BrainParams, ScanParams
 from relayd.config import Settings
 from relayd.controller import ControlParams
 from relayd.estimator import EstimatorParams
+from relayd.leader import LeaderParams
 
 P = TypeVar("P")
 
@@ -93,6 +94,7 @@ def brain_params(settings: Settings) -> BrainParams:
             # The second stale rule: no completed scan for two nominal scan periods.
             scan_timeout_s=max(SCAN_STALE_MIN_S, 2.0 * nominal_scan_period_s(settings)) if scanning else None,
         ),
+        leader=LeaderParams(estimator=s.estimator, window=s.window),
         has_scanner=scanning,
         rear_station_mac=rear.station_mac if rear is not None else None,
     )

@@ -98,6 +98,8 @@ class RelayState:
     state: DriveState = DriveState.STOPPED
     reason: str = "starting"
     bearing_deg: float | None = None
+    #: The bearing's standard deviation from the tracking filter (None: WCA, or no track).
+    bearing_sd_deg: float | None = None
     link_bearing_deg: float | None = None
     rssi_leader_dbm: float | None = None
     rssi_behind_dbm: float | None = None
@@ -157,6 +159,7 @@ class RelayState:
             "state": str(self.state),
             "reason": self.reason,
             "bearing_deg": self.bearing_deg,
+            "bearing_sd_deg": self.bearing_sd_deg,
             "link_bearing_deg": self.link_bearing_deg,
             "rssi_leader_dbm": self.rssi_leader_dbm,
             "rssi_behind_dbm": self.rssi_behind_dbm,

@@ -93,6 +93,8 @@ class StateWriter:
                 st.last_scan = rec
                 st.scan_count += 1
                 st.bearing_deg = action.estimate.bearing_deg
+                sd = action.estimate.bearing_sd_deg
+                st.bearing_sd_deg = None if sd is None else round(sd, 2)
                 st.rssi_leader_dbm = action.estimate.rssi_leader_dbm
                 st.touch()
                 if self._metrics is not None and rec.period_s is not None:

@@ -218,8 +218,9 @@ def test_the_shell_observes_latency_only_for_sip_caused_commands() -> None:
 
 # ---------------------------------------------------------------- scans and the bearing memory
 
-def test_a_finished_scan_points_the_link_antenna_and_plans_around_the_bearing() -> None:
-    cfg = config(samples=7, width_deg=60.0)
+@pytest.mark.parametrize("estimator", ["wca", "lobe"])
+def test_a_finished_scan_points_the_link_antenna_and_plans_around_the_bearing(estimator: str) -> None:
+    cfg = config(samples=7, width_deg=60.0, estimator=estimator, window="full")
     s = Script(Brain(brain_params(cfg)))
     # The scanner is ready before the servo answers: the plan waits for the servo.
     assert s.feed(ScanReady(s.t)) == []

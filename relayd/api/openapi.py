@@ -64,6 +64,8 @@ STATUS_SCHEMA: dict[str, Any] = _obj({
     "state": {"type": "string", "enum": [s.value for s in DriveState]},
     "reason": {"type": "string"},
     "bearing_deg": _num(description="leader bearing, robot frame, counter-clockwise positive"),
+    "bearing_sd_deg": _num(description="the bearing's standard deviation from the tracking filter "
+                                       "(null: the WCA estimator, or no track)"),
     "link_bearing_deg": _num(description="where the link antenna (servo 2) points"),
     "rssi_leader_dbm": _num(description="RSSI^l: best RSSI of the last scan"),
     "rssi_behind_dbm": _num(description="RSSI^b: RSSI of the node behind"),

@@ -1,0 +1,246 @@
+"""Where is the leader in one scan, without knowing the antenna: a main-lobe fit.
+
+The weighted centroid (`relayd.estimator.wca_bearing`) is a mean of the sampled
+angles, so a lobe cut off by the window's edge pulls it toward the window's middle.
+This module fits the main lobe instead: near its peak, almost every directional
+antenna's gain in dB is a downward parabola in the off-axis angle (a Gaussian beam
+exactly; cos^n and Yagi patterns to within a few tenths of a dB down to about -8 dB),
+
+    RSSI(theta) = peak - 12 * ((theta - centre) / beamwidth_3db)^2
+
+so its centre is the bearing, wherever the window is, and the fit needs no pattern
+measured beforehand: peak, centre and beamwidth are fitted on every scan.
+
+How (`fit_main_lobe`):
+1. The samples are sorted by angle; the peak is found on a 3-point running mean, so
+   one lucky fading sample cannot pick a side lobe.
+2. The main lobe is the run of samples around that peak that stay within `drop_db` of
+   it (8 dB: inside the parabolic part, above a 12 dB front-to-back floor even with
+   2 dB of jitter). At least 3 samples are always used (the peak and its neighbours).
+3. y = a + b u + c u^2 (u = angle - peak angle, for conditioning) by weighted least
+   squares, re-weighted (Huber, scale from the residuals' MAD) so a faded sample or an
+   obstacle's PRSSI dip does not drag the fit. Then the run is chosen again from the
+   fitted lobe (its peak, not the noisy best sample) and fitted once more.
+4. centre = peak angle - b / (2c). A lobe that is not concave (c >= 0: flat or
+   no leader) gives no centre: `None`, and the tracker treats the scan as a miss.
+   A centre outside the sampled span (the leader beyond the servo limit) is kept up
+   to `max_extrapolation_deg` past the span's ends, since turning toward it is right;
+   further out the one-sided fit is not trusted and the centre is clamped there.
+5. sd_deg, the centre's standard deviation, by propagating the fit's covariance
+   (residual variance, floored at `min_noise_db`) through -b/2c. It is what the
+   tracking filter weighs this scan by.
+
+No I/O, no clock, no NumPy: a 3x3 solve in plain Python is a few microseconds.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+#: dB below the peak where the parabola is 3 dB down: 12 (u / bw)^2 = 3 at u = bw / 2.
+_DB_AT_HALF_BEAMWIDTH = 3.0
+
+
+@dataclass(frozen=True, slots=True)
+class LobeParams:
+    """Settings of the main-lobe fit."""
+
+    drop_db: float = 8.0
+    #: Residual noise is never assumed below this (dB): model mismatch and quantisation.
+    min_noise_db: float = 0.5
+    max_extrapolation_deg: float = 20.0
+    iterations: int = 3
+    #: Relative spread (sd / value) of the curvature prior; see `fit_main_lobe`.
+    prior_spread: float = 0.35
+    #: The noise level (dB) at which the prior is weighed against the samples.
+    prior_noise_db: float = 1.0
+
+
+@dataclass(frozen=True, slots=True)
+class LobeFit:
+    """What the fit says about one scan."""
+
+    bearing_deg: float
+    sd_deg: float
+    beamwidth_deg: float  # fitted 3 dB beamwidth
+    peak_dbm: float  # fitted gain at the centre
+    used: int  # samples in the fitted run
+    #: The centre lies outside the sampled span (only one side of the lobe was seen).
+    extrapolated: bool
+
+
+def _solve3(m: list[list[float]], v: list[float]) -> list[float] | None:
+    """Solve a 3x3 system by Gaussian elimination with partial pivoting; None if singular."""
+    a = [[*row, rhs] for row, rhs in zip(m, v, strict=True)]
+    for col in range(3):
+        piv = max(range(col, 3), key=lambda r: abs(a[r][col]))
+        if abs(a[piv][col]) < 1e-12:
+            return None
+        a[col], a[piv] = a[piv], a[col]
+        for r in range(col + 1, 3):
+            f = a[r][col] / a[col][col]
+            for k in range(col, 4):
+                a[r][k] -= f * a[col][k]
+    x = [0.0, 0.0, 0.0]
+    for r in (2, 1, 0):
+        x[r] = (a[r][3] - sum(a[r][k] * x[k] for k in range(r + 1, 3))) / a[r][r]
+    return x
+
+
+def _inverse3(m: list[list[float]]) -> list[list[float]] | None:
+    cols = [_solve3(m, [1.0 if i == j else 0.0 for i in range(3)]) for j in range(3)]
+    if any(c is None for c in cols):
+        return None
+    return [[cols[j][i] for j in range(3)] for i in range(3)]  # type: ignore[index]
+
+
+def _wls(us: Sequence[float], ys: Sequence[float], ws: Sequence[float],
+         prior: tuple[float, float] | None) -> tuple[list[float], list[list[float]]] | None:
+    """Weighted quadratic fit: coefficients (a, b, c) and (X^T W X)^-1.
+
+    `prior` = (c0, weight): a pseudo-observation c = c0 of that weight (in units of one
+    sample's weight), so a one-sided lobe still has a curvature.
+    """
+    s = [0.0] * 5  # sums of w u^k, k = 0..4
+    t = [0.0] * 3  # sums of w y u^k, k = 0..2
+    for u, y, w in zip(us, ys, ws, strict=True):
+        p = w
+        for k in range(5):
+            s[k] += p
+            if k < 3:
+                t[k] += p * y
+            p *= u
+    normal = [[s[0], s[1], s[2]], [s[1], s[2], s[3]], [s[2], s[3], s[4] + (prior[1] if prior else 0.0)]]
+    if prior is not None:
+        t[2] += prior[1] * prior[0]
+    coef = _solve3(normal, t)
+    inv = _inverse3(normal)
+    if coef is None or inv is None:
+        return None
+    return coef, inv
+
+
+def _run_around(values: Sequence[float], peak: int, floor: float) -> tuple[int, int]:
+    """The index range [lo, hi] of the contiguous run around `peak` with values >= floor."""
+    lo = peak
+    while lo > 0 and values[lo - 1] >= floor:
+        lo -= 1
+    hi = peak
+    while hi < len(values) - 1 and values[hi + 1] >= floor:
+        hi += 1
+    # Always the peak and a neighbour each side (where there is one): a parabola needs 3.
+    while hi - lo + 1 < 3 and (lo > 0 or hi < len(values) - 1):
+        if lo > 0:
+            lo -= 1
+        if hi - lo + 1 < 3 and hi < len(values) - 1:
+            hi += 1
+    return lo, hi
+
+
+def _median(xs: Sequence[float]) -> float:
+    s = sorted(xs)
+    n = len(s)
+    return s[n // 2] if n % 2 else 0.5 * (s[n // 2 - 1] + s[n // 2])
+
+
+def fit_main_lobe(angles_deg: Sequence[float], rssi_dbm: Sequence[float],
+                  params: LobeParams = LobeParams(), *,
+                  beamwidth_prior_deg: float | None = None) -> LobeFit | None:
+    """The leader's bearing from one scan by a parabolic fit of the main lobe in dB.
+
+    `beamwidth_prior_deg`: the antenna's 3 dB beamwidth as learned from earlier scans
+    (`BeamwidthLearner`), a soft prior on the curvature (relative spread
+    `params.prior_spread`). A lobe seen on both sides hardly needs it; a lobe cut by a
+    servo limit, seen on one side only, has its curvature from it, so its centre comes
+    from the slope of the side that was seen.
+
+    None when the scan shows no concave lobe (too few samples, a flat or a convex
+    profile): no bearing rather than a made-up one.
+    """
+    if len(angles_deg) != len(rssi_dbm):
+        raise ValueError(f"{len(angles_deg)} angles but {len(rssi_dbm)} RSSI values")
+    pairs = sorted(zip(angles_deg, rssi_dbm, strict=True))
+    for a, r in pairs:
+        if not (math.isfinite(a) and math.isfinite(r)):
+            raise ValueError(f"samples must be finite, got angle {a!r}, rssi {r!r}")
+    if len(pairs) < 3:
+        return None
+    angles = [a for a, _ in pairs]
+    rssi = [r for _, r in pairs]
+    n = len(rssi)
+    smooth = [sum(rssi[max(0, i - 1): i + 2]) / len(rssi[max(0, i - 1): i + 2]) for i in range(n)]
+    peak = max(range(n), key=lambda i: (smooth[i], rssi[i]))
+    floor = smooth[peak] - params.drop_db
+    lo, hi = _run_around(smooth, peak, floor)
+    u0 = angles[peak]
+    coef: list[float] | None = None
+    inv: list[list[float]] | None = None
+    weights: dict[int, float] = {}
+    prior: tuple[float, float] | None = None
+    if beamwidth_prior_deg is not None:
+        if not (beamwidth_prior_deg > 0 and math.isfinite(beamwidth_prior_deg)):
+            raise ValueError(f"beamwidth_prior_deg must be > 0, got {beamwidth_prior_deg!r}")
+        c0 = -4.0 * _DB_AT_HALF_BEAMWIDTH / (beamwidth_prior_deg * beamwidth_prior_deg)
+        sd_c = params.prior_spread * abs(c0)
+        prior = (c0, (params.prior_noise_db / sd_c) ** 2)
+    resid_scale = params.min_noise_db
+    for _ in range(max(1, params.iterations)):
+        idx = list(range(lo, hi + 1))
+        us = [angles[i] - u0 for i in idx]
+        ys = [rssi[i] for i in idx]
+        ws = [weights.get(i, 1.0) for i in idx]
+        fit = _wls(us, ys, ws, prior)
+        if fit is None:
+            return None
+        coef, inv = fit
+        a, b, c = coef
+        res = [y - (a + b * u + c * u * u) for u, y in zip(us, ys, strict=True)]
+        # Huber weights: a robust scale from the median absolute residual.
+        mad = _median([abs(x) for x in res]) / 0.6745
+        resid_scale = max(params.min_noise_db, mad)
+        k = 1.345 * resid_scale
+        weights = {i: (1.0 if abs(r) <= k else k / abs(r)) for i, r in zip(idx, res, strict=True)}
+        if c >= 0:
+            break
+        # Choose the run again from the fitted lobe (its peak, not the luckiest sample):
+        # every sample the parabola puts within drop_db of its top, at least 3.
+        centre = u0 - b / (2.0 * c)
+        half = math.sqrt(params.drop_db / -c)
+        inside = [i for i in range(n) if abs(angles[i] - centre) <= half]
+        if inside:
+            lo, hi = inside[0], inside[-1]
+        else:
+            lo = hi = min(range(n), key=lambda i: abs(angles[i] - centre))
+        lo, hi = _widen(lo, hi, n, centre, angles)
+    assert coef is not None and inv is not None
+    a, b, c = coef
+    if c >= 0:
+        return None
+    centre_u = -b / (2.0 * c)
+    # Covariance of (b, c) times the residual variance, through centre = -b / 2c.
+    s2 = resid_scale * resid_scale
+    gb, gc = -1.0 / (2.0 * c), b / (2.0 * c * c)
+    var = s2 * (gb * gb * inv[1][1] + 2.0 * gb * gc * inv[1][2] + gc * gc * inv[2][2])
+    sd = math.sqrt(max(var, 0.0))
+    centre = u0 + centre_u
+    span_lo, span_hi = angles[0], angles[-1]
+    extrapolated = not (span_lo <= centre <= span_hi)
+    centre = min(max(centre, span_lo - params.max_extrapolation_deg), span_hi + params.max_extrapolation_deg)
+    peak_dbm = a + b * centre_u + c * centre_u * centre_u
+    beamwidth = 2.0 * math.sqrt(_DB_AT_HALF_BEAMWIDTH / -c)
+    return LobeFit(bearing_deg=centre, sd_deg=sd, beamwidth_deg=beamwidth, peak_dbm=peak_dbm,
+                   used=hi - lo + 1, extrapolated=extrapolated)
+
+
+def _widen(lo: int, hi: int, n: int, centre: float, angles: Sequence[float]) -> tuple[int, int]:
+    """Grow [lo, hi] to at least 3 samples, toward the side nearer the centre first."""
+    while hi - lo + 1 < 3 and (lo > 0 or hi < n - 1):
+        left = abs(angles[lo - 1] - centre) if lo > 0 else math.inf
+        right = abs(angles[hi + 1] - centre) if hi < n - 1 else math.inf
+        if left <= right:
+            lo -= 1
+        else:
+            hi += 1
+    return lo, hi

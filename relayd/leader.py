@@ -1,0 +1,212 @@
+"""The brain's bearing memory, two ways: the paper's centroid, or a lobe fit with a tracking filter.
+
+`relayd.brain` asks a `BearingModel` three things and nothing else: what a finished
+scan says (`scan_done`: the estimate it publishes), where the leader is now
+(`bearing_now`), and where to sweep next (`window`). Two models:
+
+- `CentroidModel` ("wca"): the paper's weighted centroid of each scan, kept as the
+  bearing until the next scan; windows of the configured width centred on it. The
+  reference, and what relayd did before.
+- `TrackingModel` ("lobe"): each scan's main lobe is fitted (`relayd.bearing`), the fit
+  feeds a Kalman filter on bearing and bearing rate with the odometry heading change
+  as its control input (`relayd.tracker`), and the filter's prediction is the bearing
+  the wheels steer by, every control step. It learns the antenna's beamwidth from
+  its own two-sided scans (the curvature prior of one-sided ones at a servo limit).
+  With `window = "adaptive"` a confident filter narrows the sweep around its
+  prediction at the full window's sample spacing, so a sweep takes less time; an
+  unsure or lost one sweeps the servo's whole range.
+
+Pure: times and headings come in as arguments; no clock, no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from typing import Protocol
+
+from relayd import tracker
+from relayd.bearing import LobeFit, LobeParams, fit_main_lobe
+from relayd.estimator import ScanEstimate
+from relayd.tracker import Track, TrackerParams
+
+ESTIMATORS = ("wca", "lobe")
+WINDOWS = ("full", "adaptive")
+
+
+@dataclass(frozen=True, slots=True)
+class WindowParams:
+    """How the adaptive window sizes itself."""
+
+    #: The window spans this many (learned) 3 dB beamwidths: the fit needs both flanks.
+    beams: float = 1.5
+    #: ... plus this many standard deviations of the predicted bearing on each side.
+    sigmas: float = 3.0
+    min_samples: int = 7
+
+
+@dataclass(frozen=True, slots=True)
+class LeaderParams:
+    estimator: str = "wca"
+    window: str = "full"
+    lobe: LobeParams = field(default_factory=LobeParams)
+    tracker: TrackerParams = field(default_factory=TrackerParams)
+    adaptive: WindowParams = field(default_factory=WindowParams)
+    #: Two-sided fits the beamwidth is learnt from (median of the last ones).
+    beamwidth_memory: int = 9
+
+    def __post_init__(self) -> None:
+        if self.estimator not in ESTIMATORS:
+            raise ValueError(f"estimator must be one of {ESTIMATORS}, got {self.estimator!r}")
+        if self.window not in WINDOWS:
+            raise ValueError(f"window must be one of {WINDOWS}, got {self.window!r}")
+        if self.window == "adaptive" and self.estimator != "lobe":
+            raise ValueError("an adaptive window needs the tracking estimator ('lobe')")
+
+
+@dataclass(frozen=True, slots=True)
+class Window:
+    centre_deg: float
+    width_deg: float
+    samples: int
+
+
+class BearingModel(Protocol):
+    def scan_done(self, t: float, heading_deg: float, est: ScanEstimate,
+                  sample_t: Sequence[float]) -> ScanEstimate: ...
+    def bearing_now(self, t: float, heading_deg: float | None) -> float | None: ...
+    def window(self, t: float, heading_deg: float | None, full: Window) -> Window | None: ...
+    def lost(self, t: float, heading_deg: float | None) -> bool: ...
+    def sd_deg(self, t: float, heading_deg: float | None) -> float | None: ...
+
+
+class CentroidModel:
+    """The paper's WCA: the brain's own memory of the last scan is the bearing."""
+
+    def scan_done(self, t: float, heading_deg: float, est: ScanEstimate,
+                  sample_t: Sequence[float]) -> ScanEstimate:
+        return est
+
+    def bearing_now(self, t: float, heading_deg: float | None) -> float | None:
+        return None  # the brain carries the last scan's bearing into the current frame itself
+
+    def window(self, t: float, heading_deg: float | None, full: Window) -> Window | None:
+        return None  # the brain's own rule: the configured width, centred on the last bearing
+
+    def lost(self, t: float, heading_deg: float | None) -> bool:
+        return False
+
+    def sd_deg(self, t: float, heading_deg: float | None) -> float | None:
+        return None
+
+
+def _median(xs: Sequence[float]) -> float:
+    s = sorted(xs)
+    n = len(s)
+    return s[n // 2] if n % 2 else 0.5 * (s[n // 2 - 1] + s[n // 2])
+
+
+class TrackingModel:
+    """Lobe fit + Kalman filter + learned beamwidth + (optionally) the adaptive window."""
+
+    def __init__(self, params: LeaderParams) -> None:
+        self.params = params
+        self.track: Track | None = None
+        self.last_fit: LobeFit | None = None
+        self._beamwidths: deque[float] = deque(maxlen=max(1, params.beamwidth_memory))
+        #: How long the last sweep took (s): the window leads the prediction by half of it.
+        self._sweep_s = 0.0
+
+    @property
+    def beamwidth_deg(self) -> float | None:
+        """The antenna's 3 dB beamwidth as learnt from two-sided scans (None: not yet)."""
+        return _median(self._beamwidths) if self._beamwidths else None
+
+    def _learn(self, fit: LobeFit, angles: Sequence[float]) -> None:
+        # Only a lobe seen well on both sides says how wide it is.
+        lo, hi = min(angles), max(angles)
+        half = fit.beamwidth_deg / 2.0
+        if (not fit.extrapolated and fit.bearing_deg - half >= lo and fit.bearing_deg + half <= hi
+                and fit.sd_deg <= self.params.tracker.confident_sd_deg and 5.0 <= fit.beamwidth_deg <= 180.0):
+            self._beamwidths.append(fit.beamwidth_deg)
+
+    def _now(self, t: float, heading_deg: float | None) -> Track | None:
+        if self.track is None:
+            return None
+        h = self.track.heading_deg if heading_deg is None else heading_deg
+        return tracker.predict(self.track, t, h, self.params.tracker)
+
+    def scan_done(self, t: float, heading_deg: float, est: ScanEstimate,
+                  sample_t: Sequence[float]) -> ScanEstimate:
+        p = self.params
+        fit = fit_main_lobe(est.angles_deg, est.nrssi_dbm, p.lobe, beamwidth_prior_deg=self.beamwidth_deg)
+        self.last_fit = fit
+        if len(sample_t) >= 2:
+            self._sweep_s = max(0.0, sample_t[-1] - sample_t[0])
+        if fit is not None:
+            self._learn(fit, est.angles_deg)
+            # The beam crossed the leader when the sample nearest the fitted bearing was taken.
+            t_meas = t
+            if len(sample_t) == len(est.angles_deg) and sample_t:
+                nearest = min(range(len(sample_t)), key=lambda i: abs(est.angles_deg[i] - fit.bearing_deg))
+                t_meas = min(sample_t[nearest], t)
+            if self.track is None:
+                self.track = tracker.start(t_meas, heading_deg, fit.bearing_deg, fit.sd_deg, p.tracker)
+            else:
+                self.track, _ = tracker.update(self.track, t_meas, heading_deg, fit.bearing_deg,
+                                               fit.sd_deg, p.tracker)
+        elif self.track is not None:
+            self.track = tracker.miss(self.track, t, heading_deg, p.tracker)
+        now = self._now(t, heading_deg)
+        if now is None or tracker.is_lost(now, p.tracker):
+            # No track to speak of: the scan's own word (the fit, else the centroid), flagged unsure.
+            bearing = fit.bearing_deg if fit is not None else est.bearing_deg
+            return replace(est, bearing_deg=bearing, bearing_sd_deg=None)
+        return replace(est, bearing_deg=now.bearing_deg, bearing_sd_deg=now.sd_deg)
+
+    def bearing_now(self, t: float, heading_deg: float | None) -> float | None:
+        now = self._now(t, heading_deg)
+        if now is None or tracker.is_lost(now, self.params.tracker):
+            return None
+        return now.bearing_deg
+
+    def lost(self, t: float, heading_deg: float | None) -> bool:
+        now = self._now(t, heading_deg)
+        return now is not None and tracker.is_lost(now, self.params.tracker)
+
+    def sd_deg(self, t: float, heading_deg: float | None) -> float | None:
+        now = self._now(t, heading_deg)
+        return None if now is None else now.sd_deg
+
+    def window(self, t: float, heading_deg: float | None, full: Window) -> Window | None:
+        """The next sweep. "full": the configured window, centred on the prediction.
+
+        "adaptive": narrow around the prediction while the filter is confident (once the
+        beamwidth is learnt), at the configured window's sample spacing, so a sweep
+        takes fewer samples; the servo's whole range while it is not.
+        """
+        p = self.params
+        now = self._now(t, heading_deg)
+        if now is None or tracker.is_lost(now, p.tracker):
+            return None if p.window == "full" else full
+        if p.window != "adaptive":
+            return None
+        if not tracker.is_confident(now, p.tracker):
+            return full
+        bw = self.beamwidth_deg
+        if bw is None:
+            return None
+        spacing = full.width_deg / max(1, full.samples - 1)
+        # Half a sweep from now the leader will have moved on by the rate.
+        centre = now.bearing_deg + now.rate_deg_s * self._sweep_s / 2.0
+        width = p.adaptive.beams * bw + 2.0 * p.adaptive.sigmas * now.sd_deg
+        samples = max(p.adaptive.min_samples, math.ceil(width / spacing) + 1)
+        if samples >= full.samples:
+            return Window(centre, full.width_deg, full.samples)
+        return Window(centre, (samples - 1) * spacing, samples)
+
+
+def make_model(params: LeaderParams) -> BearingModel:
+    return TrackingModel(params) if params.estimator == "lobe" else CentroidModel()
