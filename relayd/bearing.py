@@ -14,9 +14,10 @@ measured beforehand: peak, centre and beamwidth are fitted on every scan.
 How (`fit_main_lobe`):
 1. The samples are sorted by angle; the peak is found on a 3-point running mean, so
    one lucky fading sample cannot pick a side lobe.
-2. The main lobe is the run of samples around that peak that stay within `drop_db` of
-   it (8 dB: inside the parabolic part, above a 12 dB front-to-back floor even with
-   2 dB of jitter). At least 3 samples are always used (the peak and its neighbours).
+2. The main lobe is the run of samples around that peak that stay within `drop` dB of
+   it: 70 % of the scan's dynamic range, 6 to 14 dB, so the lobe's flanks (where the
+   centre is decided) are in and a 12 dB front-to-back floor with 2 dB of jitter is
+   out. At least 3 samples are always used (the peak and its neighbours).
 3. y = a + b u + c u^2 (u = angle - peak angle, for conditioning) by weighted least
    squares, re-weighted (Huber, scale from the residuals' MAD) so a faded sample or an
    obstacle's PRSSI dip does not drag the fit. Then the run is chosen again from the
@@ -47,7 +48,11 @@ _DB_AT_HALF_BEAMWIDTH = 3.0
 class LobeParams:
     """Settings of the main-lobe fit."""
 
-    drop_db: float = 8.0
+    #: The lobe is fitted down to this far below its peak: `drop_fraction` of the scan's
+    #: dynamic range (so a 12 dB front-to-back floor stays out), within these bounds.
+    drop_min_db: float = 6.0
+    drop_max_db: float = 14.0
+    drop_fraction: float = 0.7
     #: Residual noise is never assumed below this (dB): model mismatch and quantisation.
     min_noise_db: float = 0.5
     max_extrapolation_deg: float = 20.0
@@ -172,7 +177,10 @@ def fit_main_lobe(angles_deg: Sequence[float], rssi_dbm: Sequence[float],
     n = len(rssi)
     smooth = [sum(rssi[max(0, i - 1): i + 2]) / len(rssi[max(0, i - 1): i + 2]) for i in range(n)]
     peak = max(range(n), key=lambda i: (smooth[i], rssi[i]))
-    floor = smooth[peak] - params.drop_db
+    ranked = sorted(smooth)
+    dynamic_db = ranked[-1] - ranked[max(0, n // 10)]
+    drop_db = min(max(params.drop_fraction * dynamic_db, params.drop_min_db), params.drop_max_db)
+    floor = smooth[peak] - drop_db
     lo, hi = _run_around(smooth, peak, floor)
     u0 = angles[peak]
     coef: list[float] | None = None
@@ -207,7 +215,7 @@ def fit_main_lobe(angles_deg: Sequence[float], rssi_dbm: Sequence[float],
         # Choose the run again from the fitted lobe (its peak, not the luckiest sample):
         # every sample the parabola puts within drop_db of its top, at least 3.
         centre = u0 - b / (2.0 * c)
-        half = math.sqrt(params.drop_db / -c)
+        half = math.sqrt(drop_db / -c)
         inside = [i for i in range(n) if abs(angles[i] - centre) <= half]
         if inside:
             lo, hi = inside[0], inside[-1]

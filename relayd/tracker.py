@@ -44,11 +44,11 @@ class TrackerParams:
     """Settings of the bearing filter."""
 
     #: Process noise: spectral density of the bearing's acceleration (deg^2/s^3).
-    accel_q: float = 4.0
+    accel_q: float = 0.5
     #: Odometry heading error, as a fraction of the heading change.
     heading_noise: float = 0.05
     #: A new track's rate uncertainty (deg/s).
-    init_rate_sd_deg_s: float = 4.0
+    init_rate_sd_deg_s: float = 1.5
     #: A measurement is never trusted beyond this (deg): model mismatch, quantisation.
     min_meas_sd_deg: float = 1.0
     gate_sigma: float = 4.0
@@ -106,7 +106,7 @@ def predict(track: Track, t: float, heading_deg: float, params: TrackerParams) -
     """The track moved to time `t` and the robot frame of `heading_deg` (t before the track's: no time passes)."""
     _check(t=t, heading_deg=heading_deg)
     dt = max(0.0, t - track.t)
-    dh = heading_deg - track.heading_deg
+    dh = _wrap(heading_deg - track.heading_deg)  # odometry headings wrap at +-180
     q = params.accel_q
     b = _wrap(track.bearing_deg + track.rate_deg_s * dt - dh)
     p_bb = (track.p_bb + 2.0 * dt * track.p_bw + dt * dt * track.p_ww

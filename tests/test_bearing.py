@@ -1,0 +1,101 @@
+"""The main-lobe fit (relayd.bearing): no pull toward the window's middle, any antenna."""
+
+from __future__ import annotations
+
+import math
+import random
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from bench.brainrig import cos_n_pattern, gaussian_pattern
+from relayd.bearing import fit_main_lobe
+from relayd.estimator import plan_scan, wca_bearing
+
+FULL = plan_scan(0.0, 180.0, 25, (-90.0, 90.0), True)
+patterns = st.sampled_from([cos_n_pattern, gaussian_pattern])
+
+
+def scan(pattern: object, bearing: float, angles: tuple[float, ...] = FULL, level: float = -50.0,
+         jitter_db: float = 0.0, rng: random.Random | None = None) -> list[float]:
+    out = []
+    for a in angles:
+        noise = rng.uniform(-jitter_db, jitter_db) if rng is not None else 0.0
+        out.append(level + pattern(a - bearing) + noise)  # type: ignore[operator]
+    return out
+
+
+@settings(max_examples=300, deadline=None)
+@given(make=patterns, beamwidth=st.floats(30.0, 60.0), ftb=st.floats(12.0, 30.0), bearing=st.floats(-85.0, 85.0))
+def test_noise_free_any_antenna_any_bearing_within_4_degrees(make, beamwidth, ftb, bearing) -> None:
+    pattern = make(beamwidth, ftb)
+    fit = fit_main_lobe(FULL, scan(pattern, bearing))
+    assert fit is not None
+    assert abs(fit.bearing_deg - bearing) <= 4.0
+    # ... where the centroid of the same scan is pulled toward the middle near the limits.
+    if abs(bearing) >= 80.0 and ftb <= 15.0:
+        assert abs(wca_bearing(FULL, scan(pattern, bearing), 10.0) - bearing) > 10.0
+
+
+@settings(max_examples=200, deadline=None)
+@given(make=patterns, beamwidth=st.floats(30.0, 60.0), bearing=st.floats(-85.0, 85.0))
+def test_with_the_learned_beamwidth_a_lobe_cut_by_the_servo_limit_is_within_1_degree(make, beamwidth,
+                                                                                       bearing) -> None:
+    fit = fit_main_lobe(FULL, scan(make(beamwidth, 20.0), bearing), beamwidth_prior_deg=beamwidth)
+    assert fit is not None and abs(fit.bearing_deg - bearing) <= 1.5
+
+
+@settings(max_examples=200, deadline=None)
+@given(offset=st.floats(-40.0, 40.0), shift=st.floats(-20.0, 20.0), bearing=st.floats(-40.0, 40.0),
+       beamwidth=st.floats(30.0, 60.0))
+def test_level_does_not_matter_and_rotating_the_scene_rotates_the_answer(offset, shift, bearing, beamwidth) -> None:
+    pattern = cos_n_pattern(beamwidth, 20.0)
+    base = fit_main_lobe(FULL, scan(pattern, bearing))
+    louder = fit_main_lobe(FULL, scan(pattern, bearing, level=-50.0 + offset))
+    angles = tuple(a + shift for a in FULL)
+    turned = fit_main_lobe(angles, scan(pattern, bearing + shift, angles))
+    assert base is not None and louder is not None and turned is not None
+    assert louder.bearing_deg == pytest.approx(base.bearing_deg, abs=1e-6)
+    assert turned.bearing_deg == pytest.approx(base.bearing_deg + shift, abs=1e-6)
+    assert louder.peak_dbm == pytest.approx(base.peak_dbm + offset, abs=1e-6)
+
+
+@pytest.mark.parametrize("beamwidth", [30.0, 45.0, 60.0])
+@pytest.mark.parametrize("ftb", [12.0, 30.0])
+def test_two_db_jitter_costs_a_few_degrees_and_the_sd_says_so(beamwidth: float, ftb: float) -> None:
+    rng = random.Random(int(beamwidth * 100 + ftb))
+    pattern = cos_n_pattern(beamwidth, ftb)
+    errors, z = [], []
+    for bearing in range(-60, 61, 10):
+        for _ in range(15):
+            fit = fit_main_lobe(FULL, scan(pattern, bearing, jitter_db=2.0, rng=rng), beamwidth_prior_deg=beamwidth)
+            assert fit is not None
+            errors.append(fit.bearing_deg - bearing)
+            z.append((fit.bearing_deg - bearing) / fit.sd_deg)
+    rms = math.sqrt(sum(e * e for e in errors) / len(errors))
+    assert rms <= 3.5
+    # The reported sd is the right size (not off by a factor of 2 either way).
+    assert 0.5 <= math.sqrt(sum(x * x for x in z) / len(z)) <= 2.0
+
+
+def test_no_lobe_no_bearing() -> None:
+    assert fit_main_lobe(FULL, [-60.0] * len(FULL)) is None  # flat: nothing heard in any direction
+    assert fit_main_lobe(FULL, [-60.0 + 0.01 * a * a for a in FULL]) is None  # a valley, not a lobe
+    assert fit_main_lobe((0.0, 10.0), (-50.0, -51.0)) is None  # too few samples
+
+
+def test_bad_input_is_refused() -> None:
+    with pytest.raises(ValueError):
+        fit_main_lobe((0.0, 1.0, 2.0), (-50.0, -51.0))
+    with pytest.raises(ValueError):
+        fit_main_lobe((0.0, 1.0, math.nan), (-50.0, -51.0, -52.0))
+    with pytest.raises(ValueError):
+        fit_main_lobe(FULL, scan(cos_n_pattern(45.0, 20.0), 0.0), beamwidth_prior_deg=0.0)
+
+
+def test_a_leader_beyond_the_servo_limit_is_extrapolated_but_bounded() -> None:
+    fit = fit_main_lobe(FULL, scan(cos_n_pattern(45.0, 20.0), 100.0), beamwidth_prior_deg=45.0)
+    assert fit is not None and fit.extrapolated and 92.0 <= fit.bearing_deg <= 110.0
+    far = fit_main_lobe(FULL, scan(cos_n_pattern(45.0, 20.0), 170.0))
+    assert far is None or far.bearing_deg <= 90.0 + 20.0
