@@ -38,7 +38,7 @@ from relayd.state import Mode
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
 
-#: SPEC 4.3's /status fields.
+#: The /status fields every client may rely on.
 SPEC_FIELDS = {"mode", "state", "reason", "bearing_deg", "rssi_leader_dbm", "rssi_behind_dbm",
                "situation", "wheels_mm_s", "pose", "battery_v", "sonar_mm", "last_scan", "links",
                "health", "uptime_s", "version"}

@@ -1,4 +1,4 @@
-"""Config: defaults from the spec, every error named by its key, secrets never printed."""
+"""Config: the documented defaults, every error named by its key, secrets never printed."""
 
 from __future__ import annotations
 
