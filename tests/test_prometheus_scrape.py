@@ -34,7 +34,8 @@ from relayd.config import parse_settings
 from relayd.daemon import Daemon
 from relayd.fakes.rig import FakeRig
 
-pytestmark = pytest.mark.slow
+# The waits below add up to more than the suite's default 120 s on a loaded machine.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
 
 #: Generous: two cores shared with other test runs.
 START_TIMEOUT_S = 45.0
