@@ -38,13 +38,14 @@ from relayd.state import Mode
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
 
-#: SPEC 4.3's /status fields.
+#: The /status fields every client may rely on.
 SPEC_FIELDS = {"mode", "state", "reason", "bearing_deg", "rssi_leader_dbm", "rssi_behind_dbm",
                "situation", "wheels_mm_s", "pose", "battery_v", "sonar_mm", "last_scan", "links",
                "health", "uptime_s", "version"}
 DEVICES = {"robot", "pantilt", "wifi", "ap.rear", "ap.front"}
 #: Generous: two cores shared with other test runs.
 FIRST_SCAN_TIMEOUT_S = 30.0
+DISPLAY_NAME = "relay 1 (east stairs)"
 T = TypeVar("T")
 
 
@@ -125,7 +126,8 @@ async def running(work: Path, *, with_token: bool = True, **config: Any) -> Asyn
 
 @pytest_asyncio.fixture(scope="module", loop_scope="module")
 async def relay(tmp_path_factory: pytest.TempPathFactory) -> AsyncIterator[Relay]:
-    async with running(tmp_path_factory.mktemp("rig"), control={"mode": "hold"}) as r:
+    async with running(tmp_path_factory.mktemp("rig"), control={"mode": "hold"},
+                       robot={"display_name": DISPLAY_NAME}) as r:
         async def scanned() -> bool:
             doc = await r.status()
             return doc["last_scan"] is not None and all(
@@ -161,6 +163,7 @@ async def test_status_carries_the_fakes_values(relay: Relay) -> None:
     assert set(doc) >= SPEC_FIELDS
     assert doc["version"] == __version__
     assert doc["robot"] == rig.name  # from the fake robot's SYNC2 identity
+    assert doc["display_name"] == DISPLAY_NAME  # from the config, robot.display_name
     assert doc["mode"] == "hold" and doc["state"] == "stopped" and doc["reason"] == "hold"
     assert doc["uptime_s"] > 0
 
@@ -385,7 +388,13 @@ async def test_follow_mode_set_over_the_api_drives_to_the_leader(hold: Relay) ->
     assert doc["wheels_mm_s"]["left"] > 0 and doc["wheels_mm_s"]["right"] > 0
     # Driving, SIPs change the wheel command: each change is a control-latency sample,
     # SIP bytes in to VEL/RVEL written, well under a second even on a loaded machine.
-    m = await relay.metrics()
+    # (The first command after the mode change is the operator's, not a SIP's: wait for
+    # a SIP-caused one.)
+    async def sampled() -> dict[tuple[str, frozenset[tuple[str, str]]], float] | None:
+        m = await relay.metrics()
+        return m if _one(m, "relayd_control_latency_seconds_count") >= 1 else None
+
+    m = await until(sampled, "a SIP-caused wheel command")
     count = _one(m, "relayd_control_latency_seconds_count")
     assert count >= 1
     assert _one(m, "relayd_control_latency_seconds_bucket", le="+Inf") == count

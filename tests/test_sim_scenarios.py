@@ -1,4 +1,4 @@
-"""Acceptance scenarios: real relayd daemons in the simulated world (SPEC 5, paper V).
+"""Acceptance scenarios: real relayd daemons in the simulated world (docs/SIMULATOR.md, paper V).
 
 Each runs the shipped scenario end to end on virtual time (the devices in-process, the
 daemons unchanged), as fast as the CPU goes: a run's result does not depend on the
