@@ -12,9 +12,9 @@ runs the real `relayd.brain.Brain`:
    outdoor path loss), LOS (Rician K 6 dB) and NLOS (Rayleigh), bearings -60..60.
 3. The fastest leader the relay tracks at 2 m: a leader walking a straight line 2 m in
    front of a relay standing still, from -70 deg to +70 deg of bearing; "tracked" =
-   the bearing the controller steers by stays within 15 deg of the truth whenever the
-   leader is within +-60 deg (the NanoStation keeps the link within about half its
-   60 deg beam). Speeds rise in 0.05 m/s steps until a run fails; theorem 1's bound
+   the bearing the controller steers by stays within 30 deg of the truth whenever the
+   leader is within +-60 deg (the link antenna, pointed by it, then loses at most
+   1.25 dB). Speeds rise in 0.05 m/s steps until a run fails; theorem 1's bound
    V_perp <= theta_dot * d is printed with the measured sweep rate.
 4. The simulated convoy (outdoor, LOS) and corridor (indoor, brick corners: NLOS) with
    `relayd.sim.SimRunner` (real daemons, virtual time), several seeds: the share of
@@ -39,7 +39,8 @@ CONFIGS: tuple[tuple[str, str], ...] = (("wca", "full"), ("lobe", "full"), ("lob
 SCANS = 5
 STATIC_TARGET_DEG = 5.0
 NOISY_TARGET_DEG = 3.0
-TRACK_TOLERANCE_DEG = 15.0
+#: "Tracked": the link antenna (a cos^2 patch) stays within 1.25 dB of its boresight gain.
+TRACK_TOLERANCE_DEG = 30.0
 
 
 def _label(cfg: tuple[str, str]) -> str:

@@ -23,7 +23,9 @@ How (`fit_main_lobe`):
    obstacle's PRSSI dip does not drag the fit. Then the run is chosen again from the
    fitted lobe (its peak, not the noisy best sample) and fitted once more.
 4. centre = peak angle - b / (2c). A lobe that is not concave (c >= 0: flat or
-   no leader) gives no centre: `None`, and the tracker treats the scan as a miss.
+   no leader), or so shallow that its 3 dB beamwidth would exceed
+   `max_beamwidth_deg` (150: a flat scan with RSSI drifting while it sweeps), gives
+   no centre: `None`, and the tracker treats the scan as a miss.
    A centre outside the sampled span (the leader beyond the servo limit) is kept up
    to `max_extrapolation_deg` past the span's ends, since turning toward it is right;
    further out the one-sided fit is not trusted and the centre is clamped there.
@@ -56,6 +58,13 @@ class LobeParams:
     #: Residual noise is never assumed below this (dB): model mismatch and quantisation.
     min_noise_db: float = 0.5
     max_extrapolation_deg: float = 20.0
+    #: The propagated sd is multiplied by this: over cos^n and Gaussian lobes with uniform
+    #: jitter, Rician and Rayleigh fading, the real errors were 1.1 to 1.7 times it
+    #: (heavy tails, the parabola's mismatch), and a filter that trusts a scan too much
+    #: does not average.
+    sd_scale: float = 1.5
+    #: A "lobe" wider than this is no lobe: a flat scan, or RSSI drifting during the sweep.
+    max_beamwidth_deg: float = 150.0
     iterations: int = 3
     #: Relative spread (sd / value) of the curvature prior; see `fit_main_lobe`.
     prior_spread: float = 0.35
@@ -231,13 +240,15 @@ def fit_main_lobe(angles_deg: Sequence[float], rssi_dbm: Sequence[float],
     s2 = resid_scale * resid_scale
     gb, gc = -1.0 / (2.0 * c), b / (2.0 * c * c)
     var = s2 * (gb * gb * inv[1][1] + 2.0 * gb * gc * inv[1][2] + gc * gc * inv[2][2])
-    sd = math.sqrt(max(var, 0.0))
+    sd = params.sd_scale * math.sqrt(max(var, 0.0))
     centre = u0 + centre_u
     span_lo, span_hi = angles[0], angles[-1]
     extrapolated = not (span_lo <= centre <= span_hi)
     centre = min(max(centre, span_lo - params.max_extrapolation_deg), span_hi + params.max_extrapolation_deg)
     peak_dbm = a + b * centre_u + c * centre_u * centre_u
     beamwidth = 2.0 * math.sqrt(_DB_AT_HALF_BEAMWIDTH / -c)
+    if beamwidth > params.max_beamwidth_deg:
+        return None
     return LobeFit(bearing_deg=centre, sd_deg=sd, beamwidth_deg=beamwidth, peak_dbm=peak_dbm,
                    used=hi - lo + 1, extrapolated=extrapolated)
 

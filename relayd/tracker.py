@@ -2,7 +2,10 @@
 
 State: the leader's bearing b (deg, robot frame) and its rate w (deg/s, the part of the
 bearing's change that comes from the two robots moving, not from the relay turning).
-Between updates the model is a constant rate, driven by white-noise acceleration:
+Between updates the model is a constant rate, driven by white-noise acceleration
+(q small while the innovations are small, so consecutive scans average; q large for
+the update in which an innovation exceeds `manoeuvre_sigma`, so a turning leader is
+followed: a two-level adaptive process noise, simpler than an IMM and enough here):
 
     b' = b + w dt - dheading        w' = w
     Q  = q [[dt^3/3, dt^2/2], [dt^2/2, dt]]  +  (heading_noise * dheading)^2 on b
@@ -43,12 +46,16 @@ from dataclasses import dataclass, replace
 class TrackerParams:
     """Settings of the bearing filter."""
 
-    #: Process noise: spectral density of the bearing's acceleration (deg^2/s^3).
-    accel_q: float = 0.5
+    #: Process noise: spectral density of the bearing's acceleration (deg^2/s^3), for a
+    #: leader holding its course (small: scans average) ...
+    accel_q: float = 0.05
+    #: ... and for one that manoeuvres, used when an innovation is over `manoeuvre_sigma`.
+    manoeuvre_q: float = 4.0
+    manoeuvre_sigma: float = 3.0
     #: Odometry heading error, as a fraction of the heading change.
     heading_noise: float = 0.05
     #: A new track's rate uncertainty (deg/s).
-    init_rate_sd_deg_s: float = 1.5
+    init_rate_sd_deg_s: float = 1.0
     #: A measurement is never trusted beyond this (deg): model mismatch, quantisation.
     min_meas_sd_deg: float = 1.0
     gate_sigma: float = 4.0
@@ -102,12 +109,13 @@ def start(t: float, heading_deg: float, bearing_deg: float, sd_deg: float, param
                  params.init_rate_sd_deg_s ** 2, updates=1)
 
 
-def predict(track: Track, t: float, heading_deg: float, params: TrackerParams) -> Track:
+def predict(track: Track, t: float, heading_deg: float, params: TrackerParams,
+            accel_q: float | None = None) -> Track:
     """The track moved to time `t` and the robot frame of `heading_deg` (t before the track's: no time passes)."""
     _check(t=t, heading_deg=heading_deg)
     dt = max(0.0, t - track.t)
     dh = _wrap(heading_deg - track.heading_deg)  # odometry headings wrap at +-180
-    q = params.accel_q
+    q = params.accel_q if accel_q is None else accel_q
     b = _wrap(track.bearing_deg + track.rate_deg_s * dt - dh)
     p_bb = (track.p_bb + 2.0 * dt * track.p_bw + dt * dt * track.p_ww
             + q * dt ** 3 / 3.0 + (params.heading_noise * dh) ** 2)
@@ -127,6 +135,12 @@ def update(track: Track, t: float, heading_deg: float, bearing_deg: float, sd_de
     r = max(sd_deg, params.min_meas_sd_deg) ** 2
     innovation = _wrap(bearing_deg - prior.bearing_deg)
     s = prior.p_bb + r
+    if innovation * innovation > params.manoeuvre_sigma ** 2 * s:
+        # The leader turned or sped up: predict again with the manoeuvring process noise,
+        # so the filter follows within a scan or two instead of averaging the turn away.
+        prior = predict(track, t, heading_deg, params, accel_q=params.manoeuvre_q)
+        innovation = _wrap(bearing_deg - prior.bearing_deg)
+        s = prior.p_bb + r
     if innovation * innovation > params.gate_sigma ** 2 * s:
         rejects = prior.rejects + 1
         if rejects >= params.reacquire_after:

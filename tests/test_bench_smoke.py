@@ -145,3 +145,16 @@ async def test_fake_robot_sip_period_is_settable(tmp_path) -> None:  # type: ign
                 await asyncio.sleep(0.01)
     finally:
         await robot.stop()
+
+
+def test_tracking_bench_runs_and_the_lobe_estimator_beats_the_centroid_at_the_edge() -> None:
+    from bench import tracking
+
+    pattern = tracking.cos_n_pattern(45.0, 15.0)
+    wca = abs(tracking.static_error(("wca", "full"), 80.0, pattern))
+    lobe = abs(tracking.static_error(("lobe", "adaptive"), 80.0, pattern))
+    assert lobe < 2.0 < 5.0 < wca
+    worst, sweep_deg_s = tracking.crossing_error(("lobe", "adaptive"), 0.2)
+    assert math.isfinite(worst) and 10.0 < sweep_deg_s < 400.0
+    shares = tracking.sim_share("convoy", ("lobe", "adaptive"), 1, seconds=15.0)
+    assert len(shares) == 2 and all(0.0 <= s <= 1.0 for s in shares)

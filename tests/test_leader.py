@@ -1,0 +1,102 @@
+"""The bearing models in the brain (relayd.leader): selection, the adaptive window, lost leaders.
+
+Driven through `bench.brainrig.BrainRig`: the real brain on virtual time, fed SIPs,
+RSSI and step-mode sweeps timed like the scanner's, in a small kinematic world.
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from pydantic import ValidationError
+
+from bench.brainrig import BrainRig, cos_n_pattern, still
+from relayd.config import Settings
+from relayd.leader import LeaderParams
+from relayd.state import DriveState, Mode, RelayState
+
+
+def leader_at(bearing_deg: float, distance_m: float = 5.0) -> tuple[float, float]:
+    return (distance_m * math.cos(math.radians(bearing_deg)), distance_m * math.sin(math.radians(bearing_deg)))
+
+
+def rig(estimator: str, window: str, bearing_deg: float, **kw: object) -> BrainRig:
+    r = BrainRig(scan={"estimator": estimator, "window": window}, leader=still(*leader_at(bearing_deg)),
+                 pattern=cos_n_pattern(45.0, 15.0), **kw)  # type: ignore[arg-type]
+    r.start()
+    return r
+
+
+@pytest.mark.parametrize("bearing", [-85.0, -60.0, 0.0, 45.0, 80.0])
+def test_standing_still_the_lobe_estimator_finds_a_leader_near_the_servo_limit(bearing: float) -> None:
+    lobe, wca = rig("lobe", "adaptive", bearing), rig("wca", "full", bearing)
+    lobe.run_scans(5)
+    wca.run_scans(5)
+    est = lobe.results[-1][1].estimate
+    assert abs(est.bearing_deg - bearing) <= 1.5
+    assert est.bearing_sd_deg is not None and 0.0 < est.bearing_sd_deg < 5.0
+    if abs(bearing) >= 60.0:  # the centroid is pulled toward the middle there
+        assert abs(wca.results[-1][1].estimate.bearing_deg - bearing) > 5.0
+    assert wca.results[-1][1].estimate.bearing_sd_deg is None
+
+
+def test_a_confident_filter_narrows_the_window_and_sweeps_faster() -> None:
+    r = rig("lobe", "adaptive", 20.0)
+    r.run_scans(6)
+    first, last = r.results[0][1].record, r.results[-1][1].record
+    assert len(first.angles_deg) == 25 and max(first.angles_deg) - min(first.angles_deg) == pytest.approx(180.0)
+    assert len(last.angles_deg) < 20
+    assert min(last.angles_deg) < 20.0 < max(last.angles_deg)  # around the leader
+    assert last.period_s is not None and first.period_s is not None and last.period_s < 0.7 * first.period_s
+    # The same filter with window = "full" keeps sweeping the configured width.
+    full = rig("lobe", "full", 20.0)
+    full.run_scans(6)
+    assert all(len(res.record.angles_deg) == 25 for _, res in full.results)
+
+
+def test_a_leader_that_goes_silent_is_lost_wheels_zero_and_the_window_goes_full() -> None:
+    r = BrainRig(scan={"estimator": "lobe", "window": "adaptive"}, leader=still(*leader_at(10.0, 3.0)),
+                 pattern=cos_n_pattern(45.0, 15.0), mode=Mode.FOLLOW,
+                 control={"threshold_l_dbm": -10.0})  # never "leader near": it drives toward the leader
+    r.start()
+    r.run_scans(6)
+    assert r.brain.last_output is not None and r.brain.last_output.state is DriveState.DRIVING
+    assert len(r.results[-1][1].record.angles_deg) < 25
+    # Every direction hears the leader equally well (a reflection-filled room, an antenna
+    # knocked off): RSSI^l stays high, so only the filter can tell the bearing is gone.
+    r.pattern = lambda off: 0.0
+    r.run_scans(4)
+    assert r.brain.lost_count == 0  # not the RSSI rule
+    out = r.brain.last_output
+    assert out is not None and out.state is DriveState.LEADER_LOST and (out.left_mm_s, out.right_mm_s) == (0, 0)
+    assert r.brain.inputs(r.t).bearing_deg is None or r.brain.inputs(r.t).leader_lost
+    assert len(r.results[-1][1].record.angles_deg) == 25  # searching the whole servo range
+
+
+def test_the_filter_steers_by_its_prediction_between_scans() -> None:
+    r = rig("lobe", "full", 30.0)
+    r.run_scans(3)
+    before = r.bearing_now()
+    # The robot turns 20 degrees left (odometry only, no new scan yet): the bearing follows.
+    r.theta_deg += 20.0
+    r.run_until(r.t + 0.1)
+    after = r.bearing_now()
+    assert before is not None and after is not None
+    assert after == pytest.approx(before - 20.0, abs=1.0)
+
+
+def test_selection_is_strict() -> None:
+    assert Settings().scan.estimator == "lobe" and Settings().scan.window == "adaptive"
+    Settings.model_validate({"scan": {"estimator": "wca", "window": "full"}})
+    with pytest.raises(ValidationError):
+        Settings.model_validate({"scan": {"estimator": "wca", "window": "adaptive"}})
+    with pytest.raises(ValidationError):
+        Settings.model_validate({"scan": {"estimator": "music"}})
+    with pytest.raises(ValueError):
+        LeaderParams(estimator="wca", window="adaptive")
+
+
+def test_status_shows_the_uncertainty() -> None:
+    st = RelayState()
+    assert "bearing_sd_deg" in st.snapshot(0.0) and st.snapshot(0.0)["bearing_sd_deg"] is None
