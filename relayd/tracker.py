@@ -55,7 +55,7 @@ class TrackerParams:
     #: Odometry heading error, as a fraction of the heading change.
     heading_noise: float = 0.05
     #: A new track's rate uncertainty (deg/s).
-    init_rate_sd_deg_s: float = 1.0
+    init_rate_sd_deg_s: float = 0.5
     #: A measurement is never trusted beyond this (deg): model mismatch, quantisation.
     min_meas_sd_deg: float = 1.0
     gate_sigma: float = 4.0

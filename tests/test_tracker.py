@@ -43,11 +43,12 @@ def test_converges_on_a_constant_rate_track(b0, rate, seed) -> None:
     for _ in range(25):
         t += 2.5
         tr, _ = tracker.update(tr, t, 0.0, b0 + rate * t + rng.gauss(0.0, 3.0), 3.0, P)
-    # Consistent: the error is within what the filter itself claims (4.5 sigma), and it
-    # claims less than one measurement's uncertainty.
+    # Consistent: the error is within what the filter itself claims (4.5 sigma); after an
+    # update it claims less than one measurement's uncertainty (a Kalman update always
+    # does), and it knows the rate to a few deg/s (more right after a manoeuvre update).
     assert abs(math.remainder(tr.bearing_deg - (b0 + rate * t), 360.0)) < 4.5 * tr.sd_deg
     assert abs(tr.rate_deg_s - rate) < 4.5 * tr.rate_sd_deg_s
-    assert tr.sd_deg < 3.0 and tr.rate_sd_deg_s < 1.5
+    assert tr.sd_deg < 3.0 and tr.rate_sd_deg_s < 3.0
 
 
 @given(turn=st.floats(-170.0, 170.0), b=st.floats(-80.0, 80.0))
