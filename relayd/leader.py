@@ -164,6 +164,9 @@ class TrackingModel:
             # No track to speak of: the scan's own word (the fit, else the centroid), flagged unsure.
             bearing = fit.bearing_deg if fit is not None else est.bearing_deg
             return replace(est, bearing_deg=bearing, bearing_sd_deg=None)
+        if fit is not None and not fit.extrapolated:
+            # RSSI^l from the fitted lobe: every sample of it, not the one luckiest fade.
+            est = replace(est, rssi_leader_dbm=min(fit.peak_dbm, max(est.rssi_dbm)))
         return replace(est, bearing_deg=now.bearing_deg, bearing_sd_deg=now.sd_deg)
 
     def bearing_now(self, t: float, heading_deg: float | None) -> float | None:

@@ -100,3 +100,19 @@ def test_selection_is_strict() -> None:
 def test_status_shows_the_uncertainty() -> None:
     st = RelayState()
     assert "bearing_sd_deg" in st.snapshot(0.0) and st.snapshot(0.0)["bearing_sd_deg"] is None
+
+
+def test_rssi_l_is_the_fitted_lobe_peak_not_the_luckiest_sample() -> None:
+    from relayd.estimator import ScanEstimate, plan_scan
+    from relayd.leader import TrackingModel
+
+    angles = plan_scan(0.0, 180.0, 25, (-90.0, 90.0), True)
+    pattern = cos_n_pattern(45.0, 20.0)
+    rssi = [-50.0 + pattern(a - 10.0) for a in angles]
+    rssi[12] += 4.0  # one fade's lucky peak
+    est = ScanEstimate(bearing_deg=0.0, rssi_leader_dbm=max(rssi), situation=0, angles_deg=angles,
+                       rssi_dbm=tuple(rssi), nrssi_dbm=tuple(rssi))
+    out = TrackingModel(LeaderParams(estimator="lobe")).scan_done(10.0, 0.0, est, [10.0] * len(angles))
+    assert out.rssi_leader_dbm < max(rssi) - 2.0
+    assert out.rssi_leader_dbm == pytest.approx(-50.0, abs=1.5)
+    assert abs(out.bearing_deg - 10.0) < 3.0
