@@ -19,12 +19,15 @@ runs the real `relayd.brain.Brain`:
 4. The simulated convoy (outdoor, LOS) and corridor (indoor, brick corners: NLOS) with
    `relayd.sim.SimRunner` (real daemons, virtual time), several seeds: the share of
    trace records in which each relay is within 5 m of its own leader.
-5. CPU per brain event (SIP steps and scan ends), the decision core's share of the
-   control latency and of the steady CPU.
+5. CPU per brain event (SIP steps and scan ends): the decision core's share of the
+   control latency and of the steady CPU; then a real relayd on the fakes (bench/steady.py,
+   bench/latency.py) with each estimator, one after the other: steady CPU and the SIP ->
+   wheel command latency.
 """
 
 from __future__ import annotations
 
+import asyncio
 import math
 import time
 from collections.abc import Callable
@@ -195,9 +198,30 @@ def run(quick: bool = False, *, sim_seeds: int | None = None, noisy_seeds: int |
                 NAME, f"{scenario}: share of time within 5 m of its leader (mean over relays and seeds), {_label(cfg)}",
                 100.0 * mean, "%", f">= {100 * target:g} %", mean >= target,
                 f"{n_sim} seeds; worst relay-run {100 * worst:.1f} %"))
-    # 5. CPU of the decision core
+    # 5. CPU of the decision core, and of the whole daemon on the fakes
     for cfg in CONFIGS:
         sip_us, scan_us = event_cpu_us(cfg)
         out.results.append(Result(NAME, f"brain CPU per SIP step / per scan end, {_label(cfg)}", sip_us, "us",
                                   "", None, f"scan end {scan_us:.0f} us"))
+    out.results += daemon_figures(quick)
     return out
+
+
+def daemon_figures(quick: bool) -> list[Result]:
+    """Steady CPU and SIP -> wheel latency of a real relayd on the fakes, WCA vs lobe, one after the other."""
+    from bench import latency, steady
+    from bench.common import percentile
+
+    rows = []
+    for cfg in (CONFIGS[0], CONFIGS[2]):
+        scan = _scan(cfg)
+        d = asyncio.run(steady.measure(seconds=5.0 if quick else 30.0, config={"scan": scan}))
+        rows.append(Result(NAME, f"relayd steady CPU on the fakes, {_label(cfg)}", d["cpu_pct"], "%", "", None,
+                           f"over {d['seconds']:.0f} s, state {d['state']}"))
+        lat = asyncio.run(latency.measure(cycles=30 if quick else 300, load_rps=0.0 if quick else 200.0,
+                                          scan=scan))
+        first = lat["alone"]["first_ms"]
+        rows.append(Result(NAME, f"control latency p50 / p99 (SIP -> wheel command), {_label(cfg)}",
+                           percentile(first, 50), "ms", "", None,
+                           f"p99 {percentile(first, 99):.1f} ms over {len(first)} SIPs"))
+    return rows
