@@ -11,8 +11,9 @@ import argparse
 import asyncio
 import importlib
 import inspect
+import signal
 import sys
-from collections.abc import Sequence
+from collections.abc import Coroutine, Sequence
 from typing import Any
 
 from relayd import __version__
@@ -118,10 +119,38 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     setup_logging("info", "console", stream=StdStream("stderr"))
     try:
-        code = asyncio.run(runner(args)) if inspect.iscoroutinefunction(runner) else runner(args)
+        code = asyncio.run(_until_signal(runner(args))) if inspect.iscoroutinefunction(runner) else runner(args)
     except KeyboardInterrupt:
         code = 130
     return int(code or 0)
+
+
+async def _until_signal(command: Coroutine[Any, Any, int | None]) -> int | None:
+    """Run an async command; SIGTERM or SIGINT cancels it so its `finally` cleans up.
+
+    Without this SIGTERM kills a fake outright and leaves its pty symlinks behind.
+    SIGTERM is a normal stop (exit 0), Ctrl-C keeps the shell's 130. `relayd run`
+    installs its own handlers, which replace these.
+    """
+    loop = asyncio.get_running_loop()
+    task = asyncio.ensure_future(command)
+    received: list[signal.Signals] = []
+
+    def _stop(sig: signal.Signals) -> None:
+        received.append(sig)
+        task.cancel()
+
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        loop.add_signal_handler(sig, _stop, sig)
+    try:
+        return await task
+    except asyncio.CancelledError:
+        if not received:
+            raise
+        return 130 if received[0] == signal.SIGINT else 0
+    finally:
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            loop.remove_signal_handler(sig)
 
 
 if __name__ == "__main__":
