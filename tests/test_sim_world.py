@@ -385,3 +385,10 @@ def test_scenario_errors_all_in_one_pass() -> None:
     # The shared control table's errors are not repeated for each relay.
     assert not any(e.startswith("relay.0.control.kp") for e in errors), errors
     assert len(errors) == len(set(errors))
+
+
+def test_non_utf8_scenario_is_an_error_naming_the_key(tmp_path) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_bytes('name = "t"\ndescription = "caf\u00e9"\n'.encode("latin-1"))
+    with pytest.raises(ScenarioError, match=r"description \(line 2\): not UTF-8"):
+        load_scenario(bad)

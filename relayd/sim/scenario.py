@@ -257,9 +257,15 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
     p = Path(name_or_path)
     if p.suffix == ".toml" or p.exists():
         try:
-            text = p.read_text(encoding="utf-8")
+            raw = p.read_bytes()
         except OSError as exc:
             raise ScenarioError([f"{p}: {exc.strerror or exc}"]) from None
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            from relayd.config_checks import undecodable
+
+            raise ScenarioError([undecodable(raw, exc)]) from None
     else:
         res = resources.files("relayd.sim") / "scenarios" / f"{name_or_path}.toml"
         if not res.is_file():
