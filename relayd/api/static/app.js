@@ -1,6 +1,9 @@
 // relayd live page: renders /status documents pushed over /events (Server-Sent Events).
 // No framework, no CDN: the page must work on a laptop with no internet in a corridor.
 // Every value from the robot is written with textContent / attributes, never as HTML.
+// The page never lies about freshness: with no event for STALE_AFTER_MS (the daemon
+// sends a heartbeat every second while nothing changes) or a broken stream, it greys
+// out, says how old the data is, and shows no state or wheel speed as current.
 "use strict";
 
 const SVG_NS = "http://www.w3.org/2000/svg";
@@ -17,11 +20,16 @@ const SONAR_POSES = [
   [-144, -136, -90], [-189, -119, -130], [-223, -79, -150], [-241, -27, -170],
   [-241, 27, 170], [-223, 79, 150], [-189, 119, 130], [-144, 136, 90],
 ];
-// No event (status or heartbeat) for this long means the stream is dead.
-const STALE_AFTER_MS = 15000;
+// No event (status or heartbeat) for this long means the data is not current.
+const STALE_AFTER_MS = 2000;
+// Sonar ranges at or over this mean no echo (ARIA's maximum): nothing to label.
+const NO_ECHO_MM = 5000;
 
 const $ = (id) => document.getElementById(id);
 let lastMessageMs = 0;
+let lastDoc = null;
+let streamBroken = true;
+let isStale = true;
 
 function svg(tag, attrs, parent) {
   const el = document.createElementNS(SVG_NS, tag);
@@ -152,6 +160,7 @@ function renderSonar(s) {
     svg("path", { d: `M ${sx} ${sy} L ${lx.toFixed(0)} ${ly.toFixed(0)} L ${rx.toFixed(0)} ${ry.toFixed(0)} Z`,
       class: `beam ${cls}` }, g);
     svg("line", { x1: sx, y1: sy, x2: ex.toFixed(0), y2: ey.toFixed(0), class: `ray ${cls}` }, g);
+    if (range >= NO_ECHO_MM) return;  // no echo: a faint ray, no number
     // Labels sit just inside the ray's end and inside the view so none is clipped.
     const lr = Math.min(reach + 160, SONAR_VIEW_MM - 180);
     const tx = -(y + lr * Math.sin(a)), ty = -(x + lr * Math.cos(a)) + 40;
@@ -215,7 +224,8 @@ function render(s) {
   $("drive-state").className = `badge state-${s.state}`;
   setText("situation", ["clear", "avoiding", "obstacle penalty"][s.situation] || String(s.situation));
   $("situation").className = `badge situation-${s.situation}`;
-  setText("reason", s.reason);
+  setText("reason", Reasons.describe(s));
+  setText("reason-code", s.reason);
   setText("version", s.version);
 
   renderScan(s);
@@ -233,6 +243,7 @@ function render(s) {
   renderWheel("wheel-l", "wheel-l-val", s.wheels_mm_s.left, vmax);
   renderWheel("wheel-r", "wheel-r-val", s.wheels_mm_s.right, vmax);
   const p = s.pose || {};
+  History.setLive(p);
   setText("pose", p.x_mm === null || p.x_mm === undefined ? "—"
     : `x ${fmt(p.x_mm / 1000, 2, "m")}  y ${fmt(p.y_mm / 1000, 2, "m")}  θ ${fmt(p.theta_deg, 0, "°")}`);
   setText("battery", fmt(s.battery_v, 1, "V"));
@@ -249,37 +260,82 @@ function render(s) {
 
 function markLive() {
   lastMessageMs = Date.now();
-  $("live-dot").className = "dot live";
-  setText("live-text", "live");
+  streamBroken = false;
+  checkStale();
+}
+
+function ago() {
+  return lastMessageMs ? `last update ${Math.floor((Date.now() - lastMessageMs) / 1000)} s ago` : "no update yet";
+}
+
+// What may not be shown as current once the data is old: state, mode, wheels, devices.
+function blankCurrent() {
+  for (const id of ["mode", "drive-state", "situation"]) {
+    setText(id, "unknown");
+    $(id).className = "badge state-unknown";
+  }
+  document.title = `relayd · ${lastDoc && lastDoc.robot ? lastDoc.robot : ""} · no current data`;
+  for (const [bar, val] of [["wheel-l", "wheel-l-val"], ["wheel-r", "wheel-r-val"]]) {
+    setText(val, "—");
+    $(bar).querySelector(".fill").style.height = "0";
+  }
+  setText("motors", "unknown");
+  for (const td of document.querySelectorAll("#health td.ok, #health td.bad")) {
+    td.textContent = "unknown";
+    td.className = "unknown";
+  }
+  const last = lastDoc ? `last known: ${lastDoc.state}, ${Reasons.describe(lastDoc)}` : "nothing received yet";
+  setText("reason", `no current data (${last})`);
 }
 
 function checkStale() {
-  if (lastMessageMs && Date.now() - lastMessageMs > STALE_AFTER_MS) {
+  const old = !lastMessageMs || Date.now() - lastMessageMs > STALE_AFTER_MS;
+  const stale = old || streamBroken;
+  if (stale) {
     $("live-dot").className = "dot stale";
-    setText("live-text", `no data for ${Math.round((Date.now() - lastMessageMs) / 1000)} s`);
+    setText("live-text", streamBroken && lastMessageMs ? `connection lost · ${ago()}` : ago());
+    setText("stale-age", lastMessageMs ? `The last update came ${Math.floor((Date.now() - lastMessageMs) / 1000)} s ago.` : "No update yet.");
+    if (!isStale) blankCurrent();
+  } else {
+    $("live-dot").className = "dot live";
+    setText("live-text", "live");
+  }
+  if (stale !== isStale) {
+    isStale = stale;
+    document.body.classList.toggle("stale", stale);
+    $("stale-banner").hidden = !stale;
+    if (!stale && lastDoc) render(lastDoc);
   }
 }
 
 function connect() {
   const es = new EventSource("/events");
   es.addEventListener("status", (ev) => {
-    markLive();
     try {
-      render(JSON.parse(ev.data));
+      lastDoc = JSON.parse(ev.data);
     } catch (err) {
       console.error("bad status event", err);
+      return;
     }
+    markLive();
+    if (!isStale) render(lastDoc);
   });
   es.addEventListener("heartbeat", markLive);
   es.onerror = () => {
-    $("live-dot").className = "dot stale";
-    setText("live-text", "reconnecting…");
+    // The browser retries by itself; until then nothing on the page is current.
+    streamBroken = true;
+    checkStale();
   };
 }
 
 document.addEventListener("DOMContentLoaded", () => {
   drawPolarGrid(undefined);
   drawSonarGrid();
+  Control.init();
+  Reasons.load().then(() => { if (lastDoc && !isStale) render(lastDoc); });
   connect();
-  setInterval(checkStale, 1000);
+  History.poll();
+  setInterval(checkStale, 250);
+  setInterval(() => History.draw(), 1000);
+  setInterval(() => History.poll(), 2000);
 });
