@@ -15,7 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from relayd import controller
+from relayd import control, controller
 from relayd.api.reasons import MINUS, comparison, describe, fmt_db, phrasebook
 from relayd.controller import ControlInputs, ControlMemory, ControlParams, control_step
 from relayd.estimator import SonarReading
@@ -23,16 +23,19 @@ from relayd.state import Mode, RelayState
 
 
 def controller_reason_literals() -> set[str]:
-    """Reason strings in relayd/controller.py: `_stopped(state, "x", ...)`,
-    `ControlOutput(l, r, state, "x", ...)`, `return False, "x"` and `reason = "x"`."""
-    tree = ast.parse(inspect.getsource(controller))
+    """Reason codes in relayd/controller.py and relayd/control.py: `_stopped(state, "x", ...)`,
+    `ControlOutput(l, r, state, "x", ...)`, `return False, "x"` and `reason = "x"`; for
+    an f-string reason (`f"controller_error: {name}"`) the code before the colon."""
+    trees = [ast.parse(inspect.getsource(module)) for module in (controller, control)]
     found: set[str] = set()
 
     def literal(node: ast.AST) -> None:
         if isinstance(node, ast.Constant) and isinstance(node.value, str):
             found.add(node.value)
+        elif isinstance(node, ast.JoinedStr) and node.values and isinstance(node.values[0], ast.Constant):
+            found.add(str(node.values[0].value).partition(":")[0].strip())
 
-    for node in ast.walk(tree):
+    for node in (n for tree in trees for n in ast.walk(tree)):
         if isinstance(node, ast.Call) and isinstance(node.func, ast.Name):
             if node.func.id == "_stopped" and len(node.args) >= 2:
                 literal(node.args[1])
@@ -55,7 +58,8 @@ def test_the_source_scan_finds_the_controller_reasons() -> None:
     # Guards the scanner itself: if the controller's shape changed so that it finds
     # nothing, the test below would pass vacuously.
     found = controller_reason_literals()
-    assert {"hold", "rear_weak", "leader_near", "no_sip", "manual", "driving"} <= found
+    assert {"hold", "rear_weak", "leader_near", "no_sip", "manual", "driving", "shutdown",
+            "controller_error"} <= found
 
 
 def test_every_reason_in_the_controller_source_has_a_phrase() -> None:
@@ -114,6 +118,9 @@ THR = {"threshold_l_dbm": -30.0, "threshold_b_dbm": -60.0, "hysteresis_db": 2.0}
     ({"reason": "obstacle", "mode": "manual"}, "manual: an obstacle ahead, forward motion blocked"),
     ({"reason": "obstacle", "mode": "follow"}, "avoiding an obstacle ahead (slower, steering around it)"),
     ({"reason": "something_new"}, "something_new"),
+    ({"reason": "controller_error: ZeroDivisionError"},
+     "fault: the controller failed (a bug: see the log) (ZeroDivisionError)"),
+    ({"reason": "toString"}, "toString"),
     ({"reason": "hold", "mode": "hold"}, "stopped: hold mode (an operator asked it to stand still)"),
 ])
 def test_describe(doc: dict[str, object], text: str) -> None:

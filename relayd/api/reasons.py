@@ -71,13 +71,13 @@ def comparison(kind: str, doc: dict[str, Any]) -> str | None:
 def describe(doc: dict[str, Any]) -> str:
     """The plain-language reason of one /status document; an unknown code is shown as is."""
     reason = str(doc.get("reason", ""))
-    entry = phrasebook().get(reason)
+    code, colon, extra = reason.partition(":")
+    entry = phrasebook().get(code.strip())
     if entry is None:
         return reason
     text = entry.get("manual", entry["text"]) if doc.get("mode") == "manual" else entry["text"]
     kind = entry.get("detail")
-    if kind:
-        detail = comparison(kind, doc)
-        if detail:
-            text = f"{text} ({detail})"
+    detail = comparison(kind, doc) if kind else (extra.strip() if colon else None)
+    if detail:
+        text = f"{text} ({detail})"
     return text

@@ -152,6 +152,11 @@ function renderSonar(s) {
     if (i < 8 && (frontMin === null || range < frontMin)) frontMin = range;
     const reach = Math.min(range, SONAR_VIEW_MM);
     const ex = -(y + reach * Math.sin(a)), ey = -(x + reach * Math.cos(a));
+    if (range >= NO_ECHO_MM) {
+      // Nothing echoed: a faint dotted ray to the rim, no wedge and no number.
+      svg("line", { x1: sx, y1: sy, x2: ex.toFixed(0), y2: ey.toFixed(0), class: "ray noecho" }, g);
+      return;
+    }
     const cls = range < thrO ? "near" : range < 3000 ? "mid" : "far";
     // The beam is ±15°: draw it as a wedge so a near obstacle reads at a glance.
     const half = (15 * Math.PI) / 180;
@@ -160,7 +165,6 @@ function renderSonar(s) {
     svg("path", { d: `M ${sx} ${sy} L ${lx.toFixed(0)} ${ly.toFixed(0)} L ${rx.toFixed(0)} ${ry.toFixed(0)} Z`,
       class: `beam ${cls}` }, g);
     svg("line", { x1: sx, y1: sy, x2: ex.toFixed(0), y2: ey.toFixed(0), class: `ray ${cls}` }, g);
-    if (range >= NO_ECHO_MM) return;  // no echo: a faint ray, no number
     // Labels sit just inside the ray's end and inside the view so none is clipped.
     const lr = Math.min(reach + 160, SONAR_VIEW_MM - 180);
     const tx = -(y + lr * Math.sin(a)), ty = -(x + lr * Math.cos(a)) + 40;
@@ -284,8 +288,8 @@ function blankCurrent() {
     td.textContent = "unknown";
     td.className = "unknown";
   }
-  const last = lastDoc ? `last known: ${lastDoc.state}, ${Reasons.describe(lastDoc)}` : "nothing received yet";
-  setText("reason", `no current data (${last})`);
+  const last = lastDoc ? `last known: ${Reasons.describe(lastDoc)}` : "nothing received yet";
+  setText("reason", `no current data \u00b7 ${last}`);
 }
 
 function checkStale() {

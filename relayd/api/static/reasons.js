@@ -46,13 +46,13 @@ const Reasons = (() => {
 
   function describe(doc) {
     const reason = String(doc.reason ?? "");
-    const entry = phrases ? phrases[reason] : undefined;
+    const colon = reason.indexOf(":");
+    const code = (colon < 0 ? reason : reason.slice(0, colon)).trim();
+    const entry = phrases && Object.hasOwn(phrases, code) ? phrases[code] : undefined;
     if (!entry) return reason;
     let text = doc.mode === "manual" && entry.manual ? entry.manual : entry.text;
-    if (entry.detail) {
-      const detail = comparison(entry.detail, doc);
-      if (detail) text = `${text} (${detail})`;
-    }
+    const detail = entry.detail ? comparison(entry.detail, doc) : colon < 0 ? null : reason.slice(colon + 1).trim();
+    if (detail) text = `${text} (${detail})`;
     return text;
   }
 
