@@ -72,10 +72,10 @@ class RelayPoller:
             self._failed("no_answer", f"no answer within {self.timeout_s:g} s")
             return
         except (aiohttp.ClientConnectorError, ConnectionError) as exc:
-            self._failed("unreachable", _short(exc))
+            self._failed("unreachable", short_error(exc))
             return
         except (aiohttp.ClientError, ValueError, RuntimeError, OSError) as exc:
-            self._failed("bad_answer", _short(exc))
+            self._failed("bad_answer", short_error(exc))
             return
         now = self.clock.now()
         if view.error is not None and view.polls:
@@ -115,8 +115,12 @@ class RelayPoller:
             await self.clock.sleep(max(0.0, self.poll_s - (self.clock.now() - started)))
 
 
-def _short(exc: BaseException) -> str:
-    text = str(exc) or type(exc).__name__
+def short_error(exc: BaseException) -> str:
+    """A one-line cause: "Connection refused" rather than aiohttp's paragraph."""
+    if isinstance(exc, aiohttp.ClientConnectorError):
+        text = exc.os_error.strerror or str(exc.os_error) or type(exc.os_error).__name__
+    else:
+        text = str(exc) or type(exc).__name__
     return text if len(text) <= 160 else text[:157] + "..."
 
 

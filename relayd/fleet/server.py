@@ -24,7 +24,7 @@ from aiohttp import web
 from drivers.clock import REAL_CLOCK, Clock
 from relayd.fleet.chain import fleet_document
 from relayd.fleet.config import FleetSettings, Relay
-from relayd.fleet.poller import Fleet
+from relayd.fleet.poller import Fleet, short_error
 
 log = structlog.get_logger(__name__)
 
@@ -64,7 +64,7 @@ async def hold_one(session: aiohttp.ClientSession, relay: Relay, timeout_s: floa
     except TimeoutError:
         return {**result, "message": f"no answer within {timeout_s:g} s: hold NOT confirmed"}
     except (aiohttp.ClientError, OSError) as exc:
-        return {**result, "message": f"unreachable: hold NOT sent ({exc or type(exc).__name__})"}
+        return {**result, "message": f"unreachable: hold NOT sent ({short_error(exc)})"}
     try:
         body = json.loads(text)
     except ValueError:

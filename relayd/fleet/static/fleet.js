@@ -125,7 +125,7 @@ function renderMap(map) {
     const right = [r.x_m - c * r0 + sn * r0, r.y_m - sn * r0 - c * r0];
     const g = s("g", { class: `robot state-${r.current ? r.state : "unknown"}`, "data-name": r.name }, layer);
     s("polygon", { points: [tip, left, right].map(([x, y]) => `${x.toFixed(3)},${(-y).toFixed(3)}`).join(" ") }, g);
-    const label = s("text", { x: r.x_m + r0 * 1.6, y: -r.y_m - r0 * 1.6, "font-size": r0 * 2.2 }, g);
+    const label = s("text", { x: r.x_m + r0 * 1.6, y: -r.y_m - r0 * 1.6, "font-size": r0 * 1.5 }, g);
     label.textContent = r.name;
   }
   $("map-meta").textContent = map.relays.length ? `grid ${step} m` : "no relay can be placed";
