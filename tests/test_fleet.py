@@ -269,3 +269,32 @@ async def test_hold_all_endpoint_needs_json() -> None:
                 await asyncio.sleep(0.05)
             assert doc["relays"][0]["mode"] == "hold"
             assert TOKEN not in await (await client.get("/fleet.json")).text()
+
+
+async def test_relayd_fleet_command_serves_the_page() -> None:
+    import sys
+
+    async with relay_api("cli-relay") as (url, _):
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "relayd", "fleet", "--relay", f"one={url}", "--port", "0",
+            stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
+        try:
+            assert proc.stdout is not None
+            line = (await asyncio.wait_for(proc.stdout.readline(), 30)).decode()
+            assert "1 relay(s), page at http://127.0.0.1:" in line, line
+            page = line.rsplit(" ", 1)[1].strip()
+            async with aiohttp.ClientSession() as s:
+                for _ in range(100):
+                    async with s.get(page + "fleet.json") as resp:
+                        doc = await resp.json()
+                    if doc["relays"][0]["link"] == "live":
+                        break
+                    await asyncio.sleep(0.05)
+            assert doc["relays"][0]["robot"] == "cli-relay"
+        finally:
+            proc.terminate()
+            await proc.wait()
+        bad = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "relayd", "fleet", stderr=asyncio.subprocess.PIPE)
+        _, err = await bad.communicate()
+        assert bad.returncode == 2 and b"no relays" in err

@@ -290,6 +290,23 @@ async def test_controls_reasons_history_and_layout(served: tuple[str, FakeRig, D
             assert (await page.get_attribute("#hist-rl", "d") or "").startswith("M")
             assert await page.locator("#hist-state rect.band-stopped").count() >= 1
             assert len((await page.get_attribute("#trail", "points") or "").split()) >= 2
+            # Manual (confirmed from the page), then drive straight ahead for a few seconds
+            # through the API: the trail follows the odometry forward (screen y = -x in m).
+            await page.click("#btn-manual")
+            assert "MANUAL" in (await page.text_content("#confirm-text") or "")
+            await page.click("#confirm-yes")
+            await until(lambda: str(state.mode) == "manual", "manual mode")
+            async with aiohttp.ClientSession(headers={"Authorization": f"Bearer {rig.api_token}"}) as http:
+                t_end = time.monotonic() + 4.0
+                while time.monotonic() < t_end:
+                    async with http.post(url + "/api/drive", json={"left_mm_s": 400.0, "right_mm_s": 400.0}) as r:
+                        assert r.status == 200, await r.text()
+                    await asyncio.sleep(0.15)
+            assert (state.x_mm or 0.0) > 800.0
+            await page.wait_for_function(
+                "() => document.getElementById('trail').getAttribute('points').split(' ')"
+                ".some(p => parseFloat(p.split(',')[1]) < -0.8)", timeout=15_000)
+            assert "m in the last 5 min" in (await page.text_content("#path-meta") or "")
             before = int((await page.text_content("#hist-count") or "0").split()[0])
             await page.screenshot(path=str(tmp_path / "controls.png"), full_page=True)
 
