@@ -58,7 +58,9 @@ _SCAN = _obj({
 
 STATUS_SCHEMA: dict[str, Any] = _obj({
     "version": {"type": "string"},
-    "robot": {"type": "string", "nullable": True},
+    "robot": {"type": "string", "nullable": True, "description": "name the base reports (ARCOS SYNC2)"},
+    "display_name": {"type": "string", "nullable": True,
+                     "description": "the operator's name for this robot (config robot.display_name)"},
     "uptime_s": _num(False),
     "mode": {"type": "string", "enum": [m.value for m in Mode]},
     "state": {"type": "string", "enum": [s.value for s in DriveState]},
