@@ -48,7 +48,7 @@ def relay_summary(view: RelayView, now: float, stale_after_s: float) -> dict[str
         "age_s": None if view.ok_t is None else round(now - view.ok_t, 2),
         "latency_ms": None if view.latency_s is None else round(view.latency_s * 1000, 1),
         "has_token": view.relay.token is not None,
-        "robot": doc.get("robot"),
+        "robot": doc.get("display_name") or doc.get("robot"),
         "state": doc.get("state"),
         "mode": doc.get("mode"),
         "reason": doc.get("reason"),

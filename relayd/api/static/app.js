@@ -220,8 +220,9 @@ function renderWheel(barId, valId, mmS, vmax) {
 }
 
 function render(s) {
-  setText("robot-name", s.robot || "unnamed robot");
-  document.title = `relayd · ${s.robot || ""} · ${s.state}`;
+  const name = s.display_name || s.robot;
+  setText("robot-name", name || "unnamed robot");
+  document.title = `relayd · ${name || ""} · ${s.state}`;
   setText("mode", s.mode);
   $("mode").className = `badge mode-${s.mode}`;
   setText("drive-state", s.state);
@@ -278,7 +279,7 @@ function blankCurrent() {
     setText(id, "unknown");
     $(id).className = "badge state-unknown";
   }
-  document.title = `relayd · ${lastDoc && lastDoc.robot ? lastDoc.robot : ""} · no current data`;
+  document.title = `relayd · ${lastDoc ? lastDoc.display_name || lastDoc.robot || "" : ""} · no current data`;
   for (const [bar, val] of [["wheel-l", "wheel-l-val"], ["wheel-r", "wheel-r-val"]]) {
     setText(val, "—");
     $(bar).querySelector(".fill").style.height = "0";
