@@ -63,6 +63,7 @@ async def test_fleet_page_three_relays_one_stopped_mid_run(tmp_path: Path) -> No
                     Relay("relay3", urls[2], rig3.api_token, None),
                 ), poll_s=0.5, timeout_s=1.0)
                 runner, fport = await start_api(make_fleet_app(settings), "127.0.0.1", 0)
+                fleet_up = True
                 try:
                     async with async_playwright() as pw:
                         browser = await pw.chromium.launch(executable_path="/usr/bin/chromium", args=CHROMIUM_ARGS)
@@ -132,10 +133,20 @@ async def test_fleet_page_three_relays_one_stopped_mid_run(tmp_path: Path) -> No
                                                              timeout=10_000)
                             await page.screenshot(path=str(tmp_path / "fleet-held.png"), full_page=True)
                             assert not problems, problems
+
+                            # The fleet server itself gone: the page greys out and says so.
+                            await runner.cleanup()
+                            fleet_up = False
+                            t0 = time.monotonic()
+                            await page.wait_for_function("() => document.body.classList.contains('stale')",
+                                                         timeout=int(SHOWN_LIMIT_S * 1000))
+                            timings["fleet_server_gone_shown_s"] = time.monotonic() - t0
+                            assert await page.is_visible("#stale-banner")
                         finally:
                             await browser.close()
                 finally:
-                    await runner.cleanup()
+                    if fleet_up:
+                        await runner.cleanup()
         finally:
             if relayd3.proc.returncode is None:
                 relayd3.proc.send_signal(signal.SIGCONT)

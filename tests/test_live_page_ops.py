@@ -115,6 +115,7 @@ async def test_stale_when_the_daemon_is_paused_or_killed(tmp_path: Path) -> None
                                                  timeout=int(STALE_LIMIT_S * 1000))
                     went_stale_s = time.monotonic() - t0
                     assert went_stale_s < STALE_LIMIT_S
+                    print(f"live page stale {went_stale_s:.2f} s after SIGSTOP")
                     assert await page.is_visible("#stale-banner")
                     assert await page.text_content("#drive-state") == "unknown"
                     assert await page.text_content("#mode") == "unknown"
@@ -145,7 +146,9 @@ async def test_stale_when_the_daemon_is_paused_or_killed(tmp_path: Path) -> None
                     t0 = time.monotonic()
                     await page.wait_for_function("() => document.body.classList.contains('stale')",
                                                  timeout=int(STALE_LIMIT_S * 1000))
-                    assert time.monotonic() - t0 < STALE_LIMIT_S
+                    killed_stale_s = time.monotonic() - t0
+                    assert killed_stale_s < STALE_LIMIT_S
+                    print(f"live page stale {killed_stale_s:.2f} s after SIGKILL")
                     assert await page.text_content("#drive-state") == "unknown"
                     assert await page.text_content("#wheel-l-val") == "—"
                     await page.wait_for_function(
