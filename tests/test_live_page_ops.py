@@ -126,6 +126,12 @@ async def test_stale_when_the_daemon_is_paused_or_killed(tmp_path: Path) -> None
                     await page.wait_for_function(
                         "() => /last update [3-9] s ago/.test(document.getElementById('live-text').textContent)",
                         timeout=10_000)
+                    # Ages keep growing from the last update: nothing says "0.0 s ago".
+                    ages = [float(t) for t in await page.locator("#health tbody td:nth-child(3)").all_text_contents()]
+                    assert ages and min(ages) >= 2.0, ages
+                    scan_age = float((await page.text_content("#scan-meta") or "").split(" · ")[1].split()[0])
+                    assert scan_age >= 2.0
+                    assert await page.text_content("#uptime") == "unknown"
                     opacity = await page.evaluate(
                         "() => getComputedStyle(document.querySelector('.motion-card')).opacity")
                     assert float(opacity) < 0.6

@@ -149,7 +149,7 @@ function renderSonar(s) {
       svg("circle", { cx: sx, cy: sy, r: 45, class: "sonar-none" }, g);
       return;
     }
-    if (i < 8 && (frontMin === null || range < frontMin)) frontMin = range;
+    if (i < 8 && range < NO_ECHO_MM && (frontMin === null || range < frontMin)) frontMin = range;
     const reach = Math.min(range, SONAR_VIEW_MM);
     const ex = -(y + reach * Math.sin(a)), ey = -(x + reach * Math.cos(a));
     if (range >= NO_ECHO_MM) {
@@ -171,7 +171,7 @@ function renderSonar(s) {
     const label = svg("text", { x: tx.toFixed(0), y: ty.toFixed(0), class: "range-label" }, g);
     label.textContent = (range / 1000).toFixed(2);
   });
-  setText("sonar-min", frontMin === null ? "" : `front min ${(frontMin / 1000).toFixed(2)} m`);
+  setText("sonar-min", frontMin === null ? "front: no echo" : `front min ${(frontMin / 1000).toFixed(2)} m`);
 }
 
 function renderGauge(barId, valId, thrId, rssi, thr, goodWhenBelow) {
@@ -219,6 +219,28 @@ function renderWheel(barId, valId, mmS, vmax) {
   fill.className = mmS >= 0 ? "fill fwd" : "fill rev";
 }
 
+// Everything that carries an age, aged by `extraS` seconds: while the page has no
+// current data, ages keep growing from the last update instead of freezing at "0.0 s".
+function renderAges(s, extraS, stale) {
+  const plus = (age) => (typeof age === "number" ? age + extraS : age);
+  fillTable("links", Object.entries(s.links || {}).map(([name, l]) => [
+    name, fmt(l.signal_dbm, 0), fmt(l.noise_dbm, 0), fmt(l.ccq_pct, 0),
+    fmt(l.tx_mbps, 1), fmt(l.rx_mbps, 1), fmt(plus(l.age_s), 1),
+  ]));
+  fillTable("health", Object.entries(s.health || {}).map(([name, h]) => [
+    name,
+    stale ? { text: "unknown", cls: "unknown" }
+      : { text: h.connected ? "up" : "down", cls: h.connected ? "ok" : "bad" },
+    fmt(plus(h.age_s), 2), String(h.errors), String(h.reconnects), h.last_error || "",
+  ]));
+  const scan = s.last_scan;
+  if (scan && Array.isArray(scan.angles)) {
+    const n = (scan.rssi || []).filter((v) => typeof v === "number").length;
+    setText("scan-meta", `${n} samples · ${fmt(plus(scan.age_s), 1, "s")} ago` +
+      (scan.period_s ? ` · period ${fmt(scan.period_s, 2, "s")}` : ""));
+  }
+}
+
 function render(s) {
   const name = s.display_name || s.robot;
   setText("robot-name", name || "unnamed robot");
@@ -239,10 +261,7 @@ function render(s) {
   const thr = s.thresholds || {};
   renderGauge("bar-l", "rssi-l", "thr-l", s.rssi_leader_dbm, thr.threshold_l_dbm, true);
   renderGauge("bar-b", "rssi-b", "thr-b", s.rssi_behind_dbm, thr.threshold_b_dbm, false);
-  fillTable("links", Object.entries(s.links || {}).map(([name, l]) => [
-    name, fmt(l.signal_dbm, 0), fmt(l.noise_dbm, 0), fmt(l.ccq_pct, 0),
-    fmt(l.tx_mbps, 1), fmt(l.rx_mbps, 1), fmt(l.age_s, 1),
-  ]));
+  renderAges(s, 0, false);
 
   const vmax = thr.v_max_mm_s || 400;
   renderWheel("wheel-l", "wheel-l-val", s.wheels_mm_s.left, vmax);
@@ -256,11 +275,7 @@ function render(s) {
   setText("scan-count", String(s.scan_count));
   setText("uptime", fmt(s.uptime_s, 0, "s"));
 
-  fillTable("health", Object.entries(s.health || {}).map(([name, h]) => [
-    name,
-    { text: h.connected ? "up" : "down", cls: h.connected ? "ok" : "bad" },
-    fmt(h.age_s, 2), String(h.errors), String(h.reconnects), h.last_error || "",
-  ]));
+
 }
 
 function markLive() {
@@ -285,10 +300,7 @@ function blankCurrent() {
     $(bar).querySelector(".fill").style.height = "0";
   }
   setText("motors", "unknown");
-  for (const td of document.querySelectorAll("#health td.ok, #health td.bad")) {
-    td.textContent = "unknown";
-    td.className = "unknown";
-  }
+  setText("uptime", "unknown");
   const last = lastDoc ? `last known: ${Reasons.describe(lastDoc)}` : "nothing received yet";
   setText("reason", `no current data \u00b7 ${last}`);
 }
@@ -301,6 +313,7 @@ function checkStale() {
     setText("live-text", streamBroken && lastMessageMs ? `connection lost · ${ago()}` : ago());
     setText("stale-age", lastMessageMs ? `The last update came ${Math.floor((Date.now() - lastMessageMs) / 1000)} s ago.` : "No update yet.");
     if (!isStale) blankCurrent();
+    if (lastDoc && lastMessageMs) renderAges(lastDoc, (Date.now() - lastMessageMs) / 1000, true);
   } else {
     $("live-dot").className = "dot live";
     setText("live-text", "live");

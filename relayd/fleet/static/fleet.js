@@ -99,7 +99,7 @@ function renderMap(map) {
     x0 = Math.min(...pts.map((p) => p[0])); x1 = Math.max(...pts.map((p) => p[0]));
     y0 = Math.min(...pts.map((p) => p[1])); y1 = Math.max(...pts.map((p) => p[1]));
   }
-  const span = Math.max(4, x1 - x0, y1 - y0) * 1.25;
+  const span = Math.max(4, x1 - x0, y1 - y0) * 1.6;  // room for the labels
   const cx = (x0 + x1) / 2, cy = (y0 + y1) / 2;
   $("map").setAttribute("viewBox", `${(cx - span / 2).toFixed(2)} ${(-cy - span / 2).toFixed(2)} ${span.toFixed(2)} ${span.toFixed(2)}`);
   const step = span > 40 ? 10 : span > 15 ? 5 : 1;
