@@ -289,6 +289,7 @@ async def test_controls_reasons_history_and_layout(served: tuple[str, FakeRig, D
             await page.wait_for_function(
                 "() => document.querySelectorAll('#sonar-rays .range-label').length === 1", timeout=10_000)
             assert await page.text_content("#sonar-rays .range-label") == "1.20"
+            assert await page.text_content("#sonar-min") == "front min 1.20 m"
             assert await page.locator("#sonar-rays line").count() == 16
 
             # History: drawn from the daemon, with both threshold lines, and a path trail.
