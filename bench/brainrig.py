@@ -66,9 +66,10 @@ def still(x_m: float, y_m: float) -> LeaderPath:
     return lambda t: (x_m, y_m)
 
 
-def crossing(distance_m: float, speed_m_s: float, start_y_m: float) -> LeaderPath:
-    """A straight run across the relay's front, `distance_m` ahead, from y = start_y upward."""
-    return lambda t: (distance_m, start_y_m + speed_m_s * t)
+def crossing(distance_m: float, speed_m_s: float, start_y_m: float, wait_s: float = 0.0) -> LeaderPath:
+    """A straight run across the relay's front, `distance_m` ahead, from y = start_y upward
+    (after standing there for `wait_s`)."""
+    return lambda t: (distance_m, start_y_m + speed_m_s * max(0.0, t - wait_s))
 
 
 @dataclass

@@ -50,8 +50,8 @@ class TrackerParams:
     #: leader holding its course (small: scans average) ...
     accel_q: float = 0.05
     #: ... and for one that manoeuvres, used when an innovation is over `manoeuvre_sigma`.
-    manoeuvre_q: float = 4.0
-    manoeuvre_sigma: float = 3.0
+    manoeuvre_q: float = 20.0
+    manoeuvre_sigma: float = 2.0
     #: Odometry heading error, as a fraction of the heading change.
     heading_noise: float = 0.05
     #: A new track's rate uncertainty (deg/s).

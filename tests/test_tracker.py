@@ -48,7 +48,7 @@ def test_converges_on_a_constant_rate_track(b0, rate, seed) -> None:
     # does), and it knows the rate to a few deg/s (more right after a manoeuvre update).
     assert abs(math.remainder(tr.bearing_deg - (b0 + rate * t), 360.0)) < 4.5 * tr.sd_deg
     assert abs(tr.rate_deg_s - rate) < 4.5 * tr.rate_sd_deg_s
-    assert tr.sd_deg < 3.0 and tr.rate_sd_deg_s < 3.0
+    assert tr.sd_deg < 3.0 and tr.rate_sd_deg_s < math.sqrt(P.manoeuvre_q * 2.5)
 
 
 @given(turn=st.floats(-170.0, 170.0), b=st.floats(-80.0, 80.0))
@@ -93,7 +93,7 @@ def test_an_outlier_is_gated_and_a_real_jump_is_reacquired() -> None:
     tr, ok = tracker.update(tr, 12.0, 0.0, 60.0, 1.0, P)  # one reflection
     assert not ok and tr.bearing_deg == pytest.approx(before, abs=0.5)
     tr, ok = tracker.update(tr, 14.0, 0.0, 61.0, 1.0, P)  # it is really there
-    assert ok and tr.bearing_deg == pytest.approx(61.0)
+    assert ok and tr.bearing_deg == pytest.approx(61.0, abs=1.0)
 
 
 def test_non_finite_input_is_refused() -> None:
