@@ -163,7 +163,7 @@ class ScanSettings(_Section):
     estimator: Literal["wca", "lobe"] = "lobe"
     #: "full": every sweep `width_deg` wide; "adaptive": narrower around a confident
     #: prediction (needs estimator "lobe").
-    window: Literal["full", "adaptive"] = "adaptive"
+    window: Literal["full", "adaptive"] = "full"
 
     @model_validator(mode="after")
     def _adaptive_needs_tracking(self) -> ScanSettings:
