@@ -334,6 +334,10 @@ class FakeAirOs:
 
     # -- failure switches ------------------------------------------------------------------
 
+    def set_password(self, password: str) -> None:
+        """Change the radio's password (sessions already open stay open, as on airOS)."""
+        self._password = password
+
     def expire_sessions(self) -> None:
         """Forget every session: the next request is sent to the login page."""
         self._sessions.clear()

@@ -25,7 +25,8 @@ import structlog
 from drivers.backoff import Backoff
 from drivers.clock import REAL_CLOCK, Clock
 from drivers.health import DeviceHealth, LinkState
-from drivers.link import LinkError, open_link, wait_before_retry
+from drivers.link import LinkError, open_link
+from drivers.reconnect import Reconnect
 
 log = structlog.get_logger(__name__)
 
@@ -160,6 +161,9 @@ class PanTilt(abc.ABC):
         self.max_timeouts = max_timeouts
         self.poll_s = poll_s
         self._backoff = backoff or Backoff(initial_s=0.2, maximum_s=5.0)
+        self._log = log.bind(device="pantilt", protocol=self.protocol_name, port=url)
+        self._reconnect = Reconnect(self._log, "pantilt_connect_failed", backoff=self._backoff,
+                                    clock=clock, url=url)
         self._speed_deg_s: dict[int, float] = {}
         self._lock = asyncio.Lock()
         self._transport: asyncio.Transport | None = None
@@ -181,7 +185,6 @@ class PanTilt(abc.ABC):
             "commands": 0, "timeouts": 0, "errors": 0, "reconnects": 0, "clamped": 0,
             "stray_bytes": 0,
         }
-        self._log = log.bind(device="pantilt", protocol=self.protocol_name, port=url)
 
     # ---- back-end hooks ---------------------------------------------------------------
 
@@ -314,36 +317,34 @@ class PanTilt(abc.ABC):
         """Connect, poll, reconnect with backoff, until `close()`; raises only CancelledError."""
         self._closed = False
         self._close_requested.clear()
-        failures = 0
+        reconnect = self._reconnect
         try:
             while not self._closed:
+                reconnect.attempt()
                 try:
                     await self.connect()
-                    failures = 0
+                    reconnect.succeeded()
                     await self._serve()
                 except (PanTiltError, LinkError) as exc:
                     if isinstance(exc, LinkError):
                         self._note_error(str(exc))  # PanTiltErrors were counted where raised
-                    log_fn = self._log.warning if failures == 0 else self._log.debug
-                    log_fn("pantilt_connect_failed", error=str(exc), attempt=failures + 1)
-                    failures += 1
+                    reconnect.failed(exc)
                 except Exception as exc:  # noqa: BLE001
-                    # A bug, not a device problem: keep the servo task alive, but say so loudly.
-                    self._note_error(f"unexpected: {exc!r}")
-                    self._log.exception("pantilt_unexpected_error")
-                    failures += 1
+                    # A bug, not a device problem: keep the servo task alive, but say so
+                    # loudly (reconnect logs it with its traceback).
+                    self._note_error(reconnect.failed(exc, unexpected=True))
                 if self._closed:
                     break
                 # Back off, but let close() end the wait at once, and retry a replugged
                 # adapter as soon as its path is back.
-                await wait_before_retry(self.url, self._backoff.next_delay(), self._clock,
-                                        self._close_requested)
+                await reconnect.wait(self._close_requested)
         finally:
             await self._drop()
 
     async def close(self) -> None:
         """Close the port; a running `run()` returns instead of reconnecting."""
         self._closed = True
+        self._reconnect.close()
         self._close_requested.set()
         await self._drop()
 
