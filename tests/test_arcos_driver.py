@@ -433,3 +433,27 @@ async def test_control_latency_is_measured_from_the_sip_to_the_command_it_caused
             assert len(latencies) == n
     finally:
         await fake.stop()
+
+
+async def test_a_fatal_write_error_ends_the_session_at_once(clock: Clock) -> None:
+    """The root cause of a flaky fault test: a write that kills the transport must end the
+    session there and then (robot state unknown), not on the SIP timeout later."""
+    fake = FakeRobot(clock=clock)
+    robot = ArcosRobot(fake.serve_memory("robot"), clock=clock, enable_motors=True,
+                       backoff=Backoff(initial_s=0.1, maximum_s=0.2, jitter=0))
+    try:
+        async with running(robot):
+            await until(lambda: robot.connected and not robot.stale, "a session")
+            port = fake.memory_port
+            assert port is not None and port.transport is not None
+            port.transport.fail_next_write(OSError(5, "Input/output error"))
+            robot.set_wheels(100, 100)  # written from this stack: the write fails here
+            assert not robot.connected and robot.stale
+            await until(lambda: robot.last_error is not None and "write error" in robot.last_error,
+                        "the write error reported")
+            assert robot.counters["reconnects"] == 0
+            # The port is still there: the driver reconnects and the wish is carried out.
+            await until(lambda: robot.connected and fake.target_vel_mm_s == 100, "reconnected")
+            assert robot.counters["reconnects"] == 1
+    finally:
+        await fake.stop()
