@@ -1,7 +1,14 @@
-"""Shared test helpers: waiting for a condition, and a daemon running on the fakes.
+"""Shared test helpers: waiting for a condition, virtual time, one manual clock.
 
 Tests poll for conditions instead of sleeping: the machines that run CI are shared
 and slow, so every wait has a generous timeout and fails with what it waited for.
+
+Tests marked `virtual_time` run on a `VirtualTimeLoop`: when nothing is ready to run
+the loop's time jumps to its next timer instead of waiting for it, so a 4 s watchdog
+or a 60 s backoff take no wall time and a loaded machine cannot make a timer late.
+Such a test talks to its fakes over `memory://` links (no file descriptor); its
+drivers read time from a `LoopClock`. `ManualClock` is the one clock a test sets by
+hand (pure logic that reads `now()` and never sleeps).
 """
 
 from __future__ import annotations
@@ -9,11 +16,99 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import os
+import selectors
 import time
-from collections.abc import AsyncIterator, Awaitable, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable, Mapping
 from typing import NoReturn, Protocol
 
 import pytest
+
+from drivers.clock import Clock
+
+#: Where a virtual loop's time starts (clock seconds; any value works, none is special).
+VIRTUAL_T0 = 1000.0
+
+
+class _JumpingSelector(selectors.BaseSelector):
+    """A real selector whose waits are skipped: the loop's time jumps instead.
+
+    Real readiness (the loop's self-pipe, a socket) is still polled first, without
+    blocking, so `call_soon_threadsafe` and any real I/O still work.
+    """
+
+    def __init__(self, advance: Callable[[float], None]) -> None:
+        self._real = selectors.DefaultSelector()
+        self._advance = advance
+
+    def register(self, fileobj, events, data=None):  # type: ignore[no-untyped-def]
+        return self._real.register(fileobj, events, data)
+
+    def unregister(self, fileobj):  # type: ignore[no-untyped-def]
+        return self._real.unregister(fileobj)
+
+    def modify(self, fileobj, events, data=None):  # type: ignore[no-untyped-def]
+        return self._real.modify(fileobj, events, data)
+
+    def get_map(self) -> Mapping[object, selectors.SelectorKey]:  # type: ignore[override]
+        return self._real.get_map()
+
+    def close(self) -> None:
+        self._real.close()
+
+    def select(self, timeout: float | None = None) -> list[tuple[selectors.SelectorKey, int]]:
+        events = self._real.select(0)
+        if events or timeout == 0:
+            return events
+        if timeout is None:
+            # No timer at all: only a thread or real I/O can wake us; wait for it.
+            return self._real.select(None)
+        self._advance(timeout)
+        return []
+
+
+class VirtualTimeLoop(asyncio.SelectorEventLoop):
+    """An event loop whose time only moves when every task waits on a timer."""
+
+    def __init__(self) -> None:
+        self._virtual_t = VIRTUAL_T0
+        super().__init__(_JumpingSelector(self._advance))
+
+    def _advance(self, seconds: float) -> None:
+        self._virtual_t += seconds
+
+    def time(self) -> float:
+        return self._virtual_t
+
+
+class LoopClock(Clock):
+    """Clock seconds are the running loop's time: virtual on a VirtualTimeLoop."""
+
+    def now(self) -> float:
+        return asyncio.get_running_loop().time()
+
+
+class ManualClock(Clock):
+    """A clock that moves only when the test sets or advances `t`; sleeps stay real."""
+
+    def __init__(self, t: float = 100.0) -> None:
+        super().__init__()
+        self.t = t
+
+    def now(self) -> float:
+        return self.t
+
+    def advance(self, seconds: float) -> float:
+        self.t += seconds
+        return self.t
+
+
+def is_virtual(request: pytest.FixtureRequest) -> bool:
+    return request.node.get_closest_marker("virtual_time") is not None
+
+
+def clock_for(request: pytest.FixtureRequest, speed: float) -> Clock:
+    """The driver clock for a test: loop time if it runs virtual, else `speed` x wall time."""
+    return LoopClock() if is_virtual(request) else Clock(speed)
 
 
 class Runs(Protocol):

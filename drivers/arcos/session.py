@@ -333,6 +333,7 @@ class ArcosSession:
         self.reason = reason
         self.lost.set()
         self.proto.fail_waiters(reason)
+        self.robot.last_error = str(reason)
         # At once, not when the run loop gets its turn: a controller reading
         # `connected`/`stale` must stop the wheels now.
         self.robot.connected = False
