@@ -18,7 +18,7 @@ import contextlib
 import os
 import selectors
 import time
-from collections.abc import AsyncIterator, Awaitable, Callable, Mapping
+from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import NoReturn, Protocol
 
 import pytest
@@ -49,7 +49,7 @@ class _JumpingSelector(selectors.BaseSelector):
     def modify(self, fileobj, events, data=None):  # type: ignore[no-untyped-def]
         return self._real.modify(fileobj, events, data)
 
-    def get_map(self) -> Mapping[object, selectors.SelectorKey]:  # type: ignore[override]
+    def get_map(self):  # type: ignore[no-untyped-def]
         return self._real.get_map()
 
     def close(self) -> None:
@@ -121,7 +121,8 @@ async def until(pred: Callable[[], object], what: str = "the condition", timeout
                 poll_s: float = 0.005) -> float:
     """Poll `pred` until it is truthy; return the monotonic time it became so.
 
-    Raises AssertionError naming `what` after `timeout_s` of wall time.
+    Raises AssertionError naming `what` after `timeout_s` of loop time (wall time, or
+    virtual time in a `virtual_time` test).
     """
     try:
         async with asyncio.timeout(timeout_s):

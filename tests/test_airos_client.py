@@ -12,7 +12,7 @@ import aiohttp
 import pytest
 from pydantic import SecretStr
 from structlog.testing import capture_logs
-from support import until
+from support import LoopClock, until
 
 from drivers.airos import (
     AirOsAuthError,
@@ -26,6 +26,8 @@ from drivers.airos import (
     legacy_tls_context,
 )
 from drivers.clock import Clock
+
+pytestmark = pytest.mark.virtual_time
 
 FIXTURES = Path("/work/shared/fixtures/airos")
 LOCO_AP = FIXTURES / "status_cgi_NanoStation_loco_M5_XM_v6.3.16_ap.json"
@@ -307,7 +309,7 @@ async def _stop(task: asyncio.Task) -> None:
 
 
 async def test_poller_polls_at_the_clock_rate_and_logs_out_on_cancel() -> None:
-    clock = Clock(speed=20)
+    clock = LoopClock()
     updates: list[LinkQuality] = []
     async with FakeAirOs("ubnt", SECRET, clock=clock) as fake:
         poller = _poller(fake, clock, on_update=updates.append)
@@ -328,7 +330,7 @@ async def test_poller_polls_at_the_clock_rate_and_logs_out_on_cancel() -> None:
 
 
 async def test_poller_relogs_in_after_session_expiry() -> None:
-    clock = Clock(speed=20)
+    clock = LoopClock()
     async with FakeAirOs("ubnt", SECRET, clock=clock) as fake:
         poller = _poller(fake, clock)
         task = asyncio.create_task(poller.run())
@@ -343,7 +345,7 @@ async def test_poller_relogs_in_after_session_expiry() -> None:
 
 
 async def test_poller_counts_timeouts_then_recovers() -> None:
-    clock = Clock(speed=20)
+    clock = LoopClock()
     async with FakeAirOs("ubnt", SECRET, clock=clock) as fake:
         poller = _poller(fake, clock, timeout_s=2.0)
         task = asyncio.create_task(poller.run())
@@ -359,7 +361,7 @@ async def test_poller_counts_timeouts_then_recovers() -> None:
 
 
 async def test_poller_counts_malformed_json_then_recovers() -> None:
-    clock = Clock(speed=20)
+    clock = LoopClock()
     async with FakeAirOs("ubnt", SECRET, clock=clock) as fake:
         poller = _poller(fake, clock)
         task = asyncio.create_task(poller.run())
@@ -376,7 +378,7 @@ async def test_poller_counts_malformed_json_then_recovers() -> None:
 
 
 async def test_poller_wrong_password_retries_on_the_capped_backoff_and_logs_once_a_minute() -> None:
-    clock = Clock(speed=200)
+    clock = LoopClock()
     with capture_logs() as logs:
         async with FakeAirOs("ubnt", "the-real-one", clock=clock) as fake:
             poller = _poller(fake, clock, timeout_s=20.0)
@@ -384,7 +386,7 @@ async def test_poller_wrong_password_retries_on_the_capped_backoff_and_logs_once
             await until(lambda: poller.state == "auth_failed")
             t0 = clock.now()
             assert "login refused" in (poller.last_error or "")
-            await until(lambda: clock.now() - t0 >= 130.0, "130 clock seconds")
+            await clock.sleep(130.0 - (clock.now() - t0))
             tries = fake.counters["failed_logins"]
             # Backoff 1, 2, 4, then every 5 s (the cap, max(5 s, 4 polls)): no retry storm,
             # and no 60 s wait either.
@@ -400,7 +402,7 @@ async def test_poller_wrong_password_retries_on_the_capped_backoff_and_logs_once
 async def test_poller_picks_up_a_fixed_password_within_the_backoff_cap() -> None:
     """The radio's password was changed, then changed back while polling (issue: a refused
     login once held the robot for up to 60 s)."""
-    clock = Clock(speed=50)
+    clock = LoopClock()
     async with FakeAirOs("ubnt", SECRET, clock=clock) as fake:
         poller = _poller(fake, clock)
         task = asyncio.create_task(poller.run())
@@ -419,7 +421,7 @@ async def test_poller_picks_up_a_fixed_password_within_the_backoff_cap() -> None
 
 
 async def test_poller_backs_off_while_down_then_recovers() -> None:
-    clock = Clock(speed=20)
+    clock = LoopClock()
     async with FakeAirOs("ubnt", SECRET, clock=clock) as fake:
         poller = _poller(fake, clock)
         task = asyncio.create_task(poller.run())
@@ -440,7 +442,7 @@ async def test_poller_backs_off_while_down_then_recovers() -> None:
 async def test_poller_notices_a_radio_back_within_seconds_after_a_long_outage() -> None:
     # The relay may be held still while RSSI^b is unknown: after minutes of outage the
     # backoff must still be short enough to see the radio back within a few seconds.
-    clock = Clock(speed=50)
+    clock = LoopClock()
     async with FakeAirOs("ubnt", SECRET, clock=clock) as fake:
         poller = _poller(fake, clock)
         task = asyncio.create_task(poller.run())
@@ -456,7 +458,7 @@ async def test_poller_notices_a_radio_back_within_seconds_after_a_long_outage() 
 
 
 async def test_poller_survives_a_failing_callback(fake6: FakeAirOs) -> None:
-    clock = Clock(speed=20)
+    clock = LoopClock()
 
     def boom(q: LinkQuality) -> None:
         raise RuntimeError("consumer bug")
@@ -469,7 +471,7 @@ async def test_poller_survives_a_failing_callback(fake6: FakeAirOs) -> None:
 
 
 async def test_password_never_appears_anywhere() -> None:
-    clock = Clock(speed=50)
+    clock = LoopClock()
     with capture_logs() as logs:
         async with FakeAirOs("ubnt", "another-secret", clock=clock) as wrong:
             bad = _poller(wrong, clock)
@@ -498,7 +500,7 @@ async def test_password_never_appears_anywhere() -> None:
 
 
 async def test_poller_backs_off_when_a_fresh_session_is_refused_at_once() -> None:
-    clock = Clock(speed=20)
+    clock = LoopClock()
     async with FakeAirOs("ubnt", SECRET, clock=clock) as fake:
         # A radio that accepts the login but then sends every status request back to the
         # login page (e.g. a firmware that wants another header): no tight login loop.

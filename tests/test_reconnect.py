@@ -3,34 +3,26 @@
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import structlog
 from structlog.testing import capture_logs
+from support import ManualClock
 
 from drivers.backoff import Backoff
 from drivers.clock import Clock
 from drivers.reconnect import Phase, Reconnect
 
 
-class StepClock(Clock):
-    """A clock that only moves when told (sleeps are real, but short)."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.t = 0.0
-
-    def now(self) -> float:
-        return self.t
-
-
 def make(clock: Clock | None = None, **kw: object) -> Reconnect:
     return Reconnect(structlog.get_logger("test"), "dev_failed",
                      backoff=Backoff(initial_s=1.0, maximum_s=5.0, jitter=0),
-                     clock=clock or StepClock(), **kw)  # type: ignore[arg-type]
+                     clock=clock or ManualClock(0.0), **kw)  # type: ignore[arg-type]
 
 
-def levels(logs: list[dict[str, object]], event: str) -> list[object]:
+def levels(logs: Sequence[Mapping[str, Any]], event: str) -> list[object]:
     return [e["log_level"] for e in logs if e["event"] == event]
 
 
@@ -62,14 +54,14 @@ def test_unexpected_errors_are_errors_with_traceback() -> None:
 
 
 def test_a_new_kind_of_failure_is_news_and_a_long_streak_is_recalled() -> None:
-    clock = StepClock()
+    clock = ManualClock(0.0)
     r = make(clock, remind_s=60.0)
     with capture_logs() as logs:
         r.failed("down", kind="unreachable")
         r.failed("down", kind="unreachable")
         r.failed("refused", kind="auth")
         for _ in range(30):  # 30 more refusals, 5 s apart: 150 s
-            clock.t += 5.0
+            clock.advance(5.0)
             r.failed("refused", kind="auth")
     got = levels(logs, "dev_failed")
     assert got[:3] == ["warning", "debug", "warning"]
