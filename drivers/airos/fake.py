@@ -372,7 +372,8 @@ class FakeAirOs:
         return self.base_url or ""
 
     async def _listen(self) -> None:
-        assert self._runner is not None
+        if self._runner is None:
+            raise RuntimeError("FakeAirOs: start() first")
         self._site = web.TCPSite(
             self._runner, self.host, self.port, reuse_address=True, ssl_context=self.ssl_context
         )

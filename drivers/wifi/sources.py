@@ -23,7 +23,7 @@ import socket
 from collections.abc import AsyncIterator, Callable, Hashable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import structlog
 
@@ -340,13 +340,19 @@ class StationReading:
     inactive_time_ms: int | None
 
 
+@runtime_checkable
+class _NetlinkMessage(Protocol):
+    """What relayd uses of a decoded pyroute2 netlink message."""
+
+    def get_attr(self, name: str) -> Any: ...
+
+
 def _get_attr(msg: Any, name: str) -> Any:
     """`get_attr` for pyroute2 messages, or a lookup in a plain `{'attrs': [...]}` dict."""
     if msg is None:
         return None
-    getter = getattr(msg, "get_attr", None)
-    if callable(getter):
-        return getter(name)
+    if isinstance(msg, _NetlinkMessage):
+        return msg.get_attr(name)
     if isinstance(msg, dict):
         for pair in msg.get("attrs", ()):
             if len(pair) >= 2 and pair[0] == name:
@@ -386,6 +392,16 @@ def observe_stations(msgs: Sequence[Any], bssid: str | None = None) -> Observati
               else 1 << 62)
     key = (sta.mac, sta.rx_packets, sta.beacon_rx, sta.signal_dbm)
     return Observation(sta.signal_dbm, key, updated=sta.signal_dbm is not None)
+
+
+def _netlink_errno(exc: BaseException) -> int | None:
+    from pyroute2.netlink.exceptions import NetlinkError
+
+    if isinstance(exc, NetlinkError):
+        return int(exc.code)
+    if isinstance(exc, OSError):
+        return exc.errno
+    return None
 
 
 def _default_iw_factory() -> Any:
@@ -445,7 +461,8 @@ class Nl80211Source(RssiSource):
             raise
         except Exception as exc:
             await self.close()
-            code = getattr(exc, "code", None)
+            # pyroute2's NetlinkError carries the kernel's errno as `code`; an OSError as errno.
+            code = _netlink_errno(exc)
             if code == errno.ENODEV:
                 raise InterfaceMissing(f"{self.interface}: nl80211 says no such device") from exc
             if code == errno.ENOENT:
