@@ -76,8 +76,8 @@ class ArcosRobot:
         self.backoff = backoff or Backoff(initial_s=0.2, maximum_s=5.0)
 
         # What the driver knows of the robot (written by the session).
-        self.connected = False
-        self.stale = True
+        self._connected = False
+        self._stale = True
         self.identity: RobotIdentity | None = None
         self.config: RobotConfig | None = None
         self.factors: ConvFactors | None = None
@@ -108,6 +108,35 @@ class ArcosRobot:
         self._closed = asyncio.Event()
 
     # ------------------------------------------------------------------ public API
+
+    @property
+    def connected(self) -> bool:
+        """A session is open and its port alive (a port that died is seen at once)."""
+        self._notice_dead_link()
+        return self._connected
+
+    @connected.setter
+    def connected(self, value: bool) -> None:
+        self._connected = value
+
+    @property
+    def stale(self) -> bool:
+        """No SIP within `lost_after_s`, or no session, or its port died: doubt the robot."""
+        self._notice_dead_link()
+        return self._stale
+
+    @stale.setter
+    def stale(self, value: bool) -> None:
+        self._stale = value
+
+    def _notice_dead_link(self) -> None:
+        # A serial transport that failed a read or write closes itself at once but
+        # reports connection_lost only after closing the port in an executor. Whoever
+        # asks first (the control loop, every tick) ends the session there and then,
+        # so no timer has to poll for it.
+        session = self._session
+        if session is not None:
+            session.proto.check_alive()
 
     @property
     def counters(self) -> dict[str, int]:

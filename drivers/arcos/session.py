@@ -56,9 +56,17 @@ STANDARD_BAUDS = (9600, 115200, 38400, 19200, 57600)
 #: The safe stop's writes are bounded in wall time: it runs in cancelled tasks too.
 SAFE_STOP_STEP_S = 0.04
 
+#: How far past a deadline the tick loop wakes (its checks are strict comparisons).
+DEADLINE_EPS_S = 0.001
+
 _VEL0 = encode_command(Command.VEL, 0)
 _RVEL0 = encode_command(Command.RVEL, 0)
 _MOTION = (Command.VEL, Command.RVEL, Command.VEL2)
+
+
+def _wake_up(waiter: asyncio.Future[None] | None) -> None:
+    if waiter is not None and not waiter.done():
+        waiter.set_result(None)
 
 
 class ArcosError(Exception):
@@ -95,7 +103,7 @@ class ArcosSession:
         self._sent_motion: tuple[int, int] | None = None
         self._motion_t = -math.inf
         self._pulse_t = -math.inf
-        self._wake = asyncio.Event()
+        self._waiter: asyncio.Future[None] | None = None
 
     # ------------------------------------------------------------------ handshake
 
@@ -231,12 +239,18 @@ class ArcosSession:
         raise self.reason or SessionLost("session ended")
 
     async def _tick_loop(self) -> None:
+        """Staleness, the session's end on silence, and state reflection, on deadlines.
+
+        It sleeps until the next thing is due (the robot goes stale, the session is
+        dropped, VEL/RVEL or PULSE must be re-sent) or until woken by a new wish,
+        instead of ticking: at 10 Hz SIPs that is a few wake-ups a second, not twenty.
+        """
         robot = self.robot
-        tick = min(0.05, robot.lost_after_s / 5.0)
         while True:
             self.proto.check_alive()
             now = self.clock.now()
-            since = now - (self.last_sip_t if self.last_sip_t is not None else self.opened_t)
+            since_t = self.last_sip_t if self.last_sip_t is not None else self.opened_t
+            since = now - since_t
             if since > robot.lost_after_s and not robot.stale:
                 robot.stale = True
                 log.warning("robot_stale", url=self.url, silent_s=round(since, 3))
@@ -244,13 +258,34 @@ class ArcosSession:
                 self.end(SessionLost(f"no SIP from {self.url} for {robot.drop_after_s:g} s"))
                 return
             self.reflect(now)
-            with contextlib.suppress(TimeoutError):
-                async with self.clock.timeout(tick):
-                    await self._wake.wait()
-            self._wake.clear()
+            due = min(since_t + robot.drop_after_s, self._next_reflection_t())
+            if not robot.stale:
+                due = min(due, since_t + robot.lost_after_s)
+            # Just past the deadline (the checks are strict), never sooner than a
+            # command spacing (a PULSE waiting for a busy queue), never later than
+            # lost_after_s (a bound on any missed wake-up).
+            delay = min(max(due - now + DEADLINE_EPS_S, CMD_SPACING_S), robot.lost_after_s)
+            await self._sleep(delay)
+
+    def _next_reflection_t(self) -> float:
+        if self._sent_motion not in (None, (0, 0)):
+            return self._motion_t + REFRESH_S
+        return max(self.proto.last_write_t, self._pulse_t) + REFRESH_S
+
+    async def _sleep(self, delay_s: float) -> None:
+        """Sleep `delay_s` clock seconds or until `wake()`; a future, no timeout machinery."""
+        loop = asyncio.get_running_loop()
+        waiter = loop.create_future()
+        self._waiter = waiter
+        handle = loop.call_later(self.clock.to_real(delay_s), _wake_up, waiter)
+        try:
+            await waiter
+        finally:
+            handle.cancel()
+            self._waiter = None
 
     def wake(self) -> None:
-        self._wake.set()
+        _wake_up(self._waiter)
 
     def reflect(self, now: float) -> None:
         """ARIA state reflection: VEL+RVEL on change or every 500 ms while moving, else PULSE."""
@@ -274,7 +309,7 @@ class ArcosSession:
         if self.opened:
             self.reflect(self.clock.now())
             self.proto.flush_now()
-        self._wake.set()
+        self.wake()
 
     def stop_now(self) -> None:
         """VEL 0 + RVEL 0 ahead of anything queued (idempotent while not yet written)."""
