@@ -27,8 +27,8 @@ from drivers.wifi import (
     make_source,
 )
 from drivers.wifi.fake import format_proc_row
+from drivers.wifi.nl80211 import observe_stations, station_reading
 from drivers.wifi.parsers import PROC_HEADER_1, PROC_HEADER_2, parse_proc_net_wireless
-from drivers.wifi.sources import observe_stations, station_reading
 
 FIXTURES = Path("/work/shared/fixtures/wifi")
 
