@@ -30,7 +30,7 @@ from drivers.wifi.fake import format_proc_row
 from drivers.wifi.nl80211 import observe_stations, station_reading
 from drivers.wifi.parsers import PROC_HEADER_1, PROC_HEADER_2, parse_proc_net_wireless
 
-FIXTURES = Path("/work/shared/fixtures/wifi")
+FIXTURES = Path(__file__).parent / "fixtures" / "wifi"
 
 
 # ------------------------------------------------------------------------ ProcfsWriter

@@ -273,7 +273,7 @@ class FakeAirOs:
         username, password = form.get("username"), form.get("password")
         if session is None or username != self.username or password != self._password:
             self.counters["failed_logins"] += 1
-            # The firmware answers a failed login with its login page again (C.1).
+            # The firmware answers a failed login with its login page again (docs/PROTOCOLS.md 4.1).
             return await self._login_page(request, error='<p class="error">Invalid credentials.</p>')
         session.authed = True
         self.counters["logins"] += 1

@@ -26,7 +26,7 @@ LOGIN_PAGE = """<!DOCTYPE html>
 </body></html>
 """
 
-#: NanoStation loco M5 XM v6.3.16 station, /status.cgi (shared/fixtures/airos), used when no
+#: NanoStation loco M5 XM v6.3.16 station, /status.cgi (tests/fixtures/airos), used when no
 #: fixture is given.
 DEFAULT_STATUS: dict[str, Any] = json.loads("""
 {
