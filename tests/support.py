@@ -3,12 +3,12 @@
 Tests poll for conditions instead of sleeping: the machines that run CI are shared
 and slow, so every wait has a generous timeout and fails with what it waited for.
 
-Tests marked `virtual_time` run on a `VirtualTimeLoop`: when nothing is ready to run
-the loop's time jumps to its next timer instead of waiting for it, so a 4 s watchdog
-or a 60 s backoff take no wall time and a loaded machine cannot make a timer late.
-Such a test talks to its fakes over `memory://` links (no file descriptor); its
-drivers read time from a `LoopClock`. `ManualClock` is the one clock a test sets by
-hand (pure logic that reads `now()` and never sleeps).
+Tests marked `virtual_time` run on relayd.vtime's `VirtualTimeLoop` (tests/conftest.py
+picks the loop): when nothing is ready to run the loop's time jumps to its next timer
+instead of waiting for it, so a 4 s watchdog or a 60 s backoff take no wall time and a
+loaded machine cannot make a timer late. Such a test talks to its fakes over
+`memory://` links (no file descriptor); its drivers read time from a `LoopClock`.
+`ManualClock` is the one clock a test sets by hand (pure logic that reads `now()`).
 """
 
 from __future__ import annotations
@@ -16,7 +16,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import os
-import selectors
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import NoReturn, Protocol
@@ -24,67 +23,9 @@ from typing import NoReturn, Protocol
 import pytest
 
 from drivers.clock import Clock
+from relayd.vtime import LoopClock, VirtualTimeLoop
 
-#: Where a virtual loop's time starts (clock seconds; any value works, none is special).
-VIRTUAL_T0 = 1000.0
-
-
-class _JumpingSelector(selectors.BaseSelector):
-    """A real selector whose waits are skipped: the loop's time jumps instead.
-
-    Real readiness (the loop's self-pipe, a socket) is still polled first, without
-    blocking, so `call_soon_threadsafe` and any real I/O still work.
-    """
-
-    def __init__(self, advance: Callable[[float], None]) -> None:
-        self._real = selectors.DefaultSelector()
-        self._advance = advance
-
-    def register(self, fileobj, events, data=None):  # type: ignore[no-untyped-def]
-        return self._real.register(fileobj, events, data)
-
-    def unregister(self, fileobj):  # type: ignore[no-untyped-def]
-        return self._real.unregister(fileobj)
-
-    def modify(self, fileobj, events, data=None):  # type: ignore[no-untyped-def]
-        return self._real.modify(fileobj, events, data)
-
-    def get_map(self):  # type: ignore[no-untyped-def]
-        return self._real.get_map()
-
-    def close(self) -> None:
-        self._real.close()
-
-    def select(self, timeout: float | None = None) -> list[tuple[selectors.SelectorKey, int]]:
-        events = self._real.select(0)
-        if events or timeout == 0:
-            return events
-        if timeout is None:
-            # No timer at all: only a thread or real I/O can wake us; wait for it.
-            return self._real.select(None)
-        self._advance(timeout)
-        return []
-
-
-class VirtualTimeLoop(asyncio.SelectorEventLoop):
-    """An event loop whose time only moves when every task waits on a timer."""
-
-    def __init__(self) -> None:
-        self._virtual_t = VIRTUAL_T0
-        super().__init__(_JumpingSelector(self._advance))
-
-    def _advance(self, seconds: float) -> None:
-        self._virtual_t += seconds
-
-    def time(self) -> float:
-        return self._virtual_t
-
-
-class LoopClock(Clock):
-    """Clock seconds are the running loop's time: virtual on a VirtualTimeLoop."""
-
-    def now(self) -> float:
-        return asyncio.get_running_loop().time()
+__all__ = ["LoopClock", "ManualClock", "VirtualTimeLoop", "clock_for", "running", "until"]
 
 
 class ManualClock(Clock):

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import pytest
 import structlog
 from structlog.testing import capture_logs
 from support import ManualClock
@@ -14,6 +15,16 @@ from support import ManualClock
 from drivers.backoff import Backoff
 from drivers.clock import Clock
 from drivers.reconnect import Phase, Reconnect
+
+
+@pytest.fixture(autouse=True)
+def _default_logging() -> Iterator[None]:
+    """structlog's default configuration for these tests: another test (a CLI run) may
+    have left a WARNING filter in place, and these tests count DEBUG lines too."""
+    previous = structlog.get_config()
+    structlog.reset_defaults()
+    yield
+    structlog.configure(**previous)
 
 
 def make(clock: Clock | None = None, **kw: object) -> Reconnect:
