@@ -36,7 +36,7 @@ import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import structlog
 
@@ -44,6 +44,14 @@ from drivers.clock import Clock
 from relayd.sim.scenario import Scenario
 from relayd.sim.world import World
 from relayd.vtime import LoopClock, VirtualTimeLoop
+
+if TYPE_CHECKING:
+    from drivers.airos.fake import FakeAirOs
+    from drivers.arcos.fake import FakeRobot
+    from drivers.pantilt.fake import FakeMaestro
+    from drivers.wifi.fake import ProcfsWriter
+    from relayd.daemon import Daemon
+    from relayd.sim.inproc import MemoryRssi
 
 log = structlog.get_logger(__name__)
 
@@ -117,12 +125,12 @@ class SimRelay:
     """One simulated relay: its fakes and its daemon."""
 
     name: str
-    robot: Any
-    maestro: Any
-    procfs: Any
-    rear: Any
-    front: Any
-    daemon: Any
+    robot: FakeRobot
+    maestro: FakeMaestro
+    procfs: ProcfsWriter | MemoryRssi
+    rear: FakeAirOs
+    front: FakeAirOs
+    daemon: Daemon
     task: asyncio.Task[None] | None = None
 
 
