@@ -19,6 +19,7 @@ from drivers.arcos.sip import Sip
 from drivers.backoff import Backoff
 from drivers.clock import Clock
 from drivers.link import LinkError, open_link
+from drivers.memlink import LinkFaults
 
 SPEED = 10.0
 VT = pytest.mark.virtual_time
@@ -503,5 +504,34 @@ async def test_a_fatal_write_error_ends_the_session_at_once(clock: Clock) -> Non
             # The port is still there: the driver reconnects and the wish is carried out.
             await until(lambda: robot.connected and fake.target_vel_mm_s == 100, "reconnected")
             assert robot.counters["reconnects"] == 1
+    finally:
+        await fake.stop()
+
+
+@VT
+@pytest.mark.parametrize("faults", [
+    LinkFaults(chunk_bytes=1),
+    LinkFaults(random_chunks=True, delay_s=0.02, seed=3),
+    LinkFaults(garbage_rate=0.5, garbage_avoid=frozenset({0xFA}), drop_rate=0.002, seed=5),
+], ids=["one-byte-at-a-time", "random-chunks-delayed", "garbage-and-drops"])
+async def test_the_driver_holds_on_a_hostile_line(faults: LinkFaults, clock: Clock) -> None:
+    """The real driver against the real fake over a line that splits, delays, adds
+    garbage and loses bytes (both directions): it still connects, keeps the SIPs
+    coming and counts what it had to throw away."""
+    fake = FakeRobot(clock=clock, seed=1)
+    url = fake.serve_memory("robot", faults_to_driver=faults,
+                            faults_to_device=LinkFaults(chunk_bytes=1))
+    robot = ArcosRobot(url, clock=clock, enable_motors=True)
+    try:
+        async with running(robot):
+            await until(lambda: robot.connected and robot.last_sip is not None, "a session")
+            robot.set_wheels(150, 150)
+            await until(lambda: fake.target_vel_mm_s == 150, "VEL 150 at the fake")
+            n0 = robot.counters["sips"]
+            await asyncio.sleep(clock.to_real(3.0))
+            assert robot.counters["sips"] - n0 >= 20  # of ~30 in 3 s, some lost to drops
+            assert robot.connected
+            if faults.garbage_rate:
+                assert robot.counters["garbage_bytes"] > 0 and robot.counters["resyncs"] > 0
     finally:
         await fake.stop()

@@ -17,6 +17,7 @@ from support import LoopClock, until
 
 from drivers.backoff import Backoff
 from drivers.clock import Clock
+from drivers.memlink import LinkFaults
 from drivers.pantilt import PanTilt, PanTiltError, ServoCalibration, make_pantilt
 from drivers.pantilt.fake import FakeMaestro, FakeSsc32
 from drivers.pantilt.maestro import MaestroPanTilt
@@ -319,3 +320,26 @@ async def test_close_ends_run_even_while_backing_off(tmp_path: Path) -> None:
     await pt.close()
     await asyncio.wait_for(task, 2)  # returned, did not sit out the 60 s backoff
     assert not pt.connected
+
+
+@VT
+@pytest.mark.parametrize("protocol", ["maestro", "ssc32"])
+async def test_replies_split_into_single_bytes_and_delayed_still_answer(protocol: str) -> None:
+    clock = LoopClock()
+    fake = FAKES[protocol](clock=clock)
+    one_byte = LinkFaults(chunk_bytes=1, delay_s=0.01)
+    url = fake.serve_memory(f"{protocol}-slow", faults_to_driver=one_byte,
+                            faults_to_device=LinkFaults(chunk_bytes=1))
+    pt = make_pantilt(protocol, url, None, {0: ServoCalibration()}, clock=clock,
+                      reply_timeout_s=1.0, poll_s=1000.0)
+    task = asyncio.create_task(pt.run())
+    try:
+        await until(lambda: pt.connected)
+        for angle in (-60.0, 0.0, 45.0):
+            await pt.set_angle(0, angle)
+            assert await pt.get_angle(0) == pytest.approx(angle, abs=TOL_DEG[protocol])
+        assert pt.counters["timeouts"] == 0 and pt.counters["stray_bytes"] == 0
+    finally:
+        await pt.close()
+        await asyncio.wait_for(task, 5)
+        fake.close()
