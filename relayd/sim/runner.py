@@ -58,7 +58,7 @@ __all__ = ["SimRelay", "SimResult", "SimRunner", "relay_settings", "summarize", 
 
 log = structlog.get_logger(__name__)
 
-#: Pulse widths at -90 / 0 / +90 degrees in the generated config (SPEC 4.2 default).
+#: Pulse widths at -90 / 0 / +90 degrees in the generated config (the example config's default).
 PULSE_US = (1000.0, 1500.0, 2000.0)
 AP_PASSWORD_ENV = "RELAYD_SIM_AP_PASSWORD"
 API_TOKEN_ENV = "RELAYD_SIM_API_TOKEN"
@@ -100,7 +100,7 @@ def _pose3(p: Any) -> tuple[float, float, float]:
 
 def relay_settings(*, robot_port: str, servo_port: str, procfs_path: str, rear_url: str,
                    front_url: str, control: dict[str, Any], scan: dict[str, Any]) -> dict[str, Any]:
-    """The config document (SPEC 4.2 sections and keys) of one simulated relay."""
+    """The config document (config/relayd.toml's sections and keys) of one simulated relay."""
     return {
         "robot": {"port": robot_port, "baud": 9600},
         "pantilt": {"port": servo_port, "protocol": "maestro", "scan_channel": 0, "link_channel": 1,

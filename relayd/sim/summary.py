@@ -39,7 +39,7 @@ def unapplied_command_s(records: Sequence[dict[str, Any]], i: int, grace_s: floa
 
 def summarize(records: Sequence[dict[str, Any]], *, scenario: str, relays: int, goal: tuple[float, float],
               goal_radius_m: float, collisions: int, followers: Sequence[dict[str, Any]]) -> dict[str, Any]:
-    """summary.json from the trace: SPEC 5's keys plus a few that help reading a run.
+    """summary.json from the trace: the keys docs/SIMULATOR.md lists.
 
     goal_reached: the leader got within goal_radius_m of its final waypoint while the
     end-to-end link had held all the way (the paper's "reached the destination while
