@@ -142,6 +142,11 @@ class TrackingModel:
                   sample_t: Sequence[float]) -> ScanEstimate:
         p = self.params
         fit = fit_main_lobe(est.angles_deg, est.nrssi_dbm, p.lobe, beamwidth_prior_deg=self.beamwidth_deg)
+        if fit is None and est.situation == 2:
+            # The PRSSI penalty carved up the lobe itself: the "obstacle" is the leader, or
+            # right beside it (a relay close behind its leader robot). The raw scan still
+            # says where the leader is; losing the track over it would stop the relay.
+            fit = fit_main_lobe(est.angles_deg, est.rssi_dbm, p.lobe, beamwidth_prior_deg=self.beamwidth_deg)
         self.last_fit = fit
         if len(sample_t) >= 2:
             self._sweep_s = max(0.0, sample_t[-1] - sample_t[0])
@@ -164,9 +169,6 @@ class TrackingModel:
             # No track to speak of: the scan's own word (the fit, else the centroid), flagged unsure.
             bearing = fit.bearing_deg if fit is not None else est.bearing_deg
             return replace(est, bearing_deg=bearing, bearing_sd_deg=None)
-        if fit is not None and not fit.extrapolated:
-            # RSSI^l from the fitted lobe: every sample of it, not the one luckiest fade.
-            est = replace(est, rssi_leader_dbm=min(fit.peak_dbm, max(est.rssi_dbm)))
         return replace(est, bearing_deg=now.bearing_deg, bearing_sd_deg=now.sd_deg)
 
     def bearing_now(self, t: float, heading_deg: float | None) -> float | None:

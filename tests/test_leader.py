@@ -102,17 +102,22 @@ def test_status_shows_the_uncertainty() -> None:
     assert "bearing_sd_deg" in st.snapshot(0.0) and st.snapshot(0.0)["bearing_sd_deg"] is None
 
 
-def test_rssi_l_is_the_fitted_lobe_peak_not_the_luckiest_sample() -> None:
-    from relayd.estimator import ScanEstimate, plan_scan
+
+def test_a_lobe_carved_up_by_the_prssi_penalty_still_gives_the_leader() -> None:
+    """A relay 1 m behind its leader robot: the sonars see the leader and PRSSI cuts the lobe."""
+    from relayd.estimator import EstimatorParams, ScanEstimate, SonarReading, apply_prssi, plan_scan
     from relayd.leader import TrackingModel
 
     angles = plan_scan(0.0, 180.0, 25, (-90.0, 90.0), True)
-    pattern = cos_n_pattern(45.0, 20.0)
-    rssi = [-50.0 + pattern(a - 10.0) for a in angles]
-    rssi[12] += 4.0  # one fade's lucky peak
-    est = ScanEstimate(bearing_deg=0.0, rssi_leader_dbm=max(rssi), situation=0, angles_deg=angles,
-                       rssi_dbm=tuple(rssi), nrssi_dbm=tuple(rssi))
-    out = TrackingModel(LeaderParams(estimator="lobe")).scan_done(10.0, 0.0, est, [10.0] * len(angles))
-    assert out.rssi_leader_dbm < max(rssi) - 2.0
-    assert out.rssi_leader_dbm == pytest.approx(-50.0, abs=1.5)
-    assert abs(out.bearing_deg - 10.0) < 3.0
+    pattern = cos_n_pattern(90.0, 20.0)
+    rssi = tuple(-30.0 + pattern(a) for a in angles)
+    sonar = [SonarReading(h, 1.0) for h in (30.0, 10.0, -10.0, -30.0)]
+    nrssi = apply_prssi(angles, rssi, sonar, EstimatorParams())
+    assert min(n - r for n, r in zip(nrssi, rssi, strict=True)) < -10.0
+    est = ScanEstimate(bearing_deg=0.0, rssi_leader_dbm=max(rssi), situation=2, angles_deg=angles,
+                       rssi_dbm=rssi, nrssi_dbm=nrssi)
+    model = TrackingModel(LeaderParams(estimator="lobe"))
+    for k in range(5):
+        out = model.scan_done(2.5 * k, 0.0, est, [2.5 * k] * len(angles))
+        assert abs(out.bearing_deg) < 5.0
+    assert not model.lost(12.0, 0.0)
