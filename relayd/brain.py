@@ -97,7 +97,8 @@ class BrainParams:
     control: ControlParams = field(default_factory=ControlParams)
     estimator: EstimatorParams = field(default_factory=EstimatorParams)
     scan: ScanParams = field(default_factory=ScanParams)
-    #: Which bearing estimator and scan window (`relayd.leader`): "wca"/"full" by default.
+    #: Which bearing estimator and scan window (`relayd.leader`); built from the config, whose
+    #: default is "lobe"/"full" (this bare default, "wca"/"full", is the paper's).
     leader: LeaderParams = field(default_factory=LeaderParams)
     #: A scan servo is configured: until it answers, follow mode stops on "scan_servo".
     has_scanner: bool = True
