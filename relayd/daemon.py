@@ -38,6 +38,7 @@ from relayd.events import Action, Event, LinkEvent, LinkSide, ScanPlan, ServoTar
 from relayd.health import pantilt_health, poller_health, robot_health, wifi_health
 from relayd.metrics import Metrics
 from relayd.params import brain_params, control_params, estimator_params
+from relayd.record.recorder import Recorder, off_status
 from relayd.scanner import RssiMonitor, Scanner
 from relayd.state import Mode, RelayState
 from relayd.statewriter import StateWriter
@@ -107,6 +108,13 @@ class Daemon:
         self.pollers: dict[str, AirOsPoller] = {}
         self._runner: web.AppRunner | None = None
         self._last_pet: float | None = None
+        self.recorder: Recorder | None = None
+        self._record_task: asyncio.Task[None] | None = None
+        if settings.record.enabled:
+            # One bus subscriber (docs/RECORDING.md); never on the control path.
+            self.recorder = Recorder(self.bus, settings, clock, identity=lambda: (
+                None if self.robot is None else self.robot.identity))
+        self.state.recording_source = self.recorder.status if self.recorder is not None else off_status
         self._build()
         self.bus.connect(self.brain.handle, self._on_actions)
 
@@ -215,6 +223,9 @@ class Daemon:
     # -- lifecycle ----------------------------------------------------------------------
 
     async def start(self) -> None:
+        if self.recorder is not None:
+            self.recorder.start()
+            self._record_task = asyncio.create_task(self.recorder.run(), name="relayd:recorder")
         self.supervisor.start()
         s = self.settings
         if s.api.enabled:
@@ -257,6 +268,12 @@ class Daemon:
             with contextlib.suppress(Exception):
                 await asyncio.wait_for(self._runner.cleanup(), 0.2)
             self._runner = None
+        if self.recorder is not None:
+            # Last: the Shutdown event and the final wheel stop are in the file.
+            await self.recorder.close()
+        if self._record_task is not None:
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await asyncio.wait_for(self._record_task, 0.5)
         log.info("stopped")
 
 

@@ -79,6 +79,17 @@ STATUS_SCHEMA: dict[str, Any] = _obj({
     "links": {"type": "object", "additionalProperties": _LINK},
     "health": {"type": "object", "additionalProperties": _HEALTH},
     "thresholds": {"type": "object", "additionalProperties": {"type": "number"}},
+    "recording": _obj({
+        "enabled": {"type": "boolean"},
+        "state": {"type": "string", "enum": ["off", "recording", "stopped", "failed"],
+                  "description": "failed: a write error (e.g. a full disk) ended the recording; the robot keeps working"},
+        "path": {"type": "string", "nullable": True, "description": "the file being written (or last written)"},
+        "files": {"type": "integer", "minimum": 0},
+        "bytes": {"type": "integer", "minimum": 0},
+        "events": {"type": "integer", "minimum": 0},
+        "dropped": {"type": "integer", "minimum": 0},
+        "error": {"type": "string", "nullable": True},
+    }, nullable=True),
 })
 
 
