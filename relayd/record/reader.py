@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO
 
-from mcap.exceptions import EndOfFile, InvalidMagic, McapError
+from mcap.exceptions import EndOfFile, InvalidMagic
 from mcap.records import Channel, Chunk, Footer, McapRecord, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 
@@ -126,13 +126,34 @@ class _Chunked:
         self.last_t = last_t
 
 
-def _records(f: BinaryIO) -> Iterator[tuple[int, McapRecord]]:
+class _Cursor:
+    """Where the record being read starts (so an error can name it)."""
+
+    def __init__(self) -> None:
+        self.start = 0
+
+
+def _records(f: BinaryIO, cursor: _Cursor) -> Iterator[tuple[int, McapRecord]]:
     """(offset where the record starts, record), in file order, chunks not expanded."""
     reader = StreamReader(f, emit_chunks=True, validate_crcs=True, record_size_limit=RECORD_SIZE_LIMIT)
-    start = f.tell()
-    for rec in reader.records:
-        yield start, rec
-        start = f.tell()
+    records = iter(reader.records)
+    while True:
+        cursor.start = f.tell()
+        try:
+            rec = next(records)
+        except StopIteration:
+            return
+        yield cursor.start, rec
+
+
+def _cut_at(f: BinaryIO, offset: int) -> bool:
+    """Whether the record at `offset` runs past the end of the file (a cut, not a corruption)."""
+    size = f.seek(0, 2)
+    if size - offset < 9:
+        return True
+    f.seek(offset + 1)
+    length = int.from_bytes(f.read(8), "little")
+    return offset + 9 + length > size
 
 
 def read_recording(path: str | Path, *, partial: bool = False) -> Recording:
@@ -152,10 +173,10 @@ def read_recording(path: str | Path, *, partial: bool = False) -> Recording:
     chunks = 0
     complete = False
     broke: str | None = None
-    offset = 0
+    cursor = _Cursor()
     with f:
         try:
-            for offset, rec in _records(f):
+            for offset, rec in _records(f, cursor):
                 if isinstance(rec, Chunk):
                     try:
                         records = breakup_chunk(rec, validate_crc=True)
@@ -184,9 +205,13 @@ def read_recording(path: str | Path, *, partial: bool = False) -> Recording:
             broke = str(exc)
         except InvalidMagic:
             raise RecordingError(p, "not an MCAP file (bad magic)", 0) from None
-        except (EndOfFile, McapError, ValueError, OSError) as exc:
-            last = "" if chunked.last_t is None else f", last event at t={chunked.last_t:.3f}"
-            if isinstance(exc, EndOfFile):
+        except Exception as exc:  # noqa: BLE001 - a corrupt length or field fails in many ways
+            offset = cursor.start
+            last = ""
+            if chunked.last_t is not None:
+                t0 = info.clock_t0 if info is not None else 0.0
+                last = f", the last event read {chunked.last_t - t0:.3f} s into the recording"
+            if isinstance(exc, EndOfFile) or _cut_at(f, offset):
                 why = (f"the file ends without its summary (the recorder did not finish it: "
                        f"a killed daemon or a full disk?); {chunks} complete chunk(s) before it{last}")
             else:
