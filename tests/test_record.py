@@ -397,7 +397,7 @@ async def test_metadata_carries_version_config_and_start(tmp_path: Path) -> None
 
 def test_record_section_is_strict() -> None:
     assert Settings().record.enabled is False
-    with pytest.raises(ConfigError, match="record.max_file"):
+    with pytest.raises(ConfigError, match=r"record\.max_file"):
         parse_settings({"record": {"max_file": 10}})
     with pytest.raises(ConfigError, match="max_total_mb must be at least max_file_mb"):
         parse_settings({"record": {"max_file_mb": 100, "max_total_mb": 50}})
@@ -414,7 +414,7 @@ def test_overrides_parse_toml_values_and_refuse_unknown_keys() -> None:
     from relayd.record.replay import OverrideError
     with pytest.raises(OverrideError, match="no key 'kpp'"):
         apply_overrides(base, [("control.kpp", 2.0)])
-    with pytest.raises(OverrideError, match="control.kp"):
+    with pytest.raises(OverrideError, match=r"control\.kp"):
         apply_overrides(base, [("control.kp", -1.0)])
 
 
