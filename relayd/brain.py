@@ -58,6 +58,7 @@ from relayd.events import (
     RssiEvent,
     ScanDone,
     ScanPlan,
+    ScanReady,
     ScanResult,
     ScanSampleEvent,
     ServoPosition,
@@ -130,6 +131,8 @@ class Brain:
         self._servo_ok = not params.has_scanner
         self._ascending = True
         self._scan: list[ScanSample] = []
+        #: The scanner asked for a plan while the servo was not answering: plan when it is.
+        self._scan_wanted = False
         self._last_scan_t: float | None = None
         self.lost_count = 0
         self.bearing_deg: float | None = None
@@ -172,6 +175,12 @@ class Brain:
                 if s.fresh and s.rssi_dbm is not None and math.isfinite(s.rssi_dbm):
                     self._rssi_fresh_t = s.t
                 return []
+            case ScanReady():
+                self._scan = []
+                if not self._servo_ok:
+                    self._scan_wanted = True
+                    return []
+                return [self._plan()]
             case ScanSampleEvent():
                 self._scan.append(ScanSample(event.angle_deg, event.rssi_dbm, self._sample_heading()))
                 return []
@@ -225,9 +234,9 @@ class Brain:
         if ev.device == PANTILT:
             was_ok, self._servo_ok = self._servo_ok, up
             actions = self._step(ev.t, None)
-            if up and not was_ok:
-                self._scan = []
-                actions.append(self._plan())  # the servo answers: (re)start sweeping
+            if up and not was_ok and self._scan_wanted:
+                self._scan_wanted = False
+                actions.append(self._plan())  # the scanner was waiting for the servo
             return actions
         return []
 
@@ -303,8 +312,6 @@ class Brain:
                 actions.append(ScanResult(record, est))
                 # Point the data-link antenna at the leader.
                 actions.append(ServoTarget(self.params.scan.link_channel, est.bearing_deg))
-        if self._servo_ok:
-            actions.append(self._plan())
         return actions
 
     # -- the control step -----------------------------------------------------------------

@@ -82,8 +82,6 @@ class ControlShell:
         self._remove_listener: Callable[[], None] | None = None
         self._up: dict[str, bool] = {}
         self.commands = 0
-        if robot is not None:
-            self._remove_listener = robot.add_listener(self.on_sip)
 
     # -- Controls (called by the API) ---------------------------------------------------
 
@@ -136,7 +134,9 @@ class ControlShell:
         self._bus.publish(DeviceEvent(now, device, DeviceStatus.UP if up else DeviceStatus.DOWN, detail))
 
     async def run(self) -> None:
-        """The control tick."""
+        """The control tick; also subscribes to the robot's SIPs (a held task holds both)."""
+        if self._robot is not None and not self._halted and self._remove_listener is None:
+            self._remove_listener = self._robot.add_listener(self.on_sip)
         try:
             while True:
                 self.check_devices()

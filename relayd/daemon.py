@@ -19,12 +19,13 @@ import contextlib
 import functools
 import os
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import structlog
 from aiohttp import web
 
-from drivers.airos import AirOsPoller
+from drivers.airos import AirOsClient, AirOsPoller
 from drivers.airos.model import LinkQuality
 from drivers.arcos import ArcosRobot
 from drivers.clock import REAL_CLOCK, Clock
@@ -35,7 +36,7 @@ from relayd.bus import Bus
 from relayd.config import ApiSettings, Settings, resolve_secret, secret_refs
 from relayd.control import ControlShell
 from relayd.events import Action, Event, LinkEvent, LinkSide, ScanPlan, ServoTarget, WheelCommand
-from relayd.health import pantilt_health, poller_health, robot_health, wifi_health
+from relayd.health import device_health
 from relayd.metrics import Metrics
 from relayd.params import brain_params, control_params, estimator_params
 from relayd.record.recorder import Recorder, off_status
@@ -44,7 +45,7 @@ from relayd.state import Mode, RelayState
 from relayd.statewriter import StateWriter
 from relayd.supervisor import Supervisor
 
-__all__ = ["Daemon", "control_params", "estimator_params"]
+__all__ = ["Daemon", "DeviceOverrides", "control_params", "estimator_params"]
 
 log = structlog.get_logger(__name__)
 
@@ -54,6 +55,18 @@ SAFE_STOP_BUDGET_S = 0.3
 TICK_S = 0.1
 #: How often the systemd watchdog is petted while the control loop ticks (clock s).
 WATCHDOG_PET_S = 0.5
+
+
+@dataclass(frozen=True, slots=True)
+class DeviceOverrides:
+    """In-process stand-ins for devices without a `memory://` link (the simulator on virtual time).
+
+    `rssi_source` replaces the configured RSSI source; `airos_clients[side]` replaces
+    that poller's HTTP client (same interface, see relayd.sim.inproc).
+    """
+
+    rssi_source: RssiSource | None = None
+    airos_clients: Mapping[str, AirOsClient] = field(default_factory=dict)
 
 
 class Notifier(Protocol):
@@ -69,9 +82,11 @@ class Daemon:
     """One relay's daemon. `await run()` until cancelled; cancellation is the safe shutdown."""
 
     def __init__(self, settings: Settings, *, clock: Clock = REAL_CLOCK,
-                 env: Mapping[str, str] | None = None, notifier: Notifier | None = None) -> None:
+                 env: Mapping[str, str] | None = None, notifier: Notifier | None = None,
+                 devices: DeviceOverrides | None = None) -> None:
         self.settings = settings
         self.clock = clock
+        self._devices = devices or DeviceOverrides()
         env = os.environ if env is None else env
         # Resolve every secret first: a missing one must stop us before a device moves.
         refs = secret_refs(settings)
@@ -87,7 +102,8 @@ class Daemon:
             if token_ref is not None and _configured(settings.api, env) else None
 
         c = settings.control
-        self.state = RelayState(started_t=clock.now(), mode=Mode(c.mode))
+        self.state = RelayState(started_t=clock.now(), mode=Mode(c.mode),
+                                display_name=settings.robot.display_name)
         self.state.thresholds = {
             "threshold_l_dbm": c.threshold_l_dbm, "threshold_b_dbm": c.threshold_b_dbm,
             "hysteresis_db": c.hysteresis_db, "lost_rssi_dbm": c.lost_rssi_dbm,
@@ -126,8 +142,7 @@ class Daemon:
             robot = self.robot = ArcosRobot(s.robot.port, s.robot.baud, clock=clock,
                                             subclass_override=s.robot.subclass,
                                             lost_after_s=s.robot.lost_after_s, enable_motors=True)
-            state.health_sources["robot"] = lambda: robot_health(
-                robot, None if robot.last_sip is None else robot.last_sip.t)
+            state.health_sources["robot"] = lambda: device_health(robot)
             self.supervisor.add("robot", robot.run, device="robot")
         if s.pantilt.enabled:
             from drivers.pantilt import ServoCalibration, make_pantilt
@@ -150,10 +165,10 @@ class Daemon:
         if s.wifi.enabled:
             from drivers.wifi import make_source
 
-            source = self.source = make_source(s.wifi.source, s.wifi.interface, path=s.wifi.procfs_path,
-                                               clock=clock)
+            source = self.source = self._devices.rssi_source or make_source(
+                s.wifi.source, s.wifi.interface, path=s.wifi.procfs_path, clock=clock)
             monitor = self.monitor = RssiMonitor(source, s.wifi.sample_hz, self.bus, clock)
-            state.health_sources["wifi"] = lambda: wifi_health(source, monitor.last_fresh_t)
+            state.health_sources["wifi"] = lambda: device_health(source, last_data_t=monitor.last_fresh_t)
             self.supervisor.add("wifi", monitor.run, device="wifi")
         for side, password in self._ap_passwords.items():
             ap = s.ap.rear if side == "rear" else s.ap.front
@@ -162,8 +177,11 @@ class Daemon:
             poller = AirOsPoller(ap.url, ap.username, password, poll_s=ap.poll_s,
                                  legacy_tls=ap.legacy_tls, timeout_s=ap.timeout_s, clock=clock,
                                  on_update=functools.partial(self._on_link, LinkSide(side)))
+            client = self._devices.airos_clients.get(side)
+            if client is not None:
+                poller.client = client
             self.pollers[side] = poller
-            state.health_sources[f"ap.{side}"] = functools.partial(poller_health, poller)
+            state.health_sources[f"ap.{side}"] = functools.partial(device_health, poller)
             self.supervisor.add(f"ap.{side}", poller.run, device=f"ap.{side}")
         pantilt = self.pantilt
         if pantilt is not None and self.monitor is not None:
@@ -177,9 +195,9 @@ class Daemon:
             self.supervisor.add("scanner", scanner.run, device="pantilt")
         if pantilt is not None:
             scanner_ = self.scanner
-            state.health_sources["pantilt"] = lambda: pantilt_health(
-                pantilt, scanner_ is None or scanner_.servo_ok,
-                0 if scanner_ is None else scanner_.link_errors)
+            state.health_sources["pantilt"] = lambda: device_health(
+                pantilt, usable=scanner_ is None or scanner_.servo_ok,
+                extra_errors=0 if scanner_ is None else scanner_.link_errors)
         robot_ = self.robot
         self.control = ControlShell(
             bus=self.bus, brain=self.brain, robot=robot_, clock=clock, tick_s=TICK_S,

@@ -54,6 +54,17 @@ class ServoPosition:
 
 
 @dataclass(frozen=True, slots=True)
+class ScanReady:
+    """The scanner is ready for its next sweep (the brain answers with a `ScanPlan`).
+
+    Planned at this moment, not when the last sweep ended, so a turn of the robot
+    in between is already in the window's centre.
+    """
+
+    t: float
+
+
+@dataclass(frozen=True, slots=True)
 class ScanSampleEvent:
     """One scan sample: where the Yagi pointed (robot frame) when it heard `rssi_dbm`."""
 
@@ -132,7 +143,7 @@ class Shutdown:
     t: float
 
 
-Event = (SipEvent | RssiEvent | ServoPosition | ScanSampleEvent | ScanDone | LinkEvent
+Event = (SipEvent | RssiEvent | ServoPosition | ScanReady | ScanSampleEvent | ScanDone | LinkEvent
          | DeviceEvent | ModeCommand | DriveCommand | Tick | Shutdown)
 
 # -- actions ---------------------------------------------------------------------------

@@ -25,6 +25,9 @@ P = TypeVar("P")
 RSSI_STALE_MIN_S = 0.5
 #: ... nor over fewer than this many sample periods.
 RSSI_STALE_SAMPLES = 5
+#: "No completed scan for 2 scan periods" never fires sooner than this (s): a sweep
+#: also waits for servo replies and the link antenna, which the nominal period leaves out.
+SCAN_STALE_MIN_S = 1.0
 
 
 def _from_sections(cls: type[P], *sections: BaseModel, **derived: Any) -> P:
@@ -88,7 +91,7 @@ def brain_params(settings: Settings) -> BrainParams:
             width_deg=s.width_deg, limits_deg=(float(pt.limits_deg[0]), float(pt.limits_deg[1])),
             lost_rssi_dbm=settings.control.lost_rssi_dbm,
             # The second stale rule: no completed scan for two nominal scan periods.
-            scan_timeout_s=2.0 * nominal_scan_period_s(settings) if scanning else None,
+            scan_timeout_s=max(SCAN_STALE_MIN_S, 2.0 * nominal_scan_period_s(settings)) if scanning else None,
         ),
         has_scanner=scanning,
         rear_station_mac=rear.station_mac if rear is not None else None,

@@ -11,9 +11,10 @@ and keeps a short history, so a sweep can pair samples with servo angles.
 - continuous mode: command the far end of the window once at the slew rate and
   interpolate each fresh sample's angle from the commanded motion.
 
-Each paired sample is published as a `ScanSampleEvent`, the sweep's end as
-`ScanDone`; the brain answers with the estimate, a `ServoTarget` for the link
-antenna (carried out here before the next sweep) and the next plan.
+Before each sweep the scanner publishes `ScanReady` and the brain answers with the
+plan; each paired sample is published as a `ScanSampleEvent`, the sweep's end as
+`ScanDone`, and the brain answers with the estimate and a `ServoTarget` for the link
+antenna (carried out here before the next sweep).
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ from relayd.events import (
     RssiEvent,
     ScanDone,
     ScanPlan,
+    ScanReady,
     ScanSampleEvent,
     ServoPosition,
     ServoTarget,
@@ -203,7 +205,6 @@ class Scanner:
 
     def point_link(self, target: ServoTarget) -> None:
         self._link_target = target
-        self._wake.set()
 
     def _set_answered(self, answered: bool) -> None:
         if answered != self._answered:
@@ -240,24 +241,31 @@ class Scanner:
                 self._plan = None
                 await self.prepare()
                 while True:
-                    plan = await self._next()
+                    plan = await self.next_plan()
                     await self.sweep(plan)
             except ScanServoError as exc:
                 log.warning("scan_servo_error", error=str(exc))
                 await self._clock.sleep(0.2)
 
-    async def _next(self) -> ScanPlan:
-        """Point the link antenna if asked, then wait for the brain's next plan."""
+    async def point_pending_link(self) -> None:
+        """Carry out the brain's latest link-antenna target, if one is waiting."""
+        target, self._link_target = self._link_target, None
+        if target is not None:
+            await self._point(target)
+
+    async def next_plan(self) -> ScanPlan:
+        """Point the link antenna if asked, then ask the brain for the next sweep's plan."""
+        await self.point_pending_link()
+        self._plan = None
+        # The brain answers synchronously when the servo counts as answering; otherwise
+        # as soon as it does.
+        self._bus.publish(ScanReady(self._clock.now()))
         while True:
-            target, self._link_target = self._link_target, None
-            if target is not None:
-                await self._point(target)
             plan, self._plan = self._plan, None
             if plan is not None:
                 return plan
-            if self._link_target is None:
-                self._wake.clear()
-                await self._wake.wait()
+            self._wake.clear()
+            await self._wake.wait()
 
     async def _point(self, target: ServoTarget) -> None:
         # A failure here is the link servo's, not the scan's: counted, logged, scanning goes on.

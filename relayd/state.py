@@ -121,6 +121,8 @@ class RelayState:
     #: The recorder's status (relayd.record), read at snapshot time; None: no recorder here.
     recording_source: Callable[[], dict[str, Any]] | None = field(default=None, repr=False)
     robot_name: str | None = None
+    #: The operator's name for this robot (config `robot.display_name`), e.g. "relay 2 (east)".
+    display_name: str | None = None
     thresholds: dict[str, float] = field(default_factory=dict)
     #: Bumped on every change a live view cares about; `changed` is set with it.
     revision: int = 0
@@ -154,6 +156,7 @@ class RelayState:
         return {
             "version": __version__,
             "robot": self.robot_name,
+            "display_name": self.display_name,
             "uptime_s": round(now - self.started_t, 3),
             "mode": str(self.mode),
             "state": str(self.state),

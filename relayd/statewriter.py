@@ -24,6 +24,7 @@ from relayd.events import (
     ScanResult,
     ServoPosition,
     SipEvent,
+    Tick,
 )
 from relayd.state import LinkInfo, RelayState
 
@@ -68,6 +69,10 @@ class StateWriter:
                 st.link_bearing_deg = event.angle_deg
             case DeviceEvent(device="robot", status=DeviceStatus.UP) if event.detail:
                 st.robot_name = event.detail
+            case Tick():
+                # /healthz and the watchdog judge the timer, not SIP-driven steps: a wedged
+                # timer means silence would no longer stop the robot.
+                st.loop_tick_t = event.t
             case _:
                 pass
 
@@ -75,7 +80,6 @@ class StateWriter:
         st = self.state
         match action:
             case Decision():
-                st.loop_tick_t = action.t
                 st.wheels_left_mm_s = action.left_mm_s
                 st.wheels_right_mm_s = action.right_mm_s
                 st.situation = action.situation

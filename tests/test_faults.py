@@ -6,7 +6,7 @@ leader, breaks one thing and checks what a robot must do about it: the wheels go
 zero in time and say why, /status shows the fault, and everything resumes by itself
 once the data is back, with no task of the daemon failing or restarting.
 
-Timing is measured on the daemon's own control steps (every `ControlLoop._apply` is
+Timing is measured on the daemon's own control steps (every `Decision` the brain returns is
 recorded with its clock time), so the figures do not depend on how fast this test
 polls. Bounds carry slack for the shared two-core machine; the scan and the rear-AP
 poll are configured short so the file stays fast.

@@ -42,6 +42,7 @@ from relayd.events import (
     RssiEvent,
     ScanDone,
     ScanPlan,
+    ScanReady,
     ScanResult,
     ScanSampleEvent,
     ServoPosition,
@@ -89,6 +90,7 @@ def every_type(t: float = 5.0) -> tuple[list[Event], list[Action]]:
         RssiEvent(t, RssiSample(t, None, False)),
         RssiEvent(t, RssiSample(t, -51.25, True)),
         ServoPosition(t, 0, 33.3, True),
+        ScanReady(t),
         ScanSampleEvent(t, -30.0, math.nan),  # a non-finite float: null in JSON, NaN back
         ScanDone(t, t - 2.5, 13),
         LinkEvent(t, LinkSide.REAR, quality(t)),
@@ -133,7 +135,8 @@ def test_every_event_and_action_round_trips_and_validates_against_its_schema() -
         doc.pop("i", None)
         back = codec.decode(cls, doc)
         assert same(back, obj), cls.__name__
-    nan_back = codec.decode(ScanSampleEvent, json.loads(codec.encode(events[4], 0)))
+    sample = next(e for e in events if isinstance(e, ScanSampleEvent))
+    nan_back = codec.decode(ScanSampleEvent, json.loads(codec.encode(sample, 0)))
     assert math.isnan(nan_back.rssi_dbm)
 
 

@@ -1,4 +1,4 @@
-"""The HTTP API, live page and metrics endpoint of one relayd (SPEC 4.3).
+"""The HTTP API, live page and metrics endpoint of one relayd (`/openapi.json` describes it).
 
 The app only reads `RelayState` and calls `Controls`; every handler answers from
 memory without waiting on a device, so /status stays fast while the control loop runs.

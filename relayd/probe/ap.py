@@ -11,14 +11,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 import os
 import sys
 
-import structlog
-
 from drivers.airos import AirOsAuthError, AirOsClient, AirOsError, LinkQuality
 from drivers.airos.client import Firmware
+from relayd.probe import warnings_to_stderr
 
 PASSWORD_ENV = "RELAYD_AP_PASSWORD"
 FIRMWARES: dict[str, Firmware] = {"auto": "auto", "6": 6, "8": 8}
@@ -63,25 +61,17 @@ async def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"relayd probe ap: {exc}", file=sys.stderr)
         return 2
-    configured_here = False
-    if not structlog.is_configured():
-        # stdout is for the answer (parseable with --json); warnings go to stderr.
-        structlog.configure(
-            wrapper_class=structlog.make_filtering_bound_logger(logging.WARNING),
-            logger_factory=structlog.PrintLoggerFactory(sys.stderr))
-        configured_here = True
-    try:
-        quality = await client.fetch()
-    except AirOsAuthError as exc:
-        print(f"relayd probe ap: {exc}: wrong username or password", file=sys.stderr)
-        return 1
-    except AirOsError as exc:
-        print(f"relayd probe ap: {args.url}: {exc}", file=sys.stderr)
-        return 1
-    finally:
-        await client.close()
-        if configured_here:
-            structlog.reset_defaults()
+    with warnings_to_stderr():
+        try:
+            quality = await client.fetch()
+        except AirOsAuthError as exc:
+            print(f"relayd probe ap: {exc}: wrong username or password", file=sys.stderr)
+            return 1
+        except AirOsError as exc:
+            print(f"relayd probe ap: {args.url}: {exc}", file=sys.stderr)
+            return 1
+        finally:
+            await client.close()
     if args.json:
         print(json.dumps(quality.to_json()), flush=True)
     else:

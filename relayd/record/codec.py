@@ -35,6 +35,7 @@ TOPICS: dict[str, str] = {
     "SipEvent": "/robot/sip",
     "RssiEvent": "/wifi/rssi",
     "ServoPosition": "/servo/position",
+    "ScanReady": "/scan/ready",
     "ScanSampleEvent": "/scan/sample",
     "ScanDone": "/scan/done",
     "LinkEvent": "/link",

@@ -93,8 +93,7 @@ class Recorder:
             # Looked up now, not at import: tests swap in a writer that fails.
             opener=opener if opener is not None else file_writer.open_file)
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._done: asyncio.Future[None] | None = None
-        self._thread = WriterThread(self._sink, self._error_from_thread, self._done_from_thread)
+        self._thread = WriterThread(self._sink, self._error_from_thread)
         self._views = Views()
         self._specs: dict[type, ChannelSpec] = {}
         self._view_specs = {topic: channel_spec(topic, schema) for topic, schema in VIEWS.items()}
@@ -126,7 +125,6 @@ class Recorder:
 
     def start(self) -> None:
         self._loop = asyncio.get_running_loop()
-        self._done = self._loop.create_future()
         self._thread.start()
 
     async def run(self) -> None:
@@ -159,11 +157,10 @@ class Recorder:
                 self.state = "stopped"
         self._bus.unsubscribe(self._sub)
         self._thread.stop()
-        if self._done is not None:
-            try:
-                await asyncio.wait_for(asyncio.shield(self._done), CLOSE_TIMEOUT_S)
-            except TimeoutError:
-                log.warning("recording_close_timeout", path=self.status()["path"])
+        # Waited in wall time, in a helper thread: on the simulator's virtual-time loop a
+        # loop timeout would expire at once while the file is still being finished.
+        if not await asyncio.to_thread(self._thread.join, CLOSE_TIMEOUT_S):
+            log.warning("recording_close_timeout", path=self.status()["path"])
 
     # -- items in -------------------------------------------------------------------
 
@@ -225,11 +222,6 @@ class Recorder:
         if loop is not None and not loop.is_closed():
             loop.call_soon_threadsafe(self._fail, error)
 
-    def _done_from_thread(self) -> None:
-        loop, done = self._loop, self._done
-        if loop is not None and done is not None and not loop.is_closed():
-            loop.call_soon_threadsafe(_resolve, done)
-
     def _fail(self, error: str) -> None:
         if self.state == "failed":
             return
@@ -238,11 +230,6 @@ class Recorder:
         log.warning("recording_stopped", error=error, path=self.status()["path"],
                     note="the robot keeps working; nothing more is recorded in this run")
         self._bus.unsubscribe(self._sub)
-
-
-def _resolve(fut: asyncio.Future[None]) -> None:
-    if not fut.done():
-        fut.set_result(None)
 
 
 def off_status() -> dict[str, Any]:

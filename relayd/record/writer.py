@@ -188,11 +188,10 @@ class McapSink:
 class WriterThread:
     """Runs a sink in its own thread; `submit` never blocks, errors are reported once."""
 
-    def __init__(self, sink: McapSink, on_error: Callable[[str], None], on_done: Callable[[], None]) -> None:
+    def __init__(self, sink: McapSink, on_error: Callable[[str], None]) -> None:
         self.sink = sink
         self._queue: queue.SimpleQueue[Batch | None] = queue.SimpleQueue()
         self._on_error = on_error
-        self._on_done = on_done
         self.error: str | None = None
         self._thread = threading.Thread(target=self._run, name="relayd-recorder", daemon=True)
 
@@ -211,24 +210,21 @@ class WriterThread:
         return not self._thread.is_alive()
 
     def _run(self) -> None:
-        try:
-            while True:
-                batch = self._queue.get()
-                if batch is None:
-                    break
-                if self.error is not None:
-                    continue
-                try:
-                    self.sink.write(batch)
-                except Exception as exc:  # noqa: BLE001 - a full disk must not end the daemon
-                    self._fail(exc)
-            if self.error is None:
-                try:
-                    self.sink.finish()
-                except Exception as exc:  # noqa: BLE001
-                    self._fail(exc)
-        finally:
-            self._on_done()
+        while True:
+            batch = self._queue.get()
+            if batch is None:
+                break
+            if self.error is not None:
+                continue
+            try:
+                self.sink.write(batch)
+            except Exception as exc:  # noqa: BLE001 - a full disk must not end the daemon
+                self._fail(exc)
+        if self.error is None:
+            try:
+                self.sink.finish()
+            except Exception as exc:  # noqa: BLE001
+                self._fail(exc)
 
     def _fail(self, exc: BaseException) -> None:
         self.error = f"{type(exc).__name__}: {exc}"

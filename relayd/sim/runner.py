@@ -1,10 +1,21 @@
 """The simulation runner: real relayd daemons driving fake devices in a simulated world.
 
-For each relay it starts a FakeRobot on a pty (its true pose integrated by the fake,
-sonar and collisions answered by the world), a FakeMaestro on a pty, a procfs-format
-RSSI file and two FakeAirOs radios on loopback, generates that relay's Settings and
-runs a `relayd.daemon.Daemon` on them in this event loop, exactly as `relayd run`
-would on a robot. One `Clock(speed)` is shared by all of them and by the world.
+For each relay it starts a FakeRobot (its true pose integrated by the fake, sonar and
+collisions answered by the world), a FakeMaestro, the Yagi's RSSI and two FakeAirOs
+radios, generates that relay's Settings and runs a `relayd.daemon.Daemon` on them in
+this event loop, exactly as `relayd run` would on a robot.
+
+Two modes, chosen by the loop it runs on:
+
+- virtual time (`relayd.vtime.VirtualTimeLoop`, what `relayd sim` uses): the devices
+  are in-process (memory:// links for the base and the servo controller, a
+  `MemoryRssi`, `InProcessAirOs` clients), every event is a loop callback at its
+  virtual time, and the same scenario and seed give byte-identical summary.json and
+  trace.jsonl. The status API still answers on a real socket.
+- real time (any other loop): ptys, a procfs-format RSSI file and the airOS fakes
+  over HTTP, one `Clock(speed)` shared by everything. Kept for bench/soak.py, which
+  injects faults at the OS level (a pty hang-up, an HTTP radio going down) and
+  measures wall-clock resource growth over real I/O.
 
 The world ticks at the scenario's `tick_hz` (clock time): it moves the scripted leader,
 reads every robot's true pose and servo angles, writes the Yagi's RSSI into each
@@ -31,6 +42,7 @@ import structlog
 from drivers.clock import Clock
 from relayd.sim.scenario import Scenario
 from relayd.sim.world import World
+from relayd.vtime import LoopClock, VirtualTimeLoop
 
 log = structlog.get_logger(__name__)
 
@@ -167,7 +179,6 @@ def summarize(records: Sequence[dict[str, Any]], *, scenario: str, relays: int, 
             "collisions": f["collisions"],
             "travelled_m": round(f["travelled_m"], 3),
             "unapplied_command_s": unapplied_command_s(records, i) if records else 0.0,
-            "api_port": f.get("api_port"),
         })
     return {
         "scenario": scenario,
@@ -186,7 +197,7 @@ def summarize(records: Sequence[dict[str, Any]], *, scenario: str, relays: int, 
 class SimRunner:
     """Runs one scenario with real daemons; `await run()` returns the summary and trace."""
 
-    def __init__(self, scenario: Scenario, *, speed: float = 10.0, seed: int = 1,
+    def __init__(self, scenario: Scenario, *, speed: float | None = 10.0, seed: int = 1,
                  seconds: float | None = None, out_dir: Path | None = None,
                  workdir: Path | None = None,
                  on_progress: Callable[[dict[str, Any]], None] | None = None,
@@ -195,7 +206,10 @@ class SimRunner:
         self.scenario = scenario
         #: Each relay's daemon records to <record_dir>/<name>.mcap (its own [record] config).
         self.record_dir = record_dir
-        self.clock = Clock(speed)
+        self.speed = speed
+        # Real-time mode's clock; on a virtual-time loop run() replaces it with the loop's.
+        self.clock: Clock = Clock(speed or 1.0)
+        self.virtual = False
         self.seed = seed
         self.seconds = scenario.duration_s if seconds is None else seconds
         self.out_dir = out_dir
@@ -215,7 +229,8 @@ class SimRunner:
         from drivers.pantilt.fake import FakeMaestro
         from drivers.wifi.fake import ProcfsWriter
         from relayd.config import Settings
-        from relayd.daemon import Daemon
+        from relayd.daemon import Daemon, DeviceOverrides
+        from relayd.sim.inproc import InProcessAirOs, MemoryRssi
 
         body = self.world.relays[i]
         world = self.world
@@ -228,27 +243,43 @@ class SimRunner:
             return world.motion_ok(i, *_pose3(new), old=_pose3(old))
 
         robot = FakeRobot(name=body.name, clock=clock, sonar_fn=sonar_fn, motion_guard=motion_guard,
-                          pose=(body.x_m * 1000.0, body.y_m * 1000.0, body.theta_deg))
-        robot_port = robot.serve_pty(str(work / f"{body.name}-base"))
-        await robot.start()
+                          pose=(body.x_m * 1000.0, body.y_m * 1000.0, body.theta_deg),
+                          seed=self.seed * 1000 + i)
         maestro = FakeMaestro(clock=clock, initial_us=PULSE_US[1])
-        servo_port = maestro.serve_pty(str(work / f"{body.name}-servo"))
-        procfs = ProcfsWriter(work / f"{body.name}-wireless", "wlan1")
-        procfs.write(world.yagi_rssi_dbm(i, 0.0))
         rear = FakeAirOs("ubnt", self._password, clock=clock)
         front = FakeAirOs("ubnt", self._password, clock=clock)
-        rear_url = await rear.start()
-        front_url = await front.start()
+        devices = None
+        procfs: ProcfsWriter | MemoryRssi
+        if self.virtual:
+            tag = f"sim{id(self):x}-{body.name}"
+            robot_port = robot.serve_memory(f"{tag}-base")
+            servo_port = maestro.serve_memory(f"{tag}-servo")
+            procfs = MemoryRssi("wlan1", clock=clock)
+            procfs_path = str(work / f"{body.name}-wireless")  # unused: the source is in memory
+            rear_url, front_url = f"http://{tag}-rear.inproc", f"http://{tag}-front.inproc"
+            devices = DeviceOverrides(rssi_source=procfs, airos_clients={
+                "rear": InProcessAirOs(rear, clock=clock, name=f"{tag}-rear"),
+                "front": InProcessAirOs(front, clock=clock, name=f"{tag}-front"),
+            })
+        else:
+            robot_port = robot.serve_pty(str(work / f"{body.name}-base"))
+            servo_port = maestro.serve_pty(str(work / f"{body.name}-servo"))
+            procfs = ProcfsWriter(work / f"{body.name}-wireless", "wlan1")
+            procfs_path = str(procfs.path)
+            rear_url = await rear.start()
+            front_url = await front.start()
+        await robot.start()
+        procfs.write(world.yagi_rssi_dbm(i, 0.0))
         control = dict(self.scenario.control)
         control.update(self.scenario.relay[i].control)
-        doc = relay_settings(robot_port=robot_port, servo_port=servo_port, procfs_path=str(procfs.path),
+        doc = relay_settings(robot_port=robot_port, servo_port=servo_port, procfs_path=procfs_path,
                              rear_url=rear_url, front_url=front_url, control=control,
                              scan=dict(self.scenario.scan))
         if self.record_dir is not None:
             doc["record"] = {"enabled": True, "path": str(self.record_dir / f"{body.name}.mcap")}
         settings = Settings.model_validate(doc)
         env = {AP_PASSWORD_ENV: self._password, API_TOKEN_ENV: secrets.token_hex(8)}
-        daemon = Daemon(settings, clock=clock, env=env)
+        daemon = Daemon(settings, clock=clock, env=env, devices=devices)
         relay = SimRelay(body.name, robot, maestro, procfs, rear, front, daemon)
         self._update_links()
         return relay
@@ -349,6 +380,10 @@ class SimRunner:
 
     # -- run --------------------------------------------------------------------------
     async def run(self) -> SimResult:
+        loop = asyncio.get_running_loop()
+        if isinstance(loop, VirtualTimeLoop):
+            self.virtual = True
+            self.clock = LoopClock(loop)
         with contextlib.ExitStack() as stack:
             work = self.workdir
             if work is None:
@@ -386,8 +421,8 @@ class SimRunner:
                 r.maestro.close()
 
     def _summary(self, ports: dict[str, int | None]) -> dict[str, Any]:
-        followers = [{"name": b.name, "collisions": b.collisions, "travelled_m": self._travelled[i],
-                      "api_port": ports.get(b.name)} for i, b in enumerate(self.world.relays)]
+        followers = [{"name": b.name, "collisions": b.collisions, "travelled_m": self._travelled[i]}
+                     for i, b in enumerate(self.world.relays)]
         return summarize(self.records, scenario=self.scenario.name, relays=len(self.world.relays),
                          goal=self.world.leader_script.goal, goal_radius_m=self.scenario.goal_radius_m,
                          collisions=self.world.collisions(), followers=followers)
@@ -395,6 +430,9 @@ class SimRunner:
     def write_outputs(self, result: SimResult, out: Path) -> None:
         out.mkdir(parents=True, exist_ok=True)
         (out / "summary.json").write_text(json.dumps(result.summary, indent=2) + "\n", encoding="utf-8")
+        # The API ports the OS picked: where to look during the run, not a result of it
+        # (so they stay out of summary.json, which the same scenario and seed reproduce).
+        (out / "ports.json").write_text(json.dumps(result.api_ports, indent=2) + "\n", encoding="utf-8")
         with (out / "trace.jsonl").open("w", encoding="utf-8") as f:
             for rec in result.records:
                 f.write(json.dumps(rec, separators=(",", ":")) + "\n")
