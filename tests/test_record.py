@@ -495,3 +495,17 @@ def _chunk_offsets(path: Path) -> list[tuple[int, Chunk]]:
                 out.append((start, rec))
             start = f.tell()
     return out
+
+
+def test_the_example_config_records_where_the_service_may_write() -> None:
+    """ProtectSystem=strict leaves only the StateDirectory writable: the recordings go there."""
+    import tomllib
+
+    root = Path(__file__).resolve().parents[1]
+    config = tomllib.loads((root / "config" / "relayd.toml").read_text())
+    unit = (root / "systemd" / "relayd.service").read_text()
+    state_dir = next(line.split("=", 1)[1].strip() for line in unit.splitlines()
+                     if line.startswith("StateDirectory="))
+    assert config["record"]["enabled"] is True
+    assert config["record"]["path"].startswith(f"/var/lib/{state_dir}/")
+    parse_settings(config)  # and it validates
