@@ -195,7 +195,8 @@ async def _measure(probe: CycleProbe, cycles: int, url: str, warmup: int = 10,
 
 
 async def measure(*, cycles: int = 2000, sip_period_s: float = 0.025, load_rps: float = 1000.0,
-                  work: Path | None = None, scan: dict[str, Any] | None = None) -> dict[str, Any]:
+                  work: Path | None = None, scan: dict[str, Any] | None = None,
+                  record: dict[str, Any] | None = None) -> dict[str, Any]:
     """Both runs (alone, then under /status load); raw latencies in ms and the load's report."""
     with tempfile.TemporaryDirectory(prefix="relayd-bench-lat-", dir=scratch_root()) as tmp:
         rig = FakeRig(work or Path(tmp), leader_xy_m=(6.0, 2.0))
@@ -206,8 +207,9 @@ async def measure(*, cycles: int = 2000, sip_period_s: float = 0.025, load_rps: 
         rig.robot.sip_period_s = sip_period_s
         await rig.start()
         try:
+            extra = {"record": record} if record is not None else {}
             async with RelaydProcess(rig, control={"w1": 0.0, "w2": -300.0, "kd": 0.0}, scan=scan or {},
-                                     log={"level": "warning"}) as relayd:
+                                     log={"level": "warning"}, **extra) as relayd:
                 await relayd.wait_for(lambda d: d.get("state") == "avoiding", 60.0, "state avoiding")
                 probe = CycleProbe(rig.robot, sonar)
                 probe.install()
