@@ -509,3 +509,11 @@ def test_the_example_config_records_where_the_service_may_write() -> None:
     assert config["record"]["enabled"] is True
     assert config["record"]["path"].startswith(f"/var/lib/{state_dir}/")
     parse_settings(config)  # and it validates
+
+
+def test_recording_md_lists_every_channel() -> None:
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "RECORDING.md").read_text()
+    for cls in [*codec.EVENT_TYPES.values(), *codec.ACTION_TYPES.values()]:
+        assert f"| `{codec.topic_of(cls)}` | `{codec.schema_name(cls)}` |" in doc, cls.__name__
+    for topic, schema in VIEWS.items():
+        assert f"| `{topic}` | `{schema['title']}` |" in doc, topic
