@@ -9,7 +9,8 @@ Thin I/O around the brain (`relayd.brain`), which decides everything:
   the robot must be stopped and no SIP would arrive to do it; before it, the robot's
   and the scan servo's up/down state is looked at and changes are published;
 - the API's mode and drive requests (`Controls`) become events;
-- `execute` turns a `WheelCommand` into the driver call and times SIP-caused commands.
+- `execute` turns a `WheelCommand` into the driver call; the driver's write-time
+  latency report is counted only for commands a SIP caused.
 """
 
 from __future__ import annotations
@@ -35,6 +36,9 @@ from relayd.events import (
 )
 from relayd.state import Mode, ModeError
 
+#: Bytes in to SIP decoded: the driver's latency starts this much before the SIP's `t`.
+DECODE_SLACK_S = 0.005
+
 
 class SonarView(Protocol):
     @property
@@ -50,6 +54,9 @@ class WheelBase(Protocol):
     def stale(self) -> bool: ...
     @property
     def sonar(self) -> SonarView: ...
+    #: Called by the driver with the seconds from a SIP's bytes arriving to the next
+    #: motion command written (it cannot tell what caused that command).
+    on_command_latency: Callable[[float], None] | None
     def add_listener(self, cb: Callable[[Sip], None]) -> Callable[[], None]: ...
     def stop(self) -> None: ...
     def set_wheels(self, left_mm_s: float, right_mm_s: float) -> None: ...
@@ -81,7 +88,13 @@ class ControlShell:
         self._halted = False
         self._remove_listener: Callable[[], None] | None = None
         self._up: dict[str, bool] = {}
+        #: The SIP behind the wheel command last handed to the driver; None: a timer,
+        #: a scan or the operator caused it.
+        self._cause_sip_t: float | None = None
         self.commands = 0
+        self.latency_dropped = 0
+        if robot is not None:
+            robot.on_command_latency = self._on_written
 
     # -- Controls (called by the API) ---------------------------------------------------
 
@@ -156,13 +169,28 @@ class ControlShell:
         robot = self._robot
         if robot is None or self._halted:
             return
+        # Set before the call: the driver writes at once when the command spacing
+        # allows, and reports the latency from inside set_wheels/stop.
+        self._cause_sip_t = cmd.sip_t
         if cmd.stop:
             robot.stop()
         else:
             robot.set_wheels(cmd.left_mm_s, cmd.right_mm_s)
         self.commands += 1
-        if cmd.sip_t is not None and self._on_latency is not None:
-            # SIP decoded -> its wheel command handed to the driver (which writes it at
-            # once when the 5 ms command spacing allows). Ticks, scans and the operator
-            # cause commands too; those have no SIP latency and are not counted.
-            self._on_latency(max(0.0, self._clock.now() - cmd.sip_t))
+
+    def _on_written(self, seconds: float) -> None:
+        """The driver wrote a motion command `seconds` after some SIP's bytes arrived.
+
+        Counted only when the command in force was caused by a SIP (ticks, scans and the
+        operator cause commands too; they have no SIP latency), and only once per SIP.
+        A figure longer than the time since the causing SIP was decoded belongs to an
+        older SIP whose command was never written: dropped, not counted against this one.
+        """
+        sip_t, self._cause_sip_t = self._cause_sip_t, None
+        if sip_t is None or self._on_latency is None:
+            return
+        since_s = self._clock.to_real(self._clock.now() - sip_t)
+        if seconds > since_s + DECODE_SLACK_S:
+            self.latency_dropped += 1
+            return
+        self._on_latency(seconds)

@@ -73,11 +73,12 @@ class VirtualTimeLoop(asyncio.SelectorEventLoop):
     """A selector event loop on virtual time; `speed=None`: as fast as possible."""
 
     def __init__(self, *, start_s: float = VIRTUAL_EPOCH_S, speed: float | None = None) -> None:
-        if speed is not None and not speed > 0:
-            raise ValueError(f"speed must be > 0 or None, got {speed!r}")
         self._vtime = float(start_s)
         self.speed = speed
         super().__init__(_JumpingSelector(self))
+        if speed is not None and not speed > 0:
+            self.close()
+            raise ValueError(f"speed must be > 0 or None, got {speed!r}")
 
     def time(self) -> float:
         return self._vtime

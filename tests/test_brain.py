@@ -8,6 +8,7 @@ actions: wheel commands (and what caused them), scan plans, the link servo targe
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import pytest
@@ -183,37 +184,67 @@ def test_only_sip_caused_commands_carry_a_sip_time() -> None:
     assert stop == [WheelCommand(0.0, 0.0, True, None)]
 
 
-def test_the_shell_observes_latency_only_for_sip_caused_commands() -> None:
+def test_the_shell_counts_driver_latency_only_for_sip_caused_commands() -> None:
+    """The defect: the driver times "SIP bytes in -> next motion command written" and cannot
+    tell what caused the command, so a timer's command was counted against the last SIP
+    (means of 86-383 ms while driving straight). The shell knows the cause."""
     from relayd.control import ControlShell
 
     class Robot:
+        """Writes each new wish at once and reports what the ARCOS driver would: the time
+        since the last SIP's bytes arrived."""
+
         connected, stale = True, False
+        on_command_latency: Callable[[float], None] | None = None
 
         class sonar:
             ranges_mm = (None,) * 16
 
-        def add_listener(self, cb: object) -> object:
+        def __init__(self, clock: FakeClock) -> None:
+            self.clock = clock
+            self.last_sip_rx = 0.0
+
+        def add_listener(self, cb: object) -> Callable[[], None]:
             return lambda: None
 
-        def stop(self) -> None: ...
-        def set_wheels(self, left_mm_s: float, right_mm_s: float) -> None: ...
+        def _written(self) -> None:
+            if self.on_command_latency is not None:
+                self.on_command_latency(self.clock.t - self.last_sip_rx)
 
-    class Clock:
-        t = 10.0
+        def stop(self) -> None:
+            self._written()
 
-        def now(self) -> float:
-            return self.t
+        def set_wheels(self, left_mm_s: float, right_mm_s: float) -> None:
+            self._written()
 
+    clock = FakeClock()
+    robot = Robot(clock)
     latencies: list[float] = []
-    clock = Clock()
-    shell = ControlShell(bus=None, brain=Brain(brain_params(config())), robot=Robot(),  # type: ignore[arg-type]
+    shell = ControlShell(bus=None, brain=Brain(brain_params(config())), robot=robot,  # type: ignore[arg-type]
                          clock=clock, on_latency=latencies.append)  # type: ignore[arg-type]
-    shell.execute(WheelCommand(100.0, 120.0, False, None))  # a tick's or a scan's
-    shell.execute(WheelCommand(0.0, 0.0, True, None))
-    assert latencies == []
+    robot.last_sip_rx = clock.t = 10.0
     clock.t = 10.0004
-    shell.execute(WheelCommand(100.0, 120.0, False, 10.0))  # the SIP at t=10.0 caused it
+    shell.execute(WheelCommand(100.0, 120.0, False, 10.0))  # the SIP decoded at 10.0 caused it
     assert latencies == [pytest.approx(0.0004)]
+    clock.t = 10.08
+    shell.execute(WheelCommand(100.0, 130.0, False, None))  # a tick's: 80 ms after that SIP
+    shell.execute(WheelCommand(0.0, 0.0, True, None))  # the operator's stop
+    assert latencies == [pytest.approx(0.0004)]
+    # A SIP-caused command whose driver figure belongs to an older SIP (its own
+    # command was never written) is dropped, not counted against this SIP.
+    clock.t = 10.2
+    shell.execute(WheelCommand(90.0, 90.0, False, 10.2 - 0.0003))
+    assert latencies == [pytest.approx(0.0004)] and shell.latency_dropped == 1
+
+
+class FakeClock:
+    t = 10.0
+
+    def now(self) -> float:
+        return self.t
+
+    def to_real(self, seconds: float) -> float:
+        return seconds
 
 
 # ---------------------------------------------------------------- scans and the bearing memory

@@ -78,6 +78,7 @@ class StandInRobot:
         self.stops = 0
         self.wheels: list[tuple[float, float]] = []
         self.listeners: list[Callable[[ArcosSip], None]] = []
+        self.on_command_latency: Callable[[float], None] | None = None
         self._wish: tuple[float, float] | None = None
 
     def stop(self) -> None:
