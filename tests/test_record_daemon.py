@@ -32,6 +32,7 @@ from mcap.records import Channel, Chunk, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 from support import running, until
 from test_record import FullDisk
+from vtime_fixtures import virtual
 
 from drivers.arcos.codec import Command
 from relayd import cli
@@ -42,6 +43,7 @@ from relayd.fakes.rig import FakeRig
 from relayd.record import writer
 from relayd.record.reader import RecordingError, read_recording
 from relayd.state import DriveState
+from relayd.vtime import LoopClock
 
 pytestmark = pytest.mark.slow
 
@@ -109,11 +111,12 @@ def test_a_simulated_run_recorded_then_replayed_has_zero_divergences(
 
 @contextlib.asynccontextmanager
 async def relay(tmp_path: Path, **record: Any) -> AsyncIterator[tuple[FakeRig, Daemon]]:
-    rig = FakeRig(tmp_path, leader_xy_m=(6.0, 1.0))
+    """A daemon recording on the rig's in-memory devices, on virtual time."""
+    rig = FakeRig(tmp_path, leader_xy_m=(6.0, 1.0), clock=LoopClock(), links="memory")
     async with rig:
         doc = rig.config_doc(scan=SCAN, pantilt=PANTILT)
         doc["record"] = {"enabled": True, **record}
-        daemon = Daemon(parse_settings(doc), env=rig.env)
+        daemon = Daemon(parse_settings(doc), env=rig.env, clock=rig.clock)
         async with running(daemon):
             yield rig, daemon
 
@@ -135,6 +138,7 @@ async def drives_on_after_the_recording_failed(rig: FakeRig, daemon: Daemon) -> 
     assert st.state is DriveState.DRIVING
 
 
+@virtual
 async def test_a_full_disk_stops_the_recording_and_the_robot_keeps_driving(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     from structlog.testing import capture_logs
@@ -149,6 +153,7 @@ async def test_a_full_disk_stops_the_recording_and_the_robot_keeps_driving(
     assert part.steps and not part.complete
 
 
+@virtual
 async def test_a_real_full_tmpfs(tmp_path: Path) -> None:
     """The same with a file system that really fills up (root only: mounts a 96 KB tmpfs)."""
     mnt = tmp_path / "small"
