@@ -517,3 +517,16 @@ def test_recording_md_lists_every_channel() -> None:
         assert f"| `{codec.topic_of(cls)}` | `{codec.schema_name(cls)}` |" in doc, cls.__name__
     for topic, schema in VIEWS.items():
         assert f"| `{topic}` | `{schema['title']}` |" in doc, topic
+
+
+def test_relayd_status_shows_the_recording() -> None:
+    from relayd.commands.status import format_status
+
+    base = {"mode": "follow", "state": "driving", "reason": "driving"}
+    ok = {"enabled": True, "state": "recording", "path": "/var/lib/relayd/recordings/r.mcap", "files": 1,
+          "bytes": 2_500_000, "events": 10, "dropped": 0, "error": None}
+    line = next(x for x in format_status({**base, "recording": ok}).splitlines() if x.startswith("recording"))
+    assert line.split() == ["recording", "recording", "/var/lib/relayd/recordings/r.mcap", "2.5", "MB"]
+    failed = format_status({**base, "recording": {**ok, "state": "failed", "error": "OSError: disk full"}})
+    assert "FAILED" in failed and "DISK FULL" in failed
+    assert "recording" not in format_status({**base, "recording": None}).replace("reason", "")
