@@ -98,7 +98,7 @@ def format_status(doc: dict[str, Any]) -> str:
         if rec.get("error"):
             text += f"  ({rec['error']})"
         rows.append(("recording", text.upper() if rec.get("state") == "failed" else text))
-        width = max(len(k) for k, _ in rows)
+    width = max(len(k) for k, _ in rows)
     lines = [f"{k:<{width}}  {v}" for k, v in rows]
     health = doc.get("health") or {}
     if health:
