@@ -11,6 +11,7 @@ import asyncio
 import errno
 import json
 import math
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -372,6 +373,37 @@ async def test_a_write_error_stops_the_recording_once_and_the_route_goes_on(tmp_
         read_recording(tmp_path / "r.mcap")
     part = read_recording(tmp_path / "r.mcap", partial=True)
     assert part.steps and not part.complete
+
+
+class StalledDisk(FullDisk):
+    """A file whose writes block (a hung disk) until `release` is set."""
+
+    def __init__(self, path: Path, release: threading.Event) -> None:
+        super().__init__(path, 1 << 30)
+        self.release = release
+
+    def write(self, data: bytes) -> int:
+        self.release.wait(30)
+        return super().write(data)
+
+
+async def test_a_stalled_disk_ends_the_recording_instead_of_growing_memory(tmp_path: Path) -> None:
+    release = threading.Event()
+    route = Route(settings_for(tmp_path / "r.mcap"), ManualClock(),
+                  opener=lambda p: StalledDisk(p, release), stall_s=0.2)
+    route.recorder.start()
+    task = asyncio.create_task(route.recorder.run())
+    try:
+        await route.drive(2.0)
+        await asyncio.sleep(0.3)  # wall time: the first chunk's write hangs past stall_s
+        await route.drive(2.0)
+        await until(lambda: route.recorder.state == "failed", "the recorder to give up", 10)
+        assert "not keeping up" in (route.recorder.error or "")
+    finally:
+        release.set()
+        await route.recorder.close()
+        await asyncio.wait_for(task, 5)
+    assert route.recorder.state == "failed"
 
 
 # -- metadata and secrets ---------------------------------------------------------------------------

@@ -56,6 +56,11 @@ CHUNK_S = 1.0
 QUEUE_LEN = 4096
 #: A batch handed over early if it grows this long (a burst of events).
 MAX_BATCH = 5000
+#: A disk that hangs instead of failing must not grow the daemon's memory without bound:
+#: the recording is given up when one chunk's write has taken this long (wall s) ...
+STALL_S = 30.0
+#: ... or this many chunks wait for the writer (ten minutes of a robot's run).
+MAX_PENDING = 600
 #: How long a normal shutdown waits for the file's summary to be written (wall s).
 CLOSE_TIMEOUT_S = 5.0
 
@@ -73,13 +78,16 @@ class Recorder:
     def __init__(self, bus: RoutedBus, settings: Settings, clock: Clock, *, path: str | None = None,
                  identity: Callable[[], RobotIdentity | None] = lambda: None,
                  opener: Callable[[Path], BinaryIO] | None = None, chunk_s: float = CHUNK_S,
-                 queue_len: int = QUEUE_LEN) -> None:
+                 queue_len: int = QUEUE_LEN, max_pending: int = MAX_PENDING,
+                 stall_s: float = STALL_S) -> None:
         rec = settings.record
         self.path = path if path is not None else rec.path
         self._bus = bus
         self._clock = clock
         self._identity = identity
         self._chunk_s = chunk_s
+        self._max_pending = max_pending
+        self._stall_s = stall_s
         self._sub = bus.subscribe_with_actions("recorder", queue_len)
         self._t0 = clock.now()
         self._ns0 = time.time_ns()
@@ -153,7 +161,7 @@ class Recorder:
                 self._handover()
             except Exception as exc:  # noqa: BLE001
                 self._fail(f"{type(exc).__name__}: {exc}")
-            else:
+            if self.state == "recording":
                 self.state = "stopped"
         self._bus.unsubscribe(self._sub)
         self._thread.stop()
@@ -174,6 +182,8 @@ class Recorder:
         return max(0, self._ns0 + round((t - self._t0) * 1e9))
 
     def _take(self, item: Routed) -> None:
+        if self.state != "recording":
+            return  # failed: what is still queued is not recorded
         event, actions = item
         seq = self.events
         self.events += 1
@@ -212,6 +222,14 @@ class Recorder:
 
     def _handover(self) -> None:
         batch, self._batch = self._batch, Batch()
+        thread = self._thread
+        busy = thread.busy_since
+        if busy is not None and time.monotonic() - busy > self._stall_s:
+            self._fail(f"the disk is not keeping up: one chunk's write has taken over {self._stall_s:g} s")
+            return
+        if thread.pending >= self._max_pending:
+            self._fail(f"the disk is not keeping up: {thread.pending} chunks waiting to be written")
+            return
         if batch.messages or batch.metadata:
             self._thread.submit(batch)
 

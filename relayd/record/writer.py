@@ -202,12 +202,19 @@ class WriterThread:
         self._queue: queue.SimpleQueue[Batch | None] = queue.SimpleQueue()
         self._on_error = on_error
         self.error: str | None = None
+        #: Batches submitted and not yet written (read by the event loop: one int).
+        self.pending = 0
+        #: time.monotonic() when the write in progress began; None while idle.
+        self.busy_since: float | None = None
+        self._lock = threading.Lock()
         self._thread = threading.Thread(target=self._run, name="relayd-recorder", daemon=True)
 
     def start(self) -> None:
         self._thread.start()
 
     def submit(self, batch: Batch) -> None:
+        with self._lock:
+            self.pending += 1
         self._queue.put(batch)
 
     def stop(self) -> None:
@@ -223,12 +230,16 @@ class WriterThread:
             batch = self._queue.get()
             if batch is None:
                 break
-            if self.error is not None:
-                continue
+            self.busy_since = time.monotonic()
             try:
-                self.sink.write(batch)
+                if self.error is None:
+                    self.sink.write(batch)
             except Exception as exc:  # noqa: BLE001 - a full disk must not end the daemon
                 self._fail(exc)
+            finally:
+                self.busy_since = None
+                with self._lock:
+                    self.pending -= 1
         if self.error is None:
             try:
                 self.sink.finish()
