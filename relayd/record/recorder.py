@@ -152,6 +152,10 @@ class Recorder:
 
     async def close(self) -> None:
         """Normal shutdown: record what is still queued, write the summary, end the thread."""
+        if self._loop is None:  # never started (the daemon failed before its devices)
+            self._bus.unsubscribe(self._sub)
+            self.state = "stopped"
+            return
         if self.state == "recording":
             try:
                 while (item := self._sub.get_nowait()) is not None:
