@@ -562,3 +562,11 @@ def test_relayd_status_shows_the_recording() -> None:
     failed = format_status({**base, "recording": {**ok, "state": "failed", "error": "OSError: disk full"}})
     assert "FAILED" in failed and "DISK FULL" in failed
     assert "recording" not in format_status({**base, "recording": None}).replace("reason", "")
+
+
+async def test_a_recorder_never_started_closes_cleanly(tmp_path: Path) -> None:
+    """The daemon can fail before its devices start (a taken API port): shutdown still closes it."""
+    route = Route(settings_for(tmp_path / "r.mcap"), ManualClock())
+    await route.recorder.close()
+    assert route.recorder.state == "stopped" and route.bus._routed == []
+    assert not (tmp_path / "r.mcap").exists()
