@@ -27,7 +27,7 @@ from typing import Any
 import jsonschema
 import pytest
 from mcap.exceptions import McapError
-from mcap.reader import NonSeekingReader
+from mcap.reader import NonSeekingReader, make_reader
 from mcap.records import Channel, Chunk, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 from support import running, until
@@ -38,7 +38,7 @@ from drivers.arcos.codec import Command
 from relayd import cli
 from relayd.config import parse_settings
 from relayd.daemon import Daemon
-from relayd.events import ScanResult, WheelCommand
+from relayd.events import ScanResult, Shutdown, WheelCommand
 from relayd.fakes.rig import FakeRig
 from relayd.record import writer
 from relayd.record.reader import RecordingError, read_recording
@@ -95,6 +95,15 @@ def test_a_simulated_run_recorded_then_replayed_has_zero_divergences(
     assert sum(isinstance(a, ScanResult) for a in actions) >= 3
     assert any(isinstance(a, WheelCommand) and a.left_mm_s > 0 and a.right_mm_s > 0 for a in actions)
     assert 12 <= rec.chunks <= 20  # about one chunk per simulated second
+    # A normal stop: the last event is the shutdown, and the file has its summary, so the
+    # mcap library's indexed reader (what viewers use to seek) finds every message.
+    assert isinstance(rec.steps[-1].event, Shutdown)
+    with f.open("rb") as fh:
+        reader = make_reader(fh)
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None
+        assert len(summary.chunk_indexes) == rec.chunks
+        assert sum(1 for _ in reader.iter_messages()) == summary.statistics.message_count
     counts = validate_channels(f)
     assert {"/robot/sip", "/robot/pose", "/wifi/rssi", "/scan/sample", "/action/wheels",
             "/action/decision", "/state", "/log"} <= set(counts)

@@ -211,6 +211,7 @@ class Recorder:
         ident = self._identity()
         if ident is not None and ident != self._robot:
             self._robot = ident
+            self._views.name = ident.name  # /log lines name the robot
             self._batch.metadata.append(("robot", {
                 "name": ident.name, "robot_class": ident.robot_class, "subclass": ident.subclass}))
 
