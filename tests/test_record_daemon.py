@@ -91,6 +91,7 @@ def test_a_simulated_run_recorded_then_replayed_has_zero_divergences(
     f = out / "relay1.mcap"
     rec = read_recording(f)
     assert rec.complete and rec.robot is not None and rec.robot["name"] == "relay1"
+    assert rec.recorder is not None and rec.recorder["dropped"] == "0"
     actions = [a for s in rec.steps for a in s.actions]
     assert sum(isinstance(a, ScanResult) for a in actions) >= 3
     assert any(isinstance(a, WheelCommand) and a.left_mm_s > 0 and a.right_mm_s > 0 for a in actions)
