@@ -197,8 +197,13 @@ async def _measure(probe: CycleProbe, cycles: int, url: str, warmup: int = 10,
 
 async def measure(*, cycles: int = 2000, sip_period_s: float = 0.025, load_rps: float = 1000.0,
                   work: Path | None = None, scan: dict[str, Any] | None = None,
-                  record: dict[str, Any] | None = None) -> dict[str, Any]:
-    """Both runs (alone, then under /status load); raw latencies in ms and the load's report."""
+                  record: dict[str, Any] | None = None, foxglove_port: int | None = None,
+                  viewer: bool = False) -> dict[str, Any]:
+    """Both runs (alone, then under /status load); raw latencies in ms and the load's report.
+
+    `foxglove_port`: the live Foxglove server on; `viewer`: one Foxglove client
+    (bench/viewer.py, its own process) subscribed to every channel during both runs.
+    """
     with tempfile.TemporaryDirectory(prefix="relayd-bench-lat-", dir=scratch_root()) as tmp:
         rig = FakeRig(work or Path(tmp), leader_xy_m=(6.0, 2.0))
         rig.robot.sonars_per_sip = 16
@@ -208,12 +213,19 @@ async def measure(*, cycles: int = 2000, sip_period_s: float = 0.025, load_rps: 
         rig.robot.sip_period_s = sip_period_s
         await rig.start()
         try:
-            extra = {"record": record} if record is not None else {}
+            extra: dict[str, Any] = {"record": record} if record is not None else {}
+            if foxglove_port is not None:
+                extra["foxglove"] = {"enabled": True, "port": foxglove_port}
             async with RelaydProcess(rig, control={"w1": 0.0, "w2": -300.0, "kd": 0.0}, scan=scan or {},
                                      log={"level": "warning"}, **extra) as relayd:
                 await relayd.wait_for(lambda d: d.get("state") == "avoiding", 60.0, "state avoiding")
                 probe = CycleProbe(rig.robot, sonar)
                 probe.install()
+                view = None
+                if viewer and foxglove_port is not None:
+                    from bench.viewer import ViewerProcess
+
+                    view = await ViewerProcess(f"ws://127.0.0.1:{foxglove_port}/").start()
                 alone = await _measure(probe, cycles, relayd.url)
                 loaded: dict[str, Any] | None = None
                 load_report: dict[str, Any] | None = None
@@ -224,10 +236,12 @@ async def measure(*, cycles: int = 2000, sip_period_s: float = 0.025, load_rps: 
                         loaded = await _measure(probe, cycles, relayd.url)
                     finally:
                         load_report = dict(await load.stop())
+                viewed = await view.stop() if view is not None else None
                 final = await relayd.wait_for(lambda d: True, 10.0, "status")
         finally:
             await rig.stop()
     return {"alone": alone, "loaded": loaded, "load": load_report, "final_state": final.get("state"),
+            "viewer": viewed,
             "sip_period_s": sip_period_s, "pid_note": None}
 
 
