@@ -345,3 +345,18 @@ async def test_on_virtual_time_a_stalled_client_overflows_its_backlog_and_the_ro
                 assert live.dropped == 0
             finally:
                 stalled.close()
+
+
+@pytest.mark.timeout(180)
+async def test_the_benchmark_measures_with_a_viewer_connected() -> None:
+    """bench/foxglove_live.py in a tiny configuration: its client really receives, its rows are real."""
+    from bench import foxglove_live
+    from bench.common import free_port
+    from bench.latency import measure
+
+    med, _p99, sent = await foxglove_live._loop_cost(200, True)
+    assert sent > 200 and 0 < med < 10_000
+    data = await measure(cycles=20, load_rps=0.0, foxglove_port=free_port(), viewer=True)
+    viewer = data["viewer"]
+    assert viewer["channels"] == len(channel_specs()) and viewer["messages"] > 20
+    assert data["alone"]["in_relayd"]["count"] >= 20
