@@ -125,7 +125,8 @@ async def _loop_cost(events: int) -> tuple[float, float]:
 
     samples: list[float] = []
     with tempfile.TemporaryDirectory(prefix="relayd-bench-cost-") as tmp:
-        settings = parse_settings({"record": {"enabled": True, "path": str(Path(tmp) / "c.mcap")}})
+        settings = parse_settings({"record": {"enabled": True, "path": str(Path(tmp) / "c.mcap")},
+                                   "control": {"rear_link": "ignore"}})
         bus: Bus[Event, Action] = Bus()
         brain = make_brain(settings)
         bus.connect(brain.handle, lambda _e, _a: None)

@@ -570,3 +570,15 @@ async def test_a_recorder_never_started_closes_cleanly(tmp_path: Path) -> None:
     await route.recorder.close()
     assert route.recorder.state == "stopped" and route.bus._routed == []
     assert not (tmp_path / "r.mcap").exists()
+
+
+def test_the_record_benchmark_measures_something() -> None:
+    """bench/record.py's load-independent parts, short: the loop cost and the size of a sim's files."""
+    from bench import record as bench_record
+
+    median_us, p99_us = asyncio.run(bench_record._loop_cost(400))
+    assert 0.5 < median_us < 5000 and p99_us >= median_us
+    size, sim_s, relays = bench_record._sim_size(15.0)
+    assert relays == 2 and 10.0 <= sim_s <= 15.5
+    per_hour_mb = size / relays / sim_s * 3600 / 1e6
+    assert 1.0 < per_hour_mb < 200.0
