@@ -192,6 +192,11 @@ async def test_advertise_subscribe_and_messages_on_the_wire(tmp_path: Path) -> N
             assert (ch["encoding"], ch["schemaEncoding"]) == ("json", "jsonschema")
             assert ch["schemaName"] == spec.schema_name
             assert ch["schema"].encode() == spec.schema  # the very bytes a recording stores
+        # Connected but not subscribed: the daemon encodes nothing for it.
+        live = daemon.live
+        assert live is not None
+        await until(lambda: live.events > 50, "events on the bus", 30)
+        assert live.sent == 0
         await client.subscribe_all()
         reader = asyncio.create_task(client.read())
         want = {"/robot/sip", "/robot/pose", "/wifi/rssi", "/scan/sample", "/action/scan_result",
@@ -213,10 +218,22 @@ async def test_advertise_subscribe_and_messages_on_the_wire(tmp_path: Path) -> N
         assert all("i" in doc for _t, doc in decisions)
         sip = client.received["/robot/sip"][-1][1]
         assert sip["sip"]["x_mm"] == pytest.approx(rig.robot.x_mm, abs=600)
+        # A second viewer joining later gets the current state at once too.
+        async with wire_client(url) as late:
+            state_id = late.channel_id("/state")
+            late.subs = {1: state_id}
+            await late.ws.send_str(json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": state_id}]}))
+            late_reader = asyncio.create_task(late.read())
+            await until(lambda: len(late.received.get("/state", [])) >= 3, "the latched /state", 30)
+            assert {doc["key"] for _t, doc in late.received["/state"][:3]} == {"mode", "drive_state", "reason"}
+            assert late.received["/state"][1][1] == {"key": "drive_state", "value": str(daemon.state.state)}
+            late_reader.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await late_reader
         reader.cancel()
         with contextlib.suppress(asyncio.CancelledError):
             await reader
-        assert daemon.live is not None and daemon.live.dropped == 0
+        assert live.dropped == 0
 
 
 def raw_stalled_client(port: int, channel_ids: list[int]) -> socket.socket:

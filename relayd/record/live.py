@@ -61,6 +61,17 @@ class BindError(Exception):
     """The server could not listen on `[foxglove]`'s bind and port."""
 
 
+class _Listener:
+    """The SDK's callbacks (on its own threads): only notes that /state wants its latch."""
+
+    def __init__(self, server: LiveServer) -> None:
+        self._server = server
+
+    def on_subscribe(self, client: Any, channel: Any) -> None:
+        if channel.topic == "/state":
+            self._server._latch_wanted = True
+
+
 class LiveServer:
     """One daemon's live Foxglove server. `start()`, `await run()` in a task, `close()`."""
 
@@ -86,8 +97,8 @@ class LiveServer:
         self._topic_of = {cls: codec.topic_of(cls)
                           for cls in (*codec.EVENT_TYPES.values(), *codec.ACTION_TYPES.values())}
         self._views = Views(self.name)
-        self._state_ch = self._by_topic["/state"]
-        self._state_subscribed = False
+        #: Set by the SDK's thread when a client subscribes to /state (a bool: atomic under the GIL).
+        self._latch_wanted = False
         self._last: Decision | None = None
         self._server: Any = None
         self._seen_dropped = 0
@@ -113,7 +124,7 @@ class LiveServer:
         try:
             self._server = self._fox.start_server(
                 name=self.name, host=s.bind, port=s.port, context=self._context,
-                capabilities=[], message_backlog_size=CLIENT_BACKLOG)
+                capabilities=[], message_backlog_size=CLIENT_BACKLOG, server_listener=_Listener(self))
         except RuntimeError as exc:
             raise BindError(str(exc)) from None
         self.port = self._server.port
@@ -148,6 +159,9 @@ class LiveServer:
     def _drain(self, first: Routed) -> None:
         # Which channels have a subscriber, asked once per drain (a call into the SDK each).
         live = {topic for topic, ch in self._by_topic.items() if ch.has_sinks()}
+        if self._latch_wanted and "/state" in live:
+            self._latch_wanted = False
+            self._latch(self._ns(self._clock.now()))
         item: Routed | None = first
         while item is not None:
             self._take(item, live)
@@ -177,16 +191,13 @@ class LiveServer:
             topic = self._topic_of[type(action)]
             if topic in live:
                 self._log(self._by_topic[topic], ns, codec.encode(action, seq, i))
-        subscribed = "/state" in live
-        if subscribed and not self._state_subscribed:
-            self._latch(ns)
-        self._state_subscribed = subscribed
         for topic, view in self._views.derive(event, actions, ns):
             if topic in live:
                 self._send(topic, ns, view)
 
     def _latch(self, ns: int) -> None:
-        """A newly subscribed /state: the current values first."""
+        """A client newly subscribed to /state: the current values first (every /state
+        subscriber gets them again: the same values, harmless to a State Transitions panel)."""
         last = self._last
         if last is None:
             return
