@@ -61,17 +61,6 @@ class BindError(Exception):
     """The server could not listen on `[foxglove]`'s bind and port."""
 
 
-class _Listener:
-    """The SDK's callbacks (on its own threads): only notes that /state wants its latch."""
-
-    def __init__(self, server: LiveServer) -> None:
-        self._server = server
-
-    def on_subscribe(self, client: Any, channel: Any) -> None:
-        if channel.topic == "/state":
-            self._server._latch_wanted = True
-
-
 class LiveServer:
     """One daemon's live Foxglove server. `start()`, `await run()` in a task, `close()`."""
 
@@ -120,11 +109,22 @@ class LiveServer:
 
     def start(self) -> None:
         """Listen; raises BindError (the daemon reports it as a config error)."""
+        from foxglove.websocket import ServerListener
+
         s = self.settings
+        owner = self
+
+        class Listener(ServerListener):
+            """The SDK's callbacks (on its threads): only notes that /state wants its latch."""
+
+            def on_subscribe(self, client: Any, channel: Any) -> None:
+                if channel.topic == "/state":
+                    owner._latch_wanted = True
+
         try:
             self._server = self._fox.start_server(
                 name=self.name, host=s.bind, port=s.port, context=self._context,
-                capabilities=[], message_backlog_size=CLIENT_BACKLOG, server_listener=_Listener(self))
+                capabilities=[], message_backlog_size=CLIENT_BACKLOG, server_listener=Listener())
         except RuntimeError as exc:
             raise BindError(str(exc)) from None
         self.port = self._server.port
