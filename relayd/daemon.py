@@ -25,7 +25,7 @@ import structlog
 
 from drivers.airos.model import LinkQuality
 from drivers.clock import REAL_CLOCK, Clock
-from relayd.config import Settings, resolve_secret, secret_refs
+from relayd.config import Settings, check_api_token, resolve_secret, secret_refs
 from relayd.control import ControlLoop
 from relayd.controller import ControlParams
 from relayd.estimator import EstimatorParams, ScanEstimate
@@ -97,6 +97,11 @@ class Daemon:
         token_ref = refs.get("api")
         self._token = resolve_secret(token_ref, env) \
             if token_ref is not None and _configured(settings.api, env) else None
+        if self._token is not None and token_ref is not None:
+            check_api_token(token_ref, self._token)
+        from relayd.api.server import tls_context
+
+        self._tls = tls_context(settings.api)
 
         c = settings.control
         self.state = RelayState(started_t=clock.now(), mode=Mode(c.mode))
@@ -286,7 +291,7 @@ class Daemon:
 
             app = make_app(self.state, self.control, clock=self.clock, token=self._token,
                            metrics=self.metrics, healthz_max_age_s=max(1.0, 5 * 0.1))
-            self._runner, self.api_port = await start_api(app, s.api.bind, s.api.port)
+            self._runner, self.api_port = await start_api(app, s.api.bind, s.api.port, ssl_context=self._tls)
             log.info("api_control", enabled=self._token is not None,
                      note=None if self._token else "no token configured: POST endpoints answer 403")
         if self.notifier is not None:
