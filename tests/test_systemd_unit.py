@@ -411,3 +411,25 @@ async def _health_rounds(daemon: Daemon, rounds: int = 2) -> None:
             return health.errors != -1
 
         await _until(overwritten, "a health-loop round")
+
+
+# --- resources and scheduling (issue 12) -------------------------------------------------
+
+def test_descriptor_limit_leaves_room_for_the_api_cap_and_the_devices() -> None:
+    from relayd.api.server import FD_RESERVE, MAX_CONNECTIONS
+
+    # Without LimitNOFILE the soft limit is 1024; the API guard copes with that too
+    # (tests/test_api_flood.py), but the unit gives the cap and the reserve ample room.
+    limit = int(_service("LimitNOFILE"))
+    assert limit >= 4 * (MAX_CONNECTIONS + FD_RESERVE)
+
+
+def test_control_path_runs_real_time_but_children_do_not() -> None:
+    from bench.latency import RT_PRIORITY
+
+    # The priority bench/latency.py measured (bench/RESULTS.md), above normal processes
+    # and below the kernel's IRQ threads; RestrictRealtime keeps relayd from raising it.
+    assert _service("CPUSchedulingPolicy") == "fifo"
+    assert int(_service("CPUSchedulingPriority")) == RT_PRIORITY < 50
+    assert _service("CPUSchedulingResetOnFork") == "yes"
+    assert _service("RestrictRealtime") == "yes"

@@ -249,7 +249,7 @@ class GuardedServer:
             await self._loop.connect_accepted_socket(
                 lambda: _Relay(self, conn, factory()), sock=conn.sock, ssl=self._ssl,
                 ssl_handshake_timeout=self.idle_timeout_s if self._ssl is not None else None)
-        except (OSError, ssl.SSLError, TimeoutError, ConnectionError) as exc:
+        except Exception as exc:  # noqa: BLE001 - whatever a client did, it must not escape the task
             # A failed TLS handshake or a peer gone before we started: nothing to serve.
             log.debug("api_connection_setup_failed", peer=conn.peer, error=str(exc) or type(exc).__name__)
             conn.sock.close()
