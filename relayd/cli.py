@@ -22,6 +22,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "check-config": ("relayd.commands.check_config", "validate a config file and print the effective settings"),
     "sim": ("relayd.commands.sim", "run a convoy of real relayd instances in the simulated world"),
     "status": ("relayd.commands.status", "fetch and pretty-print a robot's /status"),
+    "fleet": ("relayd.commands.fleet", "serve one page for the whole chain of relays, with a hold-all button"),
 }
 PROBES: dict[str, tuple[str, str]] = {
     "robot": ("relayd.probe.robot", "talk to a P3-AT base (read-only: never enables the motors)"),

@@ -31,6 +31,8 @@ class _Section(BaseModel):
 
 
 class RobotSettings(_Section):
+    #: What operators call this robot on the live page, /status and the fleet view.
+    display_name: Annotated[str, Field(min_length=1, max_length=64)] | None = None
     enabled: bool = True
     port: str = "/dev/relay/base"
     baud: Literal[9600, 19200, 38400, 57600, 115200] = 9600

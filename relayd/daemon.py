@@ -104,7 +104,8 @@ class Daemon:
         self._tls = tls_context(settings.api)
 
         c = settings.control
-        self.state = RelayState(started_t=clock.now(), mode=Mode(c.mode))
+        self.state = RelayState(started_t=clock.now(), mode=Mode(c.mode),
+                                display_name=settings.robot.display_name)
         self.state.thresholds = {
             "threshold_l_dbm": c.threshold_l_dbm, "threshold_b_dbm": c.threshold_b_dbm,
             "hysteresis_db": c.hysteresis_db, "lost_rssi_dbm": c.lost_rssi_dbm,

@@ -18,7 +18,7 @@ import pytest
 from drivers.airos import FakeAirOs, Station
 from relayd.cli import main
 
-FIXTURES = Path("/work/shared/fixtures/airos")
+FIXTURES = Path(__file__).parent / "fixtures" / "airos"
 LOCO_AP = FIXTURES / "status_cgi_NanoStation_loco_M5_XM_v6.3.16_ap.json"
 SECRET = "Pa55-w0rd-XYZZY"
 REPO = Path(__file__).resolve().parents[1]

@@ -1,4 +1,4 @@
-"""Config: defaults from the spec, every error named by its key, secrets never printed."""
+"""Config: the documented defaults, every error named by its key, secrets never printed."""
 
 from __future__ import annotations
 
@@ -111,3 +111,13 @@ def test_api_token_file_replaces_the_default_token_env() -> None:
     assert parse_settings({}).api.token_env == "RELAYD_API_TOKEN"
     with pytest.raises(ConfigError, match="token_env or token_file"):
         parse_settings({"api": {"token_env": "T", "token_file": "/etc/relayd/token"}})
+
+
+def test_display_name_is_optional_and_bounded() -> None:
+    assert Settings().robot.display_name is None
+    s = parse_settings({"robot": {"display_name": "relay 2 (east)"}})
+    assert s.robot.display_name == "relay 2 (east)"
+    for bad in ("", "x" * 65, 7):
+        with pytest.raises(ConfigError) as info:
+            parse_settings({"robot": {"display_name": bad}})
+        assert any(e.startswith("robot.display_name") for e in info.value.errors), info.value.errors

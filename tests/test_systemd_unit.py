@@ -3,7 +3,7 @@
 tests/test_sdnotify.py already checks the unit's core directives (Type, WatchdogSec,
 Restart, User, dialout, ExecStart text, device access, address families) and runs
 `systemd-analyze verify`. This file adds:
-- the rest of the hardening (STYLE.md 5.3) and that it still lets relayd reach what the
+- the rest of the hardening (the kernel/system sandboxing set below) and that it still lets relayd reach what the
   udev rules name;
 - that ExecStart is a command line the real CLI accepts, installed where DEPLOY.md says;
 - `systemd-analyze security --offline` exposure, when this systemd can do it offline;
@@ -72,7 +72,7 @@ def _seconds(value: str) -> float:
 
 # --- hardening -------------------------------------------------------------------------
 
-#: STYLE.md 5.3's kernel/system set, each with the value that turns it on.
+#: The unit's kernel/system sandboxing set, each with the value that turns it on.
 HARDENING = {
     "ProtectHome": "yes", "PrivateTmp": "yes", "ProtectKernelTunables": "yes",
     "ProtectKernelModules": "yes", "ProtectKernelLogs": "yes", "ProtectControlGroups": "yes",
