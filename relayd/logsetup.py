@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 import sys
 import time
+from collections.abc import Sequence
 from typing import Any
 
 import structlog
@@ -92,7 +93,7 @@ class BadRequestFilter(logging.Filter):
 _BAD_REQUEST_FILTER = BadRequestFilter()
 
 
-def _renderers(fmt: str, stream: Any, priority_prefix: bool) -> list[Any]:
+def _renderers(fmt: str, stream: Any, journal: bool) -> list[Any]:
     if fmt == "json":
         out: list[Any] = [
             # Never the frames' locals: they hold passwords (the airOS login's form).
@@ -100,24 +101,26 @@ def _renderers(fmt: str, stream: Any, priority_prefix: bool) -> list[Any]:
                 structlog.tracebacks.ExceptionDictTransformer(show_locals=False)),
             structlog.processors.JSONRenderer(),
         ]
-        return [*out, _journal_priority] if priority_prefix else out
+        return [*out, _journal_priority] if journal else out
     # rich's traceback (ConsoleRenderer's default when rich is installed) shows locals.
     return [structlog.dev.ConsoleRenderer(colors=stream.isatty(),
                                           exception_formatter=structlog.dev.plain_traceback)]
 
 
 def setup_logging(level: str = "info", fmt: str = "console", stream: Any = None, *,
-                  priority_prefix: bool = True) -> None:
+                  journal: bool = True, extra: Sequence[Any] = ()) -> None:
     """Configure structlog and route every stdlib logger (aiohttp, asyncio, warnings) through it.
 
     Logs go to stdout by default (journald reads it); pass `StdStream("stderr")` for
-    commands whose stdout is data. `priority_prefix=False` drops the `<N>` of JSON mode
-    (for files that are not read by journald).
+    commands whose stdout is data. `journal=False` drops the `<N>` priority prefix of
+    JSON lines, for files read by tools rather than journald (sim.log). `extra`
+    processors add fields to every line, structlog's and the stdlib's alike.
     """
     stream = stream or StdStream("stdout")
     numeric = getattr(logging, level.upper())
     shared: list[Any] = [
         structlog.contextvars.merge_contextvars,
+        *extra,
         structlog.stdlib.add_logger_name,
         structlog.processors.add_log_level,
         structlog.processors.TimeStamper(fmt="iso", utc=True),
@@ -135,7 +138,7 @@ def setup_logging(level: str = "info", fmt: str = "console", stream: Any = None,
         structlog.stdlib.ProcessorFormatter(
             foreign_pre_chain=[*shared, structlog.stdlib.ExtraAdder()],
             processors=[structlog.stdlib.ProcessorFormatter.remove_processors_meta,
-                        *_renderers(fmt, stream, priority_prefix)],
+                        *_renderers(fmt, stream, journal)],
         )
     )
     root = logging.getLogger()
