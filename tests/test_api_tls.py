@@ -61,7 +61,8 @@ async def test_a_short_api_token_is_refused_with_exit_2(tmp_path: Path, where: s
 
 def test_a_16_character_token_is_accepted(tmp_path: Path) -> None:
     settings = parse_settings({"robot": {"enabled": False}, "pantilt": {"enabled": False},
-                               "wifi": {"enabled": False}, "api": {"token_env": "T"}})
+                               "wifi": {"enabled": False}, "control": {"rear_link": "ignore"},
+                               "api": {"token_env": "T"}})
     Daemon(settings, env={"T": "x" * 16})
     with pytest.raises(ConfigError, match=r"api\.token_env"):
         Daemon(settings, env={"T": "x" * 15})
