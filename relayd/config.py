@@ -308,14 +308,24 @@ def config_warnings(settings: Settings) -> list[str]:
 
 
 def secret_file_errors(settings: Settings) -> list[str]:
-    """Secret files that cannot be read now (check-config: `relayd run` would refuse to start)."""
+    """Secret and TLS files that cannot be used now (check-config: `relayd run` would refuse
+    to start): unreadable, an API token too short, a certificate that is not one."""
     errors = []
-    for ref in secret_refs(settings).values():
+    for owner, ref in secret_refs(settings).items():
         if ref.file is not None:
             try:
-                resolve_secret(ref, {})
+                value = resolve_secret(ref, {})
+                if owner == "api" and value is not None:
+                    check_api_token(ref, value)
             except ConfigError as exc:
                 errors.extend(exc.errors)
+    if settings.api.enabled:
+        from relayd.api.server import tls_context  # here: the server module imports this one
+
+        try:
+            tls_context(settings.api)
+        except ConfigError as exc:
+            errors.extend(exc.errors)
     return errors
 
 

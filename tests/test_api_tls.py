@@ -123,3 +123,30 @@ async def test_the_api_serves_https_with_a_certificate(tmp_path: Path) -> None:
                     async with session.get(f"http://127.0.0.1:{port}/status",
                                            timeout=aiohttp.ClientTimeout(total=5)) as resp:
                         await resp.read()
+
+
+# --- check-config sees the same problems ------------------------------------------------
+
+def test_check_config_names_a_short_token_file_and_a_bad_certificate(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from relayd.cli import main
+
+    cert, key = self_signed(tmp_path)
+    token = tmp_path / "token"
+    token.write_text("short\n", encoding="utf-8")
+    base = {"robot": {"enabled": False}, "pantilt": {"enabled": False}, "wifi": {"enabled": False},
+            "control": {"rear_link": "ignore"}}
+    good = tmp_path / "good.toml"
+    good_token = tmp_path / "good-token"
+    good_token.write_text("x" * 32 + "\n", encoding="utf-8")
+    good.write_text(dump_toml({**base, "api": {"token_file": str(good_token), "tls_cert": str(cert),
+                                               "tls_key": str(key)}}), encoding="utf-8")
+    assert main(["check-config", str(good)]) == 0
+    bad = tmp_path / "bad.toml"
+    bad.write_text(dump_toml({**base, "api": {"token_file": str(token), "tls_cert": str(cert),
+                                              "tls_key": str(tmp_path / "no-key.pem")}}), encoding="utf-8")
+    capsys.readouterr()
+    assert main(["check-config", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert "api.token_file" in err and "16" in err and "api.tls_key" in err and "no-key.pem" in err, err
+    assert "short" not in err.replace("shorter", "")
