@@ -14,25 +14,13 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import pytest
+from support import ManualClock
 
 import relayd.control
 from drivers.clock import Clock
 from relayd.control import ControlLoop
 from relayd.controller import ControlParams
 from relayd.state import DriveState, Mode, ModeError, RelayState
-
-
-class ManualClock(Clock):
-    """A clock that moves only when the test says so."""
-
-    __slots__ = ("t",)
-
-    def __init__(self, t: float = 100.0) -> None:
-        super().__init__()
-        self.t = t
-
-    def now(self) -> float:
-        return self.t
 
 
 @dataclass

@@ -403,11 +403,11 @@ async def test_wrong_ap_password_is_reported_and_holds_the_robot(tmp_path: Path)
         assert "login refused" in rear["last_error"]
         assert status["rssi_behind_dbm"] is None and status["state"] == "fault"
         assert "rear" not in status["links"] or status["links"]["rear"]["signal_dbm"] is None
-        # It does not hammer the radio: one try, the next only after auth_retry_s.
+        # It does not hammer the radio: retries follow the capped backoff (1, 2, 4, 5 s).
         tries = poller.counters["auth_failures"]
         assert tries >= 1
         await asyncio.sleep(1.0)
-        assert poller.counters["auth_failures"] == tries
+        assert poller.counters["auth_failures"] <= tries + 1
         run.assert_alive()
 
 
