@@ -37,6 +37,7 @@ BENCHES: dict[str, str] = {
     "steady": "bench.steady",
     "sim": "bench.sim",
     "estimator": "bench.estimator",
+    "bus": "bench.bus",
     "probe": "bench.probe",
 }
 DESCRIPTIONS = {
@@ -46,6 +47,7 @@ DESCRIPTIONS = {
     "steady": "CPU and resident memory of one relayd on the fakes",
     "sim": "wall time of a 300 s three-robot convoy",
     "estimator": "bearing error after 5 scans, noise-free and noisy",
+    "bus": "event publish cost with 0, 1 and 3 subscribers (one never reading)",
     "probe": "`relayd probe robot` CPU at 10 Hz SIPs, this tree beside a baseline revision",
 }
 RESULTS_MD = Path(__file__).resolve().parent / "RESULTS.md"

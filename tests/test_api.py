@@ -17,7 +17,7 @@ from support import ManualClock
 from relayd.api import make_app, start_api
 from relayd.api.demo import populate
 from relayd.metrics import Metrics
-from relayd.state import DriveState, Mode, ModeError, RelayState
+from relayd.state import DeviceHealth, DriveState, Mode, ModeError, RelayState
 
 TOKEN = "s3cr3t-token-do-not-leak"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
@@ -171,7 +171,7 @@ async def test_metrics_text(state: RelayState, controls: FakeControls, clock: Ma
     metrics.sip_received()
     metrics.observe_control_latency(0.0007)
     metrics.observe_scan_period(1.6)
-    metrics.device_reconnected("base")
+    state.health_sources["base"] = lambda: DeviceHealth(connected=True, reconnects=1)
     c = await _client(make_app(state, controls, clock=clock, token=TOKEN, metrics=metrics))
     try:
         resp = await c.get("/metrics")

@@ -11,7 +11,7 @@ from prometheus_client.parser import text_string_to_metric_families
 from support import ManualClock
 
 from relayd.metrics import Metrics
-from relayd.state import DriveState, LinkInfo, Mode, RelayState
+from relayd.state import DeviceHealth, DriveState, LinkInfo, Mode, RelayState
 
 
 def _samples(metrics: Metrics) -> dict[tuple[str, tuple[tuple[str, str], ...]], float]:
@@ -84,15 +84,15 @@ def test_observations_and_reconnects() -> None:
     m.observe_control_latency(math.nan)  # ignored: a broken timer must not poison the histogram
     m.observe_control_latency(-1.0)
     m.observe_scan_period(1.7)
-    m.device_reconnected("servo")
-    m.device_reconnected("servo")
+    # Reconnects are the driver's own count, read through its health source.
+    state.health_sources["servo"] = lambda: DeviceHealth(connected=True, reconnects=2)
     s = _samples(m)
     assert s[("relayd_control_latency_seconds_count", ())] == 2.0
     assert s[("relayd_control_latency_seconds_bucket", (("le", "0.0005"),))] == 1.0
     assert s[("relayd_control_latency_seconds_bucket", (("le", "0.005"),))] == 2.0
     assert s[("relayd_scan_period_seconds_count", ())] == 1.0
     assert s[("relayd_device_reconnects_total", (("device", "servo"),))] == 2.0
-    assert state.health["servo"].reconnects == 2  # /status shows the same count
+    assert state.snapshot(0.0)["health"]["servo"]["reconnects"] == 2  # /status shows the same count
 
 
 _maybe_float = st.one_of(st.none(), st.floats(allow_nan=True, allow_infinity=True))
