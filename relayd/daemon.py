@@ -20,10 +20,9 @@ import functools
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import structlog
-from aiohttp import web
 
 from drivers.airos import AirOsClient, AirOsPoller
 from drivers.airos.model import LinkQuality
@@ -33,7 +32,14 @@ from drivers.pantilt import PanTilt
 from drivers.wifi import RssiSource
 from relayd.brain import Brain
 from relayd.bus import Bus
-from relayd.config import ApiSettings, ConfigError, Settings, resolve_secret, secret_refs
+from relayd.config import (
+    ApiSettings,
+    ConfigError,
+    Settings,
+    check_api_token,
+    resolve_secret,
+    secret_refs,
+)
 from relayd.config_checks import api_bind_error
 from relayd.control import ControlShell
 from relayd.events import Action, Event, LinkEvent, LinkSide, ScanPlan, ServoTarget, WheelCommand
@@ -46,6 +52,9 @@ from relayd.scanner import RssiMonitor, Scanner
 from relayd.state import Mode, RelayState
 from relayd.statewriter import StateWriter
 from relayd.supervisor import Supervisor
+
+if TYPE_CHECKING:
+    from relayd.api.server import ApiServer
 
 __all__ = ["Daemon", "DeviceOverrides", "control_params", "estimator_params"]
 
@@ -102,6 +111,11 @@ class Daemon:
         token_ref = refs.get("api")
         self._token = resolve_secret(token_ref, env) \
             if token_ref is not None and _configured(settings.api, env) else None
+        if self._token is not None and token_ref is not None:
+            check_api_token(token_ref, self._token)
+        from relayd.api.server import tls_context
+
+        self._tls = tls_context(settings.api)
 
         c = settings.control
         self.state = RelayState(started_t=clock.now(), mode=Mode(c.mode),
@@ -124,7 +138,7 @@ class Daemon:
         self.monitor: RssiMonitor | None = None
         self.scanner: Scanner | None = None
         self.pollers: dict[str, AirOsPoller] = {}
-        self._runner: web.AppRunner | None = None
+        self._runner: ApiServer | None = None
         self._last_pet: float | None = None
         self.recorder: Recorder | None = None
         self._record_task: asyncio.Task[None] | None = None
@@ -257,7 +271,8 @@ class Daemon:
             # Bound before any device is touched: a wrong bind or a taken port is a
             # config error (exit 2 naming the key), not a robot that is already enabled.
             try:
-                self._runner, self.api_port = await start_api(app, s.api.bind, s.api.port)
+                self._runner, self.api_port = await start_api(app, s.api.bind, s.api.port,
+                                                              ssl_context=self._tls)
             except OSError as exc:
                 raise ConfigError([api_bind_error(s.api.bind, s.api.port, exc)]) from None
             log.info("api_control", enabled=self._token is not None,

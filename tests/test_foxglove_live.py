@@ -33,7 +33,6 @@ import aiohttp
 import jsonschema
 import pytest
 from support import running, until
-from vtime_fixtures import virtual
 
 from drivers.arcos.codec import Command
 from relayd.config import ConfigError, FoxgloveSettings, parse_settings
@@ -328,7 +327,7 @@ def tcp_wmem_max() -> int:
         return 4 * 1024 * 1024
 
 
-@virtual
+@pytest.mark.virtual_time
 async def test_on_virtual_time_a_stalled_client_overflows_its_backlog_and_the_robot_drives_on(
         tmp_path: Path) -> None:
     """More data than every buffer between the server and a stalled client can hold.
