@@ -52,7 +52,11 @@ def _latency_rows(rounds: list[tuple[bool, dict[str, Any]]]) -> list[Result]:
                               + ", ".join(f"{i['p99_le_ms']:g}" for i in inside) + " ms"
                               if within is not None else "no samples")))
         rows.append(Result(NAME, f"SIP -> first wheel cmd p99 end to end, {label}", percentile(first, 99), "ms",
-                           "", None, f"p50 {percentile(first, 50):.2f} ms, {len(first)} cycles"))
+                           "", None, f"p50 {percentile(first, 50):.2f} ms, {len(first)} cycles; per round p50 "
+                           + ", ".join(f"{percentile(f['first_ms'], 50):.2f}" for f in figs) + " ms"))
+        cpu = [f["cpu_pct"] for f in figs]
+        rows.append(Result(NAME, f"relayd CPU (its whole process), {label}", sum(cpu) / len(cpu), "% of a core",
+                           "", None, "per round " + ", ".join(f"{c:.1f}" for c in cpu) + " %"))
     views = [f["viewer"] for v, f in rounds if v and f.get("viewer")]
     if views:
         rate = sum(v["messages"] for v in views) / max(1e-9, sum(v["seconds"] for v in views))

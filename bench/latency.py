@@ -48,7 +48,7 @@ from typing import Any
 
 import aiohttp
 
-from bench.common import BenchOutput, Result, percentile
+from bench.common import BenchOutput, Result, percentile, proc_cpu_s
 from bench.live import LoadProcess, RelaydProcess
 from drivers.arcos.codec import Command
 from relayd.fakes.rig import FakeRig
@@ -253,7 +253,10 @@ async def measure(*, cycles: int = 2000, sip_period_s: float = 0.025, load_rps: 
                     from bench.viewer import ViewerProcess
 
                     view = await ViewerProcess(f"ws://127.0.0.1:{foxglove_port}/").start()
+                wall0, cpu0 = time.perf_counter(), proc_cpu_s(relayd.pid)
                 alone = await _measure(probe, cycles, relayd.url)
+                # relayd's own CPU share over the run (its whole process: the SDK's threads too).
+                alone["cpu_pct"] = 100.0 * (proc_cpu_s(relayd.pid) - cpu0) / (time.perf_counter() - wall0)
                 loaded: dict[str, Any] | None = None
                 load_report: dict[str, Any] | None = None
                 if load_rps > 0:
