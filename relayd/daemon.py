@@ -282,7 +282,7 @@ class Daemon:
             try:
                 self.live.start()
             except BindError as exc:
-                raise ConfigError([f"foxglove.port: cannot listen on {s.foxglove.bind}:{s.foxglove.port}: "
+                raise ConfigError([f"{exc.key}: cannot listen on {s.foxglove.bind}:{s.foxglove.port}: "
                                    f"{exc}"]) from None
             self._live_task = asyncio.create_task(self.live.run(), name="relayd:foxglove")
         if self.recorder is not None:

@@ -376,3 +376,13 @@ async def test_the_benchmark_measures_with_a_viewer_connected() -> None:
     viewer = data["viewer"]
     assert viewer["channels"] == len(channel_specs()) and viewer["messages"] > 20
     assert data["alone"]["in_relayd"]["count"] >= 20
+
+
+async def test_an_address_not_on_this_machine_names_foxglove_bind(tmp_path: Path) -> None:
+    async with FakeRig(tmp_path) as rig:
+        doc = rig.config_doc(log={"level": "warning"})
+        doc["foxglove"] = {"enabled": True, "bind": "192.0.2.1", "port": 0}  # TEST-NET-1: never local
+        daemon = Daemon(parse_settings(doc), env=rig.env)
+        with pytest.raises(ConfigError) as err:
+            await daemon.run()
+        assert err.value.errors[0].startswith("foxglove.bind: cannot listen on 192.0.2.1:0"), err.value.errors

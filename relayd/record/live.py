@@ -58,7 +58,11 @@ def channel_specs() -> list[ChannelSpec]:
 
 
 class BindError(Exception):
-    """The server could not listen on `[foxglove]`'s bind and port."""
+    """The server could not listen on `[foxglove]`'s bind and port; `key` is the one to change."""
+
+    def __init__(self, text: str, key: str) -> None:
+        super().__init__(text)
+        self.key = key
 
 
 class LiveServer:
@@ -126,7 +130,9 @@ class LiveServer:
                 name=self.name, host=s.bind, port=s.port, context=self._context,
                 capabilities=[], message_backlog_size=CLIENT_BACKLOG, server_listener=Listener())
         except RuntimeError as exc:
-            raise BindError(str(exc)) from None
+            text = str(exc)
+            key = "foxglove.bind" if "assign requested address" in text else "foxglove.port"
+            raise BindError(text, key) from None
         self.port = self._server.port
         log.info("foxglove_live", url=f"ws://{s.bind}:{self.port}", channels=len(self._by_topic))
 
@@ -150,6 +156,8 @@ class LiveServer:
         server, self._server = self._server, None
         if server is not None:
             server.stop()
+        for ch in self._by_topic.values():
+            ch.close()
 
     # -- items out ------------------------------------------------------------------
 
