@@ -235,6 +235,17 @@ async def test_advertise_subscribe_and_messages_on_the_wire(tmp_path: Path) -> N
         assert live.dropped == 0
 
 
+async def test_the_subprotocol_names_a_client_may_offer(tmp_path: Path) -> None:
+    """docs/RECORDING.md says: the current name is accepted, a client knowing only the old one is refused."""
+    async with live_relay(tmp_path) as (_rig, _daemon, url), aiohttp.ClientSession() as session:
+        async with session.ws_connect(url, protocols=["foxglove.websocket.v1", SUBPROTOCOL]) as ws:
+            assert ws.protocol == SUBPROTOCOL
+            assert json.loads((await ws.receive(timeout=10)).data)["op"] == "serverInfo"
+        with pytest.raises(aiohttp.WSServerHandshakeError) as err:
+            await session.ws_connect(url, protocols=["foxglove.websocket.v1"])
+        assert err.value.status == 400
+
+
 def raw_stalled_client(port: int, channel_ids: list[int]) -> socket.socket:
     """Connect, subscribe to every channel, and never read again (a tiny receive buffer)."""
     sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
@@ -352,7 +363,7 @@ async def test_on_virtual_time_a_stalled_client_overflows_its_backlog_and_the_ro
                 await until(lambda: forward_commands(rig) > 0, "the relay driving", 60)
                 x0, t0 = rig.robot.x_mm, rig.clock.now()
                 budget = tcp_wmem_max() + 2 * 65536 + CLIENT_BACKLOG * max(1, live.max_message_bytes)
-                await until(lambda: live.sent_bytes > 1.5 * budget, "more data than the buffers hold", 600)
+                await until(lambda: live.sent_bytes > 1.2 * budget, "more data than the buffers hold", 600)
                 assert live.sent_bytes > budget + CLIENT_BACKLOG * live.max_message_bytes
                 moved_mm = rig.robot.x_mm - x0
                 # Driving at v_max the whole time: what it covered is what the virtual time allowed.
