@@ -217,6 +217,7 @@ async def test_advertise_subscribe_and_messages_on_the_wire(tmp_path: Path) -> N
         assert all("i" in doc for _t, doc in decisions)
         sip = client.received["/robot/sip"][-1][1]
         assert sip["sip"]["x_mm"] == pytest.approx(rig.robot.x_mm, abs=600)
+        assert len(sip["sonar_mm"]) == 16  # the sonar ring rides on /robot/sip, as in a recording
         # A second viewer joining later gets the current state at once too.
         async with wire_client(url) as late:
             state_id = late.channel_id("/state")

@@ -6,7 +6,7 @@ channels, their JSON schemas (byte for byte) and the message bodies all come fro
 `relayd.record.codec` and `relayd.record.foxglove`, the recorder's own sources. The
 WebSocket server is the maintained `foxglove-sdk` (Rust, its own threads).
 
-What it costs the control path: nothing. This is ONE bus subscriber (`with_actions`),
+What it costs the control path: no work inside it. This is ONE bus subscriber (`with_actions`),
 so the brain and the wheel command run inside `publish()` before it sees the event;
 its task encodes messages between the loop's other callbacks, and only for channels
 a client has subscribed to (no client: no encoding at all). The SDK queues each
