@@ -10,7 +10,7 @@ Compression is lz4, not zstd (the `mcap` default): measured here, the `zstandard
 module holds the GIL while it compresses, so the event loop's thread waited on it
 (a timer's wake-up p50 went from 0.09 to 2.5 ms with a thread compressing), while
 `lz4.frame` releases it (0.09 ms) and is five times faster. zstd would make files
-about 40 % smaller; at about 30 MB per robot hour that is not worth a SIP's latency.
+about 40 % smaller; at about 26 MB per robot hour that is not worth a SIP's latency.
 
 Files (`FileSeries`): `record.path` is a directory (one file per run,
 `relayd-<UTC start>.mcap`) or a file ending in `.mcap`. A file reaching `max_file_mb`
