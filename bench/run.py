@@ -38,6 +38,7 @@ BENCHES: dict[str, str] = {
     "sim": "bench.sim",
     "estimator": "bench.estimator",
     "bus": "bench.bus",
+    "probe": "bench.probe",
     "record": "bench.record",
 }
 DESCRIPTIONS = {
@@ -48,6 +49,7 @@ DESCRIPTIONS = {
     "sim": "wall time of a 300 s three-robot convoy",
     "estimator": "bearing error after 5 scans, noise-free and noisy",
     "bus": "event publish cost with 0, 1 and 3 subscribers (one never reading)",
+    "probe": "`relayd probe robot` CPU at 10 Hz SIPs, this tree beside a baseline revision",
     "record": "control latency with the recorder on vs off; recording size per hour",
 }
 RESULTS_MD = Path(__file__).resolve().parent / "RESULTS.md"
