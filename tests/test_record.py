@@ -20,7 +20,7 @@ import jsonschema
 import pytest
 from mcap.records import Chunk, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
-from support import until
+from support import ManualClock, until
 
 from drivers.airos.model import LinkQuality, Station
 from drivers.arcos.sip import Sip
@@ -60,14 +60,6 @@ from relayd.record.reader import RecordingError, join_parts, read_recording
 from relayd.record.recorder import Recorder
 from relayd.record.replay import apply_overrides, compare, make_brain, parse_override
 from relayd.state import DriveState, Mode, ScanRecord
-
-
-class ManualClock:
-    def __init__(self, t: float = 1000.0) -> None:
-        self.t = t
-
-    def now(self) -> float:
-        return self.t
 
 
 def sip(t: float, x_mm: float = 0.0, theta_deg: float = 0.0) -> Sip:

@@ -32,7 +32,6 @@ from mcap.records import Channel, Chunk, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 from support import running, until
 from test_record import FullDisk
-from vtime_fixtures import virtual
 
 from drivers.arcos.codec import Command
 from relayd import cli
@@ -148,7 +147,7 @@ async def drives_on_after_the_recording_failed(rig: FakeRig, daemon: Daemon) -> 
     assert st.state is DriveState.DRIVING
 
 
-@virtual
+@pytest.mark.virtual_time
 async def test_a_full_disk_stops_the_recording_and_the_robot_keeps_driving(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     from structlog.testing import capture_logs
@@ -163,7 +162,7 @@ async def test_a_full_disk_stops_the_recording_and_the_robot_keeps_driving(
     assert part.steps and not part.complete
 
 
-@virtual
+@pytest.mark.virtual_time
 async def test_a_real_full_tmpfs(tmp_path: Path) -> None:
     """The same with a file system that really fills up (root only: mounts a 96 KB tmpfs)."""
     mnt = tmp_path / "small"

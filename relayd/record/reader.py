@@ -180,7 +180,7 @@ def read_recording(path: str | Path, *, partial: bool = False) -> Recording:
                 if isinstance(rec, Chunk):
                     try:
                         records = breakup_chunk(rec, validate_crc=True)
-                    except Exception as exc:  # noqa: BLE001 - zstd, CRC or record errors alike
+                    except Exception as exc:  # noqa: BLE001 - decompression, CRC or record errors alike
                         raise RecordingError(p, f"chunk {chunks + 1} is corrupt ({type(exc).__name__}: {exc})",
                                              offset) from None
                     chunked.take(records, offset)

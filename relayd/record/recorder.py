@@ -52,6 +52,8 @@ log = structlog.get_logger(__name__)
 
 #: Clock seconds of messages per MCAP chunk: what a killed daemon loses at most.
 CHUNK_S = 1.0
+#: How often the recorder's task takes what the bus queued for it (loop seconds).
+DRAIN_S = 0.1
 #: Items the bus may queue for the recorder (about a minute at a robot's event rate).
 QUEUE_LEN = 4096
 #: A batch handed over early if it grows this long (a burst of events).
@@ -79,7 +81,7 @@ class Recorder:
                  identity: Callable[[], RobotIdentity | None] = lambda: None,
                  opener: Callable[[Path], BinaryIO] | None = None, chunk_s: float = CHUNK_S,
                  queue_len: int = QUEUE_LEN, max_pending: int = MAX_PENDING,
-                 stall_s: float = STALL_S) -> None:
+                 stall_s: float = STALL_S, drain_s: float = DRAIN_S) -> None:
         rec = settings.record
         self.path = path if path is not None else rec.path
         self._bus = bus
@@ -88,6 +90,7 @@ class Recorder:
         self._chunk_s = chunk_s
         self._max_pending = max_pending
         self._stall_s = stall_s
+        self._drain_s = drain_s
         self._sub = bus.subscribe_with_actions("recorder", queue_len)
         self._t0 = clock.now()
         self._ns0 = time.time_ns()
@@ -136,17 +139,16 @@ class Recorder:
         self._thread.start()
 
     async def run(self) -> None:
-        """Drain the subscription until it is closed (shutdown or failure)."""
+        """Drain the subscription every `drain_s` until it is closed (shutdown or failure)."""
         sub = self._sub
         try:
-            while self.state == "recording":
-                item = await sub.get()
-                self._take(item)
-                while (more := sub.get_nowait()) is not None:
-                    self._take(more)
+            while self.state == "recording" and not sub.closed:
+                # A cadence, not a wake-up per event: one loop turn per drain instead of one
+                # per event keeps the loop free for the SIPs (measured: bench/RESULTS.md).
+                await asyncio.sleep(self._drain_s)
+                while (item := sub.get_nowait()) is not None:
+                    self._take(item)
                 self._after_drain()
-        except EOFError:
-            pass
         except Exception as exc:  # noqa: BLE001 - a recorder bug must not reach the supervisor
             self._fail(f"{type(exc).__name__}: {exc}")
 
