@@ -8,8 +8,9 @@ WebSocket server is the maintained `foxglove-sdk` (Rust, its own threads).
 
 What it costs the control path: no work inside it. This is ONE bus subscriber (`with_actions`),
 so the brain and the wheel command run inside `publish()` before it sees the event;
-its task encodes messages between the loop's other callbacks, and only for channels
-a client has subscribed to (no client: no encoding at all). The SDK queues each
+its task wakes ten times a second, encodes what queued between the loop's other
+callbacks, and only for channels a client has subscribed to (no client: no encoding
+at all). The SDK queues each
 client's messages in its own bounded backlog, dropping the oldest, and writes to the
 sockets from its own threads; a client that stops reading loses data, the robot
 loses nothing.
@@ -44,6 +45,8 @@ log = structlog.get_logger(__name__)
 #: Items the bus may queue for the live view (a few seconds of a robot's events): a
 #: viewer wants the present, so a longer backlog would only show older data.
 QUEUE_LEN = 1024
+#: How often the queue is drained and sent (s): what a viewer sees lags by at most this.
+DRAIN_S = 0.1
 #: Messages the SDK buffers per client before dropping that client's oldest.
 CLIENT_BACKLOG = 1024
 SUBPROTOCOL = "foxglove.sdk.v1"
@@ -69,7 +72,7 @@ class LiveServer:
     """One daemon's live Foxglove server. `start()`, `await run()` in a task, `close()`."""
 
     def __init__(self, bus: RoutedBus, settings: Settings, clock: Clock, *,
-                 queue_len: int = QUEUE_LEN) -> None:
+                 queue_len: int = QUEUE_LEN, drain_s: float = DRAIN_S) -> None:
         import foxglove  # the SDK's Rust module is loaded only when the server is enabled
 
         self._fox = foxglove
@@ -77,6 +80,7 @@ class LiveServer:
         self.name = settings.robot.display_name or "relayd"
         self._bus = bus
         self._clock = clock
+        self._drain_s = drain_s
         self._sub = bus.subscribe_with_actions("foxglove", queue_len)
         self._t0 = clock.now()
         self._ns0 = time.time_ns()
@@ -137,14 +141,14 @@ class LiveServer:
         log.info("foxglove_live", url=f"ws://{s.bind}:{self.port}", channels=len(self._by_topic))
 
     async def run(self) -> None:
-        """Drain the subscription until it is closed."""
+        """Drain the subscription every `drain_s` until it is closed."""
         sub = self._sub
         try:
-            while True:
-                item = await sub.get()
-                self._drain(item)
-        except EOFError:
-            pass
+            while not sub.closed:
+                # A cadence, not a wake-up per event, as the recorder does: one loop turn
+                # per drain keeps the loop free for the SIPs (bench/RESULTS.md).
+                await asyncio.sleep(self._drain_s)
+                self._drain()
         except Exception as exc:  # noqa: BLE001 - a viewer's bug must not reach the supervisor
             self.error = f"{type(exc).__name__}: {exc}"
             log.warning("foxglove_live_stopped", error=self.error,
@@ -164,16 +168,14 @@ class LiveServer:
     def _ns(self, t: float) -> int:
         return max(0, self._ns0 + round((t - self._t0) * 1e9))
 
-    def _drain(self, first: Routed) -> None:
+    def _drain(self) -> None:
         # Which channels have a subscriber, asked once per drain (a call into the SDK each).
         live = {topic for topic, ch in self._by_topic.items() if ch.has_sinks()}
         if self._latch_wanted and "/state" in live:
             self._latch_wanted = False
             self._latch(self._ns(self._clock.now()))
-        item: Routed | None = first
-        while item is not None:
+        while (item := self._sub.get_nowait()) is not None:
             self._take(item, live)
-            item = self._sub.get_nowait()
         lost = self._sub.dropped - self._seen_dropped
         if lost > 0:
             self._seen_dropped += lost
