@@ -223,7 +223,8 @@ def scheduling_prefix(kind: str) -> tuple[str, ...] | None:
 
 async def measure(*, cycles: int = 2000, sip_period_s: float = 0.025, load_rps: float = 1000.0,
                   work: Path | None = None, scan: dict[str, Any] | None = None,
-                  command_prefix: Sequence[str] = ()) -> dict[str, Any]:
+                  command_prefix: Sequence[str] = (),
+                  record: dict[str, Any] | None = None) -> dict[str, Any]:
     """Both runs (alone, then under /status load); raw latencies in ms and the load's report."""
     with tempfile.TemporaryDirectory(prefix="relayd-bench-lat-", dir=scratch_root()) as tmp:
         rig = FakeRig(work or Path(tmp), leader_xy_m=(6.0, 2.0))
@@ -234,8 +235,10 @@ async def measure(*, cycles: int = 2000, sip_period_s: float = 0.025, load_rps: 
         rig.robot.sip_period_s = sip_period_s
         await rig.start()
         try:
+            extra = {"record": record} if record is not None else {}
             async with RelaydProcess(rig, control={"w1": 0.0, "w2": -300.0, "kd": 0.0}, scan=scan or {},
-                                     log={"level": "warning"}, command_prefix=command_prefix) as relayd:
+                                     log={"level": "warning"}, command_prefix=command_prefix,
+                                     **extra) as relayd:
                 await relayd.wait_for(lambda d: d.get("state") == "avoiding", 60.0, "state avoiding")
                 probe = CycleProbe(rig.robot, sonar)
                 probe.install()

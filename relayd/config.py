@@ -230,6 +230,24 @@ class LogSettings(_Section):
     format: Literal["json", "console"] = "json"
 
 
+class RecordSettings(_Section):
+    """Recording every bus event and action to MCAP files (docs/RECORDING.md)."""
+
+    enabled: bool = False
+    #: A directory (one file per run, `relayd-<UTC time>.mcap`) or a file ending in `.mcap`.
+    path: Annotated[str, Field(min_length=1)] = "/var/lib/relayd/recordings"
+    #: A file this big is finished (summary written) and the next part begun.
+    max_file_mb: Annotated[float, Field(gt=0, le=1_000_000, allow_inf_nan=False)] = 100.0
+    #: The oldest recordings are deleted to keep the total under this.
+    max_total_mb: Annotated[float, Field(gt=0, allow_inf_nan=False)] = 2000.0
+
+    @model_validator(mode="after")
+    def _total_holds_a_file(self) -> RecordSettings:
+        if self.max_total_mb < self.max_file_mb:
+            raise ValueError("max_total_mb must be at least max_file_mb")
+        return self
+
+
 class Settings(_Section):
     robot: RobotSettings = RobotSettings()
     pantilt: PanTiltSettings = PanTiltSettings()
@@ -239,6 +257,7 @@ class Settings(_Section):
     control: ControlSettings = ControlSettings()
     api: ApiSettings = ApiSettings()
     log: LogSettings = LogSettings()
+    record: RecordSettings = RecordSettings()
 
 
 class ConfigError(Exception):
