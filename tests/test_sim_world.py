@@ -282,8 +282,7 @@ def test_sonar_sees_a_wall_ahead_and_nothing_behind() -> None:
     d["relays"] = 1
     d["relay"] = [{"name": "r", "x": 0, "y": 0}]
     d["walls"] = [{"points": [[2.245, -3], [2.245, 3]]}]
-    d["sonar"] = {"noise_mm": 0}
-    d["leader"] = {"waypoints": [{"x": -4, "y": 0}]}
+    d["leader"] = {"waypoints": [{"x": -4, "y": 6}]}  # out of every beam's reach
     w = World(parse_scenario(d), seed=0)
     r = w.sonar_mm(0, 0, 0, 0)
     assert r[3] == pytest.approx(2000, abs=15)   # sonar 3 at x=245 looks ahead at +10 deg
