@@ -20,6 +20,7 @@ from typing import Any, Protocol
 import structlog
 
 from drivers.clock import REAL_CLOCK, Clock
+from relayd.avoidance import rear_readings
 from relayd.controller import (
     ControlInputs,
     ControlMemory,
@@ -38,6 +39,10 @@ class SipView(Protocol):
     def t(self) -> float: ...
     @property
     def theta_deg(self) -> float: ...
+    @property
+    def x_mm(self) -> float: ...
+    @property
+    def y_mm(self) -> float: ...
 
 
 class SonarView(Protocol):
@@ -198,6 +203,9 @@ class ControlLoop:
             manual_left_mm_s=manual_l,
             manual_right_mm_s=manual_r,
             manual_age_s=manual_age,
+            t_s=now,
+            odom=None if sip is None else (sip.x_mm, sip.y_mm, sip.theta_deg),
+            rear_sonar=rear_readings(ranges),
         )
 
     def step(self) -> ControlOutput:
