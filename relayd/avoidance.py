@@ -135,6 +135,7 @@ class AvoidParams:
     backoff_to_m: float = 1.4
     backoff_max_m: float = 1.2
     backoff_speed_mm_s: float = 100.0
+    unjam_m: float = 0.3  # back-off when a turn in place has no room
     lane_detect_m: float = 1.5  # a boundary this close abeam on the free side: a passage, not open ground
     lane_margin_m: float = 0.12  # footprint to that boundary while changing lanes
     lane_min_shift_m: float = 0.3
@@ -177,6 +178,7 @@ class AvoidState:
     corner_heading_deg: float | None = None
     clear_since_t: float | None = None
     backoff_from: tuple[float, float] | None = None
+    backoff_len_m: float = 0.0  # how far this back-off may go
     lane_ref: tuple[float, float, float] | None = None  # pose where the lane change began
     lane_target_m: float = 0.0  # lateral offset to reach, left +
 
@@ -394,14 +396,14 @@ def avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tuple
                          goal_deg=s.pose[2] + s.bearing_deg, hit_proj_m=_proj_m(s.pose, s.pose[2] + s.bearing_deg))
         st = _enter(st, AvoidMode.TURN, t, clear_since_t=None)
         if d_min < p.backoff_below_m and rear_min_m(s.rear) > p.stop_distance_m + 0.1:
-            st = _enter(st, AvoidMode.BACKOFF, t, backoff_from=s.pose[:2])
+            st = _enter(st, AvoidMode.BACKOFF, t, backoff_from=s.pose[:2], backoff_len_m=p.backoff_max_m)
         else:
             st = _maybe_lane(st, s, r, p, t)
 
     if st.mode is AvoidMode.BACKOFF:
         assert st.backoff_from is not None
         backed = math.dist(st.backoff_from, s.pose[:2]) / 1000.0
-        if (d_min < p.backoff_to_m and backed < p.backoff_max_m
+        if (d_min < p.backoff_to_m and backed < st.backoff_len_m
                 and rear_min_m(s.rear) > p.stop_distance_m + 0.1):
             vel, _ = guard(-act.express(p.backoff_speed_mm_s, 0.0)[0], 0, s.sonar, p.stop_distance_m, s.rear)
             return st, AvoidCommand(False, vel, 0, "avoiding")
@@ -427,7 +429,15 @@ def avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tuple
         if front > p.front_clear_m and _min(r, (50.0 * -st.side,)) > p.stop_distance_m:
             st = _enter(st, AvoidMode.WALL, t, lost_at=None)
         else:
-            return st, _turn(act, s, p, st.side * p.turn_rate_deg_s, "avoiding")
+            cmd = _turn(act, s, p, st.side * p.turn_rate_deg_s, "avoiding")
+            if cmd.rvel_deg_s == 0 and rear_min_m(s.rear) > p.stop_distance_m + 0.1:
+                # No room to turn here (a corner, a passage): back off a little and retry.
+                st = _enter(st, AvoidMode.BACKOFF, t, backoff_from=s.pose[:2],
+                            backoff_len_m=p.unjam_m)
+                vel, _ = guard(-act.express(p.backoff_speed_mm_s, 0.0)[0], 0, s.sonar,
+                               p.stop_distance_m, s.rear)
+                return st, AvoidCommand(False, vel, 0, "avoiding")
+            return st, cmd
 
     if st.mode is AvoidMode.CORNER:
         assert st.corner_heading_deg is not None
@@ -517,6 +527,10 @@ def _lane(st: AvoidState, s: Sense, r: dict[float, float], p: AvoidParams, act: 
         # Out of the gap and clear of its sides: the paper's law takes over, turning
         # gently onto the leader as it drives.
         return _enter(st, AvoidMode.FOLLOW, t, lane_ref=None, anchor=s.pose[:2], anchor_t=t), AvoidCommand(True)
+    if max(r.get(10.0, SONAR_MAX_RANGE_M), r.get(-10.0, SONAR_MAX_RANGE_M)) < p.front_clear_m:
+        # Both forward sonars close: something across the lane (a diagonal approach to
+        # the side boundary shows in one of them only). Go round it instead.
+        return _enter(st, AvoidMode.TURN, t, lane_ref=None), None
     fit = wall_fit(r, st.side, p.fit_range_m, edge=True)
     if fit is not None:
         # The free side's boundary is in reach: run parallel to it at the lane's distance
