@@ -150,12 +150,12 @@ class AvoidParams:
     front_clear_m: float = 0.45  # forward sonars beyond this: the way ahead is open
     corner_run_m: float = 0.45
     leave_clear_m: float = 1.2
-    leave_progress_m: float = 0.2
+    leave_progress_m: float = -0.3  # along the leader's line vs the hit point: a door level with it is fine, the U's mouth is not
     align_tol_deg: float = 10.0
     tie_m: float = 0.05
     episode_clear_s: float = 8.0  # free this long after an escape: the next obstacle is a new one
-    max_escape_s: float = 180.0
-    max_escape_m: float = 30.0
+    max_escape_s: float = 300.0
+    max_escape_m: float = 40.0
     max_turn_deg: float = 1080.0
 
 
@@ -322,6 +322,9 @@ def _leader_clear(r: dict[float, float], bearing_deg: float, clear_m: float, wal
     if not near or min(near) <= clear_m:
         return False
     if wall_side != 0 and bearing_deg * wall_side > 0:
+        if abs(bearing_deg) >= 60.0:
+            # The leader abeam, beyond an opening (a door) the abeam sonar sees through.
+            return r.get(wall_side * 90.0, SONAR_MAX_RANGE_M) > clear_m
         return _min(r, tuple(wall_side * h for h in (90.0, 50.0, 30.0))) > clear_m
     return True
 
