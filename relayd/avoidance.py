@@ -150,7 +150,10 @@ class AvoidParams:
     front_clear_m: float = 0.45  # forward sonars beyond this: the way ahead is open
     corner_run_m: float = 0.45
     leave_clear_m: float = 1.2
-    leave_progress_m: float = -0.3  # along the leader's line vs the hit point: a door level with it is fine, the U's mouth is not
+    leave_progress_m: float = 0.2  # along the leader's line beyond the hit point (Bug2)
+    door_progress_m: float = -0.3  # ... through an opening abeam: a door level with the hit point
+    turn_clear_m: float = 1.5  # a turn in place goes on until the front is this open ...
+    turn_max_deg: float = 100.0  # ... or it has turned this far with the front merely clear
     align_tol_deg: float = 10.0
     tie_m: float = 0.05
     episode_clear_s: float = 8.0  # free this long after an escape: the next obstacle is a new one
@@ -181,6 +184,8 @@ class AvoidState:
     backoff_len_m: float = 0.0  # how far this back-off may go
     lane_ref: tuple[float, float, float] | None = None  # pose where the lane change began
     lane_target_m: float = 0.0  # lateral offset to reach, left +
+    mode_heading_deg: float = 0.0  # odometry heading when the current mode began
+    had_wall: bool = False  # WALL: the boundary has been in reach since WALL began
 
 
 @dataclass(frozen=True, slots=True)
@@ -362,6 +367,13 @@ def _bookkeep(st: AvoidState, s: Sense) -> AvoidState:
 
 def avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tuple[AvoidState, AvoidCommand]:
     """One decision while the link rule says drive; see the module docstring."""
+    new, cmd = _avoid_step(st, s, p, act)
+    if new.mode is not st.mode:
+        new = replace(new, mode_heading_deg=s.pose[2], had_wall=False)
+    return new, cmd
+
+
+def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tuple[AvoidState, AvoidCommand]:
     st = _bookkeep(st, s)
     r = _by_heading(s.sonar)
     d_min = min((d for h, d in r.items() if abs(h) < 90.0), default=SONAR_MAX_RANGE_M)
@@ -429,7 +441,9 @@ def avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tuple
 
     if st.mode is AvoidMode.TURN:
         front = _min(r, (10.0, -10.0, 30.0, -30.0))
-        if front > p.front_clear_m and _min(r, (50.0 * -st.side,)) > p.stop_distance_m:
+        turned = abs(wrap_deg(s.pose[2] - st.mode_heading_deg))
+        if (front > p.front_clear_m and _min(r, (50.0 * -st.side,)) > p.stop_distance_m
+                and (front > p.turn_clear_m or turned >= p.turn_max_deg)):
             st = _enter(st, AvoidMode.WALL, t, lost_at=None)
         else:
             cmd = _turn(act, s, p, st.side * p.turn_rate_deg_s, "avoiding")
@@ -452,7 +466,9 @@ def avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tuple
     # WALL: the boundary is on side w = -side.
     w = -st.side
     progress = _proj_m(s.pose, st.goal_deg) - st.hit_proj_m
-    if progress > p.leave_progress_m and _leader_clear(r, s.bearing_deg, p.leave_clear_m, w):
+    door = abs(s.bearing_deg) >= 60.0 and s.bearing_deg * w > 0
+    if (progress > (p.door_progress_m if door else p.leave_progress_m)
+            and _leader_clear(r, s.bearing_deg, p.leave_clear_m, w)):
         st = _enter(st, AvoidMode.ALIGN, t)
         if abs(s.bearing_deg) <= p.align_tol_deg:
             st = _enter(st, AvoidMode.FOLLOW, t, anchor=s.pose[:2], anchor_t=t)
@@ -467,6 +483,9 @@ def avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tuple
         st = _enter(st, AvoidMode.TURN, t)
         return st, _turn(act, s, p, st.side * p.turn_rate_deg_s, "avoiding")
     fit = wall_fit(r, w, p.fit_range_m)
+    if fit is None and not st.had_wall:
+        # Turned away from it and it is not beside us yet: drive on, past it, until it is.
+        return st, _drive(act, s, p, p.wall_speed_mm_s, 0.0)
     if fit is None:
         lost = st.lost_at or s.pose[:2]
         st = replace(st, lost_at=lost)
@@ -475,7 +494,7 @@ def avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tuple
                         corner_heading_deg=wrap_deg(s.pose[2] + w * 90.0))
             return st, _turn(act, s, p, w * p.turn_rate_deg_s, "avoiding")
         return st, _drive(act, s, p, p.wall_speed_mm_s, 0.0)
-    st = replace(st, lost_at=None)
+    st = replace(st, lost_at=None, had_wall=True)
     lateral, angle = fit
     target = HALF_WIDTH_M + p.wall_gap_m
     other = min((_LATERAL_M[h] + r.get(-w * h, SONAR_MAX_RANGE_M) * math.sin(math.radians(h))

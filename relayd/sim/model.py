@@ -85,9 +85,11 @@ def clearance_m(poly: tuple[tuple[float, float], ...], segments: list[Segment]) 
 
 def run_model(scenario: Scenario, *, seed: int = 0, past_m: float, seconds: float = 180.0,
               params: ControlParams | None = None, bearing_noise_deg: float = 3.0,
-              scan_period_s: float = 4.5, on_step: Callable[[Step], None] | None = None) -> Outcome:
+              scan_period_s: float = 4.5, on_step: Callable[[Step], None] | None = None,
+              escape: bool = True) -> Outcome:
     """Drive relay 0 of `scenario` until its centre is `past_m` along the start->leader
-    line (plus half the robot's length), or `seconds` of clock time."""
+    line (plus half the robot's length), or `seconds` of clock time. escape=False runs the
+    paper's law alone (no time or odometry for the escape): the defect, for comparison."""
     params = params or ControlParams(rear_link_required=False)
     world = World(scenario.with_relays(1), seed=seed)
     rng = random.Random(seed * 7919 + 17)
@@ -131,7 +133,8 @@ def run_model(scenario: Scenario, *, seed: int = 0, past_m: float, seconds: floa
             scan_servo_ok=True, bearing_deg=now_frame(bearing, scan_heading),
             prev_bearing_deg=now_frame(prev_bearing, prev_heading), rssi_leader_dbm=rssi_l,
             rssi_behind_dbm=-40.0, rear_age_s=0.0, front_sonar=front_readings(ranges),
-            leader_lost=False, t_s=t, odom=(x, y, th), rear_sonar=rear_readings(ranges))
+            leader_lost=False, t_s=t if escape else None, odom=(x, y, th) if escape else None,
+            rear_sonar=rear_readings(ranges))
         out = control_step(inputs, params, memory)
         memory = out.memory
         tv, trv = wheel_to_vel_rvel(out.left_mm_s, out.right_mm_s)
