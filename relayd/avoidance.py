@@ -2,115 +2,57 @@
 
 The paper's situation 1 (steer by the sonar centroid, slow down towards the stop
 distance) cannot get a robot past an obstacle that is symmetric about its path: the
-centroid is 0, the speed scale is 0, and the robot stands still forever. This module
-adds the layer that notices that and does something a robot can really execute.
+centroid is 0, the speed scale is 0, and the robot stands still for good. This module
+is the layer that notices that and does something the robot can really execute. It is
+pure: the time, the odometry pose, the sonars and the leader's bearing come in a
+`Sense`, the memory in an `AvoidState`, and `avoid_step` returns both the new state and
+the command; nothing here reads a clock. docs/AVOIDANCE.md has the state diagram.
 
-States (`AvoidMode`), one per step, time taken from the inputs (never a clock):
+- FOLLOW: the paper's law drives; a watchdog says "blocked" when a forward sonar reads
+  below the stop distance, or the robot has not moved `progress_m` in `no_progress_s`
+  while the link rule says its leader is beyond.
+- An escape begins: the side is latched for the whole episode (the freer side; a tie
+  goes to the leader's side, bearing 0 to the left). BACKOFF first when the robot is
+  closer than `backoff_below_m` and the rear sonars show room. In a passage (a boundary
+  abeam on the free side) LANE: run beside that boundary, or down the middle of a
+  narrow gap, past the obstacle. Otherwise TURN in place toward the free side until the
+  front is open, then WALL: boundary following (Bug family) with the obstacle on the
+  other side; an inner corner goes back to TURN, a lost boundary runs `corner_run_m`
+  on and turns 90 degrees toward it (CORNER). Leave (tangent-bug style) when the
+  leader's direction is open and the robot is further along the leader's line than
+  where it hit (Bug2; a door abeam may be level with the hit point): ALIGN (turn in
+  place onto the leader's bearing), then FOLLOW.
+- BLOCKED: the escape exceeded `max_escape_s`, `max_escape_m` or `max_turn_deg`:
+  wheels zero, reason `blocked`, until the leader's direction is open ahead again.
 
-- FOLLOW: the paper's law drives. A progress watchdog runs: blocked when d_min is
-  below the stop distance, or when the robot has not moved `progress_m` for
-  `no_progress_s` while the link rule says the leader is beyond.
-- TURN: turn in place, toward the side latched when the escape began (the freer
-  side; a tie goes to the leader's side, bearing 0 to the left), at an executable
-  rate, until the front is clear; then WALL.
-- WALL: boundary following (Bug family) with the obstacle on the far side of the
-  turn: keep the wall at `wall_gap_m` from the footprint; an inner corner (front
-  blocked) goes back to TURN; an outer corner (wall lost) runs `corner_run_m` straight
-  and turns in place 90 degrees toward the wall (CORNER). Leave (tangent-bug style)
-  when the leader's direction is clear to `leave_clear_m` and the robot is further
-  along the leader's direction than where it hit the obstacle: then ALIGN.
-- ALIGN: turn in place to the leader's bearing, then FOLLOW.
-- BLOCKED: the escape exceeded its limits (time, path, total turn) or no side can be
-  turned to: wheels zero, reason `blocked`. It ends only when the leader's direction
-  is clear ahead again (a person walked away) or the mode changes.
-
-Every command goes through `Actuator.express`, so what leaves here is exactly what
-VEL (1 mm/s) and RVEL (1 deg/s) can say, and through `guard`, the last line: no
-forward motion while a forward sonar reads below the stop distance, no turn toward a
-side whose sonars read below it.
+Every command goes through `Actuator`, so what leaves here is exactly what VEL (1 mm/s)
+and RVEL (1 deg/s) can say and a turn in place is at least `min_turn_deg_s`; and through
+`guard`, the last line: no forward motion toward an echo nearer than the stop distance
+in the robot's path, no reversing without the rear sonars, no turn in place toward a
+near side or with anything inside the circle the corners sweep.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from enum import StrEnum
 
-from drivers.arcos.sip import DIFF_CONV_FACTOR, MAX_RVEL_DEG_S, MAX_VEL_MM_S
-from drivers.arcos.sonar import SONAR_POSES
-from relayd.estimator import SONAR_HEADINGS_DEG, SONAR_MAX_RANGE_M, SonarReading, wrap_deg
-
-#: Lateral offset (m) of each front-ring transducer from the centreline, by heading.
-_LATERAL_M: dict[float, float] = {p.heading_deg: abs(p.y_mm) / 1000.0 for p in SONAR_POSES[:8]}
-#: Position (m, x forward, y left) of each front-ring transducer, by heading.
-_POSE_M: dict[float, tuple[float, float]] = {
-    p.heading_deg: (p.x_mm / 1000.0, p.y_mm / 1000.0) for p in SONAR_POSES[:8]
-}
-#: Half the P3-AT's width (505 mm): footprint side to centreline.
-HALF_WIDTH_M = 0.2525
-#: Clearance kept between the swept circle of a turn in place and any echo.
-TURN_MARGIN_M = 0.03
-
-
-@dataclass(frozen=True, slots=True)
-class Actuator:
-    """What the P3-AT's motion commands can express: VEL in mm/s, RVEL in deg/s, integers."""
-
-    vel_step_mm_s: float = 1.0
-    rvel_step_deg_s: float = 1.0
-    diff_conv: float = DIFF_CONV_FACTOR
-    max_vel_mm_s: float = float(MAX_VEL_MM_S)
-    max_rvel_deg_s: float = float(MAX_RVEL_DEG_S)
-    #: The slowest in-place turn a skid-steered P3-AT really executes (its wheels must
-    #: overcome the scrub of four tyres); a smaller turn rate is a deliberate zero.
-    min_turn_deg_s: float = 8.0
-
-    def vel_rvel(self, left_mm_s: float, right_mm_s: float) -> tuple[float, float]:
-        """(VEL, RVEL) before rounding, as the driver computes them."""
-        return (left_mm_s + right_mm_s) / 2.0, math.degrees((right_mm_s - left_mm_s) / 2.0 * self.diff_conv)
-
-    def wheels(self, vel_mm_s: float, rvel_deg_s: float) -> tuple[float, float]:
-        d = math.radians(rvel_deg_s) / self.diff_conv
-        return vel_mm_s - d, vel_mm_s + d
-
-    def express(self, vel_mm_s: float, rvel_deg_s: float) -> tuple[int, int]:
-        """The (VEL, RVEL) on the wire: rounded to the step and clamped; an intended turn
-        slower than half a step becomes a deliberate 0."""
-        vel = round(vel_mm_s / self.vel_step_mm_s) * self.vel_step_mm_s
-        rvel = round(rvel_deg_s / self.rvel_step_deg_s) * self.rvel_step_deg_s
-        vel = max(-self.max_vel_mm_s, min(self.max_vel_mm_s, vel))
-        rvel = max(-self.max_rvel_deg_s, min(self.max_rvel_deg_s, rvel))
-        return int(vel), int(rvel)
-
-    def turn(self, rvel_deg_s: float) -> int:
-        """An in-place turn the robot executes: at least `min_turn_deg_s`, never 0 unless asked."""
-        if rvel_deg_s == 0:
-            return 0
-        mag = max(abs(rvel_deg_s), self.min_turn_deg_s)
-        mag = math.ceil(mag / self.rvel_step_deg_s) * self.rvel_step_deg_s
-        return int(math.copysign(min(mag, self.max_rvel_deg_s), rvel_deg_s))
-
-    def within(self, vel: int, rvel: int, wheel_max_mm_s: float) -> tuple[int, int]:
-        """Shrink an expressed command (translation first) so no wheel exceeds wheel_max."""
-        d = abs(math.radians(rvel) / self.diff_conv)
-        if d > wheel_max_mm_s:
-            steps = math.floor(math.degrees(wheel_max_mm_s * self.diff_conv) / self.rvel_step_deg_s)
-            rvel = int(math.copysign(steps * self.rvel_step_deg_s, rvel))
-            d = abs(math.radians(rvel) / self.diff_conv)
-        excess = abs(vel) + d - wheel_max_mm_s
-        if excess > 1e-9:
-            mag = max(0.0, abs(vel) - math.ceil(excess / self.vel_step_mm_s) * self.vel_step_mm_s)
-            vel = int(math.copysign(mag, vel))
-        return vel, rvel
-
-    def express_wheels(self, left_mm_s: float, right_mm_s: float,
-                       wheel_max_mm_s: float | None = None) -> tuple[float, float]:
-        """Wheel speeds that the driver turns into exactly the intended integer VEL/RVEL."""
-        vel, rvel = self.express(*self.vel_rvel(left_mm_s, right_mm_s))
-        if wheel_max_mm_s is not None:
-            vel, rvel = self.within(vel, rvel, wheel_max_mm_s)
-        return self.wheels(vel, rvel)
+from relayd.actuator import Actuator
+from relayd.estimator import SONAR_MAX_RANGE_M, SonarReading, wrap_deg
+from relayd.ring import (
+    HALF_WIDTH_M,
+    LATERAL_M,
+    by_heading,
+    choose_side,
+    echo_m,
+    forward_min_m,
+    guard,
+    leader_clear,
+    min_at,
+    rear_min_m,
+    wall_fit,
+)
 
 
 class AvoidMode(StrEnum):
@@ -183,7 +125,6 @@ class AvoidState:
     backoff_from: tuple[float, float] | None = None
     backoff_len_m: float = 0.0  # how far this back-off may go
     lane_ref: tuple[float, float, float] | None = None  # pose where the lane change began
-    lane_target_m: float = 0.0  # lateral offset to reach, left +
     mode_heading_deg: float = 0.0  # odometry heading when the current mode began
     had_wall: bool = False  # WALL: the boundary has been in reach since WALL began
 
@@ -197,141 +138,6 @@ class Sense:
     sonar: tuple[SonarReading, ...]
     bearing_deg: float  # leader, robot frame, ccw +
     rear: tuple[SonarReading, ...] = ()  # the rear ring; without it the robot never reverses
-
-
-#: The rear sonars that look backwards (headings +-130, +-150, +-170).
-REAR_BACK: tuple[int, ...] = (9, 10, 11, 12, 13, 14)
-#: The whole rear ring (8 and 15 look sideways from the rear corners).
-REAR_RING: tuple[int, ...] = tuple(range(8, 16))
-#: The P3-AT's corners are this far from its centre: what a turn in place sweeps.
-SWEEP_RADIUS_M = math.hypot(0.313, HALF_WIDTH_M)
-
-
-def rear_readings(ranges_mm: Sequence[int | None]) -> tuple[SonarReading, ...]:
-    """The rear ring (8..15) in metres, in index order; a sonar never read is left out."""
-    out = []
-    for index in REAR_RING:
-        mm = ranges_mm[index] if index < len(ranges_mm) else None
-        if mm is None or mm < 0:
-            continue
-        out.append(SonarReading(SONAR_HEADINGS_DEG[index], None if mm >= 5000 else mm / 1000.0,
-                                index=index))
-    return tuple(out)
-
-
-def rear_min_m(rear: Sequence[SonarReading]) -> float:
-    """Nearest echo behind; 0 when the rear ring is unknown (so the robot never backs blind)."""
-    back = [r for r in rear if r.index in REAR_BACK]
-    if len(back) < len(REAR_BACK):
-        return 0.0
-    return min(_range(r) for r in back)
-
-
-def _echo_centre_m(index: int, range_m: float) -> float:
-    """Distance from the robot centre of an on-axis echo of sonar `index`."""
-    pose = SONAR_POSES[index]
-    a = math.radians(pose.heading_deg)
-    return math.hypot(pose.x_mm / 1000.0 + range_m * math.cos(a), pose.y_mm / 1000.0 + range_m * math.sin(a))
-
-
-def turn_room(sonar: Sequence[SonarReading], rear: Sequence[SonarReading], margin_m: float) -> bool:
-    """Room to turn in place: no echo of the front ring, nor of the rear ring when known,
-    within the corners' sweep plus margin_m of the centre."""
-    limit = SWEEP_RADIUS_M + margin_m
-    for reading in (*sonar, *rear):
-        idx = reading.index
-        if idx is None or reading.range_m is None or reading.range_m >= SONAR_MAX_RANGE_M:
-            continue
-        if _echo_centre_m(idx, reading.range_m) < limit:
-            return False
-    return True
-
-
-def _range(reading: SonarReading) -> float:
-    r = reading.range_m
-    return SONAR_MAX_RANGE_M if r is None or r >= SONAR_MAX_RANGE_M else r
-
-
-def _by_heading(sonar: Sequence[SonarReading]) -> dict[float, float]:
-    out: dict[float, float] = {}
-    for s in sonar:
-        h = wrap_deg(s.heading_deg)
-        if abs(h) <= 90.0:
-            out[h] = min(out.get(h, SONAR_MAX_RANGE_M), _range(s))
-    return out
-
-
-def _min(r: dict[float, float], headings: Sequence[float]) -> float:
-    return min((r[h] for h in headings if h in r), default=SONAR_MAX_RANGE_M)
-
-
-def forward_min_m(sonar: Sequence[SonarReading]) -> float:
-    """d_min over the forward sonars (|heading| < 90)."""
-    r = _by_heading(sonar)
-    return min((d for h, d in r.items() if abs(h) < 90.0), default=SONAR_MAX_RANGE_M)
-
-
-def side_clearance_m(sonar: Sequence[SonarReading], side: int) -> float:
-    """How open one side is: the sum of its three sonars' ranges (left +1, right -1)."""
-    r = _by_heading(sonar)
-    return sum(r.get(side * h, SONAR_MAX_RANGE_M) for h in (90.0, 50.0, 30.0))
-
-
-def choose_side(sonar: Sequence[SonarReading], bearing_deg: float, tie_m: float) -> int:
-    """The freer side; a tie (within tie_m) goes to the leader's side, bearing 0 to the left."""
-    diff = side_clearance_m(sonar, 1) - side_clearance_m(sonar, -1)
-    if abs(diff) > tie_m:
-        return 1 if diff > 0 else -1
-    return -1 if bearing_deg < 0 else 1
-
-
-def in_path_below_m(heading_deg: float) -> float:
-    """The range below which an echo of the front-ring sonar at this heading may lie in the
-    robot's forward path (its +-15 degree arc crosses the footprint's corridor)."""
-    edge = abs(heading_deg) - 15.0
-    if edge <= 0.0:
-        return math.inf
-    return (HALF_WIDTH_M - _LATERAL_M.get(heading_deg, 0.0)) / math.sin(math.radians(edge))
-
-
-def path_blocked(sonar: Sequence[SonarReading], stop_m: float) -> bool:
-    """A forward-ring echo nearer than stop_m that may lie in the forward path."""
-    return any(d < min(stop_m, in_path_below_m(h)) for h, d in _by_heading(sonar).items())
-
-
-def guard(vel: int, rvel: int, sonar: Sequence[SonarReading], stop_m: float,
-          rear: Sequence[SonarReading] | None = None) -> tuple[int, int]:
-    """The last line. No forward motion toward an echo nearer than stop_m in the forward
-    path; no reversing unless the rear sonars show stop_m behind; no turn in place toward
-    a side whose 50/90 degree sonars read below stop_m, nor with any echo inside the
-    circle the corners sweep (0.40 m) plus TURN_MARGIN_M."""
-    if vel > 0 and path_blocked(sonar, stop_m):
-        vel = 0
-    if vel < 0 and (rear is None or rear_min_m(rear) < stop_m):
-        vel = 0
-    if rvel != 0 and vel == 0:
-        side = 1 if rvel > 0 else -1
-        if _min(_by_heading(sonar), (side * 90.0, side * 50.0)) < stop_m or not turn_room(
-                sonar, rear or (), TURN_MARGIN_M):
-            rvel = 0
-    return vel, rvel
-
-
-def _leader_clear(r: dict[float, float], bearing_deg: float, clear_m: float, wall_side: int = 0) -> bool:
-    """The sonars looking within 25 degrees of the leader all see beyond clear_m; when the
-    leader is on the side of the boundary being followed, that side must be open too
-    (the boundary has ended), or the robot would turn back into what it is rounding."""
-    if abs(bearing_deg) > 100.0:
-        return False
-    near = [d for h, d in r.items() if abs(h - bearing_deg) <= 25.0]
-    if not near or min(near) <= clear_m:
-        return False
-    if wall_side != 0 and bearing_deg * wall_side > 0:
-        if abs(bearing_deg) >= 60.0:
-            # The leader abeam, beyond an opening (a door) the abeam sonar sees through.
-            return r.get(wall_side * 90.0, SONAR_MAX_RANGE_M) > clear_m
-        return _min(r, tuple(wall_side * h for h in (90.0, 50.0, 30.0))) > clear_m
-    return True
 
 
 def _proj_m(pose: tuple[float, float, float], goal_deg: float) -> float:
@@ -375,7 +181,7 @@ def avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tuple
 
 def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tuple[AvoidState, AvoidCommand]:
     st = _bookkeep(st, s)
-    r = _by_heading(s.sonar)
+    r = by_heading(s.sonar)
     d_min = min((d for h, d in r.items() if abs(h) < 90.0), default=SONAR_MAX_RANGE_M)
     t = s.t_s
 
@@ -385,7 +191,7 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
         return _enter(st, AvoidMode.BLOCKED, t), AvoidCommand(False, reason="blocked")
 
     if st.mode is AvoidMode.BLOCKED:
-        if abs(s.bearing_deg) < 30.0 and _leader_clear(r, s.bearing_deg, p.leave_clear_m) \
+        if abs(s.bearing_deg) < 30.0 and leader_clear(r, s.bearing_deg, p.leave_clear_m) \
                 and d_min > p.threshold_o_m:
             st = _enter(AvoidState(), AvoidMode.FOLLOW, t, anchor=s.pose[:2], anchor_t=t, last_pose=s.pose)
             return st, AvoidCommand(True)
@@ -440,9 +246,9 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
         st = _enter(st, AvoidMode.WALL, t, lost_at=None)  # too close to turn: keep rounding
 
     if st.mode is AvoidMode.TURN:
-        front = _min(r, (10.0, -10.0, 30.0, -30.0))
+        front = min_at(r, (10.0, -10.0, 30.0, -30.0))
         turned = abs(wrap_deg(s.pose[2] - st.mode_heading_deg))
-        if (front > p.front_clear_m and _min(r, (50.0 * -st.side,)) > p.stop_distance_m
+        if (front > p.front_clear_m and min_at(r, (50.0 * -st.side,)) > p.stop_distance_m
                 and (front > p.turn_clear_m or turned >= p.turn_max_deg)):
             st = _enter(st, AvoidMode.WALL, t, lost_at=None)
         else:
@@ -468,13 +274,13 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
     progress = _proj_m(s.pose, st.goal_deg) - st.hit_proj_m
     door = abs(s.bearing_deg) >= 60.0 and s.bearing_deg * w > 0
     if (progress > (p.door_progress_m if door else p.leave_progress_m)
-            and _leader_clear(r, s.bearing_deg, p.leave_clear_m, w)):
+            and leader_clear(r, s.bearing_deg, p.leave_clear_m, w)):
         st = _enter(st, AvoidMode.ALIGN, t)
         if abs(s.bearing_deg) <= p.align_tol_deg:
             st = _enter(st, AvoidMode.FOLLOW, t, anchor=s.pose[:2], anchor_t=t)
             return st, AvoidCommand(True)
         return st, _turn(act, s, p, math.copysign(p.turn_rate_deg_s, s.bearing_deg), "rejoining")
-    if _min(r, (10.0, -10.0, 30.0 * w)) < p.front_clear_m or d_min < p.stop_distance_m:
+    if min_at(r, (10.0, -10.0, 30.0 * w)) < p.front_clear_m or d_min < p.stop_distance_m:
         if st.lost_at is not None:
             # Blocked while rounding an outer corner: the way on is round it, toward the wall.
             st = _enter(st, AvoidMode.CORNER, t, lost_at=None,
@@ -497,7 +303,7 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
     st = replace(st, lost_at=None, had_wall=True)
     lateral, angle = fit
     target = HALF_WIDTH_M + p.wall_gap_m
-    other = min((_LATERAL_M[h] + r.get(-w * h, SONAR_MAX_RANGE_M) * math.sin(math.radians(h))
+    other = min((LATERAL_M[h] + r.get(-w * h, SONAR_MAX_RANGE_M) * math.sin(math.radians(h))
                  for h in (90.0, 50.0)), default=SONAR_MAX_RANGE_M)
     if lateral + other < 2.0 * target:
         target = (lateral + other) / 2.0  # a narrow gap: keep to its middle
@@ -519,31 +325,26 @@ def _maybe_lane(st: AvoidState, s: Sense, r: dict[float, float], p: AvoidParams,
     # The lane must be open ahead: the free side's 30/50 degree sonars may see only the
     # side boundary (their nearest echo off it, at the beam edge), nothing nearer.
     for h in (30.0, 50.0):
-        expected = (fit[0] - _LATERAL_M[h]) / math.sin(math.radians(h + 15.0))
+        expected = (fit[0] - LATERAL_M[h]) / math.sin(math.radians(h + 15.0))
         if r.get(st.side * h, SONAR_MAX_RANGE_M) < expected - 0.15:
             return st
-    return _enter(st, AvoidMode.LANE, t, lane_ref=s.pose, lane_target_m=st.side * shift)
+    return _enter(st, AvoidMode.LANE, t, lane_ref=s.pose)
 
 
 def _lane(st: AvoidState, s: Sense, r: dict[float, float], p: AvoidParams, act: Actuator,
           t: float) -> tuple[AvoidState, AvoidCommand | None]:
-    """Shift sideways along the heading the escape began with, then run down the middle
-    of the gap until the obstacle is behind; None hands over to TURN (blocked ahead)."""
+    """Run beside the free side's boundary at the lane's distance (the middle of a narrow
+    gap once the obstacle is abeam) until the obstacle is behind, then drift back and
+    hand over to the paper's law; None hands over to TURN (the lane is shut)."""
     assert st.lane_ref is not None
     x0, y0, h0 = st.lane_ref
-    c, sn = math.cos(math.radians(h0)), math.sin(math.radians(h0))
-    dx, dy = (s.pose[0] - x0) / 1000.0, (s.pose[1] - y0) / 1000.0
-    along, lateral = dx * c + dy * sn, -dx * sn + dy * c
-    psi = wrap_deg(s.pose[2] - h0)
+    along = ((s.pose[0] - x0) * math.cos(math.radians(h0))
+             + (s.pose[1] - y0) * math.sin(math.radians(h0))) / 1000.0
     w = -st.side  # the obstacle's side
-    near_l, near_r = r.get(90.0, SONAR_MAX_RANGE_M), r.get(-90.0, SONAR_MAX_RANGE_M)
-    target = st.lane_target_m
-    if near_l < 2 * p.lane_margin_m + 0.3 and near_r < 2 * p.lane_margin_m + 0.3:
-        target = lateral + (near_l - near_r) / 2.0  # between two boundaries: keep to the middle
     # Past the obstacle once the sonars on its side, the rear one abeam included (the
     # robot's back half is still beside it when the front ring clears), see open space.
-    rear_abeam = [_range(x) for x in s.rear if x.index == (15 if w > 0 else 8)]
-    passed = (along > 0.5 and _min(r, tuple(w * h for h in (90.0, 50.0, 30.0))) > p.leave_clear_m
+    rear_abeam = [echo_m(x) for x in s.rear if x.index == (15 if w > 0 else 8)]
+    passed = (along > 0.5 and min_at(r, tuple(w * h for h in (90.0, 50.0, 30.0))) > p.leave_clear_m
               and min(rear_abeam, default=SONAR_MAX_RANGE_M) > p.leave_clear_m)
     if passed and forward_min_m(s.sonar) >= p.threshold_o_m:
         # Out of the gap and clear of its sides: the paper's law takes over, turning
@@ -560,10 +361,10 @@ def _lane(st: AvoidState, s: Sense, r: dict[float, float], p: AvoidParams, act: 
         wall_lat, wall_angle = fit
         want = HALF_WIDTH_M + p.lane_margin_m
         # An echo at the edge of the abeam beam is no nearer than r cos 15 sideways.
-        obstacle_lat = _LATERAL_M[90.0] + r.get(w * 90.0, SONAR_MAX_RANGE_M) * math.cos(math.radians(15.0))
+        obstacle_lat = LATERAL_M[90.0] + r.get(w * 90.0, SONAR_MAX_RANGE_M) * math.cos(math.radians(15.0))
         if passed:
             # Past it: drift back toward the middle of the passage, then hand back.
-            want = min((wall_lat + _LATERAL_M[90.0] + r.get(w * 90.0, SONAR_MAX_RANGE_M)) / 2.0,
+            want = min((wall_lat + LATERAL_M[90.0] + r.get(w * 90.0, SONAR_MAX_RANGE_M)) / 2.0,
                        wall_lat + 0.1)
         elif obstacle_lat < want:
             # Nearer the obstacle than the lane asks: the gap is narrow, keep to its middle.
@@ -583,38 +384,6 @@ def _lane(st: AvoidState, s: Sense, r: dict[float, float], p: AvoidParams, act: 
     if cmd.vel_mm_s == 0 and cmd.rvel_deg_s == 0 and forward_min_m(s.sonar) < p.front_clear_m:
         return _enter(st, AvoidMode.TURN, t, lane_ref=None), None  # the lane is shut: go round
     return st, cmd
-
-
-def wall_fit(r: dict[float, float], w: int, fit_range_m: float,
-             edge: bool = False) -> tuple[float, float] | None:
-    """(distance from the robot centre to the boundary on side w, its angle to the heading
-    in degrees, ccw +) from the two nearest echoes of that side's 90/50/30 sonars; None
-    when that side sees nothing within fit_range_m."""
-    pts = []
-    for h in (90.0, 50.0, 30.0):
-        d = r.get(w * h)
-        if d is None or d > fit_range_m:
-            continue
-        pose = _POSE_M[w * h]
-        # edge: the first echo from a long boundary alongside comes from the beam's edge
-        # nearest the perpendicular, not from its axis (the corners of an obstacle being
-        # rounded are better placed on the axis).
-        a = math.radians(w * (min(h + 15.0, 90.0) if edge else h))
-        pts.append((d, pose[0] + d * math.cos(a), pose[1] + d * math.sin(a)))
-    if not pts:
-        return None
-    pts.sort()
-    if len(pts) == 1:
-        return abs(pts[0][2]), 0.0
-    (_, px, py), (_, qx, qy) = pts[0], pts[1]
-    ux, uy = qx - px, qy - py
-    if ux < 0:
-        ux, uy = -ux, -uy
-    norm = math.hypot(ux, uy)
-    if norm < 1e-6:
-        return abs(py), 0.0
-    ux, uy = ux / norm, uy / norm
-    return abs(px * uy - py * ux), math.degrees(math.atan2(uy, ux))
 
 
 def _turn(act: Actuator, s: Sense, p: AvoidParams, rvel: float, reason: str) -> AvoidCommand:

@@ -20,7 +20,6 @@ from typing import Any, Protocol
 import structlog
 
 from drivers.clock import REAL_CLOCK, Clock
-from relayd.avoidance import rear_readings
 from relayd.controller import (
     ControlInputs,
     ControlMemory,
@@ -29,6 +28,7 @@ from relayd.controller import (
     control_step,
 )
 from relayd.estimator import front_readings
+from relayd.ring import rear_readings
 from relayd.state import DriveState, Mode, ModeError, RelayState
 
 log = structlog.get_logger(__name__)

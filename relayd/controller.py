@@ -47,13 +47,15 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 
-from relayd.avoidance import Actuator, AvoidParams, AvoidState, Sense, avoid_step, guard
+from relayd.actuator import Actuator
+from relayd.avoidance import AvoidParams, AvoidState, Sense, avoid_step
 from relayd.estimator import (
     SonarReading,
     avoidance_bearing,
     classify_situation,
     nearest_front_m,
 )
+from relayd.ring import guard
 from relayd.state import DriveState, Mode
 
 

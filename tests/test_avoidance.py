@@ -12,21 +12,11 @@ from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
 from drivers.arcos.sip import wheel_to_vel_rvel
-from relayd.avoidance import (
-    Actuator,
-    AvoidMode,
-    AvoidParams,
-    AvoidState,
-    Sense,
-    avoid_step,
-    choose_side,
-    guard,
-    path_blocked,
-    rear_min_m,
-    rear_readings,
-)
+from relayd.actuator import Actuator
+from relayd.avoidance import AvoidMode, AvoidParams, AvoidState, Sense, avoid_step
 from relayd.controller import ControlInputs, ControlMemory, ControlParams, control_step
 from relayd.estimator import front_readings
+from relayd.ring import choose_side, guard, path_blocked, rear_min_m, rear_readings
 from relayd.sim.model import Step, run_model
 from relayd.sim.scenario import Scenario, load_scenario, parse_scenario
 from relayd.state import DriveState, Mode
@@ -141,12 +131,14 @@ def run_steps(ranges: list[int | None], bearing: float, seconds: float,
     return out
 
 
-def test_box_dead_ahead_at_the_stop_distance_turns_at_once_toward_the_leader() -> None:
+def test_box_dead_ahead_at_the_stop_distance_backs_off_on_the_leaders_side() -> None:
     # The picture: sonars 3 and 4 at 300 mm, bearing -2, everything else clear.
     # Below the back-off trigger with room behind, it first backs off, then turns right.
+    # Closer than the back-off trigger with room behind: it backs off first (room to turn
+    # and to go round), the side already latched toward the leader (right).
     steps = run_steps(ring(s3=290, s4=290), -2.0, 1.0)
-    assert steps[0][0].side == -1
-    assert steps[0][1] < 0  # backing off: no turn fits this close... it wants room first
+    assert steps[0][0].side == -1 and steps[0][0].mode is AvoidMode.BACKOFF
+    assert all(v < 0 and w == 0 for _, v, w, _ in steps)
 
 
 def test_stuck_short_of_the_stop_distance_escapes_after_the_progress_watchdog() -> None:

@@ -10,6 +10,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from relayd.actuator import Actuator
 from relayd.controller import (
     ControlInputs,
     ControlMemory,
@@ -21,7 +22,6 @@ from relayd.controller import (
     speed_scale,
     wheel_law,
 )
-from relayd.avoidance import Actuator
 from relayd.estimator import avoidance_bearing, front_readings
 from relayd.state import DriveState, Mode
 
@@ -389,7 +389,14 @@ def test_speed_scale_bounded(d: float) -> None:
     assert 0.0 <= speed_scale(d, 0.8, 0.3) <= 1.0
 
 
-@pytest.mark.parametrize("d_mm", [299, 200, 50])
+def test_an_echo_inside_the_corners_sweep_stops_the_turn_too() -> None:
+    # 50 mm off the 30 degree sonar is inside the circle the corners sweep: a turn in
+    # place would swing the body into it, so the guard holds the wheels.
+    out = step(front_sonar=sonar(s2=50), prev_bearing_deg=None)
+    assert zero(out)
+
+
+@pytest.mark.parametrize("d_mm", [299, 200])
 def test_situation_one_only_turns_below_the_stop_distance(d_mm: int) -> None:
     out = step(front_sonar=sonar(s2=d_mm), prev_bearing_deg=None)
     assert out.state is DriveState.AVOIDING

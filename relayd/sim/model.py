@@ -27,9 +27,15 @@ from dataclasses import dataclass, field, replace
 
 from drivers.arcos.fake import FIRING_ORDER
 from drivers.arcos.sip import wheel_to_vel_rvel
-from relayd.avoidance import rear_readings
-from relayd.controller import ControlInputs, ControlMemory, ControlOutput, ControlParams, control_step
+from relayd.controller import (
+    ControlInputs,
+    ControlMemory,
+    ControlOutput,
+    ControlParams,
+    control_step,
+)
 from relayd.estimator import front_readings
+from relayd.ring import rear_readings
 from relayd.sim.geometry import Segment, point_segment_distance, segments_intersect
 from relayd.sim.scenario import Scenario
 from relayd.sim.world import ROBOT_LENGTH_M, World
@@ -66,6 +72,13 @@ class Outcome:
 
 def _approach(v: float, target: float, dv: float) -> float:
     return target if abs(target - v) <= dv else v + math.copysign(dv, target - v)
+
+
+def _now_frame(bearing: float | None, heading_then: float, heading_now: float) -> float | None:
+    """A scan bearing seen from the heading now, as control.py corrects it by odometry."""
+    if bearing is None:
+        return None
+    return (bearing - (heading_now - heading_then) + 180.0) % 360.0 - 180.0
 
 
 def clearance_m(poly: tuple[tuple[float, float], ...], segments: list[Segment]) -> float:
@@ -125,13 +138,10 @@ def run_model(scenario: Scenario, *, seed: int = 0, past_m: float, seconds: floa
             rssi_l = world.yagi_rssi_dbm(0, true_b)
             next_scan = t + scan_period_s
 
-        def now_frame(b: float | None, h: float) -> float | None:
-            return None if b is None else (b - (th - h) + 180.0) % 360.0 - 180.0
-
         inputs = ControlInputs(
             mode=Mode.FOLLOW, sip_age_s=0.0, rssi_age_s=0.0 if rssi_l is not None else None,
-            scan_servo_ok=True, bearing_deg=now_frame(bearing, scan_heading),
-            prev_bearing_deg=now_frame(prev_bearing, prev_heading), rssi_leader_dbm=rssi_l,
+            scan_servo_ok=True, bearing_deg=_now_frame(bearing, scan_heading, th),
+            prev_bearing_deg=_now_frame(prev_bearing, prev_heading, th), rssi_leader_dbm=rssi_l,
             rssi_behind_dbm=-40.0, rear_age_s=0.0, front_sonar=front_readings(ranges),
             leader_lost=False, t_s=t if escape else None, odom=(x, y, th) if escape else None,
             rear_sonar=rear_readings(ranges))
