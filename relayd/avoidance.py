@@ -43,6 +43,7 @@ from relayd.estimator import SONAR_MAX_RANGE_M, SonarReading, wrap_deg
 from relayd.ring import (
     HALF_WIDTH_M,
     LATERAL_M,
+    boundary_echo_m,
     by_heading,
     choose_side,
     echo_m,
@@ -325,7 +326,7 @@ def _maybe_lane(st: AvoidState, s: Sense, r: dict[float, float], p: AvoidParams,
     # The lane must be open ahead: the free side's 30/50 degree sonars may see only the
     # side boundary (their nearest echo off it, at the beam edge), nothing nearer.
     for h in (30.0, 50.0):
-        expected = (fit[0] - LATERAL_M[h]) / math.sin(math.radians(h + 15.0))
+        expected = boundary_echo_m(fit, st.side, st.side * h)
         if r.get(st.side * h, SONAR_MAX_RANGE_M) < expected - 0.15:
             return st
     return _enter(st, AvoidMode.LANE, t, lane_ref=s.pose)

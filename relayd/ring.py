@@ -192,3 +192,21 @@ def wall_fit(r: dict[float, float], w: int, fit_range_m: float,
         return abs(py), 0.0
     ux, uy = ux / norm, uy / norm
     return abs(px * uy - py * ux), math.degrees(math.atan2(uy, ux))
+
+
+def boundary_echo_m(fit: tuple[float, float], side: int, heading_deg: float,
+                    half_beam_deg: float = 15.0) -> float:
+    """The range a front-ring sonar would read off a fitted boundary (distance from the
+    centre, angle to the heading) on `side` and nothing else: its beam direction nearest
+    the boundary's normal, from the transducer to the line; the maximum if it cannot."""
+    lat, angle = fit
+    a = math.radians(angle)
+    nx, ny = -side * math.sin(a), side * math.cos(a)  # unit normal toward the boundary
+    px, py = POSE_M[heading_deg]
+    gap = lat - (nx * px + ny * py)
+    normal_deg = math.degrees(math.atan2(ny, nx))
+    off = max(-half_beam_deg, min(half_beam_deg, wrap_deg(normal_deg - heading_deg)))
+    cos_hit = math.cos(math.radians(wrap_deg(normal_deg - (heading_deg + off))))
+    if gap <= 0.0 or cos_hit <= 1e-6:
+        return SONAR_MAX_RANGE_M
+    return min(SONAR_MAX_RANGE_M, gap / cos_hit)
