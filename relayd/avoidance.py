@@ -95,9 +95,10 @@ class AvoidParams:
     leave_clear_m: float = 1.2
     leave_progress_m: float = 0.2  # along the leader's line beyond the hit point (Bug2)
     door_progress_m: float = -0.3  # ... through an opening abeam: a door level with the hit point
+    door_run_m: float = 0.3  # run on along an opening abeam before turning into it (its middle)
     turn_clear_m: float = 1.5  # a turn in place goes on until the front is this open ...
     turn_max_deg: float = 100.0  # ... or it has turned this far with the front merely clear
-    align_tol_deg: float = 10.0
+    align_tol_deg: float = 5.0
     tie_m: float = 0.05
     episode_clear_s: float = 8.0  # free this long after an escape: the next obstacle is a new one
     max_escape_s: float = 300.0
@@ -128,6 +129,7 @@ class AvoidState:
     lane_ref: tuple[float, float, float] | None = None  # pose where the lane change began
     mode_heading_deg: float = 0.0  # odometry heading when the current mode began
     had_wall: bool = False  # WALL: the boundary has been in reach since WALL began
+    opening_at: tuple[float, float] | None = None  # WALL: where an opening abeam began
 
 
 @dataclass(frozen=True, slots=True)
@@ -274,6 +276,14 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
     w = -st.side
     progress = _proj_m(s.pose, st.goal_deg) - st.hit_proj_m
     door = abs(s.bearing_deg) >= 60.0 and s.bearing_deg * w > 0
+    if door and r.get(w * 90.0, SONAR_MAX_RANGE_M) > p.leave_clear_m:
+        # An opening abeam toward the leader: turn into it from its middle, not its edge.
+        st = replace(st, opening_at=st.opening_at or s.pose[:2])
+        door = math.dist(st.opening_at or s.pose[:2], s.pose[:2]) >= p.door_run_m * 1000.0
+        if not door:
+            return st, _drive(act, s, p, p.wall_speed_mm_s, 0.0)
+    else:
+        st = replace(st, opening_at=None)
     if (progress > (p.door_progress_m if door else p.leave_progress_m)
             and leader_clear(r, s.bearing_deg, p.leave_clear_m, w)):
         st = _enter(st, AvoidMode.ALIGN, t)

@@ -24,7 +24,7 @@ POSE_M: dict[float, tuple[float, float]] = {
 #: Half the P3-AT's width (505 mm): footprint side to centreline.
 HALF_WIDTH_M = 0.2525
 #: Clearance kept between the swept circle of a turn in place and any echo.
-TURN_MARGIN_M = 0.03
+TURN_MARGIN_M = 0.085
 
 
 #: The rear sonars that look backwards (headings +-130, +-150, +-170).
@@ -56,10 +56,13 @@ def rear_min_m(rear: Sequence[SonarReading]) -> float:
 
 
 def _echo_centre_m(index: int, range_m: float) -> float:
-    """Distance from the robot centre of an on-axis echo of sonar `index`."""
+    """Distance from the robot centre of an echo of sonar `index` at `range_m`: the
+    nearest the echo may be, anywhere across the +-15 degree beam (a jamb's end, a
+    corner) rather than on the axis."""
     pose = SONAR_POSES[index]
-    a = math.radians(pose.heading_deg)
-    return math.hypot(pose.x_mm / 1000.0 + range_m * math.cos(a), pose.y_mm / 1000.0 + range_m * math.sin(a))
+    x, y = pose.x_mm / 1000.0, pose.y_mm / 1000.0
+    return min(math.hypot(x + range_m * math.cos(a), y + range_m * math.sin(a))
+               for a in (math.radians(pose.heading_deg + d) for d in (-15.0, 0.0, 15.0)))
 
 
 def turn_room(sonar: Sequence[SonarReading], rear: Sequence[SonarReading], margin_m: float) -> bool:
