@@ -389,14 +389,16 @@ def test_speed_scale_bounded(d: float) -> None:
     assert 0.0 <= speed_scale(d, 0.8, 0.3) <= 1.0
 
 
-def test_an_echo_inside_the_corners_sweep_stops_the_turn_too() -> None:
-    # 50 mm off the 30 degree sonar is inside the circle the corners sweep: a turn in
-    # place would swing the body into it, so the guard holds the wheels.
-    out = step(front_sonar=sonar(s2=50), prev_bearing_deg=None)
+@pytest.mark.parametrize("d_mm", [200, 50])
+def test_an_echo_inside_the_corners_sweep_stops_the_turn_too(d_mm: int) -> None:
+    # This close to the 30 degree sonar the echo may lie inside the circle the corners
+    # sweep (plus the turn margin): a turn in place would swing the body into it, so the
+    # guard holds the wheels (the escape backs off first when it may).
+    out = step(front_sonar=sonar(s2=d_mm), prev_bearing_deg=None)
     assert zero(out)
 
 
-@pytest.mark.parametrize("d_mm", [299, 200])
+@pytest.mark.parametrize("d_mm", [299, 260])
 def test_situation_one_only_turns_below_the_stop_distance(d_mm: int) -> None:
     out = step(front_sonar=sonar(s2=d_mm), prev_bearing_deg=None)
     assert out.state is DriveState.AVOIDING
