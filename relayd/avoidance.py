@@ -126,6 +126,7 @@ class AvoidState:
     clear_since_t: float | None = None
     backoff_from: tuple[float, float] | None = None
     backoff_len_m: float = 0.0  # how far this back-off may go
+    after_backoff: AvoidMode = AvoidMode.TURN  # where a back-off hands over
     lane_ref: tuple[float, float, float] | None = None  # pose where the lane change began
     mode_heading_deg: float = 0.0  # odometry heading when the current mode began
     had_wall: bool = False  # WALL: the boundary has been in reach since WALL began
@@ -231,7 +232,7 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
                 and rear_min_m(s.rear) > p.stop_distance_m + 0.1):
             vel, _ = guard(-act.express(p.backoff_speed_mm_s, 0.0)[0], 0, s.sonar, p.stop_distance_m, s.rear)
             return st, AvoidCommand(False, vel, 0, "avoiding")
-        st = _enter(st, AvoidMode.TURN, t, backoff_from=None)
+        st = _enter(st, st.after_backoff, t, backoff_from=None, after_backoff=AvoidMode.TURN)
         st = _maybe_lane(st, s, r, p, t)
 
     if st.mode is AvoidMode.LANE:
@@ -246,6 +247,13 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
         cmd = _turn(act, s, p, math.copysign(p.turn_rate_deg_s, s.bearing_deg), "rejoining")
         if cmd.rvel_deg_s != 0:
             return st, cmd
+        if rear_min_m(s.rear) > p.stop_distance_m + 0.1:
+            # No room to turn here (in a doorway): back off a little and turn there.
+            st = _enter(st, AvoidMode.BACKOFF, t, backoff_from=s.pose[:2], backoff_len_m=p.unjam_m,
+                        after_backoff=AvoidMode.ALIGN)
+            vel, _ = guard(-act.express(p.backoff_speed_mm_s, 0.0)[0], 0, s.sonar,
+                           p.stop_distance_m, s.rear)
+            return st, AvoidCommand(False, vel, 0, "rejoining")
         st = _enter(st, AvoidMode.WALL, t, lost_at=None)  # too close to turn: keep rounding
 
     if st.mode is AvoidMode.TURN:
