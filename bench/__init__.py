@@ -1,1 +1,1 @@
-"""relayd benchmarks: figures against SPEC section 6, printed as a markdown table (see bench/run.py)."""
+"""relayd benchmarks: figures against the project's performance targets, printed as a markdown table (see bench/run.py)."""

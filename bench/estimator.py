@@ -5,12 +5,12 @@ fed by `relayd.sim.radio` (log-distance path loss, the Yagi's cos^2 pattern floo
 -20 dB, shadowing, Rician/Rayleigh fast fading averaged over 4 frames). The robot and
 the leader stand still 5 m apart outdoors (L0 -20 dBm, n 2.5); each scan's window is
 centred on the previous estimate (the first on the "start" angle), 25 samples, width
-180 deg, servo limits +-90 deg, gamma 10: the SPEC defaults. The error is the 5th
+180 deg, servo limits +-90 deg, gamma 10: the config defaults. The error is the 5th
 estimate minus the true bearing.
 
-Two set-ups. Closed loop, the SPEC 6 figure: the relay does what relayd does between
+Two set-ups. Closed loop, the judged figure: the relay does what relayd does between
 scans, turning in place toward its newest bearing (the PD wheel law at v = 0 with the
-SPEC's kp/kd, through the P3-AT's DiffConvFactor; the servo takes 0.1 s a step), and
+default kp/kd, through the P3-AT's DiffConvFactor; the servo takes 0.1 s a step), and
 the error is the last bearing against the leader's direction in the robot's frame at
 that moment. Open loop: the robot does not turn, so the window always spans the whole
 servo range and the WCA's pull toward the middle of it shows undiluted; reported to

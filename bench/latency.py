@@ -12,8 +12,8 @@ VEL/RVEL the fake receives is caused by the SIP before it. The robot is held in 
 (a motion guard that refuses every move), so the leader's distance and the link
 thresholds never change during the run.
 
-Two measurements of the same cycles. In relayd (SPEC 6's definition, "SIP received
-to wheel command written"): the driver times each SIP from its bytes arriving to the
+Two measurements of the same cycles. In relayd (the project's definition, "SIP
+received to wheel command written"): the driver times each SIP from its bytes arriving to the
 VEL/RVEL it caused being written, into the `relayd_control_latency_seconds` histogram,
 read from /metrics before and after; the p99 is the bucket bound it falls under, and
 the target is judged on the share of cycles at or under 2 ms. End to end, across both
@@ -239,7 +239,7 @@ def _rows(label: str, fig: dict[str, Any], judge: bool) -> list[Result]:
         Result(NAME, f"in relayd: SIP received -> wheel command written, p99, {label}", inside["p99_le_ms"],
                "ms (<= bucket)", f"< {TARGET_P99_MS:g} ms",
                (share >= 0.99) if judge and share is not None else None,
-               f"SPEC 6's definition; {inside['count']} commands, "
+               f"relayd's own histogram; {inside['count']} commands, "
                + (f"{share * 100:.2f} % within {TARGET_P99_MS:g} ms; p50 <= {inside['p50_le_ms']:g} ms"
                   if share is not None else "no samples")),
         Result(NAME, f"SIP -> first wheel cmd p50, {label}", percentile(first, 50), "ms"),

@@ -6,7 +6,7 @@ the scan. The period is the interval between consecutive scan completions
 (`last_scan.t` in /status, the daemon's own clock), polled every 20 ms; the first two
 scans are skipped (the first starts from an unknown servo position).
 
-Physical minimum (SPEC 6): the servo slew over the window at the configured speed plus
+Physical minimum (as the target defines it): the servo slew over the window at the configured speed plus
 one RSSI sample period per step, i.e. width/speed + N/sample_hz in step mode. In
 continuous mode the samples are taken during the slew, so its minimum is
 width/speed + one sample period (for the last sample). Step mode waits `settle_s`
@@ -54,7 +54,7 @@ def physical_min_s(mode: str, width_deg: float, speed_deg_s: float, samples: int
 def grid_min_s(width_deg: float, speed_deg_s: float, samples: int, sample_hz: float, settle_s: float) -> float:
     """Step mode's real lower bound: each step's travel + settle, rounded up to the RSSI sample grid.
 
-    Sweeps alternate direction, so the first step has no travel. The SPEC formula adds a
+    Sweeps alternate direction, so the first step has no travel. The target's formula adds a
     whole sample period to every step's travel; when a step's travel is shorter than a
     sample period the two overlap, and a scanner can beat that formula.
     """
@@ -109,7 +109,7 @@ async def measure_mode(mode: str, *, scans: int, settle_s: float | None = None,
 def run(quick: bool = False, *, scans: int | None = None, samples: int = 25) -> BenchOutput:
     n = scans if scans is not None else (3 if quick else 10)
     out = BenchOutput(NAME)
-    # Config defaults (SPEC 4.2) the minimum is computed from.
+    # Config defaults the minimum is computed from.
     width, speed, hz, default_settle = 180.0, 180.0, 20.0, 0.05
     cases = [("step", None, "step, settle_s 0.05 (default)"), ("step", 0.0, "step, settle_s 0"),
              ("continuous", None, "continuous")]
@@ -136,5 +136,5 @@ def run(quick: bool = False, *, scans: int | None = None, samples: int = 25) -> 
                 f"= d/period; {v_rel / CONVOY_SPACING_M:.3f} m/s per metre of separation; "
                 f"V_perp <= {v_perp:.2f} m/s at V_rel = 0"))
     out.details.append("Scan settings: width 180 deg, 25 samples, servo 180 deg/s, RSSI 20 Hz "
-                       "(SPEC 4.2 defaults); real clock.")
+                       "(config defaults); real clock.")
     return out

@@ -1,6 +1,6 @@
 """Simulation: wall time of a 300 s three-robot convoy (a leader robot and two relays).
 
-The shipped `convoy` scenario (SPEC 5; paper V-B-1) with its duration set to 300 s and
+The shipped `convoy` scenario (docs/SIMULATOR.md; paper V-B-1) with its duration set to 300 s and
 the after-goal settle time long enough that it really runs 300 simulated seconds, run
 by `relayd.sim.SimRunner` in this process: two real relayd daemons on fake devices,
 one shared `Clock(speed)`. Wall time cannot be below 300 s / speed, so the figure is a

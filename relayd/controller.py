@@ -1,4 +1,4 @@
-"""How should the wheels turn? The pure control core (SPEC 2.2-2.5 and 3).
+"""How should the wheels turn? The pure control core (docs/CONTROL.md sections 3-6).
 
 `control_step` takes one snapshot of what the robot knows (`ControlInputs`), the
 settings and a small memory from the previous step, and returns the wheel speeds,
@@ -21,7 +21,7 @@ Order of decisions, first match wins:
    "no_scan_yet"; the link rule says stop -> STOPPED "leader_near"/"rear_weak";
    situation 1 -> AVOIDING "obstacle"; else DRIVING "driving".
 
-Link rule (SPEC 2.4 with hysteresis): while driving, stop when RSSI^l >= threshold_l
+Link rule (the paper's eq. 6-12 resolved, with hysteresis; docs/CONTROL.md section 5): while driving, stop when RSSI^l >= threshold_l
 ("leader_near") or RSSI^b <= threshold_b ("rear_weak"); while stopped, resume only
 when RSSI^l < threshold_l - hysteresis AND RSSI^b > threshold_b + hysteresis. RSSI^b
 is ignored when rear_link_required is False (rear_link = "ignore"). The latch starts
@@ -37,7 +37,7 @@ whenever the robot is not avoiding so a stale angle never kicks the D term.
 Situations 0 and 2 steer by the scan bearing (already PRSSI-aware from the
 estimator) with the scan before as B'.
 
-Wheel law (SPEC 2.3): v = clamp(-w1*RSSI^l - w2, 0, v_max);
+Wheel law (the paper's eq. 6-9 and 6-11 in the ccw convention; docs/CONTROL.md section 4): v = clamp(-w1*RSSI^l - w2, 0, v_max);
 V_L = v - kp*B - kd*(B - B'), V_R = v + kp*B + kd*(B - B'); each wheel clamped to
 +-v_max. Positive B (leader to the left) gives V_R > V_L: a left turn.
 """
@@ -61,7 +61,7 @@ from relayd.state import DriveState, Mode
 
 @dataclass(frozen=True, slots=True)
 class ControlParams:
-    """Controller settings; defaults are SPEC 2's."""
+    """Controller settings; defaults as in docs/CONTROL.md section 8."""
 
     kp: float = 1.0
     kd: float = 0.3
@@ -172,7 +172,7 @@ def link_rule(
     was_driving: bool,
     rear_required: bool,
 ) -> tuple[bool, str]:
-    """(may drive, reason): the SPEC 2.4 stop rule with a hysteresis band around both thresholds."""
+    """(may drive, reason): the stop rule (docs/CONTROL.md section 5) with a hysteresis band around both thresholds."""
     if rssi_leader_dbm is None or math.isnan(rssi_leader_dbm):
         return False, "no_scan_yet"
     if rear_required and (rssi_behind_dbm is None or math.isnan(rssi_behind_dbm)):

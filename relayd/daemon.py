@@ -25,7 +25,8 @@ import structlog
 
 from drivers.airos.model import LinkQuality
 from drivers.clock import REAL_CLOCK, Clock
-from relayd.config import Settings, resolve_secret, secret_refs
+from relayd.config import ConfigError, Settings, resolve_secret, secret_refs
+from relayd.config_checks import api_bind_error
 from relayd.control import ControlLoop
 from relayd.controller import ControlParams
 from relayd.estimator import EstimatorParams, ScanEstimate
@@ -99,7 +100,8 @@ class Daemon:
             if token_ref is not None and _configured(settings.api, env) else None
 
         c = settings.control
-        self.state = RelayState(started_t=clock.now(), mode=Mode(c.mode))
+        self.state = RelayState(started_t=clock.now(), mode=Mode(c.mode),
+                                display_name=settings.robot.display_name)
         self.state.thresholds = {
             "threshold_l_dbm": c.threshold_l_dbm, "threshold_b_dbm": c.threshold_b_dbm,
             "hysteresis_db": c.hysteresis_db, "lost_rssi_dbm": c.lost_rssi_dbm,
@@ -279,16 +281,21 @@ class Daemon:
     # -- lifecycle ----------------------------------------------------------------------
 
     async def start(self) -> None:
-        self.supervisor.start()
         s = self.settings
         if s.api.enabled:
             from relayd.api import make_app, start_api
 
             app = make_app(self.state, self.control, clock=self.clock, token=self._token,
                            metrics=self.metrics, healthz_max_age_s=max(1.0, 5 * 0.1))
-            self._runner, self.api_port = await start_api(app, s.api.bind, s.api.port)
+            # Bound before any device is touched: a wrong bind or a taken port is a
+            # config error (exit 2 naming the key), not a robot that is already enabled.
+            try:
+                self._runner, self.api_port = await start_api(app, s.api.bind, s.api.port)
+            except OSError as exc:
+                raise ConfigError([api_bind_error(s.api.bind, s.api.port, exc)]) from None
             log.info("api_control", enabled=self._token is not None,
                      note=None if self._token else "no token configured: POST endpoints answer 403")
+        self.supervisor.start()
         if self.notifier is not None:
             self.notifier.ready()
             self.notifier.status("running; devices connecting")

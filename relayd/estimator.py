@@ -1,4 +1,4 @@
-"""Where is the leader? Pure estimation for one relay robot (SPEC 2.1, 2.2, 2.5).
+"""Where is the leader? Pure estimation for one relay robot (docs/CONTROL.md sections 2-3).
 
 Turns a finished Yagi scan (servo angle, RSSI and odometry heading per sample) and the
 sonar ring into a bearing estimate: scan planning, the weighted centroid (WCA), the
@@ -9,7 +9,7 @@ the tests drive them directly.
 Conventions: angles in degrees relative to the robot's forward axis, counter-clockwise
 positive (positive = to the left); sonar ranges in millimetres on the wire, metres here.
 
-Decisions (where SPEC leaves room):
+Decisions (also in docs/CONTROL.md):
 - plan_scan: the window [c - w/2, c + w/2] is shifted back inside the servo limits,
   keeping its width, when it crosses one and the width fits; only a window wider than
   the servo's range is clipped to the limits. Shifting keeps the full number of
@@ -43,10 +43,10 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-#: Scans in a row with RSSI^l below lost_rssi before the leader counts as lost (SPEC 2.5).
+#: Scans in a row with RSSI^l below lost_rssi before the leader counts as lost (docs/CONTROL.md section 6).
 LOST_AFTER_SCANS = 3
 
-#: The 16 P3-AT sonar headings (protocols/p3at-arcos.md 6.2), index order, ccw +.
+#: The 16 P3-AT sonar headings (docs/PROTOCOLS.md 1.11), index order, ccw +.
 SONAR_HEADINGS_DEG: tuple[float, ...] = (
     90.0, 50.0, 30.0, 10.0, -10.0, -30.0, -50.0, -90.0,
     -90.0, -130.0, -150.0, -170.0, 170.0, 150.0, 130.0, 90.0,
@@ -86,7 +86,7 @@ class SonarReading:
 
 @dataclass(frozen=True, slots=True)
 class EstimatorParams:
-    """Estimator settings; defaults are SPEC 2.1/2.2's."""
+    """Estimator settings; defaults as in docs/CONTROL.md section 8."""
 
     gamma: float = 10.0
     threshold_o_m: float = 0.8

@@ -72,6 +72,11 @@ class _StateCollector(Collector):
         drive = StateSetMetricFamily("relayd_drive_state", "What the controller is doing")
         drive.add_metric([], {s.value: st.state == s for s in DriveState})
         yield drive
+        # The reason is an open set (e.g. "controller_error: ValueError"), so it is a label of
+        # a one-series info metric rather than a state set; alerts and dashboards join on it.
+        why = InfoMetricFamily("relayd_drive", "The drive state with its reason, as /status shows them")
+        why.add_metric([], {"state": st.state.value, "reason": st.reason})
+        yield why
         yield GaugeMetricFamily("relayd_situation", "Obstacle situation (0 none, 1 avoid, 2 penalty)",
                                 value=st.situation)
 

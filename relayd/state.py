@@ -112,6 +112,8 @@ class RelayState:
     health: dict[str, DeviceHealth] = field(default_factory=dict)
     loop_tick_t: float | None = None
     robot_name: str | None = None
+    #: The operator's name for this robot (config `robot.display_name`), e.g. "relay 2 (east)".
+    display_name: str | None = None
     thresholds: dict[str, float] = field(default_factory=dict)
     #: Bumped on every change a live view cares about; `changed` is set with it.
     revision: int = 0
@@ -135,6 +137,7 @@ class RelayState:
         return {
             "version": __version__,
             "robot": self.robot_name,
+            "display_name": self.display_name,
             "uptime_s": round(now - self.started_t, 3),
             "mode": str(self.mode),
             "state": str(self.state),

@@ -27,7 +27,7 @@ from drivers.airos import (
 )
 from drivers.clock import Clock
 
-FIXTURES = Path("/work/shared/fixtures/airos")
+FIXTURES = Path(__file__).parent / "fixtures" / "airos"
 LOCO_AP = FIXTURES / "status_cgi_NanoStation_loco_M5_XM_v6.3.16_ap.json"
 XW_STA = FIXTURES / "status_cgi_NanoStation_M5_XW_v6.3.16_sta.json"
 SECRET = "Pa55-w0rd-XYZZY"

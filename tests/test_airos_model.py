@@ -22,13 +22,13 @@ from drivers.airos.model import (
     parse_status,
 )
 
-FIXTURES = Path("/work/shared/fixtures/airos")
+FIXTURES = Path(__file__).parent / "fixtures" / "airos"
 LOCO_STA = FIXTURES / "status_cgi_NanoStation_loco_M5_XM_v6.3.16_sta.json"
 LOCO_AP = FIXTURES / "status_cgi_NanoStation_loco_M5_XM_v6.3.16_ap.json"
 XW_STA = FIXTURES / "status_cgi_NanoStation_M5_XW_v6.3.16_sta.json"
 
-#: A wstalist/sta.cgi answer in the firmware's shape (servo-wifi-airos.md C.3), with the
-#: signal/rssi pairs quoted in C.4 (-48/48, -51/45, -44/52).
+#: A wstalist/sta.cgi answer in the firmware's shape (docs/PROTOCOLS.md 4.4), with the
+#: signal/rssi pairs of real wstalist dumps (-48/48, -51/45, -44/52).
 STA_CGI = [
     {"mac": "00:27:22:AA:BB:01", "name": "relay-1", "lastip": "192.168.1.31", "associd": 1,
      "tx": 150.0, "rx": 130.0, "signal": -48, "rssi": 48, "chainrssi": [48, 45, 0],

@@ -38,13 +38,14 @@ from relayd.state import Mode
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
 
-#: SPEC 4.3's /status fields.
+#: The /status fields every client may rely on.
 SPEC_FIELDS = {"mode", "state", "reason", "bearing_deg", "rssi_leader_dbm", "rssi_behind_dbm",
                "situation", "wheels_mm_s", "pose", "battery_v", "sonar_mm", "last_scan", "links",
                "health", "uptime_s", "version"}
 DEVICES = {"robot", "pantilt", "wifi", "ap.rear", "ap.front"}
 #: Generous: two cores shared with other test runs.
 FIRST_SCAN_TIMEOUT_S = 30.0
+DISPLAY_NAME = "relay 1 (east stairs)"
 T = TypeVar("T")
 
 
@@ -125,7 +126,8 @@ async def running(work: Path, *, with_token: bool = True, **config: Any) -> Asyn
 
 @pytest_asyncio.fixture(scope="module", loop_scope="module")
 async def relay(tmp_path_factory: pytest.TempPathFactory) -> AsyncIterator[Relay]:
-    async with running(tmp_path_factory.mktemp("rig"), control={"mode": "hold"}) as r:
+    async with running(tmp_path_factory.mktemp("rig"), control={"mode": "hold"},
+                       robot={"display_name": DISPLAY_NAME}) as r:
         async def scanned() -> bool:
             doc = await r.status()
             return doc["last_scan"] is not None and all(
@@ -161,6 +163,7 @@ async def test_status_carries_the_fakes_values(relay: Relay) -> None:
     assert set(doc) >= SPEC_FIELDS
     assert doc["version"] == __version__
     assert doc["robot"] == rig.name  # from the fake robot's SYNC2 identity
+    assert doc["display_name"] == DISPLAY_NAME  # from the config, robot.display_name
     assert doc["mode"] == "hold" and doc["state"] == "stopped" and doc["reason"] == "hold"
     assert doc["uptime_s"] > 0
 

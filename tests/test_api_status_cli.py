@@ -80,3 +80,12 @@ def test_format_tolerates_a_sparse_document() -> None:
     text = status_cmd.format_status({"mode": "hold", "state": "stopped", "reason": "starting",
                                      "situation": 0, "thresholds": {}})
     assert "hold / stopped" in text and "RSSI^l leader" in text
+
+
+def test_format_names_the_robot_as_the_operators_do() -> None:
+    doc = {"mode": "hold", "state": "stopped", "reason": "hold", "situation": 0, "thresholds": {},
+           "display_name": "relay 2 (east)", "robot": "Pioneer"}
+    first = status_cmd.format_status(doc).splitlines()[0]
+    assert first.startswith("robot") and "relay 2 (east) / Pioneer" in first
+    first = status_cmd.format_status({**doc, "display_name": None}).splitlines()[0]
+    assert "Pioneer  (relayd" in first

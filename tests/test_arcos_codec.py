@@ -1,4 +1,4 @@
-"""ARCOS codec: the protocol doc's byte examples, round trips, resync and fuzzing."""
+"""ARCOS codec: the manuals' byte examples (docs/PROTOCOLS.md 1.2), round trips, resync and fuzzing."""
 
 from __future__ import annotations
 

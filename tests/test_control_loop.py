@@ -3,7 +3,7 @@
 A stand-in robot counts `stop()` and `set_wheels()` calls, so these tests see exactly
 what the loop asks of the driver: the urgent stop on the transition to zero (and
 only then: a stop on every tick once grew the driver's queue without bound), wheel
-speeds otherwise, and the fail-safes of SPEC 2.5 with their reasons.
+speeds otherwise, and the fail-safes of docs/CONTROL.md section 6 with their reasons.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Unit and property tests for relayd.controller (SPEC 2.2-2.5 and 3)."""
+"""Unit and property tests for relayd.controller (docs/CONTROL.md sections 3-6)."""
 
 from __future__ import annotations
 

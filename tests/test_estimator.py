@@ -1,4 +1,4 @@
-"""Unit and property tests for relayd.estimator (SPEC 2.1, 2.2, 2.5)."""
+"""Unit and property tests for relayd.estimator (docs/CONTROL.md sections 2-3, 6)."""
 
 from __future__ import annotations
 
@@ -31,7 +31,7 @@ from relayd.estimator import (
 )
 
 LIMITS = (-90.0, 90.0)
-#: Yagi model for the tests: G_r cos^2(off-axis) dB inside the +-90 degree beam (SPEC 5,
+#: Yagi model for the tests: G_r cos^2(off-axis) dB inside the +-90 degree beam (docs/SIMULATOR.md,
 #: the paper's eq. for P_r), a back-lobe floor outside. 15 dB gives a 3 dB beamwidth of
 #: about +-26 degrees, close to a small 2.4 GHz Yagi.
 YAGI_GAIN_DB = 15.0
@@ -64,7 +64,7 @@ def static_scan(leader_deg: float, angles: tuple[float, ...]) -> list[ScanSample
 
 
 def test_sonar_table_matches_protocol_doc() -> None:
-    # protocols/p3at-arcos.md 6.2, index order, ccw +.
+    # docs/PROTOCOLS.md 1.11, index order, ccw +.
     assert SONAR_HEADINGS_DEG == (
         90, 50, 30, 10, -10, -30, -50, -90, -90, -130, -150, -170, 170, 150, 130, 90,
     )  # fmt: skip
@@ -245,7 +245,7 @@ def closed_loop_error(leader_deg: float, start_deg: float, scans: int = 5) -> fl
     """A robot turning in place toward its bearing estimate while it scans a static leader.
 
     Servo: 25 steps per scan, 0.1 s per step. The robot's yaw rate comes from the
-    wheel law (v = 0) through the P3-AT's DiffConvFactor (0.0034, protocol doc 6.3),
+    wheel law (v = 0) through the P3-AT's DiffConvFactor (0.0034, docs/PROTOCOLS.md 1.7),
     using the newest bearing corrected into the current frame by odometry, as the
     control task does. Returns |bearing - true leader angle| after the last scan.
     """

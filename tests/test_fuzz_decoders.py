@@ -326,7 +326,7 @@ def test_iw_source_after_garbage_output_reads_a_valid_one(
 
 # ---------------------------------------------------------------------- airOS JSON
 
-FIXTURES = sorted(Path("/work/shared/fixtures/airos").glob("status_cgi_*.json"))
+FIXTURES = sorted((Path(__file__).parent / "fixtures" / "airos").glob("status_cgi_*.json"))
 
 
 @pytest.fixture(scope="module")

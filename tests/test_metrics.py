@@ -130,3 +130,17 @@ def test_any_state_scrapes_to_valid_exposition(rssi_l: float | None, rssi_b: flo
                             "relayd_link_signal_dbm", "relayd_link_ccq_ratio"):
                 # Unknown or non-finite levels are absent, never exported as NaN.
                 assert math.isfinite(sample.value)
+
+
+def test_drive_info_carries_state_and_reason() -> None:
+    """Alerts and the dashboard read the reason from relayd_drive_info; it follows /status."""
+    state = RelayState()
+    m = Metrics(state, FixedClock(0.0))
+    s = _samples(m)
+    assert s[("relayd_drive_info", (("reason", "starting"), ("state", "stopped")))] == 1.0
+    state.state, state.reason = DriveState.FAULT, "controller_error: ValueError"
+    s = _samples(m)
+    info = {labels: v for (name, labels), v in s.items() if name == "relayd_drive_info"}
+    # One series only: the old reason is gone, so a query never sees two reasons at once.
+    assert info == {(("reason", "controller_error: ValueError"), ("state", "fault")): 1.0}
+    assert s[("relayd_drive_state", (("relayd_drive_state", "fault"),))] == 1.0

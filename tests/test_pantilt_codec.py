@@ -14,7 +14,7 @@ from drivers.pantilt import maestro as mc
 from drivers.pantilt import ssc32 as sc
 from drivers.pantilt.base import ReplyError, check_speed
 
-# ---- Maestro compact protocol: vectors from protocols/servo-wifi-airos.md A.1 ----------
+# ---- Maestro compact protocol: vectors from the Maestro guide (docs/PROTOCOLS.md 2.2) ----------
 
 
 def test_set_target_1500us_on_channel_2() -> None:
@@ -81,7 +81,7 @@ def test_14bit_round_trip(value: int) -> None:
     assert mc.decode_14bit(lo, hi) == value
 
 
-# ---- SSC-32 ASCII protocol: A.2 -------------------------------------------------------
+# ---- SSC-32 ASCII protocol: docs/PROTOCOLS.md 2.3 -------------------------------------------------------
 
 
 def test_ssc32_move_frames() -> None:

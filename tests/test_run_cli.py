@@ -31,7 +31,7 @@ pytestmark = pytest.mark.slow
 
 SCAN = {"samples": 9, "width_deg": 120, "settle_s": 0.02}
 PANTILT = {"speed_deg_s": 1000}
-#: The spec allows 0.5 s from the signal to CLOSE; the machine is shared, so fail only when clearly slow.
+#: relayd allows itself 0.5 s from the signal to CLOSE; the machine is shared, so fail only when clearly slow.
 CLOSE_LIMIT_S = 1.5
 _PRIORITY = re.compile(r"^<\d>")
 

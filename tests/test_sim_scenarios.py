@@ -1,4 +1,4 @@
-"""Acceptance scenarios: real relayd daemons in the simulated world (SPEC 5, paper V).
+"""Acceptance scenarios: real relayd daemons in the simulated world (docs/SIMULATOR.md, paper V).
 
 Each runs the shipped scenario end to end (fakes on ptys, loopback HTTP, procfs files)
 at a speed the 2-core CI machine keeps up with. Results are cached per module so the

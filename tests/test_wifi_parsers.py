@@ -26,7 +26,7 @@ from drivers.wifi.parsers import (
     wrap_u8_dbm,
 )
 
-FIXTURES = Path("/work/shared/fixtures/wifi")
+FIXTURES = Path(__file__).parent / "fixtures" / "wifi"
 FILES = sorted(p.name for p in FIXTURES.glob("*.txt"))
 
 # What each capture says, read off the file by hand. A new fixture without an entry

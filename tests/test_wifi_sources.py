@@ -30,7 +30,7 @@ from drivers.wifi.fake import format_proc_row
 from drivers.wifi.parsers import PROC_HEADER_1, PROC_HEADER_2, parse_proc_net_wireless
 from drivers.wifi.sources import observe_stations, station_reading
 
-FIXTURES = Path("/work/shared/fixtures/wifi")
+FIXTURES = Path(__file__).parent / "fixtures" / "wifi"
 
 
 # ------------------------------------------------------------------------ ProcfsWriter

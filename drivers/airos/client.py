@@ -1,6 +1,6 @@
 """A small aiohttp client for Ubiquiti airOS radios: log in, read status.cgi / sta.cgi.
 
-Login flows (servo-wifi-airos.md C.1):
+Login flows (docs/PROTOCOLS.md 4.1):
 
 * airOS 5/6: `GET /` hands out an `AIROS_*` session cookie; `POST /login.cgi` (multipart
   form: username, password, uri) answers 302 to `uri` on success and the login page again

@@ -46,7 +46,7 @@ LOGIN_PAGE = """<!DOCTYPE html>
 </body></html>
 """
 
-#: NanoStation loco M5 XM v6.3.16 station, /status.cgi (shared/fixtures/airos), used when no
+#: NanoStation loco M5 XM v6.3.16 station, /status.cgi (tests/fixtures/airos), used when no
 #: fixture is given.
 DEFAULT_STATUS: dict[str, Any] = json.loads("""
 {
@@ -455,7 +455,7 @@ class FakeAirOs:
         username, password = form.get("username"), form.get("password")
         if session is None or username != self.username or password != self._password:
             self.counters["failed_logins"] += 1
-            # The firmware answers a failed login with its login page again (C.1).
+            # The firmware answers a failed login with its login page again (docs/PROTOCOLS.md 4.1).
             return await self._login_page(request, error='<p class="error">Invalid credentials.</p>')
         session.authed = True
         self.counters["logins"] += 1

@@ -1,6 +1,6 @@
 """Typed airOS link quality and the pure, defensive parsers of `/status.cgi` and `/sta.cgi`.
 
-The radios' JSON has unit traps (see servo-wifi-airos.md C.4) that this module resolves once:
+The radios' JSON has unit traps (docs/PROTOCOLS.md 4.3-4.4) that this module resolves once:
 
 * `rssi` is not dBm: it is `signal + 96` (the Atheros "RSSI" above a -96 dBm floor);
   `signal`/`noisef`/`noisefloor` are dBm.
@@ -106,7 +106,7 @@ class LinkQuality:
         return None
 
     def to_json(self) -> dict[str, Any]:
-        """The `probe ap` line: SPEC 4.1 keys first, then the extras."""
+        """The `probe ap` line: the documented keys first (README, Commands), then the extras."""
         return {
             "signal_dbm": self.signal_dbm,
             "rssi": self.rssi,

@@ -2,7 +2,7 @@
 
 No asyncio and no I/O here: the driver (`drivers.arcos.driver`) and the fake robot
 (`drivers.arcos.fake`) both feed raw bytes in and write `encode_*` bytes out, so they
-cannot disagree about the wire format. Layout (protocol doc section 1):
+cannot disagree about the wire format. Layout (docs/PROTOCOLS.md 1.1):
 
     FA FB N TYPE PAYLOAD... CK_HI CK_LO      N = len(TYPE + PAYLOAD) + 2, unsigned
 """
@@ -22,7 +22,7 @@ MAX_SEND_PAYLOAD = 200
 
 
 class Command(IntEnum):
-    """Client -> robot command numbers (ARIA ArCommands.h; protocol doc section 3)."""
+    """Client -> robot command numbers (ARIA ArCommands.h; docs/PROTOCOLS.md 1.6)."""
 
     SYNC0 = 0
     SYNC1 = 1
@@ -62,7 +62,7 @@ CLOSE = Command.SYNC2
 
 
 class PacketType(IntEnum):
-    """Robot -> client packet types (protocol doc sections 4 and 5)."""
+    """Robot -> client packet types (docs/PROTOCOLS.md 1.8, 1.9)."""
 
     SYNC0 = 0x00
     SYNC1 = 0x01
@@ -194,7 +194,7 @@ def decode_command(packet: Packet) -> tuple[int, Arg]:
 class Decoder:
     """Incremental frame extractor: feed any chunks, get every valid packet in order.
 
-    Resync rule (protocol doc 1.6): on a bad checksum or impossible count only the
+    Resync rule (docs/PROTOCOLS.md 1.4): on a bad checksum or impossible count only the
     leading FA is discarded and the search restarts, so a real frame hidden inside a
     corrupted one is still found. The buffer never holds more than one maximal frame
     plus the newest chunk.

@@ -1,6 +1,6 @@
 """FakeRobot: the robot side of the ARCOS protocol, for tests and the simulator.
 
-Built on the same codec as the driver. It mirrors MobileSim (protocol doc 8 and 10)
+Built on the same codec as the driver. It mirrors MobileSim (docs/PROTOCOLS.md 1.12)
 and adds what MobileSim lacks: the real 2 s watchdog stop, SIP type 0x33 while moving,
 and a sonar that reports a few sonars per SIP. Sonar policy: `sonars_per_sip`
 readings per SIP (default 8), taken round-robin from the front and rear rings in
@@ -297,7 +297,7 @@ class FakeRobot:
     def _open_session(self) -> None:
         self.opened = True
         self.sessions += 1
-        self.motors_enabled = False  # motors are off after every connect (doc 2.1 step 5)
+        self.motors_enabled = False  # motors are off after every connect (docs/PROTOCOLS.md 1.5)
         self.sonar_on = True  # "ARIA assumes sonar are on at start" (MobileSim)
         self._odo = [0.0, 0.0, 0.0]
         self._halt(hard=True)

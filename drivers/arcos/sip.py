@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 from drivers.arcos.codec import CodecError, PacketType
 
-#: 2*pi/4096 exactly (the .p files print a rounded 0.00153; protocol doc 4.4).
+#: 2*pi/4096 exactly (the .p files print a rounded 0.00153; docs/PROTOCOLS.md 1.10).
 ANGLE_CONV_RAD = 2.0 * math.pi / 4096.0
 DIFF_CONV_FACTOR = 0.0034  # rad/s per mm/s of half the wheel-speed difference (skid steer)
 VEL2_DIVISOR_MM_S = 20
@@ -252,7 +252,7 @@ class Odometry:
 
 
 def wheel_to_vel_rvel(left_mm_s: float, right_mm_s: float) -> tuple[int, int]:
-    """(VEL mm/s, RVEL deg/s) for wheel speeds, clamped to the P3-AT limits (doc 3.2, 6.3)."""
+    """(VEL mm/s, RVEL deg/s) for wheel speeds, clamped to the P3-AT limits (docs/PROTOCOLS.md 1.7)."""
     vel = round((left_mm_s + right_mm_s) / 2.0)
     rvel = round(math.degrees((right_mm_s - left_mm_s) / 2.0 * DIFF_CONV_FACTOR))
     return (max(-MAX_VEL_MM_S, min(MAX_VEL_MM_S, vel)),
@@ -287,7 +287,7 @@ def sip_from_raw(raw: RawSip, odo: Odometry, t: float, factors: ConvFactors) -> 
 
 @dataclass(frozen=True, slots=True)
 class RobotConfig:
-    """The CONFIGpac fields the driver uses (fields 1-19 of protocol doc 5.1)."""
+    """The CONFIGpac fields the driver uses (docs/PROTOCOLS.md 1.9)."""
 
     robot_class: str
     subclass: str

@@ -27,7 +27,7 @@ class SonarPose:
     heading_deg: float
 
 
-#: ARIA params/p3at.p == ArRobotTypes.cpp == MobileSim p3at (protocol doc 6.2).
+#: ARIA params/p3at.p == ArRobotTypes.cpp == MobileSim p3at (docs/PROTOCOLS.md 1.11).
 SONAR_POSES: tuple[SonarPose, ...] = (
     SonarPose(147, 136, 90), SonarPose(193, 119, 50), SonarPose(227, 79, 30),
     SonarPose(245, 27, 10), SonarPose(245, -27, -10), SonarPose(227, -79, -30),

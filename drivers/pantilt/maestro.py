@@ -2,7 +2,7 @@
 
 Command bytes have the top bit set, data bytes carry 7 bits; 14-bit values go low 7
 bits first. Targets and positions are in quarter-microseconds, speed in 0.25 us per
-10 ms, acceleration in 0.25 us per 10 ms per 80 ms (protocols/servo-wifi-airos.md A.1).
+10 ms, acceleration in 0.25 us per 10 ms per 80 ms (docs/PROTOCOLS.md 2.2).
 Replies are little-endian 16-bit words (8 bits per byte, unlike the 7-bit requests).
 The Maestro must be in "USB Dual Port" mode for the command port to listen at all.
 """

@@ -1,6 +1,6 @@
 """Lynxmotion SSC-32 / SSC-32U ASCII protocol: a pure codec and the `Ssc32PanTilt` back-end.
 
-Commands are ASCII lines ending in CR (protocols/servo-wifi-airos.md A.2):
+Commands are ASCII lines ending in CR (docs/PROTOCOLS.md 2.3):
 `#<ch>P<pw>S<spd>T<time>` moves (several `#..P..` before one CR form a group move
 that starts and ends together), `Q` answers `.` (done) or `+` (moving), `QP<ch>`
 answers one binary byte = pulse width / 10 us. The controller keeps no speed

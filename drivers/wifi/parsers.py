@@ -1,6 +1,6 @@
 """Pure parsers for the Linux Wi-Fi RSSI text formats, and the plausibility rules.
 
-Formats (see protocols/servo-wifi-airos.md part B): `/proc/net/wireless` (WEXT,
+Formats (docs/PROTOCOLS.md section 3): `/proc/net/wireless` (WEXT,
 `net/wireless/wext-proc.c`), `iw dev IF link`, and `iw dev IF station dump` /
 `station get MAC` (iw's `station.c`). Real `iw` output indents with TABs; copies pasted
 into issues use spaces, so every parser accepts both. No parser raises on bad input:

@@ -57,7 +57,9 @@ def format_status(doc: dict[str, Any]) -> str:
     """A compact table of one /status document."""
     rows: list[tuple[str, str]] = []
     thr = doc.get("thresholds") or {}
-    rows.append(("robot", f"{doc.get('robot') or '-'}  (relayd {doc.get('version', '?')}, "
+    # The operator's name first; the base's own name says which hardware answered.
+    name = " / ".join(str(n) for n in (doc.get("display_name"), doc.get("robot")) if n) or "-"
+    rows.append(("robot", f"{name}  (relayd {doc.get('version', '?')}, "
                           f"up {_f(doc.get('uptime_s'), 0, 's')})"))
     rows.append(("mode / state", f"{doc.get('mode')} / {doc.get('state')}"))
     rows.append(("reason", str(doc.get("reason"))))

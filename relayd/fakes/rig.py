@@ -170,7 +170,7 @@ class FakeRig:
     def config_doc(self, *, api_bind: str = "127.0.0.1", api_port: int = 0,
                    control: Mapping[str, Any] | None = None, scan: Mapping[str, Any] | None = None,
                    **sections: Mapping[str, Any]) -> dict[str, Any]:
-        """The config (SPEC 4.2) of a relayd driving these fakes; overrides merge per section."""
+        """The config (config/relayd.toml's sections and keys) of a relayd driving these fakes; overrides merge per section."""
         if self.robot_port is None or self.rear_url is None:
             raise RuntimeError("start() the rig first")
         doc: dict[str, Any] = {

@@ -1,4 +1,4 @@
-"""The simulated world in which real relayd daemons drive fake devices (SPEC 5).
+"""The simulated world in which real relayd daemons drive fake devices (docs/SIMULATOR.md).
 
 geometry (segments, rays, collisions), radio (path loss, walls, shadowing, fading,
 antenna patterns, 802.11g rates), scenario (TOML format and validation), world (the

@@ -1,6 +1,6 @@
 """Radio propagation of the simulated world: path loss, walls, shadowing, fading, antennas.
 
-Received power of a link (SPEC 5; numbers from the paper, section IV-E, and the
+Received power of a link (docs/SIMULATOR.md; numbers from the paper, section IV-E, and the
 802.11g standard's receiver sensitivity table):
 
     P = L0 - 10 n log10(d) - sum(wall losses) + shadowing + fading + antenna gains

@@ -33,12 +33,12 @@ from relayd.sim.geometry import (
 from relayd.sim.radio import HOP_DOWN_DBM, Radio, patch_gain_db, throughput_mbps, yagi_gain_db
 from relayd.sim.scenario import Scenario
 
-#: P3-AT body (protocols/p3at-arcos.md 6.1: RobotLength 626 mm, RobotWidth 505 mm).
+#: P3-AT body (docs/PROTOCOLS.md 1.11, from ARIA's p3at.p: RobotLength 626 mm, RobotWidth 505 mm).
 ROBOT_LENGTH_M = 0.626
 ROBOT_WIDTH_M = 0.505
 #: A contact episode ends once the footprint is this far from everything again.
 CONTACT_CLEAR_M = 0.02
-#: P3-AT sonar ring (protocols/p3at-arcos.md 6.2): x forward, y left (mm), heading (deg, ccw).
+#: P3-AT sonar ring (docs/PROTOCOLS.md 1.11): x forward, y left (mm), heading (deg, ccw).
 SONAR_POSES: tuple[tuple[float, float, float], ...] = (
     (147, 136, 90), (193, 119, 50), (227, 79, 30), (245, 27, 10),
     (245, -27, -10), (227, -79, -30), (193, -119, -50), (147, -136, -90),

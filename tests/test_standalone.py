@@ -1,0 +1,168 @@
+"""The repository stands alone: no pointer to documents that are not in it.
+
+relayd was built from background material that does not ship with it (a behaviour
+contract, device research notes, a style guide, kept beside the checkout). Whatever the
+code or docs need from it is written down in the repo itself: docs/PROTOCOLS.md (device
+facts and their public sources), docs/CONTROL.md (estimator and control law), README.
+These tests fail when a file points outside again (a `../shared/...` path, `SPEC.md`,
+"SPEC 2.4"-style section numbers, the research notes by file name or as "the protocol
+doc"), and when a pointer
+to one of the repo's own docs names a section that does not exist.
+"""
+
+from __future__ import annotations
+
+import re
+import subprocess
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+SELF = Path(__file__).resolve()
+
+#: Files other work is rewriting at the moment: they are skipped until that work has
+#: merged. Empty this set then; it must end up empty.
+PENDING_REWRITE: frozenset[str] = frozenset({
+    "relayd/control.py",
+    "relayd/scanner.py",
+    "relayd/daemon.py",
+    "relayd/state.py",
+    "relayd/sim/runner.py",
+    "drivers/arcos/driver.py",
+    "drivers/pantilt/base.py",
+    "drivers/airos/poller.py",
+    "relayd/config.py",
+    "relayd/cli.py",
+})
+
+#: Each pattern with what it catches. Case-sensitive on purpose: `spec` is an ordinary
+#: word and variable name; upper-case SPEC as a word only ever meant the outside contract.
+FORBIDDEN: tuple[tuple[str, re.Pattern[str]], ...] = (
+    ("a path into ../shared", re.compile(r"\.\./shared\b")),
+    ("an absolute path to the shared background material", re.compile(r"/work/shared\b")),
+    ("a shared/ material folder", re.compile(r"\bshared/(?:fixtures|protocols|seed|hooks)\b")),
+    ("the outside behaviour contract", re.compile(r"\bSPEC\.md\b")),
+    ("the outside style guide", re.compile(r"\bSTYLE\.md\b")),
+    ("a SPEC section or the SPEC itself", re.compile(r"\bSPEC\b")),
+    ("an outside research note", re.compile(r"servo-wifi-airos|p3at-arcos")),
+    ("the outside contract or notes, by name",
+     re.compile(r"\b(?:[Tt]he spec(?:'s)?|[Pp]rotocol doc|doc pitfall|the doc's)\b")),
+)
+
+_SKIP_DIRS = {".git", ".venv", "node_modules", "__pycache__", ".mypy_cache", ".ruff_cache",
+              ".pytest_cache", ".hypothesis", "sim-out", "build", "dist"}
+
+
+def _repo_files() -> list[str]:
+    """Tracked files plus new, not ignored ones; a plain walk outside a git checkout."""
+    try:
+        out = subprocess.run(
+            ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+            cwd=ROOT, capture_output=True, check=True, timeout=30,
+        ).stdout
+        names = sorted({n for n in out.decode("utf-8", "replace").split("\0") if n})
+        if names:
+            return [n for n in names if (ROOT / n).is_file()]
+    except (OSError, subprocess.SubprocessError):
+        pass
+    return sorted(
+        p.relative_to(ROOT).as_posix() for p in ROOT.rglob("*")
+        if p.is_file() and not _SKIP_DIRS.intersection(p.relative_to(ROOT).parts)
+    )
+
+
+def _text(name: str) -> str | None:
+    """The file's text, or None for binary files."""
+    data = (ROOT / name).read_bytes()
+    if b"\0" in data[:8192]:
+        return None
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        return None
+
+
+def _outside_references(name: str) -> list[str]:
+    text = _text(name)
+    if text is None:
+        return []
+    hits = []
+    for lineno, line in enumerate(text.splitlines(), 1):
+        for what, pattern in FORBIDDEN:
+            if pattern.search(line):
+                hits.append(f"{name}:{lineno}: {what}: {line.strip()[:100]}")
+                break
+    return hits
+
+
+def _checked_files() -> list[str]:
+    return [n for n in _repo_files() if (ROOT / n).resolve() != SELF]
+
+
+def test_no_file_points_outside_the_repo() -> None:
+    hits = [h for n in _checked_files() if n not in PENDING_REWRITE for h in _outside_references(n)]
+    assert not hits, (
+        "these lines point to material outside the repo; say it in the project's own words "
+        "or point to docs/PROTOCOLS.md, docs/CONTROL.md or the README:\n" + "\n".join(hits)
+    )
+
+
+# -- pointers into the repo's own docs ---------------------------------------------------
+
+#: "docs/PROTOCOLS.md 1.11", "PROTOCOLS.md 4.3-4.4", "docs/CONTROL.md sections 3-6",
+#: "DEPLOY.md section 2", "docs/PROTOCOLS.md 1.8, 1.9".
+_DOC_POINTER = re.compile(
+    r"\b(?:docs/)?(?P<doc>[A-Z]+)\.md,? (?:sections? )?"
+    r"(?P<nums>\d+(?:\.\d+)?(?:(?:-|, | and )\d+(?:\.\d+)?)*)\b"
+)
+_HEADING = re.compile(r"^#{2,4} (\d+(?:\.\d+)*)\.?\s", re.MULTILINE)
+
+
+def _doc_sections(doc: Path) -> set[str]:
+    return set(_HEADING.findall(doc.read_text(encoding="utf-8")))
+
+
+def test_section_pointers_into_docs_exist() -> None:
+    docs = {p.stem: p for p in (ROOT / "docs").glob("*.md")}
+    sections = {stem: _doc_sections(path) for stem, path in docs.items()}
+    bad = []
+    for name in _checked_files():
+        text = _text(name)
+        if text is None:
+            continue
+        for lineno, line in enumerate(text.splitlines(), 1):
+            for m in _DOC_POINTER.finditer(line):
+                doc = m.group("doc")
+                if doc not in sections:
+                    continue
+                for num in re.split(r"-|, | and ", m.group("nums")):
+                    if num not in sections[doc]:
+                        bad.append(f"{name}:{lineno}: docs/{doc}.md has no section {num}")
+    assert not bad, "\n".join(bad)
+
+
+def test_the_own_docs_exist_and_the_readme_points_to_them() -> None:
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    for doc in ("docs/PROTOCOLS.md", "docs/CONTROL.md", "docs/ARCHITECTURE.md"):
+        assert (ROOT / doc).is_file(), doc
+        assert doc in readme, f"README.md does not point to {doc}"
+
+
+@pytest.mark.parametrize(
+    ("line", "caught"),
+    [
+        ("see ../shared/SPEC.md", True),
+        ("(SPEC 2.4 with hysteresis)", True),
+        ("the SPEC's kp/kd", True),
+        ("Path('/work/shared/fixtures/airos')", True),
+        ("protocols/servo-wifi-airos.md A.1", True),
+        ("fits in the 0.5 s the spec allows", True),
+        ("the AROS manual; doc pitfall 16", True),
+        ("SPEC_FIELDS = {'mode'}", False),
+        ("spec = runner.scenario.leader", False),
+        ("docs/PROTOCOLS.md 1.11", False),
+    ],
+)
+def test_the_patterns_catch_what_they_should(line: str, caught: bool) -> None:
+    assert any(p.search(line) for _, p in FORBIDDEN) is caught
