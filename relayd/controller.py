@@ -19,7 +19,11 @@ Order of decisions, first match wins:
    "obstacle". Otherwise reason "manual"; state DRIVING when a wheel moves.
 4. follow: leader_lost -> LEADER_LOST; no bearing or RSSI^l yet -> STOPPED
    "no_scan_yet"; the link rule says stop -> STOPPED "leader_near"/"rear_weak";
-   situation 1 -> AVOIDING "obstacle"; else DRIVING "driving".
+   situation 1 -> AVOIDING "obstacle"; else DRIVING "driving". Then, given the time
+   and odometry, the escape (relayd/avoidance.py, docs/AVOIDANCE.md) may take over:
+   AVOIDING "avoiding"/"rejoining", or STOPPED "blocked" past its limits. Every
+   follow-mode command is rounded to what VEL/RVEL can say (relayd/actuator.py) and
+   passes the guard (relayd/ring.py).
 
 Link rule (the paper's eq. 6-12 resolved, with hysteresis; docs/CONTROL.md section 5): while driving, stop when RSSI^l >= threshold_l
 ("leader_near") or RSSI^b <= threshold_b ("rear_weak"); while stopped, resume only
