@@ -84,6 +84,8 @@ class ControlParams:
     rssi_timeout_s: float = 5.0  # two scan periods (the daemon computes it)
     rear_timeout_s: float = 3.0  # RSSI^b older than this is stale
     manual_deadman_s: float = 0.5
+    #: False: the paper's obstacle rule alone, no escape (config `control.escape`).
+    escape: bool = True
     #: The escape when forward motion is blocked (relayd/avoidance.py); its stop
     #: distance and threshold_o are taken from the two fields above.
     avoid: AvoidParams = field(default_factory=AvoidParams)
@@ -292,7 +294,8 @@ def control_step(
         state, reason, memory = DriveState.DRIVING, "driving", replace(memory, prev_steer_deg=None)
 
     act = params.actuator
-    if inputs.t_s is not None and inputs.odom is not None and math.isfinite(inputs.t_s):
+    if (params.escape and inputs.t_s is not None and inputs.odom is not None
+            and math.isfinite(inputs.t_s)):
         sense = Sense(inputs.t_s, inputs.odom, inputs.front_sonar, bearing, inputs.rear_sonar)
         aparams = replace(
             params.avoid, stop_distance_m=params.stop_distance_m, threshold_o_m=params.threshold_o_m

@@ -55,6 +55,7 @@ def control_params(settings: Settings) -> ControlParams:
         rssi_timeout_s=2.0 * scan_period,
         rear_timeout_s=c.rear_stale_polls * rear_poll,
         manual_deadman_s=c.manual_deadman_s,
+        escape=c.escape,
     )
 
 
