@@ -69,6 +69,9 @@ class AvoidMode(StrEnum):
 
 @dataclass(frozen=True, slots=True)
 class AvoidParams:
+    """The escape's settings; distances in metres, speeds in mm/s, turns in deg/s.
+    stop_distance_m and threshold_o_m are overwritten from ControlParams."""
+
     stop_distance_m: float = 0.3
     threshold_o_m: float = 0.8
     no_progress_s: float = 4.0
@@ -108,7 +111,8 @@ class AvoidParams:
 
 @dataclass(frozen=True, slots=True)
 class AvoidState:
-    """Everything the escape needs from one step to the next (core's brain holds it)."""
+    """Everything the escape needs from one step to the next; the caller keeps it
+    (ControlMemory.avoid) and hands it back, so the step stays pure."""
 
     mode: AvoidMode = AvoidMode.FOLLOW
     side: int = 0  # +1 turns left (obstacle on the right), -1 right; 0: no episode
@@ -155,7 +159,7 @@ def _enter(st: AvoidState, mode: AvoidMode, t: float, **changes: object) -> Avoi
 
 @dataclass(frozen=True, slots=True)
 class AvoidCommand:
-    """None-free result: follow the paper's law (`follow`), or this (VEL, RVEL) and why."""
+    """The step's verdict: follow the paper's law (`follow`), or this (VEL, RVEL) and why."""
 
     follow: bool
     vel_mm_s: int = 0
