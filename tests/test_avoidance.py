@@ -208,6 +208,9 @@ def box_world(width_m: float, x_m: float, y_m: float) -> Scenario:
         "relay": [{"name": "r", "x": 0.0, "y": 0.0}],
         "boxes": [{"min": [x_m - width_m / 2, y_m - width_m / 2],
                    "max": [x_m + width_m / 2, y_m + width_m / 2]}],
+        # A steady radio: the link rule must keep saying "the leader is beyond", or a
+        # shadowing peak can stop the relay legitimately before it meets the box.
+        "radio": {"shadow_sigma_db": 0.0, "fading": False},
     })
 
 
@@ -229,7 +232,7 @@ def check_step(step: Step, stop_m: float) -> None:
 
 # Each example is a whole closed-loop run (about 0.2 s): no shrinking or tracing phases.
 @pytest.mark.timeout(300)
-@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow],
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow],
           phases=(Phase.explicit, Phase.reuse, Phase.generate))
 @given(width=st.floats(0.1, 1.0), x=st.floats(1.5, 4.0), y=st.floats(-1.0, 1.0), seed=st.integers(0, 1000))
 def test_a_single_box_near_the_line_is_passed_in_bounded_time(width: float, x: float, y: float, seed: int) -> None:
