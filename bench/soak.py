@@ -114,7 +114,8 @@ def _whole(relays: list[SimRelay]) -> bool:
     """Every device of every relay connected and its data flowing."""
     for r in relays:
         st = r.daemon.state
-        if not all(h.connected for h in st.health.values()) or len(st.health) < 5:
+        health = st.health_now()
+        if not all(h.connected for h in health.values()) or len(health) < 5:
             return False
         if r.daemon.monitor is None or r.daemon.monitor.age_s(r.daemon.clock.now()) is None:
             return False

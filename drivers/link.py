@@ -1,4 +1,4 @@
-"""Opening a byte link to a device: a serial port or a `socket://` URL.
+"""Opening a byte link to a device: a serial port, a `socket://` URL or a `memory://` fake.
 
 pyserial-asyncio-fast opens and closes the port in an executor and maps
 `socket://host:port` onto a real asyncio TCP transport, so a driver written against
@@ -15,6 +15,7 @@ from typing import TypeVar
 
 import serial_asyncio_fast
 
+from drivers import memlink
 from drivers.clock import Clock
 
 P = TypeVar("P", bound=asyncio.Protocol)
@@ -26,6 +27,13 @@ class LinkError(ConnectionError):
 
 async def open_link(url: str, baudrate: int, protocol_factory: Callable[[], P]) -> tuple[asyncio.Transport, P]:
     """Open `url` at `baudrate` and connect `protocol_factory()` to it."""
+    if url.startswith(memlink.SCHEME):
+        # A fake served in memory (unit tests): the same protocol, no file descriptor.
+        try:
+            mtransport, mprotocol = await memlink.open_memory_link(url, protocol_factory)
+        except memlink.MemoryLinkError as exc:
+            raise LinkError(f"cannot open {url}: {exc}") from exc
+        return mtransport, mprotocol
     loop = asyncio.get_running_loop()
     kwargs: dict[str, object] = {"baudrate": baudrate}
     if not url.startswith(("socket://", "rfc2217://")):
@@ -73,7 +81,8 @@ async def wait_before_retry(url: str, delay_s: float, clock: Clock, stop: asynci
 
 
 def set_baudrate(transport: asyncio.BaseTransport, baudrate: int) -> None:
-    """Change the baud rate of an open serial transport (no-op on TCP links)."""
-    port = getattr(transport, "serial", None)
-    if port is not None and getattr(port, "is_open", False):
-        port.baudrate = baudrate
+    """Change the baud rate of an open serial transport (no-op on TCP and memory links)."""
+    if isinstance(transport, serial_asyncio_fast.SerialTransport):
+        port = transport.serial
+        if port is not None and port.is_open:
+            port.baudrate = baudrate

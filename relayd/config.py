@@ -198,6 +198,15 @@ class ApiSettings(_Section):
     port: Annotated[int, Field(ge=0, le=65535)] = 8080
     token_env: str | None = "RELAYD_API_TOKEN"
     token_file: str | None = None
+    #: PEM certificate (chain) and private key: both set, the API serves HTTPS only.
+    tls_cert: str | None = None
+    tls_key: str | None = None
+
+    @model_validator(mode="after")
+    def _tls_pair(self) -> ApiSettings:
+        if (self.tls_cert is None) != (self.tls_key is None):
+            raise ValueError("set both tls_cert and tls_key, or neither")
+        return self
 
     @model_validator(mode="before")
     @classmethod
@@ -302,14 +311,24 @@ def config_warnings(settings: Settings) -> list[str]:
 
 
 def secret_file_errors(settings: Settings) -> list[str]:
-    """Secret files that cannot be read now (check-config: `relayd run` would refuse to start)."""
+    """Secret and TLS files that cannot be used now (check-config: `relayd run` would refuse
+    to start): unreadable, an API token too short, a certificate that is not one."""
     errors = []
-    for ref in secret_refs(settings).values():
+    for owner, ref in secret_refs(settings).items():
         if ref.file is not None:
             try:
-                resolve_secret(ref, {})
+                value = resolve_secret(ref, {})
+                if owner == "api" and value is not None:
+                    check_api_token(ref, value)
             except ConfigError as exc:
                 errors.extend(exc.errors)
+    if settings.api.enabled:
+        from relayd.api.server import tls_context  # here: the server module imports this one
+
+        try:
+            tls_context(settings.api)
+        except ConfigError as exc:
+            errors.extend(exc.errors)
     return errors
 
 
@@ -345,6 +364,18 @@ def resolve_secret(ref: SecretRef, environ: Mapping[str, str]) -> str | None:
             raise ConfigError([f"{ref.key}: {ref.file} is empty"])
         return value
     return None
+
+
+#: The API token guards the wheels; anything shorter is guessable across the bridge.
+MIN_API_TOKEN_CHARS = 16
+
+
+def check_api_token(ref: SecretRef, token: str) -> str:
+    """The token, or ConfigError naming its key when it is too short to be a secret."""
+    if len(token) < MIN_API_TOKEN_CHARS:
+        raise ConfigError([f"{ref.key}: the API token has {len(token)} characters; "
+                           f"at least {MIN_API_TOKEN_CHARS} are needed (e.g. `openssl rand -hex 16`)"])
+    return token
 
 
 def secret_refs(settings: Settings) -> dict[str, SecretRef]:

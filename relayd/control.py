@@ -1,13 +1,16 @@
-"""The control task: run the pure controller on every SIP and command the wheels.
+"""The control shell: the robot's SIPs and the operator's requests in, wheel commands out.
 
-The controller is evaluated synchronously inside the robot driver's SIP callback, so a
-wheel command follows the data that caused it with no queue in between (the control
-latency the benchmarks measure). A periodic tick runs the same step when SIPs stop
-arriving: silence is exactly when the robot must be stopped, and no SIP callback
-would fire to do it. The tick also marks the loop alive for /healthz and the systemd
-watchdog.
+Thin I/O around the brain (`relayd.brain`), which decides everything:
 
-Manual mode and mode changes come from the API through the `Controls` methods here.
+- every SIP the ARCOS driver decodes is published on the bus as a `SipEvent`, from
+  the driver's own callback, so the brain's step and the wheel command it causes run
+  on the SIP's stack with no queue in between (the control latency);
+- a timer publishes a `Tick` every `tick_s`, because silence (no SIP) is exactly when
+  the robot must be stopped and no SIP would arrive to do it; before it, the robot's
+  and the scan servo's up/down state is looked at and changes are published;
+- the API's mode and drive requests (`Controls`) become events;
+- `execute` turns a `WheelCommand` into the driver call; the driver's write-time
+  latency report is counted only for commands a SIP caused.
 """
 
 from __future__ import annotations
@@ -15,34 +18,26 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from typing import Any, Protocol
+from typing import Protocol
 
-import structlog
-
+from drivers.arcos.sip import Sip
 from drivers.clock import REAL_CLOCK, Clock
-from relayd.controller import (
-    ControlInputs,
-    ControlMemory,
-    ControlOutput,
-    ControlParams,
-    control_step,
+from relayd.brain import PANTILT, ROBOT, Brain
+from relayd.events import (
+    DeviceEvent,
+    DeviceStatus,
+    DriveCommand,
+    Event,
+    ModeCommand,
+    Shutdown,
+    SipEvent,
+    Tick,
+    WheelCommand,
 )
-from relayd.estimator import front_readings
-from relayd.ring import rear_readings
-from relayd.state import DriveState, Mode, ModeError, RelayState
+from relayd.state import Mode, ModeError
 
-log = structlog.get_logger(__name__)
-
-
-class SipView(Protocol):
-    @property
-    def t(self) -> float: ...
-    @property
-    def theta_deg(self) -> float: ...
-    @property
-    def x_mm(self) -> float: ...
-    @property
-    def y_mm(self) -> float: ...
+#: Bytes in to SIP decoded: the driver's latency starts this much before the SIP's `t`.
+DECODE_SLACK_S = 0.005
 
 
 class SonarView(Protocol):
@@ -51,209 +46,151 @@ class SonarView(Protocol):
 
 
 class WheelBase(Protocol):
-    """What the loop needs of the robot driver (drivers.arcos.ArcosRobot, or a test double)."""
+    """What the shell needs of the robot driver (drivers.arcos.ArcosRobot, or a test double)."""
 
     @property
-    def last_sip(self) -> SipView | None: ...
+    def connected(self) -> bool: ...
     @property
     def stale(self) -> bool: ...
     @property
     def sonar(self) -> SonarView: ...
-    def add_listener(self, cb: Callable[[Any], None]) -> Callable[[], None]: ...
+    #: Called by the driver with the seconds from a SIP's bytes arriving to the next
+    #: motion command written (it cannot tell what caused that command).
+    on_command_latency: Callable[[float], None] | None
+    def add_listener(self, cb: Callable[[Sip], None]) -> Callable[[], None]: ...
     def stop(self) -> None: ...
     def set_wheels(self, left_mm_s: float, right_mm_s: float) -> None: ...
 
 
-class BearingSource(Protocol):
-    """What the loop needs of the scanner (relayd.scanner.Scanner)."""
-
-    @property
-    def servo_ok(self) -> bool: ...
-    @property
-    def leader_lost(self) -> bool: ...
-    @property
-    def bearing_deg(self) -> float | None: ...
-    @property
-    def bearing_heading_deg(self) -> float | None: ...
-    @property
-    def prev_bearing_deg(self) -> float | None: ...
-    @property
-    def prev_heading_deg(self) -> float | None: ...
+class Publisher(Protocol):
+    def publish(self, event: Event) -> None: ...
 
 
-class RssiFreshness(Protocol):
-    def age_s(self, now: float) -> float | None: ...
+class ControlShell:
+    """Owns the SIP subscription, the control tick and the wheel side of the actions."""
 
-
-class ControlLoop:
-    """Glue between the robot driver, the scanner's latest estimate and the pure controller."""
-
-    def __init__(
-        self,
-        *,
-        robot: WheelBase | None,
-        scanner: BearingSource | None,
-        monitor: RssiFreshness | None,
-        state: RelayState,
-        params: ControlParams,
-        clock: Clock = REAL_CLOCK,
-        tick_s: float = 0.1,
-        rear_rssi: Callable[[], tuple[float | None, float | None]] | None = None,
-        on_latency: Callable[[float], None] | None = None,
-    ) -> None:
+    def __init__(self, *, bus: Publisher, brain: Brain, robot: WheelBase | None, clock: Clock = REAL_CLOCK,
+                 tick_s: float = 0.1, on_latency: Callable[[float], None] | None = None,
+                 on_step: Callable[[float], None] | None = None,
+                 servo_up: Callable[[], bool] | None = None,
+                 robot_name: Callable[[], str | None] | None = None,
+                 on_tick: Callable[[float], None] | None = None) -> None:
+        self._bus = bus
+        self._brain = brain
         self._robot = robot
-        self._scanner = scanner
-        self._monitor = monitor
-        self._state = state
-        self._params = params
         self._clock = clock
         self._tick_s = tick_s
-        self._rear = rear_rssi or (lambda: (None, None))
         self._on_latency = on_latency
-        self._memory = ControlMemory()
-        self._manual: tuple[float, float, float] | None = None
+        self._on_step = on_step
+        self._servo_up = servo_up
+        self._robot_name = robot_name or (lambda: None)
+        self._on_tick = on_tick
         self._halted = False
         self._remove_listener: Callable[[], None] | None = None
-        self.last_output: ControlOutput | None = None
+        self._up: dict[str, bool] = {}
+        #: The SIP behind the wheel command last handed to the driver; None: a timer,
+        #: a scan or the operator caused it.
+        self._cause_sip_t: float | None = None
+        self.commands = 0
+        self.latency_dropped = 0
+        if robot is not None:
+            robot.on_command_latency = self._on_written
 
-    # -- Controls (called by the API) -------------------------------------------------
+    # -- Controls (called by the API) ---------------------------------------------------
 
     def set_mode(self, mode: Mode) -> None:
-        if mode is not self._state.mode:
-            log.info("mode_changed", old=str(self._state.mode), new=str(mode))
-        self._state.mode = Mode(mode)
-        self._manual = None
-        self.step()
+        self._bus.publish(ModeCommand(self._clock.now(), Mode(mode)))
 
     def manual_drive(self, left_mm_s: float, right_mm_s: float) -> None:
-        if self._state.mode is not Mode.MANUAL:
-            raise ModeError(f"drive commands need manual mode (mode is {self._state.mode})")
+        if self._brain.mode is not Mode.MANUAL:
+            raise ModeError(f"drive commands need manual mode (mode is {self._brain.mode})")
         if not (math.isfinite(left_mm_s) and math.isfinite(right_mm_s)):
             raise ValueError("wheel speeds must be finite")
-        self._manual = (float(left_mm_s), float(right_mm_s), self._clock.now())
-        self.step()
+        self._bus.publish(DriveCommand(self._clock.now(), float(left_mm_s), float(right_mm_s)))
 
     def halt(self) -> None:
         """Shutdown: never command the wheels again; the robot driver's safe stop follows.
 
         Synchronous on purpose: a SIP arriving while the driver writes VEL 0, ENABLE 0
-        and CLOSE must not slip a non-zero VEL in between, and cancelling the task only
-        takes effect at its next await.
+        and CLOSE must not slip a non-zero VEL in between.
         """
         self._halted = True
         if self._remove_listener is not None:
             self._remove_listener()
             self._remove_listener = None
+        self._bus.publish(Shutdown(self._clock.now()))
 
-    # -- the loop -----------------------------------------------------------------------
+    # -- events in ----------------------------------------------------------------------
 
-    def on_sip(self, _sip: object) -> None:
+    def on_sip(self, sip: Sip) -> None:
         started = time.perf_counter()
-        self.step()
-        if self._on_latency is not None:
-            self._on_latency(time.perf_counter() - started)
+        robot = self._robot
+        sonar = tuple(robot.sonar.ranges_mm) if robot is not None else ()
+        self._bus.publish(SipEvent(sip.t, sip, sonar))
+        if self._on_step is not None:
+            # The cost of one SIP's whole route (brain step, actions, fan-out) on this host.
+            self._on_step(time.perf_counter() - started)
+
+    def check_devices(self) -> None:
+        """Publish the robot's and the scan servo's up/down changes (the drivers have no events)."""
+        now = self._clock.now()
+        if self._robot is not None:
+            self._publish_change(ROBOT, bool(self._robot.connected) and not bool(self._robot.stale), now,
+                                 self._robot_name())
+        if self._servo_up is not None:
+            self._publish_change(PANTILT, self._servo_up(), now, None)
+
+    def _publish_change(self, device: str, up: bool, now: float, detail: str | None) -> None:
+        if self._up.get(device) is up:
+            return
+        self._up[device] = up
+        self._bus.publish(DeviceEvent(now, device, DeviceStatus.UP if up else DeviceStatus.DOWN, detail))
 
     async def run(self) -> None:
-        """The periodic tick; also registers the SIP callback."""
-        if self._robot is not None and not self._halted:
+        """The control tick; also subscribes to the robot's SIPs (a held task holds both)."""
+        if self._robot is not None and not self._halted and self._remove_listener is None:
             self._remove_listener = self._robot.add_listener(self.on_sip)
         try:
             while True:
-                self.step()
+                self.check_devices()
+                now = self._clock.now()
+                self._bus.publish(Tick(now))
+                if self._on_tick is not None:
+                    self._on_tick(now)
                 await self._clock.sleep(self._tick_s)
         finally:
             if self._remove_listener is not None:
                 self._remove_listener()
                 self._remove_listener = None
 
-    def inputs(self, now: float) -> ControlInputs:
-        robot, scanner, st = self._robot, self._scanner, self._state
-        sip = robot.last_sip if robot is not None else None
-        sip_age = None if sip is None else now - sip.t
-        if robot is not None and robot.stale and sip_age is not None:
-            sip_age = max(sip_age, self._params.sip_timeout_s + 1e-6)
-        heading = None if sip is None else sip.theta_deg
-        ranges = list(robot.sonar.ranges_mm) if robot is not None else [None] * 16
-        bearing = prev = None
-        lost = False
-        servo_ok = True
-        if scanner is not None:
-            servo_ok = scanner.servo_ok
-            lost = scanner.leader_lost
-            bearing = _in_current_frame(scanner.bearing_deg, scanner.bearing_heading_deg, heading)
-            prev = _in_current_frame(scanner.prev_bearing_deg, scanner.prev_heading_deg, heading)
-        rssi_age = self._monitor.age_s(now) if self._monitor is not None else None
-        rssi_b, rear_t = self._rear()
-        manual_l = manual_r = manual_age = None
-        if self._manual is not None:
-            manual_l, manual_r, t = self._manual
-            manual_age = now - t
-        return ControlInputs(
-            mode=st.mode,
-            sip_age_s=sip_age,
-            rssi_age_s=rssi_age,
-            scan_servo_ok=servo_ok,
-            bearing_deg=bearing,
-            prev_bearing_deg=prev,
-            rssi_leader_dbm=st.rssi_leader_dbm,
-            rssi_behind_dbm=rssi_b,
-            rear_age_s=None if rear_t is None else now - rear_t,
-            front_sonar=front_readings(ranges),
-            leader_lost=lost,
-            manual_left_mm_s=manual_l,
-            manual_right_mm_s=manual_r,
-            manual_age_s=manual_age,
-            t_s=now,
-            odom=None if sip is None else (sip.x_mm, sip.y_mm, sip.theta_deg),
-            rear_sonar=rear_readings(ranges),
-        )
+    # -- actions out --------------------------------------------------------------------
 
-    def step(self) -> ControlOutput:
-        now = self._clock.now()
-        if self._halted:
-            out = ControlOutput(0.0, 0.0, DriveState.STOPPED, "shutdown", self._state.situation, self._memory)
-            self._apply(out, now)
-            return out
-        try:
-            out = control_step(self.inputs(now), self._params, self._memory)
-        except Exception as exc:
-            # The controller is pure and tested, but a robot with a bug in its brain stops.
-            log.exception("controller_error")
-            out = ControlOutput(0.0, 0.0, DriveState.FAULT, f"controller_error: {type(exc).__name__}",
-                                self._state.situation, self._memory)
-        self._memory = out.memory
-        self._apply(out, now)
-        return out
+    def execute(self, cmd: WheelCommand) -> None:
+        robot = self._robot
+        if robot is None or self._halted:
+            return
+        # Set before the call: the driver writes at once when the command spacing
+        # allows, and reports the latency from inside set_wheels/stop.
+        self._cause_sip_t = cmd.sip_t
+        if cmd.stop:
+            robot.stop()
+        else:
+            robot.set_wheels(cmd.left_mm_s, cmd.right_mm_s)
+        self.commands += 1
 
-    def _apply(self, out: ControlOutput, now: float) -> None:
-        robot, st = self._robot, self._state
-        prev = self.last_output
-        if robot is not None and not self._halted:
-            if out.left_mm_s == 0.0 and out.right_mm_s == 0.0:
-                # The urgent stop goes out on the transition to zero; while stopped, the
-                # driver keeps reflecting zero (PULSE), so the serial line is not flooded.
-                if prev is None or prev.left_mm_s != 0.0 or prev.right_mm_s != 0.0:
-                    robot.stop()
-            else:
-                robot.set_wheels(out.left_mm_s, out.right_mm_s)
-        self.last_output = out
-        st.loop_tick_t = now
-        st.wheels_left_mm_s = out.left_mm_s
-        st.wheels_right_mm_s = out.right_mm_s
-        st.situation = out.situation
-        if prev is None or prev.state is not out.state or prev.reason != out.reason:
-            log.info("drive_state", state=str(out.state), reason=out.reason,
-                     left_mm_s=round(out.left_mm_s, 1), right_mm_s=round(out.right_mm_s, 1))
-            st.state = out.state
-            st.reason = out.reason
-            st.touch()
+    def _on_written(self, seconds: float) -> None:
+        """The driver wrote a motion command `seconds` after some SIP's bytes arrived.
 
-
-def _in_current_frame(bearing: float | None, heading_then: float | None, heading_now: float | None) -> float | None:
-    """A bearing measured in an earlier robot frame, seen from the robot's heading now."""
-    if bearing is None:
-        return None
-    if heading_then is None or heading_now is None:
-        return bearing
-    b = bearing - (heading_now - heading_then)
-    return (b + 180.0) % 360.0 - 180.0
+        Counted only when the command in force was caused by a SIP (ticks, scans and the
+        operator cause commands too; they have no SIP latency), and only once per SIP.
+        A figure longer than the time since the causing SIP was decoded belongs to an
+        older SIP whose command was never written: dropped, not counted against this one.
+        """
+        sip_t, self._cause_sip_t = self._cause_sip_t, None
+        if sip_t is None or self._on_latency is None:
+            return
+        since_s = self._clock.to_real(self._clock.now() - sip_t)
+        if seconds > since_s + DECODE_SLACK_S:
+            self.latency_dropped += 1
+            return
+        self._on_latency(seconds)

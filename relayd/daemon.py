@@ -19,73 +19,83 @@ import contextlib
 import functools
 import os
 from collections.abc import Mapping, Sequence
-from typing import Any
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Protocol
 
 import structlog
 
+from drivers.airos import AirOsClient, AirOsPoller
 from drivers.airos.model import LinkQuality
+from drivers.arcos import ArcosRobot
 from drivers.clock import REAL_CLOCK, Clock
-from relayd.config import ConfigError, Settings, resolve_secret, secret_refs
+from drivers.pantilt import PanTilt
+from drivers.wifi import RssiSource
+from relayd.brain import Brain
+from relayd.bus import Bus
+from relayd.config import (
+    ApiSettings,
+    ConfigError,
+    Settings,
+    check_api_token,
+    resolve_secret,
+    secret_refs,
+)
 from relayd.config_checks import api_bind_error
-from relayd.control import ControlLoop
-from relayd.controller import ControlParams
-from relayd.estimator import EstimatorParams, ScanEstimate
-from relayd.scanner import RssiMonitor, Scanner, scan_period_nominal_s
-from relayd.state import LinkInfo, Mode, RelayState
+from relayd.control import ControlShell
+from relayd.events import Action, Event, LinkEvent, LinkSide, ScanPlan, ServoTarget, WheelCommand
+from relayd.health import device_health
+from relayd.metrics import Metrics
+from relayd.params import brain_params, control_params, estimator_params
+from relayd.scanner import RssiMonitor, Scanner
+from relayd.state import Mode, RelayState
+from relayd.statewriter import StateWriter
 from relayd.supervisor import Supervisor
+
+if TYPE_CHECKING:
+    from relayd.api.server import ApiServer
+
+__all__ = ["Daemon", "DeviceOverrides", "control_params", "estimator_params"]
 
 log = structlog.get_logger(__name__)
 
 #: Wall-clock budget for the robot's safe stop (wheels 0, ENABLE 0, CLOSE) on shutdown.
 SAFE_STOP_BUDGET_S = 0.3
+#: The control tick (clock s): runs the fail-safes when no SIP arrives.
+TICK_S = 0.1
+#: How often the systemd watchdog is petted while the control loop ticks (clock s).
+WATCHDOG_PET_S = 0.5
 
 
-def control_params(settings: Settings) -> ControlParams:
-    c, s, w, pt = settings.control, settings.scan, settings.wifi, settings.pantilt
-    scan_period = scan_period_nominal_s(s.width_deg, pt.speed_deg_s, s.samples, s.settle_s, w.sample_hz, s.mode)
-    rear_poll = settings.ap.rear.poll_s if settings.ap.rear is not None else 1.0
-    return ControlParams(
-        kp=c.kp, kd=c.kd, w1=c.w1, w2=c.w2, v_max_mm_s=c.v_max_mm_s,
-        threshold_l_dbm=c.threshold_l_dbm, threshold_b_dbm=c.threshold_b_dbm,
-        hysteresis_db=c.hysteresis_db, rear_link_required=c.rear_link == "require",
-        threshold_o_m=c.threshold_o_m, stop_distance_m=c.stop_distance_m,
-        detect_range_m=c.detect_range_m, gamma_o_m=c.gamma_o_m,
-        sip_timeout_s=settings.robot.lost_after_s,
-        # SPEC 2.5: no fresh RSSI for two scan periods.
-        rssi_timeout_s=2.0 * scan_period,
-        rear_timeout_s=c.rear_stale_polls * rear_poll,
-        manual_deadman_s=c.manual_deadman_s,
-        escape=c.escape,
-    )
+@dataclass(frozen=True, slots=True)
+class DeviceOverrides:
+    """In-process stand-ins for devices without a `memory://` link (the simulator on virtual time).
 
-
-def estimator_params(settings: Settings) -> EstimatorParams:
-    c = settings.control
-    return EstimatorParams(
-        gamma=settings.scan.gamma, threshold_o_m=c.threshold_o_m, detect_range_m=c.detect_range_m,
-        alpha_db=c.alpha_db, beta_per_m=c.beta_per_m, gamma_o_m=c.gamma_o_m,
-    )
-
-
-def behind_signal(quality: LinkQuality, station_mac: str | None) -> float | None:
-    """RSSI^b from the rear AP: the configured station, else the strongest one heard.
-
-    A rear radio in station mode has no station list; its own signal is then the
-    link's, unless a particular station was asked for.
+    `rssi_source` replaces the configured RSSI source; `airos_clients[side]` replaces
+    that poller's HTTP client (same interface, see relayd.sim.inproc).
     """
-    if station_mac is not None:
-        return quality.station_signal_dbm(station_mac)
-    best = quality.best_station_signal_dbm
-    return best if best is not None else quality.signal_dbm
+
+    rssi_source: RssiSource | None = None
+    airos_clients: Mapping[str, AirOsClient] = field(default_factory=dict)
+
+
+class Notifier(Protocol):
+    """What the daemon tells systemd (relayd.sdnotify.Notifier)."""
+
+    def ready(self) -> None: ...
+    def status(self, text: str) -> None: ...
+    def watchdog(self) -> None: ...
+    def stopping(self) -> None: ...
 
 
 class Daemon:
     """One relay's daemon. `await run()` until cancelled; cancellation is the safe shutdown."""
 
     def __init__(self, settings: Settings, *, clock: Clock = REAL_CLOCK,
-                 env: Mapping[str, str] | None = None, notifier: Any = None) -> None:
+                 env: Mapping[str, str] | None = None, notifier: Notifier | None = None,
+                 devices: DeviceOverrides | None = None) -> None:
         self.settings = settings
         self.clock = clock
+        self._devices = devices or DeviceOverrides()
         env = os.environ if env is None else env
         # Resolve every secret first: a missing one must stop us before a device moves.
         refs = secret_refs(settings)
@@ -93,12 +103,17 @@ class Daemon:
         for side in ("rear", "front"):
             ref = refs.get(f"ap.{side}")
             if ref is not None:
-                secret = resolve_secret(ref, env)
-                assert secret is not None
-                self._ap_passwords[side] = secret
+                secret = resolve_secret(ref, env)  # raises ConfigError when configured but missing
+                if secret is not None:
+                    self._ap_passwords[side] = secret
         token_ref = refs.get("api")
         self._token = resolve_secret(token_ref, env) \
             if token_ref is not None and _configured(settings.api, env) else None
+        if self._token is not None and token_ref is not None:
+            check_api_token(token_ref, self._token)
+        from relayd.api.server import tls_context
+
+        self._tls = tls_context(settings.api)
 
         c = settings.control
         self.state = RelayState(started_t=clock.now(), mode=Mode(c.mode),
@@ -111,32 +126,31 @@ class Daemon:
         self.api_port: int | None = None
         self.notifier = notifier
         self.supervisor = Supervisor(self.state, clock)
-        self.robot: Any = None
-        self.pantilt: Any = None
+        self.metrics = Metrics(self.state, clock)
+        self.brain = Brain(brain_params(settings), mode=Mode(c.mode))
+        self.bus: Bus[Event, Action] = Bus()
+        self.writer = StateWriter(self.state, self.metrics, link_channel=settings.pantilt.link_channel)
+        self.robot: ArcosRobot | None = None
+        self.pantilt: PanTilt | None = None
+        self.source: RssiSource | None = None
         self.monitor: RssiMonitor | None = None
         self.scanner: Scanner | None = None
-        self.pollers: dict[str, Any] = {}
-        self.metrics: Any = None
-        self._runner: Any = None
+        self.pollers: dict[str, AirOsPoller] = {}
+        self._runner: ApiServer | None = None
+        self._last_pet: float | None = None
         self._build()
+        self.bus.connect(self.brain.handle, self._on_actions)
 
     # -- construction ---------------------------------------------------------------
 
     def _build(self) -> None:
         s, clock, state = self.settings, self.clock, self.state
-        from relayd.metrics import Metrics
-
-        self.metrics = Metrics(state, clock)
         if s.robot.enabled:
-            from drivers.arcos import ArcosRobot
-
-            self.robot = ArcosRobot(s.robot.port, s.robot.baud, clock=clock,
-                                    subclass_override=s.robot.subclass,
-                                    lost_after_s=s.robot.lost_after_s, enable_motors=True)
-            self.robot.add_listener(self._on_sip)
-            # SPEC 6's control latency: SIP bytes in to the wheel command it caused written.
-            self.robot.on_command_latency = self.metrics.observe_control_latency
-            self.supervisor.add("robot", self.robot.run, device="robot")
+            robot = self.robot = ArcosRobot(s.robot.port, s.robot.baud, clock=clock,
+                                            subclass_override=s.robot.subclass,
+                                            lost_after_s=s.robot.lost_after_s, enable_motors=True)
+            state.health_sources["robot"] = lambda: device_health(robot)
+            self.supervisor.add("robot", robot.run, device="robot")
         if s.pantilt.enabled:
             from drivers.pantilt import ServoCalibration, make_pantilt
 
@@ -158,126 +172,78 @@ class Daemon:
         if s.wifi.enabled:
             from drivers.wifi import make_source
 
-            source = make_source(s.wifi.source, s.wifi.interface, path=s.wifi.procfs_path, clock=clock)
-            self.monitor = RssiMonitor(source, s.wifi.sample_hz, state, clock)
-            self.supervisor.add("wifi", self.monitor.run, device="wifi")
+            source = self.source = self._devices.rssi_source or make_source(
+                s.wifi.source, s.wifi.interface, path=s.wifi.procfs_path, clock=clock)
+            monitor = self.monitor = RssiMonitor(source, s.wifi.sample_hz, self.bus, clock)
+            state.health_sources["wifi"] = lambda: device_health(source, last_data_t=monitor.last_fresh_t)
+            self.supervisor.add("wifi", monitor.run, device="wifi")
         for side, password in self._ap_passwords.items():
-            from drivers.airos import AirOsPoller
-
-            ap = getattr(s.ap, side)
+            ap = s.ap.rear if side == "rear" else s.ap.front
+            if ap is None:
+                continue
             poller = AirOsPoller(ap.url, ap.username, password, poll_s=ap.poll_s,
                                  legacy_tls=ap.legacy_tls, timeout_s=ap.timeout_s, clock=clock,
-                                 on_update=functools.partial(self._on_link, side))
+                                 on_update=functools.partial(self._on_link, LinkSide(side)))
+            client = self._devices.airos_clients.get(side)
+            if client is not None:
+                poller.client = client
             self.pollers[side] = poller
+            state.health_sources[f"ap.{side}"] = functools.partial(device_health, poller)
             self.supervisor.add(f"ap.{side}", poller.run, device=f"ap.{side}")
-        if self.pantilt is not None and self.monitor is not None:
-            self.scanner = Scanner(
-                pantilt=self.pantilt, monitor=self.monitor, state=state, clock=clock,
+        pantilt = self.pantilt
+        if pantilt is not None and self.monitor is not None:
+            scanner = self.scanner = Scanner(
+                pantilt=pantilt, monitor=self.monitor, bus=self.bus, clock=clock,
                 scan_channel=s.pantilt.scan_channel, link_channel=s.pantilt.link_channel,
-                samples=s.scan.samples, width_deg=s.scan.width_deg,
                 limits_deg=(float(s.pantilt.limits_deg[0]), float(s.pantilt.limits_deg[1])),
                 speed_deg_s=s.pantilt.speed_deg_s, settle_s=s.scan.settle_s, mode=s.scan.mode,
-                params=estimator_params(s), lost_rssi_dbm=s.control.lost_rssi_dbm,
-                heading_deg=self._heading, sonar_mm=self._sonar,
-                on_scan=self._on_scan,
+                on_servo_change=lambda: self.control.check_devices(),
             )
-            self.supervisor.add("scanner", self.scanner.run, device="pantilt")
-        self.control = ControlLoop(
-            robot=self.robot, scanner=self.scanner, monitor=self.monitor, state=state,
-            params=control_params(s), clock=clock, rear_rssi=self._rear_rssi,
-            on_latency=self.metrics.observe_control_step,
+            self.supervisor.add("scanner", scanner.run, device="pantilt")
+        if pantilt is not None:
+            scanner_ = self.scanner
+            state.health_sources["pantilt"] = lambda: device_health(
+                pantilt, usable=scanner_ is None or scanner_.servo_ok,
+                extra_errors=0 if scanner_ is None else scanner_.link_errors)
+        robot_ = self.robot
+        self.control = ControlShell(
+            bus=self.bus, brain=self.brain, robot=robot_, clock=clock, tick_s=TICK_S,
+            on_latency=self.metrics.observe_control_latency, on_step=self.metrics.observe_control_step,
+            servo_up=None if self.scanner is None else (lambda: self.scanner is not None and self.scanner.servo_ok),
+            robot_name=lambda: None if robot_ is None or robot_.identity is None else robot_.identity.name,
+            on_tick=self._on_tick,
         )
         self.supervisor.add("control", self.control.run)
-        self.supervisor.add("health", self._health_loop)
 
-    # -- data in ------------------------------------------------------------------------
+    # -- the route: events in, actions out ----------------------------------------------
 
-    def _on_scan(self, estimate: ScanEstimate, now: float) -> None:
-        if self.scanner is not None and self.scanner.last_period_s is not None:
-            self.metrics.observe_scan_period(self.scanner.last_period_s)
+    def _on_actions(self, event: Event, actions: Sequence[Action]) -> None:
+        """Carry out the brain's actions for one event; never raises into the publisher."""
+        self.writer.on_event(event)
+        for action in actions:
+            try:
+                match action:
+                    case WheelCommand():
+                        self.control.execute(action)
+                    case ScanPlan():
+                        if self.scanner is not None:
+                            self.scanner.plan(action)
+                    case ServoTarget():
+                        if self.scanner is not None:
+                            self.scanner.point_link(action)
+                    case _:
+                        self.writer.on_action(action)
+            except Exception:
+                log.exception("action_failed", action=type(action).__name__)
 
-    def _heading(self) -> float | None:
-        sip = getattr(self.robot, "last_sip", None)
-        return None if sip is None else float(sip.theta_deg)
+    def _on_link(self, side: LinkSide, quality: LinkQuality) -> None:
+        self.bus.publish(LinkEvent(self.clock.now(), side, quality))
 
-    def _sonar(self) -> list[int | None]:
-        if self.robot is None:
-            return [None] * 16
-        return list(self.robot.sonar.ranges_mm)
-
-    def _on_sip(self, sip: Any) -> None:
-        st = self.state
-        st.x_mm, st.y_mm, st.theta_deg = sip.x_mm, sip.y_mm, sip.theta_deg
-        st.battery_v = sip.battery_v
-        st.motors_enabled = sip.motors_enabled
-        st.sonar_mm = list(self.robot.sonar.ranges_mm)
-        health = st.device("robot")
-        health.connected = True
-        health.last_data_t = sip.t
-        self.metrics.sip_received()
-
-    def _on_link(self, side: str, quality: LinkQuality) -> None:
-        st = self.state
-        st.links[side] = LinkInfo(
-            signal_dbm=quality.signal_dbm, rssi=quality.rssi, noise_dbm=quality.noise_dbm,
-            ccq_pct=quality.ccq_pct, tx_mbps=quality.tx_mbps, rx_mbps=quality.rx_mbps,
-            t=self.clock.now(),
-        )
-        if side == "rear":
-            ap = self.settings.ap.rear
-            st.rssi_behind_dbm = behind_signal(quality, ap.station_mac if ap is not None else None)
-        health = st.device(f"ap.{side}")
-        health.connected = True
-        health.last_data_t = self.clock.now()
-
-    def _rear_rssi(self) -> tuple[float | None, float | None]:
-        link = self.state.links.get("rear")
-        if link is None or self.state.rssi_behind_dbm is None:
-            return None, None
-        return self.state.rssi_behind_dbm, link.t
-
-    async def _health_loop(self) -> None:
-        """Copy driver counters into the state for /status and /metrics, twice a second."""
-        st = self.state
-        rear_timeout_s = control_params(self.settings).rear_timeout_s
-        while True:
-            rear = st.links.get("rear")
-            if st.rssi_behind_dbm is not None and (
-                    rear is None or rear.t is None or self.clock.now() - rear.t > rear_timeout_s):
-                # /status must not show a value the controller already refuses as stale.
-                st.rssi_behind_dbm = None
-                st.touch()
-            if self.robot is not None:
-                h = st.device("robot")
-                h.connected = bool(self.robot.connected) and not bool(self.robot.stale)
-                counters = self.robot.counters
-                h.errors = int(sum(v for k, v in counters.items() if k.endswith(("errors", "resyncs"))))
-                h.reconnects = int(counters.get("reconnects", 0))
-                h.last_error = self.robot.last_error
-                ident = self.robot.identity
-                if ident is not None:
-                    st.robot_name = ident.name
-            if self.pantilt is not None:
-                h = st.device("pantilt")
-                h.connected = bool(self.pantilt.connected) and (self.scanner is None or self.scanner.servo_ok)
-                pc = self.pantilt.counters
-                h.errors = int(pc.get("timeouts", 0)) + int(pc.get("errors", 0))
-                h.reconnects = int(pc.get("reconnects", 0))
-                h.last_error = self.pantilt.last_error or h.last_error
-                if self.pantilt.last_reply_t is not None:
-                    h.last_data_t = self.pantilt.last_reply_t
-            for side, poller in self.pollers.items():
-                h = st.device(f"ap.{side}")
-                h.connected = getattr(poller, "state", "") == "ok"
-                pc = getattr(poller, "counters", {})
-                h.errors = int(pc.get("errors", 0))
-                h.reconnects = int(pc.get("relogins", 0))
-                h.last_error = getattr(poller, "last_error", None)
-            if self.notifier is not None and st.loop_tick_t is not None \
-                    and self.clock.now() - st.loop_tick_t < 1.0:
-                # Pet the watchdog only while the control loop really ticks.
-                self.notifier.watchdog()
-            await self.clock.sleep(0.5)
+    def _on_tick(self, now: float) -> None:
+        """Pet the watchdog only while the control loop really ticks."""
+        if self.notifier is not None and (self._last_pet is None or now - self._last_pet >= WATCHDOG_PET_S):
+            self._last_pet = now
+            self.notifier.watchdog()
 
     # -- lifecycle ----------------------------------------------------------------------
 
@@ -291,7 +257,8 @@ class Daemon:
             # Bound before any device is touched: a wrong bind or a taken port is a
             # config error (exit 2 naming the key), not a robot that is already enabled.
             try:
-                self._runner, self.api_port = await start_api(app, s.api.bind, s.api.port)
+                self._runner, self.api_port = await start_api(app, s.api.bind, s.api.port,
+                                                              ssl_context=self._tls)
             except OSError as exc:
                 raise ConfigError([api_bind_error(s.api.bind, s.api.port, exc)]) from None
             log.info("api_control", enabled=self._token is not None,
@@ -332,7 +299,7 @@ class Daemon:
         log.info("stopped")
 
 
-def _configured(api: Any, env: Mapping[str, str]) -> bool:
+def _configured(api: ApiSettings, env: Mapping[str, str]) -> bool:
     """A token is optional: with none configured the control endpoints answer 403."""
     if api.token_file:
         return True

@@ -157,7 +157,7 @@ class _StateCollector(Collector):
                                          labels=["device"])
         age = GaugeMetricFamily("relayd_device_data_age_seconds", "Seconds since the device last sent data",
                                 labels=["device"])
-        for name, health in st.health.items():
+        for name, health in st.health_now().items():
             connected.add_metric([name], 1.0 if health.connected else 0.0)
             errors.add_metric([name], health.errors)
             reconnects.add_metric([name], health.reconnects)
@@ -215,11 +215,3 @@ class Metrics:
 
     def sip_received(self) -> None:
         self._sips.inc()
-
-    def device_reconnected(self, device: str) -> None:
-        """Count one reconnect of `device`.
-
-        The count lives in `RelayState.health[device].reconnects` (so /status and /metrics
-        agree); callers use this method *instead of* bumping that field themselves.
-        """
-        self.state.device(device).reconnects += 1

@@ -1,18 +1,20 @@
-"""The scan task: sweep the Yagi on servo 1, pair angles with RSSI, point servo 2.
+"""The scan shell: sweep the Yagi on servo 1 as the brain plans, pair angles with RSSI.
 
-This is the I/O around the pure estimator. `RssiMonitor` samples the Wi-Fi source at
-`sample_hz` into a short history (so freshness is known even between scans, and a
-continuous sweep can interpolate angles at sample times). `Scanner` runs sweeps:
+This is the I/O around the brain's scan logic (`relayd.brain`: bearing memory, plan,
+estimate, leader-lost). `RssiMonitor` samples the Wi-Fi source at `sample_hz`,
+publishes every read as an `RssiEvent` (the brain judges freshness on that stream)
+and keeps a short history, so a sweep can pair samples with servo angles.
+`Scanner` executes the brain's `ScanPlan`s:
 
 - step mode: command an angle, wait the servo's travel time at the configured slew
   rate plus `settle_s`, then take the first fresh sample taken after that instant;
 - continuous mode: command the far end of the window once at the slew rate and
   interpolate each fresh sample's angle from the commanded motion.
 
-Sweeps alternate direction, so no time is spent slewing back. Every sample carries
-the robot's odometry heading, and the estimate is expressed in the robot frame at the
-scan's end. The window is centred on the previous bearing (corrected for the turn
-since), or spans the whole servo range while the leader is lost.
+Before each sweep the scanner publishes `ScanReady` and the brain answers with the
+plan; each paired sample is published as a `ScanSampleEvent`, the sweep's end as
+`ScanDone`, and the brain answers with the estimate and a `ServoTarget` for the link
+antenna (carried out here before the next sweep).
 """
 
 from __future__ import annotations
@@ -28,17 +30,17 @@ from typing import Protocol, TypeVar
 import structlog
 
 from drivers.clock import REAL_CLOCK, Clock
-from relayd.estimator import (
-    LOST_AFTER_SCANS,
-    EstimatorParams,
-    ScanEstimate,
-    ScanSample,
-    estimate_scan,
-    front_readings,
-    plan_scan,
-    update_lost_count,
+from drivers.wifi.sources import RssiSample
+from relayd.events import (
+    Event,
+    RssiEvent,
+    ScanDone,
+    ScanPlan,
+    ScanReady,
+    ScanSampleEvent,
+    ServoPosition,
+    ServoTarget,
 )
-from relayd.state import RelayState, ScanRecord
 
 log = structlog.get_logger(__name__)
 
@@ -58,19 +60,14 @@ class ServoController(Protocol):
     async def is_moving(self) -> bool: ...
 
 
-class RssiReading(Protocol):
-    @property
-    def t(self) -> float: ...
-    @property
-    def rssi_dbm(self) -> float | None: ...
-    @property
-    def fresh(self) -> bool: ...
-
-
 class RssiReader(Protocol):
     """What the monitor needs of an RSSI source (drivers.wifi sources)."""
 
-    async def read(self) -> RssiReading: ...
+    async def read(self) -> RssiSample: ...
+
+
+class Publisher(Protocol):
+    def publish(self, event: Event) -> None: ...
 
 
 @dataclass(frozen=True, slots=True)
@@ -82,11 +79,11 @@ class TimedRssi:
 class RssiMonitor:
     """Samples an RSSI source continuously; keeps the fresh samples of the last few seconds."""
 
-    def __init__(self, source: RssiReader, sample_hz: float, state: RelayState, clock: Clock = REAL_CLOCK,
-                 history_s: float = 10.0) -> None:
+    def __init__(self, source: RssiReader, sample_hz: float, bus: Publisher | None = None,
+                 clock: Clock = REAL_CLOCK, history_s: float = 10.0) -> None:
         self._source = source
         self._period_s = 1.0 / sample_hz
-        self._state = state
+        self._bus = bus
         self._clock = clock
         self._samples: deque[TimedRssi] = deque(maxlen=max(16, int(history_s * sample_hz)))
         self._arrived = asyncio.Event()
@@ -97,16 +94,13 @@ class RssiMonitor:
         return self._period_s
 
     async def run(self) -> None:
-        health = self._state.device("wifi")
         next_t = self._clock.now()
         while True:
             sample = await self._source.read()
-            health.connected = bool(getattr(self._source, "available", True))
-            health.errors = int(getattr(self._source, "errors", 0)) + int(getattr(self._source, "rejected", 0))
-            health.last_error = getattr(self._source, "last_error", None)
             if sample.fresh and sample.rssi_dbm is not None:
                 self._add(TimedRssi(sample.t, float(sample.rssi_dbm)))
-                health.last_data_t = sample.t
+            if self._bus is not None:
+                self._bus.publish(RssiEvent(self._clock.now(), sample))
             next_t += self._period_s
             now = self._clock.now()
             if next_t < now - self._period_s:
@@ -151,68 +145,45 @@ class RssiMonitor:
 
 
 class ScanServoError(RuntimeError):
-    """The scan servo did not answer; the controller stops the wheels."""
-
-
-def scan_period_nominal_s(width_deg: float, speed_deg_s: float, samples: int, settle_s: float,
-                          sample_hz: float, mode: str) -> float:
-    """A sweep's expected duration, used for the 'no fresh RSSI for 2 scan periods' fail-safe."""
-    slew = width_deg / speed_deg_s
-    if mode == "continuous":
-        return slew + 1.0 / sample_hz
-    return slew + samples * (settle_s + 1.0 / sample_hz)
+    """The scan servo did not answer; the brain stops the wheels."""
 
 
 class Scanner:
-    """Runs sweeps forever and publishes each estimate."""
+    """Runs the brain's sweep plans forever; publishes samples and sweep ends."""
 
     def __init__(
         self,
         *,
         pantilt: ServoController,
         monitor: RssiMonitor,
-        state: RelayState,
+        bus: Publisher,
         clock: Clock,
         scan_channel: int,
         link_channel: int,
-        samples: int,
-        width_deg: float,
         limits_deg: tuple[float, float],
         speed_deg_s: float,
         settle_s: float,
         mode: str,
-        params: EstimatorParams,
-        lost_rssi_dbm: float,
-        heading_deg: Callable[[], float | None],
-        sonar_mm: Callable[[], Sequence[int | None]],
-        on_scan: Callable[[ScanEstimate, float], None] | None = None,
+        on_servo_change: Callable[[], None] | None = None,
     ) -> None:
         self._pt = pantilt
         self._monitor = monitor
-        self._state = state
+        self._bus = bus
         self._clock = clock
         self._scan_ch = scan_channel
         self._link_ch = link_channel
-        self._samples = samples
-        self._width = width_deg
         self._limits = limits_deg
         self._speed = speed_deg_s
         self._settle = settle_s
         self._mode = mode
-        self._params = params
-        self._lost_rssi = lost_rssi_dbm
-        self._heading = heading_deg
-        self._sonar = sonar_mm
-        self._on_scan = on_scan
-        self._ascending = True
+        self._on_servo_change = on_servo_change
         self._angle: float | None = None  # last commanded scan angle
         #: The controller answered the scanner's latest request; a write alone never sets it.
         self._answered = False
-        self.lost_count = 0
-        self.bearing_deg: float | None = None
-        self.bearing_heading_deg: float | None = None
-        self.prev_bearing_deg: float | None = None
-        self.prev_heading_deg: float | None = None
+        self._plan: ScanPlan | None = None
+        self._link_target: ServoTarget | None = None
+        self._wake = asyncio.Event()
+        self.link_errors = 0
         self.last_period_s: float | None = None
 
     @property
@@ -226,33 +197,30 @@ class Scanner:
         """
         return self._answered and self._pt.connected and self._pt.answering
 
-    @property
-    def leader_lost(self) -> bool:
-        return self.lost_count >= LOST_AFTER_SCANS
+    # -- actions in (from the brain, through the daemon) ---------------------------------
 
-    def _center(self) -> tuple[float, float]:
-        """Centre and width of the next window: previous bearing, or the full range when lost."""
-        if self.leader_lost or self.bearing_deg is None:
-            lo, hi = self._limits
-            if self.leader_lost:
-                return (lo + hi) / 2.0, hi - lo
-            return 0.0, self._width
-        heading = self._heading()
-        turned = 0.0
-        if heading is not None and self.bearing_heading_deg is not None:
-            turned = heading - self.bearing_heading_deg
-        return self.bearing_deg - turned, self._width
+    def plan(self, plan: ScanPlan) -> None:
+        self._plan = plan
+        self._wake.set()
+
+    def point_link(self, target: ServoTarget) -> None:
+        self._link_target = target
+
+    def _set_answered(self, answered: bool) -> None:
+        if answered != self._answered:
+            self._answered = answered
+            if self._on_servo_change is not None:
+                self._on_servo_change()
 
     async def _servo(self, coro: Awaitable[T], *, answered: bool = False) -> T:
         """Run one servo operation; `answered`: it is a request the controller replied to."""
         try:
             result = await coro
         except Exception as exc:
-            self._answered = False
-            self._state.device("pantilt").last_error = f"{type(exc).__name__}: {exc}"
-            raise ScanServoError(str(exc)) from exc
+            self._set_answered(False)
+            raise ScanServoError(f"{type(exc).__name__}: {exc}") from exc
         if answered:
-            self._answered = True
+            self._set_answered(True)
         return result
 
     async def prepare(self) -> None:
@@ -266,70 +234,65 @@ class Scanner:
     async def run(self) -> None:
         while True:
             if not self._pt.connected:
-                self._answered = False
+                self._set_answered(False)
                 await self._clock.sleep(0.1)
                 continue
             try:
+                self._plan = None
                 await self.prepare()
                 while True:
-                    await self.scan_once()
+                    plan = await self.next_plan()
+                    await self.sweep(plan)
             except ScanServoError as exc:
                 log.warning("scan_servo_error", error=str(exc))
                 await self._clock.sleep(0.2)
 
-    async def scan_once(self) -> ScanEstimate | None:
-        center, width = self._center()
-        angles = plan_scan(center, width, self._samples, self._limits, self._ascending)
-        self._ascending = not self._ascending
+    async def point_pending_link(self) -> None:
+        """Carry out the brain's latest link-antenna target, if one is waiting."""
+        target, self._link_target = self._link_target, None
+        if target is not None:
+            await self._point(target)
+
+    async def next_plan(self) -> ScanPlan:
+        """Point the link antenna if asked, then ask the brain for the next sweep's plan."""
+        await self.point_pending_link()
+        self._plan = None
+        # The brain answers synchronously when the servo counts as answering; otherwise
+        # as soon as it does.
+        self._bus.publish(ScanReady(self._clock.now()))
+        while True:
+            plan, self._plan = self._plan, None
+            if plan is not None:
+                return plan
+            self._wake.clear()
+            await self._wake.wait()
+
+    async def _point(self, target: ServoTarget) -> None:
+        # A failure here is the link servo's, not the scan's: counted, logged, scanning goes on.
+        try:
+            commanded = await self._pt.set_angle(target.channel, target.angle_deg)
+        except Exception as exc:  # noqa: BLE001 - the link servo failing must not end scanning
+            self.link_errors += 1
+            log.warning("link_servo_error", error=str(exc))
+            return
+        self._bus.publish(ServoPosition(self._clock.now(), target.channel, float(commanded), False))
+
+    async def sweep(self, plan: ScanPlan) -> int:
+        """One sweep of `plan`; returns the number of samples published."""
         t_start = self._clock.now()
         if self._mode == "continuous":
-            samples = await self._sweep_continuous(angles)
+            samples = await self._sweep_continuous(plan.angles_deg)
         else:
-            samples = await self._sweep_steps(angles)
-        if len(samples) < 3:
-            log.warning("scan_too_few_samples", samples=len(samples))
-            return None
-        heading_end = self._heading()
-        estimate = estimate_scan(
-            samples,
-            heading_end if heading_end is not None else samples[-1].heading_deg,
-            front_readings(self._sonar()),
-            self._params,
-        )
+            samples = await self._sweep_steps(plan.angles_deg)
         now = self._clock.now()
         self.last_period_s = now - t_start
-        self.prev_bearing_deg, self.prev_heading_deg = self.bearing_deg, self.bearing_heading_deg
-        self.bearing_deg = estimate.bearing_deg
-        self.bearing_heading_deg = heading_end
-        self.lost_count = update_lost_count(self.lost_count, estimate.rssi_leader_dbm, self._lost_rssi)
-        self._publish(estimate, now)
-        # Point the data-link antenna at the leader; a failure here is the link servo's,
-        # not the scan's, so it is logged and the scan goes on.
-        try:
-            commanded = await self._pt.set_angle(self._link_ch, estimate.bearing_deg)
-            self._state.link_bearing_deg = float(commanded)
-        except Exception as exc:  # noqa: BLE001 - the link servo failing must not end scanning
-            self._state.device("pantilt").errors += 1
-            log.warning("link_servo_error", error=str(exc))
-        return estimate
+        if samples < 3:
+            log.warning("scan_too_few_samples", samples=samples)
+        self._bus.publish(ScanDone(now, t_start, samples))
+        return samples
 
-    def _publish(self, est: ScanEstimate, now: float) -> None:
-        st = self._state
-        st.last_scan = ScanRecord(
-            t=now,
-            angles_deg=tuple(round(a, 2) for a in est.angles_deg),
-            rssi_dbm=tuple(round(r, 2) for r in est.rssi_dbm),
-            bearing_deg=round(est.bearing_deg, 3),
-            rssi_leader_dbm=est.rssi_leader_dbm,
-            situation=est.situation,
-            period_s=self.last_period_s,
-        )
-        st.scan_count += 1
-        st.bearing_deg = est.bearing_deg
-        st.rssi_leader_dbm = est.rssi_leader_dbm
-        st.touch()
-        if self._on_scan is not None:
-            self._on_scan(est, now)
+    def _sample(self, angle_deg: float, rssi_dbm: float) -> None:
+        self._bus.publish(ScanSampleEvent(self._clock.now(), angle_deg, rssi_dbm))
 
     def _travel_s(self, target: float) -> float:
         if self._angle is None:
@@ -337,8 +300,8 @@ class Scanner:
             return (self._limits[1] - self._limits[0]) / self._speed
         return abs(target - self._angle) / self._speed
 
-    async def _sweep_steps(self, angles: Sequence[float]) -> list[ScanSample]:
-        samples: list[ScanSample] = []
+    async def _sweep_steps(self, angles: Sequence[float]) -> int:
+        count = 0
         wait_s = 4.0 * self._monitor.period_s + 0.2
         for target in angles:
             commanded = float(await self._servo(self._pt.set_angle(self._scan_ch, target)))
@@ -347,13 +310,14 @@ class Scanner:
             self._angle = commanded
             sample = await self._monitor.first_after(ready_t, (ready_t - t_cmd) + wait_s)
             if sample is None:
-                continue  # no fresh RSSI: the controller's freshness fail-safe handles it
-            samples.append(ScanSample(commanded, sample.rssi_dbm, self._heading_or(samples)))
+                continue  # no fresh RSSI: the brain's freshness fail-safe handles it
+            self._sample(commanded, sample.rssi_dbm)
+            count += 1
         # The servo really answered during this sweep? A position read proves it.
         await self._servo(self._pt.get_angle(self._scan_ch), answered=True)
-        return samples
+        return count
 
-    async def _sweep_continuous(self, angles: Sequence[float]) -> list[ScanSample]:
+    async def _sweep_continuous(self, angles: Sequence[float]) -> int:
         start, end = angles[0], angles[-1]
         if self._angle is None or abs(self._angle - start) > 0.5:
             first = float(await self._servo(self._pt.set_angle(self._scan_ch, start)))
@@ -371,7 +335,7 @@ class Scanner:
         # none from inside the sweep is still on its way; that sample (the servo at the
         # end) is the sweep's last.
         deadline = end_t + 4.0 * self._monitor.period_s + 0.2
-        samples: list[ScanSample] = []
+        count = 0
         last_t = -math.inf
         done = False
         while True:
@@ -380,8 +344,8 @@ class Scanner:
                 if s.t <= last_t:
                     continue
                 frac = 1.0 if duration <= 0 else min(1.0, max(0.0, (s.t - t0) / duration))
-                samples.append(ScanSample(start + (commanded_end - start) * frac, s.rssi_dbm,
-                                          self._heading_or(samples)))
+                self._sample(start + (commanded_end - start) * frac, s.rssi_dbm)
+                count += 1
                 last_t = s.t
                 if s.t >= end_t:
                     done = True
@@ -391,10 +355,4 @@ class Scanner:
             await self._clock.sleep(self._monitor.period_s)
         self._angle = commanded_end
         await self._servo(self._pt.get_angle(self._scan_ch), answered=True)
-        return samples
-
-    def _heading_or(self, samples: list[ScanSample]) -> float:
-        h = self._heading()
-        if h is not None:
-            return h
-        return samples[-1].heading_deg if samples else 0.0
+        return count

@@ -1,13 +1,17 @@
 """The one state object every reader reads.
 
-Tasks that do I/O write into `RelayState`; the HTTP API, the metrics collector, the
-live page and the simulator's trace only read it. Everything here is plain data on
-the event loop thread: no locks, and a reader never waits for a device.
+One writer: `relayd.statewriter.StateWriter` applies the brain's actions and the
+events' raw device data; the HTTP API, the metrics collector, the live page and the
+simulator's trace only read it. Device health is not copied in: `health_sources`
+are read when a snapshot is taken (see `relayd.health`), and `health` holds only the
+supervisor's own failure records, added on top. Everything here is plain data on the
+event loop thread: no locks, and a reader never waits for a device.
 """
 
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Any, Protocol
@@ -109,7 +113,10 @@ class RelayState:
     last_scan: ScanRecord | None = None
     scan_count: int = 0
     links: dict[str, LinkInfo] = field(default_factory=dict)
+    #: The supervisor's failure records per device (task failures), added to the driver's view.
     health: dict[str, DeviceHealth] = field(default_factory=dict)
+    #: Per device, a function returning the driver's own view of its health, read at snapshot time.
+    health_sources: dict[str, Callable[[], DeviceHealth]] = field(default_factory=dict, repr=False)
     loop_tick_t: float | None = None
     robot_name: str | None = None
     #: The operator's name for this robot (config `robot.display_name`), e.g. "relay 2 (east)".
@@ -124,6 +131,16 @@ class RelayState:
         if health is None:
             health = self.health[name] = DeviceHealth()
         return health
+
+    def health_now(self) -> dict[str, DeviceHealth]:
+        """Every device's health now: the driver's view plus the supervisor's failure records."""
+        out: dict[str, DeviceHealth] = {}
+        for name, source in self.health_sources.items():
+            out[name] = merge_health(source(), self.health.get(name))
+        for name, supervised in self.health.items():
+            if name not in out:
+                out[name] = supervised
+        return out
 
     def touch(self) -> None:
         """Tell live readers (SSE, trace) that something changed."""
@@ -184,7 +201,20 @@ class RelayState:
                     "reconnects": h.reconnects,
                     "last_error": h.last_error,
                 }
-                for name, h in self.health.items()
+                for name, h in self.health_now().items()
             },
             "thresholds": dict(self.thresholds),
         }
+
+
+def merge_health(source: DeviceHealth, supervised: DeviceHealth | None) -> DeviceHealth:
+    """The driver's view plus the supervisor's failure count and message (neither replaces the other)."""
+    if supervised is None:
+        return source
+    return DeviceHealth(
+        connected=source.connected,
+        last_data_t=source.last_data_t,
+        errors=source.errors + supervised.errors,
+        reconnects=source.reconnects + supervised.reconnects,
+        last_error=source.last_error or supervised.last_error,
+    )

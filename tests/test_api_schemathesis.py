@@ -62,7 +62,7 @@ def served() -> Iterator[Served]:
         box["task"] = task
         async with asyncio.timeout(READY_TIMEOUT_S):
             while daemon.api_port is None or daemon.state.last_scan is None \
-                    or not daemon.state.device("robot").connected:
+                    or not daemon.state.health_now()["robot"].connected:
                 if task.done():
                     task.result()
                 await asyncio.sleep(0.1)

@@ -1,10 +1,12 @@
-"""End to end in-process: a real `Daemon` driving one relay's fakes (FakeRig), real clock.
+"""End to end in-process: a real `Daemon` driving one relay's fakes (FakeRig), virtual time.
 
 The rig's world places a leader on the floor and writes the RSSI the Yagi would hear
 from where the fake scan servo physically points, so the whole chain runs for real:
-procfs RSSI file -> monitor -> sweeps of the fake Maestro over a pty -> estimator ->
-controller on every SIP -> VEL/RVEL to the fake P3-AT over a pty -> the fake robot
-moves -> the RSSI changes. The tests read the fakes (where the robot is, what it was
+procfs RSSI file -> monitor -> sweeps of the fake Maestro over an in-memory link ->
+brain (estimator, controller) on every SIP -> VEL/RVEL to the fake P3-AT over an
+in-memory link -> the fake robot moves -> the RSSI changes. The airOS radios answer
+over loopback HTTP. Time is virtual (`relayd.vtime`): waits cost no wall time and a
+loaded machine cannot make a test late. The tests read the fakes (where the robot is, what it was
 told, where the link servo points), not only the daemon's own state.
 
 Scans are kept short (9 samples over 120 degrees, a fast servo) so each test takes a
@@ -27,6 +29,7 @@ from relayd.config import parse_settings
 from relayd.daemon import Daemon, control_params
 from relayd.fakes.rig import FakeRig
 from relayd.state import DriveState, Mode
+from relayd.vtime import LoopClock
 
 pytestmark = pytest.mark.slow
 
@@ -82,11 +85,12 @@ async def relay(tmp_path: Path, *, leader_deg: float = 0.0, distance_m: float = 
                 control: dict[str, Any] | None = None, scan: dict[str, Any] | None = None,
                 pantilt: dict[str, Any] | None = None) -> AsyncIterator[tuple[FakeRig, Daemon]]:
     a = math.radians(leader_deg)
-    rig = FakeRig(tmp_path, leader_xy_m=(distance_m * math.cos(a), distance_m * math.sin(a)))
+    rig = FakeRig(tmp_path, leader_xy_m=(distance_m * math.cos(a), distance_m * math.sin(a)),
+                  clock=LoopClock(), links="memory")
     async with rig:
         settings = parse_settings(rig.config_doc(scan={**SCAN, **(scan or {})}, control=control,
                                                  pantilt={**PANTILT, **(pantilt or {})}))
-        daemon = Daemon(settings, env=rig.env)
+        daemon = Daemon(settings, env=rig.env, clock=rig.clock)
         async with running(daemon):
             yield rig, daemon
 
@@ -97,6 +101,7 @@ async def driving(rig: FakeRig, daemon: Daemon) -> None:
 
 
 @pytest.mark.parametrize(("leader_deg", "mode"), [(25.0, "step"), (-25.0, "step"), (25.0, "continuous")])
+@pytest.mark.virtual_time
 async def test_bearing_converges_and_the_robot_turns_toward_the_leader(
         tmp_path: Path, leader_deg: float, mode: str) -> None:
     side = math.copysign(1.0, leader_deg)
@@ -125,6 +130,7 @@ async def test_bearing_converges_and_the_robot_turns_toward_the_leader(
         assert st.link_bearing_deg is not None and abs(st.link_bearing_deg - rig.link_deg) < 2.0
 
 
+@pytest.mark.virtual_time
 async def test_stops_when_the_leader_is_near_and_resumes(tmp_path: Path) -> None:
     # threshold_l -40 dBm: at 6 m RSSI^l is about -46 (drive), at 2 m about -36 (stop).
     async with relay(tmp_path, control={"threshold_l_dbm": -40.0}) as (rig, daemon):
@@ -140,6 +146,7 @@ async def test_stops_when_the_leader_is_near_and_resumes(tmp_path: Path) -> None
         await driving(rig, daemon)
 
 
+@pytest.mark.virtual_time
 async def test_stops_when_the_rear_link_is_weak_or_stale_and_resumes(tmp_path: Path) -> None:
     async with relay(tmp_path) as (rig, daemon):
         await driving(rig, daemon)
@@ -157,6 +164,7 @@ async def test_stops_when_the_rear_link_is_weak_or_stale_and_resumes(tmp_path: P
         await driving(rig, daemon)
 
 
+@pytest.mark.virtual_time
 async def test_stops_within_one_sip_period_of_rssi_going_stale_and_resumes(tmp_path: Path) -> None:
     async with relay(tmp_path) as (rig, daemon):
         rec = Transitions(daemon)
@@ -184,6 +192,7 @@ async def test_stops_within_one_sip_period_of_rssi_going_stale_and_resumes(tmp_p
             await rec.close()
 
 
+@pytest.mark.virtual_time
 async def test_modes_hold_manual_and_deadman(tmp_path: Path) -> None:
     async with relay(tmp_path, control={"manual_deadman_s": 0.5}) as (rig, daemon):
         await driving(rig, daemon)

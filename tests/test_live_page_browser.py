@@ -84,7 +84,7 @@ async def test_live_page_shows_the_daemon_and_redraws_on_a_new_scan(
             assert await page.locator("#scan-points circle").count() == daemon.settings.scan.samples
             assert await page.locator("#sonar-rays line").count() == 16
             # One row per device and per radio, all up.
-            assert await page.locator("#health tbody tr").count() == len(state.health) == 5
+            assert await page.locator("#health tbody tr").count() == len(state.health_now()) == 5
             await page.wait_for_function(
                 "() => [...document.querySelectorAll('#health tbody tr')].every("
                 "r => r.textContent.includes('up'))", timeout=10_000)

@@ -8,19 +8,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from prometheus_client import generate_latest
 from prometheus_client.parser import text_string_to_metric_families
+from support import ManualClock
 
-from drivers.clock import Clock
 from relayd.metrics import Metrics
-from relayd.state import DriveState, LinkInfo, Mode, RelayState
-
-
-class FixedClock(Clock):
-    def __init__(self, t: float) -> None:
-        super().__init__()
-        self.t = t
-
-    def now(self) -> float:
-        return self.t
+from relayd.state import DeviceHealth, DriveState, LinkInfo, Mode, RelayState
 
 
 def _samples(metrics: Metrics) -> dict[tuple[str, tuple[tuple[str, str], ...]], float]:
@@ -33,7 +24,7 @@ def _samples(metrics: Metrics) -> dict[tuple[str, tuple[tuple[str, str], ...]], 
 
 
 def test_two_instances_do_not_collide() -> None:
-    clock = FixedClock(10.0)
+    clock = ManualClock(10.0)
     a, b = Metrics(RelayState(), clock), Metrics(RelayState(), clock)
     a.sip_received()
     a.sip_received()
@@ -43,7 +34,7 @@ def test_two_instances_do_not_collide() -> None:
 
 
 def test_levels_are_read_at_scrape_time() -> None:
-    clock = FixedClock(100.0)
+    clock = ManualClock(100.0)
     state = RelayState(started_t=40.0)
     m = Metrics(state, clock)
     before = _samples(m)
@@ -87,21 +78,21 @@ def test_levels_are_read_at_scrape_time() -> None:
 
 def test_observations_and_reconnects() -> None:
     state = RelayState()
-    m = Metrics(state, FixedClock(0.0))
+    m = Metrics(state, ManualClock(0.0))
     m.observe_control_latency(0.0004)
     m.observe_control_latency(0.003)
     m.observe_control_latency(math.nan)  # ignored: a broken timer must not poison the histogram
     m.observe_control_latency(-1.0)
     m.observe_scan_period(1.7)
-    m.device_reconnected("servo")
-    m.device_reconnected("servo")
+    # Reconnects are the driver's own count, read through its health source.
+    state.health_sources["servo"] = lambda: DeviceHealth(connected=True, reconnects=2)
     s = _samples(m)
     assert s[("relayd_control_latency_seconds_count", ())] == 2.0
     assert s[("relayd_control_latency_seconds_bucket", (("le", "0.0005"),))] == 1.0
     assert s[("relayd_control_latency_seconds_bucket", (("le", "0.005"),))] == 2.0
     assert s[("relayd_scan_period_seconds_count", ())] == 1.0
     assert s[("relayd_device_reconnects_total", (("device", "servo"),))] == 2.0
-    assert state.health["servo"].reconnects == 2  # /status shows the same count
+    assert state.snapshot(0.0)["health"]["servo"]["reconnects"] == 2  # /status shows the same count
 
 
 _maybe_float = st.one_of(st.none(), st.floats(allow_nan=True, allow_infinity=True))
@@ -120,7 +111,7 @@ def test_any_state_scrapes_to_valid_exposition(rssi_l: float | None, rssi_b: flo
     state.bearing_deg, state.battery_v = bearing, battery
     state.sonar_mm = sonar
     state.links["rear"] = LinkInfo(signal_dbm=signal, ccq_pct=ccq)
-    m = Metrics(state, FixedClock(5.0))
+    m = Metrics(state, ManualClock(5.0))
     text = generate_latest(m.registry).decode()
     families = list(text_string_to_metric_families(text))
     assert any(f.name == "relayd_build_info" for f in families)
@@ -135,7 +126,7 @@ def test_any_state_scrapes_to_valid_exposition(rssi_l: float | None, rssi_b: flo
 def test_drive_info_carries_state_and_reason() -> None:
     """Alerts and the dashboard read the reason from relayd_drive_info; it follows /status."""
     state = RelayState()
-    m = Metrics(state, FixedClock(0.0))
+    m = Metrics(state, ManualClock(0.0))
     s = _samples(m)
     assert s[("relayd_drive_info", (("reason", "starting"), ("state", "stopped")))] == 1.0
     state.state, state.reason = DriveState.FAULT, "controller_error: ValueError"

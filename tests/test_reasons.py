@@ -15,7 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from relayd import control, controller
+from relayd import brain, control, controller
 from relayd.api.reasons import MINUS, comparison, describe, fmt_db, phrasebook
 from relayd.controller import ControlInputs, ControlMemory, ControlParams, control_step
 from relayd.estimator import SonarReading
@@ -23,10 +23,10 @@ from relayd.state import Mode, RelayState
 
 
 def controller_reason_literals() -> set[str]:
-    """Reason codes in relayd/controller.py and relayd/control.py: `_stopped(state, "x", ...)`,
+    """Reason codes in relayd/controller.py, relayd/brain.py and relayd/control.py: `_stopped(state, "x", ...)`,
     `ControlOutput(l, r, state, "x", ...)`, `return False, "x"` and `reason = "x"`; for
     an f-string reason (`f"controller_error: {name}"`) the code before the colon."""
-    trees = [ast.parse(inspect.getsource(module)) for module in (controller, control)]
+    trees = [ast.parse(inspect.getsource(module)) for module in (controller, brain, control)]
     found: set[str] = set()
 
     def literal(node: ast.AST) -> None:
@@ -59,7 +59,7 @@ def test_the_source_scan_finds_the_controller_reasons() -> None:
     # nothing, the test below would pass vacuously.
     found = controller_reason_literals()
     assert {"hold", "rear_weak", "leader_near", "no_sip", "manual", "driving", "shutdown",
-            "controller_error"} <= found
+            "controller_error", "scan_stale"} <= found
 
 
 def test_every_reason_in_the_controller_source_has_a_phrase() -> None:

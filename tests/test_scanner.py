@@ -1,33 +1,52 @@
-"""The Scanner against a byte-true FakeMaestro on a pty and a scripted RSSI source.
+"""The scan shell and the brain against a byte-true FakeMaestro and a scripted RSSI source.
 
 The scripted source is a tiny world: every reading is what a Yagi would hear where
 the fake scan servo *physically* points at the reading's timestamp (the fake slews in
 clock time), and every value is unique, so a test can tell exactly which reading the
 scanner paired with which angle, when it was taken and where the servo really was.
-Real clock, real driver, real RssiMonitor; only the radio is scripted.
+Real driver on an in-memory link, real RssiMonitor, the brain planning the sweeps and
+estimating; only the radio is scripted. Virtual time: the sweeps take no wall time.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import AsyncIterator, Callable
+import itertools
+from collections.abc import AsyncIterator, Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
 from support import until
 
+from drivers.arcos.sip import Sip
 from drivers.backoff import Backoff
-from drivers.clock import REAL_CLOCK, Clock
+from drivers.clock import Clock
 from drivers.pantilt import PanTilt, ServoCalibration, make_pantilt
 from drivers.pantilt.fake import FakeMaestro
 from drivers.wifi.sources import RssiSample
-from relayd.estimator import LOST_AFTER_SCANS, EstimatorParams
+from relayd.brain import PANTILT, Brain, BrainParams, ScanParams
+from relayd.bus import Bus
+from relayd.estimator import LOST_AFTER_SCANS, EstimatorParams, ScanEstimate
+from relayd.events import (
+    Action,
+    DeviceEvent,
+    DeviceStatus,
+    Event,
+    ScanPlan,
+    ScanResult,
+    ServoTarget,
+    SipEvent,
+)
 from relayd.fakes.rig import pulse_to_deg
 from relayd.scanner import RssiMonitor, Scanner, ScanServoError
 from relayd.sim.radio import yagi_gain_db
 from relayd.state import RelayState
+from relayd.statewriter import StateWriter
+from relayd.vtime import LoopClock
+
+_names = itertools.count()
 
 SCAN, LINK = 0, 1
 SPEED_DEG_S = 300.0
@@ -126,6 +145,8 @@ class RecordingServo:
 
 @dataclass
 class Bench:
+    """The scan shell wired to a brain as the daemon wires them, with the robot's heading scripted."""
+
     clock: Clock
     fake: FakeMaestro
     pt: PanTilt
@@ -134,33 +155,85 @@ class Bench:
     monitor: RssiMonitor
     state: RelayState
     scanner: Scanner
-    heading: list[float] = field(default_factory=lambda: [0.0])
+    brain: Brain
+    bus: Bus[Event, Action]
+    writer: StateWriter
+    results: list[ScanEstimate] = field(default_factory=list)
+
+    def on_actions(self, event: Event, actions: Sequence[Action]) -> None:
+        self.writer.on_event(event)
+        for a in actions:
+            if isinstance(a, ScanPlan):
+                self.scanner.plan(a)
+            elif isinstance(a, ServoTarget):
+                self.scanner.point_link(a)
+            else:
+                if isinstance(a, ScanResult):
+                    self.results.append(a.estimate)
+                self.writer.on_action(a)
+
+    def turn_to(self, heading_deg: float) -> None:
+        """The robot's odometry heading is now `heading_deg` (a SIP says so)."""
+        t = self.clock.now()
+        sip = Sip(t=t, x_mm=0.0, y_mm=0.0, theta_deg=heading_deg, left_mm_s=0.0, right_mm_s=0.0,
+                  battery_v=13.0, motors_enabled=True, estop=False, stall_left=False, stall_right=False,
+                  moving=False, sonar=())
+        self.bus.publish(SipEvent(t, sip, (None,) * 16))
+
+    async def prepare(self) -> None:
+        """Prove the servo answers; the brain, told so, plans the first sweep."""
+        await self.scanner.prepare()
+        self.bus.publish(DeviceEvent(self.clock.now(), PANTILT, DeviceStatus.UP))
+
+    async def scan_once(self) -> ScanEstimate | None:
+        """One sweep of the brain's plan; then the link antenna is pointed, as `run()` does
+        (which also proves the servo answers again after a failure before sweeping)."""
+        if not self.brain.servo_ok:
+            await self.prepare()
+        plan = await self.scanner.next_plan()
+        before = len(self.results)
+        await self.scanner.sweep(plan)
+        await self.scanner.point_pending_link()
+        return self.results[-1] if len(self.results) > before else None
 
 
 @contextlib.asynccontextmanager
 async def bench(tmp_path: Path, *, mode: str = "step", latency_s: float = 0.0,
                 stale_every: int = 0, reply_timeout_s: float = 0.25) -> AsyncIterator[Bench]:
-    clock = REAL_CLOCK
+    clock = LoopClock()
     fake = FakeMaestro(clock=clock, initial_us=1500.0)
-    path = fake.serve_pty(tmp_path / "servo")
-    pt = make_pantilt("maestro", path, None, {SCAN: ServoCalibration(), LINK: ServoCalibration()},
+    url = fake.serve_memory(f"scanner-servo-{next(_names)}")
+    pt = make_pantilt("maestro", url, None, {SCAN: ServoCalibration(), LINK: ServoCalibration()},
                       clock=clock, reply_timeout_s=reply_timeout_s, poll_s=1000.0,
                       backoff=Backoff(initial_s=0.05, maximum_s=0.2))
     servo = RecordingServo(pt, clock)
     source = ScriptedSource(fake, clock, latency_s=latency_s, stale_every=stale_every)
     state = RelayState()
-    monitor = RssiMonitor(source, SAMPLE_HZ, state, clock)
-    heading = [0.0]
+    bus: Bus[Event, Action] = Bus()
+    monitor = RssiMonitor(source, SAMPLE_HZ, bus, clock)
+    brain = Brain(BrainParams(
+        estimator=EstimatorParams(),
+        scan=ScanParams(scan_channel=SCAN, link_channel=LINK, samples=SAMPLES, width_deg=WIDTH_DEG,
+                        limits_deg=LIMITS, lost_rssi_dbm=-85.0),
+    ))
+
+    def servo_changed() -> None:
+        ok = scanner.servo_ok
+        bus.publish(DeviceEvent(clock.now(), PANTILT, DeviceStatus.UP if ok else DeviceStatus.DOWN))
+
     scanner = Scanner(
-        pantilt=servo, monitor=monitor, state=state, clock=clock, scan_channel=SCAN,
-        link_channel=LINK, samples=SAMPLES, width_deg=WIDTH_DEG, limits_deg=LIMITS,
-        speed_deg_s=SPEED_DEG_S, settle_s=SETTLE_S, mode=mode, params=EstimatorParams(),
-        lost_rssi_dbm=-85.0, heading_deg=lambda: heading[0], sonar_mm=lambda: [None] * 16,
+        pantilt=servo, monitor=monitor, bus=bus, clock=clock, scan_channel=SCAN,
+        link_channel=LINK, limits_deg=LIMITS, speed_deg_s=SPEED_DEG_S, settle_s=SETTLE_S, mode=mode,
+        on_servo_change=servo_changed,
     )
+    b = Bench(clock, fake, pt, servo, source, monitor, state, scanner, brain, bus,
+              StateWriter(state, link_channel=LINK))
+    bus.connect(brain.handle, b.on_actions)
+    b.turn_to(0.0)
     tasks = [asyncio.create_task(pt.run()), asyncio.create_task(monitor.run())]
     try:
         await until(lambda: pt.connected and monitor.last_fresh_t is not None)
-        yield Bench(clock, fake, pt, servo, source, monitor, state, scanner, heading)
+        yield b
     finally:
         for task in tasks:
             task.cancel()
@@ -178,13 +251,14 @@ def travel_s(prev: float | None, target: float) -> float:
     return abs(target - prev) / SPEED_DEG_S
 
 
+@pytest.mark.virtual_time
 async def test_step_mode_pairs_each_angle_with_the_first_fresh_sample_after_arrival(tmp_path: Path) -> None:
     async with bench(tmp_path, stale_every=4) as b:
-        await b.scanner.prepare()
+        await b.prepare()
         prev: float | None = None
         for _ in range(2):
             mark = len(b.servo.commands)
-            est = await b.scanner.scan_once()
+            est = await b.scan_once()
             assert est is not None
             cmds = b.servo.scan_commands(mark)
             assert len(cmds) == SAMPLES == len(est.rssi_dbm)
@@ -209,25 +283,27 @@ async def test_step_mode_pairs_each_angle_with_the_first_fresh_sample_after_arri
             await until(lambda: abs(pulse_to_deg(b.fake.position_us(LINK)) - bearing) < 0.3)  # noqa: B023
 
 
+@pytest.mark.virtual_time
 async def test_sweeps_alternate_direction(tmp_path: Path) -> None:
     async with bench(tmp_path) as b:
-        await b.scanner.prepare()
+        await b.prepare()
         directions = []
         for _ in range(3):
             mark = len(b.servo.commands)
-            assert await b.scanner.scan_once() is not None
+            assert await b.scan_once() is not None
             angles = [a for _, a in b.servo.scan_commands(mark)]
             assert angles in (sorted(angles), sorted(angles, reverse=True))
             directions.append(angles[-1] > angles[0])
         assert directions == [True, False, True]
 
 
+@pytest.mark.virtual_time
 async def test_window_centred_on_previous_bearing_corrected_for_the_turn(tmp_path: Path) -> None:
     async with bench(tmp_path) as b:
         b.source.leader_deg = 25.0
-        await b.scanner.prepare()
+        await b.prepare()
         mark = len(b.servo.commands)
-        est1 = await b.scanner.scan_once()
+        est1 = await b.scan_once()
         assert est1 is not None
         first = [a for _, a in b.servo.scan_commands(mark)]
         # No bearing yet: the configured width centred straight ahead.
@@ -235,24 +311,25 @@ async def test_window_centred_on_previous_bearing_corrected_for_the_turn(tmp_pat
         # Pulled towards the leader (the WCA of one 60-degree window is biased to its centre).
         assert 0.0 < est1.bearing_deg < 25.0
         # The robot turned 10 degrees left since: the leader is 10 degrees further right.
-        b.heading[0] = 10.0
+        b.turn_to(10.0)
         mark = len(b.servo.commands)
-        assert await b.scanner.scan_once() is not None
+        assert await b.scan_once() is not None
         second = [a for _, a in b.servo.scan_commands(mark)]
         assert sum(second) / len(second) == pytest.approx(est1.bearing_deg - 10.0, abs=1e-6)
         assert max(second) - min(second) == pytest.approx(WIDTH_DEG)
 
 
+@pytest.mark.virtual_time
 async def test_window_is_kept_inside_the_servo_limits(tmp_path: Path) -> None:
     async with bench(tmp_path) as b:
         b.source.leader_deg = 25.0
-        await b.scanner.prepare()
-        est1 = await b.scanner.scan_once()
+        await b.prepare()
+        est1 = await b.scan_once()
         assert est1 is not None
         # Turned 80 degrees right: the window's centre is past 60, its edge past the limit.
-        b.heading[0] = -80.0
+        b.turn_to(-80.0)
         mark = len(b.servo.commands)
-        assert await b.scanner.scan_once() is not None
+        assert await b.scan_once() is not None
         angles = [a for _, a in b.servo.scan_commands(mark)]
         assert est1.bearing_deg + 80.0 + WIDTH_DEG / 2 > LIMITS[1]
         assert all(LIMITS[0] <= a <= LIMITS[1] for a in angles)
@@ -261,60 +338,63 @@ async def test_window_is_kept_inside_the_servo_limits(tmp_path: Path) -> None:
         assert b.pt.counters["clamped"] == 0  # never asked the driver for an angle it must clamp
 
 
+@pytest.mark.virtual_time
 async def test_full_range_while_the_leader_is_lost(tmp_path: Path) -> None:
     async with bench(tmp_path) as b:
-        await b.scanner.prepare()
+        await b.prepare()
         b.source.level_dbm = -100.0  # RSSI^l below lost_rssi (-85)
         for i in range(LOST_AFTER_SCANS):
-            assert not b.scanner.leader_lost
+            assert not b.brain.leader_lost
             mark = len(b.servo.commands)
-            assert await b.scanner.scan_once() is not None
+            assert await b.scan_once() is not None
             angles = [a for _, a in b.servo.scan_commands(mark)]
             assert max(angles) - min(angles) == pytest.approx(WIDTH_DEG), i
-        assert b.scanner.leader_lost
+        assert b.brain.leader_lost
         mark = len(b.servo.commands)
-        assert await b.scanner.scan_once() is not None
+        assert await b.scan_once() is not None
         angles = [a for _, a in b.servo.scan_commands(mark)]
         assert (min(angles), max(angles)) == pytest.approx(LIMITS)
         # The leader is heard again: one good scan ends "lost" and the window narrows.
         b.source.level_dbm = -50.0
-        assert await b.scanner.scan_once() is not None
-        assert not b.scanner.leader_lost
+        assert await b.scan_once() is not None
+        assert not b.brain.leader_lost
         mark = len(b.servo.commands)
-        assert await b.scanner.scan_once() is not None
+        assert await b.scan_once() is not None
         angles = [a for _, a in b.servo.scan_commands(mark)]
         assert max(angles) - min(angles) == pytest.approx(WIDTH_DEG)
 
 
+@pytest.mark.virtual_time
 async def test_heading_per_sample_and_bearing_in_the_frame_at_scan_end(tmp_path: Path) -> None:
     async with bench(tmp_path) as b:
-        await b.scanner.prepare()
+        await b.prepare()
         count = [0]
 
         def turned(channel: int) -> None:
             # The robot turns 3 degrees left between two scan commands.
             if channel == SCAN:
                 count[0] += 1
-                b.heading[0] = 3.0 * count[0]
+                b.turn_to(3.0 * count[0])
 
         b.servo.on_command = turned
         mark = len(b.servo.commands)
-        est = await b.scanner.scan_once()
+        est = await b.scan_once()
         assert est is not None
         cmds = [a for _, a in b.servo.scan_commands(mark)]
         end = 3.0 * SAMPLES
-        assert b.scanner.bearing_heading_deg == end
+        assert b.brain.bearing_heading_deg == end
         # Sample j was taken at heading 3(j+1); seen from the end heading it lies further right.
         expected = [a + 3.0 * (j + 1) - end for j, a in enumerate(cmds)]
         assert list(est.angles_deg) == pytest.approx(expected)
 
 
+@pytest.mark.virtual_time
 async def test_continuous_mode_interpolates_the_commanded_motion(tmp_path: Path) -> None:
     async with bench(tmp_path, mode="continuous") as b:
-        await b.scanner.prepare()
+        await b.prepare()
         for _ in range(2):
             mark = len(b.servo.commands)
-            est = await b.scanner.scan_once()
+            est = await b.scan_once()
             assert est is not None
             cmds = b.servo.scan_commands(mark)
             assert 1 <= len(cmds) <= 2  # a repositioning move at most, then the sweep
@@ -339,13 +419,14 @@ async def test_continuous_mode_interpolates_the_commanded_motion(tmp_path: Path)
             assert ts == sorted(ts)
 
 
+@pytest.mark.virtual_time
 async def test_continuous_mode_keeps_samples_that_arrive_late(tmp_path: Path) -> None:
     """A source stamps its reading before awaiting the device (netlink, `iw`): none may be lost."""
     async with bench(tmp_path, mode="continuous", latency_s=0.015) as b:
-        await b.scanner.prepare()
-        await b.scanner.scan_once()  # position the servo at the first window's end
+        await b.prepare()
+        await b.scan_once()  # position the servo at the first window's end
         mark = len(b.servo.commands)
-        est = await b.scanner.scan_once()
+        est = await b.scan_once()
         assert est is not None
         t0, end = b.servo.scan_commands(mark)[-1]
         start_deg = b.servo.scan_commands()[-2][1]
@@ -359,20 +440,22 @@ async def test_continuous_mode_keeps_samples_that_arrive_late(tmp_path: Path) ->
         assert missing == [], f"{len(missing)} of {len(inside)} readings lost"
 
 
+@pytest.mark.virtual_time
 async def test_scan_servo_not_answering_clears_servo_ok(tmp_path: Path) -> None:
     async with bench(tmp_path) as b:
-        await b.scanner.prepare()
-        assert await b.scanner.scan_once() is not None
+        await b.prepare()
+        assert await b.scan_once() is not None
         assert b.scanner.servo_ok
         b.fake.silent = True  # the controller's logic hangs: no replies
         with pytest.raises(ScanServoError):
-            await b.scanner.scan_once()
+            await b.scan_once()
         assert not b.scanner.servo_ok
         b.fake.silent = False
-        assert await b.scanner.scan_once() is not None
+        assert await b.scan_once() is not None
         assert b.scanner.servo_ok
 
 
+@pytest.mark.virtual_time
 async def test_run_reports_a_silent_servo_and_recovers(tmp_path: Path) -> None:
     async with bench(tmp_path) as b:
         task = asyncio.create_task(b.scanner.run())

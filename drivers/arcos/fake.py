@@ -35,6 +35,7 @@ from drivers.arcos.codec import (
     encode_packet,
     split_vel2,
 )
+from drivers.arcos.fakemotion import MotionGuard, Pose, approach, drive_step
 from drivers.arcos.sip import (
     ANGLE_CONV_RAD,
     FLAG_ESTOP,
@@ -58,19 +59,18 @@ from drivers.arcos.sip import (
 from drivers.arcos.sonar import SONAR_COUNT
 from drivers.clock import REAL_CLOCK, Clock
 from drivers.fakeio import PtyPort, TcpPort
+from drivers.memlink import LinkFaults, MemoryPort
 
 log = structlog.get_logger(__name__)
 
-Pose = tuple[float, float, float]
 SonarFn = Callable[[float, float, float], Sequence[float | None]]
-MotionGuard = Callable[[Pose, Pose], bool]
 
 SIP_PERIOD_S = 0.1
 FIRING_ORDER = tuple(i for pair in zip(range(8), range(8, 16), strict=True) for i in pair)
 
 
 class FakeRobot:
-    """A protocol-true P3-AT served over a pty and/or loopback TCP."""
+    """A protocol-true P3-AT served over a pty, loopback TCP and/or an in-memory link."""
 
     def __init__(self, name: str = "relay", robot_class: str = "Pioneer", subclass: str = "p3at",
                  *, clock: Clock = REAL_CLOCK, sonar_fn: SonarFn | None = None,
@@ -124,6 +124,7 @@ class FakeRobot:
         self._decoder = Decoder()
         self._pty: PtyPort | None = None
         self._tcp: TcpPort | None = None
+        self._mem: MemoryPort | None = None
         self._task: asyncio.Task[None] | None = None
         self._bg: set[asyncio.Task[object]] = set()
         self._out: deque[bytes] = deque()
@@ -171,6 +172,21 @@ class FakeRobot:
         self._ensure_task()
         return url
 
+    def serve_memory(self, name: str, *, faults_to_driver: LinkFaults | None = None,
+                     faults_to_device: LinkFaults | None = None) -> str:
+        """Serve on an in-memory link (unit tests). Returns the `memory://` URL."""
+        if self._mem is None:
+            self._mem = MemoryPort(self._on_data, name, faults_to_driver=faults_to_driver,
+                                   faults_to_device=faults_to_device)
+        url = self._mem.open()
+        self._ensure_task()
+        return url
+
+    @property
+    def memory_port(self) -> MemoryPort | None:
+        """The in-memory port (to inject faults into its current connection)."""
+        return self._mem
+
     async def start(self) -> None:
         self._ensure_task()
 
@@ -184,6 +200,8 @@ class FakeRobot:
             task.cancel()
         if self._pty is not None:
             self._pty.close()
+        if self._mem is not None:
+            self._mem.close()
         if self._tcp is not None:
             await self._tcp.close()
 
@@ -191,6 +209,8 @@ class FakeRobot:
         """The cable is pulled: the pty disappears / the TCP listener and client go away."""
         if self._pty is not None:
             self._pty.hang_up()
+        if self._mem is not None:
+            self._mem.hang_up()
         if self._tcp is not None:
             self._end_session()
             self._spawn(self._tcp_op(self._tcp.close))
@@ -199,6 +219,8 @@ class FakeRobot:
         """The cable is back (same pty link path / same TCP port)."""
         if self._pty is not None:
             self._pty.open()
+        if self._mem is not None:
+            self._mem.open()
         if self._tcp is not None:
             self._spawn(self._tcp_op(self._tcp.open))
 
@@ -347,42 +369,19 @@ class FakeRobot:
             log.info("fake_robot_watchdog_stop")
         if not self._can_move():
             self._halt(hard=True)
-        self.vel_mm_s = _approach(self.vel_mm_s, self.target_vel_mm_s, self.trans_accel_mm_s2 * dt)
-        self.rvel_deg_s = _approach(self.rvel_deg_s, self.target_rvel_deg_s, self.rot_accel_deg_s2 * dt)
-        if dt <= 0 or (self.vel_mm_s == 0 and self.rvel_deg_s == 0):
-            self.stalled = False
-            return
-        dth = self.rvel_deg_s * dt
-        mid = math.radians(self.theta_deg + dth / 2.0)
-        ds = self.vel_mm_s * dt
-        old = self.pose
-        new = (self.x_mm + ds * math.cos(mid), self.y_mm + ds * math.sin(mid),
-               normalize_deg(self.theta_deg + dth))
+        self.vel_mm_s = approach(self.vel_mm_s, self.target_vel_mm_s, self.trans_accel_mm_s2 * dt)
+        self.rvel_deg_s = approach(self.rvel_deg_s, self.target_rvel_deg_s, self.rot_accel_deg_s2 * dt)
         self.stalled = False
-        if self.motion_guard is not None and not self.motion_guard(old, new):
-            # Blocked: the wheels stall. Move as far as allowed (halving the step a few
-            # times), so the robot ends up against the obstacle, not a step short of it.
-            self.stalled = True
-            full_ds, ds = ds, 0.0
-            new = (old[0], old[1], normalize_deg(self.theta_deg + dth))
-            if dth != 0 and not self.motion_guard(old, new):
-                dth = 0.0
-                new = old
-            turned = math.radians(new[2] - dth / 2.0)
-            frac = 0.5
-            for _ in range(5):
-                trial = (old[0] + frac * full_ds * math.cos(turned),
-                         old[1] + frac * full_ds * math.sin(turned), new[2])
-                if self.motion_guard(old, trial):
-                    ds, new = frac * full_ds, trial
-                    break
-                frac /= 2.0
-        self.x_mm, self.y_mm, self.theta_deg = new
+        if dt <= 0 or (self.vel_mm_s == 0 and self.rvel_deg_s == 0):
+            return
+        move = drive_step(self.pose, self.vel_mm_s, self.rvel_deg_s, dt, self.motion_guard)
+        self.stalled = move.stalled
+        self.x_mm, self.y_mm, self.theta_deg = move.pose
         # Odometry sees the same wheel motion, in its own frame.
-        omid = math.radians(self._odo[2] + dth / 2.0)
-        self._odo[0] += ds * math.cos(omid)
-        self._odo[1] += ds * math.sin(omid)
-        self._odo[2] = normalize_deg(self._odo[2] + dth)
+        omid = math.radians(self._odo[2] + move.turn_deg / 2.0)
+        self._odo[0] += move.dist_mm * math.cos(omid)
+        self._odo[1] += move.dist_mm * math.sin(omid)
+        self._odo[2] = normalize_deg(self._odo[2] + move.turn_deg)
 
     def _sonar_readings(self) -> tuple[tuple[int, int], ...]:
         if not self.sonar_on:
@@ -462,11 +461,7 @@ class FakeRobot:
     def _write(self, data: bytes) -> None:
         if self._pty is not None:
             self._pty.write(data)
+        if self._mem is not None:
+            self._mem.write(data)
         if self._tcp is not None:
             self._tcp.write(data)
-
-
-def _approach(value: float, target: float, max_step: float) -> float:
-    if value < target:
-        return min(target, value + max_step)
-    return max(target, value - max_step)

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 from drivers.clock import REAL_CLOCK, Clock
 from drivers.fakeio import PtyPort
+from drivers.memlink import LinkFaults, MemoryPort
 from drivers.pantilt import maestro as mc
 from drivers.pantilt import ssc32 as sc
 
@@ -32,7 +33,13 @@ def travelled_us(distance_us: float, elapsed_s: float, speed_us_s: float,
                  accel_us_s2: float) -> float:
     """How far a ramp that started at rest has gone after `elapsed_s` (0 = unlimited)."""
     d = distance_us
-    if elapsed_s <= 0 or d <= 0:
+    if d <= 0:
+        return 0.0
+    if accel_us_s2 <= 0 and speed_us_s <= 0:
+        # No limits: the controller reports the new target at once, however little
+        # time passed (a virtual-time test asks in the same instant).
+        return d
+    if elapsed_s <= 0:
         return 0.0
     if accel_us_s2 <= 0:
         return d if speed_us_s <= 0 else min(d, speed_us_s * elapsed_s)
@@ -104,7 +111,7 @@ class _FakeController(abc.ABC):
         #: Every byte the driver sent (while not silent) and every reply byte sent back.
         self.received = bytearray()
         self.sent = bytearray()
-        self._port: PtyPort | None = None
+        self._port: PtyPort | MemoryPort | None = None
 
     @property
     def channel_count(self) -> int:
@@ -114,6 +121,18 @@ class _FakeController(abc.ABC):
         """Open a pty for the driver; returns the path to open (the stable link if given)."""
         self._port = PtyPort(self.feed, link_path=link_path)
         return self._port.open()
+
+    def serve_memory(self, name: str, *, faults_to_driver: LinkFaults | None = None,
+                     faults_to_device: LinkFaults | None = None) -> str:
+        """Serve on an in-memory link (unit tests); returns the `memory://` URL to open."""
+        self._port = MemoryPort(self.feed, name, faults_to_driver=faults_to_driver,
+                                faults_to_device=faults_to_device)
+        return self._port.open()
+
+    @property
+    def memory_port(self) -> MemoryPort | None:
+        """The in-memory port, if serving on one (to inject faults into its connection)."""
+        return self._port if isinstance(self._port, MemoryPort) else None
 
     @property
     def path(self) -> str:
@@ -128,7 +147,7 @@ class _FakeController(abc.ABC):
     def reappear(self) -> str:
         """Plug back in (same stable link path when one was given)."""
         if self._port is None:
-            raise RuntimeError("serve_pty() first")
+            raise RuntimeError("serve_pty() or serve_memory() first")
         return self._port.open()
 
     def close(self) -> None:

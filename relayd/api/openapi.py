@@ -1,8 +1,8 @@
 """The OpenAPI 3.0 description of relayd's HTTP API, served at /openapi.json.
 
-Hand-written rather than generated: pydantic emits JSON Schema 2020-12 (`anyOf` with
-`null`), which OpenAPI 3.0 tools read differently from 3.0's `nullable: true`. The
-request schemas here must agree with the pydantic models in `relayd.api.models`;
+The /status schema is generated from its typed model (`relayd.api.status`), translated
+to OpenAPI 3.0's `nullable: true`. The request schemas are hand-written and must agree
+with the pydantic models in `relayd.api.models`;
 tests/test_api.py checks both against the same inputs, and schemathesis checks every
 response against this document.
 """
@@ -12,7 +12,8 @@ from __future__ import annotations
 from typing import Any
 
 from relayd import __version__
-from relayd.state import SONAR_COUNT, DriveState, Mode
+from relayd.api.status import Status, openapi_schema
+from relayd.state import DriveState, Mode
 
 
 def _num(nullable: bool = True, **extra: Any) -> dict[str, Any]:
@@ -38,50 +39,8 @@ def _json(description: str, ref: str) -> dict[str, Any]:
             "content": {"application/json": {"schema": {"$ref": f"#/components/schemas/{ref}"}}}}
 
 
-_LINK = _obj({
-    "signal_dbm": _num(), "rssi": _num(), "noise_dbm": _num(), "ccq_pct": _num(),
-    "tx_mbps": _num(), "rx_mbps": _num(), "age_s": _num(),
-})
-_HEALTH = _obj({
-    "connected": {"type": "boolean"},
-    "age_s": _num(),
-    "errors": {"type": "integer", "minimum": 0},
-    "reconnects": {"type": "integer", "minimum": 0},
-    "last_error": {"type": "string", "nullable": True},
-})
-_SCAN = _obj({
-    "t": _num(False), "age_s": _num(False),
-    "angles": {"type": "array", "items": {"type": "number"}},
-    "rssi": {"type": "array", "items": {"type": "number"}},
-    "bearing_deg": _num(False), "rssi_leader_dbm": _num(False), "period_s": _num(),
-}, nullable=True)
-
-STATUS_SCHEMA: dict[str, Any] = _obj({
-    "version": {"type": "string"},
-    "robot": {"type": "string", "nullable": True, "description": "name the base reports (ARCOS SYNC2)"},
-    "display_name": {"type": "string", "nullable": True,
-                     "description": "the operator's name for this robot (config robot.display_name)"},
-    "uptime_s": _num(False),
-    "mode": {"type": "string", "enum": [m.value for m in Mode]},
-    "state": {"type": "string", "enum": [s.value for s in DriveState]},
-    "reason": {"type": "string"},
-    "bearing_deg": _num(description="leader bearing, robot frame, counter-clockwise positive"),
-    "link_bearing_deg": _num(description="where the link antenna (servo 2) points"),
-    "rssi_leader_dbm": _num(description="RSSI^l: best RSSI of the last scan"),
-    "rssi_behind_dbm": _num(description="RSSI^b: RSSI of the node behind"),
-    "situation": {"type": "integer", "enum": [0, 1, 2]},
-    "wheels_mm_s": _obj({"left": _num(False), "right": _num(False)}),
-    "pose": _obj({"x_mm": _num(), "y_mm": _num(), "theta_deg": _num()}),
-    "battery_v": _num(),
-    "motors_enabled": {"type": "boolean"},
-    "sonar_mm": {"type": "array", "minItems": SONAR_COUNT, "maxItems": SONAR_COUNT,
-                 "items": {"type": "integer", "nullable": True}},
-    "last_scan": _SCAN,
-    "scan_count": {"type": "integer", "minimum": 0},
-    "links": {"type": "object", "additionalProperties": _LINK},
-    "health": {"type": "object", "additionalProperties": _HEALTH},
-    "thresholds": {"type": "object", "additionalProperties": {"type": "number"}},
-})
+#: Generated from the typed model of the document (relayd.api.status.Status).
+STATUS_SCHEMA: dict[str, Any] = openapi_schema(Status)
 
 
 def _column(items: dict[str, Any]) -> dict[str, Any]:

@@ -35,6 +35,11 @@ def _relays_arg(text: str) -> int | str:
     return n
 
 
+def _speed(text: str) -> float | None:
+    """A pace over wall time, or 'max': as fast as the CPU goes (virtual time never waits)."""
+    return None if text == "max" else _positive(text)
+
+
 def _positive(text: str) -> float:
     try:
         v = float(text)
@@ -50,8 +55,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="a shipped scenario name (convoy, obstacle, corridor, parking) or a TOML file")
     parser.add_argument("--relays", type=_relays_arg, default=None,
                         help="number of relays, or 'all' for one run per count (default: the scenario's)")
-    parser.add_argument("--speed", type=_positive, default=DEFAULT_SPEED,
-                        help=f"clock speed-up over wall time (default {DEFAULT_SPEED:g})")
+    parser.add_argument("--speed", type=_speed, default=DEFAULT_SPEED,
+                        help=f"pace of the virtual clock over wall time, or 'max' (default {DEFAULT_SPEED:g});"
+                             " the results do not depend on it")
     parser.add_argument("--seconds", type=_positive, default=None,
                         help="simulated seconds to run at most (default: the scenario's duration)")
     parser.add_argument("--out", default="sim-out", help="output directory (default ./sim-out)")
@@ -129,7 +135,14 @@ def _open_log(out: Path) -> Any:
     return (out / "sim.log").open("w", encoding="utf-8")
 
 
-async def run(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
+    """On a virtual-time loop: deterministic, paced to --speed x wall time (or flat out)."""
+    from relayd import vtime
+
+    return vtime.run(_run(args), speed=args.speed)
+
+
+async def _run(args: argparse.Namespace) -> int:
     from relayd.logsetup import StdStream, setup_logging
     from relayd.sim import plots as sim_plots
     from relayd.sim.scenario import ScenarioError, load_scenario
@@ -157,7 +170,8 @@ async def run(args: argparse.Namespace) -> int:
         summaries = []
         for n in counts:
             sub = out / f"relays-{n}" if args.relays == "all" else out
-            print(f"running {scenario.name} with {n} relay(s) at speed {args.speed:g} ...", flush=True)
+            pace = "max" if args.speed is None else f"{args.speed:g}"
+            print(f"running {scenario.name} with {n} relay(s) at speed {pace} ...", flush=True)
             summary, records, _ = await run_one(scenario, n, args, sub, plots)
             summaries.append(summary)
             runs.append((f"{n} relay(s)", records))

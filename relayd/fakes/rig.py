@@ -24,7 +24,7 @@ import os
 import secrets
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from drivers.airos.fake import FakeAirOs
 from drivers.arcos.fake import FakeRobot
@@ -61,8 +61,13 @@ class FakeRig:
         rear_signal_dbm: float = -55.0,
         tick_s: float = 0.02,
         name: str = "relay1",
+        links: Literal["pty", "memory"] = "pty",
     ) -> None:
         self.work = Path(work)
+        #: "pty": the base and the servo controller on pseudo-terminals (what `relayd run`
+        #: in another process needs); "memory": on in-process memory:// links, for a
+        #: daemon in this process, on virtual time (`relayd.vtime`).
+        self.links = links
         self.clock = clock
         self.leader_xy_m = leader_xy_m
         self.rssi_1m_dbm = rssi_1m_dbm
@@ -129,9 +134,14 @@ class FakeRig:
 
     async def start(self) -> FakeRig:
         self.work.mkdir(parents=True, exist_ok=True)
-        self.robot_port = self.robot.serve_pty(str(self.work / f"{self.name}-base"))
+        if self.links == "memory":
+            tag = f"rig{id(self):x}-{self.name}"
+            self.robot_port = self.robot.serve_memory(f"{tag}-base")
+            self.servo_port = self.maestro.serve_memory(f"{tag}-servo")
+        else:
+            self.robot_port = self.robot.serve_pty(str(self.work / f"{self.name}-base"))
+            self.servo_port = self.maestro.serve_pty(str(self.work / f"{self.name}-servo"))
         await self.robot.start()
-        self.servo_port = self.maestro.serve_pty(str(self.work / f"{self.name}-servo"))
         self.rear_url = await self.rear.start()
         self.front_url = await self.front.start()
         self.set_rear_signal(self._rear_signal_dbm)

@@ -16,16 +16,14 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
-import logging
 import math
 import os
 import statistics
 import sys
 
-import structlog
-
 from drivers.airos import AirOsAuthError, AirOsClient, AirOsError, LinkQuality
 from drivers.airos.client import Firmware
+from relayd.probe import warnings_to_stderr
 
 PASSWORD_ENV = "RELAYD_AP_PASSWORD"
 FIRMWARES: dict[str, Firmware] = {"auto": "auto", "6": 6, "8": 8}
@@ -78,19 +76,11 @@ async def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"relayd probe ap: {exc}", file=sys.stderr)
         return 2
-    configured_here = False
-    if not structlog.is_configured():
-        # stdout is for the answer (parseable with --json); warnings go to stderr.
-        structlog.configure(
-            wrapper_class=structlog.make_filtering_bound_logger(logging.WARNING),
-            logger_factory=structlog.PrintLoggerFactory(sys.stderr))
-        configured_here = True
-    try:
-        return await _readings(args, client)
-    finally:
-        await client.close()
-        if configured_here:
-            structlog.reset_defaults()
+    with warnings_to_stderr():
+        try:
+            return await _readings(args, client)
+        finally:
+            await client.close()
 
 
 async def _readings(args: argparse.Namespace, client: AirOsClient) -> int:

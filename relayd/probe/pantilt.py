@@ -11,14 +11,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 import sys
 from collections.abc import Callable
 
-import structlog
-
 from drivers.link import LinkError
 from drivers.pantilt import PROTOCOLS, MaestroPanTilt, PanTiltError, ServoCalibration, make_pantilt
+from relayd.probe import warnings_to_stderr
 
 
 def _floats(count: int) -> Callable[[str], tuple[float, ...]]:
@@ -61,29 +59,23 @@ def _err(message: str) -> None:
 
 
 async def run(args: argparse.Namespace) -> int:
-    configured_here = False
-    if not structlog.is_configured():
-        # Before the driver binds its logger: stdout is for the answer (parseable with
-        # --json), warnings go to stderr.
-        structlog.configure(
-            wrapper_class=structlog.make_filtering_bound_logger(logging.WARNING),
-            logger_factory=structlog.PrintLoggerFactory(sys.stderr))
-        configured_here = True
+    # Before the driver binds its logger.
+    with warnings_to_stderr():
+        return await _probe(args)
+
+
+async def _probe(args: argparse.Namespace) -> int:
     try:
         cal = ServoCalibration(pulse_us=args.pulse_us, limits_deg=args.limits)
         pt = make_pantilt(args.protocol, args.port, args.baud, {args.channel: cal},
                           reply_timeout_s=args.timeout)
     except ValueError as exc:
         _err(str(exc))
-        if configured_here:
-            structlog.reset_defaults()
         return 2
     if args.angle is not None and cal.clamp(args.angle) != args.angle:
         # A bring-up tool must not move somewhere else than asked: refuse, move nothing.
         _err(f"{args.angle:g} deg is outside the limits {cal.limits_deg[0]:g}..{cal.limits_deg[1]:g} deg "
              "(widen them with --limits if the servo really travels that far)")
-        if configured_here:
-            structlog.reset_defaults()
         return 2
     try:
         await pt.connect()
@@ -103,8 +95,6 @@ async def run(args: argparse.Namespace) -> int:
         return 2
     finally:
         await pt.close()
-        if configured_here:
-            structlog.reset_defaults()
     # The pulse width is what calibration writes into scan_pulse_us / link_pulse_us.
     pulse_us = cal.angle_to_pulse_us(angle)
     if args.json:

@@ -10,13 +10,11 @@ import argparse
 import asyncio
 import contextlib
 import json
-import logging
 import sys
-
-import structlog
 
 from drivers.arcos import ArcosRobot, HandshakeError, Sip
 from drivers.link import LinkError
+from relayd.probe import warnings_to_stderr
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -58,18 +56,8 @@ def _text(rec: dict[str, object]) -> str:
 
 
 async def run(args: argparse.Namespace) -> int:
-    # stdout is for the SIP lines (parseable with --json): driver warnings go to stderr,
-    # and whatever logging the caller had is restored afterwards.
-    previous = structlog.get_config() if structlog.is_configured() else None
-    structlog.configure(wrapper_class=structlog.make_filtering_bound_logger(logging.WARNING),
-                        logger_factory=structlog.PrintLoggerFactory(sys.stderr))
-    try:
+    with warnings_to_stderr():
         return await _probe(args)
-    finally:
-        if previous is None:
-            structlog.reset_defaults()
-        else:
-            structlog.configure(**previous)
 
 
 async def _probe(args: argparse.Namespace) -> int:

@@ -12,13 +12,11 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
-import logging
 import sys
-
-import structlog
 
 from drivers.clock import REAL_CLOCK
 from drivers.wifi import SOURCE_KINDS, make_source
+from relayd.probe import warnings_to_stderr
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -38,18 +36,8 @@ async def run(args: argparse.Namespace) -> int:
     if not args.hz > 0 or not args.seconds >= 0:
         print("relayd probe wifi: --hz must be > 0 and --seconds >= 0", file=sys.stderr)
         return 2
-    configured_here = False
-    if not structlog.is_configured():
-        # Keep stdout for the samples (parseable with --json); warnings go to stderr.
-        structlog.configure(
-            wrapper_class=structlog.make_filtering_bound_logger(logging.WARNING),
-            logger_factory=structlog.PrintLoggerFactory(sys.stderr))
-        configured_here = True
-    try:
+    with warnings_to_stderr():
         return await _sample(args)
-    finally:
-        if configured_here:
-            structlog.reset_defaults()
 
 
 def _print(args: argparse.Namespace, t: float, rssi_dbm: float | None, fresh: bool) -> None:

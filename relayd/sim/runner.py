@@ -1,10 +1,21 @@
 """The simulation runner: real relayd daemons driving fake devices in a simulated world.
 
-For each relay it starts a FakeRobot on a pty (its true pose integrated by the fake,
-sonar and collisions answered by the world), a FakeMaestro on a pty, a procfs-format
-RSSI file and two FakeAirOs radios on loopback, generates that relay's Settings and
-runs a `relayd.daemon.Daemon` on them in this event loop, exactly as `relayd run`
-would on a robot. One `Clock(speed)` is shared by all of them and by the world.
+For each relay it starts a FakeRobot (its true pose integrated by the fake, sonar and
+collisions answered by the world), a FakeMaestro, the Yagi's RSSI and two FakeAirOs
+radios, generates that relay's Settings and runs a `relayd.daemon.Daemon` on them in
+this event loop, exactly as `relayd run` would on a robot.
+
+Two modes, chosen by the loop it runs on:
+
+- virtual time (`relayd.vtime.VirtualTimeLoop`, what `relayd sim` uses): the devices
+  are in-process (memory:// links for the base and the servo controller, a
+  `MemoryRssi`, `InProcessAirOs` clients), every event is a loop callback at its
+  virtual time, and the same scenario and seed give byte-identical summary.json and
+  trace.jsonl. The status API still answers on a real socket.
+- real time (any other loop): ptys, a procfs-format RSSI file and the airOS fakes
+  over HTTP, one `Clock(speed)` shared by everything. Kept for bench/soak.py, which
+  injects faults at the OS level (a pty hang-up, an HTTP radio going down) and
+  measures wall-clock resource growth over real I/O.
 
 The world ticks at the scenario's `tick_hz` (clock time): it moves the scripted leader,
 reads every robot's true pose and servo angles, writes the Yagi's RSSI into each
@@ -25,17 +36,29 @@ import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import structlog
 
 from drivers.clock import Clock
 from relayd.sim.scenario import Scenario
+from relayd.sim.summary import summarize, unapplied_command_s
 from relayd.sim.world import World
+from relayd.vtime import LoopClock, VirtualTimeLoop
+
+if TYPE_CHECKING:
+    from drivers.airos.fake import FakeAirOs
+    from drivers.arcos.fake import FakeRobot
+    from drivers.pantilt.fake import FakeMaestro
+    from drivers.wifi.fake import ProcfsWriter
+    from relayd.daemon import Daemon
+    from relayd.sim.inproc import MemoryRssi
+
+__all__ = ["SimRelay", "SimResult", "SimRunner", "relay_settings", "summarize", "unapplied_command_s"]
 
 log = structlog.get_logger(__name__)
 
-#: Pulse widths at -90 / 0 / +90 degrees in the generated config (SPEC 4.2 default).
+#: Pulse widths at -90 / 0 / +90 degrees in the generated config (the example config's default).
 PULSE_US = (1000.0, 1500.0, 2000.0)
 AP_PASSWORD_ENV = "RELAYD_SIM_AP_PASSWORD"
 API_TOKEN_ENV = "RELAYD_SIM_API_TOKEN"
@@ -77,7 +100,7 @@ def _pose3(p: Any) -> tuple[float, float, float]:
 
 def relay_settings(*, robot_port: str, servo_port: str, procfs_path: str, rear_url: str,
                    front_url: str, control: dict[str, Any], scan: dict[str, Any]) -> dict[str, Any]:
-    """The config document (SPEC 4.2 sections and keys) of one simulated relay."""
+    """The config document (config/relayd.toml's sections and keys) of one simulated relay."""
     return {
         "robot": {"port": robot_port, "baud": 9600},
         "pantilt": {"port": servo_port, "protocol": "maestro", "scan_channel": 0, "link_channel": 1,
@@ -105,12 +128,12 @@ class SimRelay:
     """One simulated relay: its fakes and its daemon."""
 
     name: str
-    robot: Any
-    maestro: Any
-    procfs: Any
-    rear: Any
-    front: Any
-    daemon: Any
+    robot: FakeRobot
+    maestro: FakeMaestro
+    procfs: ProcfsWriter | MemoryRssi
+    rear: FakeAirOs
+    front: FakeAirOs
+    daemon: Daemon
     task: asyncio.Task[None] | None = None
 
 
@@ -121,85 +144,19 @@ class SimResult:
     api_ports: dict[str, int | None] = field(default_factory=dict)
 
 
-def unapplied_command_s(records: Sequence[dict[str, Any]], i: int, grace_s: float = 1.0) -> float:
-    """Clock seconds relay i's daemon commanded wheel motion the robot never started on.
-
-    The fake robot accelerates within a few tenths of a second, so a daemon that has
-    commanded more than 50 mm/s for longer than `grace_s` while the true speed is still
-    zero has commands stuck on their way (a queue backlog, a dead link). Stalls against
-    an obstacle do not count: the robot's speed stays set while the world rejects it.
-    """
-    total = 0.0
-    since: float | None = None
-    prev_t: float | None = None
-    for r in records:
-        rel = r["relays"][i]
-        wheels = rel.get("wheels") or [0, 0]
-        stuck = max(abs(wheels[0]), abs(wheels[1])) > 50 and rel.get("v_mm_s", 0) == 0 \
-            and abs(rel.get("w_deg_s", 0)) == 0
-        if stuck:
-            since = r["t"] if since is None else since
-            if prev_t is not None and r["t"] - since > grace_s:
-                total += r["t"] - prev_t
-        else:
-            since = None
-        prev_t = r["t"]
-    return round(total, 2)
-
-
-def summarize(records: Sequence[dict[str, Any]], *, scenario: str, relays: int, goal: tuple[float, float],
-              goal_radius_m: float, collisions: int, followers: Sequence[dict[str, Any]]) -> dict[str, Any]:
-    """summary.json from the trace: SPEC 5's keys plus a few that help reading a run.
-
-    goal_reached: the leader got within goal_radius_m of its final waypoint while the
-    end-to-end link had held all the way (the paper's "reached the destination while
-    staying connected"). link_broken_at_s: the first record with any hop down.
-    """
-    broken_at = next((r["t"] for r in records if r["broken"]), None)
-    arrived_at = next((r["t"] for r in records
-                       if math.hypot(r["leader"]["x"] - goal[0], r["leader"]["y"] - goal[1]) <= goal_radius_m),
-                      None)
-    reached = arrived_at is not None and (broken_at is None or broken_at > arrived_at)
-    e2e = [r["e2e_mbps"] for r in records]
-    last = records[-1] if records else None
-    out_followers = []
-    for i, f in enumerate(followers):
-        gaps = [r["relays"][i]["gap_m"] for r in records]
-        out_followers.append({
-            "name": f["name"],
-            "max_gap_m": round(max(gaps), 3) if gaps else None,
-            "final_gap_m": round(gaps[-1], 3) if gaps else None,
-            "stopped_reason": None if last is None else last["relays"][i]["reason"],
-            "final_state": None if last is None else last["relays"][i]["state"],
-            "collisions": f["collisions"],
-            "travelled_m": round(f["travelled_m"], 3),
-            "unapplied_command_s": unapplied_command_s(records, i) if records else 0.0,
-            "api_port": f.get("api_port"),
-        })
-    return {
-        "scenario": scenario,
-        "relays": relays,
-        "sim_seconds": round(last["t"], 2) if last else 0.0,
-        "goal_reached": reached,
-        "goal_reached_at_s": arrived_at,
-        "link_broken_at_s": broken_at,
-        "min_e2e_mbps": min(e2e) if e2e else 0.0,
-        "final_e2e_mbps": e2e[-1] if e2e else 0.0,
-        "collisions": collisions,
-        "followers": out_followers,
-    }
-
-
 class SimRunner:
     """Runs one scenario with real daemons; `await run()` returns the summary and trace."""
 
-    def __init__(self, scenario: Scenario, *, speed: float = 10.0, seed: int = 1,
+    def __init__(self, scenario: Scenario, *, speed: float | None = 10.0, seed: int = 1,
                  seconds: float | None = None, out_dir: Path | None = None,
                  workdir: Path | None = None,
                  on_progress: Callable[[dict[str, Any]], None] | None = None,
                  on_ready: Callable[[dict[str, int | None]], None] | None = None) -> None:
         self.scenario = scenario
-        self.clock = Clock(speed)
+        self.speed = speed
+        # Real-time mode's clock; on a virtual-time loop run() replaces it with the loop's.
+        self.clock: Clock = Clock(speed or 1.0)
+        self.virtual = False
         self.t0: float | None = None
         self.seed = seed
         self.seconds = scenario.duration_s if seconds is None else seconds
@@ -220,7 +177,8 @@ class SimRunner:
         from drivers.pantilt.fake import FakeMaestro
         from drivers.wifi.fake import ProcfsWriter
         from relayd.config import Settings
-        from relayd.daemon import Daemon
+        from relayd.daemon import Daemon, DeviceOverrides
+        from relayd.sim.inproc import InProcessAirOs, MemoryRssi
 
         body = self.world.relays[i]
         world = self.world
@@ -233,25 +191,41 @@ class SimRunner:
             return world.motion_ok(i, *_pose3(new), old=_pose3(old))
 
         robot = FakeRobot(name=body.name, clock=clock, sonar_fn=sonar_fn, motion_guard=motion_guard,
-                          pose=(body.x_m * 1000.0, body.y_m * 1000.0, body.theta_deg))
-        robot_port = robot.serve_pty(str(work / f"{body.name}-base"))
-        await robot.start()
+                          pose=(body.x_m * 1000.0, body.y_m * 1000.0, body.theta_deg),
+                          seed=self.seed * 1000 + i)
         maestro = FakeMaestro(clock=clock, initial_us=PULSE_US[1])
-        servo_port = maestro.serve_pty(str(work / f"{body.name}-servo"))
-        procfs = ProcfsWriter(work / f"{body.name}-wireless", "wlan1")
-        procfs.write(world.yagi_rssi_dbm(i, 0.0))
         rear = FakeAirOs("ubnt", self._password, clock=clock)
         front = FakeAirOs("ubnt", self._password, clock=clock)
-        rear_url = await rear.start()
-        front_url = await front.start()
+        devices = None
+        procfs: ProcfsWriter | MemoryRssi
+        if self.virtual:
+            tag = f"sim{id(self):x}-{body.name}"
+            robot_port = robot.serve_memory(f"{tag}-base")
+            servo_port = maestro.serve_memory(f"{tag}-servo")
+            procfs = MemoryRssi("wlan1", clock=clock)
+            procfs_path = str(work / f"{body.name}-wireless")  # unused: the source is in memory
+            rear_url, front_url = f"http://{tag}-rear.inproc", f"http://{tag}-front.inproc"
+            devices = DeviceOverrides(rssi_source=procfs, airos_clients={
+                "rear": InProcessAirOs(rear, clock=clock, name=f"{tag}-rear"),
+                "front": InProcessAirOs(front, clock=clock, name=f"{tag}-front"),
+            })
+        else:
+            robot_port = robot.serve_pty(str(work / f"{body.name}-base"))
+            servo_port = maestro.serve_pty(str(work / f"{body.name}-servo"))
+            procfs = ProcfsWriter(work / f"{body.name}-wireless", "wlan1")
+            procfs_path = str(procfs.path)
+            rear_url = await rear.start()
+            front_url = await front.start()
+        await robot.start()
+        procfs.write(world.yagi_rssi_dbm(i, 0.0))
         control = dict(self.scenario.control)
         control.update(self.scenario.relay[i].control)
-        doc = relay_settings(robot_port=robot_port, servo_port=servo_port, procfs_path=str(procfs.path),
+        doc = relay_settings(robot_port=robot_port, servo_port=servo_port, procfs_path=procfs_path,
                              rear_url=rear_url, front_url=front_url, control=control,
                              scan=dict(self.scenario.scan))
         settings = Settings.model_validate(doc)
         env = {AP_PASSWORD_ENV: self._password, API_TOKEN_ENV: secrets.token_hex(8)}
-        daemon = Daemon(settings, clock=clock, env=env)
+        daemon = Daemon(settings, clock=clock, env=env, devices=devices)
         relay = SimRelay(body.name, robot, maestro, procfs, rear, front, daemon)
         self._update_links()
         return relay
@@ -352,6 +326,10 @@ class SimRunner:
 
     # -- run --------------------------------------------------------------------------
     async def run(self) -> SimResult:
+        loop = asyncio.get_running_loop()
+        if isinstance(loop, VirtualTimeLoop):
+            self.virtual = True
+            self.clock = LoopClock(loop)
         with contextlib.ExitStack() as stack:
             work = self.workdir
             if work is None:
@@ -395,8 +373,8 @@ class SimRunner:
         return 0.0 if self.t0 is None else self.clock.now() - self.t0
 
     def _summary(self, ports: dict[str, int | None]) -> dict[str, Any]:
-        followers = [{"name": b.name, "collisions": b.collisions, "travelled_m": self._travelled[i],
-                      "api_port": ports.get(b.name)} for i, b in enumerate(self.world.relays)]
+        followers = [{"name": b.name, "collisions": b.collisions, "travelled_m": self._travelled[i]}
+                     for i, b in enumerate(self.world.relays)]
         return summarize(self.records, scenario=self.scenario.name, relays=len(self.world.relays),
                          goal=self.world.leader_script.goal, goal_radius_m=self.scenario.goal_radius_m,
                          collisions=self.world.collisions(), followers=followers)
@@ -404,6 +382,9 @@ class SimRunner:
     def write_outputs(self, result: SimResult, out: Path) -> None:
         out.mkdir(parents=True, exist_ok=True)
         (out / "summary.json").write_text(json.dumps(result.summary, indent=2) + "\n", encoding="utf-8")
+        # The API ports the OS picked: where to look during the run, not a result of it
+        # (so they stay out of summary.json, which the same scenario and seed reproduce).
+        (out / "ports.json").write_text(json.dumps(result.api_ports, indent=2) + "\n", encoding="utf-8")
         with (out / "trace.jsonl").open("w", encoding="utf-8") as f:
             for rec in result.records:
                 f.write(json.dumps(rec, separators=(",", ":")) + "\n")

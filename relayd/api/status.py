@@ -1,0 +1,133 @@
+"""The /status document as a typed model: the one definition of its schema.
+
+`Status` (pydantic) says what /status contains, field by field; the OpenAPI document's
+`Status` schema is generated from it (`openapi_schema`), translated to OpenAPI 3.0's
+dialect (`nullable: true` instead of JSON Schema's `anyOf [.., null]`, no `$ref`s or
+titles). `RelayState.snapshot()` still builds the dict itself, by hand, because it runs
+on every request of a 1000 req/s client and a model round trip would cost a good
+share of that; `tests/test_status_model.py` checks that every snapshot validates
+against `Status` (strict, no extra keys) and that each field of the model appears.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from relayd.state import SONAR_COUNT, DriveState, Mode
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
+
+
+class Wheels(_Model):
+    left: float
+    right: float
+
+
+class Pose(_Model):
+    x_mm: float | None
+    y_mm: float | None
+    theta_deg: float | None
+
+
+class LastScan(_Model):
+    t: float
+    age_s: float
+    angles: list[float]
+    rssi: list[float]
+    bearing_deg: float
+    rssi_leader_dbm: float
+    period_s: float | None
+
+
+class Link(_Model):
+    signal_dbm: float | None
+    rssi: float | None
+    noise_dbm: float | None
+    ccq_pct: float | None
+    tx_mbps: float | None
+    rx_mbps: float | None
+    age_s: float | None
+
+
+class Health(_Model):
+    connected: bool
+    age_s: float | None
+    errors: Annotated[int, Field(ge=0)]
+    reconnects: Annotated[int, Field(ge=0)]
+    last_error: str | None
+
+
+class Status(_Model):
+    version: str
+    robot: str | None = Field(description="name the base reports (ARCOS SYNC2)")
+    display_name: str | None = Field(
+        description="the operator's name for this robot (config robot.display_name)")
+    uptime_s: float
+    mode: Mode
+    state: DriveState
+    reason: str
+    bearing_deg: float | None = Field(description="leader bearing, robot frame, counter-clockwise positive")
+    link_bearing_deg: float | None = Field(description="where the link antenna (servo 2) points")
+    rssi_leader_dbm: float | None = Field(description="RSSI^l: best RSSI of the last scan")
+    rssi_behind_dbm: float | None = Field(description="RSSI^b: RSSI of the node behind")
+    situation: Literal[0, 1, 2]
+    wheels_mm_s: Wheels
+    pose: Pose
+    battery_v: float | None
+    motors_enabled: bool
+    sonar_mm: Annotated[list[int | None], Field(min_length=SONAR_COUNT, max_length=SONAR_COUNT)]
+    last_scan: LastScan | None
+    scan_count: Annotated[int, Field(ge=0)]
+    links: dict[str, Link]
+    health: dict[str, Health]
+    thresholds: dict[str, float]
+
+
+_DROP = {"title", "default"}
+_RENAME = {"minLength": "minItems", "maxLength": "maxItems"}
+
+
+def _to_openapi(node: Any, defs: dict[str, Any]) -> Any:
+    """One JSON Schema node in OpenAPI 3.0's dialect, with every `$ref` inlined."""
+    if isinstance(node, list):
+        return [_to_openapi(n, defs) for n in node]
+    if not isinstance(node, dict):
+        return node
+    ref = node.get("$ref")
+    if isinstance(ref, str):
+        target = defs[ref.rsplit("/", 1)[-1]]
+        extra = {k: v for k, v in node.items() if k != "$ref"}
+        return _to_openapi({**target, **extra}, defs)
+    any_of = node.get("anyOf")
+    if isinstance(any_of, list) and {"type": "null"} in any_of:
+        rest = [n for n in any_of if n != {"type": "null"}]
+        inner = rest[0] if len(rest) == 1 else {"anyOf": rest}
+        merged = {**{k: v for k, v in node.items() if k != "anyOf"}, **_to_openapi(inner, defs)}
+        merged["nullable"] = True
+        return {k: v for k, v in merged.items() if k not in _DROP}
+    out: dict[str, Any] = {}
+    for key, value in node.items():
+        if key in _DROP or key == "$defs":
+            continue
+        if key == "const":
+            out["enum"] = [value]
+            continue
+        name = str(key)
+        if node.get("type") == "array":
+            name = _RENAME.get(name, name)
+        out[name] = _to_openapi(value, defs)
+    if out.get("type") == "object" and "properties" in out:
+        out["required"] = list(out["properties"])
+    return out
+
+
+def openapi_schema(model: type[BaseModel] = Status) -> dict[str, Any]:
+    """The model's schema for an OpenAPI 3.0 document."""
+    schema = model.model_json_schema()
+    defs = schema.pop("$defs", {})
+    result: dict[str, Any] = _to_openapi(schema, defs)
+    return result

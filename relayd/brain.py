@@ -1,0 +1,388 @@
+"""The relay brain: one pure state machine from events to actions (sans-IO, like h11).
+
+`Brain.handle(event) -> list[Action]` is the whole decision core of a relay: it keeps
+what the robot knows (last SIP, sonar ring, RSSI freshness, the bearing memory of the
+scans, RSSI^b, the mode and the operator's command), runs the fail-safes and the pure
+controller (`relayd.controller.control_step`) on every SIP and every timer tick, turns
+each finished scan into an estimate (`relayd.estimator`), counts toward leader-lost,
+and plans the next sweep. It does no I/O and reads no clock: the time is in each
+event, so the same events give the same actions, on a robot, in the simulator and in
+a test.
+
+Decisions:
+- Stale RSSI is judged on the sample stream: no fresh sample for `rssi_timeout_s`
+  (the daemon sets max(0.5 s, 5 sample periods)) stops the wheels with reason
+  "rssi_stale", whatever the scan settings. A second rule covers a scan that stops
+  completing while samples still flow (a servo that answers but never finishes a
+  sweep): no completed scan for `scan_timeout_s` (2 nominal scan periods) once a
+  bearing exists stops them with reason "scan_stale".
+- A robot that reports itself down (session ended, silent) counts as having no SIP
+  until the next SIP, so the wheels go to zero at the next step, not at the SIP
+  timeout.
+- Only the step a SIP caused carries that SIP's time on its wheel command
+  (`WheelCommand.sip_t`): the control latency is measured on those alone.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from relayd.controller import (
+    ControlInputs,
+    ControlMemory,
+    ControlOutput,
+    ControlParams,
+    control_step,
+)
+from relayd.estimator import (
+    LOST_AFTER_SCANS,
+    EstimatorParams,
+    ScanSample,
+    estimate_scan,
+    front_readings,
+    plan_scan,
+    update_lost_count,
+)
+from relayd.events import (
+    Action,
+    Decision,
+    DeviceEvent,
+    DeviceStatus,
+    DriveCommand,
+    Event,
+    LinkEvent,
+    LinkSide,
+    ModeCommand,
+    RearLink,
+    RssiEvent,
+    ScanDone,
+    ScanPlan,
+    ScanReady,
+    ScanResult,
+    ScanSampleEvent,
+    ServoPosition,
+    ServoTarget,
+    Shutdown,
+    SipEvent,
+    Tick,
+    WheelCommand,
+)
+from relayd.ring import rear_readings
+from relayd.state import DriveState, Mode, ScanRecord
+
+SONAR_COUNT = 16
+#: Device names the brain listens to in `DeviceEvent`s.
+ROBOT, PANTILT = "robot", "pantilt"
+
+
+@dataclass(frozen=True, slots=True)
+class ScanParams:
+    """The sweep geometry and leader-lost level."""
+
+    scan_channel: int = 0
+    link_channel: int = 1
+    samples: int = 13
+    width_deg: float = 60.0
+    limits_deg: tuple[float, float] = (-90.0, 90.0)
+    lost_rssi_dbm: float = -85.0
+    #: No completed scan for this long (once a bearing exists) stops the wheels; None: no rule.
+    scan_timeout_s: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class BrainParams:
+    """Everything the brain is configured with (built from the config by `relayd.params`)."""
+
+    control: ControlParams = field(default_factory=ControlParams)
+    estimator: EstimatorParams = field(default_factory=EstimatorParams)
+    scan: ScanParams = field(default_factory=ScanParams)
+    #: A scan servo is configured: until it answers, follow mode stops on "scan_servo".
+    has_scanner: bool = True
+    #: RSSI^b from this station of the rear AP; None: the strongest station heard.
+    rear_station_mac: str | None = None
+
+
+def in_current_frame(bearing: float | None, heading_then: float | None,
+                     heading_now: float | None) -> float | None:
+    """A bearing measured in an earlier robot frame, seen from the robot's heading now."""
+    if bearing is None:
+        return None
+    if heading_then is None or heading_now is None:
+        return bearing
+    b = bearing - (heading_now - heading_then)
+    return (b + 180.0) % 360.0 - 180.0
+
+
+class Brain:
+    """Events in, actions out. Not thread-safe, not async: call `handle` in event order."""
+
+    def __init__(self, params: BrainParams, *, mode: Mode = Mode.FOLLOW) -> None:
+        self.params = params
+        self._mode = Mode(mode)
+        self._manual: tuple[float, float, float] | None = None
+        self._halted = False
+        # What the base said.
+        self._sip_t: float | None = None
+        self._heading: float | None = None
+        self._robot_down = False
+        self._sonar: list[int | None] = [None] * SONAR_COUNT
+        #: Odometry pose of the latest SIP (mm, mm, deg): the obstacle escape's progress
+        #: watchdog and limits (relayd/avoidance.py).
+        self._odom: tuple[float, float, float] | None = None
+        # RSSI and scans.
+        self._rssi_fresh_t: float | None = None
+        self._servo_ok = not params.has_scanner
+        self._ascending = True
+        self._scan: list[ScanSample] = []
+        #: The scanner asked for a plan while the servo was not answering: plan when it is.
+        self._scan_wanted = False
+        self._last_scan_t: float | None = None
+        self.lost_count = 0
+        self.bearing_deg: float | None = None
+        self.bearing_heading_deg: float | None = None
+        self.prev_bearing_deg: float | None = None
+        self.prev_heading_deg: float | None = None
+        self.rssi_leader_dbm: float | None = None
+        # The link behind.
+        self._rear_dbm: float | None = None
+        self._rear_t: float | None = None
+        self._rear_shown: float | None = None
+        # The controller's memory and last word.
+        self._memory = ControlMemory()
+        self.last_output: ControlOutput | None = None
+
+    # -- read-only views (the API's shell checks a drive command against the mode) ------
+
+    @property
+    def mode(self) -> Mode:
+        return self._mode
+
+    @property
+    def leader_lost(self) -> bool:
+        return self.lost_count >= LOST_AFTER_SCANS
+
+    @property
+    def servo_ok(self) -> bool:
+        return self._servo_ok
+
+    # -- the one entry point ------------------------------------------------------------
+
+    def handle(self, event: Event) -> list[Action]:
+        match event:
+            case SipEvent():
+                return self._on_sip(event)
+            case Tick():
+                return self._rear_view(event.t) + self._step(event.t, None)
+            case RssiEvent():
+                s = event.sample
+                if s.fresh and s.rssi_dbm is not None and math.isfinite(s.rssi_dbm):
+                    self._rssi_fresh_t = s.t
+                return []
+            case ScanReady():
+                self._scan = []
+                if not self._servo_ok:
+                    self._scan_wanted = True
+                    return []
+                return [self._plan()]
+            case ScanSampleEvent():
+                self._scan.append(ScanSample(event.angle_deg, event.rssi_dbm, self._sample_heading()))
+                return []
+            case ScanDone():
+                return self._on_scan_done(event)
+            case LinkEvent():
+                return self._on_link(event)
+            case DeviceEvent():
+                return self._on_device(event)
+            case ModeCommand():
+                self._mode = Mode(event.mode)
+                self._manual = None
+                return self._step(event.t, None)
+            case DriveCommand():
+                if self._mode is not Mode.MANUAL or not (
+                        math.isfinite(event.left_mm_s) and math.isfinite(event.right_mm_s)):
+                    return []  # the API's shell refuses these before they get here
+                self._manual = (float(event.left_mm_s), float(event.right_mm_s), event.t)
+                return self._step(event.t, None)
+            case Shutdown():
+                self._halted = True
+                return self._step(event.t, None)
+            case ServoPosition():
+                return []
+        return []
+
+    # -- inputs ---------------------------------------------------------------------------
+
+    def _on_sip(self, ev: SipEvent) -> list[Action]:
+        self._sip_t = ev.t
+        self._heading = ev.sip.theta_deg
+        self._odom = (ev.sip.x_mm, ev.sip.y_mm, ev.sip.theta_deg)
+        self._robot_down = False
+        if len(ev.sonar_mm) == SONAR_COUNT:
+            self._sonar = list(ev.sonar_mm)
+        else:
+            for index, range_mm in ev.sip.sonar:
+                if 0 <= index < SONAR_COUNT:
+                    self._sonar[index] = range_mm
+        return self._step(ev.t, ev.t)
+
+    def _sample_heading(self) -> float:
+        if self._heading is not None:
+            return self._heading
+        return self._scan[-1].heading_deg if self._scan else 0.0
+
+    def _on_device(self, ev: DeviceEvent) -> list[Action]:
+        up = ev.status is DeviceStatus.UP
+        if ev.device == ROBOT:
+            self._robot_down = not up
+            return self._step(ev.t, None)
+        if ev.device == PANTILT:
+            was_ok, self._servo_ok = self._servo_ok, up
+            actions = self._step(ev.t, None)
+            if up and not was_ok and self._scan_wanted:
+                self._scan_wanted = False
+                actions.append(self._plan())  # the scanner was waiting for the servo
+            return actions
+        return []
+
+    def _on_link(self, ev: LinkEvent) -> list[Action]:
+        if ev.side is not LinkSide.REAR:
+            return []
+        q, mac = ev.quality, self.params.rear_station_mac
+        if mac is not None:
+            value = q.station_signal_dbm(mac)
+        else:
+            # A rear radio in station mode has no station list: its own signal is the link's.
+            best = q.best_station_signal_dbm
+            value = best if best is not None else q.signal_dbm
+        self._rear_dbm, self._rear_t = value, ev.t
+        return self._rear_view(ev.t)
+
+    def _rear_view(self, now: float) -> list[Action]:
+        """RSSI^b as /status may show it: not a value the controller already refuses as stale."""
+        value = self._rear_dbm
+        if self._rear_t is None or now - self._rear_t > self.params.control.rear_timeout_s:
+            value = None
+        if value == self._rear_shown:
+            return []
+        self._rear_shown = value
+        return [RearLink(value)]
+
+    # -- scans ----------------------------------------------------------------------------
+
+    def _center(self) -> tuple[float, float]:
+        """Centre and width of the next window: previous bearing, or the full range when lost."""
+        sp = self.params.scan
+        if self.leader_lost or self.bearing_deg is None:
+            lo, hi = sp.limits_deg
+            if self.leader_lost:
+                return (lo + hi) / 2.0, hi - lo
+            return 0.0, sp.width_deg
+        turned = 0.0
+        if self._heading is not None and self.bearing_heading_deg is not None:
+            turned = self._heading - self.bearing_heading_deg
+        return self.bearing_deg - turned, sp.width_deg
+
+    def _plan(self) -> ScanPlan:
+        sp = self.params.scan
+        center, width = self._center()
+        angles = plan_scan(center, width, sp.samples, sp.limits_deg, self._ascending)
+        self._ascending = not self._ascending
+        return ScanPlan(angles)
+
+    def _on_scan_done(self, ev: ScanDone) -> list[Action]:
+        samples, self._scan = self._scan, []
+        actions: list[Action] = []
+        if len(samples) >= 3:
+            heading_end = self._heading
+            try:
+                est = estimate_scan(samples, heading_end if heading_end is not None else samples[-1].heading_deg,
+                                    front_readings(self._sonar), self.params.estimator)
+            except ValueError:
+                est = None  # bad sonar data: this scan is lost, the next one is planned
+            if est is not None:
+                period_s = ev.t - ev.started_t
+                self.prev_bearing_deg, self.prev_heading_deg = self.bearing_deg, self.bearing_heading_deg
+                self.bearing_deg, self.bearing_heading_deg = est.bearing_deg, heading_end
+                self.rssi_leader_dbm = est.rssi_leader_dbm
+                self.lost_count = update_lost_count(self.lost_count, est.rssi_leader_dbm,
+                                                    self.params.scan.lost_rssi_dbm)
+                self._last_scan_t = ev.t
+                record = ScanRecord(
+                    t=ev.t, angles_deg=tuple(round(a, 2) for a in est.angles_deg),
+                    rssi_dbm=tuple(round(r, 2) for r in est.rssi_dbm),
+                    bearing_deg=round(est.bearing_deg, 3), rssi_leader_dbm=est.rssi_leader_dbm,
+                    situation=est.situation, period_s=period_s,
+                )
+                actions.append(ScanResult(record, est))
+                # Point the data-link antenna at the leader.
+                actions.append(ServoTarget(self.params.scan.link_channel, est.bearing_deg))
+        return actions
+
+    # -- the control step -----------------------------------------------------------------
+
+    def inputs(self, now: float) -> ControlInputs:
+        p = self.params.control
+        sip_age = None if self._sip_t is None else now - self._sip_t
+        if self._robot_down and sip_age is not None:
+            sip_age = max(sip_age, p.sip_timeout_s + 1e-6)
+        heading = self._heading
+        manual_l = manual_r = manual_age = None
+        if self._manual is not None:
+            manual_l, manual_r, t = self._manual
+            manual_age = now - t
+        return ControlInputs(
+            mode=self._mode,
+            sip_age_s=sip_age,
+            rssi_age_s=None if self._rssi_fresh_t is None else now - self._rssi_fresh_t,
+            scan_servo_ok=self._servo_ok,
+            bearing_deg=in_current_frame(self.bearing_deg, self.bearing_heading_deg, heading),
+            prev_bearing_deg=in_current_frame(self.prev_bearing_deg, self.prev_heading_deg, heading),
+            rssi_leader_dbm=self.rssi_leader_dbm,
+            rssi_behind_dbm=self._rear_dbm,
+            rear_age_s=None if self._rear_t is None else now - self._rear_t,
+            front_sonar=front_readings(self._sonar),
+            leader_lost=self.leader_lost,
+            manual_left_mm_s=manual_l,
+            manual_right_mm_s=manual_r,
+            manual_age_s=manual_age,
+            t_s=now,
+            odom=self._odom,
+            rear_sonar=rear_readings(self._sonar),
+        )
+
+    def _scan_stale(self, now: float) -> bool:
+        limit = self.params.scan.scan_timeout_s
+        return (limit is not None and self._mode is Mode.FOLLOW and self._last_scan_t is not None
+                and now - self._last_scan_t > limit)
+
+    def _decide(self, now: float) -> ControlOutput:
+        situation = self.last_output.situation if self.last_output is not None else 0
+        if self._halted:
+            return ControlOutput(0.0, 0.0, DriveState.STOPPED, "shutdown", situation, self._memory)
+        try:
+            out = control_step(self.inputs(now), self.params.control, self._memory)
+        except Exception as exc:  # noqa: BLE001 - a bug or bad data in the brain stops the robot
+            return ControlOutput(0.0, 0.0, DriveState.FAULT, f"controller_error: {type(exc).__name__}",
+                                 situation, self._memory)
+        if (out.left_mm_s or out.right_mm_s) and self._scan_stale(now):
+            return ControlOutput(0.0, 0.0, DriveState.FAULT, "scan_stale", out.situation, out.memory)
+        return out
+
+    def _step(self, now: float, sip_t: float | None) -> list[Action]:
+        out = self._decide(now)
+        self._memory = out.memory
+        prev, self.last_output = self.last_output, out
+        actions: list[Action] = []
+        if not self._halted:
+            if out.left_mm_s == 0.0 and out.right_mm_s == 0.0:
+                # The urgent stop goes out on the transition to zero; while stopped, the
+                # driver keeps reflecting zero, so the serial line is not flooded.
+                if prev is None or prev.left_mm_s != 0.0 or prev.right_mm_s != 0.0:
+                    actions.append(WheelCommand(0.0, 0.0, True, sip_t))
+            else:
+                actions.append(WheelCommand(out.left_mm_s, out.right_mm_s, False, sip_t))
+        changed = prev is None or prev.state is not out.state or prev.reason != out.reason
+        actions.append(Decision(now, out.left_mm_s, out.right_mm_s, out.state, out.reason,
+                                out.situation, self._mode, changed))
+        return actions

@@ -1,0 +1,101 @@
+"""The brain's parameters, built from the config models in one place.
+
+`ControlParams` and `EstimatorParams` (the pure modules' own frozen dataclasses) take
+every field whose name is a key of the config's `[control]` or `[scan]` section
+straight from it, so a new tunable is written twice (the config model and the
+dataclass), never a third time here. Only the fields derived from several settings
+(timeouts, the rear-link switch) are computed below, each with its reason.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, TypeVar
+
+from pydantic import BaseModel
+
+from relayd.brain import BrainParams, ScanParams
+from relayd.config import Settings
+from relayd.controller import ControlParams
+from relayd.estimator import EstimatorParams
+
+P = TypeVar("P")
+
+#: RSSI freshness on the sample stream: never judged over less than this (s) ...
+RSSI_STALE_MIN_S = 0.5
+#: ... nor over fewer than this many sample periods.
+RSSI_STALE_SAMPLES = 5
+#: "No completed scan for 2 scan periods" never fires sooner than this (s): a real sweep
+#: also waits for servo replies and the link antenna, which the nominal period leaves
+#: out, and a servo that stops answering must be reported as itself ("scan_servo",
+#: after the driver's reply timeout), not as a scan that did not finish.
+SCAN_STALE_MIN_S = 2.0
+
+
+def _from_sections(cls: type[P], *sections: BaseModel, **derived: Any) -> P:
+    """An instance of the dataclass `cls` whose fields come from the sections, by name."""
+    values: dict[str, Any] = {}
+    dumped = [section.model_dump() for section in sections]
+    for f in dataclasses.fields(cls):  # type: ignore[arg-type]
+        for doc in dumped:
+            if f.name in doc:
+                values[f.name] = doc[f.name]
+                break
+    values.update(derived)
+    return cls(**values)
+
+
+def scan_period_nominal_s(width_deg: float, speed_deg_s: float, samples: int, settle_s: float,
+                          sample_hz: float, mode: str) -> float:
+    """A sweep's expected duration: slew time of the window plus the time at each sample."""
+    slew = width_deg / speed_deg_s
+    if mode == "continuous":
+        return slew + 1.0 / sample_hz
+    return slew + samples * (settle_s + 1.0 / sample_hz)
+
+
+def nominal_scan_period_s(settings: Settings) -> float:
+    s = settings.scan
+    return scan_period_nominal_s(s.width_deg, settings.pantilt.speed_deg_s, s.samples, s.settle_s,
+                                 settings.wifi.sample_hz, s.mode)
+
+
+def rssi_timeout_s(sample_hz: float) -> float:
+    """No fresh sample for max(0.5 s, 5 sample periods) means the RSSI is stale."""
+    return max(RSSI_STALE_MIN_S, RSSI_STALE_SAMPLES / sample_hz)
+
+
+def control_params(settings: Settings) -> ControlParams:
+    c = settings.control
+    rear_poll_s = settings.ap.rear.poll_s if settings.ap.rear is not None else 1.0
+    return _from_sections(
+        ControlParams, c,
+        rear_link_required=c.rear_link == "require",
+        sip_timeout_s=settings.robot.lost_after_s,
+        rssi_timeout_s=rssi_timeout_s(settings.wifi.sample_hz),
+        rear_timeout_s=c.rear_stale_polls * rear_poll_s,
+    )
+
+
+def estimator_params(settings: Settings) -> EstimatorParams:
+    # gamma (the WCA's) is a [scan] key; the obstacle keys are [control]'s.
+    return _from_sections(EstimatorParams, settings.scan, settings.control)
+
+
+def brain_params(settings: Settings) -> BrainParams:
+    pt, s = settings.pantilt, settings.scan
+    scanning = pt.enabled and settings.wifi.enabled
+    rear = settings.ap.rear
+    return BrainParams(
+        control=control_params(settings),
+        estimator=estimator_params(settings),
+        scan=ScanParams(
+            scan_channel=pt.scan_channel, link_channel=pt.link_channel, samples=s.samples,
+            width_deg=s.width_deg, limits_deg=(float(pt.limits_deg[0]), float(pt.limits_deg[1])),
+            lost_rssi_dbm=settings.control.lost_rssi_dbm,
+            # The second stale rule: no completed scan for two nominal scan periods.
+            scan_timeout_s=max(SCAN_STALE_MIN_S, 2.0 * nominal_scan_period_s(settings)) if scanning else None,
+        ),
+        has_scanner=scanning,
+        rear_station_mac=rear.station_mac if rear is not None else None,
+    )
