@@ -79,10 +79,10 @@ def test_convoy_followers_track_and_stop_during_pauses() -> None:
 
 
 @pytest.mark.timeout(150)
-async def test_box_dead_ahead_is_passed_by_real_daemons() -> None:
+def test_box_dead_ahead_is_passed_by_real_daemons() -> None:
     # The geometry with the truthful sonar: the symmetric box no longer holds the
     # relay (the escape turns it at an executable rate), and nothing is touched.
-    result, _ = await _run("box-dead-ahead", 1, 8.0)
+    result, _ = _run("box-dead-ahead", 1)
     s = result.summary
     assert s["collisions"] == 0
     past = [r["t"] for r in result.records if r["relays"][0]["x"] > 2.75 + 0.313]
