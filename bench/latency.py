@@ -10,7 +10,8 @@ constant 300 mm/s and kd = 0 removes the D term, so the control tick (which re-r
 the same step between SIPs) and the scans never produce a command of their own: every
 VEL/RVEL the fake receives is caused by the SIP before it. The robot is held in place
 (a motion guard that refuses every move), so the leader's distance and the link
-thresholds never change during the run.
+thresholds never change during the run; the obstacle escape is off
+(`control.escape = false`), since a robot that cannot move is what it would act on.
 
 Two measurements of the same cycles. In relayd (the project's definition, "SIP
 received to wheel command written"): the driver times each SIP from its bytes arriving to the
@@ -236,9 +237,9 @@ async def measure(*, cycles: int = 2000, sip_period_s: float = 0.025, load_rps: 
         await rig.start()
         try:
             extra = {"record": record} if record is not None else {}
-            async with RelaydProcess(rig, control={"w1": 0.0, "w2": -300.0, "kd": 0.0}, scan=scan or {},
-                                     log={"level": "warning"}, command_prefix=command_prefix,
-                                     **extra) as relayd:
+            async with RelaydProcess(rig, control={"w1": 0.0, "w2": -300.0, "kd": 0.0, "escape": False},
+                                     scan=scan or {}, log={"level": "warning"},
+                                     command_prefix=command_prefix, **extra) as relayd:
                 await relayd.wait_for(lambda d: d.get("state") == "avoiding", 60.0, "state avoiding")
                 probe = CycleProbe(rig.robot, sonar)
                 probe.install()
