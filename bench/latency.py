@@ -10,7 +10,8 @@ constant 300 mm/s and kd = 0 removes the D term, so the control tick (which re-r
 the same step between SIPs) and the scans never produce a command of their own: every
 VEL/RVEL the fake receives is caused by the SIP before it. The robot is held in place
 (a motion guard that refuses every move), so the leader's distance and the link
-thresholds never change during the run.
+thresholds never change during the run; the obstacle escape is off
+(`control.escape = false`), since a robot that cannot move is what it would act on.
 
 Two measurements of the same cycles. In relayd (the project's definition, "SIP
 received to wheel command written"): the driver times each SIP from its bytes arriving to the
@@ -223,8 +224,9 @@ def scheduling_prefix(kind: str) -> tuple[str, ...] | None:
 
 async def measure(*, cycles: int = 2000, sip_period_s: float = 0.025, load_rps: float = 1000.0,
                   work: Path | None = None, scan: dict[str, Any] | None = None,
+                  command_prefix: Sequence[str] = (),
                   record: dict[str, Any] | None = None, foxglove_port: int | None = None,
-                  viewer: bool = False, command_prefix: Sequence[str] = ()) -> dict[str, Any]:
+                  viewer: bool = False) -> dict[str, Any]:
     """Both runs (alone, then under /status load); raw latencies in ms and the load's report.
 
     `foxglove_port`: the live Foxglove server on; `viewer`: one Foxglove client
@@ -242,9 +244,9 @@ async def measure(*, cycles: int = 2000, sip_period_s: float = 0.025, load_rps: 
             extra: dict[str, Any] = {"record": record} if record is not None else {}
             if foxglove_port is not None:
                 extra["foxglove"] = {"enabled": True, "port": foxglove_port}
-            async with RelaydProcess(rig, control={"w1": 0.0, "w2": -300.0, "kd": 0.0}, scan=scan or {},
-                                     log={"level": "warning"}, command_prefix=command_prefix,
-                                     **extra) as relayd:
+            async with RelaydProcess(rig, control={"w1": 0.0, "w2": -300.0, "kd": 0.0, "escape": False},
+                                     scan=scan or {}, log={"level": "warning"},
+                                     command_prefix=command_prefix, **extra) as relayd:
                 await relayd.wait_for(lambda d: d.get("state") == "avoiding", 60.0, "state avoiding")
                 probe = CycleProbe(rig.robot, sonar)
                 probe.install()

@@ -181,6 +181,9 @@ class ControlSettings(_Section):
     manual_deadman_s: PositiveFloat = 0.5
     #: RSSI^b older than this many rear-AP polls is stale (not in the spec; 3 polls).
     rear_stale_polls: Annotated[int, Field(ge=1, le=100)] = 3
+    #: The escape when forward motion is blocked (docs/AVOIDANCE.md); false leaves the
+    #: paper's obstacle rule alone (for experiments and benchmarks, not for a robot).
+    escape: bool = True
 
     @model_validator(mode="after")
     def _cross_key_rules(self) -> ControlSettings:
