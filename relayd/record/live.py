@@ -148,7 +148,8 @@ class LiveServer:
                 # A cadence, not a wake-up per event, as the recorder does: one loop turn
                 # per drain keeps the loop free for the SIPs (bench/RESULTS.md).
                 await asyncio.sleep(self._drain_s)
-                self._drain()
+                if not sub.closed:
+                    self._drain()
         except Exception as exc:  # noqa: BLE001 - a viewer's bug must not reach the supervisor
             self.error = f"{type(exc).__name__}: {exc}"
             log.warning("foxglove_live_stopped", error=self.error,
