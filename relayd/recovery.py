@@ -1,0 +1,378 @@
+"""Self-healing when a link breaks: breadcrumbs and the recovery state machine (pure).
+
+The paper leaves broken links out of scope; this is the backup plan it names as future
+work, decided locally by each relay (docs/CONTROL.md section 7b). Nothing here does
+I/O or reads a clock: `recovery_step` gets one snapshot (`RecoveryInputs`), the
+settings and the memory of the step before, and returns either a wheel command that
+replaces the follow controller's, or None (the controller's output stands).
+
+- **Breadcrumbs.** While no episode runs, every `crumb_spacing_m` of odometry travel
+  adds a crumb: the pose and the RSSI^l / RSSI^b the relay had there. The trail keeps
+  the newest `trail_len` crumbs.
+- **Leader lost** (the brain's 3-scans-below-lost_rssi rule): WIDEN first (wheels zero
+  while `widen_scans` full-range scans complete; the brain widens the window by
+  itself while the leader is lost), then RETRACE: back along the trail toward the
+  newest crumb where RSSI^l was at or above threshold_l (none: the crumb with the best
+  RSSI^l), scanning as it goes. The leader heard again ends the episode ("found").
+- **Rear link breaking** (fresh RSSI^b below lost_rssi): BACKUP along the trail until
+  RSSI^b is above threshold_b + hysteresis ("restored"). It pre-empts a leader
+  episode: the chain behind is restored first.
+- Both move in **reverse** along crumbs the relay already drove through (known free
+  space), so the Yagi keeps facing where the leader went; the rear sonars 9..14 slow,
+  steer and stop it like the front ones do going forward, and never let it back into
+  an obstacle. The trail is consumed as the relay passes its crumbs.
+- **Limits.** Each episode ends GAVE_UP (wheels zero; reason "leader_lost" or
+  "rear_lost") after `max_time_s` or `max_distance_m` of odometry travel. The reverse
+  speed is tapered to the distance left (at most remaining / TAPER_S), so a control
+  period under TAPER_S can never carry the relay past its distance limit.
+- **Stale input never drives.** Any input older than its limit (SIP, RSSI stream,
+  scan, RSSI^b when required or backing up) gives zero wheels while an episode runs.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from enum import StrEnum
+
+from relayd.state import DriveState
+
+#: Rear sonars that guard reversing: headings -130, -150, -170, 170, 150, 130 (P3-AT 9..14).
+REAR_SONARS: tuple[int, ...] = (9, 10, 11, 12, 13, 14)
+#: Their headings relative to the robot's rear (ccw +), sonar 9 first.
+REAR_RELATIVE_DEG: tuple[float, ...] = (50.0, 30.0, 10.0, -10.0, -30.0, -50.0)
+#: Reverse speed is capped at (distance left) / TAPER_S.
+TAPER_S = 1.0
+#: Closer to the distance limit than this counts as reached.
+LIMIT_SLACK_M = 0.02
+#: Turn in place (no reverse motion) while the crumb behind is more than this off the rear axis.
+TURN_IN_PLACE_DEG = 50.0
+#: A sonar at or beyond this range (mm) has no echo.
+NO_ECHO_MM = 5000
+
+
+class Phase(StrEnum):
+    IDLE = "idle"
+    WIDEN = "widen"
+    RETRACE = "retrace"
+    BACKUP = "backup"
+    GAVE_UP = "gave_up"
+
+
+class Kind(StrEnum):
+    LEADER = "leader"
+    REAR = "rear"
+
+
+@dataclass(frozen=True, slots=True)
+class RecoveryParams:
+    enabled: bool = False
+    max_distance_m: float = 8.0
+    max_time_s: float = 60.0
+    retrace_speed_mm_s: float = 200.0
+    backup_speed_mm_s: float = 150.0
+    widen_scans: int = 1
+    crumb_spacing_m: float = 0.25
+    trail_len: int = 200
+    reach_m: float = 0.3
+    turn_gain_mm_s_deg: float = 3.0
+    # From [control] (the brain's params module fills them in).
+    threshold_l_dbm: float = -30.0
+    threshold_b_dbm: float = -60.0
+    hysteresis_db: float = 2.0
+    lost_rssi_dbm: float = -85.0
+    threshold_o_m: float = 0.8
+    stop_distance_m: float = 0.3
+    gamma_o_m: float = 1.0
+    rear_required: bool = True
+    sip_timeout_s: float = 0.5
+    rssi_timeout_s: float = 0.5
+    rear_timeout_s: float = 3.0
+    scan_timeout_s: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Crumb:
+    x_mm: float
+    y_mm: float
+    rssi_l_dbm: float | None
+    rssi_b_dbm: float | None
+
+
+@dataclass(frozen=True, slots=True)
+class RecoveryInputs:
+    """One snapshot: ages are seconds since the newest datum (None: never had one)."""
+
+    following: bool  # follow mode, no shutdown
+    pose: tuple[float, float, float] | None  # odometry x_mm, y_mm, theta_deg
+    sip_age_s: float | None
+    rssi_age_s: float | None
+    scan_age_s: float | None
+    rear_age_s: float | None
+    leader_lost: bool
+    rssi_leader_dbm: float | None
+    rssi_behind_dbm: float | None
+    scan_count: int
+    sonar_mm: tuple[int | None, ...]
+    now_s: float
+
+
+@dataclass(frozen=True, slots=True)
+class RecoveryMemory:
+    trail: tuple[Crumb, ...] = ()
+    phase: Phase = Phase.IDLE
+    kind: Kind | None = None
+    episodes: int = 0
+    started_t: float | None = None
+    start_scans: int = 0
+    distance_m: float = 0.0
+    last_pose: tuple[float, float] | None = None
+    target: int | None = None  # index into trail of the crumb the retrace aims for
+    last_outcome: str | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class RecoveryCommand:
+    left_mm_s: float
+    right_mm_s: float
+    state: DriveState
+    reason: str
+
+
+@dataclass(frozen=True, slots=True)
+class RecoveryOutput:
+    command: RecoveryCommand | None  # None: the follow controller's output stands
+    memory: RecoveryMemory
+
+
+def _stale(age: float | None, limit: float | None) -> bool:
+    if limit is None:
+        return False
+    return age is None or not math.isfinite(age) or age > limit
+
+
+def inputs_stale(inp: RecoveryInputs, p: RecoveryParams, *, need_rear: bool) -> bool:
+    """Any input the episode relies on older than its limit (or missing)."""
+    if inp.pose is None or not all(math.isfinite(v) for v in inp.pose):
+        return True
+    if _stale(inp.sip_age_s, p.sip_timeout_s) or _stale(inp.rssi_age_s, p.rssi_timeout_s):
+        return True
+    if p.scan_timeout_s is not None and inp.scan_age_s is not None and inp.scan_age_s > p.scan_timeout_s:
+        return True
+    rear_needed = need_rear or p.rear_required
+    return rear_needed and (_stale(inp.rear_age_s, p.rear_timeout_s) or inp.rssi_behind_dbm is None)
+
+
+def add_crumb(trail: tuple[Crumb, ...], x_mm: float, y_mm: float, rssi_l: float | None,
+              rssi_b: float | None, p: RecoveryParams) -> tuple[Crumb, ...]:
+    """The trail with a crumb here if the relay moved crumb_spacing_m from the newest one."""
+    if trail:
+        last = trail[-1]
+        if math.hypot(x_mm - last.x_mm, y_mm - last.y_mm) < p.crumb_spacing_m * 1000.0:
+            return trail
+    trail = (*trail, Crumb(x_mm, y_mm, rssi_l, rssi_b))
+    return trail[-p.trail_len:] if len(trail) > p.trail_len else trail
+
+
+def leader_target(trail: tuple[Crumb, ...], threshold_l_dbm: float) -> int | None:
+    """The newest crumb where the leader was heard at or above threshold_l; else the best one."""
+    best: int | None = None
+    for i in range(len(trail) - 1, -1, -1):
+        r = trail[i].rssi_l_dbm
+        if r is None:
+            continue
+        if r >= threshold_l_dbm:
+            return i
+        if best is None or r > (trail[best].rssi_l_dbm or -math.inf):
+            best = i
+    return best
+
+
+def _rear_clearance_m(sonar_mm: tuple[int | None, ...]) -> list[float | None]:
+    out: list[float | None] = []
+    for k in REAR_SONARS:
+        r = sonar_mm[k] if k < len(sonar_mm) else None
+        out.append(None if r is None or r >= NO_ECHO_MM or r <= 0 else r / 1000.0)
+    return out
+
+
+def _rear_avoid_deg(ranges: list[float | None], gamma_o_m: float) -> float:
+    """Sonar centroid of the rear sonars (relative to the rear, ccw +): open space attracts."""
+    d = [5.0 if r is None else r for r in ranges]
+    top = max(d)
+    w = [10.0 ** ((x - top) / gamma_o_m) for x in d]
+    return sum(wi * a for wi, a in zip(w, REAR_RELATIVE_DEG, strict=True)) / sum(w)
+
+
+def _wrap(a: float) -> float:
+    return (a + 180.0) % 360.0 - 180.0
+
+
+def reverse_toward(pose: tuple[float, float, float], target: Crumb, speed_mm_s: float,
+                   sonar_mm: tuple[int | None, ...], p: RecoveryParams) -> tuple[float, float, str]:
+    """(left, right, reason) reversing toward a crumb, the rear sonars guarding the way."""
+    x, y, th = pose
+    want = math.degrees(math.atan2(target.y_mm - y, target.x_mm - x))
+    alpha = _wrap(want - (th + 180.0))  # target off the rear axis, ccw +
+    ranges = _rear_clearance_m(sonar_mm)
+    echoes = [r for r in ranges if r is not None]
+    d_min = min(echoes) if echoes else None
+    reason = "retrace"
+    v = speed_mm_s
+    if d_min is not None and d_min < p.threshold_o_m:
+        span = p.threshold_o_m - p.stop_distance_m
+        scale = 0.0 if span <= 0 else min(max((d_min - p.stop_distance_m) / span, 0.0), 1.0)
+        if scale <= 0.0:
+            return 0.0, 0.0, "rear_blocked"  # never back into it; wait (the time limit runs)
+        v *= scale
+        alpha = _rear_avoid_deg(ranges, p.gamma_o_m)
+        reason = "rear_obstacle"
+    if abs(alpha) > TURN_IN_PLACE_DEG:
+        v = 0.0
+    turn = max(-speed_mm_s, min(speed_mm_s, p.turn_gain_mm_s_deg * alpha))
+    # Reverse: both wheels negative; +turn rotates ccw, which swings the rear ccw.
+    return -v - turn, -v + turn, reason
+
+
+def _close(m: RecoveryMemory, phase: Phase, outcome: str) -> RecoveryMemory:
+    return replace(m, phase=phase, last_outcome=outcome, target=None,
+                   kind=m.kind if phase is Phase.GAVE_UP else None)
+
+
+def _start(m: RecoveryMemory, kind: Kind, inp: RecoveryInputs, phase: Phase) -> RecoveryMemory:
+    pos = None if inp.pose is None else (inp.pose[0], inp.pose[1])
+    return replace(m, phase=phase, kind=kind, episodes=m.episodes + 1, started_t=inp.now_s,
+                   start_scans=inp.scan_count, distance_m=0.0, last_pose=pos, target=None)
+
+
+def _rear_broken(inp: RecoveryInputs, p: RecoveryParams) -> bool:
+    return (p.rear_required and inp.rssi_behind_dbm is not None and not _stale(inp.rear_age_s, p.rear_timeout_s)
+            and inp.rssi_behind_dbm < p.lost_rssi_dbm)
+
+
+def _rear_restored(inp: RecoveryInputs, p: RecoveryParams) -> bool:
+    return inp.rssi_behind_dbm is not None and inp.rssi_behind_dbm > p.threshold_b_dbm + p.hysteresis_db
+
+
+def _zero(state: DriveState, reason: str) -> RecoveryCommand:
+    return RecoveryCommand(0.0, 0.0, state, reason)
+
+
+def recovery_step(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> RecoveryOutput:
+    """One decision; see the module docstring."""
+    if not p.enabled:
+        return RecoveryOutput(None, m)
+    if not inp.following:
+        if m.phase in (Phase.WIDEN, Phase.RETRACE, Phase.BACKUP):
+            m = _close(m, Phase.IDLE, "aborted")
+        elif m.phase is Phase.GAVE_UP:
+            m = replace(m, phase=Phase.IDLE, kind=None)
+        return RecoveryOutput(None, m)
+
+    # Odometry travel during an episode (the distance limit's measure).
+    if m.phase is not Phase.IDLE and inp.pose is not None and all(math.isfinite(v) for v in inp.pose):
+        here = (inp.pose[0], inp.pose[1])
+        if m.last_pose is not None:
+            m = replace(m, distance_m=m.distance_m + math.dist(here, m.last_pose) / 1000.0)
+        m = replace(m, last_pose=here)
+
+    # Transitions that end or switch an episode.
+    if m.phase is Phase.GAVE_UP:
+        cleared = (not inp.leader_lost) if m.kind is Kind.LEADER else _rear_restored(inp, p)
+        if cleared:
+            m = replace(m, phase=Phase.IDLE, kind=None)
+        elif m.kind is Kind.LEADER and _rear_broken(inp, p):
+            m = _start(m, Kind.REAR, inp, Phase.BACKUP)
+        else:
+            reason = "leader_lost" if m.kind is Kind.LEADER else "rear_lost"
+            state = DriveState.LEADER_LOST if m.kind is Kind.LEADER else DriveState.STOPPED
+            return RecoveryOutput(_zero(state, reason), m)
+    if m.phase in (Phase.WIDEN, Phase.RETRACE) and not inp.leader_lost:
+        m = _close(m, Phase.IDLE, "found")
+    if m.phase is Phase.BACKUP and _rear_restored(inp, p):
+        m = _close(m, Phase.IDLE, "restored")
+    if m.phase in (Phase.WIDEN, Phase.RETRACE) and _rear_broken(inp, p):
+        m = _start(_close(m, Phase.IDLE, "preempted"), Kind.REAR, inp, Phase.BACKUP)
+
+    # Starting an episode (the rear first).
+    if m.phase is Phase.IDLE:
+        if _rear_broken(inp, p):
+            m = _start(m, Kind.REAR, inp, Phase.BACKUP)
+        elif inp.leader_lost:
+            m = _start(m, Kind.LEADER, inp, Phase.WIDEN)
+        else:
+            if inp.pose is not None and all(math.isfinite(v) for v in inp.pose):
+                m = replace(m, trail=add_crumb(m.trail, inp.pose[0], inp.pose[1], inp.rssi_leader_dbm,
+                                               inp.rssi_behind_dbm, p))
+            return RecoveryOutput(None, m)
+
+    return _run_episode(inp, p, m)
+
+
+def _run_episode(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> RecoveryOutput:
+    rear = m.kind is Kind.REAR
+    lost_state = DriveState.STOPPED if rear else DriveState.LEADER_LOST
+    lost_reason = "rear_lost" if rear else "leader_lost"
+    assert m.started_t is not None  # set by _start
+    elapsed = inp.now_s - m.started_t
+    if elapsed >= p.max_time_s:
+        m = _close(m, Phase.GAVE_UP, "gave_up_time")
+        return RecoveryOutput(_zero(lost_state, lost_reason), m)
+    remaining_m = p.max_distance_m - m.distance_m
+    if remaining_m <= LIMIT_SLACK_M:
+        m = _close(m, Phase.GAVE_UP, "gave_up_distance")
+        return RecoveryOutput(_zero(lost_state, lost_reason), m)
+    if inputs_stale(inp, p, need_rear=rear):
+        return RecoveryOutput(_zero(DriveState.FAULT, "recovery_stale_input"), m)
+
+    if m.phase is Phase.WIDEN:
+        if inp.scan_count - m.start_scans < p.widen_scans:
+            return RecoveryOutput(_zero(DriveState.LEADER_LOST, "widen"), m)
+        m = replace(m, phase=Phase.RETRACE, target=leader_target(m.trail, p.threshold_l_dbm))
+
+    # Drop the crumbs already reached (the newest first); the trail is consumed going back.
+    assert inp.pose is not None  # inputs_stale checked it
+    x, y, _ = inp.pose
+    trail = m.trail
+    while trail and math.hypot(trail[-1].x_mm - x, trail[-1].y_mm - y) < p.reach_m * 1000.0:
+        if m.target is not None and m.target >= len(trail) - 1:
+            break  # at the leader's crumb: stay here, scanning
+        trail = trail[:-1]
+    m = replace(m, trail=trail)
+    if m.target is not None and m.target >= len(trail):
+        m = replace(m, target=len(trail) - 1 if trail else None)
+    at_end = not trail or (m.target is not None and m.target == len(trail) - 1
+                           and math.hypot(trail[-1].x_mm - x, trail[-1].y_mm - y) < p.reach_m * 1000.0)
+    if at_end:
+        reason = "rear_trail_end" if rear else "retrace_wait"
+        return RecoveryOutput(_zero(DriveState.RECOVERING, reason), m)
+
+    speed = p.backup_speed_mm_s if rear else p.retrace_speed_mm_s
+    speed = min(speed, remaining_m * 1000.0 / TAPER_S)
+    left, right, why = reverse_toward(inp.pose, trail[-1], speed, inp.sonar_mm, p)
+    reason = ("backup" if rear else "retrace") if why == "retrace" else why
+    return RecoveryOutput(RecoveryCommand(left, right, DriveState.RECOVERING, reason), m)
+
+
+@dataclass(frozen=True, slots=True)
+class RecoveryView:
+    """What /status and the live page show of recovery (elapsed whole seconds, distance dm)."""
+
+    enabled: bool
+    phase: Phase
+    kind: Kind | None
+    episodes: int
+    elapsed_s: float | None
+    distance_m: float | None
+    max_distance_m: float
+    max_time_s: float
+    trail_crumbs: int
+    last_outcome: str | None
+
+
+def recovery_view(m: RecoveryMemory, p: RecoveryParams, now_s: float) -> RecoveryView:
+    active = m.phase in (Phase.WIDEN, Phase.RETRACE, Phase.BACKUP) and m.started_t is not None
+    elapsed = float(math.floor(now_s - m.started_t)) if active and m.started_t is not None else None
+    return RecoveryView(p.enabled, m.phase, m.kind, m.episodes, elapsed,
+                        round(m.distance_m, 1) if active else None, p.max_distance_m, p.max_time_s,
+                        len(m.trail), m.last_outcome)
