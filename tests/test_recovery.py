@@ -127,7 +127,7 @@ def test_retrace_stops_at_the_crumb_where_the_leader_was_strong() -> None:
         pose = drive(pose, out.command.left_mm_s, out.command.right_mm_s, 0.1)
         t += 0.1
     assert abs(pose[0] - 1000.0) < P.reach_m * 1000.0
-    assert out.command.reason == "retrace_wait"
+    assert out.command is not None and out.command.reason == "retrace_wait"
     assert len(m.trail) == 5
 
 
@@ -311,4 +311,4 @@ def test_reverse_pursuit_follows_a_turning_trail_back_around_the_corner() -> Non
         worst_off_mm = max(worst_off_mm, off)
     assert math.hypot(pose[0], pose[1]) < P.reach_m * 1000.0
     assert worst_off_mm < 400.0
-    assert out.command.reason == "retrace_wait"
+    assert out.command is not None and out.command.reason == "retrace_wait"
