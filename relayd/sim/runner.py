@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
 import json
 import math
 import os
@@ -87,9 +88,11 @@ def _pose3(p: Any) -> tuple[float, float, float]:
 
 
 def relay_settings(*, robot_port: str, servo_port: str, procfs_path: str, rear_url: str,
-                   front_url: str, control: dict[str, Any], scan: dict[str, Any]) -> dict[str, Any]:
-    """The config document (SPEC 4.2 sections and keys) of one simulated relay."""
+                   front_url: str, control: dict[str, Any], scan: dict[str, Any],
+                   recovery: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The config document (the daemon's sections and keys) of one simulated relay."""
     return {
+        "recovery": dict(recovery or {}),
         "robot": {"port": robot_port, "baud": 9600},
         "pantilt": {"port": servo_port, "protocol": "maestro", "scan_channel": 0, "link_channel": 1,
                     "scan_pulse_us": list(map(int, PULSE_US)), "link_pulse_us": list(map(int, PULSE_US))},
@@ -152,6 +155,64 @@ def unapplied_command_s(records: Sequence[dict[str, Any]], i: int, grace_s: floa
     return round(total, 2)
 
 
+#: Link-down spells closer together than this are one break (a hop flickering at its threshold).
+BREAK_MERGE_S = 1.0
+
+
+def link_breaks(records: Sequence[dict[str, Any]], merge_s: float = BREAK_MERGE_S) -> list[dict[str, Any]]:
+    """The spells the end-to-end link was down: start and end (None: still down at the end)."""
+    spells: list[list[float | None]] = []
+    for r in records:
+        t = r["t"]
+        if r["broken"]:
+            if spells and spells[-1][1] is not None and t - spells[-1][1] <= merge_s:  # type: ignore[operator]
+                spells[-1][1] = None  # flickered back up only briefly: the same break
+            elif not spells or spells[-1][1] is not None:
+                spells.append([t, None])
+        elif spells and spells[-1][1] is None:
+            spells[-1][1] = t
+    out = []
+    for start, end in spells:
+        assert start is not None
+        out.append({"start_s": start, "end_s": end,
+                    "duration_s": None if end is None else round(end - start, 2)})
+    return out
+
+
+def downtime_s(records: Sequence[dict[str, Any]]) -> float:
+    """Clock seconds the end-to-end link was down (each trace record stands for its interval)."""
+    total = 0.0
+    for a, b in itertools.pairwise(records):
+        if a["broken"]:
+            total += b["t"] - a["t"]
+    return round(total, 2)
+
+
+def recovery_episodes(records: Sequence[dict[str, Any]], i: int) -> list[dict[str, Any]]:
+    """Relay i's recovery episodes from the trace: start, end, kind, outcome, distance driven."""
+    out: list[dict[str, Any]] = []
+    cur: dict[str, Any] | None = None
+    for r in records:
+        rec = r["relays"][i].get("recovery")
+        if rec is None:
+            continue
+        active = rec["phase"] in ("widen", "retrace", "backup")
+        if cur is not None and (not active or rec["episodes"] != cur["episode"]):
+            cur["end_s"] = r["t"]
+            cur["outcome"] = rec["outcome"] if rec["episodes"] == cur["episode"] or not active \
+                else "preempted"
+            out.append(cur)
+            cur = None
+        if active and cur is None:
+            cur = {"episode": rec["episodes"], "kind": rec["kind"], "start_s": r["t"], "end_s": None,
+                   "outcome": None, "distance_m": 0.0}
+        if cur is not None and rec.get("distance_m") is not None:
+            cur["distance_m"] = max(cur["distance_m"], rec["distance_m"])
+    if cur is not None:
+        out.append(cur)
+    return out
+
+
 def summarize(records: Sequence[dict[str, Any]], *, scenario: str, relays: int, goal: tuple[float, float],
               goal_radius_m: float, collisions: int, followers: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """summary.json from the trace: SPEC 5's keys plus a few that help reading a run.
@@ -179,6 +240,7 @@ def summarize(records: Sequence[dict[str, Any]], *, scenario: str, relays: int, 
             "collisions": f["collisions"],
             "travelled_m": round(f["travelled_m"], 3),
             "unapplied_command_s": unapplied_command_s(records, i) if records else 0.0,
+            "recovery_episodes": recovery_episodes(records, i),
         })
     return {
         "scenario": scenario,
@@ -190,6 +252,8 @@ def summarize(records: Sequence[dict[str, Any]], *, scenario: str, relays: int, 
         "min_e2e_mbps": min(e2e) if e2e else 0.0,
         "final_e2e_mbps": e2e[-1] if e2e else 0.0,
         "collisions": collisions,
+        "link_breaks": link_breaks(records),
+        "downtime_s": downtime_s(records) if records else 0.0,
         "followers": out_followers,
     }
 
@@ -201,8 +265,11 @@ class SimRunner:
                  seconds: float | None = None, out_dir: Path | None = None,
                  workdir: Path | None = None,
                  on_progress: Callable[[dict[str, Any]], None] | None = None,
-                 on_ready: Callable[[dict[str, int | None]], None] | None = None) -> None:
+                 on_ready: Callable[[dict[str, int | None]], None] | None = None,
+                 recovery: bool | None = None) -> None:
         self.scenario = scenario
+        #: Forces every relay's recovery.enabled (the bench's on/off); None: the scenario's.
+        self.recovery = recovery
         self.speed = speed
         # Real-time mode's clock; on a virtual-time loop run() replaces it with the loop's.
         self.clock: Clock = Clock(speed or 1.0)
@@ -271,13 +338,19 @@ class SimRunner:
         control.update(self.scenario.relay[i].control)
         doc = relay_settings(robot_port=robot_port, servo_port=servo_port, procfs_path=procfs_path,
                              rear_url=rear_url, front_url=front_url, control=control,
-                             scan=dict(self.scenario.scan))
+                             scan=dict(self.scenario.scan), recovery=self._recovery_section())
         settings = Settings.model_validate(doc)
         env = {AP_PASSWORD_ENV: self._password, API_TOKEN_ENV: secrets.token_hex(8)}
         daemon = Daemon(settings, clock=clock, env=env, devices=devices)
         relay = SimRelay(body.name, robot, maestro, procfs, rear, front, daemon)
         self._update_links()
         return relay
+
+    def _recovery_section(self) -> dict[str, Any]:
+        section = dict(self.scenario.recovery)
+        if self.recovery is not None:
+            section["enabled"] = self.recovery
+        return section
 
     async def _wait_ports(self) -> dict[str, int | None]:
         async with asyncio.timeout(10.0):
@@ -333,10 +406,16 @@ class SimRunner:
                 "w_deg_s": round(float(r.robot.rvel_deg_s), 1),
                 "rssi_l_mean_dbm": round(w.radio.mean_power_dbm(body.pos, w.node_pos(i))[0], 1),
                 "situation": st.situation,
+                "recovery": None if st.recovery is None else {
+                    "phase": st.recovery["phase"], "kind": st.recovery["kind"],
+                    "episodes": st.recovery["episodes"], "distance_m": st.recovery["distance_m"],
+                    "outcome": st.recovery["last_outcome"]},
             })
         return {
             "t": round(t, 2),
             "leader": {"x": round(w.leader.x_m, 3), "y": round(w.leader.y_m, 3), "moving": w.leader.moving},
+            "cc": [round(w.cc[0], 3), round(w.cc[1], 3)],
+            "timed_present": list(w.timed_present),
             "relays": relays,
             "hops": [{"dbm": round(h.power_dbm, 1), "mbps": h.rate_mbps, "walls": h.walls} for h in links.hops],
             "e2e_mbps": links.e2e_mbps,
