@@ -206,6 +206,26 @@ function renderWheel(barId, valId, mmS, vmax) {
   fill.className = mmS >= 0 ? "fill fwd" : "fill rev";
 }
 
+// Recovery (self-healing of a broken link): phase badge and the running episode's progress
+// against its limits; hidden while recovery is disabled in the config.
+function renderRecovery(r) {
+  const box = $("recovery-box");
+  box.hidden = !r;
+  if (!r) return;
+  const what = r.kind === "rear" ? "link behind" : r.kind === "leader" ? "leader" : "";
+  setText("recovery-phase", r.phase === "idle" ? "idle" : `${r.phase.replace("_", " ")}${what ? " · " + what : ""}`);
+  $("recovery-phase").className = `badge recovery-${r.phase}`;
+  let text = "";
+  if (r.elapsed_s !== null && r.elapsed_s !== undefined) {
+    text = `${fmt(r.elapsed_s, 0, "s")} of ${fmt(r.max_time_s, 0, "s")}, ` +
+      `${fmt(r.distance_m, 1, "m")} of ${fmt(r.max_distance_m, 1, "m")}`;
+  } else if (r.last_outcome) {
+    text = `last: ${r.last_outcome.replaceAll("_", " ")} (${r.episodes} episode${r.episodes === 1 ? "" : "s"})`;
+  }
+  text += ` · trail ${r.trail_crumbs} crumbs`;
+  setText("recovery-progress", text);
+}
+
 function render(s) {
   setText("robot-name", s.robot || "unnamed robot");
   document.title = `relayd · ${s.robot || ""} · ${s.state}`;
@@ -217,6 +237,7 @@ function render(s) {
   $("situation").className = `badge situation-${s.situation}`;
   setText("reason", s.reason);
   setText("version", s.version);
+  renderRecovery(s.recovery);
 
   renderScan(s);
   renderSonar(s);
