@@ -165,7 +165,17 @@ def run(quick: bool = False) -> BenchOutput:
     return out
 
 
+def _quiet_daemons() -> None:
+    """The daemons' info lines would bury the table: warnings and up only."""
+    import logging
+
+    import structlog
+
+    structlog.configure(wrapper_class=structlog.make_filtering_bound_logger(logging.WARNING))
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    _quiet_daemons()
     p = argparse.ArgumentParser(prog="python bench/recovery.py", description=__doc__.splitlines()[0])
     p.add_argument("--seeds", type=int, default=20, help="seeds per issue scenario (default 20)")
     p.add_argument("--check-seeds", type=int, default=3, help="seeds per paper scenario (default 3)")

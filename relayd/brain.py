@@ -72,6 +72,7 @@ from relayd.events import (
 from relayd.recovery import (
     RecoveryInputs,
     RecoveryMemory,
+    RecoveryOutput,
     RecoveryParams,
     RecoveryView,
     recovery_step,
@@ -160,6 +161,7 @@ class Brain:
         self.last_output: ControlOutput | None = None
         # Breadcrumbs and the recovery episode (relayd.recovery).
         self._scan_count = 0
+        self._rear_polls = 0
         self._pose: tuple[float, float, float] | None = None
         self.recovery = RecoveryMemory()
         self._recovery_shown: RecoveryView | None = None
@@ -268,6 +270,7 @@ class Brain:
             best = q.best_station_signal_dbm
             value = best if best is not None else q.signal_dbm
         self._rear_dbm, self._rear_t = value, ev.t
+        self._rear_polls += 1
         return self._rear_view(ev.t)
 
     def _rear_view(self, now: float) -> list[Action]:
@@ -385,7 +388,19 @@ class Brain:
         rp = self.params.recovery
         if not rp.enabled:
             return out
-        res = recovery_step(RecoveryInputs(
+        try:
+            res = self._recovery_step(now, rp)
+        except Exception as exc:  # noqa: BLE001 - a bug or bad data in recovery stops the robot
+            return ControlOutput(0.0, 0.0, DriveState.FAULT, f"recovery_error: {type(exc).__name__}",
+                                 out.situation, out.memory)
+        self.recovery = res.memory
+        cmd = res.command
+        if cmd is None or out.state is DriveState.FAULT:
+            return out
+        return ControlOutput(cmd.left_mm_s, cmd.right_mm_s, cmd.state, cmd.reason, out.situation, out.memory)
+
+    def _recovery_step(self, now: float, rp: RecoveryParams) -> RecoveryOutput:
+        return recovery_step(RecoveryInputs(
             following=self._mode is Mode.FOLLOW and not self._halted, pose=self._pose,
             sip_age_s=None if self._sip_t is None or self._robot_down else now - self._sip_t,
             rssi_age_s=None if self._rssi_fresh_t is None else now - self._rssi_fresh_t,
@@ -393,13 +408,8 @@ class Brain:
             rear_age_s=None if self._rear_t is None else now - self._rear_t,
             leader_lost=self.leader_lost, rssi_leader_dbm=self.rssi_leader_dbm,
             rssi_behind_dbm=self._rear_dbm, scan_count=self._scan_count,
-            sonar_mm=tuple(self._sonar), now_s=now,
+            sonar_mm=tuple(self._sonar), now_s=now, rear_polls=self._rear_polls,
         ), rp, self.recovery)
-        self.recovery = res.memory
-        cmd = res.command
-        if cmd is None or out.state is DriveState.FAULT:
-            return out
-        return ControlOutput(cmd.left_mm_s, cmd.right_mm_s, cmd.state, cmd.reason, out.situation, out.memory)
 
     def _recovery_report(self, now: float) -> list[Action]:
         if not self.params.recovery.enabled:

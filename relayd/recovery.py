@@ -14,15 +14,21 @@ replaces the follow controller's, or None (the controller's output stands).
   itself while the leader is lost), then RETRACE: back along the trail toward the
   newest crumb where RSSI^l was at or above threshold_l (none: the crumb with the best
   RSSI^l), scanning as it goes. The leader heard again ends the episode ("found").
-- **Rear link breaking** (fresh RSSI^b below lost_rssi): BACKUP along the trail until
-  RSSI^b is above threshold_b + hysteresis ("restored"). It pre-empts a leader
-  episode: the chain behind is restored first.
+- **Rear link breaking** (fresh RSSI^b below lost_rssi on REAR_LOST_POLLS rear-AP
+  polls in a row, as the leader needs 3 weak scans): BACKUP along the trail until
+  RSSI^b is above threshold_b + hysteresis on REAR_RESTORED_POLLS polls in a row
+  ("restored"). One faded sample neither starts nor ends an episode. It pre-empts a
+  leader episode: the chain behind is restored first.
 - Both move in **reverse** along crumbs the relay already drove through (known free
   space), so the Yagi keeps facing where the leader went; the rear sonars 9..14 slow,
   steer and stop it like the front ones do going forward, and never let it back into
   an obstacle. The trail is consumed as the relay passes its crumbs.
-- **Limits.** Each episode ends GAVE_UP (wheels zero; reason "leader_lost" or
-  "rear_lost") after `max_time_s` or `max_distance_m` of odometry travel. The reverse
+- **Limits.** An incident ends GAVE_UP (wheels zero; reason "leader_lost" or
+  "rear_lost") after `max_time_s` or `max_distance_m` of odometry travel. An incident
+  is the run of episodes from the controller losing charge to getting it back: a rear
+  episode that pre-empts a leader episode, or a leader episode right after the rear
+  is restored, spends what is left of the same budget, so alternating episodes cannot
+  add up past the limits. The reverse
   speed is tapered to the distance left (at most remaining / TAPER_S), so a control
   period under TAPER_S can never carry the relay past its distance limit.
 - **Stale input never drives.** Any input older than its limit (SIP, RSSI stream,
@@ -47,6 +53,10 @@ TAPER_S = 1.0
 LIMIT_SLACK_M = 0.02
 #: Turn in place (no reverse motion) while the crumb behind is more than this off the rear axis.
 TURN_IN_PLACE_DEG = 50.0
+#: Rear-AP polls in a row below lost_rssi before the link behind counts as breaking ...
+REAR_LOST_POLLS = 3
+#: ... and above threshold_b + hysteresis before it counts as restored.
+REAR_RESTORED_POLLS = 2
 #: A sonar at or beyond this range (mm) has no echo.
 NO_ECHO_MM = 5000
 
@@ -115,6 +125,8 @@ class RecoveryInputs:
     scan_count: int
     sonar_mm: tuple[int | None, ...]
     now_s: float
+    #: Rear-AP polls received so far (RSSI^b's sample count): each new one is counted once.
+    rear_polls: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -129,6 +141,11 @@ class RecoveryMemory:
     last_pose: tuple[float, float] | None = None
     target: int | None = None  # index into trail of the crumb the retrace aims for
     last_outcome: str | None = None
+    incident_t: float | None = None  # when the controller last lost charge (the budget's start)
+    incident_m: float = 0.0  # odometry travel since then
+    rear_seen: int = 0  # rear_polls already counted
+    rear_low: int = 0  # polls in a row below lost_rssi
+    rear_high: int = 0  # polls in a row above threshold_b + hysteresis
 
 
 @dataclass(frozen=True, slots=True)
@@ -239,19 +256,33 @@ def _close(m: RecoveryMemory, phase: Phase, outcome: str) -> RecoveryMemory:
                    kind=m.kind if phase is Phase.GAVE_UP else None)
 
 
-def _start(m: RecoveryMemory, kind: Kind, inp: RecoveryInputs, phase: Phase) -> RecoveryMemory:
+def _start(m: RecoveryMemory, kind: Kind, inp: RecoveryInputs, phase: Phase, *, chained: bool) -> RecoveryMemory:
     pos = None if inp.pose is None else (inp.pose[0], inp.pose[1])
+    if not chained or m.incident_t is None:
+        m = replace(m, incident_t=inp.now_s, incident_m=0.0)
     return replace(m, phase=phase, kind=kind, episodes=m.episodes + 1, started_t=inp.now_s,
                    start_scans=inp.scan_count, distance_m=0.0, last_pose=pos, target=None)
 
 
-def _rear_broken(inp: RecoveryInputs, p: RecoveryParams) -> bool:
+def _count_rear(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> RecoveryMemory:
+    """Count a new rear poll into the low/high runs."""
+    if inp.rear_polls == m.rear_seen:
+        return m
+    v = inp.rssi_behind_dbm
+    low = v is not None and v < p.lost_rssi_dbm
+    high = v is not None and v > p.threshold_b_dbm + p.hysteresis_db
+    return replace(m, rear_seen=inp.rear_polls, rear_low=m.rear_low + 1 if low else 0,
+                   rear_high=m.rear_high + 1 if high else 0)
+
+
+def _rear_broken(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> bool:
     return (p.rear_required and inp.rssi_behind_dbm is not None and not _stale(inp.rear_age_s, p.rear_timeout_s)
-            and inp.rssi_behind_dbm < p.lost_rssi_dbm)
+            and inp.rssi_behind_dbm < p.lost_rssi_dbm and m.rear_low >= REAR_LOST_POLLS)
 
 
-def _rear_restored(inp: RecoveryInputs, p: RecoveryParams) -> bool:
-    return inp.rssi_behind_dbm is not None and inp.rssi_behind_dbm > p.threshold_b_dbm + p.hysteresis_db
+def _rear_restored(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> bool:
+    return (inp.rssi_behind_dbm is not None and inp.rssi_behind_dbm > p.threshold_b_dbm + p.hysteresis_db
+            and m.rear_high >= REAR_RESTORED_POLLS)
 
 
 def _zero(state: DriveState, reason: str) -> RecoveryCommand:
@@ -269,38 +300,42 @@ def recovery_step(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> 
             m = replace(m, phase=Phase.IDLE, kind=None)
         return RecoveryOutput(None, m)
 
+    m = _count_rear(inp, p, m)
+    chained = m.phase in (Phase.WIDEN, Phase.RETRACE, Phase.BACKUP)
     # Odometry travel during an episode (the distance limit's measure).
     if m.phase is not Phase.IDLE and inp.pose is not None and all(math.isfinite(v) for v in inp.pose):
         here = (inp.pose[0], inp.pose[1])
         if m.last_pose is not None:
-            m = replace(m, distance_m=m.distance_m + math.dist(here, m.last_pose) / 1000.0)
+            step_m = math.dist(here, m.last_pose) / 1000.0
+            m = replace(m, distance_m=m.distance_m + step_m, incident_m=m.incident_m + step_m)
         m = replace(m, last_pose=here)
 
     # Transitions that end or switch an episode.
     if m.phase is Phase.GAVE_UP:
-        cleared = (not inp.leader_lost) if m.kind is Kind.LEADER else _rear_restored(inp, p)
+        cleared = (not inp.leader_lost) if m.kind is Kind.LEADER else _rear_restored(inp, p, m)
         if cleared:
             m = replace(m, phase=Phase.IDLE, kind=None)
-        elif m.kind is Kind.LEADER and _rear_broken(inp, p):
-            m = _start(m, Kind.REAR, inp, Phase.BACKUP)
+        elif m.kind is Kind.LEADER and _rear_broken(inp, p, m):
+            m = _start(m, Kind.REAR, inp, Phase.BACKUP, chained=False)
         else:
             reason = "leader_lost" if m.kind is Kind.LEADER else "rear_lost"
             state = DriveState.LEADER_LOST if m.kind is Kind.LEADER else DriveState.STOPPED
             return RecoveryOutput(_zero(state, reason), m)
     if m.phase in (Phase.WIDEN, Phase.RETRACE) and not inp.leader_lost:
         m = _close(m, Phase.IDLE, "found")
-    if m.phase is Phase.BACKUP and _rear_restored(inp, p):
+    if m.phase is Phase.BACKUP and _rear_restored(inp, p, m):
         m = _close(m, Phase.IDLE, "restored")
-    if m.phase in (Phase.WIDEN, Phase.RETRACE) and _rear_broken(inp, p):
-        m = _start(_close(m, Phase.IDLE, "preempted"), Kind.REAR, inp, Phase.BACKUP)
+    if m.phase in (Phase.WIDEN, Phase.RETRACE) and _rear_broken(inp, p, m):
+        m = _start(_close(m, Phase.IDLE, "preempted"), Kind.REAR, inp, Phase.BACKUP, chained=True)
 
     # Starting an episode (the rear first).
     if m.phase is Phase.IDLE:
-        if _rear_broken(inp, p):
-            m = _start(m, Kind.REAR, inp, Phase.BACKUP)
+        if _rear_broken(inp, p, m):
+            m = _start(m, Kind.REAR, inp, Phase.BACKUP, chained=chained)
         elif inp.leader_lost:
-            m = _start(m, Kind.LEADER, inp, Phase.WIDEN)
+            m = _start(m, Kind.LEADER, inp, Phase.WIDEN, chained=chained)
         else:
+            m = replace(m, incident_t=None, incident_m=0.0)
             if inp.pose is not None and all(math.isfinite(v) for v in inp.pose):
                 m = replace(m, trail=add_crumb(m.trail, inp.pose[0], inp.pose[1], inp.rssi_leader_dbm,
                                                inp.rssi_behind_dbm, p))
@@ -313,12 +348,14 @@ def _run_episode(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> R
     rear = m.kind is Kind.REAR
     lost_state = DriveState.STOPPED if rear else DriveState.LEADER_LOST
     lost_reason = "rear_lost" if rear else "leader_lost"
-    assert m.started_t is not None  # set by _start
-    elapsed = inp.now_s - m.started_t
+    if m.incident_t is None:  # an episode always starts one; a memory built by hand may not
+        m = replace(m, incident_t=m.started_t if m.started_t is not None else inp.now_s, incident_m=m.distance_m)
+    assert m.incident_t is not None
+    elapsed = inp.now_s - m.incident_t
     if elapsed >= p.max_time_s:
         m = _close(m, Phase.GAVE_UP, "gave_up_time")
         return RecoveryOutput(_zero(lost_state, lost_reason), m)
-    remaining_m = p.max_distance_m - m.distance_m
+    remaining_m = p.max_distance_m - m.incident_m
     if remaining_m <= LIMIT_SLACK_M:
         m = _close(m, Phase.GAVE_UP, "gave_up_distance")
         return RecoveryOutput(_zero(lost_state, lost_reason), m)

@@ -154,3 +154,16 @@ def test_rear_link_lost_backs_up_and_stops_when_restored() -> None:
     r.step(1.1)
     assert r.brain.recovery.last_outcome == "restored"
     assert r.wheels[0] >= 0
+
+
+def test_a_recovery_bug_stops_the_wheels_and_says_so(monkeypatch: pytest.MonkeyPatch) -> None:
+    r = relay(True)
+
+    def broken(*_: object) -> None:
+        raise ZeroDivisionError
+
+    monkeypatch.setattr("relayd.brain.recovery_step", broken)
+    r.step(0.2)
+    assert r.wheels == (0.0, 0.0)
+    out = r.brain.last_output
+    assert out is not None and out.state is DriveState.FAULT and out.reason == "recovery_error: ZeroDivisionError"

@@ -159,32 +159,73 @@ def test_rear_link_below_lost_backs_up_until_above_threshold_b_plus_hysteresis()
     trail = straight_trail(20)
     m = RecoveryMemory(trail=trail)
     pose = (trail[-1].x_mm, 0.0, 0.0)
+    polls = 0
+
+    def poll(dbm: float, t: float) -> object:
+        nonlocal polls, m
+        polls += 1
+        out = recovery_step(inputs(pose=pose, rssi_behind_dbm=dbm, rear_polls=polls, now_s=t), P, m)
+        m = out.memory
+        return out
+
     # Below threshold_b but above lost_rssi: the controller's rear_weak stop stands.
-    out = recovery_step(inputs(pose=pose, rssi_behind_dbm=-70.0), P, m)
-    assert out.command is None
-    out = recovery_step(inputs(pose=pose, rssi_behind_dbm=-88.0, now_s=1.0), P, out.memory)
-    assert out.memory.phase is Phase.BACKUP and out.memory.kind is Kind.REAR
-    assert out.command is not None and out.command.left_mm_s < 0 and out.command.right_mm_s < 0
-    # -59 is above threshold_b (-60) but inside the band: keep backing.
-    out = recovery_step(inputs(pose=pose, rssi_behind_dbm=-59.0, now_s=2.0), P, out.memory)
-    assert out.memory.phase is Phase.BACKUP
-    out = recovery_step(inputs(pose=pose, rssi_behind_dbm=-57.0, now_s=3.0), P, out.memory)
-    assert out.command is None and out.memory.last_outcome == "restored"
+    assert poll(-70.0, 0.0).command is None  # type: ignore[attr-defined]
+    # One faded sample below lost_rssi, or two, start nothing; the third in a row does.
+    assert poll(-88.0, 1.0).command is None  # type: ignore[attr-defined]
+    assert poll(-88.0, 2.0).command is None  # type: ignore[attr-defined]
+    out = poll(-88.0, 3.0)
+    assert m.phase is Phase.BACKUP and m.kind is Kind.REAR
+    cmd = out.command  # type: ignore[attr-defined]
+    assert cmd is not None and cmd.left_mm_s < 0 and cmd.right_mm_s < 0
+    # The same poll seen again on the next SIP counts once.
+    out = recovery_step(inputs(pose=pose, rssi_behind_dbm=-88.0, rear_polls=polls, now_s=3.1), P, m)
+    assert out.memory.rear_low == 3
+    # -59 is above threshold_b (-60) but inside the band: keep backing; then two polls above it.
+    poll(-59.0, 4.0)
+    assert m.phase is Phase.BACKUP
+    poll(-57.0, 5.0)
+    assert m.phase is Phase.BACKUP
+    out = poll(-56.0, 6.0)
+    assert out.command is None and m.last_outcome == "restored"  # type: ignore[attr-defined]
+
+
+def rear_lost(m: RecoveryMemory) -> RecoveryMemory:
+    """A memory that has counted three rear polls below lost_rssi."""
+    return replace(m, rear_seen=3, rear_low=3)
 
 
 def test_the_chain_behind_first_rear_break_preempts_a_leader_episode() -> None:
     m = replace(RecoveryMemory(trail=straight_trail(8)), phase=Phase.RETRACE, kind=Kind.LEADER,
                 started_t=0.0, episodes=1)
-    out = recovery_step(inputs(pose=(1750.0, 0.0, 0.0), leader_lost=True, rssi_behind_dbm=-90.0, now_s=2.0),
-                        P, m)
+    out = recovery_step(inputs(pose=(1750.0, 0.0, 0.0), leader_lost=True, rssi_behind_dbm=-90.0, now_s=2.0,
+                               rear_polls=3), P, rear_lost(m))
     assert out.memory.kind is Kind.REAR and out.memory.phase is Phase.BACKUP
     assert out.memory.episodes == 2
     assert out.command is not None and out.command.reason == "backup"
 
 
+def test_chained_episodes_share_one_budget() -> None:
+    # A leader episode 40 s and 3 m old is pre-empted by the link behind: the rear
+    # episode gets what is left (20 s, 5 m), not a fresh 60 s and 8 m.
+    m = replace(RecoveryMemory(trail=straight_trail(30)), phase=Phase.RETRACE, kind=Kind.LEADER, started_t=0.0,
+                episodes=1, incident_t=0.0, incident_m=3.0, distance_m=3.0, last_pose=(7250.0, 0.0))
+    out = recovery_step(inputs(pose=(7250.0, 0.0, 0.0), leader_lost=True, rssi_behind_dbm=-90.0, now_s=40.0,
+                               rear_polls=3), P, rear_lost(m))
+    assert out.memory.kind is Kind.REAR and out.memory.started_t == 40.0 and out.memory.incident_t == 0.0
+    out = recovery_step(inputs(pose=(7000.0, 0.0, 0.0), leader_lost=True, rssi_behind_dbm=-90.0, now_s=60.0,
+                               rear_polls=3), P, out.memory)
+    assert out.memory.phase is Phase.GAVE_UP and out.memory.last_outcome == "gave_up_time"
+    assert out.command is not None and out.command.reason == "rear_lost"
+    # Given up on the leader, a break behind later is a new incident with a fresh budget.
+    held = replace(out.memory, kind=Kind.LEADER)
+    out = recovery_step(inputs(pose=(7000.0, 0.0, 0.0), leader_lost=True, rssi_behind_dbm=-90.0, now_s=90.0,
+                               rear_polls=3), P, held)
+    assert out.memory.phase is Phase.BACKUP and out.memory.incident_t == 90.0
+
+
 def test_never_backs_into_an_obstacle_the_rear_sonars_see() -> None:
-    m = replace(RecoveryMemory(trail=straight_trail(8)), phase=Phase.BACKUP, kind=Kind.REAR,
-                started_t=0.0, episodes=1)
+    m = rear_lost(replace(RecoveryMemory(trail=straight_trail(8)), phase=Phase.BACKUP, kind=Kind.REAR,
+                          started_t=0.0, episodes=1))
     sonar = list(OPEN)
     sonar[11] = 250  # the -170 degree rear sonar: something 0.25 m behind
     out = recovery_step(inputs(pose=(1750.0, 0.0, 0.0), rssi_behind_dbm=-90.0, sonar_mm=tuple(sonar),
@@ -227,18 +268,23 @@ def memories(draw: st.DrawFn) -> RecoveryMemory:
     phase = draw(st.sampled_from(list(Phase)))
     kind = None if phase is Phase.IDLE else draw(st.sampled_from(list(Kind)))
     return RecoveryMemory(trail=trail, phase=phase, kind=kind, episodes=1, started_t=draw(st.floats(0.0, 50.0)),
-                          distance_m=draw(st.floats(0.0, 3.0)), target=draw(st.none() | st.integers(0, 40)))
+                          distance_m=draw(st.floats(0.0, 3.0)), target=draw(st.none() | st.integers(0, 40)),
+                          rear_seen=draw(st.integers(0, 5)), rear_low=draw(st.integers(0, 5)),
+                          rear_high=draw(st.integers(0, 5)), incident_t=draw(st.none() | st.floats(0.0, 50.0)),
+                          incident_m=draw(st.floats(0.0, 3.0)))
 
 
 @settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(m=memories(), sip=ages, rssi=ages, scan=ages, rear=ages, lost=st.booleans(), rl=dbm, rb=dbm,
-       sonar=sonars, now=st.floats(0.0, 100.0), count=st.integers(0, 10))
+       sonar=sonars, now=st.floats(0.0, 100.0), count=st.integers(0, 10), polls=st.integers(0, 5))
 def test_property_never_drives_on_stale_input(m: RecoveryMemory, sip: float | None, rssi: float | None,
                                               scan: float | None, rear: float | None, lost: bool,
                                               rl: float | None, rb: float | None,
-                                              sonar: tuple[int | None, ...], now: float, count: int) -> None:
+                                              sonar: tuple[int | None, ...], now: float, count: int,
+                                              polls: int) -> None:
     inp = inputs(sip_age_s=sip, rssi_age_s=rssi, scan_age_s=scan, rear_age_s=rear, leader_lost=lost,
-                 rssi_leader_dbm=rl, rssi_behind_dbm=rb, sonar_mm=sonar, now_s=now, scan_count=count)
+                 rssi_leader_dbm=rl, rssi_behind_dbm=rb, sonar_mm=sonar, now_s=now, scan_count=count,
+                 rear_polls=polls)
     out = recovery_step(inp, P, m)
     if out.command is not None and (out.command.left_mm_s or out.command.right_mm_s):
         assert not inputs_stale(inp, P, need_rear=out.memory.kind is Kind.REAR)
@@ -275,11 +321,11 @@ def test_property_never_exceeds_its_distance_or_time_limit(n: int, heading: floa
         if blocked[k % 8]:
             sonar[11] = 450
         inp = inputs(pose=pose, leader_lost=True, rssi_behind_dbm=-95.0 if rear else -55.0, now_s=t,
-                     scan_count=k, sonar_mm=tuple(sonar))
+                     scan_count=k, sonar_mm=tuple(sonar), rear_polls=k)
         out = recovery_step(inp, p, m)
         m = out.memory
-        if start_t is None and m.started_t is not None:
-            start_t = m.started_t
+        if start_t is None and m.incident_t is not None:
+            start_t = m.incident_t
         moving = out.command is not None and (out.command.left_mm_s or out.command.right_mm_s)
         if moving:
             assert start_t is not None and t - start_t < max_t
