@@ -61,6 +61,11 @@ REAR_RESTORED_POLLS = 2
 NO_ECHO_MM = 5000
 
 
+#: Every reason an episode reports (each has a phrase in relayd/api/static/reasons.json).
+REASONS = frozenset({"widen", "retrace", "retrace_wait", "backup", "rear_obstacle", "rear_blocked",
+                     "rear_trail_end", "rear_lost", "leader_lost", "recovery_stale_input"})
+
+
 class Phase(StrEnum):
     IDLE = "idle"
     WIDEN = "widen"

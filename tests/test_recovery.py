@@ -8,7 +8,9 @@ from dataclasses import replace
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from relayd.api.reasons import phrasebook
 from relayd.recovery import (
+    REASONS,
     Crumb,
     Kind,
     Phase,
@@ -50,6 +52,11 @@ def drive(pose: tuple[float, float, float], left: float, right: float, dt: float
     w = math.degrees((right - left) / TRACK_MM)
     mid = math.radians(th + w * dt / 2.0)
     return x + v * dt * math.cos(mid), y + v * dt * math.sin(mid), th + w * dt
+
+
+def test_every_recovery_reason_has_a_phrase() -> None:
+    book = phrasebook()
+    assert REASONS | {"recovery_error"} <= set(book), sorted(REASONS - set(book))
 
 
 # -- breadcrumbs -----------------------------------------------------------------------
@@ -286,6 +293,7 @@ def test_property_never_drives_on_stale_input(m: RecoveryMemory, sip: float | No
                  rssi_leader_dbm=rl, rssi_behind_dbm=rb, sonar_mm=sonar, now_s=now, scan_count=count,
                  rear_polls=polls)
     out = recovery_step(inp, P, m)
+    assert out.command is None or out.command.reason in REASONS
     if out.command is not None and (out.command.left_mm_s or out.command.right_mm_s):
         assert not inputs_stale(inp, P, need_rear=out.memory.kind is Kind.REAR)
         assert sip is not None and sip <= P.sip_timeout_s

@@ -41,6 +41,9 @@ def test_timed_walls_and_boxes_parse_and_bad_windows_name_their_key() -> None:
         parse_scenario(doc(leader={"waypoints": [{"x": 1, "y": 0}],
                                    "speed_profile": [{"at_s": 9, "speed_m_s": 1}, {"at_s": 2, "speed_m_s": 1}]}))
     assert "leader.speed_profile" in e.value.errors[0]
+    with pytest.raises(ScenarioError) as e:
+        parse_scenario(doc(recovery={"max_time_s": -1, "enabeld": True}))
+    assert sorted(m.split(":")[0] for m in e.value.errors) == ["recovery.enabeld", "recovery.max_time_s"]
 
 
 def test_leader_speed_profile_changes_the_walk() -> None:

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import contextvars
 import itertools
 import json
 import math
@@ -106,6 +107,12 @@ def relay_settings(*, robot_port: str, servo_port: str, procfs_path: str, rear_u
         "api": {"bind": "127.0.0.1", "port": 0, "token_env": API_TOKEN_ENV},
         "log": {"level": "warning", "format": "console"},
     }
+
+
+def _relay_context(name: str) -> contextvars.Context:
+    ctx = contextvars.copy_context()
+    ctx.run(structlog.contextvars.bind_contextvars, relay=name)
+    return ctx
 
 
 @dataclass(slots=True)
@@ -274,6 +281,7 @@ class SimRunner:
         # Real-time mode's clock; on a virtual-time loop run() replaces it with the loop's.
         self.clock: Clock = Clock(speed or 1.0)
         self.virtual = False
+        self.t0: float | None = None
         self.seed = seed
         self.seconds = scenario.duration_s if seconds is None else seconds
         self.out_dir = out_dir
@@ -425,7 +433,7 @@ class SimRunner:
     async def _world_loop(self) -> None:
         clock = self.clock
         dt = 1.0 / self.scenario.tick_hz
-        t0 = clock.now()
+        t0 = self.t0 = clock.now()
         next_t = t0
         next_airos = 0.0
         next_trace = 0.0
@@ -464,10 +472,12 @@ class SimRunner:
                 work = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="relayd-sim-",
                                                                             dir=scratch_root())))
             try:
-                for i in range(len(self.world.relays)):
-                    self.relays.append(await self._start_relay(i, work))
-                for r in self.relays:
-                    r.task = asyncio.create_task(r.daemon.run(), name=f"sim-daemon-{r.name}")
+                contexts = [_relay_context(b.name) for b in self.world.relays]
+                for i, ctx in enumerate(contexts):
+                    # In the relay's own context: its fakes' tasks inherit `relay=<name>` for sim.log.
+                    self.relays.append(await asyncio.create_task(self._start_relay(i, work), context=ctx))
+                for r, ctx in zip(self.relays, contexts, strict=True):
+                    r.task = asyncio.create_task(r.daemon.run(), name=f"sim-daemon-{r.name}", context=ctx)
                 ports = await self._wait_ports() if self.relays else {}
                 if self.on_ready is not None:
                     self.on_ready(ports)
@@ -493,6 +503,10 @@ class SimRunner:
                     await closer()
             with contextlib.suppress(Exception):
                 r.maestro.close()
+
+    def sim_time(self) -> float:
+        """Simulated seconds since the world started (trace.jsonl's `t`); 0 while relays start."""
+        return 0.0 if self.t0 is None else self.clock.now() - self.t0
 
     def _summary(self, ports: dict[str, int | None]) -> dict[str, Any]:
         followers = [{"name": b.name, "collisions": b.collisions, "travelled_m": self._travelled[i]}
