@@ -189,7 +189,7 @@ class ControlSettings(_Section):
 
 
 class RecoverySettings(_Section):
-    """Self-healing when a link breaks (docs/CONTROL.md section 7b); off: today's behaviour."""
+    """Self-healing when a link breaks (docs/CONTROL.md section 9); off: today's behaviour."""
 
     enabled: bool = False
     #: An episode gives up (wheels zero, reason leader_lost / rear_lost) after this much travel ...

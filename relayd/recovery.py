@@ -1,7 +1,7 @@
 """Self-healing when a link breaks: breadcrumbs and the recovery state machine (pure).
 
 The paper leaves broken links out of scope; this is the backup plan it names as future
-work, decided locally by each relay (docs/CONTROL.md section 7b). Nothing here does
+work, decided locally by each relay (docs/CONTROL.md section 9). Nothing here does
 I/O or reads a clock: `recovery_step` gets one snapshot (`RecoveryInputs`), the
 settings and the memory of the step before, and returns either a wheel command that
 replaces the follow controller's, or None (the controller's output stands).
@@ -14,11 +14,10 @@ replaces the follow controller's, or None (the controller's output stands).
   itself while the leader is lost), then RETRACE: back along the trail toward the
   newest crumb where RSSI^l was at or above threshold_l (none: the crumb with the best
   RSSI^l), scanning as it goes. The leader heard again ends the episode ("found").
-- **Rear link breaking** (fresh RSSI^b below lost_rssi on REAR_LOST_POLLS rear-AP
-  polls in a row, as the leader needs 3 weak scans): BACKUP along the trail until
-  RSSI^b is above threshold_b + hysteresis on REAR_RESTORED_POLLS polls in a row
-  ("restored"). One faded sample neither starts nor ends an episode. It pre-empts a
-  leader episode: the chain behind is restored first.
+- **Rear link breaking** (a fresh RSSI^b poll below lost_rssi): BACKUP along the trail
+  until RSSI^b is above threshold_b + hysteresis on REAR_RESTORED_POLLS polls in a
+  row ("restored"): one upward fade does not end it. It pre-empts a leader episode:
+  the chain behind is restored first.
 - Both move in **reverse** along crumbs the relay already drove through (known free
   space), so the Yagi keeps facing where the leader went; the rear sonars 9..14 slow,
   steer and stop it like the front ones do going forward, and never let it back into
@@ -53,8 +52,12 @@ TAPER_S = 1.0
 LIMIT_SLACK_M = 0.02
 #: Turn in place (no reverse motion) while the crumb behind is more than this off the rear axis.
 TURN_IN_PLACE_DEG = 50.0
-#: Rear-AP polls in a row below lost_rssi before the link behind counts as breaking ...
-REAR_LOST_POLLS = 3
+#: Rear-AP polls in a row below lost_rssi before the link behind counts as breaking: one.
+#: A link whose mean sits just above lost_rssi is already down at any useful rate, and
+#: its samples cross lost_rssi only now and then (measured in blind-corner: three in a
+#: row almost never came, so the relay stood by a dead link); a needless short backup
+#: after a deep fade costs a few decimetres.
+REAR_LOST_POLLS = 1
 #: ... and above threshold_b + hysteresis before it counts as restored.
 REAR_RESTORED_POLLS = 2
 #: A sonar at or beyond this range (mm) has no echo.

@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 
 from relayd.api.reasons import phrasebook
 from relayd.recovery import (
+    REAR_LOST_POLLS,
     REASONS,
     Crumb,
     Kind,
@@ -177,16 +178,14 @@ def test_rear_link_below_lost_backs_up_until_above_threshold_b_plus_hysteresis()
 
     # Below threshold_b but above lost_rssi: the controller's rear_weak stop stands.
     assert poll(-70.0, 0.0).command is None  # type: ignore[attr-defined]
-    # One faded sample below lost_rssi, or two, start nothing; the third in a row does.
-    assert poll(-88.0, 1.0).command is None  # type: ignore[attr-defined]
-    assert poll(-88.0, 2.0).command is None  # type: ignore[attr-defined]
+    # A poll below lost_rssi starts backing up.
     out = poll(-88.0, 3.0)
     assert m.phase is Phase.BACKUP and m.kind is Kind.REAR
     cmd = out.command  # type: ignore[attr-defined]
     assert cmd is not None and cmd.left_mm_s < 0 and cmd.right_mm_s < 0
     # The same poll seen again on the next SIP counts once.
     out = recovery_step(inputs(pose=pose, rssi_behind_dbm=-88.0, rear_polls=polls, now_s=3.1), P, m)
-    assert out.memory.rear_low == 3
+    assert out.memory.rear_low == 1
     # -59 is above threshold_b (-60) but inside the band: keep backing; then two polls above it.
     poll(-59.0, 4.0)
     assert m.phase is Phase.BACKUP
@@ -197,8 +196,8 @@ def test_rear_link_below_lost_backs_up_until_above_threshold_b_plus_hysteresis()
 
 
 def rear_lost(m: RecoveryMemory) -> RecoveryMemory:
-    """A memory that has counted three rear polls below lost_rssi."""
-    return replace(m, rear_seen=3, rear_low=3)
+    """A memory that has counted enough rear polls below lost_rssi."""
+    return replace(m, rear_seen=3, rear_low=REAR_LOST_POLLS)
 
 
 def test_the_chain_behind_first_rear_break_preempts_a_leader_episode() -> None:
