@@ -6,7 +6,8 @@ once with it on, and reads summary.json:
 
 - **recovery rate**: the share of end-to-end link breaks (spells closer than 1 s merged,
   `relayd.sim.runner.link_breaks`) that ended within 60 s of simulated time; a break
-  still open at the end of the run counts as not healed;
+  still open at the end of the run counts as not healed, except one that began less
+  than 60 s before the end (it had no chance to be judged: counted as "censored");
 - **downtime**: the end-to-end link's total down time per run, median and worst;
 - **collisions** and recovery episodes (count, outcomes, distance driven).
 
@@ -22,6 +23,7 @@ downtime no worse.
 from __future__ import annotations
 
 import argparse
+import json
 import statistics
 import sys
 import time
@@ -57,11 +59,18 @@ def run_sim(scenario: str, seed: int, recovery: bool) -> dict[str, Any]:
     return summary
 
 
-def healed(summary: dict[str, Any]) -> tuple[int, int]:
-    """(breaks, healed within HEAL_WITHIN_S) of one run."""
-    breaks = summary.get("link_breaks") or []
-    ok = sum(1 for b in breaks if b["duration_s"] is not None and b["duration_s"] <= HEAL_WITHIN_S)
-    return len(breaks), ok
+def healed(summary: dict[str, Any]) -> tuple[int, int, int]:
+    """(breaks judged, healed within HEAL_WITHIN_S, censored) of one run."""
+    end = float(summary["sim_seconds"])
+    judged = ok = censored = 0
+    for b in summary.get("link_breaks") or []:
+        if b["end_s"] is None and end - b["start_s"] < HEAL_WITHIN_S:
+            censored += 1
+            continue
+        judged += 1
+        if b["duration_s"] is not None and b["duration_s"] <= HEAL_WITHIN_S:
+            ok += 1
+    return judged, ok, censored
 
 
 def _episodes(summary: dict[str, Any]) -> list[dict[str, Any]]:
@@ -69,11 +78,12 @@ def _episodes(summary: dict[str, Any]) -> list[dict[str, Any]]:
 
 
 def aggregate(runs: Sequence[dict[str, Any]]) -> dict[str, Any]:
-    n_breaks = n_ok = 0
+    n_breaks = n_ok = n_censored = 0
     for s in runs:
-        b, ok = healed(s)
+        b, ok, cen = healed(s)
         n_breaks += b
         n_ok += ok
+        n_censored += cen
     down = [float(s.get("downtime_s") or 0.0) for s in runs]
     eps = [e for s in runs for e in _episodes(s)]
     outcomes: dict[str, int] = {}
@@ -81,7 +91,7 @@ def aggregate(runs: Sequence[dict[str, Any]]) -> dict[str, Any]:
         key = str(e["outcome"] or "open")
         outcomes[key] = outcomes.get(key, 0) + 1
     return {
-        "runs": len(runs), "breaks": n_breaks, "healed": n_ok,
+        "runs": len(runs), "breaks": n_breaks, "healed": n_ok, "censored": n_censored,
         "rate": None if n_breaks == 0 else n_ok / n_breaks,
         "down_median_s": statistics.median(down) if down else None,
         "down_worst_s": max(down) if down else None,
@@ -97,7 +107,7 @@ def _rate(a: dict[str, Any]) -> str:
 
 
 def table(rows: dict[str, dict[str, dict[str, Any]]]) -> str:
-    head = ("| scenario | recovery | runs | breaks | healed <= 60 s | downtime median | downtime worst "
+    head = ("| scenario | recovery | runs | breaks (censored) | healed <= 60 s | downtime median | downtime worst "
             "| goal reached | collisions | episodes (outcomes) | longest episode |\n"
             "|---|---|---|---|---|---|---|---|---|---|---|")
     lines = [head]
@@ -108,13 +118,15 @@ def table(rows: dict[str, dict[str, dict[str, Any]]]) -> str:
                 continue
             outs = ", ".join(f"{k} {v}" for k, v in sorted(a["outcomes"].items())) or "-"
             lines.append(
-                f"| {sc} | {mode} | {a['runs']} | {a['breaks']} | {_rate(a)} | {a['down_median_s']:.1f} s "
+                f"| {sc} | {mode} | {a['runs']} | {a['breaks']} ({a['censored']}) | {_rate(a)} | {a['down_median_s']:.1f} s "
                 f"| {a['down_worst_s']:.1f} s | {a['goal']}/{a['runs']} | {a['collisions']} "
                 f"| {a['episodes']} ({outs}) | {a['episode_m_max']:.1f} m |")
     return "\n".join(lines)
 
 
-def measure(scenarios: Sequence[str], seeds: int, *, log: Any = None) -> dict[str, dict[str, dict[str, Any]]]:
+def measure(scenarios: Sequence[str], seeds: int, *, log: Any = None,
+            keep: dict[str, Any] | None = None) -> dict[str, dict[str, dict[str, Any]]]:
+    """Run every scenario and seed with recovery off and on; `keep` collects the summaries."""
     rows: dict[str, dict[str, dict[str, Any]]] = {}
     for sc in scenarios:
         runs: dict[str, list[dict[str, Any]]] = {"off": [], "on": []}
@@ -123,9 +135,12 @@ def measure(scenarios: Sequence[str], seeds: int, *, log: Any = None) -> dict[st
                 t0 = time.perf_counter()
                 s = run_sim(sc, seed, mode == "on")
                 runs[mode].append(s)
+                if keep is not None:
+                    keep.setdefault(sc, {}).setdefault(mode, []).append(s)
                 if log is not None:
-                    b, ok = healed(s)
-                    print(f"{sc} seed {seed} recovery {mode}: breaks {b} healed {ok} down {s['downtime_s']} s "
+                    b, ok, cen = healed(s)
+                    print(f"{sc} seed {seed} recovery {mode}: breaks {b} healed {ok} censored {cen} "
+                          f"down {s['downtime_s']} s "
                           f"collisions {s['collisions']} goal {s['goal_reached']} "
                           f"({time.perf_counter() - t0:.0f} s wall)", file=log, flush=True)
         rows[sc] = {m: aggregate(r) for m, r in runs.items()}
@@ -182,12 +197,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--scenarios", default=",".join(ISSUE_SCENARIOS))
     p.add_argument("--checks", default=",".join(CHECK_SCENARIOS), help="paper scenarios ('' for none)")
     p.add_argument("--results", type=Path, default=None, help="also write the table to this file")
+    p.add_argument("--summaries", type=Path, default=None, help="write every run's summary.json here (JSON)")
     args = p.parse_args(argv)
     issue = [s for s in args.scenarios.split(",") if s]
     checks = [s for s in args.checks.split(",") if s]
     t0 = time.perf_counter()
-    rows = measure(issue, args.seeds, log=sys.stderr)
-    rows.update(measure(checks, args.check_seeds, log=sys.stderr))
+    keep: dict[str, Any] = {}
+    rows = measure(issue, args.seeds, log=sys.stderr, keep=keep)
+    if args.summaries is not None:
+        args.summaries.write_text(json.dumps(keep) + "\n", encoding="utf-8")
+    rows.update(measure(checks, args.check_seeds, log=sys.stderr, keep=keep))
+    if args.summaries is not None:
+        args.summaries.write_text(json.dumps(keep) + "\n", encoding="utf-8")
     res = results(rows, issue)
     text = [table(rows), "", "| benchmark | figure | value | target | result | notes |", "|---|---|---|---|---|---|"]
     text += [f"| {r.bench} | {r.figure} | {r.value_text()} | {r.target} | {r.verdict()} | {r.note} |" for r in res]

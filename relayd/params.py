@@ -84,8 +84,12 @@ def estimator_params(settings: Settings) -> EstimatorParams:
 
 def recovery_params(settings: Settings, control: ControlParams, scan_timeout_s: float | None) -> RecoveryParams:
     # [recovery]'s own keys, then the thresholds and staleness limits the controller uses.
+    # The reverse speeds never exceed v_max: a first drive with a low v_max stays slow.
+    r = settings.recovery
     return _from_sections(
-        RecoveryParams, settings.recovery, settings.control,
+        RecoveryParams, r, settings.control,
+        retrace_speed_mm_s=min(r.retrace_speed_mm_s, control.v_max_mm_s),
+        backup_speed_mm_s=min(r.backup_speed_mm_s, control.v_max_mm_s),
         rear_required=control.rear_link_required, sip_timeout_s=control.sip_timeout_s,
         rssi_timeout_s=control.rssi_timeout_s, rear_timeout_s=control.rear_timeout_s,
         scan_timeout_s=scan_timeout_s,

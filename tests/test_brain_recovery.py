@@ -167,3 +167,20 @@ def test_a_recovery_bug_stops_the_wheels_and_says_so(monkeypatch: pytest.MonkeyP
     assert r.wheels == (0.0, 0.0)
     out = r.brain.last_output
     assert out is not None and out.state is DriveState.FAULT and out.reason == "recovery_error: ZeroDivisionError"
+
+
+def test_recovery_config_is_strict_and_reaches_the_brain() -> None:
+    from relayd.config import ConfigError, parse_settings
+
+    rear = {"rear": {"url": "http://10.0.0.2", "password_env": "X"}}
+    for bad in ({"enabled": "off"}, {"max_time_s": float("inf")}, {"widen_scans": 1.5}, {"speed": 1}):
+        with pytest.raises(ConfigError) as e:
+            parse_settings({"ap": rear, "recovery": bad})
+        assert all(m.startswith("recovery.") for m in e.value.errors), e.value.errors
+    cfg = parse_settings({"ap": rear, "recovery": {"enabled": True, "max_distance_m": 5},
+                          "control": {"v_max_mm_s": 120, "lost_rssi_dbm": -80}})
+    p = brain_params(cfg).recovery
+    assert p.enabled and p.max_distance_m == 5.0 and p.lost_rssi_dbm == -80.0
+    assert p.retrace_speed_mm_s == p.backup_speed_mm_s == 120.0  # never above v_max
+    assert p.rear_required and p.rear_timeout_s == 3.0
+    assert not brain_params(parse_settings({"ap": rear})).recovery.enabled
