@@ -40,18 +40,13 @@ import math
 from dataclasses import dataclass, replace
 from enum import StrEnum
 
+from relayd.breadcrumbs import Crumb, add_crumb, leader_target, reverse_toward
 from relayd.state import DriveState
 
-#: Rear sonars that guard reversing: headings -130, -150, -170, 170, 150, 130 (P3-AT 9..14).
-REAR_SONARS: tuple[int, ...] = (9, 10, 11, 12, 13, 14)
-#: Their headings relative to the robot's rear (ccw +), sonar 9 first.
-REAR_RELATIVE_DEG: tuple[float, ...] = (50.0, 30.0, 10.0, -10.0, -30.0, -50.0)
 #: Reverse speed is capped at (distance left) / TAPER_S.
 TAPER_S = 1.0
 #: Closer to the distance limit than this counts as reached.
 LIMIT_SLACK_M = 0.02
-#: Turn in place (no reverse motion) while the crumb behind is more than this off the rear axis.
-TURN_IN_PLACE_DEG = 50.0
 #: Rear-AP polls in a row below lost_rssi before the link behind counts as breaking: one.
 #: A link whose mean sits just above lost_rssi is already down at any useful rate, and
 #: its samples cross lost_rssi only now and then (measured in blind-corner: three in a
@@ -60,8 +55,6 @@ TURN_IN_PLACE_DEG = 50.0
 REAR_LOST_POLLS = 1
 #: ... and above threshold_b + hysteresis before it counts as restored.
 REAR_RESTORED_POLLS = 2
-#: A sonar at or beyond this range (mm) has no echo.
-NO_ECHO_MM = 5000
 
 
 #: Every reason an episode reports (each has a phrase in relayd/api/static/reasons.json).
@@ -107,14 +100,6 @@ class RecoveryParams:
     rssi_timeout_s: float = 0.5
     rear_timeout_s: float = 3.0
     scan_timeout_s: float | None = None
-
-
-@dataclass(frozen=True, slots=True)
-class Crumb:
-    x_mm: float
-    y_mm: float
-    rssi_l_dbm: float | None
-    rssi_b_dbm: float | None
 
 
 @dataclass(frozen=True, slots=True)
@@ -186,77 +171,6 @@ def inputs_stale(inp: RecoveryInputs, p: RecoveryParams, *, need_rear: bool) -> 
         return True
     rear_needed = need_rear or p.rear_required
     return rear_needed and (_stale(inp.rear_age_s, p.rear_timeout_s) or inp.rssi_behind_dbm is None)
-
-
-def add_crumb(trail: tuple[Crumb, ...], x_mm: float, y_mm: float, rssi_l: float | None,
-              rssi_b: float | None, p: RecoveryParams) -> tuple[Crumb, ...]:
-    """The trail with a crumb here if the relay moved crumb_spacing_m from the newest one."""
-    if trail:
-        last = trail[-1]
-        if math.hypot(x_mm - last.x_mm, y_mm - last.y_mm) < p.crumb_spacing_m * 1000.0:
-            return trail
-    trail = (*trail, Crumb(x_mm, y_mm, rssi_l, rssi_b))
-    return trail[-p.trail_len:] if len(trail) > p.trail_len else trail
-
-
-def leader_target(trail: tuple[Crumb, ...], threshold_l_dbm: float) -> int | None:
-    """The newest crumb where the leader was heard at or above threshold_l; else the best one."""
-    best: int | None = None
-    for i in range(len(trail) - 1, -1, -1):
-        r = trail[i].rssi_l_dbm
-        if r is None:
-            continue
-        if r >= threshold_l_dbm:
-            return i
-        if best is None or r > (trail[best].rssi_l_dbm or -math.inf):
-            best = i
-    return best
-
-
-def _rear_clearance_m(sonar_mm: tuple[int | None, ...]) -> list[float | None]:
-    out: list[float | None] = []
-    for k in REAR_SONARS:
-        r = sonar_mm[k] if k < len(sonar_mm) else None
-        out.append(None if r is None or r >= NO_ECHO_MM or r <= 0 else r / 1000.0)
-    return out
-
-
-def _rear_avoid_deg(ranges: list[float | None], gamma_o_m: float) -> float:
-    """Sonar centroid of the rear sonars (relative to the rear, ccw +): open space attracts."""
-    d = [5.0 if r is None else r for r in ranges]
-    top = max(d)
-    w = [10.0 ** ((x - top) / gamma_o_m) for x in d]
-    return sum(wi * a for wi, a in zip(w, REAR_RELATIVE_DEG, strict=True)) / sum(w)
-
-
-def _wrap(a: float) -> float:
-    return (a + 180.0) % 360.0 - 180.0
-
-
-def reverse_toward(pose: tuple[float, float, float], target: Crumb, speed_mm_s: float,
-                   sonar_mm: tuple[int | None, ...], p: RecoveryParams) -> tuple[float, float, str]:
-    """(left, right, reason) reversing toward a crumb, the rear sonars guarding the way."""
-    x, y, th = pose
-    want = math.degrees(math.atan2(target.y_mm - y, target.x_mm - x))
-    alpha = _wrap(want - (th + 180.0))  # target off the rear axis, ccw +
-    ranges = _rear_clearance_m(sonar_mm)
-    echoes = [r for r in ranges if r is not None]
-    d_min = min(echoes) if echoes else None
-    reason = "retrace"
-    v = speed_mm_s
-    if d_min is not None and d_min < p.threshold_o_m:
-        span = p.threshold_o_m - p.stop_distance_m
-        scale = 0.0 if span <= 0 else min(max((d_min - p.stop_distance_m) / span, 0.0), 1.0)
-        if scale <= 0.0:
-            return 0.0, 0.0, "rear_blocked"  # never back into it; wait (the time limit runs)
-        v *= scale
-        alpha = _rear_avoid_deg(ranges, p.gamma_o_m)
-        reason = "rear_obstacle"
-    if abs(alpha) > TURN_IN_PLACE_DEG:
-        v = 0.0
-    turn = max(-speed_mm_s, min(speed_mm_s, p.turn_gain_mm_s_deg * alpha))
-    # Reverse: both wheels negative; +turn rotates ccw, which swings the rear ccw.
-    return -v - turn, -v + turn, reason
 
 
 def _close(m: RecoveryMemory, phase: Phase, outcome: str) -> RecoveryMemory:
@@ -346,7 +260,8 @@ def recovery_step(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> 
             m = replace(m, incident_t=None, incident_m=0.0)
             if inp.pose is not None and all(math.isfinite(v) for v in inp.pose):
                 m = replace(m, trail=add_crumb(m.trail, inp.pose[0], inp.pose[1], inp.rssi_leader_dbm,
-                                               inp.rssi_behind_dbm, p))
+                                               inp.rssi_behind_dbm, spacing_m=p.crumb_spacing_m,
+                                               keep=p.trail_len))
             return RecoveryOutput(None, m)
 
     return _run_episode(inp, p, m)
@@ -394,7 +309,9 @@ def _run_episode(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> R
 
     speed = p.backup_speed_mm_s if rear else p.retrace_speed_mm_s
     speed = min(speed, remaining_m * 1000.0 / TAPER_S)
-    left, right, why = reverse_toward(inp.pose, trail[-1], speed, inp.sonar_mm, p)
+    left, right, why = reverse_toward(inp.pose, trail[-1], speed, inp.sonar_mm, threshold_o_m=p.threshold_o_m,
+                                      stop_distance_m=p.stop_distance_m, gamma_o_m=p.gamma_o_m,
+                                      turn_gain_mm_s_deg=p.turn_gain_mm_s_deg)
     reason = ("backup" if rear else "retrace") if why == "retrace" else why
     return RecoveryOutput(RecoveryCommand(left, right, DriveState.RECOVERING, reason), m)
 

@@ -1,4 +1,5 @@
-"""The recovery state machine (relayd/recovery.py): unit tests and hypothesis properties."""
+"""The recovery state machine (relayd/recovery.py) and its breadcrumbs (relayd/breadcrumbs.py):
+unit tests and hypothesis properties."""
 
 from __future__ import annotations
 
@@ -9,18 +10,16 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from relayd.api.reasons import phrasebook
+from relayd.breadcrumbs import Crumb, add_crumb, leader_target
 from relayd.recovery import (
     REAR_LOST_POLLS,
     REASONS,
-    Crumb,
     Kind,
     Phase,
     RecoveryInputs,
     RecoveryMemory,
     RecoveryParams,
-    add_crumb,
     inputs_stale,
-    leader_target,
     recovery_step,
     recovery_view,
 )
@@ -64,10 +63,9 @@ def test_every_recovery_reason_has_a_phrase() -> None:
 
 
 def test_crumbs_follow_the_spacing_and_the_trail_is_bounded() -> None:
-    p = replace(P, crumb_spacing_m=0.25, trail_len=5)
     trail: tuple[Crumb, ...] = ()
     for x in range(0, 3000, 50):
-        trail = add_crumb(trail, float(x), 0.0, -40.0, -50.0, p)
+        trail = add_crumb(trail, float(x), 0.0, -40.0, -50.0, spacing_m=0.25, keep=5)
     assert len(trail) == 5
     assert [c.x_mm for c in trail] == [1750.0, 2000.0, 2250.0, 2500.0, 2750.0]
     assert trail[-1] == Crumb(2750.0, 0.0, -40.0, -50.0)
@@ -316,7 +314,8 @@ def test_property_never_exceeds_its_distance_or_time_limit(n: int, heading: floa
     for i in range(n):
         a = math.radians(heading + wiggle[i] / 10.0)
         x, y = x + 250.0 * math.cos(a), y + 250.0 * math.sin(a)
-        trail = add_crumb(trail, x, y, -40.0 + wiggle[i] / 30.0, -55.0, p)
+        trail = add_crumb(trail, x, y, -40.0 + wiggle[i] / 30.0, -55.0, spacing_m=p.crumb_spacing_m,
+                          keep=p.trail_len)
     m = RecoveryMemory(trail=trail)
     pose = (x, y, heading)
     t = 100.0

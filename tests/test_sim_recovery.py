@@ -9,7 +9,8 @@ from typing import Any
 import pytest
 
 from relayd import vtime
-from relayd.sim.runner import SimRunner, downtime_s, link_breaks, recovery_episodes
+from relayd.sim.outcomes import downtime_s, link_breaks, recovery_episodes
+from relayd.sim.runner import SimRunner
 from relayd.sim.scenario import ScenarioError, load_scenario, parse_scenario
 from relayd.sim.world import LeaderScript, World
 
