@@ -389,7 +389,7 @@ class Brain:
         if not rp.enabled:
             return out
         try:
-            res = self._recovery_step(now, rp)
+            res = self._recovery_step(now, rp, (out.left_mm_s + out.right_mm_s) / 2.0)
         except Exception as exc:  # noqa: BLE001 - a bug or bad data in recovery stops the robot
             return ControlOutput(0.0, 0.0, DriveState.FAULT, f"recovery_error: {type(exc).__name__}",
                                  out.situation, out.memory)
@@ -399,7 +399,7 @@ class Brain:
             return out
         return ControlOutput(cmd.left_mm_s, cmd.right_mm_s, cmd.state, cmd.reason, out.situation, out.memory)
 
-    def _recovery_step(self, now: float, rp: RecoveryParams) -> RecoveryOutput:
+    def _recovery_step(self, now: float, rp: RecoveryParams, forward_mm_s: float) -> RecoveryOutput:
         return recovery_step(RecoveryInputs(
             following=self._mode is Mode.FOLLOW and not self._halted, pose=self._pose,
             sip_age_s=None if self._sip_t is None or self._robot_down else now - self._sip_t,
@@ -408,7 +408,7 @@ class Brain:
             rear_age_s=None if self._rear_t is None else now - self._rear_t,
             leader_lost=self.leader_lost, rssi_leader_dbm=self.rssi_leader_dbm,
             rssi_behind_dbm=self._rear_dbm, scan_count=self._scan_count,
-            sonar_mm=tuple(self._sonar), now_s=now, rear_polls=self._rear_polls,
+            sonar_mm=tuple(self._sonar), now_s=now, rear_polls=self._rear_polls, forward_mm_s=forward_mm_s,
         ), rp, self.recovery)
 
     def _recovery_report(self, now: float) -> list[Action]:

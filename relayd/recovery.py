@@ -17,7 +17,9 @@ replaces the follow controller's, or None (the controller's output stands).
 - **Rear link breaking** (a fresh RSSI^b poll below lost_rssi): BACKUP along the trail
   until RSSI^b is above threshold_b + hysteresis on REAR_RESTORED_POLLS polls in a
   row ("restored"): one upward fade does not end it. It pre-empts a leader episode:
-  the chain behind is restored first.
+  the chain behind is restored first. For FENCE_S after a restore, the controller may
+  not drive forward to within FENCE_M of where the link broke: a relay at a corner
+  whose link behind falls off a cliff would otherwise drive straight back over it.
 - Both move in **reverse** along crumbs the relay already drove through (known free
   space), so the Yagi keeps facing where the leader went; the rear sonars 9..14 slow,
   steer and stop it like the front ones do going forward, and never let it back into
@@ -55,11 +57,17 @@ LIMIT_SLACK_M = 0.02
 REAR_LOST_POLLS = 1
 #: ... and above threshold_b + hysteresis before it counts as restored.
 REAR_RESTORED_POLLS = 2
+#: After the link behind is restored, forward driving stops this close to where it broke ...
+FENCE_M = 0.6
+#: ... for this long, or until RSSI^b is this far above threshold_b + hysteresis (the node
+#: behind came closer): a relay must not drive straight back off the edge it backed from.
+FENCE_S = 30.0
+FENCE_CLEAR_DB = 10.0
 
 
 #: Every reason an episode reports (each has a phrase in relayd/api/static/reasons.json).
 REASONS = frozenset({"widen", "retrace", "retrace_wait", "backup", "rear_obstacle", "rear_blocked",
-                     "rear_trail_end", "rear_lost", "leader_lost", "recovery_stale_input"})
+                     "rear_trail_end", "rear_lost", "leader_lost", "recovery_stale_input", "rear_fence"})
 
 
 class Phase(StrEnum):
@@ -120,6 +128,8 @@ class RecoveryInputs:
     now_s: float
     #: Rear-AP polls received so far (RSSI^b's sample count): each new one is counted once.
     rear_polls: int = 0
+    #: The follow controller's forward speed this step (mean of its wheels).
+    forward_mm_s: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -136,6 +146,9 @@ class RecoveryMemory:
     last_outcome: str | None = None
     incident_t: float | None = None  # when the controller last lost charge (the budget's start)
     incident_m: float = 0.0  # odometry travel since then
+    episode_from: tuple[float, float] | None = None  # where the running episode began
+    fence: tuple[float, float] | None = None  # where the link behind broke, after a restore
+    fence_t: float | None = None
     rear_seen: int = 0  # rear_polls already counted
     rear_low: int = 0  # polls in a row below lost_rssi
     rear_high: int = 0  # polls in a row above threshold_b + hysteresis
@@ -183,7 +196,7 @@ def _start(m: RecoveryMemory, kind: Kind, inp: RecoveryInputs, phase: Phase, *, 
     if not chained or m.incident_t is None:
         m = replace(m, incident_t=inp.now_s, incident_m=0.0)
     return replace(m, phase=phase, kind=kind, episodes=m.episodes + 1, started_t=inp.now_s,
-                   start_scans=inp.scan_count, distance_m=0.0, last_pose=pos, target=None)
+                   start_scans=inp.scan_count, distance_m=0.0, last_pose=pos, target=None, episode_from=pos)
 
 
 def _count_rear(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> RecoveryMemory:
@@ -246,7 +259,7 @@ def recovery_step(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> 
     if m.phase in (Phase.WIDEN, Phase.RETRACE) and not inp.leader_lost:
         m = _close(m, Phase.IDLE, "found")
     if m.phase is Phase.BACKUP and _rear_restored(inp, p, m):
-        m = _close(m, Phase.IDLE, "restored")
+        m = replace(_close(m, Phase.IDLE, "restored"), fence=m.episode_from, fence_t=inp.now_s)
     if m.phase in (Phase.WIDEN, Phase.RETRACE) and _rear_broken(inp, p, m):
         m = _start(_close(m, Phase.IDLE, "preempted"), Kind.REAR, inp, Phase.BACKUP, chained=True)
 
@@ -262,9 +275,24 @@ def recovery_step(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> 
                 m = replace(m, trail=add_crumb(m.trail, inp.pose[0], inp.pose[1], inp.rssi_leader_dbm,
                                                inp.rssi_behind_dbm, spacing_m=p.crumb_spacing_m,
                                                keep=p.trail_len))
-            return RecoveryOutput(None, m)
+            return _fenced(inp, p, m)
 
     return _run_episode(inp, p, m)
+
+
+def _fenced(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> RecoveryOutput:
+    """The controller in charge, except that it may not drive forward back to where the link
+    behind broke (FENCE_M) for FENCE_S after a restore, unless RSSI^b rose well above."""
+    if m.fence is None or m.fence_t is None:
+        return RecoveryOutput(None, m)
+    rb = inp.rssi_behind_dbm
+    if inp.now_s - m.fence_t > FENCE_S or (
+            rb is not None and rb > p.threshold_b_dbm + p.hysteresis_db + FENCE_CLEAR_DB):
+        return RecoveryOutput(None, replace(m, fence=None, fence_t=None))
+    if inp.pose is not None and inp.forward_mm_s > 0 and \
+            math.dist((inp.pose[0], inp.pose[1]), m.fence) < FENCE_M * 1000.0:
+        return RecoveryOutput(_zero(DriveState.STOPPED, "rear_fence"), m)
+    return RecoveryOutput(None, m)
 
 
 def _run_episode(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> RecoveryOutput:

@@ -364,3 +364,29 @@ def test_reverse_pursuit_follows_a_turning_trail_back_around_the_corner() -> Non
     assert math.hypot(pose[0], pose[1]) < P.reach_m * 1000.0
     assert worst_off_mm < 400.0
     assert out.command is not None and out.command.reason == "retrace_wait"
+
+
+def test_after_a_restore_it_does_not_drive_straight_back_over_the_edge() -> None:
+    trail = straight_trail(20)
+    m = rear_lost(replace(RecoveryMemory(trail=trail), phase=Phase.BACKUP, kind=Kind.REAR, started_t=0.0,
+                          episodes=1, incident_t=0.0, episode_from=(4750.0, 0.0)))
+    m = replace(m, rear_high=1)
+    out = recovery_step(inputs(pose=(4300.0, 0.0, 0.0), rssi_behind_dbm=-55.0, rear_polls=4, now_s=5.0), P, m)
+    assert out.memory.last_outcome == "restored" and out.memory.fence == (4750.0, 0.0)
+    m = out.memory
+    # The controller would drive on toward the leader: held at the edge, reason rear_fence.
+    fwd = recovery_step(inputs(pose=(4300.0, 0.0, 0.0), rssi_behind_dbm=-55.0, rear_polls=4, now_s=6.0,
+                               forward_mm_s=200.0), P, m)
+    assert fwd.command is not None and fwd.command.reason == "rear_fence" and fwd.command.left_mm_s == 0.0
+    # Turning in place or backing is the controller's; farther from the edge it may drive.
+    assert recovery_step(inputs(pose=(4300.0, 0.0, 0.0), rssi_behind_dbm=-55.0, rear_polls=4, now_s=6.0,
+                                forward_mm_s=0.0), P, m).command is None
+    assert recovery_step(inputs(pose=(3000.0, 0.0, 0.0), rssi_behind_dbm=-55.0, rear_polls=4, now_s=6.0,
+                                forward_mm_s=200.0), P, m).command is None
+    # The fence goes after FENCE_S, or as soon as the link behind is much stronger.
+    late = recovery_step(inputs(pose=(4300.0, 0.0, 0.0), rssi_behind_dbm=-55.0, rear_polls=4, now_s=40.0,
+                                forward_mm_s=200.0), P, m)
+    assert late.command is None and late.memory.fence is None
+    strong = recovery_step(inputs(pose=(4300.0, 0.0, 0.0), rssi_behind_dbm=-40.0, rear_polls=5, now_s=7.0,
+                                  forward_mm_s=200.0), P, m)
+    assert strong.command is None and strong.memory.fence is None
