@@ -23,12 +23,12 @@ from relayd.state import Mode, RelayState
 
 
 def controller_reason_literals() -> set[str]:
-    """Reason codes in relayd/controller.py, relayd/control.py and relayd/brain.py (its own
-    fail-safes), plus every reason of relayd/recovery.py (`recovery.REASONS`, which
-    tests/test_recovery.py checks the state machine against): `_stopped(state, "x", ...)`,
+    """Reason codes in relayd/controller.py, relayd/brain.py and relayd/control.py, plus every
+    reason of relayd/recovery.py (`recovery.REASONS`, which tests/test_recovery.py checks
+    the state machine against): `_stopped(state, "x", ...)`,
     `ControlOutput(l, r, state, "x", ...)`, `return False, "x"` and `reason = "x"`; for
     an f-string reason (`f"controller_error: {name}"`) the code before the colon."""
-    trees = [ast.parse(inspect.getsource(module)) for module in (controller, control, brain)]
+    trees = [ast.parse(inspect.getsource(module)) for module in (controller, brain, control)]
     found: set[str] = set(recovery.REASONS)
 
     def literal(node: ast.AST) -> None:
@@ -61,7 +61,7 @@ def test_the_source_scan_finds_the_controller_reasons() -> None:
     # nothing, the test below would pass vacuously.
     found = controller_reason_literals()
     assert {"hold", "rear_weak", "leader_near", "no_sip", "manual", "driving", "shutdown",
-            "controller_error"} <= found
+            "controller_error", "scan_stale"} <= found
 
 
 def test_every_reason_in_the_controller_source_has_a_phrase() -> None:

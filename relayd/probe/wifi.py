@@ -54,12 +54,15 @@ async def _sample(args: argparse.Namespace) -> int:
                          iw_path=args.iw)
     t0 = clock.now()
     fresh_seen = 0
+    printed = 0
     try:
         # A read that hangs (a stuck `iw`) must not hold the probe past --seconds.
         async with asyncio.timeout(args.seconds + 2.0):
             async for sample in source.stream(args.hz):
                 t = round(sample.t - t0, 3)
-                if t > args.seconds:
+                # The first sample is always shown: `--seconds 0` means one reading, even
+                # when a loaded machine takes a moment to deliver it.
+                if printed and t > args.seconds:
                     break
                 if not source.available and source.last_error is not None \
                         and source.last_error.startswith("interface missing"):
@@ -68,6 +71,7 @@ async def _sample(args: argparse.Namespace) -> int:
                     return 1
                 fresh_seen += sample.fresh
                 _print(args, t, sample.rssi_dbm, sample.fresh)
+                printed += 1
     except TimeoutError:
         print(f"relayd probe wifi: {args.source} did not answer within {args.seconds:g} s", file=sys.stderr)
         return 1

@@ -1,6 +1,6 @@
 """What a run's trace says about link breaks and recovery (pure functions of trace.jsonl).
 
-`relayd.sim.runner.summarize` puts them into summary.json: the end-to-end link's
+`relayd.sim.summary.summarize` puts them into summary.json: the end-to-end link's
 breaks (start, end), its total down time, and each relay's recovery episodes (start,
 end, kind, outcome, distance driven). docs/SIMULATOR.md describes the keys.
 """
