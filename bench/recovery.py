@@ -172,6 +172,7 @@ def results(rows: dict[str, dict[str, dict[str, Any]]], issue: Sequence[str]) ->
 
 def run(quick: bool = False) -> BenchOutput:
     """bench/run.py's entry: a few seeds (the full figure is `python bench/recovery.py`)."""
+    _quiet_daemons()
     seeds, checks = (2, 1) if quick else (5, 1)
     rows = measure(ISSUE_SCENARIOS, seeds)
     rows.update(measure(CHECK_SCENARIOS, checks))
