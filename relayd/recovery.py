@@ -29,9 +29,9 @@ replaces the follow controller's, or None (the controller's output stands).
   is the run of episodes from the controller losing charge to getting it back: a rear
   episode that pre-empts a leader episode, or a leader episode right after the rear
   is restored, spends what is left of the same budget, so alternating episodes cannot
-  add up past the limits. The reverse
-  speed is tapered to the distance left (at most remaining / TAPER_S), so a control
-  period under TAPER_S can never carry the relay past its distance limit.
+  add up past the limits. The reverse speed is tapered to the distance left (at most
+  remaining / TAPER_S), so a control period under TAPER_S can never carry the relay
+  past its distance limit.
 - **Stale input never drives.** Any input older than its limit (SIP, RSSI stream,
   scan, RSSI^b when required or backing up) gives zero wheels while an episode runs.
 """
