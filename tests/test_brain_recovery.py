@@ -184,3 +184,14 @@ def test_recovery_config_is_strict_and_reaches_the_brain() -> None:
     assert p.retrace_speed_mm_s == p.backup_speed_mm_s == 120.0  # never above v_max
     assert p.rear_required and p.rear_timeout_s == 3.0
     assert not brain_params(parse_settings({"ap": rear})).recovery.enabled
+
+
+def test_relayd_status_prints_the_recovery_line() -> None:
+    from relayd.commands.status import format_recovery
+
+    running = {"enabled": True, "phase": "backup", "kind": "rear", "episodes": 2, "elapsed_s": 7.0,
+               "distance_m": 0.8, "max_distance_m": 8.0, "max_time_s": 60.0, "trail_crumbs": 31,
+               "last_outcome": "found"}
+    assert format_recovery(running) == "backup (link behind), 7 s of 60 s, 0.8 m of 8.0 m; 2 episode(s), trail 31 crumbs"
+    idle = {**running, "phase": "idle", "kind": None, "elapsed_s": None, "distance_m": None}
+    assert format_recovery(idle) == "idle, last found; 2 episode(s), trail 31 crumbs"
