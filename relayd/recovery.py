@@ -61,7 +61,7 @@ REAR_RESTORED_POLLS = 2
 FENCE_M = 0.6
 #: ... for this long, or until RSSI^b is this far above threshold_b + hysteresis (the node
 #: behind came closer): a relay must not drive straight back off the edge it backed from.
-FENCE_S = 30.0
+FENCE_S = 60.0
 FENCE_CLEAR_DB = 10.0
 
 

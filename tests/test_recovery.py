@@ -384,7 +384,7 @@ def test_after_a_restore_it_does_not_drive_straight_back_over_the_edge() -> None
     assert recovery_step(inputs(pose=(3000.0, 0.0, 0.0), rssi_behind_dbm=-55.0, rear_polls=4, now_s=6.0,
                                 forward_mm_s=200.0), P, m).command is None
     # The fence goes after FENCE_S, or as soon as the link behind is much stronger.
-    late = recovery_step(inputs(pose=(4300.0, 0.0, 0.0), rssi_behind_dbm=-55.0, rear_polls=4, now_s=40.0,
+    late = recovery_step(inputs(pose=(4300.0, 0.0, 0.0), rssi_behind_dbm=-55.0, rear_polls=4, now_s=70.0,
                                 forward_mm_s=200.0), P, m)
     assert late.command is None and late.memory.fence is None
     strong = recovery_step(inputs(pose=(4300.0, 0.0, 0.0), rssi_behind_dbm=-40.0, rear_polls=5, now_s=7.0,
