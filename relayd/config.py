@@ -191,6 +191,28 @@ class ControlSettings(_Section):
         return self
 
 
+class RecoverySettings(_Section):
+    """Self-healing when a link breaks (docs/CONTROL.md section 9); off: today's behaviour."""
+
+    enabled: bool = False
+    #: An episode gives up (wheels zero, reason leader_lost / rear_lost) after this much travel ...
+    max_distance_m: Annotated[float, Field(gt=0, le=100, allow_inf_nan=False)] = 8.0
+    #: ... or this long.
+    max_time_s: Annotated[float, Field(gt=0, le=3600, allow_inf_nan=False)] = 60.0
+    #: Reverse speed along the trail when the leader is lost / the link behind breaks.
+    retrace_speed_mm_s: Annotated[float, Field(gt=0, le=1500, allow_inf_nan=False)] = 200.0
+    backup_speed_mm_s: Annotated[float, Field(gt=0, le=1500, allow_inf_nan=False)] = 150.0
+    #: Full-range scans, wheels at zero, before retracing.
+    widen_scans: Annotated[int, Field(ge=0, le=20)] = 1
+    #: Breadcrumbs: one every this much travel, the newest trail_len kept.
+    crumb_spacing_m: Annotated[float, Field(ge=0.05, le=5, allow_inf_nan=False)] = 0.25
+    trail_len: Annotated[int, Field(ge=2, le=10000)] = 200
+    #: A crumb counts as reached this close.
+    reach_m: Annotated[float, Field(ge=0.05, le=5, allow_inf_nan=False)] = 0.3
+    #: Wheel-speed difference per degree the crumb lies off the rear axis.
+    turn_gain_mm_s_deg: Annotated[float, Field(ge=0, le=50, allow_inf_nan=False)] = 3.0
+
+
 class ApiSettings(_Section):
     enabled: bool = True
     #: an IP address (IPv4 or IPv6), not a host name: resolving a name at boot can fail or change
@@ -275,6 +297,7 @@ class Settings(_Section):
     ap: ApSection = ApSection()
     scan: ScanSettings = ScanSettings()
     control: ControlSettings = ControlSettings()
+    recovery: RecoverySettings = RecoverySettings()
     api: ApiSettings = ApiSettings()
     log: LogSettings = LogSettings()
     record: RecordSettings = RecordSettings()
