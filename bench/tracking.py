@@ -1,7 +1,7 @@
 """Tracking: the paper's WCA against the lobe fit + Kalman filter, side by side in one run.
 
 Estimators (`scan.estimator` / `scan.window`): "wca/full" (the paper, relayd's old
-behaviour), "lobe/full" and "lobe/adaptive" (docs/CONTROL.md section 9). Every figure
+behaviour), "lobe/full" and "lobe/adaptive" (docs/CONTROL.md section 10). Every figure
 runs the real `relayd.brain.Brain`:
 
 1. Static error after 5 scans, noise-free: `bench.brainrig` (virtual time, the

@@ -26,7 +26,7 @@ from drivers.clock import Clock
 from drivers.pantilt import PanTilt, ServoCalibration, make_pantilt
 from drivers.pantilt.fake import FakeMaestro
 from drivers.wifi.sources import RssiSample
-from relayd.brain import PANTILT, Brain, BrainParams, ScanParams
+from relayd.brain import PANTILT, Brain, BrainParams
 from relayd.bus import Bus
 from relayd.estimator import LOST_AFTER_SCANS, EstimatorParams, ScanEstimate
 from relayd.events import (
@@ -44,6 +44,7 @@ from relayd.scanner import RssiMonitor, Scanner, ScanServoError
 from relayd.sim.radio import yagi_gain_db
 from relayd.state import RelayState
 from relayd.statewriter import StateWriter
+from relayd.sweep import ScanParams
 from relayd.vtime import LoopClock
 
 _names = itertools.count()
