@@ -31,12 +31,14 @@ PROBES: dict[str, tuple[str, str]] = {
     "robot": ("relayd.probe.robot", "talk to a P3-AT base (read-only: never enables the motors)"),
     "pantilt": ("relayd.probe.pantilt", "move or read one servo of the pan-tilt controller"),
     "wifi": ("relayd.probe.wifi", "sample the Wi-Fi adapter's RSSI"),
-    "ap": ("relayd.probe.ap", "read an airOS radio's link quality once"),
+    "ap": ("relayd.probe.ap", "read an airOS radio's link quality, once or for --seconds"
+                                " (password from RELAYD_AP_PASSWORD)"),
 }
 FAKES: dict[str, tuple[str, str]] = {
     "robot": ("relayd.fakes.robot", "serve a protocol-true fake P3-AT on a pty or TCP port"),
     "pantilt": ("relayd.fakes.pantilt", "serve a fake Maestro or SSC-32 servo controller on a pty"),
-    "ap": ("relayd.fakes.ap", "serve a fake airOS radio over HTTP on loopback"),
+    "ap": ("relayd.fakes.ap", "serve a fake airOS radio over HTTP on loopback"
+                               " (accepted password: RELAYD_AP_PASSWORD, default ubnt)"),
     "rig": ("relayd.fakes.rig_cmd", "all of one relay's devices faked, with a leader; writes a config for `relayd run`"),
 }
 
