@@ -90,6 +90,19 @@ def test_box_dead_ahead_is_passed_by_real_daemons() -> None:
     assert s["followers"][0]["stopped_reason"] == "leader_near", s
 
 
+@pytest.mark.timeout(150)
+def test_doorway_is_passed_by_real_daemons() -> None:
+    # Along the wall to the door, a turn onto the leader that the jambs refuse, a short
+    # back-out, and through. It used to hand that back-out to a lane change on the
+    # latched side, away from the leader, and hold "blocked" inside the door.
+    result, _ = _run("doorway", 1)
+    s = result.summary
+    assert s["collisions"] == 0, s
+    past = [r["t"] for r in result.records if r["relays"][0]["x"] > 3.0 + 0.313]  # through the wall
+    assert past and past[0] < 120.0, s
+    assert s["followers"][0]["stopped_reason"] == "leader_near", s
+
+
 @pytest.mark.timeout(120)
 def test_obstacle_follower_gets_round_box_and_corner() -> None:
     result, _ = _run("obstacle", 1)
