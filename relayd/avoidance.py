@@ -43,6 +43,7 @@ from relayd.estimator import SONAR_MAX_RANGE_M, SonarReading, wrap_deg
 from relayd.ring import (
     HALF_WIDTH_M,
     LATERAL_M,
+    REAR_M,
     boundary_echo_m,
     by_heading,
     choose_side,
@@ -404,6 +405,10 @@ def _lane(st: AvoidState, s: Sense, r: dict[float, float], p: AvoidParams, act: 
             # the abeam beam, must not pull the robot toward it.)
             want = (wall_lat + obstacle_lat) / 2.0
         toward = max(-p.lane_max_deg, min(p.lane_max_deg, p.lane_gain_deg_per_m * (wall_lat - want)))
+        # Heading away from that boundary swings the tail toward it (the centre is 0.31 m
+        # ahead of the rear corners): only as far as keeps the tail corner at the margin.
+        spare = wall_lat - HALF_WIDTH_M - (p.lane_margin_m - 0.02)
+        toward = max(toward, -math.degrees(math.asin(max(0.0, min(1.0, spare / REAR_M)))))
         err = wrap_deg(st.side * toward + wall_angle)
     else:
         # The boundary that made this a passage is gone: no lane to keep, go round instead.
