@@ -212,6 +212,28 @@ class AvoidanceSettings(_Section):
         return self
 
 
+class RecoverySettings(_Section):
+    """Self-healing when a link breaks (docs/CONTROL.md section 9); off: today's behaviour."""
+
+    enabled: bool = False
+    #: An episode gives up (wheels zero, reason leader_lost / rear_lost) after this much travel ...
+    max_distance_m: Annotated[float, Field(gt=0, le=100, allow_inf_nan=False)] = 8.0
+    #: ... or this long.
+    max_time_s: Annotated[float, Field(gt=0, le=3600, allow_inf_nan=False)] = 60.0
+    #: Reverse speed along the trail when the leader is lost / the link behind breaks.
+    retrace_speed_mm_s: Annotated[float, Field(gt=0, le=1500, allow_inf_nan=False)] = 200.0
+    backup_speed_mm_s: Annotated[float, Field(gt=0, le=1500, allow_inf_nan=False)] = 150.0
+    #: Full-range scans, wheels at zero, before retracing.
+    widen_scans: Annotated[int, Field(ge=0, le=20)] = 1
+    #: Breadcrumbs: one every this much travel, the newest trail_len kept.
+    crumb_spacing_m: Annotated[float, Field(ge=0.05, le=5, allow_inf_nan=False)] = 0.25
+    trail_len: Annotated[int, Field(ge=2, le=10000)] = 200
+    #: A crumb counts as reached this close.
+    reach_m: Annotated[float, Field(ge=0.05, le=5, allow_inf_nan=False)] = 0.3
+    #: Wheel-speed difference per degree the crumb lies off the rear axis.
+    turn_gain_mm_s_deg: Annotated[float, Field(ge=0, le=50, allow_inf_nan=False)] = 3.0
+
+
 class ApiSettings(_Section):
     enabled: bool = True
     #: an IP address (IPv4 or IPv6), not a host name: resolving a name at boot can fail or change
@@ -272,6 +294,23 @@ class RecordSettings(_Section):
         return self
 
 
+class FoxgloveSettings(_Section):
+    """The live Foxglove WebSocket server: the recorder's channels, as they happen (docs/RECORDING.md)."""
+
+    enabled: bool = False
+    #: Loopback by default: the Foxglove protocol has no authentication, and a viewer
+    #: streaming every channel over the relay's own Wi-Fi competes with the link the robot
+    #: is there to carry. Reach it through `ssh -L`, or bind 0.0.0.0 on purpose.
+    bind: str = "127.0.0.1"
+    #: 8765 is what the Foxglove app offers by default for a WebSocket connection.
+    port: Annotated[int, Field(ge=0, le=65535)] = 8765
+
+    @field_validator("bind")
+    @classmethod
+    def _ip_address(cls, v: str) -> str:
+        return ApiSettings._ip_address(v)
+
+
 class Settings(_Section):
     robot: RobotSettings = RobotSettings()
     pantilt: PanTiltSettings = PanTiltSettings()
@@ -280,9 +319,11 @@ class Settings(_Section):
     scan: ScanSettings = ScanSettings()
     control: ControlSettings = ControlSettings()
     avoidance: AvoidanceSettings = AvoidanceSettings()
+    recovery: RecoverySettings = RecoverySettings()
     api: ApiSettings = ApiSettings()
     log: LogSettings = LogSettings()
     record: RecordSettings = RecordSettings()
+    foxglove: FoxgloveSettings = FoxgloveSettings()
 
 
 class ConfigError(Exception):
@@ -299,13 +340,26 @@ def semantic_problems(data: Mapping[str, Any]) -> list[str]:
     problems = [*control_rules(control),
                 *pantilt_rules(with_defaults(PanTiltSettings, data.get("pantilt"))),
                 *avoidance_rules(with_defaults(AvoidanceSettings, data.get("avoidance"))),
-                *cross_section_rules(data, control)]
+                *cross_section_rules(data, control), *_port_rules(data)]
     ap = data.get("ap")
     for side in ("rear", "front"):
         section = ap.get(side) if isinstance(ap, Mapping) else None
         if isinstance(section, Mapping):
             problems += ap_rules(side, section)
     return [message(p) for p in problems]
+
+
+def _port_rules(data: Mapping[str, Any]) -> list[tuple[str, str]]:
+    """The live Foxglove server and the API cannot share a port (the second would fail to bind)."""
+    api, fox = data.get("api"), data.get("foxglove")
+    if not isinstance(fox, Mapping) or fox.get("enabled") is not True:
+        return []
+    api = api if isinstance(api, Mapping) else {}
+    api_port = api.get("port", ApiSettings().port)
+    fox_port = fox.get("port", FoxgloveSettings().port)
+    if api.get("enabled", True) is True and fox_port == api_port and fox_port != 0:
+        return [("foxglove.port", f"{fox_port} is also api.port; give the live Foxglove server its own port")]
+    return []
 
 
 def parse_settings(data: Mapping[str, Any]) -> Settings:
