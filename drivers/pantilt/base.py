@@ -317,12 +317,10 @@ class PanTilt(abc.ABC):
 
     async def _close_dropped(self) -> None:
         while self._dropped:
-            transport, proto = self._dropped[0]
-            try:
-                if not await close_link(transport, proto.closed, abort=True):
-                    self._log.warning("pantilt_close_forced")
-            finally:
-                self._dropped.remove((transport, proto))
+            # Taken off the list first: close() and run() may both be closing ports.
+            transport, proto = self._dropped.pop(0)
+            if not await close_link(transport, proto.closed, abort=True):
+                self._log.warning("pantilt_close_forced")
 
     def _note_error(self, message: str) -> None:
         self.counters["errors"] += 1
