@@ -251,6 +251,23 @@ class RecordSettings(_Section):
         return self
 
 
+class FoxgloveSettings(_Section):
+    """The live Foxglove WebSocket server: the recorder's channels, as they happen (docs/RECORDING.md)."""
+
+    enabled: bool = False
+    #: Loopback by default: the Foxglove protocol has no authentication, and a viewer
+    #: streaming every channel over the relay's own Wi-Fi competes with the link the robot
+    #: is there to carry. Reach it through `ssh -L`, or bind 0.0.0.0 on purpose.
+    bind: str = "127.0.0.1"
+    #: 8765 is what the Foxglove app offers by default for a WebSocket connection.
+    port: Annotated[int, Field(ge=0, le=65535)] = 8765
+
+    @field_validator("bind")
+    @classmethod
+    def _ip_address(cls, v: str) -> str:
+        return ApiSettings._ip_address(v)
+
+
 class Settings(_Section):
     robot: RobotSettings = RobotSettings()
     pantilt: PanTiltSettings = PanTiltSettings()
@@ -261,6 +278,7 @@ class Settings(_Section):
     api: ApiSettings = ApiSettings()
     log: LogSettings = LogSettings()
     record: RecordSettings = RecordSettings()
+    foxglove: FoxgloveSettings = FoxgloveSettings()
 
 
 class ConfigError(Exception):
@@ -276,13 +294,26 @@ def semantic_problems(data: Mapping[str, Any]) -> list[str]:
     control = with_defaults(ControlSettings, data.get("control"))
     problems = [*control_rules(control),
                 *pantilt_rules(with_defaults(PanTiltSettings, data.get("pantilt"))),
-                *cross_section_rules(data, control)]
+                *cross_section_rules(data, control), *_port_rules(data)]
     ap = data.get("ap")
     for side in ("rear", "front"):
         section = ap.get(side) if isinstance(ap, Mapping) else None
         if isinstance(section, Mapping):
             problems += ap_rules(side, section)
     return [message(p) for p in problems]
+
+
+def _port_rules(data: Mapping[str, Any]) -> list[tuple[str, str]]:
+    """The live Foxglove server and the API cannot share a port (the second would fail to bind)."""
+    api, fox = data.get("api"), data.get("foxglove")
+    if not isinstance(fox, Mapping) or fox.get("enabled") is not True:
+        return []
+    api = api if isinstance(api, Mapping) else {}
+    api_port = api.get("port", ApiSettings().port)
+    fox_port = fox.get("port", FoxgloveSettings().port)
+    if api.get("enabled", True) is True and fox_port == api_port and fox_port != 0:
+        return [("foxglove.port", f"{fox_port} is also api.port; give the live Foxglove server its own port")]
+    return []
 
 
 def parse_settings(data: Mapping[str, Any]) -> Settings:
