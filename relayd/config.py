@@ -33,6 +33,7 @@ from pydantic import (
 
 from relayd.config_checks import (
     ap_rules,
+    avoidance_rules,
     control_rules,
     cross_section_rules,
     message,
@@ -191,6 +192,26 @@ class ControlSettings(_Section):
         return self
 
 
+class AvoidanceSettings(_Section):
+    """The obstacle escape's limits and turn rates (docs/AVOIDANCE.md); the rest of its
+    geometry is fitted to the P3-AT's sonar ring and stays in code (AvoidParams)."""
+
+    #: An escape that has not got past within this time, path or total turn holds
+    #: with reason "blocked" (a dead end is reported, never driven into).
+    max_escape_s: Annotated[float, Field(gt=0, le=3600)] = 300.0
+    max_escape_m: Annotated[float, Field(gt=0, le=500)] = 40.0
+    max_turn_deg: Annotated[float, Field(gt=0, le=36000)] = 1080.0
+    #: Turns in place during the escape.
+    turn_rate_deg_s: Annotated[float, Field(gt=0, le=100)] = 20.0
+    #: No turn in place is ever commanded slower than this (a rate the tyres execute).
+    min_turn_deg_s: Annotated[float, Field(ge=1, le=100)] = 8.0
+
+    @model_validator(mode="after")
+    def _cross_key_rules(self) -> AvoidanceSettings:
+        raise_first(avoidance_rules(self.model_dump()))
+        return self
+
+
 class RecoverySettings(_Section):
     """Self-healing when a link breaks (docs/CONTROL.md section 9); off: today's behaviour."""
 
@@ -297,6 +318,7 @@ class Settings(_Section):
     ap: ApSection = ApSection()
     scan: ScanSettings = ScanSettings()
     control: ControlSettings = ControlSettings()
+    avoidance: AvoidanceSettings = AvoidanceSettings()
     recovery: RecoverySettings = RecoverySettings()
     api: ApiSettings = ApiSettings()
     log: LogSettings = LogSettings()
@@ -317,6 +339,7 @@ def semantic_problems(data: Mapping[str, Any]) -> list[str]:
     control = with_defaults(ControlSettings, data.get("control"))
     problems = [*control_rules(control),
                 *pantilt_rules(with_defaults(PanTiltSettings, data.get("pantilt"))),
+                *avoidance_rules(with_defaults(AvoidanceSettings, data.get("avoidance"))),
                 *cross_section_rules(data, control), *_port_rules(data)]
     ap = data.get("ap")
     for side in ("rear", "front"):
