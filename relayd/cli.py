@@ -56,8 +56,7 @@ class CommandParser(argparse.ArgumentParser):
         self._configured = module is None
 
     def configure(self) -> None:
-        if not self._configured:
-            assert self.module is not None
+        if not self._configured and self.module is not None:
             self._configured = True
             importlib.import_module(self.module).configure(self)
 

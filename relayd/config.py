@@ -9,6 +9,7 @@ order, distances, `rear_link` needing `[ap.rear]`) run in the same pass as the s
 so one `check-config` lists every problem. Secrets never live
 in the TOML: a section names an environment variable (`password_env`, `token_env`)
 or a file (`password_file`, `token_file`) and `resolve_secret` reads it at start-up.
+Writing settings back out as TOML lives in relayd.config_toml.
 """
 
 from __future__ import annotations
@@ -378,8 +379,7 @@ def check_api_token(ref: SecretRef, token: str) -> str:
 def secret_refs(settings: Settings) -> dict[str, SecretRef]:
     """Where each secret in use comes from, by owner: "ap.rear", "ap.front", "api"."""
     refs: dict[str, SecretRef] = {}
-    for name in ("rear", "front"):
-        ap = getattr(settings.ap, name)
+    for name, ap in (("rear", settings.ap.rear), ("front", settings.ap.front)):
         if ap is not None and ap.enabled:
             key = f"ap.{name}.password_file" if ap.password_file else f"ap.{name}.password_env"
             refs[f"ap.{name}"] = SecretRef(key, ap.password_env, ap.password_file)
@@ -388,59 +388,3 @@ def secret_refs(settings: Settings) -> dict[str, SecretRef]:
         key = "api.token_file" if api.token_file else "api.token_env"
         refs["api"] = SecretRef(key, api.token_env, api.token_file)
     return refs
-
-
-def _toml_value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    if isinstance(v, (int, float)):
-        return repr(v)
-    raise TypeError(f"cannot write {type(v).__name__} to TOML")
-
-
-def dump_toml(doc: Mapping[str, Any]) -> str:
-    """A config document (sections of scalars, lists and sub-tables) as TOML."""
-    lines: list[str] = []
-
-    def table(prefix: str, d: Mapping[str, Any]) -> None:
-        scalars = {k: v for k, v in d.items() if not isinstance(v, Mapping) and v is not None}
-        if scalars or not any(isinstance(v, Mapping) for v in d.values()):
-            lines.append(f"[{prefix}]")
-            lines.extend(f"{k} = {_toml_value(v)}" for k, v in scalars.items())
-            lines.append("")
-        for k, v in d.items():
-            if isinstance(v, Mapping):
-                table(f"{prefix}.{k}", v)
-
-    for name, section in doc.items():
-        table(name, section)
-    return "\n".join(lines)
-
-
-def render_settings(settings: Settings, environ: Mapping[str, str]) -> str:
-    """The effective settings as TOML, with where each secret comes from (never its value)."""
-    lines: list[str] = []
-
-    def section(title: str, values: Mapping[str, Any]) -> None:
-        lines.append(f"[{title}]")
-        for k, v in values.items():
-            if v is not None:
-                lines.append(f"{k} = {_toml_value(v)}")
-        lines.append("")
-
-    data = settings.model_dump(mode="json")
-    for name, values in data.items():
-        if name == "ap":
-            for side, ap in values.items():
-                if ap is not None:
-                    section(f"ap.{side}", ap)
-        else:
-            section(name, values)
-    lines.append("# secrets (values never shown):")
-    for ref in secret_refs(settings).values():
-        lines.append(f"#   {ref.key}: {ref.describe(environ)}")
-    return "\n".join(lines) + "\n"
