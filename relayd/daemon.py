@@ -18,7 +18,7 @@ import asyncio
 import contextlib
 import functools
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol
 
@@ -28,6 +28,7 @@ from drivers.airos import AirOsClient, AirOsPoller
 from drivers.airos.model import LinkQuality
 from drivers.arcos import ArcosRobot
 from drivers.clock import REAL_CLOCK, Clock
+from drivers.health import DeviceHealth as DriverHealth
 from drivers.pantilt import PanTilt
 from drivers.wifi import RssiSource
 from relayd.brain import Brain
@@ -125,7 +126,7 @@ class Daemon:
         }
         self.api_port: int | None = None
         self.notifier = notifier
-        self.supervisor = Supervisor(self.state, clock)
+        self.supervisor = Supervisor(self.state, clock, on_fault=self._on_task_fault)
         self.metrics = Metrics(self.state, clock)
         self.brain = Brain(brain_params(settings), mode=Mode(c.mode))
         self.bus: Bus[Event, Action] = Bus()
@@ -206,12 +207,21 @@ class Daemon:
                 pantilt, usable=scanner_ is None or scanner_.servo_ok,
                 extra_errors=0 if scanner_ is None else scanner_.link_errors)
         robot_ = self.robot
+        health: dict[str, Callable[[], DriverHealth]] = {}
+        if self.robot is not None:
+            health["robot"] = self.robot.health
+        if self.pantilt is not None:
+            health["pantilt"] = self.pantilt.health
+        if self.source is not None:
+            health["wifi"] = self.source.health
+        for side, poller in self.pollers.items():
+            health[f"ap.{side}"] = poller.health
         self.control = ControlShell(
             bus=self.bus, brain=self.brain, robot=robot_, clock=clock, tick_s=TICK_S,
             on_latency=self.metrics.observe_control_latency, on_step=self.metrics.observe_control_step,
             servo_up=None if self.scanner is None else (lambda: self.scanner is not None and self.scanner.servo_ok),
             robot_name=lambda: None if robot_ is None or robot_.identity is None else robot_.identity.name,
-            on_tick=self._on_tick,
+            on_tick=self._on_tick, health=health,
         )
         self.supervisor.add("control", self.control.run)
 
@@ -235,6 +245,9 @@ class Daemon:
                         self.writer.on_action(action)
             except Exception:
                 log.exception("action_failed", action=type(action).__name__)
+
+    def _on_task_fault(self, device: str, message: str) -> None:
+        self.control.report_fault(device, message)
 
     def _on_link(self, side: LinkSide, quality: LinkQuality) -> None:
         self.bus.publish(LinkEvent(self.clock.now(), side, quality))
