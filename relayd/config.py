@@ -180,7 +180,7 @@ class ControlSettings(_Section):
     beta_per_m: NonNegFloat = 1.0
     lost_rssi_dbm: Dbm = -85.0
     manual_deadman_s: PositiveFloat = 0.5
-    #: RSSI^b older than this many rear-AP polls is stale (not in the spec; 3 polls).
+    #: RSSI^b older than this many rear-AP polls is stale (our choice, docs/CONTROL.md 6: 3 polls).
     rear_stale_polls: Annotated[int, Field(ge=1, le=100)] = 3
 
     @model_validator(mode="after")

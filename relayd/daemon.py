@@ -9,7 +9,7 @@ READY is sent; /status says so.
 Shutdown (SIGTERM/SIGINT cancel `run()`): the control tick stops and the wheels are
 zeroed at once, the robot driver disables the motors and sends CLOSE, the servo and
 poll tasks are cancelled, the API closes. The robot's safe stop is bounded so the
-whole sequence fits in the 0.5 s the spec allows.
+whole sequence fits in 0.5 s (docs/CONTROL.md 6, "Shutdown").
 """
 
 from __future__ import annotations
