@@ -13,8 +13,9 @@ from pathlib import Path
 import pytest
 from support import clock_for, running, until
 
-from drivers.arcos import ArcosRobot, FakeRobot, HandshakeError
+from drivers.arcos import ArcosRobot, HandshakeError
 from drivers.arcos.codec import CLOSE, Command, encode_command, encode_packet, vel2_arg
+from drivers.arcos.fake import FakeRobot
 from drivers.arcos.sip import Sip
 from drivers.backoff import Backoff
 from drivers.clock import Clock
