@@ -42,7 +42,9 @@ def test_probe_wifi_procfs_json(tmp_path: Path, capsys: pytest.CaptureFixture[st
     assert code == 0
     assert 4 <= len(samples) <= 8
     assert all(set(s) == {"t", "rssi_dbm", "fresh"} for s in samples)
-    assert samples[0] == {"t": 0.0, "rssi_dbm": -60.0, "fresh": True}
+    # The writer flips the level every 30 ms from the start: on a loaded machine the
+    # first read may already see the flip.
+    assert samples[0]["t"] == 0.0 and samples[0]["fresh"] is True
     assert all(s["rssi_dbm"] in (-60.0, -61.0) for s in samples)
     assert sum(bool(s["fresh"]) for s in samples) >= 2
     ts = [float(s["t"]) for s in samples]  # type: ignore[arg-type]

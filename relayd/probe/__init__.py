@@ -18,8 +18,14 @@ import structlog
 @contextlib.contextmanager
 def warnings_to_stderr() -> Iterator[None]:
     previous = structlog.get_config() if structlog.is_configured() else None
-    structlog.configure(wrapper_class=structlog.make_filtering_bound_logger(logging.WARNING),
-                        logger_factory=structlog.PrintLoggerFactory(sys.stderr))
+    quiet = structlog.make_filtering_bound_logger(logging.WARNING)
+    if previous is not None and isinstance(previous["logger_factory"], structlog.stdlib.LoggerFactory):
+        # relayd's own pipeline (relayd.logsetup; the command line points it at stderr):
+        # its processors need stdlib loggers, so keep them and only raise the level.
+        structlog.configure(wrapper_class=quiet)
+    else:
+        structlog.reset_defaults()
+        structlog.configure(wrapper_class=quiet, logger_factory=structlog.PrintLoggerFactory(sys.stderr))
     try:
         yield
     finally:
