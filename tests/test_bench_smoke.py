@@ -43,9 +43,11 @@ async def test_live_benchmarks_return_sane_figures() -> None:
         # At least the cycles asked for; more when this loaded process polled late (the
         # SIPs come every 25 ms), but not without bound.
         assert 20 <= run["cycles"] <= 200, run
-        # Nearly every SIP causes a command the probe matches to it by value.
-        assert len(run["first_ms"]) >= 15, run
-        assert run["unmatched"] <= 2, run
+        # Most SIPs cause a command the probe matches to it by value. On a loaded machine
+        # relayd reads some SIPs together (the older one is superseded, as it should be),
+        # and a command may then match none: a share, not a count.
+        assert len(run["first_ms"]) >= run["cycles"] // 2, run
+        assert run["unmatched"] <= max(2, run["cycles"] // 5), run
         assert all(0.0 < x < 1000.0 for x in run["first_ms"]), run["first_ms"]
         # The RVEL goes out the driver's 5 ms command spacing after the VEL. Compared cycle
         # by cycle (the cycles with a pair are a subset), and by the median: under load
