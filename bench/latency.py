@@ -10,7 +10,8 @@ constant 300 mm/s and kd = 0 removes the D term, so the control tick (which re-r
 the same step between SIPs) and the scans never produce a command of their own: every
 VEL/RVEL the fake receives is caused by the SIP before it. The robot is held in place
 (a motion guard that refuses every move), so the leader's distance and the link
-thresholds never change during the run.
+thresholds never change during the run; the obstacle escape is off
+(`control.escape = false`), since a robot that cannot move is what it would act on.
 
 Two measurements of the same cycles. In relayd (the project's definition, "SIP
 received to wheel command written"): the driver times each SIP from its bytes arriving to the
@@ -48,7 +49,7 @@ from typing import Any
 
 import aiohttp
 
-from bench.common import BenchOutput, Result, percentile
+from bench.common import BenchOutput, Result, percentile, proc_cpu_s
 from bench.live import LoadProcess, RelaydProcess
 from drivers.arcos.codec import Command
 from relayd.fakes.rig import FakeRig
@@ -226,8 +227,14 @@ def scheduling_prefix(kind: str) -> tuple[str, ...] | None:
 
 async def measure(*, cycles: int = 2000, sip_period_s: float = 0.025, load_rps: float = 1000.0,
                   work: Path | None = None, scan: dict[str, Any] | None = None,
-                  command_prefix: Sequence[str] = ()) -> dict[str, Any]:
-    """Both runs (alone, then under /status load); raw latencies in ms and the load's report."""
+                  command_prefix: Sequence[str] = (),
+                  record: dict[str, Any] | None = None, foxglove_port: int | None = None,
+                  viewer: bool = False) -> dict[str, Any]:
+    """Both runs (alone, then under /status load); raw latencies in ms and the load's report.
+
+    `foxglove_port`: the live Foxglove server on; `viewer`: one Foxglove client
+    (bench/viewer.py, its own process) subscribed to every channel during both runs.
+    """
     with tempfile.TemporaryDirectory(prefix="relayd-bench-lat-", dir=scratch_root()) as tmp:
         rig = FakeRig(work or Path(tmp), leader_xy_m=(6.0, 2.0))
         rig.robot.sonars_per_sip = 16
@@ -237,12 +244,24 @@ async def measure(*, cycles: int = 2000, sip_period_s: float = 0.025, load_rps: 
         rig.robot.sip_period_s = sip_period_s
         await rig.start()
         try:
-            async with RelaydProcess(rig, control={"w1": 0.0, "w2": -300.0, "kd": 0.0}, scan=scan or {},
-                                     log={"level": "warning"}, command_prefix=command_prefix) as relayd:
+            extra: dict[str, Any] = {"record": record} if record is not None else {}
+            if foxglove_port is not None:
+                extra["foxglove"] = {"enabled": True, "port": foxglove_port}
+            async with RelaydProcess(rig, control={"w1": 0.0, "w2": -300.0, "kd": 0.0, "escape": False},
+                                     scan=scan or {}, log={"level": "warning"},
+                                     command_prefix=command_prefix, **extra) as relayd:
                 await relayd.wait_for(lambda d: d.get("state") == "avoiding", 60.0, "state avoiding")
                 probe = CycleProbe(rig.robot, sonar)
                 probe.install()
+                view = None
+                if viewer and foxglove_port is not None:
+                    from bench.viewer import ViewerProcess
+
+                    view = await ViewerProcess(f"ws://127.0.0.1:{foxglove_port}/").start()
+                wall0, cpu0 = time.perf_counter(), proc_cpu_s(relayd.pid)
                 alone = await _measure(probe, cycles, relayd.url)
+                # relayd's own CPU share over the run (its whole process: the SDK's threads too).
+                alone["cpu_pct"] = 100.0 * (proc_cpu_s(relayd.pid) - cpu0) / (time.perf_counter() - wall0)
                 loaded: dict[str, Any] | None = None
                 load_report: dict[str, Any] | None = None
                 if load_rps > 0:
@@ -252,10 +271,12 @@ async def measure(*, cycles: int = 2000, sip_period_s: float = 0.025, load_rps: 
                         loaded = await _measure(probe, cycles, relayd.url)
                     finally:
                         load_report = dict(await load.stop())
+                viewed = await view.stop() if view is not None else None
                 final = await relayd.wait_for(lambda d: True, 10.0, "status")
         finally:
             await rig.stop()
     return {"alone": alone, "loaded": loaded, "load": load_report, "final_state": final.get("state"),
+            "viewer": viewed,
             "sip_period_s": sip_period_s, "pid_note": None}
 
 

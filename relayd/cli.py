@@ -25,6 +25,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "sim": ("relayd.commands.sim", "run a convoy of real relayd instances in the simulated world"),
     "status": ("relayd.commands.status", "fetch and pretty-print a robot's /status"),
     "fleet": ("relayd.commands.fleet", "serve one page for the whole chain of relays, with a hold-all button"),
+    "replay": ("relayd.commands.replay", "replay a recording through the brain and compare its decisions"),
 }
 PROBES: dict[str, tuple[str, str]] = {
     "robot": ("relayd.probe.robot", "talk to a P3-AT base (read-only: never enables the motors)"),

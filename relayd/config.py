@@ -182,6 +182,9 @@ class ControlSettings(_Section):
     manual_deadman_s: PositiveFloat = 0.5
     #: RSSI^b older than this many rear-AP polls is stale (our choice, docs/CONTROL.md 6: 3 polls).
     rear_stale_polls: Annotated[int, Field(ge=1, le=100)] = 3
+    #: The escape when forward motion is blocked (docs/AVOIDANCE.md); false leaves the
+    #: paper's obstacle rule alone (for experiments and benchmarks, not for a robot).
+    escape: bool = True
 
     @model_validator(mode="after")
     def _cross_key_rules(self) -> ControlSettings:
@@ -231,6 +234,41 @@ class LogSettings(_Section):
     format: Literal["json", "console"] = "json"
 
 
+class RecordSettings(_Section):
+    """Recording every bus event and action to MCAP files (docs/RECORDING.md)."""
+
+    enabled: bool = False
+    #: A directory (one file per run, `relayd-<UTC time>.mcap`) or a file ending in `.mcap`.
+    path: Annotated[str, Field(min_length=1)] = "/var/lib/relayd/recordings"
+    #: A file this big is finished (summary written) and the next part begun.
+    max_file_mb: Annotated[float, Field(gt=0, le=1_000_000, allow_inf_nan=False)] = 100.0
+    #: The oldest recordings are deleted to keep the total under this.
+    max_total_mb: Annotated[float, Field(gt=0, allow_inf_nan=False)] = 2000.0
+
+    @model_validator(mode="after")
+    def _total_holds_a_file(self) -> RecordSettings:
+        if self.max_total_mb < self.max_file_mb:
+            raise ValueError("max_total_mb must be at least max_file_mb")
+        return self
+
+
+class FoxgloveSettings(_Section):
+    """The live Foxglove WebSocket server: the recorder's channels, as they happen (docs/RECORDING.md)."""
+
+    enabled: bool = False
+    #: Loopback by default: the Foxglove protocol has no authentication, and a viewer
+    #: streaming every channel over the relay's own Wi-Fi competes with the link the robot
+    #: is there to carry. Reach it through `ssh -L`, or bind 0.0.0.0 on purpose.
+    bind: str = "127.0.0.1"
+    #: 8765 is what the Foxglove app offers by default for a WebSocket connection.
+    port: Annotated[int, Field(ge=0, le=65535)] = 8765
+
+    @field_validator("bind")
+    @classmethod
+    def _ip_address(cls, v: str) -> str:
+        return ApiSettings._ip_address(v)
+
+
 class Settings(_Section):
     robot: RobotSettings = RobotSettings()
     pantilt: PanTiltSettings = PanTiltSettings()
@@ -240,6 +278,8 @@ class Settings(_Section):
     control: ControlSettings = ControlSettings()
     api: ApiSettings = ApiSettings()
     log: LogSettings = LogSettings()
+    record: RecordSettings = RecordSettings()
+    foxglove: FoxgloveSettings = FoxgloveSettings()
 
 
 class ConfigError(Exception):
@@ -255,13 +295,26 @@ def semantic_problems(data: Mapping[str, Any]) -> list[str]:
     control = with_defaults(ControlSettings, data.get("control"))
     problems = [*control_rules(control),
                 *pantilt_rules(with_defaults(PanTiltSettings, data.get("pantilt"))),
-                *cross_section_rules(data, control)]
+                *cross_section_rules(data, control), *_port_rules(data)]
     ap = data.get("ap")
     for side in ("rear", "front"):
         section = ap.get(side) if isinstance(ap, Mapping) else None
         if isinstance(section, Mapping):
             problems += ap_rules(side, section)
     return [message(p) for p in problems]
+
+
+def _port_rules(data: Mapping[str, Any]) -> list[tuple[str, str]]:
+    """The live Foxglove server and the API cannot share a port (the second would fail to bind)."""
+    api, fox = data.get("api"), data.get("foxglove")
+    if not isinstance(fox, Mapping) or fox.get("enabled") is not True:
+        return []
+    api = api if isinstance(api, Mapping) else {}
+    api_port = api.get("port", ApiSettings().port)
+    fox_port = fox.get("port", FoxgloveSettings().port)
+    if api.get("enabled", True) is True and fox_port == api_port and fox_port != 0:
+        return [("foxglove.port", f"{fox_port} is also api.port; give the live Foxglove server its own port")]
+    return []
 
 
 def parse_settings(data: Mapping[str, Any]) -> Settings:

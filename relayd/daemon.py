@@ -47,6 +47,8 @@ from relayd.events import Action, Event, LinkEvent, LinkSide, ScanPlan, ServoTar
 from relayd.health import device_health
 from relayd.metrics import Metrics
 from relayd.params import brain_params, control_params, estimator_params
+from relayd.record.live import BindError, LiveServer, close_soon
+from relayd.record.recorder import Recorder, off_status
 from relayd.scanner import RssiMonitor, Scanner
 from relayd.state import Mode, RelayState
 from relayd.statewriter import StateWriter
@@ -139,6 +141,18 @@ class Daemon:
         self.pollers: dict[str, AirOsPoller] = {}
         self._runner: ApiServer | None = None
         self._last_pet: float | None = None
+        self.recorder: Recorder | None = None
+        self._record_task: asyncio.Task[None] | None = None
+        if settings.record.enabled:
+            # One bus subscriber (docs/RECORDING.md); never on the control path.
+            self.recorder = Recorder(self.bus, settings, clock, identity=lambda: (
+                None if self.robot is None else self.robot.identity))
+        self.state.recording_source = self.recorder.status if self.recorder is not None else off_status
+        self.live: LiveServer | None = None
+        self._live_task: asyncio.Task[None] | None = None
+        if settings.foxglove.enabled:
+            # The live Foxglove view: one more bus subscriber, never on the control path.
+            self.live = LiveServer(self.bus, settings, clock)
         self._build()
         self.bus.connect(self.brain.handle, self._on_actions)
 
@@ -276,6 +290,18 @@ class Daemon:
                 raise ConfigError([api_bind_error(s.api.bind, s.api.port, exc)]) from None
             log.info("api_control", enabled=self._token is not None,
                      note=None if self._token else "no token configured: POST endpoints answer 403")
+        if self.live is not None:
+            # Bound before any device too: a taken port is a config error, not a half-started robot.
+            try:
+                self.live.start()
+            except BindError as exc:
+                raise ConfigError([f"{exc.key}: cannot listen on {s.foxglove.bind}:{s.foxglove.port}: "
+                                   f"{exc}"]) from None
+            self._live_task = asyncio.create_task(self.live.run(), name="relayd:foxglove")
+        if self.recorder is not None:
+            # Before any device: the first SIP's event is in the file.
+            self.recorder.start()
+            self._record_task = asyncio.create_task(self.recorder.run(), name="relayd:recorder")
         self.supervisor.start()
         if self.notifier is not None:
             self.notifier.ready()
@@ -309,6 +335,14 @@ class Daemon:
             with contextlib.suppress(Exception):
                 await asyncio.wait_for(self._runner.cleanup(), 0.2)
             self._runner = None
+        if self.live is not None or self._live_task is not None:
+            await close_soon(self.live, self._live_task)
+        if self.recorder is not None:
+            # Last: the Shutdown event and the final wheel stop are in the file.
+            await self.recorder.close()
+        if self._record_task is not None:
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await asyncio.wait_for(self._record_task, 0.5)
         log.info("stopped")
 
 
