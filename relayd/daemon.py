@@ -47,8 +47,7 @@ from relayd.events import Action, Event, LinkEvent, LinkSide, ScanPlan, ServoTar
 from relayd.health import device_health
 from relayd.metrics import Metrics
 from relayd.params import brain_params, control_params, estimator_params
-from relayd.record.live import BindError, LiveServer, close_soon
-from relayd.record.recorder import Recorder, off_status
+from relayd.record import off_status
 from relayd.scanner import RssiMonitor, Scanner
 from relayd.state import Mode, RelayState
 from relayd.statewriter import StateWriter
@@ -56,6 +55,8 @@ from relayd.supervisor import Supervisor
 
 if TYPE_CHECKING:
     from relayd.api.server import ApiServer
+    from relayd.record.live import LiveServer
+    from relayd.record.recorder import Recorder
 
 __all__ = ["Daemon", "DeviceOverrides", "control_params", "estimator_params"]
 
@@ -143,7 +144,11 @@ class Daemon:
         self._last_pet: float | None = None
         self.recorder: Recorder | None = None
         self._record_task: asyncio.Task[None] | None = None
+        # The recorder and the live view (and their MCAP writer) are imported only when
+        # configured: a daemon without them does not carry them in memory.
         if settings.record.enabled:
+            from relayd.record.recorder import Recorder
+
             # One bus subscriber (docs/RECORDING.md); never on the control path.
             self.recorder = Recorder(self.bus, settings, clock, identity=lambda: (
                 None if self.robot is None else self.robot.identity))
@@ -151,6 +156,8 @@ class Daemon:
         self.live: LiveServer | None = None
         self._live_task: asyncio.Task[None] | None = None
         if settings.foxglove.enabled:
+            from relayd.record.live import LiveServer
+
             # The live Foxglove view: one more bus subscriber, never on the control path.
             self.live = LiveServer(self.bus, settings, clock)
         self._build()
@@ -291,6 +298,8 @@ class Daemon:
             log.info("api_control", enabled=self._token is not None,
                      note=None if self._token else "no token configured: POST endpoints answer 403")
         if self.live is not None:
+            from relayd.record.live import BindError
+
             # Bound before any device too: a taken port is a config error, not a half-started robot.
             try:
                 self.live.start()
@@ -336,6 +345,8 @@ class Daemon:
                 await asyncio.wait_for(self._runner.cleanup(), 0.2)
             self._runner = None
         if self.live is not None or self._live_task is not None:
+            from relayd.record.live import close_soon
+
             await close_soon(self.live, self._live_task)
         if self.recorder is not None:
             # Last: the Shutdown event and the final wheel stop are in the file.
