@@ -21,7 +21,7 @@ from bench import scan as bench_scan
 from bench import sim as bench_sim
 from bench import status as bench_status
 from bench import steady as bench_steady
-from bench.common import BenchOutput, Result, percentile
+from bench.common import BenchOutput, Result
 from bench.run import BENCHES, main, render, table
 from drivers.arcos.fake import FakeRobot
 from relayd.sim.runner import scratch_root
