@@ -35,6 +35,7 @@ from pydantic import (
 from relayd.config_checks import ConfigError as ConfigError
 from relayd.config_checks import (
     ap_rules,
+    avoidance_rules,
     control_rules,
     cross_section_rules,
     message,
@@ -201,6 +202,48 @@ class ControlSettings(_Section):
         return self
 
 
+class AvoidanceSettings(_Section):
+    """The obstacle escape's limits and turn rates (docs/AVOIDANCE.md); the rest of its
+    geometry is fitted to the P3-AT's sonar ring and stays in code (AvoidParams)."""
+
+    #: An escape that has not got past within this time, path or total turn holds
+    #: with reason "blocked" (a dead end is reported, never driven into).
+    max_escape_s: Annotated[float, Field(gt=0, le=3600)] = 300.0
+    max_escape_m: Annotated[float, Field(gt=0, le=500)] = 40.0
+    max_turn_deg: Annotated[float, Field(gt=0, le=36000)] = 1080.0
+    #: Turns in place during the escape.
+    turn_rate_deg_s: Annotated[float, Field(gt=0, le=100)] = 20.0
+    #: No turn in place is ever commanded slower than this (a rate the tyres execute).
+    min_turn_deg_s: Annotated[float, Field(ge=1, le=100)] = 8.0
+
+    @model_validator(mode="after")
+    def _cross_key_rules(self) -> AvoidanceSettings:
+        raise_first(avoidance_rules(self.model_dump()))
+        return self
+
+
+class RecoverySettings(_Section):
+    """Self-healing when a link breaks (docs/CONTROL.md section 9); off: today's behaviour."""
+
+    enabled: bool = False
+    #: An episode gives up (wheels zero, reason leader_lost / rear_lost) after this much travel ...
+    max_distance_m: Annotated[float, Field(gt=0, le=100, allow_inf_nan=False)] = 8.0
+    #: ... or this long.
+    max_time_s: Annotated[float, Field(gt=0, le=3600, allow_inf_nan=False)] = 60.0
+    #: Reverse speed along the trail when the leader is lost / the link behind breaks.
+    retrace_speed_mm_s: Annotated[float, Field(gt=0, le=1500, allow_inf_nan=False)] = 200.0
+    backup_speed_mm_s: Annotated[float, Field(gt=0, le=1500, allow_inf_nan=False)] = 150.0
+    #: Full-range scans, wheels at zero, before retracing.
+    widen_scans: Annotated[int, Field(ge=0, le=20)] = 1
+    #: Breadcrumbs: one every this much travel, the newest trail_len kept.
+    crumb_spacing_m: Annotated[float, Field(ge=0.05, le=5, allow_inf_nan=False)] = 0.25
+    trail_len: Annotated[int, Field(ge=2, le=10000)] = 200
+    #: A crumb counts as reached this close.
+    reach_m: Annotated[float, Field(ge=0.05, le=5, allow_inf_nan=False)] = 0.3
+    #: Wheel-speed difference per degree the crumb lies off the rear axis.
+    turn_gain_mm_s_deg: Annotated[float, Field(ge=0, le=50, allow_inf_nan=False)] = 3.0
+
+
 class ApiSettings(_Section):
     enabled: bool = True
     #: an IP address (IPv4 or IPv6), not a host name: resolving a name at boot can fail or change
@@ -285,6 +328,8 @@ class Settings(_Section):
     ap: ApSection = ApSection()
     scan: ScanSettings = ScanSettings()
     control: ControlSettings = ControlSettings()
+    avoidance: AvoidanceSettings = AvoidanceSettings()
+    recovery: RecoverySettings = RecoverySettings()
     api: ApiSettings = ApiSettings()
     log: LogSettings = LogSettings()
     record: RecordSettings = RecordSettings()
@@ -296,6 +341,7 @@ def semantic_problems(data: Mapping[str, Any]) -> list[str]:
     control = with_defaults(ControlSettings, data.get("control"))
     problems = [*control_rules(control),
                 *pantilt_rules(with_defaults(PanTiltSettings, data.get("pantilt"))),
+                *avoidance_rules(with_defaults(AvoidanceSettings, data.get("avoidance"))),
                 *cross_section_rules(data, control), *_port_rules(data)]
     ap = data.get("ap")
     for side in ("rear", "front"):

@@ -54,6 +54,14 @@ def control_rules(c: Mapping[str, Any]) -> list[Problem]:
     return out
 
 
+def avoidance_rules(a: Mapping[str, Any]) -> list[Problem]:
+    rate, least = _num(a.get("turn_rate_deg_s")), _num(a.get("min_turn_deg_s"))
+    if rate is not None and least is not None and rate < least:
+        return [("avoidance.turn_rate_deg_s", f"must be at least min_turn_deg_s ({least:g}): no turn "
+                                              "in place is ever commanded slower than that")]
+    return []
+
+
 def pantilt_rules(p: Mapping[str, Any]) -> list[Problem]:
     scan, link = p.get("scan_channel"), p.get("link_channel")
     if isinstance(scan, int) and isinstance(link, int) and scan == link:
