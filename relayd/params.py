@@ -2,7 +2,7 @@
 
 `ControlParams` and `EstimatorParams` (the pure modules' own frozen dataclasses) take
 every field whose name is a key of the config's `[control]` or `[scan]` section
-straight from it, so a new tunable is written twice (the config model and the
+straight from it (the escape's `AvoidParams` and the `Actuator` from `[avoidance]`), so a new tunable is written twice (the config model and the
 dataclass), never a third time here. Only the fields derived from several settings
 (timeouts, the rear-link switch) are computed below, each with its reason.
 """
@@ -14,6 +14,8 @@ from typing import Any, TypeVar
 
 from pydantic import BaseModel
 
+from relayd.actuator import Actuator
+from relayd.avoidance import AvoidParams
 from relayd.brain import BrainParams, ScanParams
 from relayd.config import Settings
 from relayd.controller import ControlParams
@@ -75,6 +77,10 @@ def control_params(settings: Settings) -> ControlParams:
         sip_timeout_s=settings.robot.lost_after_s,
         rssi_timeout_s=rssi_timeout_s(settings.wifi.sample_hz),
         rear_timeout_s=c.rear_stale_polls * rear_poll_s,
+        # The escape's limits and turn rates ([avoidance]); its stop distance and
+        # threshold_o are [control]'s, set by the controller.
+        avoid=_from_sections(AvoidParams, settings.avoidance),
+        actuator=_from_sections(Actuator, settings.avoidance),
     )
 
 

@@ -1,7 +1,8 @@
 """`relayd sim`: run real relayd daemons in the simulated world and summarise the run.
 
-    relayd sim [--scenario NAME|FILE] [--relays N|all] [--speed X] [--seconds S]
-               [--out DIR] [--seed N] [--no-plots] [--record] [--log-level LEVEL]
+    relayd sim [--scenario NAME|FILE] [--relays N|all] [--speed X|max] [--seconds S]
+               [--out DIR] [--seed N] [--no-plots] [--record] [--recovery on|off]
+               [--log-level LEVEL]
 
 With no arguments: the corridor with two relays at speed 10. Prints each relay's API
 port at start (its live page is at http://127.0.0.1:PORT/), a one-line progress on a
@@ -52,18 +53,20 @@ def _positive(text: str) -> float:
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--scenario", default=DEFAULT_SCENARIO,
-                        help="a shipped scenario name (convoy, obstacle, corridor, parking, blind-corner, door,"
-                             " drift) or a TOML file")
-    parser.add_argument("--relays", type=_relays_arg, default=None,
+    from relayd.sim.scenario import builtin_names
+
+    parser.add_argument("--scenario", default=DEFAULT_SCENARIO, metavar="NAME|FILE",
+                        help=f"a shipped scenario ({', '.join(builtin_names())}; default {DEFAULT_SCENARIO})"
+                             " or a scenario TOML file (docs/SIMULATOR.md)")
+    parser.add_argument("--relays", type=_relays_arg, default=None, metavar="N|all",
                         help="number of relays, or 'all' for one run per count (default: the scenario's)")
-    parser.add_argument("--speed", type=_speed, default=DEFAULT_SPEED,
+    parser.add_argument("--speed", type=_speed, default=DEFAULT_SPEED, metavar="X|max",
                         help=f"pace of the virtual clock over wall time, or 'max' (default {DEFAULT_SPEED:g});"
                              " the results do not depend on it")
-    parser.add_argument("--seconds", type=_positive, default=None,
+    parser.add_argument("--seconds", type=_positive, default=None, metavar="S",
                         help="simulated seconds to run at most (default: the scenario's duration)")
-    parser.add_argument("--out", default="sim-out", help="output directory (default ./sim-out)")
-    parser.add_argument("--seed", type=int, default=1, help="world seed (shadowing, fading, sonar noise)")
+    parser.add_argument("--out", default="sim-out", metavar="DIR", help="output directory (default ./sim-out)")
+    parser.add_argument("--seed", type=int, default=1, metavar="N", help="world seed (shadowing, fading, sonar noise; default 1)")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     parser.add_argument("--record", action="store_true",
                         help="each relay's daemon records its run to <out>/<relay name>.mcap (docs/RECORDING.md)")
