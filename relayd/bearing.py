@@ -231,7 +231,8 @@ def fit_main_lobe(angles_deg: Sequence[float], rssi_dbm: Sequence[float],
         else:
             lo = hi = min(range(n), key=lambda i: abs(angles[i] - centre))
         lo, hi = _widen(lo, hi, n, centre, angles)
-    assert coef is not None and inv is not None
+    if coef is None or inv is None:  # the loop runs at least once; no fit is no lobe
+        return None
     a, b, c = coef
     if c >= 0:
         return None
