@@ -80,7 +80,7 @@ from relayd.recovery import (
 )
 from relayd.ring import rear_readings
 from relayd.state import DriveState, Mode, ScanRecord
-from relayd.sweep import ScanParams, full_window, in_current_frame, next_window, sweep_plan
+from relayd.scanplan import ScanParams, full_window, in_current_frame, next_window, sweep_plan
 
 SONAR_COUNT = 16
 #: Device names the brain listens to in `DeviceEvent`s.
@@ -277,7 +277,7 @@ class Brain:
         return self.leader_lost or (self._model.lost(now, self._heading) and not self._scan_stale(now))
 
     def _plan(self, now: float) -> ScanPlan:
-        """The next sweep (relayd/sweep.py), each in the other direction than the last."""
+        """The next sweep (relayd/scanplan.py), each in the other direction than the last."""
         sp, lost = self.params.scan, self._lost(now)
         planned = None if lost else self._model.window(now, self._heading, full_window(sp))
         window = next_window(sp, lost, planned, self._bearing_now(now))

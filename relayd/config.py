@@ -171,7 +171,7 @@ class ScanSettings(_Section):
     settle_s: NonNegFloat = 0.05
     #: Bearing estimator: "wca" (the paper's weighted centroid) or "lobe" (main-lobe fit
     #: and tracking filter, docs/CONTROL.md section 10).
-    estimator: Literal["wca", "lobe"] = "lobe"
+    estimator: Literal["wca", "lobe"] = "wca"
     #: "full": every sweep `width_deg` wide; "adaptive": narrower around a confident
     #: prediction (needs estimator "lobe").
     window: Literal["full", "adaptive"] = "full"

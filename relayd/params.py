@@ -22,7 +22,7 @@ from relayd.controller import ControlParams
 from relayd.estimator import EstimatorParams
 from relayd.leader import LeaderParams
 from relayd.recovery import RecoveryParams
-from relayd.sweep import ScanParams
+from relayd.scanplan import ScanParams
 
 P = TypeVar("P")
 

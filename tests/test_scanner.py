@@ -44,7 +44,7 @@ from relayd.scanner import RssiMonitor, Scanner, ScanServoError
 from relayd.sim.radio import yagi_gain_db
 from relayd.state import RelayState
 from relayd.statewriter import StateWriter
-from relayd.sweep import ScanParams
+from relayd.scanplan import ScanParams
 from relayd.vtime import LoopClock
 
 _names = itertools.count()

@@ -1,4 +1,4 @@
-"""The next sweep's window and plan (relayd/sweep.py): pure, so plain and property tests."""
+"""The next sweep's window and plan (relayd/scanplan.py): pure, so plain and property tests."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from relayd.leader import Window
-from relayd.sweep import ScanParams, full_window, in_current_frame, next_window, sweep_plan
+from relayd.scanplan import ScanParams, full_window, in_current_frame, next_window, sweep_plan
 
 SP = ScanParams(samples=13, width_deg=60.0, limits_deg=(-90.0, 90.0))
 
