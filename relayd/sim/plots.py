@@ -127,6 +127,27 @@ def plot_throughput(runs: Sequence[tuple[str, Sequence[dict[str, Any]]]], path: 
     plt.close(fig)
 
 
+def plot_throughput_bands(curves: Sequence[tuple[str, Sequence[float], Sequence[float], Sequence[float]]],
+                          path: Path, title: str) -> None:
+    """Paper-style throughput over time for several seeds: per curve (label, t, mean, sd)
+    a mean line and a +-1 sd band (clipped at 0 Mbps)."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(9, 4))
+    for label, t, mean, sd in curves:
+        (line,) = ax.plot(t, mean, label=label)
+        ax.fill_between(t, [max(0.0, m - s) for m, s in zip(mean, sd, strict=True)],
+                        [m + s for m, s in zip(mean, sd, strict=True)], color=line.get_color(), alpha=0.2, lw=0)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("end-to-end throughput (Mbps)")
+    ax.set_ylim(bottom=0)
+    ax.set_title(title)
+    ax.legend()
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
 def write_run_plots(world: World, records: Sequence[dict[str, Any]], out: Path) -> list[Path]:
     """The standard figures of one run into `out`; returns the files written."""
     out.mkdir(parents=True, exist_ok=True)
