@@ -61,9 +61,13 @@ class RunSpec:
 
     @property
     def digest(self) -> str:
-        """A hash of what determines the results (not the pace: results do not depend on it)."""
+        """A hash of what determines the results: the parameters and relayd's version (not
+        the pace: results do not depend on it). Code changed without a version bump is
+        not seen: sweep into a fresh --out after changing the simulator."""
+        from relayd import __version__
+
         blob = json.dumps({"doc": self.doc, "relays": self.relays, "seed": self.seed,
-                           "seconds": self.seconds}, sort_keys=True, default=str)
+                           "seconds": self.seconds, "relayd": __version__}, sort_keys=True, default=str)
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
     def payload(self) -> dict[str, Any]:
