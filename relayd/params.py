@@ -25,9 +25,11 @@ P = TypeVar("P")
 RSSI_STALE_MIN_S = 0.5
 #: ... nor over fewer than this many sample periods.
 RSSI_STALE_SAMPLES = 5
-#: "No completed scan for 2 scan periods" never fires sooner than this (s): a sweep
-#: also waits for servo replies and the link antenna, which the nominal period leaves out.
-SCAN_STALE_MIN_S = 1.0
+#: "No completed scan for 2 scan periods" never fires sooner than this (s): a real sweep
+#: also waits for servo replies and the link antenna, which the nominal period leaves
+#: out, and a servo that stops answering must be reported as itself ("scan_servo",
+#: after the driver's reply timeout), not as a scan that did not finish.
+SCAN_STALE_MIN_S = 2.0
 
 
 def _from_sections(cls: type[P], *sections: BaseModel, **derived: Any) -> P:

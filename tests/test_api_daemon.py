@@ -388,7 +388,13 @@ async def test_follow_mode_set_over_the_api_drives_to_the_leader(hold: Relay) ->
     assert doc["wheels_mm_s"]["left"] > 0 and doc["wheels_mm_s"]["right"] > 0
     # Driving, SIPs change the wheel command: each change is a control-latency sample,
     # SIP bytes in to VEL/RVEL written, well under a second even on a loaded machine.
-    m = await relay.metrics()
+    # (The first command after the mode change is the operator's, not a SIP's: wait for
+    # a SIP-caused one.)
+    async def sampled() -> dict[tuple[str, frozenset[tuple[str, str]]], float] | None:
+        m = await relay.metrics()
+        return m if _one(m, "relayd_control_latency_seconds_count") >= 1 else None
+
+    m = await until(sampled, "a SIP-caused wheel command")
     count = _one(m, "relayd_control_latency_seconds_count")
     assert count >= 1
     assert _one(m, "relayd_control_latency_seconds_bucket", le="+Inf") == count

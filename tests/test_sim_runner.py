@@ -109,9 +109,9 @@ def test_cli_bad_scenario_and_bad_relays(tmp_path: Path, capsys: pytest.CaptureF
 
 def test_cli_corridor_without_relays_writes_every_output(tmp_path: Path,
                                                           capsys: pytest.CaptureFixture[str]) -> None:
-    # No daemons: the world alone, so a high speed is fine.
+    # No daemons: the world alone.
     out = tmp_path / "o"
-    assert main(["sim", "--scenario", "corridor", "--relays", "0", "--speed", "200", "--out", str(out)]) == 0
+    assert main(["sim", "--scenario", "corridor", "--relays", "0", "--speed", "max", "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "link broke at" in text and "goal NOT reached" in text
     s = json.loads((out / "summary.json").read_text())
@@ -149,7 +149,7 @@ def test_cli_relays_all_runs_each_count_with_real_daemons(tmp_path: Path,
     scen = tmp_path / "tiny.toml"
     scen.write_text(TINY)
     out = tmp_path / "o"
-    assert main(["sim", "--scenario", str(scen), "--relays", "all", "--speed", "4", "--out", str(out)]) == 0
+    assert main(["sim", "--scenario", str(scen), "--relays", "all", "--speed", "max", "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "solo: API and live page at http://127.0.0.1:" in text
     top = json.loads((out / "summary.json").read_text())
