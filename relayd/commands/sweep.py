@@ -97,8 +97,13 @@ def run(args: argparse.Namespace) -> int:
         print(f"relayd sweep: {exc}", file=sys.stderr)
         return 2
     set_keys = [a.key for a in axes]
-    # Dask's own info lines (scheduler and worker start/stop) would bury the progress bar.
-    logging.getLogger("distributed").setLevel(logging.WARNING)
+    # Dask's own info lines (scheduler and worker start/stop) would bury the progress bar;
+    # distributed sets levels on its sub-loggers when imported, so quiet them after that.
+    import distributed  # noqa: F401
+
+    for name in ["distributed", *logging.root.manager.loggerDict]:
+        if name.startswith("distributed"):
+            logging.getLogger(name).setLevel(logging.WARNING)
     out = Path(args.out)
     where = args.scheduler or f"a LocalCluster of {args.workers or 'all cores'} worker(s)"
     print(f"sweep: {len(specs)} runs on {where}; results in {out}/", flush=True)

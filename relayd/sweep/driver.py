@@ -208,11 +208,13 @@ def _start_client(opts: SweepOptions) -> tuple[Any, Any]:
     if opts.scheduler:
         return Client(opts.scheduler, timeout="30s"), None
     n = opts.workers or default_workers()
+    # The scheduler serves HTTP (health, metrics, the dashboard if bokeh is installed) on
+    # a free loopback port: the default 8787 clashes with any other cluster on the machine.
     # allowed-failures 0: a run whose worker dies comes back as KilledWorker at once and
     # our own retry (once) decides, instead of Dask re-running it on up to 3 more workers.
     with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
-                               dashboard_address=None,
+                               dashboard_address="127.0.0.1:0",
                                memory_limit=0, silence_logs=logging.ERROR)
         return Client(cluster), cluster
 
