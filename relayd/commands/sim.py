@@ -52,7 +52,7 @@ def _positive(text: str) -> float:
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scenario", default=DEFAULT_SCENARIO,
-                        help="a shipped scenario name (convoy, obstacle, corridor, parking) or a TOML file")
+                        help="a shipped scenario name (convoy, obstacle, corridor, outdoor, parking) or a TOML file")
     parser.add_argument("--relays", type=_relays_arg, default=None,
                         help="number of relays, or 'all' for one run per count (default: the scenario's)")
     parser.add_argument("--speed", type=_speed, default=DEFAULT_SPEED,
