@@ -162,6 +162,16 @@ def test_a_failing_run_is_retried_once_then_recorded(tmp_path: Path, capsys: pyt
     assert _rows(out / "runs.csv")[0]["status"] == "ok"
 
 
+@pytest.mark.timeout(120)
+def test_an_unreachable_scheduler_is_an_error_not_a_hang(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    port = _free_port()
+    t0 = time.monotonic()
+    code = main(["sweep", *TINY, "--relays", "0", "--seeds", "1", "--scheduler", f"tcp://127.0.0.1:{port}",
+                 "--out", str(tmp_path / "x")])
+    assert code == 2 and time.monotonic() - t0 < 90
+    assert "no Dask cluster" in capsys.readouterr().err
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

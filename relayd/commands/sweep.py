@@ -109,7 +109,12 @@ def run(args: argparse.Namespace) -> int:
     print(f"sweep: {len(specs)} runs on {where}; results in {out}/", flush=True)
     opts = SweepOptions(out=out, workers=args.workers, scheduler=args.scheduler,
                         run_timeout_s=args.run_timeout, trace=args.trace)
-    outcome = run_sweep(specs, set_keys, opts)
+    try:
+        outcome = run_sweep(specs, set_keys, opts)
+    except (OSError, TimeoutError) as exc:
+        # an unreachable --scheduler, or a LocalCluster that cannot start
+        print(f"relayd sweep: no Dask cluster: {exc}", file=sys.stderr)
+        return 2
     plots = not args.no_plots and sim_plots.available()
     report = write_report(out, outcome.rows, set_keys, plots=plots)
     print(f"sweep: {outcome.ok} run, {outcome.skipped} already done, {outcome.failed} failed;"
