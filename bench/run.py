@@ -38,6 +38,7 @@ BENCHES: dict[str, str] = {
     "sim": "bench.sim",
     "estimator": "bench.estimator",
     "bus": "bench.bus",
+    "probe": "bench.probe",
 }
 DESCRIPTIONS = {
     "latency": "SIP -> wheel command p50/p99/max, alone and under /status load",
@@ -47,6 +48,7 @@ DESCRIPTIONS = {
     "sim": "wall time of a 300 s three-robot convoy",
     "estimator": "bearing error after 5 scans, noise-free and noisy",
     "bus": "event publish cost with 0, 1 and 3 subscribers (one never reading)",
+    "probe": "`relayd probe robot` CPU at 10 Hz SIPs, this tree beside a baseline revision",
 }
 RESULTS_MD = Path(__file__).resolve().parent / "RESULTS.md"
 KEEP_MARKER = "<!-- Everything below this line is hand-written and kept when bench/run.py rewrites the file. -->"

@@ -64,7 +64,8 @@ class PtyPort:
         return self.path
 
     def _readable(self) -> None:
-        assert self._master is not None
+        if self._master is None:
+            return
         try:
             data = os.read(self._master, 65536)
         except BlockingIOError:
@@ -88,13 +89,13 @@ class PtyPort:
             n = 0
         except OSError:
             return
-        if n < len(data):
+        if n < len(data) and self._loop is not None:
             self._out += data[n:]
-            assert self._loop is not None
             self._loop.add_writer(self._master, self._writable)
 
     def _writable(self) -> None:
-        assert self._master is not None and self._loop is not None
+        if self._master is None or self._loop is None:
+            return
         try:
             n = os.write(self._master, self._out)
         except BlockingIOError:
@@ -110,9 +111,9 @@ class PtyPort:
         """Close both ends, as a pulled USB adapter does. `open()` brings it back."""
         if self._master is None:
             return
-        assert self._loop is not None
-        self._loop.remove_reader(self._master)
-        self._loop.remove_writer(self._master)
+        if self._loop is not None:
+            self._loop.remove_reader(self._master)
+            self._loop.remove_writer(self._master)
         for fd in (self._master, self._slave):
             if fd is not None:
                 with contextlib.suppress(OSError):

@@ -81,7 +81,8 @@ async def wait_before_retry(url: str, delay_s: float, clock: Clock, stop: asynci
 
 
 def set_baudrate(transport: asyncio.BaseTransport, baudrate: int) -> None:
-    """Change the baud rate of an open serial transport (no-op on TCP links)."""
-    port = getattr(transport, "serial", None)
-    if port is not None and getattr(port, "is_open", False):
-        port.baudrate = baudrate
+    """Change the baud rate of an open serial transport (no-op on TCP and memory links)."""
+    if isinstance(transport, serial_asyncio_fast.SerialTransport):
+        port = transport.serial
+        if port is not None and port.is_open:
+            port.baudrate = baudrate

@@ -55,8 +55,7 @@ class LinkFaults:
     def __post_init__(self) -> None:
         if self.chunk_bytes is not None and self.chunk_bytes < 1:
             raise ValueError(f"chunk_bytes must be >= 1, got {self.chunk_bytes!r}")
-        for name in ("garbage_rate", "drop_rate"):
-            value = getattr(self, name)
+        for name, value in (("garbage_rate", self.garbage_rate), ("drop_rate", self.drop_rate)):
             if not 0.0 <= value <= 1.0:
                 raise ValueError(f"{name} must be in [0, 1], got {value!r}")
         if self.delay_s < 0:

@@ -11,8 +11,10 @@ import argparse
 import asyncio
 import importlib
 import inspect
+import signal
 import sys
-from collections.abc import Sequence
+from collections.abc import Coroutine, Sequence
+from typing import Any
 
 from relayd import __version__
 
@@ -23,6 +25,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "sim": ("relayd.commands.sim", "run a convoy of real relayd instances in the simulated world"),
     "sweep": ("relayd.commands.sweep", "Monte Carlo simulator runs over a grid, on a Dask cluster"),
     "status": ("relayd.commands.status", "fetch and pretty-print a robot's /status"),
+    "fleet": ("relayd.commands.fleet", "serve one page for the whole chain of relays, with a hold-all button"),
 }
 PROBES: dict[str, tuple[str, str]] = {
     "robot": ("relayd.probe.robot", "talk to a P3-AT base (read-only: never enables the motors)"),
@@ -38,46 +41,118 @@ FAKES: dict[str, tuple[str, str]] = {
 }
 
 
-def _add_group(sub: argparse._SubParsersAction[argparse.ArgumentParser],
+class CommandParser(argparse.ArgumentParser):
+    """A subcommand's parser that lets its module add the options the first time it parses.
+
+    The module is imported only when its subcommand is on the command line, so
+    `relayd check-config` never pulls in aiohttp, yet `relayd run --help` lists every
+    option of `run` (the options exist before argparse looks at `--help`). A leaf
+    command rejects unknown options itself, so the error shows its own usage, not
+    the top-level one.
+    """
+
+    def __init__(self, *args: Any, module: str | None = None, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.module = module
+        self._configured = module is None
+
+    def configure(self) -> None:
+        if not self._configured:
+            assert self.module is not None
+            self._configured = True
+            importlib.import_module(self.module).configure(self)
+
+    def is_leaf(self) -> bool:
+        return self.module is not None
+
+    def parse_known_args(self, args: Sequence[str] | None = None,  # type: ignore[override]
+                         namespace: argparse.Namespace | None = None) -> tuple[argparse.Namespace, list[str]]:
+        self.configure()
+        ns, extras = super().parse_known_args(args, namespace)
+        if extras and self.is_leaf():
+            self.error(f"unrecognized arguments: {' '.join(extras)}")
+        return ns, extras
+
+
+def _add_group(sub: argparse._SubParsersAction[CommandParser],
                table: dict[str, tuple[str, str]]) -> None:
     for name, (module, help_text) in table.items():
-        p = sub.add_parser(name, help=help_text, description=help_text)
+        p = sub.add_parser(name, help=help_text, description=help_text, module=module)
         p.set_defaults(_module=module)
-        # configure() is looked up lazily in main(): record the parser for it.
-        p.set_defaults(_parser=p)
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="relayd", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"relayd {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
+                                parser_class=CommandParser)
     _add_group(sub, COMMANDS)
     probe = sub.add_parser("probe", help="bring-up tools, one device at a time")
-    _add_group(probe.add_subparsers(dest="device", required=True, metavar="DEVICE"), PROBES)
+    _add_group(probe.add_subparsers(dest="device", required=True, metavar="DEVICE",
+                                    parser_class=CommandParser), PROBES)
     fake = sub.add_parser("fake", help="serve a fake device for trying relayd without hardware")
-    _add_group(fake.add_subparsers(dest="device", required=True, metavar="DEVICE"), FAKES)
+    _add_group(fake.add_subparsers(dest="device", required=True, metavar="DEVICE",
+                                   parser_class=CommandParser), FAKES)
     return parser
+
+
+def command_tree(parser: argparse.ArgumentParser | None = None,
+                 prefix: tuple[str, ...] = ()) -> list[tuple[tuple[str, ...], CommandParser]]:
+    """Every leaf subcommand (`("probe", "wifi")`, ...) with its parser, found by walking the parser."""
+    parser = parser or build_parser()
+    out: list[tuple[tuple[str, ...], CommandParser]] = []
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, child in action.choices.items():
+                if isinstance(child, CommandParser) and child.is_leaf():
+                    out.append(((*prefix, name), child))
+                else:
+                    out.extend(command_tree(child, (*prefix, name)))
+    return out
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    parser = build_parser()
-    # Two passes: find the subcommand, let its module add its own options, parse again.
-    known, _ = parser.parse_known_args(argv)
-    module = importlib.import_module(known._module)
-    module.configure(known._parser)
-    args = parser.parse_args(argv)
-    runner = module.run
+    args = build_parser().parse_args(argv)
+    runner = importlib.import_module(args._module).run
     # Probes and tools print data on stdout: their logs go to stderr. `run` and `sim`
     # configure their own logging from the config.
     from relayd.logsetup import StdStream, setup_logging
 
     setup_logging("info", "console", stream=StdStream("stderr"))
     try:
-        code = asyncio.run(runner(args)) if inspect.iscoroutinefunction(runner) else runner(args)
+        code = asyncio.run(_until_signal(runner(args))) if inspect.iscoroutinefunction(runner) else runner(args)
     except KeyboardInterrupt:
         code = 130
     return int(code or 0)
+
+
+async def _until_signal(command: Coroutine[Any, Any, int | None]) -> int | None:
+    """Run an async command; SIGTERM or SIGINT cancels it so its `finally` cleans up.
+
+    Without this SIGTERM kills a fake outright and leaves its pty symlinks behind.
+    SIGTERM is a normal stop (exit 0), Ctrl-C keeps the shell's 130. `relayd run`
+    installs its own handlers, which replace these.
+    """
+    loop = asyncio.get_running_loop()
+    task = asyncio.ensure_future(command)
+    received: list[signal.Signals] = []
+
+    def _stop(sig: signal.Signals) -> None:
+        received.append(sig)
+        task.cancel()
+
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        loop.add_signal_handler(sig, _stop, sig)
+    try:
+        return await task
+    except asyncio.CancelledError:
+        if not received:
+            raise
+        return 130 if received[0] == signal.SIGINT else 0
+    finally:
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            loop.remove_signal_handler(sig)
 
 
 if __name__ == "__main__":

@@ -1,14 +1,19 @@
-"""relayd's settings: pydantic models for every key of SPEC 4.2, TOML loading, check-config.
+"""relayd's settings: pydantic models for every config key, TOML loading, check-config.
 
-Every key has the default the spec gives; unknown keys are errors (a typo such as
-`kpp = 2` must not silently leave kp at its default on a robot). Secrets never live
+Every key has the paper's default; unknown keys are errors (a typo such as
+`kpp = 2` must not silently leave kp at its default on a robot) and come with a
+"did you mean" suggestion. Types are strict: `enabled = "off"`, `enabled = 1` and
+`kp = "2.5"` are errors, not conversions; an integer is accepted where a float is
+expected (`kp = 2` is natural TOML). Floats must be finite. Cross-key rules (threshold
+order, distances, `rear_link` needing `[ap.rear]`) run in the same pass as the schema,
+so one `check-config` lists every problem. Secrets never live
 in the TOML: a section names an environment variable (`password_env`, `token_env`)
 or a file (`password_file`, `token_file`) and `resolve_secret` reads it at start-up.
 """
 
 from __future__ import annotations
 
-import math
+import ipaddress
 import os
 import tomllib
 from collections.abc import Mapping
@@ -16,18 +21,44 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
+
+from relayd.config_checks import (
+    ap_rules,
+    control_rules,
+    cross_section_rules,
+    message,
+    pantilt_rules,
+    raise_first,
+    undecodable,
+    validation_messages,
+    with_defaults,
+)
 
 DEFAULT_CONFIG_PATH = Path("/etc/relayd/relayd.toml")
 BAUD_RATES = (9600, 19200, 38400, 57600, 115200)
 
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
-Dbm = Annotated[float, Field(ge=-120, le=20, allow_inf_nan=False)]
+#: A received signal level: never above 0 dBm at a receiver (a positive value is a sign error).
+Dbm = Annotated[float, Field(ge=-120, le=0, allow_inf_nan=False)]
+
+
+def _list_to_tuple(v: Any) -> Any:
+    # TOML has arrays, not tuples: strict mode would refuse every `[a, b, c]`.
+    return tuple(v) if isinstance(v, list) else v
 
 
 class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
 
 class RobotSettings(_Section):
@@ -40,11 +71,11 @@ class RobotSettings(_Section):
     lost_after_s: PositiveFloat = 0.5
 
 
-PulseTriple = tuple[
+PulseTriple = Annotated[tuple[
     Annotated[int, Field(ge=400, le=2600)],
     Annotated[int, Field(ge=400, le=2600)],
     Annotated[int, Field(ge=400, le=2600)],
-]
+], BeforeValidator(_list_to_tuple)]
 
 
 def _check_pulses(v: PulseTriple) -> PulseTriple:
@@ -64,7 +95,8 @@ class PanTiltSettings(_Section):
     link_channel: Annotated[int, Field(ge=0, le=31)] = 1
     scan_pulse_us: PulseTriple = (1000, 1500, 2000)
     link_pulse_us: PulseTriple = (1000, 1500, 2000)
-    limits_deg: tuple[Annotated[float, Field(ge=-180, le=180)], Annotated[float, Field(ge=-180, le=180)]] = (-90.0, 90.0)
+    limits_deg: Annotated[tuple[Annotated[float, Field(ge=-180, le=180)], Annotated[float, Field(ge=-180, le=180)]],
+                          BeforeValidator(_list_to_tuple)] = (-90.0, 90.0)
     speed_deg_s: Annotated[float, Field(gt=0, le=2000)] = 180.0
 
     _pulses = field_validator("scan_pulse_us", "link_pulse_us")(_check_pulses)
@@ -78,8 +110,7 @@ class PanTiltSettings(_Section):
 
     @model_validator(mode="after")
     def _distinct_channels(self) -> PanTiltSettings:
-        if self.scan_channel == self.link_channel:
-            raise ValueError("scan_channel and link_channel must differ")
+        raise_first(pantilt_rules(self.model_dump()))
         return self
 
 
@@ -112,8 +143,7 @@ class ApSettings(_Section):
 
     @model_validator(mode="after")
     def _one_secret_source(self) -> ApSettings:
-        if (self.password_env is None) == (self.password_file is None):
-            raise ValueError("set exactly one of password_env or password_file")
+        raise_first(ap_rules("", self.model_dump()))
         return self
 
 
@@ -139,7 +169,7 @@ class ControlSettings(_Section):
     kp: NonNegFloat = 1.0
     kd: NonNegFloat = 0.3
     w1: NonNegFloat = 10.0
-    w2: float = 150.0
+    w2: Annotated[float, Field(allow_inf_nan=False)] = 150.0
     v_max_mm_s: Annotated[float, Field(gt=0, le=1500)] = 400.0
     threshold_o_m: PositiveFloat = 0.8
     stop_distance_m: NonNegFloat = 0.3
@@ -153,20 +183,14 @@ class ControlSettings(_Section):
     rear_stale_polls: Annotated[int, Field(ge=1, le=100)] = 3
 
     @model_validator(mode="after")
-    def _ordered_distances(self) -> ControlSettings:
-        if not self.stop_distance_m < self.threshold_o_m < self.detect_range_m:
-            raise ValueError("need stop_distance_m < threshold_o_m < detect_range_m")
-        return self
-
-    @model_validator(mode="after")
-    def _w2_finite(self) -> ControlSettings:
-        if not math.isfinite(self.w2):
-            raise ValueError("w2 must be finite")
+    def _cross_key_rules(self) -> ControlSettings:
+        raise_first(control_rules(self.model_dump()))
         return self
 
 
 class ApiSettings(_Section):
     enabled: bool = True
+    #: an IP address (IPv4 or IPv6), not a host name: resolving a name at boot can fail or change
     bind: str = "0.0.0.0"
     port: Annotated[int, Field(ge=0, le=65535)] = 8080
     token_env: str | None = "RELAYD_API_TOKEN"
@@ -181,6 +205,15 @@ class ApiSettings(_Section):
                 raise ValueError("set at most one of token_env or token_file")
             data = {**data, "token_env": None}
         return data
+
+    @field_validator("bind")
+    @classmethod
+    def _ip_address(cls, v: str) -> str:
+        try:
+            ipaddress.ip_address(v)
+        except ValueError:
+            raise ValueError(f"{v!r} is not an IP address (e.g. 0.0.0.0, 127.0.0.1 or ::)") from None
+        return v
 
 
 class LogSettings(_Section):
@@ -207,35 +240,74 @@ class ConfigError(Exception):
         self.errors = errors
 
 
-def _loc(loc: tuple[int | str, ...]) -> str:
-    # pydantic puts union/type tags into loc ("function-after[...]"); keep only real keys.
-    parts = [str(p) for p in loc if not (isinstance(p, str) and ("[" in p or p.startswith("function-")))]
-    return ".".join(parts) or "(top level)"
-
-
-def validation_messages(exc: ValidationError) -> list[str]:
-    return [f"{_loc(e['loc'])}: {e['msg']}" for e in exc.errors()]
+def semantic_problems(data: Mapping[str, Any]) -> list[str]:
+    """The cross-key rules on a raw config document, whatever else is wrong with it."""
+    control = with_defaults(ControlSettings, data.get("control"))
+    problems = [*control_rules(control),
+                *pantilt_rules(with_defaults(PanTiltSettings, data.get("pantilt"))),
+                *cross_section_rules(data, control)]
+    ap = data.get("ap")
+    for side in ("rear", "front"):
+        section = ap.get(side) if isinstance(ap, Mapping) else None
+        if isinstance(section, Mapping):
+            problems += ap_rules(side, section)
+    return [message(p) for p in problems]
 
 
 def parse_settings(data: Mapping[str, Any]) -> Settings:
+    """Validate a config document: every schema error and every cross-key rule, in one pass."""
+    semantic = semantic_problems(data)
     try:
-        return Settings.model_validate(data)
+        settings = Settings.model_validate(data)
+        schema: list[str] = []
     except ValidationError as exc:
-        raise ConfigError(validation_messages(exc)) from None
+        schema = validation_messages(exc, Settings)
+    # A model's own validator may have raised the same rule: report it once.
+    texts = {m.split(": ", 1)[1] for m in semantic}
+    errors = [m for m in schema if m.split(": ", 1)[-1] not in texts] + semantic
+    if errors:
+        raise ConfigError(errors)
+    return settings
 
 
 def load_settings(path: str | os.PathLike[str]) -> Settings:
     """Read and validate a TOML config, or raise ConfigError naming every bad key."""
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        raw = p.read_bytes()
     except OSError as exc:
         raise ConfigError([f"{p}: cannot read: {exc.strerror or exc}"]) from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError([undecodable(raw, exc)]) from None
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError([f"{p}: not valid TOML: {exc}"]) from None
     return parse_settings(data)
+
+
+def config_warnings(settings: Settings) -> list[str]:
+    """Usable but suspicious settings: check-config prints them, `relayd run` logs them."""
+    out = []
+    for key, section in (("robot.port", settings.robot), ("pantilt.port", settings.pantilt)):
+        if section.enabled and "XXXX" in section.port:
+            out.append(f"{key}: {section.port!r} looks like a placeholder (XXXX): use your adapter's "
+                       "serial, or the udev name (/dev/relay/base, /dev/relay/servo)")
+    return out
+
+
+def secret_file_errors(settings: Settings) -> list[str]:
+    """Secret files that cannot be read now (check-config: `relayd run` would refuse to start)."""
+    errors = []
+    for ref in secret_refs(settings).values():
+        if ref.file is not None:
+            try:
+                resolve_secret(ref, {})
+            except ConfigError as exc:
+                errors.extend(exc.errors)
+    return errors
 
 
 @dataclass(frozen=True, slots=True)

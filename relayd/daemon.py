@@ -33,7 +33,8 @@ from drivers.pantilt import PanTilt
 from drivers.wifi import RssiSource
 from relayd.brain import Brain
 from relayd.bus import Bus
-from relayd.config import ApiSettings, Settings, resolve_secret, secret_refs
+from relayd.config import ApiSettings, ConfigError, Settings, resolve_secret, secret_refs
+from relayd.config_checks import api_bind_error
 from relayd.control import ControlShell
 from relayd.events import Action, Event, LinkEvent, LinkSide, ScanPlan, ServoTarget, WheelCommand
 from relayd.health import device_health
@@ -233,16 +234,21 @@ class Daemon:
     # -- lifecycle ----------------------------------------------------------------------
 
     async def start(self) -> None:
-        self.supervisor.start()
         s = self.settings
         if s.api.enabled:
             from relayd.api import make_app, start_api
 
             app = make_app(self.state, self.control, clock=self.clock, token=self._token,
                            metrics=self.metrics, healthz_max_age_s=max(1.0, 5 * 0.1))
-            self._runner, self.api_port = await start_api(app, s.api.bind, s.api.port)
+            # Bound before any device is touched: a wrong bind or a taken port is a
+            # config error (exit 2 naming the key), not a robot that is already enabled.
+            try:
+                self._runner, self.api_port = await start_api(app, s.api.bind, s.api.port)
+            except OSError as exc:
+                raise ConfigError([api_bind_error(s.api.bind, s.api.port, exc)]) from None
             log.info("api_control", enabled=self._token is not None,
                      note=None if self._token else "no token configured: POST endpoints answer 403")
+        self.supervisor.start()
         if self.notifier is not None:
             self.notifier.ready()
             self.notifier.status("running; devices connecting")

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import sys
+from collections.abc import Sequence
 from typing import Any
 
 import structlog
@@ -46,16 +47,20 @@ class StdStream:
         return bool(getattr(self._stream, "isatty", lambda: False)())
 
 
-def setup_logging(level: str = "info", fmt: str = "console", stream: Any = None) -> None:
+def setup_logging(level: str = "info", fmt: str = "console", stream: Any = None, *,
+                  journal: bool = True, extra: Sequence[Any] = ()) -> None:
     """Configure structlog and route stdlib loggers (aiohttp, asyncio) through it.
 
     Logs go to stdout by default (journald reads it); pass `StdStream("stderr")` for
-    commands whose stdout is data.
+    commands whose stdout is data. `journal=False` drops the `<N>` priority prefix of
+    JSON lines, for files read by tools rather than journald (sim.log). `extra`
+    processors add fields to every line, structlog's and the stdlib's alike.
     """
     stream = stream or StdStream("stdout")
     numeric = getattr(logging, level.upper())
     shared: list[Any] = [
         structlog.contextvars.merge_contextvars,
+        *extra,
         structlog.processors.add_log_level,
         structlog.processors.TimeStamper(fmt="iso", utc=True),
     ]
@@ -63,7 +68,7 @@ def setup_logging(level: str = "info", fmt: str = "console", stream: Any = None)
         renderer: list[Any] = [
             structlog.processors.dict_tracebacks,
             structlog.processors.JSONRenderer(),
-            _journal_priority,
+            *([_journal_priority] if journal else []),
         ]
     else:
         renderer = [structlog.dev.ConsoleRenderer(colors=stream.isatty())]
@@ -78,7 +83,7 @@ def setup_logging(level: str = "info", fmt: str = "console", stream: Any = None)
         structlog.stdlib.ProcessorFormatter(
             foreign_pre_chain=shared,
             processors=[structlog.stdlib.ProcessorFormatter.remove_processors_meta,
-                        *(renderer[:-1] if fmt == "json" else renderer)],
+                        *(p for p in renderer if p is not _journal_priority)],
         )
     )
     root = logging.getLogger()

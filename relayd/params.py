@@ -35,10 +35,11 @@ SCAN_STALE_MIN_S = 2.0
 def _from_sections(cls: type[P], *sections: BaseModel, **derived: Any) -> P:
     """An instance of the dataclass `cls` whose fields come from the sections, by name."""
     values: dict[str, Any] = {}
+    dumped = [section.model_dump() for section in sections]
     for f in dataclasses.fields(cls):  # type: ignore[arg-type]
-        for section in sections:
-            if f.name in type(section).model_fields:
-                values[f.name] = getattr(section, f.name)
+        for doc in dumped:
+            if f.name in doc:
+                values[f.name] = doc[f.name]
                 break
     values.update(derived)
     return cls(**values)

@@ -1,7 +1,14 @@
-"""Shared test helpers: waiting for a condition, and a daemon running on the fakes.
+"""Shared test helpers: waiting for a condition, virtual time, one manual clock.
 
 Tests poll for conditions instead of sleeping: the machines that run CI are shared
 and slow, so every wait has a generous timeout and fails with what it waited for.
+
+Tests marked `virtual_time` run on relayd.vtime's `VirtualTimeLoop` (tests/conftest.py
+picks the loop): when nothing is ready to run the loop's time jumps to its next timer
+instead of waiting for it, so a 4 s watchdog or a 60 s backoff take no wall time and a
+loaded machine cannot make a timer late. Such a test talks to its fakes over
+`memory://` links (no file descriptor); its drivers read time from a `LoopClock`.
+`ManualClock` is the one clock a test sets by hand (pure logic that reads `now()`).
 """
 
 from __future__ import annotations
@@ -15,6 +22,35 @@ from typing import NoReturn, Protocol
 
 import pytest
 
+from drivers.clock import Clock
+from relayd.vtime import LoopClock, VirtualTimeLoop
+
+__all__ = ["LoopClock", "ManualClock", "VirtualTimeLoop", "clock_for", "running", "until"]
+
+
+class ManualClock(Clock):
+    """A clock that moves only when the test sets or advances `t`; sleeps stay real."""
+
+    def __init__(self, t: float = 100.0) -> None:
+        super().__init__()
+        self.t = t
+
+    def now(self) -> float:
+        return self.t
+
+    def advance(self, seconds: float) -> float:
+        self.t += seconds
+        return self.t
+
+
+def is_virtual(request: pytest.FixtureRequest) -> bool:
+    return request.node.get_closest_marker("virtual_time") is not None
+
+
+def clock_for(request: pytest.FixtureRequest, speed: float) -> Clock:
+    """The driver clock for a test: loop time if it runs virtual, else `speed` x wall time."""
+    return LoopClock() if is_virtual(request) else Clock(speed)
+
 
 class Runs(Protocol):
     """A daemon or driver whose `run()` goes on until cancelled."""
@@ -26,7 +62,8 @@ async def until(pred: Callable[[], object], what: str = "the condition", timeout
                 poll_s: float = 0.005) -> float:
     """Poll `pred` until it is truthy; return the monotonic time it became so.
 
-    Raises AssertionError naming `what` after `timeout_s` of wall time.
+    Raises AssertionError naming `what` after `timeout_s` of loop time (wall time, or
+    virtual time in a `virtual_time` test).
     """
     try:
         async with asyncio.timeout(timeout_s):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import itertools
 import json
 import os
 import signal
@@ -139,3 +140,25 @@ def test_fake_ap_bad_fixture(tmp_path, capsys) -> None:
     assert "wireless" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["fake", "ap", "--version", "7"])
+
+
+def test_probe_ap_series_for_seconds_at_an_interval(monkeypatch, capsys) -> None:
+    monkeypatch.setenv("RELAYD_AP_PASSWORD", SECRET)
+    with fake_in_thread("admin", SECRET) as fake:
+        code = main(["probe", "ap", "--url", fake.base_url or "", "--username", "admin", "--json",
+                     "--seconds", "1.0", "--interval", "0.25"])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    docs = [json.loads(line) for line in out.splitlines()]
+    # Readings at t = 0, 0.25, 0.5, 0.75, 1.0 (a slow machine may drop the last one).
+    assert 4 <= len(docs) <= 5
+    ts = [d["t"] for d in docs]
+    assert ts[0] < 0.2 and all(b > a for a, b in itertools.pairwise(ts)) and ts[-1] <= 1.3
+    assert all(d["signal_dbm"] == -46 for d in docs)
+    assert f"# {len(docs)} reading(s) in 1 s, median signal -46 dBm" in err
+
+
+def test_probe_ap_rejects_bad_series_options(monkeypatch, capsys) -> None:
+    monkeypatch.setenv("RELAYD_AP_PASSWORD", SECRET)
+    assert main(["probe", "ap", "--url", "http://127.0.0.1:9", "--seconds", "5", "--interval", "0"]) == 2
+    assert "--interval" in capsys.readouterr().err

@@ -12,7 +12,7 @@ import aiohttp
 import pytest
 from pydantic import SecretStr
 from structlog.testing import capture_logs
-from support import until
+from support import LoopClock, until
 
 from drivers.airos import (
     AirOsAuthError,
@@ -26,6 +26,8 @@ from drivers.airos import (
     legacy_tls_context,
 )
 from drivers.clock import Clock
+
+pytestmark = pytest.mark.virtual_time
 
 FIXTURES = Path(__file__).parent / "fixtures" / "airos"
 LOCO_AP = FIXTURES / "status_cgi_NanoStation_loco_M5_XM_v6.3.16_ap.json"
@@ -307,7 +309,7 @@ async def _stop(task: asyncio.Task) -> None:
 
 
 async def test_poller_polls_at_the_clock_rate_and_logs_out_on_cancel() -> None:
-    clock = Clock(speed=20)
+    clock = LoopClock()
     updates: list[LinkQuality] = []
     async with FakeAirOs("ubnt", SECRET, clock=clock) as fake:
         poller = _poller(fake, clock, on_update=updates.append)
@@ -328,7 +330,7 @@ async def test_poller_polls_at_the_clock_rate_and_logs_out_on_cancel() -> None:
 
 
 async def test_poller_relogs_in_after_session_expiry() -> None:
-    clock = Clock(speed=20)
+    clock = LoopClock()
     async with FakeAirOs("ubnt", SECRET, clock=clock) as fake:
         poller = _poller(fake, clock)
         task = asyncio.create_task(poller.run())
@@ -343,7 +345,7 @@ async def test_poller_relogs_in_after_session_expiry() -> None:
 
 
 async def test_poller_counts_timeouts_then_recovers() -> None:
-    clock = Clock(speed=20)
+    clock = LoopClock()
     async with FakeAirOs("ubnt", SECRET, clock=clock) as fake:
         poller = _poller(fake, clock, timeout_s=2.0)
         task = asyncio.create_task(poller.run())
@@ -359,7 +361,7 @@ async def test_poller_counts_timeouts_then_recovers() -> None:
 
 
 async def test_poller_counts_malformed_json_then_recovers() -> None:
-    clock = Clock(speed=20)
+    clock = LoopClock()
     async with FakeAirOs("ubnt", SECRET, clock=clock) as fake:
         poller = _poller(fake, clock)
         task = asyncio.create_task(poller.run())
@@ -375,25 +377,51 @@ async def test_poller_counts_malformed_json_then_recovers() -> None:
         await _stop(task)
 
 
-async def test_poller_wrong_password_does_not_hammer_the_radio() -> None:
-    clock = Clock(speed=200)
-    async with FakeAirOs("ubnt", "the-real-one", clock=clock) as fake:
-        poller = _poller(fake, clock, timeout_s=20.0, auth_retry_s=60.0)
+async def test_poller_wrong_password_retries_on_the_capped_backoff_and_logs_once_a_minute() -> None:
+    clock = LoopClock()
+    with capture_logs() as logs:
+        async with FakeAirOs("ubnt", "the-real-one", clock=clock) as fake:
+            poller = _poller(fake, clock, timeout_s=20.0)
+            task = asyncio.create_task(poller.run())
+            await until(lambda: poller.state == "auth_failed")
+            t0 = clock.now()
+            assert "login refused" in (poller.last_error or "")
+            await clock.sleep(130.0 - (clock.now() - t0))
+            tries = fake.counters["failed_logins"]
+            # Backoff 1, 2, 4, then every 5 s (the cap, max(5 s, 4 polls)): no retry storm,
+            # and no 60 s wait either.
+            assert 20 <= tries <= 30, tries
+            assert poller.state == "auth_failed" and poller.counters["polls"] == 0
+            assert poller.counters["auth_failures"] == tries and fake.counters["status"] == 0
+            await _stop(task)
+    loud = [e for e in logs if e["event"] == "airos_auth_failed" and e["log_level"] != "debug"]
+    # The first refusal, then a reminder once a minute (at ~60 and ~120 s).
+    assert 2 <= len(loud) <= 3, [(e["log_level"], e["attempt"]) for e in loud]
+
+
+async def test_poller_picks_up_a_fixed_password_within_the_backoff_cap() -> None:
+    """The radio's password was changed, then changed back while polling (issue: a refused
+    login once held the robot for up to 60 s)."""
+    clock = LoopClock()
+    async with FakeAirOs("ubnt", SECRET, clock=clock) as fake:
+        poller = _poller(fake, clock)
         task = asyncio.create_task(poller.run())
+        await until(lambda: poller.state == "ok")
+        fake.set_password("changed-on-the-radio")
+        fake.expire_sessions()
         await until(lambda: poller.state == "auth_failed")
-        t_fail = clock.now()
-        assert "next try in 60 s" in (poller.last_error or "")
-        await asyncio.sleep(clock.to_real(30.0))
-        assert fake.counters["failed_logins"] == 1  # no retry storm
-        await until(lambda: fake.counters["failed_logins"] == 2)
-        assert clock.now() - t_fail >= 59.0
-        assert poller.state == "auth_failed" and poller.counters["polls"] == 0
-        assert poller.counters["auth_failures"] == 2 and fake.counters["status"] == 0
+        await until(lambda: fake.counters["failed_logins"] >= 4, "four refused logins")
+        fake.set_password(SECRET)
+        t_fixed = clock.now()
+        await until(lambda: poller.state == "ok", timeout_s=10)
+        # At most one backoff cap (max(5 s, 4 polls) = 5 s), plus a request's time.
+        assert clock.now() - t_fixed <= 6.0, clock.now() - t_fixed
+        assert poller.last_error is None
         await _stop(task)
 
 
 async def test_poller_backs_off_while_down_then_recovers() -> None:
-    clock = Clock(speed=20)
+    clock = LoopClock()
     async with FakeAirOs("ubnt", SECRET, clock=clock) as fake:
         poller = _poller(fake, clock)
         task = asyncio.create_task(poller.run())
@@ -414,7 +442,7 @@ async def test_poller_backs_off_while_down_then_recovers() -> None:
 async def test_poller_notices_a_radio_back_within_seconds_after_a_long_outage() -> None:
     # The relay may be held still while RSSI^b is unknown: after minutes of outage the
     # backoff must still be short enough to see the radio back within a few seconds.
-    clock = Clock(speed=50)
+    clock = LoopClock()
     async with FakeAirOs("ubnt", SECRET, clock=clock) as fake:
         poller = _poller(fake, clock)
         task = asyncio.create_task(poller.run())
@@ -430,7 +458,7 @@ async def test_poller_notices_a_radio_back_within_seconds_after_a_long_outage() 
 
 
 async def test_poller_survives_a_failing_callback(fake6: FakeAirOs) -> None:
-    clock = Clock(speed=20)
+    clock = LoopClock()
 
     def boom(q: LinkQuality) -> None:
         raise RuntimeError("consumer bug")
@@ -443,10 +471,10 @@ async def test_poller_survives_a_failing_callback(fake6: FakeAirOs) -> None:
 
 
 async def test_password_never_appears_anywhere() -> None:
-    clock = Clock(speed=50)
+    clock = LoopClock()
     with capture_logs() as logs:
         async with FakeAirOs("ubnt", "another-secret", clock=clock) as wrong:
-            bad = _poller(wrong, clock, auth_retry_s=1.0)
+            bad = _poller(wrong, clock)
             task = asyncio.create_task(bad.run())
             await until(lambda: bad.counters["auth_failures"] >= 2)
             texts = [repr(bad), repr(bad.client), str(bad.last_error), str(vars(bad.client))]
@@ -472,7 +500,7 @@ async def test_password_never_appears_anywhere() -> None:
 
 
 async def test_poller_backs_off_when_a_fresh_session_is_refused_at_once() -> None:
-    clock = Clock(speed=20)
+    clock = LoopClock()
     async with FakeAirOs("ubnt", SECRET, clock=clock) as fake:
         # A radio that accepts the login but then sends every status request back to the
         # login page (e.g. a firmware that wants another header): no tight login loop.

@@ -12,8 +12,8 @@ import pytest
 from aiohttp import ClientSession, web
 from aiohttp.test_utils import TestClient, TestServer
 from prometheus_client.parser import text_string_to_metric_families
+from support import ManualClock
 
-from drivers.clock import Clock
 from relayd.api import make_app, start_api
 from relayd.api.demo import populate
 from relayd.metrics import Metrics
@@ -21,17 +21,6 @@ from relayd.state import DeviceHealth, DriveState, Mode, ModeError, RelayState
 
 TOKEN = "s3cr3t-token-do-not-leak"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
-
-
-class ManualClock(Clock):
-    """A clock whose now() the test sets; sleeps and timeouts stay real (speed 1)."""
-
-    def __init__(self, t: float = 1000.0) -> None:
-        super().__init__()
-        self.t = t
-
-    def now(self) -> float:
-        return self.t
 
 
 class FakeControls:
@@ -54,7 +43,7 @@ class FakeControls:
 
 @pytest.fixture
 def clock() -> ManualClock:
-    return ManualClock()
+    return ManualClock(1000.0)
 
 
 @pytest.fixture

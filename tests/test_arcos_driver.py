@@ -1,12 +1,17 @@
-"""ArcosRobot against FakeRobot over real ptys and loopback TCP, on a 10x clock."""
+"""ArcosRobot against FakeRobot.
+
+Unit tests run on in-memory links in virtual time (`virtual_time`: timers fire without
+waiting); a few integration tests keep real ptys and loopback TCP on a 10x clock.
+"""
 
 from __future__ import annotations
 
 import asyncio
 import math
+from pathlib import Path
 
 import pytest
-from support import running, until
+from support import clock_for, running, until
 
 from drivers.arcos import ArcosRobot, FakeRobot, HandshakeError
 from drivers.arcos.codec import CLOSE, Command, encode_command, encode_packet, vel2_arg
@@ -14,13 +19,18 @@ from drivers.arcos.sip import Sip
 from drivers.backoff import Backoff
 from drivers.clock import Clock
 from drivers.link import LinkError, open_link
+from drivers.memlink import LinkFaults
 
 SPEED = 10.0
+VT = pytest.mark.virtual_time
+#: Real byte pipes; each test over them has an in-memory twin in virtual time. (The loop
+#: is chosen per test function, so the twin is a function of its own, not a parameter.)
+KINDS = ["pty", "tcp"]
 
 
 @pytest.fixture
-def clock() -> Clock:
-    return Clock(SPEED)
+def clock(request: pytest.FixtureRequest) -> Clock:
+    return clock_for(request, SPEED)
 
 
 async def serve(fake: FakeRobot, kind: str) -> str:
@@ -29,8 +39,17 @@ async def serve(fake: FakeRobot, kind: str) -> str:
     return fake.serve_pty() if kind == "pty" else await fake.serve_tcp()
 
 
-@pytest.mark.parametrize("kind", ["pty", "tcp", "memory"])
+@pytest.mark.parametrize("kind", KINDS)
 async def test_handshake_identity_sonar_and_pose(kind: str, clock: Clock) -> None:
+    await _handshake_identity_sonar_and_pose(kind, clock)
+
+
+@VT
+async def test_handshake_identity_sonar_and_pose_in_memory(clock: Clock) -> None:
+    await _handshake_identity_sonar_and_pose("memory", clock)
+
+
+async def _handshake_identity_sonar_and_pose(kind: str, clock: Clock) -> None:
     ranges = [1000 + 100 * i for i in range(16)]
     ranges[5] = None  # type: ignore[call-overload]
     fake = FakeRobot("relay7", subclass="p3at-sh", clock=clock, pose=(1000, 2000, 90),
@@ -57,7 +76,7 @@ async def test_handshake_identity_sonar_and_pose(kind: str, clock: Clock) -> Non
             # is the fake's 2 s watchdog, which zeroes the target until the next refresh.
             await until(lambda: fake.target_vel_mm_s == 150 and fake.target_rvel_deg_s == 10,
                         "VEL 150 and RVEL 10 at the fake")
-            await asyncio.sleep(4.0 / SPEED)
+            await asyncio.sleep(clock.to_real(4.0))
             sip = robot.last_sip
             assert sip is not None and sip.moving and sip.motors_enabled
             # odometry started at 0 at OPEN; the world pose started at (1000, 2000, 90)
@@ -77,14 +96,15 @@ async def test_handshake_identity_sonar_and_pose(kind: str, clock: Clock) -> Non
     assert robot.counters["checksum_errors"] == 0
 
 
+@VT
 async def test_motors_not_enabled_unless_asked(clock: Clock) -> None:
     fake = FakeRobot(clock=clock)
-    robot = ArcosRobot(fake.serve_pty(), clock=clock)
+    robot = ArcosRobot(fake.serve_memory("robot"), clock=clock)
     try:
         async with running(robot):
             await until(lambda: robot.connected and robot.last_sip is not None)
             robot.set_wheels(200, 200)
-            await asyncio.sleep(1.0 / SPEED)
+            await asyncio.sleep(clock.to_real(1.0))
             assert (Command.ENABLE, 1) not in fake.commands
             assert not fake.motors_enabled and fake.vel_mm_s == 0  # VEL dropped while disabled
             robot.enable_motors(True)
@@ -95,35 +115,43 @@ async def test_motors_not_enabled_unless_asked(clock: Clock) -> None:
         await fake.stop()
 
 
+@VT
 async def test_driver_keeps_the_watchdog_fed(clock: Clock) -> None:
     fake = FakeRobot(clock=clock, trans_accel_mm_s2=1000)
-    robot = ArcosRobot(fake.serve_pty(), clock=clock, enable_motors=True)
+    robot = ArcosRobot(fake.serve_memory("robot"), clock=clock, enable_motors=True)
     try:
         async with running(robot):
             await until(lambda: robot.connected)
             robot.set_wheels(300, 300)  # once; nothing else calls set_wheels
-            await asyncio.sleep(3.5 / SPEED)
+            await asyncio.sleep(clock.to_real(3.5))
             assert fake.vel_mm_s == 300 and not fake._watchdog_tripped
             vels = [a for c, a in fake.commands if c == Command.VEL]
             assert vels.count(300) >= 5  # re-sent at least every 500 ms
             robot.set_wheels(0, 0)
-            await asyncio.sleep(1.5 / SPEED)
+            await asyncio.sleep(clock.to_real(1.5))
             pulses = len([c for c, _ in fake.commands if c == 0])
             assert pulses >= 1  # idle: PULSE keeps the session alive
     finally:
         await fake.stop()
 
 
+@VT
 async def test_fake_watchdog_stops_an_unattended_robot(clock: Clock) -> None:
     """The fake itself: a raw client that goes quiet gets its robot stopped after 2 s."""
     fake = FakeRobot(clock=clock, trans_accel_mm_s2=3000)
-    path = fake.serve_pty()
+    path = fake.serve_memory("robot")
 
     class Sink(asyncio.Protocol):
+        def __init__(self) -> None:
+            self.lost = asyncio.Event()
+
         def data_received(self, data: bytes) -> None:
             pass
 
-    transport, _ = await open_link(path, 9600, Sink)
+        def connection_lost(self, exc: Exception | None) -> None:
+            self.lost.set()
+
+    transport, sink = await open_link(path, 9600, Sink)
     try:
         for cmd in (0, 1, 2):
             transport.write(encode_command(cmd))
@@ -132,17 +160,27 @@ async def test_fake_watchdog_stops_an_unattended_robot(clock: Clock) -> None:
             transport.write(encode_command(cmd, arg))
             await asyncio.sleep(0.01)
         await until(lambda: fake.vel_mm_s == 200)
-        await asyncio.sleep(1.5 / SPEED)
+        await asyncio.sleep(clock.to_real(1.5))
         assert fake.vel_mm_s == 200
-        await until(lambda: fake.vel_mm_s == 0, timeout_s=2.0 / SPEED + 1)
+        await until(lambda: fake.vel_mm_s == 0, timeout_s=clock.to_real(2.0) + 1)
         assert fake._watchdog_tripped
     finally:
         transport.close()
+        await sink.lost.wait()
         await fake.stop()
 
 
-@pytest.mark.parametrize("kind", ["pty", "tcp", "memory"])
-async def test_reconnect_after_hang_up(kind: str, clock: Clock, tmp_path) -> None:
+@pytest.mark.parametrize("kind", KINDS)
+async def test_reconnect_after_hang_up(kind: str, clock: Clock, tmp_path: Path) -> None:
+    await _reconnect_after_hang_up(kind, clock, tmp_path)
+
+
+@VT
+async def test_reconnect_after_hang_up_in_memory(clock: Clock, tmp_path: Path) -> None:
+    await _reconnect_after_hang_up("memory", clock, tmp_path)
+
+
+async def _reconnect_after_hang_up(kind: str, clock: Clock, tmp_path: Path) -> None:
     fake = FakeRobot(clock=clock)
     url = fake.serve_pty(str(tmp_path / "robot")) if kind == "pty" else await serve(fake, kind)
     robot = ArcosRobot(url, clock=clock, enable_motors=True,
@@ -154,7 +192,7 @@ async def test_reconnect_after_hang_up(kind: str, clock: Clock, tmp_path) -> Non
             fake.hang_up()
             await until(lambda: not robot.connected)
             assert robot.stale and robot.last_error is not None
-            await asyncio.sleep(1.0 / SPEED)
+            await asyncio.sleep(clock.to_real(1.0))
             assert not robot.connected  # nothing to connect to while hung up
             fake.reappear()
             await until(lambda: robot.connected and not robot.stale, timeout_s=5)
@@ -167,11 +205,12 @@ async def test_reconnect_after_hang_up(kind: str, clock: Clock, tmp_path) -> Non
         assert robot.counters["old_sessions"] >= 1
 
 
+@VT
 async def test_old_session_is_closed_then_reopened(clock: Clock) -> None:
     fake = FakeRobot(clock=clock, old_session=True)
-    robot = ArcosRobot(fake.serve_pty(), clock=clock)
+    robot = ArcosRobot(fake.serve_memory("robot"), clock=clock)
     try:
-        await asyncio.sleep(0.3 / SPEED)
+        await asyncio.sleep(clock.to_real(0.3))
         assert fake.sips_sent > 0  # streaming before anyone connects
         async with running(robot):
             await until(lambda: robot.connected and robot.last_sip is not None)
@@ -183,12 +222,13 @@ async def test_old_session_is_closed_then_reopened(clock: Clock) -> None:
         await fake.stop()
 
 
+@VT
 @pytest.mark.parametrize(("subclass", "override", "factor"),
                          [("p3at", None, 1.0), ("p3at-sh", None, 1.0), ("p3at-sh", "p3at", 0.465)])
 async def test_odometry_scale_per_subclass(subclass: str, override: str | None, factor: float,
                                            clock: Clock) -> None:
     fake = FakeRobot(clock=clock, subclass=subclass, trans_accel_mm_s2=2000)
-    robot = ArcosRobot(fake.serve_pty(), clock=clock, enable_motors=True, subclass_override=override)
+    robot = ArcosRobot(fake.serve_memory("robot"), clock=clock, enable_motors=True, subclass_override=override)
     try:
         async with running(robot):
             await until(lambda: robot.connected and robot.last_sip is not None)
@@ -196,7 +236,7 @@ async def test_odometry_scale_per_subclass(subclass: str, override: str | None, 
             await until(lambda: fake.odometry_mm_deg[0] > 1000, timeout_s=5)
             robot.stop()
             await until(lambda: robot.last_sip is not None and not robot.last_sip.moving)
-            await asyncio.sleep(0.3 / SPEED)
+            await asyncio.sleep(clock.to_real(0.3))
             assert robot.last_sip is not None
             # the robot reports odometry / DistConvFactor(true subclass); the driver multiplies
             # by the factor of the subclass it believes: right unless overridden wrongly
@@ -205,9 +245,10 @@ async def test_odometry_scale_per_subclass(subclass: str, override: str | None, 
         await fake.stop()
 
 
+@VT
 async def test_stale_after_silence_then_session_dropped_and_recovered(clock: Clock) -> None:
     fake = FakeRobot(clock=clock)
-    robot = ArcosRobot(fake.serve_pty(), clock=clock, lost_after_s=0.5, drop_after_s=1.5,
+    robot = ArcosRobot(fake.serve_memory("robot"), clock=clock, lost_after_s=0.5, drop_after_s=1.5,
                        backoff=Backoff(initial_s=0.1, maximum_s=0.3, jitter=0), sync_timeout_s=0.3)
     try:
         async with running(robot):
@@ -225,9 +266,10 @@ async def test_stale_after_silence_then_session_dropped_and_recovered(clock: Clo
         await fake.stop()
 
 
+@VT
 async def test_controller_reset_packet_ends_session(clock: Clock) -> None:
     fake = FakeRobot(clock=clock)
-    robot = ArcosRobot(fake.serve_pty(), clock=clock,
+    robot = ArcosRobot(fake.serve_memory("robot"), clock=clock,
                        backoff=Backoff(initial_s=0.1, maximum_s=0.3, jitter=0))
     try:
         async with running(robot):
@@ -239,17 +281,18 @@ async def test_controller_reset_packet_ends_session(clock: Clock) -> None:
         await fake.stop()
 
 
+@VT
 async def test_adversarial_stream_split_garbage_corruption(clock: Clock) -> None:
     fake = FakeRobot(clock=clock, seed=7, sonars_per_sip=16)
     fake.split_writes = True
     fake.garbage = True
-    robot = ArcosRobot(fake.serve_pty(), clock=clock)
+    robot = ArcosRobot(fake.serve_memory("robot"), clock=clock)
     try:
         async with running(robot):
             await until(lambda: robot.connected and robot.last_sip is not None, timeout_s=5)
             fake.corrupt_rate = 0.3
             n0 = robot.counters["sips"]
-            await asyncio.sleep(3.0 / SPEED)
+            await asyncio.sleep(clock.to_real(3.0))
             got = robot.counters["sips"] - n0
             assert 10 <= got <= 30
             assert robot.counters["checksum_errors"] >= 1
@@ -259,9 +302,10 @@ async def test_adversarial_stream_split_garbage_corruption(clock: Clock) -> None
         await fake.stop()
 
 
+@VT
 async def test_safe_stop_on_cancel(clock: Clock) -> None:
     fake = FakeRobot(clock=clock)
-    robot = ArcosRobot(fake.serve_pty(), clock=clock, enable_motors=True)
+    robot = ArcosRobot(fake.serve_memory("robot"), clock=clock, enable_motors=True)
     try:
         async with running(robot):
             await until(lambda: robot.connected)
@@ -295,9 +339,10 @@ async def test_shutdown_is_idempotent_and_ends_run(clock: Clock) -> None:
         await fake.stop()
 
 
+@VT
 async def test_stop_jumps_the_queue(clock: Clock) -> None:
     fake = FakeRobot(clock=clock, trans_accel_mm_s2=5000)
-    robot = ArcosRobot(fake.serve_pty(), clock=clock, enable_motors=True)
+    robot = ArcosRobot(fake.serve_memory("robot"), clock=clock, enable_motors=True)
     try:
         async with running(robot):
             await until(lambda: robot.connected)
@@ -311,9 +356,10 @@ async def test_stop_jumps_the_queue(clock: Clock) -> None:
         await fake.stop()
 
 
+@VT
 async def test_listener_errors_do_not_stop_the_driver(clock: Clock) -> None:
     fake = FakeRobot(clock=clock)
-    robot = ArcosRobot(fake.serve_pty(), clock=clock)
+    robot = ArcosRobot(fake.serve_memory("robot"), clock=clock)
 
     def broken(sip: Sip) -> None:
         raise RuntimeError("listener bug")
@@ -351,10 +397,11 @@ async def test_missing_port_names_the_port(tmp_path) -> None:
         await robot.connect()
 
 
+@VT
 async def test_motion_guard_rejection_sets_stall_bits(clock: Clock) -> None:
     fake = FakeRobot(clock=clock, trans_accel_mm_s2=2000,
                      motion_guard=lambda old, new: new[0] < 300)
-    robot = ArcosRobot(fake.serve_pty(), clock=clock, enable_motors=True)
+    robot = ArcosRobot(fake.serve_memory("robot"), clock=clock, enable_motors=True)
     try:
         async with running(robot):
             # the driver's origin is its first SIP (as ARIA's): wait for it before moving
@@ -363,7 +410,7 @@ async def test_motion_guard_rejection_sets_stall_bits(clock: Clock) -> None:
             await until(lambda: robot.last_sip is not None and robot.last_sip.stall_left, timeout_s=3)
             # it creeps up to the wall (within 1/32 of a 40 mm step), stalled all the way
             await until(lambda: robot.last_sip is not None and robot.last_sip.x_mm > 298)
-            await asyncio.sleep(0.3 / SPEED)  # and keeps pushing against it
+            await asyncio.sleep(clock.to_real(0.3))  # and keeps pushing against it
             sip = robot.last_sip
             assert sip is not None and sip.stall_left and sip.stall_right and sip.left_mm_s == 0
             assert 298 < fake.x_mm < 300 and sip.x_mm == pytest.approx(fake.x_mm, abs=1)
@@ -400,10 +447,11 @@ async def test_fake_vel2_estop_seto_and_disable() -> None:
     assert not fake.opened
 
 
+@VT
 async def test_control_latency_is_measured_from_the_sip_to_the_command_it_caused(clock: Clock) -> None:
     """A wheel command set inside a SIP listener is timed from that SIP's bytes to its write."""
     fake = FakeRobot(clock=clock)
-    url = fake.serve_pty()
+    url = fake.serve_memory("robot")
     robot = ArcosRobot(url, clock=clock, enable_motors=True)
     latencies: list[float] = []
     robot.on_command_latency = latencies.append
@@ -431,5 +479,59 @@ async def test_control_latency_is_measured_from_the_sip_to_the_command_it_caused
             robot.set_wheels(60, 60)  # again outside a SIP: no new sample
             await until(lambda: fake.target_vel_mm_s == 60)
             assert len(latencies) == n
+    finally:
+        await fake.stop()
+
+
+@VT
+async def test_a_fatal_write_error_ends_the_session_at_once(clock: Clock) -> None:
+    """The root cause of a flaky fault test: a write that kills the transport must end the
+    session there and then (robot state unknown), not on the SIP timeout later."""
+    fake = FakeRobot(clock=clock)
+    robot = ArcosRobot(fake.serve_memory("robot"), clock=clock, enable_motors=True,
+                       backoff=Backoff(initial_s=0.1, maximum_s=0.2, jitter=0))
+    try:
+        async with running(robot):
+            await until(lambda: robot.connected and not robot.stale, "a session")
+            port = fake.memory_port
+            assert port is not None and port.transport is not None
+            port.transport.fail_next_write(OSError(5, "Input/output error"))
+            robot.set_wheels(100, 100)  # written from this stack: the write fails here
+            assert not robot.connected and robot.stale
+            await until(lambda: robot.last_error is not None and "write error" in robot.last_error,
+                        "the write error reported")
+            assert robot.counters["reconnects"] == 0
+            # The port is still there: the driver reconnects and the wish is carried out.
+            await until(lambda: robot.connected and fake.target_vel_mm_s == 100, "reconnected")
+            assert robot.counters["reconnects"] == 1
+    finally:
+        await fake.stop()
+
+
+@VT
+@pytest.mark.parametrize("faults", [
+    LinkFaults(chunk_bytes=1),
+    LinkFaults(random_chunks=True, delay_s=0.02, seed=3),
+    LinkFaults(garbage_rate=0.5, garbage_avoid=frozenset({0xFA}), drop_rate=0.002, seed=5),
+], ids=["one-byte-at-a-time", "random-chunks-delayed", "garbage-and-drops"])
+async def test_the_driver_holds_on_a_hostile_line(faults: LinkFaults, clock: Clock) -> None:
+    """The real driver against the real fake over a line that splits, delays, adds
+    garbage and loses bytes (both directions): it still connects, keeps the SIPs
+    coming and counts what it had to throw away."""
+    fake = FakeRobot(clock=clock, seed=1)
+    url = fake.serve_memory("robot", faults_to_driver=faults,
+                            faults_to_device=LinkFaults(chunk_bytes=1))
+    robot = ArcosRobot(url, clock=clock, enable_motors=True)
+    try:
+        async with running(robot):
+            await until(lambda: robot.connected and robot.last_sip is not None, "a session")
+            robot.set_wheels(150, 150)
+            await until(lambda: fake.target_vel_mm_s == 150, "VEL 150 at the fake")
+            n0 = robot.counters["sips"]
+            await asyncio.sleep(clock.to_real(3.0))
+            assert robot.counters["sips"] - n0 >= 20  # of ~30 in 3 s, some lost to drops
+            assert robot.connected
+            if faults.garbage_rate:
+                assert robot.counters["garbage_bytes"] > 0 and robot.counters["resyncs"] > 0
     finally:
         await fake.stop()

@@ -16,6 +16,7 @@ import pytest
 
 from bench import estimator as bench_estimator
 from bench import latency as bench_latency
+from bench import probe as bench_probe
 from bench import scan as bench_scan
 from bench import sim as bench_sim
 from bench import status as bench_status
@@ -145,3 +146,9 @@ async def test_fake_robot_sip_period_is_settable(tmp_path) -> None:  # type: ign
                 await asyncio.sleep(0.01)
     finally:
         await robot.stop()
+
+
+@pytest.mark.timeout(60)
+async def test_probe_benchmark_measures_the_probe_process() -> None:
+    cpu_pct = await bench_probe.measure_once(bench_probe.REPO, seconds=2.0, warmup_s=0.2)
+    assert 0.0 <= cpu_pct < 50.0

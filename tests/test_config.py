@@ -106,16 +106,17 @@ def test_run_refuses_a_bad_config_before_touching_devices(tmp_path: Path, capsys
 
 
 def test_api_token_file_replaces_the_default_token_env() -> None:
-    s = parse_settings({"api": {"token_file": "/etc/relayd/token"}})
+    first = {"control": {"rear_link": "ignore"}}
+    s = parse_settings({**first, "api": {"token_file": "/etc/relayd/token"}})
     assert s.api.token_env is None and s.api.token_file == "/etc/relayd/token"
-    assert parse_settings({}).api.token_env == "RELAYD_API_TOKEN"
+    assert parse_settings(first).api.token_env == "RELAYD_API_TOKEN"
     with pytest.raises(ConfigError, match="token_env or token_file"):
-        parse_settings({"api": {"token_env": "T", "token_file": "/etc/relayd/token"}})
+        parse_settings({**first, "api": {"token_env": "T", "token_file": "/etc/relayd/token"}})
 
 
 def test_display_name_is_optional_and_bounded() -> None:
     assert Settings().robot.display_name is None
-    s = parse_settings({"robot": {"display_name": "relay 2 (east)"}})
+    s = parse_settings({"robot": {"display_name": "relay 2 (east)"}, "control": {"rear_link": "ignore"}})
     assert s.robot.display_name == "relay 2 (east)"
     for bad in ("", "x" * 65, 7):
         with pytest.raises(ConfigError) as info:

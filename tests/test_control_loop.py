@@ -14,6 +14,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import pytest
+from support import ManualClock
 
 import relayd.brain
 from drivers.airos.model import LinkQuality
@@ -38,19 +39,6 @@ from relayd.events import (
 )
 from relayd.state import DriveState, Mode, ModeError, RelayState
 from relayd.statewriter import StateWriter
-
-
-class ManualClock(Clock):
-    """A clock that moves only when the test says so."""
-
-    __slots__ = ("t",)
-
-    def __init__(self, t: float = 100.0) -> None:
-        super().__init__()
-        self.t = t
-
-    def now(self) -> float:
-        return self.t
 
 
 def Sip(t: float, theta_deg: float = 0.0) -> ArcosSip:

@@ -24,7 +24,6 @@ from typing import Any
 
 import pytest
 from support import running, until
-from vtime_fixtures import virtual
 
 from relayd.config import parse_settings
 from relayd.daemon import Daemon, control_params
@@ -102,7 +101,7 @@ async def driving(rig: FakeRig, daemon: Daemon) -> None:
 
 
 @pytest.mark.parametrize(("leader_deg", "mode"), [(25.0, "step"), (-25.0, "step"), (25.0, "continuous")])
-@virtual
+@pytest.mark.virtual_time
 async def test_bearing_converges_and_the_robot_turns_toward_the_leader(
         tmp_path: Path, leader_deg: float, mode: str) -> None:
     side = math.copysign(1.0, leader_deg)
@@ -131,7 +130,7 @@ async def test_bearing_converges_and_the_robot_turns_toward_the_leader(
         assert st.link_bearing_deg is not None and abs(st.link_bearing_deg - rig.link_deg) < 2.0
 
 
-@virtual
+@pytest.mark.virtual_time
 async def test_stops_when_the_leader_is_near_and_resumes(tmp_path: Path) -> None:
     # threshold_l -40 dBm: at 6 m RSSI^l is about -46 (drive), at 2 m about -36 (stop).
     async with relay(tmp_path, control={"threshold_l_dbm": -40.0}) as (rig, daemon):
@@ -147,7 +146,7 @@ async def test_stops_when_the_leader_is_near_and_resumes(tmp_path: Path) -> None
         await driving(rig, daemon)
 
 
-@virtual
+@pytest.mark.virtual_time
 async def test_stops_when_the_rear_link_is_weak_or_stale_and_resumes(tmp_path: Path) -> None:
     async with relay(tmp_path) as (rig, daemon):
         await driving(rig, daemon)
@@ -165,7 +164,7 @@ async def test_stops_when_the_rear_link_is_weak_or_stale_and_resumes(tmp_path: P
         await driving(rig, daemon)
 
 
-@virtual
+@pytest.mark.virtual_time
 async def test_stops_within_one_sip_period_of_rssi_going_stale_and_resumes(tmp_path: Path) -> None:
     async with relay(tmp_path) as (rig, daemon):
         rec = Transitions(daemon)
@@ -193,7 +192,7 @@ async def test_stops_within_one_sip_period_of_rssi_going_stale_and_resumes(tmp_p
             await rec.close()
 
 
-@virtual
+@pytest.mark.virtual_time
 async def test_modes_hold_manual_and_deadman(tmp_path: Path) -> None:
     async with relay(tmp_path, control={"manual_deadman_s": 0.5}) as (rig, daemon):
         await driving(rig, daemon)

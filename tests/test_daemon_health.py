@@ -10,7 +10,7 @@ in-memory link: seconds of daemon time cost milliseconds.
 
 from __future__ import annotations
 
-from vtime_fixtures import VirtualTime, vtime  # noqa: F401
+import pytest
 
 from drivers.arcos.fake import FakeRobot
 from relayd.config import Settings
@@ -27,36 +27,35 @@ def _settings(robot_url: str) -> Settings:
     })
 
 
-def test_supervisor_failure_count_survives_in_status(vtime: VirtualTime) -> None:  # noqa: F811
-    async def body(clock: LoopClock) -> None:
-        fake = FakeRobot(clock=clock)
-        url = fake.serve_memory("health-robot")
-        await fake.start()
-        daemon = Daemon(_settings(url), clock=clock, env={})
-        failures = 0
+@pytest.mark.virtual_time
+async def test_supervisor_failure_count_survives_in_status() -> None:
+    clock = LoopClock()
+    fake = FakeRobot(clock=clock)
+    url = fake.serve_memory("health-robot")
+    await fake.start()
+    daemon = Daemon(_settings(url), clock=clock, env={})
+    failures = 0
 
-        async def flaky_helper() -> None:
-            # A task the supervisor keeps for the robot device that fails once a second.
-            nonlocal failures
-            await clock.sleep(1.0)
-            failures += 1
-            raise OSError("helper lost the robot")
+    async def flaky_helper() -> None:
+        # A task the supervisor keeps for the robot device that fails once a second.
+        nonlocal failures
+        await clock.sleep(1.0)
+        failures += 1
+        raise OSError("helper lost the robot")
 
-        daemon.supervisor.add("robot-helper", flaky_helper, device="robot")
-        await daemon.start()
-        try:
-            await clock.sleep(5.0)  # ten periods of the old 0.5 s health copy
-            assert failures >= 2
-            robot = daemon.robot
-            assert robot is not None and robot.connected
-            shown = daemon.state.snapshot(clock.now())["health"]["robot"]
-            driver_errors = robot.health().errors
-            supervised = daemon.state.health["robot"].errors
-            assert supervised >= 2
-            assert shown["errors"] == driver_errors + supervised
-            assert shown["connected"] is True
-        finally:
-            await daemon.shutdown()
-            await fake.stop()
-
-    vtime.run(body)
+    daemon.supervisor.add("robot-helper", flaky_helper, device="robot")
+    await daemon.start()
+    try:
+        await clock.sleep(5.0)  # ten periods of the old 0.5 s health copy
+        assert failures >= 2
+        robot = daemon.robot
+        assert robot is not None and robot.connected
+        shown = daemon.state.snapshot(clock.now())["health"]["robot"]
+        driver_errors = robot.health().errors
+        supervised = daemon.state.health["robot"].errors
+        assert supervised >= 2
+        assert shown["errors"] == driver_errors + supervised
+        assert shown["connected"] is True
+    finally:
+        await daemon.shutdown()
+        await fake.stop()

@@ -139,7 +139,7 @@ def relayd_commands(doc: str) -> list[Command]:
 
 
 def parse_cli(argv: list[str]) -> argparse.Namespace | None:
-    """Parse as `relayd.cli.main` does (subcommand first, then its module's options).
+    """Parse as `relayd.cli.main` does (each subcommand's parser adds its module's options).
 
     None for `--help`/`--version`, which exit 0. An error raises AssertionError with
     argparse's message.
@@ -148,8 +148,6 @@ def parse_cli(argv: list[str]) -> argparse.Namespace | None:
     err = io.StringIO()
     try:
         with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
-            known, _ = parser.parse_known_args(argv)
-            importlib.import_module(known._module).configure(known._parser)
             return parser.parse_args(argv)
     except SystemExit as exc:
         if exc.code == 0:

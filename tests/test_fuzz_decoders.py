@@ -34,7 +34,7 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from drivers.airos.model import AirOsDataError, decode_stations, decode_status
-from drivers.arcos.codec import CodecError, Decoder, Packet, decode_command
+from drivers.arcos.codec import SIP_TYPES, CodecError, Decoder, Packet, decode_command
 from drivers.arcos.driver import ArcosRobot
 from drivers.arcos.sip import (
     RawSip,
@@ -145,14 +145,14 @@ def test_arcos_driver_takes_a_valid_sip_after_bad_ones(bad: list[bytes], good: R
                                                        junk: bytes) -> None:
     """The driver's own packet path: bad SIPs are counted, the next good one is used."""
     robot = ArcosRobot("socket://127.0.0.1:9")
-    robot._opened = True
     robot.factors = conv_factors("p3at-sh")
     seen: list[Any] = []
     robot.add_listener(seen.append)
     ptype, payload = good.encode()
     stream = junk + b"".join(Packet(0x32, b).encode() for b in bad) + Packet(ptype, payload).encode()
     for pkt in Decoder().feed(stream + bytes(258)):
-        robot._on_packet(pkt)  # raises if anything but a CodecError escapes decoding
+        if pkt.ptype in SIP_TYPES:
+            robot.handle_sip(pkt, 0.0)  # raises if anything but a CodecError escapes decoding
     assert robot.counters["listener_errors"] == 0
     valid_bad = sum(1 for b in bad if _decodes(b))
     assert robot.counters["bad_sips"] >= len(bad) - valid_bad

@@ -75,7 +75,8 @@ async def test_live_page_shows_the_daemon_and_redraws_on_a_new_scan(
             assert await page.text_content("#robot-name") == rig.name
             assert await page.text_content("#mode") == "hold"
             assert await page.text_content("#drive-state") == "stopped"
-            assert await page.text_content("#reason") == "hold"
+            assert await page.text_content("#reason-code") == "hold"
+            assert (await page.text_content("#reason") or "").startswith("stopped: hold mode")
             assert await page.text_content("#rssi-b") == "-55.0 dBm"  # the rig's rear radio
             thr_l = daemon.settings.control.threshold_l_dbm
             assert await page.text_content("#thr-l") == f"{thr_l:.0f} dBm"

@@ -8,19 +8,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from prometheus_client import generate_latest
 from prometheus_client.parser import text_string_to_metric_families
+from support import ManualClock
 
-from drivers.clock import Clock
 from relayd.metrics import Metrics
 from relayd.state import DeviceHealth, DriveState, LinkInfo, Mode, RelayState
-
-
-class FixedClock(Clock):
-    def __init__(self, t: float) -> None:
-        super().__init__()
-        self.t = t
-
-    def now(self) -> float:
-        return self.t
 
 
 def _samples(metrics: Metrics) -> dict[tuple[str, tuple[tuple[str, str], ...]], float]:
@@ -33,7 +24,7 @@ def _samples(metrics: Metrics) -> dict[tuple[str, tuple[tuple[str, str], ...]], 
 
 
 def test_two_instances_do_not_collide() -> None:
-    clock = FixedClock(10.0)
+    clock = ManualClock(10.0)
     a, b = Metrics(RelayState(), clock), Metrics(RelayState(), clock)
     a.sip_received()
     a.sip_received()
@@ -43,7 +34,7 @@ def test_two_instances_do_not_collide() -> None:
 
 
 def test_levels_are_read_at_scrape_time() -> None:
-    clock = FixedClock(100.0)
+    clock = ManualClock(100.0)
     state = RelayState(started_t=40.0)
     m = Metrics(state, clock)
     before = _samples(m)
@@ -87,7 +78,7 @@ def test_levels_are_read_at_scrape_time() -> None:
 
 def test_observations_and_reconnects() -> None:
     state = RelayState()
-    m = Metrics(state, FixedClock(0.0))
+    m = Metrics(state, ManualClock(0.0))
     m.observe_control_latency(0.0004)
     m.observe_control_latency(0.003)
     m.observe_control_latency(math.nan)  # ignored: a broken timer must not poison the histogram
@@ -120,7 +111,7 @@ def test_any_state_scrapes_to_valid_exposition(rssi_l: float | None, rssi_b: flo
     state.bearing_deg, state.battery_v = bearing, battery
     state.sonar_mm = sonar
     state.links["rear"] = LinkInfo(signal_dbm=signal, ccq_pct=ccq)
-    m = Metrics(state, FixedClock(5.0))
+    m = Metrics(state, ManualClock(5.0))
     text = generate_latest(m.registry).decode()
     families = list(text_string_to_metric_families(text))
     assert any(f.name == "relayd_build_info" for f in families)
@@ -135,7 +126,7 @@ def test_any_state_scrapes_to_valid_exposition(rssi_l: float | None, rssi_b: flo
 def test_drive_info_carries_state_and_reason() -> None:
     """Alerts and the dashboard read the reason from relayd_drive_info; it follows /status."""
     state = RelayState()
-    m = Metrics(state, FixedClock(0.0))
+    m = Metrics(state, ManualClock(0.0))
     s = _samples(m)
     assert s[("relayd_drive_info", (("reason", "starting"), ("state", "stopped")))] == 1.0
     state.state, state.reason = DriveState.FAULT, "controller_error: ValueError"

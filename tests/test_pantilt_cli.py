@@ -46,21 +46,27 @@ def test_probe_moves_waits_and_reads_back(served: tuple[str, str],
     base = ["--port", path, "--protocol", protocol, "--channel", "1", "--json"]
     code, out, err = probe(capsys, *base, "--angle", "0")
     assert code == 0, err
-    assert json.loads(out) == {"channel": 1, "angle_deg": 0.0, "moving": False}
+    assert json.loads(out) == {"channel": 1, "angle_deg": 0.0, "pulse_us": 1500.0, "moving": False}
     # 36 deg at 180 deg/s: the probe waits ~0.2 s for the move, then reads it back.
     code, out, _ = probe(capsys, *base, "--angle", "36", "--speed", "180")
     assert code == 0
     reply = json.loads(out)
     assert reply["moving"] is False
     assert reply["angle_deg"] == pytest.approx(36, abs=1.0)
-    # Outside the limits: clamped, said on stderr, and the clamped angle is what moved.
+    assert reply["pulse_us"] == pytest.approx(1500 + 36 * 500 / 90, abs=12)
+    # Outside the limits: refused with exit 2, and nothing moved.
     code, out, err = probe(capsys, *base, "--angle", "150")
-    assert code == 0
-    assert "outside the limits" in err
-    assert json.loads(out)["angle_deg"] == pytest.approx(90, abs=1.0)
-    # Read only, human output.
+    assert code == 2 and out == ""
+    assert "outside the limits -90..90" in err
+    code, out, err = probe(capsys, *base, "--angle=-45", "--limits=-30,30")
+    assert code == 2 and "outside the limits -30..30" in err
+    # Read only, human output: still where the last accepted move left it, with its pulse.
     code, out, _ = probe(capsys, "--port", path, "--protocol", protocol, "--channel", "1")
-    assert code == 0 and out.startswith("channel 1: 90.")
+    assert code == 0 and out.startswith("channel 1: 36.")
+    assert "pulse 17" in out
+    # A calibration with decreasing pulses (servo upside down): the pulse is the one sent.
+    code, out, _ = probe(capsys, *base, "--angle", "90", "--pulse-us", "2000,1500,1000")
+    assert code == 0 and json.loads(out)["pulse_us"] == pytest.approx(1000, abs=4)
 
 
 def test_probe_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -72,3 +78,9 @@ def test_probe_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Non
     code, _, err = probe(capsys, "--port", "/dev/null", "--protocol", "ssc32", "--channel", "0",
                          "--pulse-us", "1000,900,2000")
     assert code == 2 and "monotonic" in err
+
+
+def test_fake_pantilt_defaults_to_the_maestro() -> None:
+    from relayd.cli import build_parser
+
+    assert build_parser().parse_args(["fake", "pantilt"]).protocol == "maestro"

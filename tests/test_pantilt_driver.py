@@ -1,4 +1,8 @@
-"""The pan-tilt drivers against the byte-true fakes over real pseudo-terminals."""
+"""The pan-tilt drivers against the byte-true fakes.
+
+Unit tests use in-memory links in virtual time (`virtual_time`); a few integration
+tests keep real pseudo-terminals on a 10x clock (replug, a second writer on the tty).
+"""
 
 from __future__ import annotations
 
@@ -9,10 +13,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from support import until
+from support import LoopClock, until
 
 from drivers.backoff import Backoff
 from drivers.clock import Clock
+from drivers.memlink import LinkFaults
 from drivers.pantilt import PanTilt, PanTiltError, ServoCalibration, make_pantilt
 from drivers.pantilt.fake import FakeMaestro, FakeSsc32
 from drivers.pantilt.maestro import MaestroPanTilt
@@ -38,8 +43,11 @@ async def flush(pt: PanTilt) -> None:
     await pt.is_moving()
 
 
-async def make_rig(protocol: str, tmp_path: Path, kind: str = "pty", **options: float) -> Rig:
-    clock = Clock(SPEED)
+VT = pytest.mark.virtual_time
+
+
+async def make_rig(protocol: str, tmp_path: Path, kind: str = "memory", **options: float) -> Rig:
+    clock: Clock = LoopClock() if kind == "memory" else Clock(SPEED)
     fake = FAKES[protocol](clock=clock)
     if kind == "memory":
         path = fake.serve_memory(f"{protocol}-servo")
@@ -55,17 +63,20 @@ async def make_rig(protocol: str, tmp_path: Path, kind: str = "pty", **options: 
     return Rig(protocol, clock, fake, pt, task, TOL_DEG[protocol])
 
 
-@pytest.fixture(params=["maestro-pty", "ssc32-pty", "maestro-memory", "ssc32-memory"])
+@pytest.fixture(params=["maestro", "ssc32"])
 async def rig(request: pytest.FixtureRequest, tmp_path: Path) -> AsyncIterator[Rig]:
-    protocol, kind = request.param.split("-")
-    r = await make_rig(protocol, tmp_path, kind)
+    r = await make_rig(request.param, tmp_path)
     yield r
+    await close_rig(r)
+
+
+async def close_rig(r: Rig) -> None:
     await r.pt.close()
     await asyncio.wait_for(r.task, 5)
     r.fake.close()
-    r.fake.close()
 
 
+@VT
 async def test_set_and_read_back_angle(rig: Rig) -> None:
     assert await rig.pt.set_angle(0, 30) == 30
     await flush(rig.pt)
@@ -80,6 +91,7 @@ async def test_set_and_read_back_angle(rig: Rig) -> None:
     assert rig.pt.counters["timeouts"] == 0 and rig.pt.counters["errors"] == 0
 
 
+@VT
 async def test_position_evolves_at_the_slew_rate(rig: Rig) -> None:
     pt, fake, clock = rig.pt, rig.fake, rig.clock
     await pt.set_angle(0, 0)
@@ -99,6 +111,7 @@ async def test_position_evolves_at_the_slew_rate(rig: Rig) -> None:
     assert await pt.get_angle(0) == pytest.approx(45, abs=rig.tol)
 
 
+@VT
 async def test_out_of_limit_angles_are_clamped_never_sent(rig: Rig) -> None:
     pt, fake = rig.pt, rig.fake
     assert await pt.set_angle(0, 120) == 90
@@ -114,6 +127,7 @@ async def test_out_of_limit_angles_are_clamped_never_sent(rig: Rig) -> None:
     assert pt.limits(0) == (-90, 90)
 
 
+@VT
 async def test_two_channels_interleaved_without_crosstalk(rig: Rig) -> None:
     pt = rig.pt
 
@@ -129,6 +143,7 @@ async def test_two_channels_interleaved_without_crosstalk(rig: Rig) -> None:
     assert pt.counters["stray_bytes"] == 0 and pt.counters["timeouts"] == 0
 
 
+@VT
 @pytest.mark.parametrize("protocol", ["maestro", "ssc32"])
 async def test_silent_controller_times_out_then_reconnects(tmp_path: Path, protocol: str) -> None:
     r = await make_rig(protocol, tmp_path, reply_timeout_s=1.0)
@@ -161,7 +176,21 @@ async def test_silent_controller_times_out_then_reconnects(tmp_path: Path, proto
         r.fake.close()
 
 
+@VT
 async def test_reconnects_after_hang_up(rig: Rig) -> None:
+    await _reconnects_after_hang_up(rig)
+
+
+@pytest.mark.parametrize("protocol", ["maestro", "ssc32"])
+async def test_reconnects_after_hang_up_over_a_pty(protocol: str, tmp_path: Path) -> None:
+    r = await make_rig(protocol, tmp_path, "pty")
+    try:
+        await _reconnects_after_hang_up(r)
+    finally:
+        await close_rig(r)
+
+
+async def _reconnects_after_hang_up(rig: Rig) -> None:
     pt, fake = rig.pt, rig.fake
     await pt.set_speed(0, 45)
     await pt.set_angle(0, 10)
@@ -183,6 +212,7 @@ async def test_reconnects_after_hang_up(rig: Rig) -> None:
     assert await pt.get_angle(0) == pytest.approx(-10, abs=rig.tol)
 
 
+@VT
 async def test_not_connected_is_an_error() -> None:
     pt = make_pantilt("ssc32", "/nonexistent/tty", None, {0: ServoCalibration()})
     with pytest.raises(PanTiltError, match="not connected"):
@@ -217,7 +247,7 @@ async def test_run_backs_off_while_the_port_is_missing(tmp_path: Path) -> None:
 
 
 async def test_maestro_error_bits_reported(tmp_path: Path) -> None:
-    r = await make_rig("maestro", tmp_path, poll_s=0.5)
+    r = await make_rig("maestro", tmp_path, "pty", poll_s=0.5)
     pt = r.pt
     assert isinstance(pt, MaestroPanTilt)
     try:
@@ -256,10 +286,11 @@ class GarblingSsc32(FakeSsc32):
         super()._reply(data)
 
 
+@VT
 async def test_garbled_and_unsolicited_bytes_are_counted_not_fatal(tmp_path: Path) -> None:
-    clock = Clock(SPEED)
+    clock = LoopClock()
     fake = GarblingSsc32(clock=clock)
-    pt = make_pantilt("ssc32", fake.serve_pty(tmp_path / "servo"), None,
+    pt = make_pantilt("ssc32", fake.serve_memory("servo"), None,
                       {0: ServoCalibration()}, clock=clock, reply_timeout_s=3.0, poll_s=1000.0)
     task = asyncio.create_task(pt.run())
     try:
@@ -280,6 +311,7 @@ async def test_garbled_and_unsolicited_bytes_are_counted_not_fatal(tmp_path: Pat
         fake.close()
 
 
+@VT
 async def test_close_ends_run_even_while_backing_off(tmp_path: Path) -> None:
     pt = make_pantilt("maestro", str(tmp_path / "absent"), None, {0: ServoCalibration()},
                       backoff=Backoff(initial_s=60.0, maximum_s=60.0))
@@ -288,3 +320,26 @@ async def test_close_ends_run_even_while_backing_off(tmp_path: Path) -> None:
     await pt.close()
     await asyncio.wait_for(task, 2)  # returned, did not sit out the 60 s backoff
     assert not pt.connected
+
+
+@VT
+@pytest.mark.parametrize("protocol", ["maestro", "ssc32"])
+async def test_replies_split_into_single_bytes_and_delayed_still_answer(protocol: str) -> None:
+    clock = LoopClock()
+    fake = FAKES[protocol](clock=clock)
+    one_byte = LinkFaults(chunk_bytes=1, delay_s=0.01)
+    url = fake.serve_memory(f"{protocol}-slow", faults_to_driver=one_byte,
+                            faults_to_device=LinkFaults(chunk_bytes=1))
+    pt = make_pantilt(protocol, url, None, {0: ServoCalibration()}, clock=clock,
+                      reply_timeout_s=1.0, poll_s=1000.0)
+    task = asyncio.create_task(pt.run())
+    try:
+        await until(lambda: pt.connected)
+        for angle in (-60.0, 0.0, 45.0):
+            await pt.set_angle(0, angle)
+            assert await pt.get_angle(0) == pytest.approx(angle, abs=TOL_DEG[protocol])
+        assert pt.counters["timeouts"] == 0 and pt.counters["stray_bytes"] == 0
+    finally:
+        await pt.close()
+        await asyncio.wait_for(task, 5)
+        fake.close()

@@ -6,24 +6,11 @@ import random
 
 from hypothesis import given
 from hypothesis import strategies as st
+from support import ManualClock
 
-from drivers.clock import Clock
 from drivers.pantilt import maestro as mc
 from drivers.pantilt import ssc32 as sc
 from drivers.pantilt.fake import FakeMaestro, FakeSsc32, travelled_us
-
-
-class ManualClock(Clock):
-    """A clock that only moves when told to, for exact slew checks."""
-
-    __slots__ = ("t",)
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.t = 100.0
-
-    def now(self) -> float:
-        return self.t
 
 
 def maestro(**kwargs: object) -> tuple[FakeMaestro, ManualClock]:

@@ -19,7 +19,6 @@ from pathlib import Path
 
 import pytest
 from support import until
-from vtime_fixtures import virtual
 
 from drivers.arcos.sip import Sip
 from drivers.backoff import Backoff
@@ -252,7 +251,7 @@ def travel_s(prev: float | None, target: float) -> float:
     return abs(target - prev) / SPEED_DEG_S
 
 
-@virtual
+@pytest.mark.virtual_time
 async def test_step_mode_pairs_each_angle_with_the_first_fresh_sample_after_arrival(tmp_path: Path) -> None:
     async with bench(tmp_path, stale_every=4) as b:
         await b.prepare()
@@ -284,7 +283,7 @@ async def test_step_mode_pairs_each_angle_with_the_first_fresh_sample_after_arri
             await until(lambda: abs(pulse_to_deg(b.fake.position_us(LINK)) - bearing) < 0.3)  # noqa: B023
 
 
-@virtual
+@pytest.mark.virtual_time
 async def test_sweeps_alternate_direction(tmp_path: Path) -> None:
     async with bench(tmp_path) as b:
         await b.prepare()
@@ -298,7 +297,7 @@ async def test_sweeps_alternate_direction(tmp_path: Path) -> None:
         assert directions == [True, False, True]
 
 
-@virtual
+@pytest.mark.virtual_time
 async def test_window_centred_on_previous_bearing_corrected_for_the_turn(tmp_path: Path) -> None:
     async with bench(tmp_path) as b:
         b.source.leader_deg = 25.0
@@ -320,7 +319,7 @@ async def test_window_centred_on_previous_bearing_corrected_for_the_turn(tmp_pat
         assert max(second) - min(second) == pytest.approx(WIDTH_DEG)
 
 
-@virtual
+@pytest.mark.virtual_time
 async def test_window_is_kept_inside_the_servo_limits(tmp_path: Path) -> None:
     async with bench(tmp_path) as b:
         b.source.leader_deg = 25.0
@@ -339,7 +338,7 @@ async def test_window_is_kept_inside_the_servo_limits(tmp_path: Path) -> None:
         assert b.pt.counters["clamped"] == 0  # never asked the driver for an angle it must clamp
 
 
-@virtual
+@pytest.mark.virtual_time
 async def test_full_range_while_the_leader_is_lost(tmp_path: Path) -> None:
     async with bench(tmp_path) as b:
         await b.prepare()
@@ -365,7 +364,7 @@ async def test_full_range_while_the_leader_is_lost(tmp_path: Path) -> None:
         assert max(angles) - min(angles) == pytest.approx(WIDTH_DEG)
 
 
-@virtual
+@pytest.mark.virtual_time
 async def test_heading_per_sample_and_bearing_in_the_frame_at_scan_end(tmp_path: Path) -> None:
     async with bench(tmp_path) as b:
         await b.prepare()
@@ -389,7 +388,7 @@ async def test_heading_per_sample_and_bearing_in_the_frame_at_scan_end(tmp_path:
         assert list(est.angles_deg) == pytest.approx(expected)
 
 
-@virtual
+@pytest.mark.virtual_time
 async def test_continuous_mode_interpolates_the_commanded_motion(tmp_path: Path) -> None:
     async with bench(tmp_path, mode="continuous") as b:
         await b.prepare()
@@ -420,7 +419,7 @@ async def test_continuous_mode_interpolates_the_commanded_motion(tmp_path: Path)
             assert ts == sorted(ts)
 
 
-@virtual
+@pytest.mark.virtual_time
 async def test_continuous_mode_keeps_samples_that_arrive_late(tmp_path: Path) -> None:
     """A source stamps its reading before awaiting the device (netlink, `iw`): none may be lost."""
     async with bench(tmp_path, mode="continuous", latency_s=0.015) as b:
@@ -441,7 +440,7 @@ async def test_continuous_mode_keeps_samples_that_arrive_late(tmp_path: Path) ->
         assert missing == [], f"{len(missing)} of {len(inside)} readings lost"
 
 
-@virtual
+@pytest.mark.virtual_time
 async def test_scan_servo_not_answering_clears_servo_ok(tmp_path: Path) -> None:
     async with bench(tmp_path) as b:
         await b.prepare()
@@ -456,7 +455,7 @@ async def test_scan_servo_not_answering_clears_servo_ok(tmp_path: Path) -> None:
         assert b.scanner.servo_ok
 
 
-@virtual
+@pytest.mark.virtual_time
 async def test_run_reports_a_silent_servo_and_recovers(tmp_path: Path) -> None:
     async with bench(tmp_path) as b:
         task = asyncio.create_task(b.scanner.run())

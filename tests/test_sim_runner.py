@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 from pathlib import Path
 
 import pytest
@@ -84,7 +85,7 @@ def test_unapplied_command_time() -> None:
 
 def test_progress_line_only_on_a_terminal() -> None:
     rec = _rec(12.5, 3, 18, False, [2.5])
-    assert "t=  12.5" in progress_text(rec, 100) and "r0:driving/-40dBm" in progress_text(rec, 100)
+    assert "t=12.5/100s" in progress_text(rec, 100) and "r0:driving/-40dBm" in progress_text(rec, 100)
     buf = io.StringIO()
     p = ProgressLine(100, stream=buf)
     p(rec)
@@ -217,3 +218,69 @@ def test_same_scenario_and_seed_give_byte_identical_summary_and_trace(tmp_path: 
     # ...and the comparison can fail: another seed is another world (fading, sonar noise).
     other = sim("c", 2)
     assert other[1] != first[1]
+
+
+@pytest.mark.slow
+def test_sim_log_is_plain_json_with_relay_and_sim_time(tmp_path: Path,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    scen = tmp_path / "tiny.toml"
+    scen.write_text(TINY)
+    out = tmp_path / "o"
+    assert main(["sim", "--scenario", str(scen), "--relays", "1", "--speed", "4", "--seconds", "8",
+                 "--no-plots", "--out", str(out)]) == 0
+    capsys.readouterr()
+    lines = (out / "sim.log").read_text().splitlines()
+    assert lines, "sim.log is empty at the default level"
+    docs = [json.loads(line) for line in lines]  # no "<6>" priority prefix: each line parses
+    assert all("relay" in d and isinstance(d["t"], float) for d in docs), docs[:3]
+    mine = [d for d in docs if d["relay"] == "solo"]
+    assert mine, "no line names the relay"
+    # The daemon's own start-up and its devices connecting are there, at info level.
+    assert any(d["event"] == "drive_state" and d["level"] == "info" for d in mine)
+    ts = [d["t"] for d in docs]
+    assert min(ts) >= 0.0 and max(ts) <= 8.0 + 2.0
+    assert any(t > 0 for t in ts), "simulation time never advanced in the log"
+
+
+@pytest.mark.parametrize("columns", [80, 60])
+def test_progress_line_never_wraps_on_the_terminal(columns: int) -> None:
+    import fcntl
+    import pty
+    import struct
+    import termios
+
+    master, slave = pty.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, columns, 0, 0))
+    with os.fdopen(slave, "w", encoding="utf-8") as tty:
+        p = ProgressLine(600, stream=tty, every_s=0.0)
+        assert p.enabled
+        for t, relays in ((1.0, [1.5]), (2.0, [2.5, 3.0, 3.5, 4.0, 5.5]), (1234.5, [12.5] * 8)):
+            rec = _rec(t, -123.4, 54.0, True, relays, state="hold_rear")
+            p(rec)
+            full = progress_text(rec, 600)
+            assert len(full) > columns or len(relays) == 1  # the case under test: too long to fit
+        p.close()
+    written = b""
+    while True:
+        try:
+            chunk = os.read(master, 65536)
+        except OSError:
+            break
+        if not chunk:
+            break
+        written += chunk
+    os.close(master)
+    segments = [s for s in written.decode().replace("\r\n", "\n").split("\r") if s.strip()]
+    assert len(segments) == 3
+    for seg in segments:
+        assert len(seg.rstrip("\n")) < columns, seg
+    assert segments[-1].rstrip().endswith(("+8", "+7", "+6")) and "t=1234.5/600s" in segments[-1]
+    if columns >= 80:  # the usual terminal shows at least the first relay
+        assert "r0:hold_rear/-40dBm/2.5m" in segments[1]
+
+
+def test_progress_text_keeps_every_relay_when_it_fits() -> None:
+    rec = _rec(1.0, 0.0, 10.0, False, [1.0, 2.0])
+    assert progress_text(rec, 60, width=200) == progress_text(rec, 60)
+    assert "r1:" in progress_text(rec, 60, width=200)
+    assert len(progress_text(rec, 60, width=30)) <= 30

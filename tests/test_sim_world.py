@@ -365,3 +365,30 @@ def test_a_robot_already_touching_may_move_away() -> None:
     # b was placed overlapping a: it is allowed to move (and the contact is counted)
     assert w.motion_ok(1, 600, 0, 0, old=(500, 0, 0))
     assert w.collisions() == 1
+
+
+def test_scenario_errors_all_in_one_pass() -> None:
+    d = _minimal()
+    d["leader"]["waypoints"].append({"x": "far", "y": 0})
+    d["walls"] = [{"points": [[0, 0], [1, 1]], "material": "cheese"}]
+    d["boxes"] = [{"min": [0, 0], "max": [1, 1], "material": "jelly"}]
+    d["relays"] = 2
+    d["control"] = {"kp": "fast", "threshold_l_dbm": 5}
+    d["scan"] = {"samples": 1}
+    d["relay"] = [{"name": "r1", "x": 0, "y": 0, "control": {"kd": -1}}]
+    with pytest.raises(ScenarioError) as ei:
+        parse_scenario(d)
+    errors = ei.value.errors
+    for key in ("leader.waypoints.1.x", "walls.0.material", "boxes.0.material", "relays:",
+                "control.kp", "control.threshold_l_dbm", "scan.samples", "relay.0.control.kd"):
+        assert any(e.startswith(key) for e in errors), (key, errors)
+    # The shared control table's errors are not repeated for each relay.
+    assert not any(e.startswith("relay.0.control.kp") for e in errors), errors
+    assert len(errors) == len(set(errors))
+
+
+def test_non_utf8_scenario_is_an_error_naming_the_key(tmp_path) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_bytes('name = "t"\ndescription = "caf\u00e9"\n'.encode("latin-1"))
+    with pytest.raises(ScenarioError, match=r"description \(line 2\): not UTF-8"):
+        load_scenario(bad)

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import importlib
 import itertools
 import os
 import re
@@ -132,11 +131,7 @@ def test_execstart_is_a_relayd_run_the_cli_accepts() -> None:
     assert exe.name == "relayd" and exe.is_absolute()
     scripts = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
     assert scripts["relayd"] == "relayd.cli:main"
-    # As relayd.cli.main does: find the subcommand, let its module add its options, parse.
-    parser = build_parser()
-    known, _ = parser.parse_known_args(argv[1:])
-    importlib.import_module(known._module).configure(known._parser)
-    args = parser.parse_args(argv[1:])
+    args = build_parser().parse_args(argv[1:])
     assert args.command == "run"
     assert args.config == "/etc/relayd/relayd.toml"
     # The venv the unit runs from is the one the deployment guide installs.

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -52,13 +53,35 @@ def test_probe_wifi_missing_interface_exits_1(tmp_path: Path,
                                               capsys: pytest.CaptureFixture[str]) -> None:
     path = tmp_path / "wireless"
     ProcfsWriter(path, "wlan0").write(-50)
+    t0 = time.monotonic()
     code = main(["probe", "wifi", "--source", "procfs", "--interface", "wlan1",
-                 "--path", str(path), "--seconds", "0.1", "--json"])
+                 "--path", str(path), "--seconds", "30", "--json"])
     captured = capsys.readouterr()
-    assert code == 1
-    samples = _lines(captured.out)
-    assert samples and all(s["rssi_dbm"] is None and s["fresh"] is False for s in samples)
-    assert "wlan1 not listed" in captured.err
+    # At the first read, not after --seconds of "stale" lines.
+    assert code == 1 and time.monotonic() - t0 < 5
+    assert captured.out == ""
+    assert "relayd probe wifi: interface missing: wlan1 not listed" in captured.err
+
+
+def test_probe_wifi_missing_file_exits_1_at_once(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    t0 = time.monotonic()
+    code = main(["probe", "wifi", "--source", "procfs", "--path", str(tmp_path / "nothing"),
+                 "--seconds", "30"])
+    captured = capsys.readouterr()
+    assert code == 1 and time.monotonic() - t0 < 5
+    assert "stale" not in captured.out
+    assert "does not exist" in captured.err
+
+
+def test_probe_wifi_a_hung_source_is_bounded_by_seconds(tmp_path: Path,
+                                                        capsys: pytest.CaptureFixture[str]) -> None:
+    iw = tmp_path / "iw"
+    iw.write_text("#!/bin/sh\nexec sleep 30\n")
+    iw.chmod(0o755)
+    t0 = time.monotonic()
+    code = main(["probe", "wifi", "--source", "iw", "--iw", str(iw), "--seconds", "0.5"])
+    assert code == 1 and time.monotonic() - t0 < 10
+    assert capsys.readouterr().err
 
 
 def test_probe_wifi_human_output(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -16,8 +16,8 @@ from typing import Any
 import pytest
 from pyroute2.netlink.exceptions import NetlinkError
 from pyroute2.netlink.nl80211 import NL80211_NAMES, nl80211cmd
+from support import LoopClock
 
-from drivers.clock import Clock
 from drivers.wifi import (
     IwSource,
     Nl80211Source,
@@ -27,8 +27,8 @@ from drivers.wifi import (
     make_source,
 )
 from drivers.wifi.fake import format_proc_row
+from drivers.wifi.nl80211 import observe_stations, station_reading
 from drivers.wifi.parsers import PROC_HEADER_1, PROC_HEADER_2, parse_proc_net_wireless
-from drivers.wifi.sources import observe_stations, station_reading
 
 FIXTURES = Path(__file__).parent / "fixtures" / "wifi"
 
@@ -207,9 +207,10 @@ async def test_procfs_reads_real_captures(name: str, iface: str, dbm: float) -> 
     assert (await src.read()).rssi_dbm == dbm
 
 
+@pytest.mark.virtual_time
 async def test_stream_runs_at_sample_hz_on_the_clock_and_survives_vanishing(
         tmp_path: Path) -> None:
-    clock = Clock(speed=4.0)
+    clock = LoopClock()
     path = tmp_path / "w"
     w = ProcfsWriter(path, "wlan1")
     src = ProcfsSource("wlan1", path=path, clock=clock)
@@ -516,10 +517,11 @@ async def test_nl80211_enodev_is_reported_and_retried() -> None:
     assert len(made) == 2  # a new netlink socket after the failure
 
 
+@pytest.mark.virtual_time
 async def test_nl80211_timeout_and_odd_errors_never_escape() -> None:
     src, made = _nl_source(["hang", RuntimeError("decoder blew up"),
                             NetlinkError(errno.EOPNOTSUPP), [_station_msg()]],
-                           clock=Clock(speed=10.0), timeout_s=0.5)
+                           clock=LoopClock(), timeout_s=0.5)
     s = await src.read()
     assert s.rssi_dbm is None and src.last_error is not None and "timed out" in src.last_error
     await src.read()

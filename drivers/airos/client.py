@@ -43,6 +43,10 @@ from drivers.clock import REAL_CLOCK, Clock
 
 log = structlog.get_logger(__name__)
 
+#: ssl.OP_LEGACY_SERVER_CONNECT (OpenSSL's SSL_OP_LEGACY_SERVER_CONNECT, 0x4); the ssl
+#: module names it only from Python 3.12 on.
+_OP_LEGACY_SERVER_CONNECT = 0x4
+
 Firmware = Literal["auto", 6, 8]
 
 #: Answers larger than this are not status documents (the real ones are ~3 KiB).
@@ -92,7 +96,7 @@ def legacy_tls_context() -> ssl.SSLContext:
     except ssl.SSLError:  # pre-1.1 OpenSSL/LibreSSL have no security levels
         ctx.set_ciphers("DEFAULT")
     # Old lighttpd does not do RFC 5746 secure renegotiation; OpenSSL 3 refuses it otherwise.
-    ctx.options |= getattr(ssl, "OP_LEGACY_SERVER_CONNECT", 0)
+    ctx.options |= _OP_LEGACY_SERVER_CONNECT
     return ctx
 
 

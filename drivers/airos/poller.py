@@ -8,8 +8,13 @@ The poller is the long-running task the daemon supervises: `run()` never raises 
 * network error / timeout: capped exponential backoff (drivers.backoff), state "unreachable";
 * malformed JSON / not a status document: counted, state "bad_data", log in again on the next
   try (the doc's "non-JSON -> re-login once, then back off"), with backoff;
-* wrong credentials: state "auth_failed", and only one more try every `auth_retry_s` (60 s),
-  so a typo in the config does not hammer the radio (airOS rate-limits / locks out logins).
+* wrong credentials: state "auth_failed", retried on the same capped backoff as any other
+  failure: a password fixed on the radio is picked up within seconds, because the robot
+  may be held until it is. Even at the cap that is one login a few seconds apart, which
+  airOS does not lock out. The refusal is logged once, then once a minute while it lasts.
+
+Every failure goes through the shared `drivers.reconnect.Reconnect` (backoff and log
+discipline); a change of failure class is logged at WARNING as news.
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ from drivers.airos.model import AirOsDataError, LinkQuality
 from drivers.backoff import Backoff
 from drivers.clock import REAL_CLOCK, Clock
 from drivers.health import DeviceHealth, LinkState
+from drivers.reconnect import Reconnect
 
 log = structlog.get_logger(__name__)
 
@@ -54,8 +60,8 @@ class AirOsPoller:
         on_update: Callable[[LinkQuality], None] | None = None,
         firmware: Firmware = "auto",
         session: aiohttp.ClientSession | None = None,
-        auth_retry_s: float = 60.0,
         backoff: Backoff | None = None,
+        remind_s: float = 60.0,
     ) -> None:
         if not poll_s > 0:
             raise ValueError(f"poll_s must be > 0, got {poll_s!r}")
@@ -71,13 +77,14 @@ class AirOsPoller:
         )
         self.url = str(self.client.base_url)
         self.poll_s = poll_s
-        self.auth_retry_s = auth_retry_s
         self._clock = clock
         self._on_update = on_update
         # Capped low: while RSSI^b is unknown the relay may be held still (rear_link =
         # "require"), so a radio that is back must be noticed within seconds, and one
         # HTTP request every few seconds costs nothing on the bridge.
         self._backoff = backoff or Backoff(initial_s=min(1.0, poll_s), maximum_s=max(5.0, 4.0 * poll_s))
+        self._reconnect = Reconnect(log.bind(url=self.url), "airos_poll_failed", backoff=self._backoff,
+                                    clock=clock, remind_s=remind_s, recovered_event="")
         self.latest: LinkQuality | None = None
         self.state: str = "connecting"
         self.last_error: str | None = None
@@ -146,16 +153,15 @@ class AirOsPoller:
         except (TimeoutError, AirOsConnectionError, aiohttp.ClientError) as exc:
             log.debug("airos_close_failed", url=self.url, error=str(exc))
 
-    def _set_state(self, state: str, error: str | None) -> None:
-        if state != self.state:
-            if state == "ok":
-                log.info("airos_link_up", url=self.url, previous=self.state)
-            else:
-                log.warning("airos_link_" + state, url=self.url, error=error)
-        elif error is not None:
-            log.debug("airos_still_" + state, url=self.url, error=error)
+    def _fail(self, state: str, error: BaseException | str, *, event: str | None = None,
+              unexpected: bool = False, **fields: object) -> float:
+        """Record a failed poll in `state`; returns the backoff delay before the next."""
+        self.counters["errors"] += 1
+        text = self._reconnect.failed(error, kind=state, event=event or "airos_link_" + state,
+                                      unexpected=unexpected, **fields)
         self.state = state
-        self.last_error = error
+        self.last_error = text
+        return self._reconnect.next_delay()
 
     async def poll_once(self) -> float:
         """One attempt (login if needed, then fetch). Returns the clock seconds to wait."""
@@ -169,56 +175,39 @@ class AirOsPoller:
                 self._had_session = True
             quality = await self.client.fetch()
         except AirOsAuthError as exc:
-            self.counters["errors"] += 1
             self.counters["auth_failures"] += 1
-            if self.state != "auth_failed":
-                log.error(
-                    "airos_auth_failed",
-                    url=self.url,
-                    error=str(exc),
-                    retry_in_s=self.auth_retry_s,
-                    hint="check the username and password; not retrying sooner",
-                )
-            self.state = "auth_failed"
-            self.last_error = f"{exc}; next try in {self.auth_retry_s:g} s"
-            return self.auth_retry_s
+            return self._fail("auth_failed", exc, event="airos_auth_failed",
+                              hint="check the username and password")
         except AirOsSessionExpired as exc:
             self._expired_in_row += 1
             self.client.logged_in = False
             if self._expired_in_row == 1:
                 log.info("airos_session_expired", url=self.url, error=str(exc))
                 return 0.0
-            self.counters["errors"] += 1
-            self._set_state("bad_data", f"session refused right after login: {exc}")
-            return self._backoff.next_delay()
+            return self._fail("bad_data", f"session refused right after login: {exc}")
         except AirOsTimeoutError as exc:
-            self.counters["errors"] += 1
             self.counters["timeouts"] += 1
-            self._set_state("unreachable", str(exc))
-            return self._backoff.next_delay()
+            return self._fail("unreachable", exc)
         except AirOsConnectionError as exc:
-            self.counters["errors"] += 1
-            self._set_state("unreachable", str(exc))
-            return self._backoff.next_delay()
+            return self._fail("unreachable", exc)
         except AirOsDataError as exc:
-            self.counters["errors"] += 1
             self.counters["bad_json"] += 1
             self.client.logged_in = False  # the doc's remedy: log in again, then back off
-            self._set_state("bad_data", str(exc))
-            return self._backoff.next_delay()
-        except Exception as exc:  # a long-running task must survive anything
-            self.counters["errors"] += 1
-            log.exception("airos_poll_crashed", url=self.url)
-            self._set_state("unreachable", f"{type(exc).__name__}: {exc}")
-            return self._backoff.next_delay()
+            return self._fail("bad_data", exc)
+        except Exception as exc:  # noqa: BLE001 - a long-running task must survive anything
+            return self._fail("unreachable", f"{type(exc).__name__}: {exc}", event="airos_poll_crashed",
+                              unexpected=True)
 
         self._expired_in_row = 0
         self._healthy = True
         self.counters["polls"] += 1
         self.latest = quality
         self.last_update_t = quality.t
-        self._backoff.reset()
-        self._set_state("ok", None)
+        self._reconnect.succeeded()
+        if self.state != "ok":
+            log.info("airos_link_up", url=self.url, previous=self.state)
+        self.state = "ok"
+        self.last_error = None
         if self._on_update is not None:
             try:
                 self._on_update(quality)

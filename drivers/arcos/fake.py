@@ -35,6 +35,7 @@ from drivers.arcos.codec import (
     encode_packet,
     split_vel2,
 )
+from drivers.arcos.fakemotion import MotionGuard, Pose, approach, drive_step
 from drivers.arcos.sip import (
     ANGLE_CONV_RAD,
     FLAG_ESTOP,
@@ -62,9 +63,7 @@ from drivers.memlink import LinkFaults, MemoryPort
 
 log = structlog.get_logger(__name__)
 
-Pose = tuple[float, float, float]
 SonarFn = Callable[[float, float, float], Sequence[float | None]]
-MotionGuard = Callable[[Pose, Pose], bool]
 
 SIP_PERIOD_S = 0.1
 FIRING_ORDER = tuple(i for pair in zip(range(8), range(8, 16), strict=True) for i in pair)
@@ -370,42 +369,19 @@ class FakeRobot:
             log.info("fake_robot_watchdog_stop")
         if not self._can_move():
             self._halt(hard=True)
-        self.vel_mm_s = _approach(self.vel_mm_s, self.target_vel_mm_s, self.trans_accel_mm_s2 * dt)
-        self.rvel_deg_s = _approach(self.rvel_deg_s, self.target_rvel_deg_s, self.rot_accel_deg_s2 * dt)
-        if dt <= 0 or (self.vel_mm_s == 0 and self.rvel_deg_s == 0):
-            self.stalled = False
-            return
-        dth = self.rvel_deg_s * dt
-        mid = math.radians(self.theta_deg + dth / 2.0)
-        ds = self.vel_mm_s * dt
-        old = self.pose
-        new = (self.x_mm + ds * math.cos(mid), self.y_mm + ds * math.sin(mid),
-               normalize_deg(self.theta_deg + dth))
+        self.vel_mm_s = approach(self.vel_mm_s, self.target_vel_mm_s, self.trans_accel_mm_s2 * dt)
+        self.rvel_deg_s = approach(self.rvel_deg_s, self.target_rvel_deg_s, self.rot_accel_deg_s2 * dt)
         self.stalled = False
-        if self.motion_guard is not None and not self.motion_guard(old, new):
-            # Blocked: the wheels stall. Move as far as allowed (halving the step a few
-            # times), so the robot ends up against the obstacle, not a step short of it.
-            self.stalled = True
-            full_ds, ds = ds, 0.0
-            new = (old[0], old[1], normalize_deg(self.theta_deg + dth))
-            if dth != 0 and not self.motion_guard(old, new):
-                dth = 0.0
-                new = old
-            turned = math.radians(new[2] - dth / 2.0)
-            frac = 0.5
-            for _ in range(5):
-                trial = (old[0] + frac * full_ds * math.cos(turned),
-                         old[1] + frac * full_ds * math.sin(turned), new[2])
-                if self.motion_guard(old, trial):
-                    ds, new = frac * full_ds, trial
-                    break
-                frac /= 2.0
-        self.x_mm, self.y_mm, self.theta_deg = new
+        if dt <= 0 or (self.vel_mm_s == 0 and self.rvel_deg_s == 0):
+            return
+        move = drive_step(self.pose, self.vel_mm_s, self.rvel_deg_s, dt, self.motion_guard)
+        self.stalled = move.stalled
+        self.x_mm, self.y_mm, self.theta_deg = move.pose
         # Odometry sees the same wheel motion, in its own frame.
-        omid = math.radians(self._odo[2] + dth / 2.0)
-        self._odo[0] += ds * math.cos(omid)
-        self._odo[1] += ds * math.sin(omid)
-        self._odo[2] = normalize_deg(self._odo[2] + dth)
+        omid = math.radians(self._odo[2] + move.turn_deg / 2.0)
+        self._odo[0] += move.dist_mm * math.cos(omid)
+        self._odo[1] += move.dist_mm * math.sin(omid)
+        self._odo[2] = normalize_deg(self._odo[2] + move.turn_deg)
 
     def _sonar_readings(self) -> tuple[tuple[int, int], ...]:
         if not self.sonar_on:
@@ -489,9 +465,3 @@ class FakeRobot:
             self._mem.write(data)
         if self._tcp is not None:
             self._tcp.write(data)
-
-
-def _approach(value: float, target: float, max_step: float) -> float:
-    if value < target:
-        return min(target, value + max_step)
-    return max(target, value - max_step)

@@ -175,7 +175,7 @@ def decode_raw_sip(ptype: int, payload: bytes) -> RawSip:
         right_raw=rv, battery_dv=batt, stall_bumpers=stall, control=control, flags=flags,
         compass=compass, sonar=tuple((int(i), int(r)) for i, r in sonar),
         grip_state=byte(0, 0), anport=byte(1, 0), analog=byte(2, 0), digin=byte(3, 0xFF),
-        digout=byte(4, 0xFF), **extra)  # type: ignore[arg-type]
+        digout=byte(4, 0xFF), **extra)
 
 
 @dataclass(frozen=True, slots=True)

@@ -11,7 +11,8 @@ from collections.abc import Mapping
 from typing import Any, Literal
 
 from drivers.clock import REAL_CLOCK, Clock
-from drivers.pantilt.base import PanTilt, PanTiltError, ReplyError, ServoCalibration
+from drivers.pantilt.base import PanTilt, PanTiltError, ReplyError
+from drivers.pantilt.calibration import ServoCalibration
 from drivers.pantilt.maestro import MaestroPanTilt
 from drivers.pantilt.ssc32 import Ssc32PanTilt
 

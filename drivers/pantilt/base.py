@@ -1,12 +1,9 @@
-"""The pan-tilt interface in degrees, servo calibration, and the shared serial session.
+"""The pan-tilt interface in degrees and the shared serial session.
 
-relayd speaks degrees (counter-clockwise positive: positive = to the robot's left);
-the controllers speak pulse widths. `ServoCalibration` maps one to the other per
-servo, piecewise linear through the pulse widths measured at -90, 0 and +90 degrees,
-and clamps to the servo's limits. `PanTilt` owns the one serial port shared by both
-servos (scan and link): every command goes through one `asyncio.Lock`, requests
-register their waiter before writing, and silence turns into a disconnect so `run()`
-reconnects with backoff. The back-ends (`maestro.py`, `ssc32.py`) only say how to
+Angles map to pulse widths through each servo's `ServoCalibration` (calibration.py).
+`PanTilt` owns the one serial port shared by both servos (scan and link): every
+command goes through one `asyncio.Lock`, requests register their waiter before
+writing, and silence turns into a disconnect so `run()` reconnects with backoff. The back-ends (`maestro.py`, `ssc32.py`) only say how to
 encode a command and how long each reply is.
 """
 
@@ -15,9 +12,7 @@ from __future__ import annotations
 import abc
 import asyncio
 import contextlib
-import math
 from collections.abc import Mapping
-from dataclasses import dataclass
 from typing import ClassVar
 
 import structlog
@@ -25,9 +20,13 @@ import structlog
 from drivers.backoff import Backoff
 from drivers.clock import REAL_CLOCK, Clock
 from drivers.health import DeviceHealth, LinkState
-from drivers.link import LinkError, open_link, wait_before_retry
+from drivers.link import LinkError, open_link
+from drivers.pantilt.calibration import ServoCalibration, check_angle, check_speed
+from drivers.reconnect import Reconnect
 
 log = structlog.get_logger(__name__)
+
+__all__ = ["PanTilt", "PanTiltError", "ReplyError", "ServoCalibration", "check_angle", "check_speed"]
 
 #: Replies are awaited at least this long in *wall* seconds: pty and USB latency do
 #: not shrink when the simulator runs its clock faster than real time.
@@ -42,83 +41,6 @@ class PanTiltError(Exception):
 
 class ReplyError(ValueError):
     """A controller reply that does not decode (wrong length, impossible value)."""
-
-
-@dataclass(frozen=True, slots=True)
-class ServoCalibration:
-    """Pulse widths of one servo at -90, 0 and +90 degrees, and its allowed range.
-
-    The pulses may decrease with the angle (a servo mounted upside down). Angles
-    beyond +-90 are extrapolated along the outer segment, so limits wider than 90
-    degrees work when the servo travels that far.
-    """
-
-    pulse_us: tuple[float, float, float] = (1000.0, 1500.0, 2000.0)
-    limits_deg: tuple[float, float] = (-90.0, 90.0)
-
-    def __post_init__(self) -> None:
-        pulses = tuple(float(p) for p in self.pulse_us)
-        limits = tuple(float(a) for a in self.limits_deg)
-        if len(pulses) != 3:
-            raise ValueError(f"pulse_us needs 3 values (-90, 0, +90 deg), got {self.pulse_us!r}")
-        if len(limits) != 2:
-            raise ValueError(f"limits_deg needs 2 values (min, max), got {self.limits_deg!r}")
-        if not all(math.isfinite(p) and p > 0 for p in pulses):
-            raise ValueError(f"pulse_us must be positive and finite, got {pulses!r}")
-        lo, mid, hi = pulses
-        if not (lo < mid < hi or lo > mid > hi):
-            raise ValueError(f"pulse_us must be strictly monotonic, got {pulses!r}")
-        if not all(math.isfinite(a) for a in limits) or not limits[0] < limits[1]:
-            raise ValueError(f"limits_deg must be finite with min < max, got {limits!r}")
-        # Normalise lists from TOML/pydantic into the declared tuple types.
-        object.__setattr__(self, "pulse_us", pulses)
-        object.__setattr__(self, "limits_deg", limits)
-
-    def clamp(self, angle_deg: float) -> float:
-        lo, hi = self.limits_deg
-        return min(hi, max(lo, angle_deg))
-
-    def angle_to_pulse_us(self, angle_deg: float) -> float:
-        lo, mid, hi = self.pulse_us
-        if angle_deg <= 0.0:
-            return mid + (mid - lo) * angle_deg / 90.0
-        return mid + (hi - mid) * angle_deg / 90.0
-
-    def pulse_us_to_angle(self, pulse_us: float) -> float:
-        lo, mid, hi = self.pulse_us
-        d = pulse_us - mid
-        if d == 0.0:
-            return 0.0
-        # Which side of centre: the -90 side lies towards `lo` whichever way pulses run.
-        if (d < 0) == (lo < mid):
-            return 90.0 * d / (mid - lo)
-        return 90.0 * d / (hi - mid)
-
-    @property
-    def us_per_deg(self) -> float:
-        """Mean slope over the whole travel, used to turn deg/s into pulse change per second."""
-        return abs(self.pulse_us[2] - self.pulse_us[0]) / 180.0
-
-    def pulse_range_us(self) -> tuple[float, float]:
-        """Smallest and largest pulse width this calibration can ever command."""
-        a = self.angle_to_pulse_us(self.limits_deg[0])
-        b = self.angle_to_pulse_us(self.limits_deg[1])
-        return (min(a, b), max(a, b))
-
-
-def check_angle(angle_deg: float) -> float:
-    angle = float(angle_deg)
-    if not math.isfinite(angle):
-        raise ValueError(f"angle_deg must be finite, got {angle_deg!r}")
-    return angle
-
-
-def check_speed(deg_s: float) -> float:
-    """Validate a slew speed: >= 0 deg/s; 0 and +inf both mean unlimited (returned as 0)."""
-    speed = float(deg_s)
-    if math.isnan(speed) or speed < 0:
-        raise ValueError(f"speed must be >= 0 deg/s (0 = unlimited), got {deg_s!r}")
-    return 0.0 if math.isinf(speed) else speed
 
 
 class _SerialProtocol(asyncio.Protocol):
@@ -160,6 +82,9 @@ class PanTilt(abc.ABC):
         self.max_timeouts = max_timeouts
         self.poll_s = poll_s
         self._backoff = backoff or Backoff(initial_s=0.2, maximum_s=5.0)
+        self._log = log.bind(device="pantilt", protocol=self.protocol_name, port=url)
+        self._reconnect = Reconnect(self._log, "pantilt_connect_failed", backoff=self._backoff,
+                                    clock=clock, url=url)
         self._speed_deg_s: dict[int, float] = {}
         self._lock = asyncio.Lock()
         self._transport: asyncio.Transport | None = None
@@ -181,7 +106,6 @@ class PanTilt(abc.ABC):
             "commands": 0, "timeouts": 0, "errors": 0, "reconnects": 0, "clamped": 0,
             "stray_bytes": 0,
         }
-        self._log = log.bind(device="pantilt", protocol=self.protocol_name, port=url)
 
     # ---- back-end hooks ---------------------------------------------------------------
 
@@ -314,36 +238,34 @@ class PanTilt(abc.ABC):
         """Connect, poll, reconnect with backoff, until `close()`; raises only CancelledError."""
         self._closed = False
         self._close_requested.clear()
-        failures = 0
+        reconnect = self._reconnect
         try:
             while not self._closed:
+                reconnect.attempt()
                 try:
                     await self.connect()
-                    failures = 0
+                    reconnect.succeeded()
                     await self._serve()
                 except (PanTiltError, LinkError) as exc:
                     if isinstance(exc, LinkError):
                         self._note_error(str(exc))  # PanTiltErrors were counted where raised
-                    log_fn = self._log.warning if failures == 0 else self._log.debug
-                    log_fn("pantilt_connect_failed", error=str(exc), attempt=failures + 1)
-                    failures += 1
+                    reconnect.failed(exc)
                 except Exception as exc:  # noqa: BLE001
-                    # A bug, not a device problem: keep the servo task alive, but say so loudly.
-                    self._note_error(f"unexpected: {exc!r}")
-                    self._log.exception("pantilt_unexpected_error")
-                    failures += 1
+                    # A bug, not a device problem: keep the servo task alive, but say so
+                    # loudly (reconnect logs it with its traceback).
+                    self._note_error(reconnect.failed(exc, unexpected=True))
                 if self._closed:
                     break
                 # Back off, but let close() end the wait at once, and retry a replugged
                 # adapter as soon as its path is back.
-                await wait_before_retry(self.url, self._backoff.next_delay(), self._clock,
-                                        self._close_requested)
+                await reconnect.wait(self._close_requested)
         finally:
             await self._drop()
 
     async def close(self) -> None:
         """Close the port; a running `run()` returns instead of reconnecting."""
         self._closed = True
+        self._reconnect.close()
         self._close_requested.set()
         await self._drop()
 

@@ -33,7 +33,13 @@ def travelled_us(distance_us: float, elapsed_s: float, speed_us_s: float,
                  accel_us_s2: float) -> float:
     """How far a ramp that started at rest has gone after `elapsed_s` (0 = unlimited)."""
     d = distance_us
-    if elapsed_s <= 0 or d <= 0:
+    if d <= 0:
+        return 0.0
+    if accel_us_s2 <= 0 and speed_us_s <= 0:
+        # No limits: the controller reports the new target at once, however little
+        # time passed (a virtual-time test asks in the same instant).
+        return d
+    if elapsed_s <= 0:
         return 0.0
     if accel_us_s2 <= 0:
         return d if speed_us_s <= 0 else min(d, speed_us_s * elapsed_s)

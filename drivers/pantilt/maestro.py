@@ -15,7 +15,8 @@ from enum import IntEnum, IntFlag
 from typing import Any
 
 from drivers.clock import REAL_CLOCK, Clock
-from drivers.pantilt.base import PanTilt, PanTiltError, ReplyError, ServoCalibration
+from drivers.pantilt.base import PanTilt, PanTiltError, ReplyError
+from drivers.pantilt.calibration import ServoCalibration
 
 #: Largest 14-bit data value.
 MAX_14BIT = 0x3FFF

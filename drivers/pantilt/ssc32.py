@@ -16,7 +16,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from drivers.clock import REAL_CLOCK, Clock
-from drivers.pantilt.base import PanTilt, PanTiltError, ReplyError, ServoCalibration
+from drivers.pantilt.base import PanTilt, PanTiltError, ReplyError
+from drivers.pantilt.calibration import ServoCalibration
 
 MAX_CHANNELS = 32
 MIN_PULSE_US = 500

@@ -13,11 +13,11 @@ from typing import Literal
 
 from drivers.clock import REAL_CLOCK, Clock
 from drivers.wifi.fake import ProcfsWriter
+from drivers.wifi.nl80211 import Nl80211Source
 from drivers.wifi.parsers import RSSI_MIN_DBM, plausible_rssi_dbm
 from drivers.wifi.sources import (
     PROC_NET_WIRELESS,
     IwSource,
-    Nl80211Source,
     ProcfsSource,
     RssiSample,
     RssiSource,

@@ -23,6 +23,8 @@ from prometheus_client.aiohttp import make_aiohttp_handler
 from pydantic import BaseModel, ValidationError
 
 from drivers.clock import Clock
+from relayd.api.history import History
+from relayd.api.history import install as install_history
 from relayd.api.models import DriveRequest, ModeRequest
 from relayd.api.openapi import build_openapi
 from relayd.metrics import Metrics
@@ -279,10 +281,14 @@ def make_app(
     metrics: Metrics | None = None,
     healthz_max_age_s: float = 1.0,
     max_drive_mm_s: float = DEFAULT_MAX_DRIVE_MM_S,
-    sse_heartbeat_s: float = 10.0,
+    sse_heartbeat_s: float = 1.0,
     sse_min_interval_s: float = 0.1,
 ) -> web.Application:
-    """The relayd web application. `metrics` defaults to a fresh `Metrics(state, clock)`."""
+    """The relayd web application. `metrics` defaults to a fresh `Metrics(state, clock)`.
+
+    The heartbeat is short because the live page treats 2 s without any event as stale
+    data: a daemon that is alive but unchanged must say so well within that.
+    """
     if metrics is None:
         metrics = Metrics(state, clock)
     ctx = ApiContext(
@@ -309,6 +315,7 @@ def make_app(
     app.router.add_post("/api/mode", handle_mode)
     app.router.add_post("/api/drive", handle_drive)
     app.router.add_static("/static/", STATIC_DIR, append_version=False)
+    install_history(app, History(state.snapshot, clock), _json)
     app.on_shutdown.append(_close_streams)
     return app
 

@@ -43,6 +43,30 @@ def _json(description: str, ref: str) -> dict[str, Any]:
 STATUS_SCHEMA: dict[str, Any] = openapi_schema(Status)
 
 
+def _column(items: dict[str, Any]) -> dict[str, Any]:
+    return {"type": "array", "items": items}
+
+
+HISTORY_SCHEMA: dict[str, Any] = _obj({
+    "period_s": _num(False, description="seconds between samples"),
+    "window_s": _num(False, description="how far back the daemon keeps samples"),
+    "next_seq": {"type": "integer", "minimum": 0,
+                 "description": "the sequence number the next sample will get"},
+    "thresholds": {"type": "object", "additionalProperties": {"type": "number"}},
+    "samples": _obj({
+        "seq": _column({"type": "integer", "minimum": 0}),
+        "age_s": _column({"type": "number", "minimum": 0}),
+        "rssi_leader_dbm": _column(_num()),
+        "rssi_behind_dbm": _column(_num()),
+        "bearing_deg": _column(_num()),
+        "state": _column({"type": "string", "enum": [s.value for s in DriveState]}),
+        "x_mm": _column(_num()),
+        "y_mm": _column(_num()),
+        "theta_deg": _column(_num()),
+    }),
+})
+
+
 def build_openapi(max_drive_mm_s: float) -> dict[str, Any]:
     """The document for an app whose drive limit is `max_drive_mm_s`."""
     wheel = {"type": "number", "minimum": -max_drive_mm_s, "maximum": max_drive_mm_s}
@@ -74,6 +98,19 @@ def build_openapi(max_drive_mm_s: float) -> dict[str, Any]:
                     "200": _json("the control loop ticked recently", "Health"),
                     "503": _json("the control loop is not ticking; `reason` says why", "Health"),
                 },
+            }},
+            "/history": {"get": {
+                "summary": "The last minutes of RSSI^l, RSSI^b, bearing, state and pose, as "
+                           "columns, oldest first (a bounded ring buffer in the daemon)",
+                "operationId": "getHistory",
+                "parameters": [{
+                    "name": "after", "in": "query", "required": False,
+                    "description": "only samples with a larger seq (-1 or absent: all); a value "
+                                   "beyond the newest returns all, the daemon having restarted",
+                    "schema": {"type": "integer", "minimum": -1},
+                }],
+                "responses": {"200": _json("samples, each column in the same order", "History"),
+                              "400": _error("`after` is not an integer >= -1")},
             }},
             "/metrics": {"get": {
                 "summary": "Prometheus metrics",
@@ -121,6 +158,7 @@ def build_openapi(max_drive_mm_s: float) -> dict[str, Any]:
             "securitySchemes": {"bearer": {"type": "http", "scheme": "bearer"}},
             "schemas": {
                 "Status": STATUS_SCHEMA,
+                "History": HISTORY_SCHEMA,
                 "Health": {
                     "type": "object",
                     "required": ["ok"],

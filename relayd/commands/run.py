@@ -11,7 +11,7 @@ import sys
 
 import structlog
 
-from relayd.config import DEFAULT_CONFIG_PATH, ConfigError, load_settings
+from relayd.config import DEFAULT_CONFIG_PATH, ConfigError, config_warnings, load_settings
 from relayd.logsetup import setup_logging
 
 
@@ -43,6 +43,8 @@ async def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         return _config_error(args.config, exc)
     log = structlog.get_logger("relayd")
+    for warning in config_warnings(settings):
+        log.warning("config_warning", problem=warning)
     log.info("starting", config=args.config, robot=settings.robot.port, pantilt=settings.pantilt.port)
     # Modules, config and drivers live as long as the process: moved out of the cyclic
     # collector's generations, they are not rescanned by full collections, which would
@@ -63,4 +65,7 @@ async def run(args: argparse.Namespace) -> int:
         await task
     except asyncio.CancelledError:
         pass
+    except ConfigError as exc:
+        # Found only at start (the API cannot bind): the devices were never touched.
+        return _config_error(args.config, exc)
     return 0

@@ -63,8 +63,28 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="sim-out", help="output directory (default ./sim-out)")
     parser.add_argument("--seed", type=int, default=1, help="world seed (shadowing, fading, sonar noise)")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
-    parser.add_argument("--log-level", default="warning",
-                        choices=["debug", "info", "warning", "error"], help="daemon log level in sim.log")
+    parser.add_argument("--log-level", default="info",
+                        choices=["debug", "info", "warning", "error"],
+                        help="daemon log level in sim.log (default info)")
+
+
+class SimLogFields:
+    """structlog processor: every sim.log line names its relay and carries the simulated time.
+
+    `relay` comes from the context each relay's tasks run in (None for the world's own
+    lines); `t` is the simulated second, on the same scale as trace.jsonl's `t`.
+    """
+
+    def __init__(self) -> None:
+        self.runner: Any = None
+
+    def __call__(self, _logger: Any, _method: str, event: dict[str, Any]) -> dict[str, Any]:
+        event.setdefault("relay", None)
+        event["t"] = round(self.runner.sim_time(), 3) if self.runner is not None else 0.0
+        return event
+
+
+SIM_LOG_FIELDS = SimLogFields()
 
 
 def format_summary(s: dict[str, Any]) -> str:
@@ -99,10 +119,12 @@ async def run_one(scenario: Any, relays: int, args: argparse.Namespace, out: Pat
 
     runner = SimRunner(sc, speed=args.speed, seed=args.seed, seconds=seconds, out_dir=out,
                        on_progress=progress, on_ready=ready)
+    SIM_LOG_FIELDS.runner = runner
     try:
         result = await runner.run()
     finally:
         progress.close()
+        SIM_LOG_FIELDS.runner = None
     if plots:
         sim_plots.write_run_plots(runner.world, result.records, out)
     return result.summary, result.records, runner.world
@@ -137,7 +159,8 @@ async def _run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     log_file = _open_log(out)
     try:
-        setup_logging(args.log_level, "json", stream=log_file)
+        # Plain JSON lines (no journald priority prefix): sim.log is read by tools and people.
+        setup_logging(args.log_level, "json", stream=log_file, journal=False, extra=[SIM_LOG_FIELDS])
         plots = not args.no_plots and sim_plots.available()
         if args.no_plots is False and not plots:
             print("matplotlib is not installed: no plots (pip install 'relayd[sim]')", file=sys.stderr)

@@ -15,8 +15,8 @@ from drivers.pantilt.fake import FakeMaestro, FakeSsc32
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--protocol", choices=("maestro", "ssc32"), required=True,
-                        help="controller to play: Pololu Maestro or Lynxmotion SSC-32")
+    parser.add_argument("--protocol", choices=("maestro", "ssc32"), default="maestro",
+                        help="controller to play: Pololu Maestro or Lynxmotion SSC-32 (default maestro)")
     parser.add_argument("--link", default=None,
                         help="also make this symlink to the pty (stable across hang-ups)")
     parser.add_argument("--speed", type=float, default=1.0,

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -30,11 +31,16 @@ def configure(parser: argparse.ArgumentParser) -> None:
 async def run(args: argparse.Namespace) -> int:
     work = args.dir or Path(tempfile.mkdtemp(prefix="relayd-rig-"))
     rig = FakeRig(work, leader_xy_m=tuple(args.leader), rear_signal_dbm=args.rear_dbm)
-    await rig.start()
     try:
+        await rig.start()
         path = rig.write_config(secrets_in_files=True, api_bind=args.api_bind, api_port=args.api_port)
         print(path, flush=True)
         await asyncio.Event().wait()
     finally:
+        # SIGTERM or Ctrl-C: the pty links go with the ptys (a stale link would point a
+        # later `relayd run` at whatever pty number the kernel hands out next). A temp
+        # dir we made goes entirely; a --dir the user named keeps its config and secrets.
         await rig.stop()
+        if args.dir is None:
+            shutil.rmtree(work, ignore_errors=True)
     return 0

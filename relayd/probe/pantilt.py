@@ -72,15 +72,17 @@ async def _probe(args: argparse.Namespace) -> int:
     except ValueError as exc:
         _err(str(exc))
         return 2
+    if args.angle is not None and cal.clamp(args.angle) != args.angle:
+        # A bring-up tool must not move somewhere else than asked: refuse, move nothing.
+        _err(f"{args.angle:g} deg is outside the limits {cal.limits_deg[0]:g}..{cal.limits_deg[1]:g} deg "
+             "(widen them with --limits if the servo really travels that far)")
+        return 2
     try:
         await pt.connect()
         if args.speed is not None:
             await pt.set_speed(args.channel, args.speed)
         if args.angle is not None:
-            commanded = await pt.set_angle(args.channel, args.angle)
-            if commanded != args.angle:
-                _err(f"{args.angle:g} deg is outside the limits {cal.limits_deg}; "
-                     f"commanded {commanded:g} deg")
+            await pt.set_angle(args.channel, args.angle)
             await pt.wait_stopped(args.wait)
         angle = await pt.get_angle(args.channel)
         moving = await pt.is_moving()
@@ -93,10 +95,12 @@ async def _probe(args: argparse.Namespace) -> int:
         return 2
     finally:
         await pt.close()
+    # The pulse width is what calibration writes into scan_pulse_us / link_pulse_us.
+    pulse_us = cal.angle_to_pulse_us(angle)
     if args.json:
-        print(json.dumps({"channel": args.channel, "angle_deg": round(angle, 2), "moving": moving}),
-              flush=True)
+        print(json.dumps({"channel": args.channel, "angle_deg": round(angle, 2),
+                          "pulse_us": round(pulse_us, 1), "moving": moving}), flush=True)
     else:
-        print(f"channel {args.channel}: {angle:.2f} deg, {'moving' if moving else 'still'}"
+        print(f"channel {args.channel}: {angle:.2f} deg, pulse {pulse_us:.0f} us, {'moving' if moving else 'still'}"
               + (f", controller errors: {', '.join(errors)}" if errors else ""), flush=True)
     return 0

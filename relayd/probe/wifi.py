@@ -3,12 +3,14 @@
 Prints one line per sample at the sample rate: with `--json` an object
 `{"t", "rssi_dbm", "fresh"}` (t in seconds since the probe started), otherwise a
 readable line. Exits 0 when at least one fresh sample was seen, 1 otherwise (with the
-source's last error on stderr), so it doubles as a bring-up check.
+source's last error on stderr), so it doubles as a bring-up check. A missing interface
+or procfs file exits 1 at the first read, with the reason; `--seconds` bounds every run.
 """
 
 from __future__ import annotations
 
 import argparse
+import asyncio
 import json
 import sys
 
@@ -38,25 +40,41 @@ async def run(args: argparse.Namespace) -> int:
         return await _sample(args)
 
 
+def _print(args: argparse.Namespace, t: float, rssi_dbm: float | None, fresh: bool) -> None:
+    if args.json:
+        print(json.dumps({"t": t, "rssi_dbm": rssi_dbm, "fresh": fresh}), flush=True)
+    else:
+        level = "   --" if rssi_dbm is None else f"{rssi_dbm:5.0f}"
+        print(f"{t:8.3f} s  {level} dBm  {'fresh' if fresh else 'stale'}", flush=True)
+
+
 async def _sample(args: argparse.Namespace) -> int:
     clock = REAL_CLOCK
     source = make_source(args.source, args.interface, path=args.path, clock=clock,
                          iw_path=args.iw)
     t0 = clock.now()
     fresh_seen = 0
+    printed = 0
     try:
-        async for sample in source.stream(args.hz):
-            t = round(sample.t - t0, 3)
-            if t > args.seconds:
-                break
-            fresh_seen += sample.fresh
-            if args.json:
-                print(json.dumps({"t": t, "rssi_dbm": sample.rssi_dbm, "fresh": sample.fresh}),
-                      flush=True)
-            else:
-                level = "   --" if sample.rssi_dbm is None else f"{sample.rssi_dbm:5.0f}"
-                print(f"{t:8.3f} s  {level} dBm  {'fresh' if sample.fresh else 'stale'}",
-                      flush=True)
+        # A read that hangs (a stuck `iw`) must not hold the probe past --seconds.
+        async with asyncio.timeout(args.seconds + 2.0):
+            async for sample in source.stream(args.hz):
+                t = round(sample.t - t0, 3)
+                # The first sample is always shown: `--seconds 0` means one reading, even
+                # when a loaded machine takes a moment to deliver it.
+                if printed and t > args.seconds:
+                    break
+                if not source.available and source.last_error is not None \
+                        and source.last_error.startswith("interface missing"):
+                    # Nothing to sample: say why at once instead of printing "stale" lines.
+                    print(f"relayd probe wifi: {source.last_error}", file=sys.stderr)
+                    return 1
+                fresh_seen += sample.fresh
+                _print(args, t, sample.rssi_dbm, sample.fresh)
+                printed += 1
+    except TimeoutError:
+        print(f"relayd probe wifi: {args.source} did not answer within {args.seconds:g} s", file=sys.stderr)
+        return 1
     finally:
         await source.close()
     counters = " ".join(f"{k}={v}" for k, v in source.counters.items())

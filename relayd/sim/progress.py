@@ -1,28 +1,43 @@
 """A one-line progress display for `relayd sim` on a terminal.
 
-Rewrites a single line (carriage return, no newline) at most every `every_s` wall
-seconds, so a fast simulation does not flood the terminal; prints nothing when the
+Rewrites a single line (carriage return, no newline), cut to the terminal's width so
+it never wraps, at most every `every_s` wall seconds, so a fast simulation does not flood the terminal; prints nothing when the
 stream is not a terminal (CI logs, pipes), where the summary alone is useful.
 """
 
 from __future__ import annotations
 
+import os
+import shutil
 import sys
 import time
 from typing import Any, TextIO
 
 
-def progress_text(rec: dict[str, Any], duration_s: float) -> str:
-    """The progress line for one trace record."""
-    parts = [f"t={rec['t']:6.1f}/{duration_s:.0f}s",
+def progress_text(rec: dict[str, Any], duration_s: float, width: int | None = None) -> str:
+    """The progress line for one trace record, at most `width` characters if given.
+
+    Time, leader and throughput come first; relays follow while they fit, and the
+    ones that do not are counted (`+2`) rather than wrapped onto a new line,
+    which a carriage return cannot rewrite. A relay reads `name:state/RSSI^l/gap`.
+    """
+    parts = [f"t={rec['t']:.1f}/{duration_s:.0f}s",
              f"leader=({rec['leader']['x']:.1f},{rec['leader']['y']:.1f})",
              f"e2e={rec['e2e_mbps']:4.1f}Mbps" + (" BROKEN" if rec["broken"] else "")]
+    relays = []
     for r in rec["relays"]:
         rssi = r["rssi_l_dbm"]
-        parts.append(f"{r['name']}:{r['state']}"
-                     + (f"/{rssi:.0f}dBm" if isinstance(rssi, int | float) else "")
-                     + f"/gap {r['gap_m']:.1f}m")
-    return "  ".join(parts)
+        relays.append(f"{r['name']}:{r['state']}"
+                      + (f"/{rssi:.0f}dBm" if isinstance(rssi, int | float) else "")
+                      + f"/{r['gap_m']:.1f}m")
+    text = " ".join(parts + relays)
+    if width is None or len(text) <= width:
+        return text
+    for shown in range(len(relays) - 1, -1, -1):
+        text = " ".join([*parts, *relays[:shown], f"+{len(relays) - shown}"])
+        if len(text) <= width:
+            return text
+    return text[:width]
 
 
 class ProgressLine:
@@ -46,12 +61,20 @@ class ProgressLine:
         if now - self._last < self.every_s:
             return
         self._last = now
-        text = progress_text(rec, self.duration_s)
+        # One column short of the terminal: writing the last column wraps on some terminals.
+        text = progress_text(rec, self.duration_s, self._columns() - 1)
         pad = max(0, self._width - len(text))
         self._width = len(text)
         self.stream.write("\r" + text + " " * pad)
         self.stream.flush()
         self.lines += 1
+
+    def _columns(self) -> int:
+        # Asked each time: the user may resize the terminal during a long run.
+        try:
+            return max(20, os.get_terminal_size(self.stream.fileno()).columns)
+        except (AttributeError, OSError, ValueError):
+            return shutil.get_terminal_size().columns
 
     def close(self) -> None:
         if self.enabled and self.lines:

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import contextvars
 import json
 import math
 import os
@@ -35,18 +36,29 @@ import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import structlog
 
 from drivers.clock import Clock
 from relayd.sim.scenario import Scenario
+from relayd.sim.summary import summarize, unapplied_command_s
 from relayd.sim.world import World
 from relayd.vtime import LoopClock, VirtualTimeLoop
 
+if TYPE_CHECKING:
+    from drivers.airos.fake import FakeAirOs
+    from drivers.arcos.fake import FakeRobot
+    from drivers.pantilt.fake import FakeMaestro
+    from drivers.wifi.fake import ProcfsWriter
+    from relayd.daemon import Daemon
+    from relayd.sim.inproc import MemoryRssi
+
+__all__ = ["SimRelay", "SimResult", "SimRunner", "relay_settings", "summarize", "unapplied_command_s"]
+
 log = structlog.get_logger(__name__)
 
-#: Pulse widths at -90 / 0 / +90 degrees in the generated config (SPEC 4.2 default).
+#: Pulse widths at -90 / 0 / +90 degrees in the generated config (the example config's default).
 PULSE_US = (1000.0, 1500.0, 2000.0)
 AP_PASSWORD_ENV = "RELAYD_SIM_AP_PASSWORD"
 API_TOKEN_ENV = "RELAYD_SIM_API_TOKEN"
@@ -88,7 +100,7 @@ def _pose3(p: Any) -> tuple[float, float, float]:
 
 def relay_settings(*, robot_port: str, servo_port: str, procfs_path: str, rear_url: str,
                    front_url: str, control: dict[str, Any], scan: dict[str, Any]) -> dict[str, Any]:
-    """The config document (SPEC 4.2 sections and keys) of one simulated relay."""
+    """The config document (config/relayd.toml's sections and keys) of one simulated relay."""
     return {
         "robot": {"port": robot_port, "baud": 9600},
         "pantilt": {"port": servo_port, "protocol": "maestro", "scan_channel": 0, "link_channel": 1,
@@ -105,17 +117,23 @@ def relay_settings(*, robot_port: str, servo_port: str, procfs_path: str, rear_u
     }
 
 
+def _relay_context(name: str) -> contextvars.Context:
+    ctx = contextvars.copy_context()
+    ctx.run(structlog.contextvars.bind_contextvars, relay=name)
+    return ctx
+
+
 @dataclass(slots=True)
 class SimRelay:
     """One simulated relay: its fakes and its daemon."""
 
     name: str
-    robot: Any
-    maestro: Any
-    procfs: Any
-    rear: Any
-    front: Any
-    daemon: Any
+    robot: FakeRobot
+    maestro: FakeMaestro
+    procfs: ProcfsWriter | MemoryRssi
+    rear: FakeAirOs
+    front: FakeAirOs
+    daemon: Daemon
     task: asyncio.Task[None] | None = None
 
 
@@ -124,74 +142,6 @@ class SimResult:
     summary: dict[str, Any]
     records: list[dict[str, Any]]
     api_ports: dict[str, int | None] = field(default_factory=dict)
-
-
-def unapplied_command_s(records: Sequence[dict[str, Any]], i: int, grace_s: float = 1.0) -> float:
-    """Clock seconds relay i's daemon commanded wheel motion the robot never started on.
-
-    The fake robot accelerates within a few tenths of a second, so a daemon that has
-    commanded more than 50 mm/s for longer than `grace_s` while the true speed is still
-    zero has commands stuck on their way (a queue backlog, a dead link). Stalls against
-    an obstacle do not count: the robot's speed stays set while the world rejects it.
-    """
-    total = 0.0
-    since: float | None = None
-    prev_t: float | None = None
-    for r in records:
-        rel = r["relays"][i]
-        wheels = rel.get("wheels") or [0, 0]
-        stuck = max(abs(wheels[0]), abs(wheels[1])) > 50 and rel.get("v_mm_s", 0) == 0 \
-            and abs(rel.get("w_deg_s", 0)) == 0
-        if stuck:
-            since = r["t"] if since is None else since
-            if prev_t is not None and r["t"] - since > grace_s:
-                total += r["t"] - prev_t
-        else:
-            since = None
-        prev_t = r["t"]
-    return round(total, 2)
-
-
-def summarize(records: Sequence[dict[str, Any]], *, scenario: str, relays: int, goal: tuple[float, float],
-              goal_radius_m: float, collisions: int, followers: Sequence[dict[str, Any]]) -> dict[str, Any]:
-    """summary.json from the trace: SPEC 5's keys plus a few that help reading a run.
-
-    goal_reached: the leader got within goal_radius_m of its final waypoint while the
-    end-to-end link had held all the way (the paper's "reached the destination while
-    staying connected"). link_broken_at_s: the first record with any hop down.
-    """
-    broken_at = next((r["t"] for r in records if r["broken"]), None)
-    arrived_at = next((r["t"] for r in records
-                       if math.hypot(r["leader"]["x"] - goal[0], r["leader"]["y"] - goal[1]) <= goal_radius_m),
-                      None)
-    reached = arrived_at is not None and (broken_at is None or broken_at > arrived_at)
-    e2e = [r["e2e_mbps"] for r in records]
-    last = records[-1] if records else None
-    out_followers = []
-    for i, f in enumerate(followers):
-        gaps = [r["relays"][i]["gap_m"] for r in records]
-        out_followers.append({
-            "name": f["name"],
-            "max_gap_m": round(max(gaps), 3) if gaps else None,
-            "final_gap_m": round(gaps[-1], 3) if gaps else None,
-            "stopped_reason": None if last is None else last["relays"][i]["reason"],
-            "final_state": None if last is None else last["relays"][i]["state"],
-            "collisions": f["collisions"],
-            "travelled_m": round(f["travelled_m"], 3),
-            "unapplied_command_s": unapplied_command_s(records, i) if records else 0.0,
-        })
-    return {
-        "scenario": scenario,
-        "relays": relays,
-        "sim_seconds": round(last["t"], 2) if last else 0.0,
-        "goal_reached": reached,
-        "goal_reached_at_s": arrived_at,
-        "link_broken_at_s": broken_at,
-        "min_e2e_mbps": min(e2e) if e2e else 0.0,
-        "final_e2e_mbps": e2e[-1] if e2e else 0.0,
-        "collisions": collisions,
-        "followers": out_followers,
-    }
 
 
 class SimRunner:
@@ -207,6 +157,7 @@ class SimRunner:
         # Real-time mode's clock; on a virtual-time loop run() replaces it with the loop's.
         self.clock: Clock = Clock(speed or 1.0)
         self.virtual = False
+        self.t0: float | None = None
         self.seed = seed
         self.seconds = scenario.duration_s if seconds is None else seconds
         self.out_dir = out_dir
@@ -346,7 +297,7 @@ class SimRunner:
     async def _world_loop(self) -> None:
         clock = self.clock
         dt = 1.0 / self.scenario.tick_hz
-        t0 = clock.now()
+        t0 = self.t0 = clock.now()
         next_t = t0
         next_airos = 0.0
         next_trace = 0.0
@@ -385,10 +336,12 @@ class SimRunner:
                 work = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="relayd-sim-",
                                                                             dir=scratch_root())))
             try:
-                for i in range(len(self.world.relays)):
-                    self.relays.append(await self._start_relay(i, work))
-                for r in self.relays:
-                    r.task = asyncio.create_task(r.daemon.run(), name=f"sim-daemon-{r.name}")
+                contexts = [_relay_context(b.name) for b in self.world.relays]
+                for i, ctx in enumerate(contexts):
+                    # In the relay's own context: its fakes' tasks inherit `relay=<name>` for sim.log.
+                    self.relays.append(await asyncio.create_task(self._start_relay(i, work), context=ctx))
+                for r, ctx in zip(self.relays, contexts, strict=True):
+                    r.task = asyncio.create_task(r.daemon.run(), name=f"sim-daemon-{r.name}", context=ctx)
                 ports = await self._wait_ports() if self.relays else {}
                 if self.on_ready is not None:
                     self.on_ready(ports)
@@ -414,6 +367,10 @@ class SimRunner:
                     await closer()
             with contextlib.suppress(Exception):
                 r.maestro.close()
+
+    def sim_time(self) -> float:
+        """Simulated seconds since the world started (trace.jsonl's `t`); 0 while relays start."""
+        return 0.0 if self.t0 is None else self.clock.now() - self.t0
 
     def _summary(self, ports: dict[str, int | None]) -> dict[str, Any]:
         followers = [{"name": b.name, "collisions": b.collisions, "travelled_m": self._travelled[i]}

@@ -138,16 +138,8 @@ class Scenario(_Model):
 
     @model_validator(mode="after")
     def _consistent(self) -> Scenario:
-        if self.relays > len(self.relay):
-            raise ValueError(f"relays = {self.relays} but only {len(self.relay)} [[relay]] start poses")
-        losses = self.wall_losses()
-        for i, w in enumerate(self.walls):
-            if w.material not in losses:
-                raise ValueError(f"walls.{i}.material: unknown material {w.material!r} "
-                                 f"(known: {', '.join(sorted(losses))})")
-        for i, b in enumerate(self.boxes):
-            if b.material not in losses:
-                raise ValueError(f"boxes.{i}.material: unknown material {b.material!r}")
+        for problem in scenario_problems(self.model_dump()):
+            raise ValueError(problem)
         return self
 
     def wall_losses(self) -> dict[str, float]:
@@ -187,20 +179,74 @@ class Scenario(_Model):
         return self.model_copy(update={"relays": n})
 
 
-def _messages(exc: ValidationError) -> list[str]:
+def _messages(exc: ValidationError, prefix: str = "") -> list[str]:
     out = []
     for e in exc.errors():
-        loc = ".".join(str(p) for p in e["loc"])
+        loc = ".".join(str(p) for p in (prefix, *e["loc"]) if p != "")
         msg = e["msg"].removeprefix("Value error, ")
         out.append(f"{loc}: {msg}" if loc else msg)
     return out
 
 
+def _list(v: Any) -> list[Any]:
+    return v if isinstance(v, list) else []
+
+
+def _dict(v: Any) -> dict[str, Any]:
+    return v if isinstance(v, dict) else {}
+
+
+def scenario_problems(data: dict[str, Any]) -> list[str]:
+    """The rules between keys, on the raw document, so they are reported with the schema errors."""
+    out: list[str] = []
+    losses = set(DEFAULT_WALL_LOSS_DB) | set(_dict(_dict(data.get("radio")).get("wall_loss_db")))
+    for group in ("walls", "boxes"):
+        for i, item in enumerate(_list(data.get(group))):
+            material = _dict(item).get("material")
+            if isinstance(material, str) and material not in losses:
+                out.append(f"{group}.{i}.material: unknown material {material!r} (known: {', '.join(sorted(losses))})")
+    relays, starts = data.get("relays", 1), _list(data.get("relay"))
+    if isinstance(relays, int) and not isinstance(relays, bool) and relays > len(starts):
+        out.append(f"relays: relays = {relays} but only {len(starts)} [[relay]] start poses")
+    return out
+
+
+def _daemon_sections(data: dict[str, Any]) -> list[str]:
+    """`control` and `scan` tables (and each relay's `control`) checked as the daemon will check them."""
+    from relayd.config import ControlSettings, ScanSettings
+
+    out: list[str] = []
+    base = _dict(data.get("control"))
+    for key, model, doc in (("control", ControlSettings, base), ("scan", ScanSettings, _dict(data.get("scan")))):
+        try:
+            model.model_validate(doc)
+        except ValidationError as exc:
+            out += _messages(exc, key)
+    for i, relay in enumerate(_list(data.get("relay"))):
+        own = _dict(_dict(relay).get("control"))
+        if not own:
+            continue
+        try:
+            ControlSettings.model_validate({**base, **own})
+        except ValidationError as exc:
+            # Only what this relay adds: errors of the shared table are reported once, above.
+            inherited = tuple(f"relay.{i}.control.{k}:" for k in base if k not in own)
+            out += [m for m in _messages(exc, f"relay.{i}.control") if not m.startswith(inherited)]
+    return out
+
+
 def parse_scenario(data: dict[str, Any]) -> Scenario:
+    """Validate a scenario document: every error at once, each naming its key."""
+    problems = scenario_problems(data) + _daemon_sections(data)
     try:
-        return Scenario.model_validate(data)
+        scenario = Scenario.model_validate(data)
+        schema: list[str] = []
     except ValidationError as exc:
-        raise ScenarioError(_messages(exc)) from None
+        schema = _messages(exc)
+    errors = [m for m in schema if m not in problems] + problems
+    if errors:
+        raise ScenarioError(errors)
+    return scenario
 
 
 def builtin_names() -> list[str]:
@@ -214,9 +260,15 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
     p = Path(name_or_path)
     if p.suffix == ".toml" or p.exists():
         try:
-            text = p.read_text(encoding="utf-8")
+            raw = p.read_bytes()
         except OSError as exc:
             raise ScenarioError([f"{p}: {exc.strerror or exc}"]) from None
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            from relayd.config_checks import undecodable
+
+            raise ScenarioError([undecodable(raw, exc)]) from None
     else:
         res = resources.files("relayd.sim") / "scenarios" / f"{name_or_path}.toml"
         if not res.is_file():

@@ -1,6 +1,9 @@
 // relayd live page: renders /status documents pushed over /events (Server-Sent Events).
 // No framework, no CDN: the page must work on a laptop with no internet in a corridor.
 // Every value from the robot is written with textContent / attributes, never as HTML.
+// The page never lies about freshness: with no event for STALE_AFTER_MS (the daemon
+// sends a heartbeat every second while nothing changes) or a broken stream, it greys
+// out, says how old the data is, and shows no state or wheel speed as current.
 "use strict";
 
 const SVG_NS = "http://www.w3.org/2000/svg";
@@ -17,11 +20,16 @@ const SONAR_POSES = [
   [-144, -136, -90], [-189, -119, -130], [-223, -79, -150], [-241, -27, -170],
   [-241, 27, 170], [-223, 79, 150], [-189, 119, 130], [-144, 136, 90],
 ];
-// No event (status or heartbeat) for this long means the stream is dead.
-const STALE_AFTER_MS = 15000;
+// No event (status or heartbeat) for this long means the data is not current.
+const STALE_AFTER_MS = 2000;
+// Sonar ranges at or over this mean no echo (ARIA's maximum): nothing to label.
+const NO_ECHO_MM = 5000;
 
 const $ = (id) => document.getElementById(id);
 let lastMessageMs = 0;
+let lastDoc = null;
+let streamBroken = true;
+let isStale = true;
 
 function svg(tag, attrs, parent) {
   const el = document.createElementNS(SVG_NS, tag);
@@ -141,9 +149,14 @@ function renderSonar(s) {
       svg("circle", { cx: sx, cy: sy, r: 45, class: "sonar-none" }, g);
       return;
     }
-    if (i < 8 && (frontMin === null || range < frontMin)) frontMin = range;
+    if (i < 8 && range < NO_ECHO_MM && (frontMin === null || range < frontMin)) frontMin = range;
     const reach = Math.min(range, SONAR_VIEW_MM);
     const ex = -(y + reach * Math.sin(a)), ey = -(x + reach * Math.cos(a));
+    if (range >= NO_ECHO_MM) {
+      // Nothing echoed: a faint dotted ray to the rim, no wedge and no number.
+      svg("line", { x1: sx, y1: sy, x2: ex.toFixed(0), y2: ey.toFixed(0), class: "ray noecho" }, g);
+      return;
+    }
     const cls = range < thrO ? "near" : range < 3000 ? "mid" : "far";
     // The beam is ±15°: draw it as a wedge so a near obstacle reads at a glance.
     const half = (15 * Math.PI) / 180;
@@ -158,7 +171,7 @@ function renderSonar(s) {
     const label = svg("text", { x: tx.toFixed(0), y: ty.toFixed(0), class: "range-label" }, g);
     label.textContent = (range / 1000).toFixed(2);
   });
-  setText("sonar-min", frontMin === null ? "" : `front min ${(frontMin / 1000).toFixed(2)} m`);
+  setText("sonar-min", frontMin === null ? "front: no echo" : `front min ${(frontMin / 1000).toFixed(2)} m`);
 }
 
 function renderGauge(barId, valId, thrId, rssi, thr, goodWhenBelow) {
@@ -206,16 +219,40 @@ function renderWheel(barId, valId, mmS, vmax) {
   fill.className = mmS >= 0 ? "fill fwd" : "fill rev";
 }
 
+// Everything that carries an age, aged by `extraS` seconds: while the page has no
+// current data, ages keep growing from the last update instead of freezing at "0.0 s".
+function renderAges(s, extraS, stale) {
+  const plus = (age) => (typeof age === "number" ? age + extraS : age);
+  fillTable("links", Object.entries(s.links || {}).map(([name, l]) => [
+    name, fmt(l.signal_dbm, 0), fmt(l.noise_dbm, 0), fmt(l.ccq_pct, 0),
+    fmt(l.tx_mbps, 1), fmt(l.rx_mbps, 1), fmt(plus(l.age_s), 1),
+  ]));
+  fillTable("health", Object.entries(s.health || {}).map(([name, h]) => [
+    name,
+    stale ? { text: "unknown", cls: "unknown" }
+      : { text: h.connected ? "up" : "down", cls: h.connected ? "ok" : "bad" },
+    fmt(plus(h.age_s), 2), String(h.errors), String(h.reconnects), h.last_error || "",
+  ]));
+  const scan = s.last_scan;
+  if (scan && Array.isArray(scan.angles)) {
+    const n = (scan.rssi || []).filter((v) => typeof v === "number").length;
+    setText("scan-meta", `${n} samples · ${fmt(plus(scan.age_s), 1, "s")} ago` +
+      (scan.period_s ? ` · period ${fmt(scan.period_s, 2, "s")}` : ""));
+  }
+}
+
 function render(s) {
-  setText("robot-name", s.robot || "unnamed robot");
-  document.title = `relayd · ${s.robot || ""} · ${s.state}`;
+  const name = s.display_name || s.robot;
+  setText("robot-name", name || "unnamed robot");
+  document.title = `relayd · ${name || ""} · ${s.state}`;
   setText("mode", s.mode);
   $("mode").className = `badge mode-${s.mode}`;
   setText("drive-state", s.state);
   $("drive-state").className = `badge state-${s.state}`;
   setText("situation", ["clear", "avoiding", "obstacle penalty"][s.situation] || String(s.situation));
   $("situation").className = `badge situation-${s.situation}`;
-  setText("reason", s.reason);
+  setText("reason", Reasons.describe(s));
+  setText("reason-code", s.reason);
   setText("version", s.version);
 
   renderScan(s);
@@ -224,15 +261,13 @@ function render(s) {
   const thr = s.thresholds || {};
   renderGauge("bar-l", "rssi-l", "thr-l", s.rssi_leader_dbm, thr.threshold_l_dbm, true);
   renderGauge("bar-b", "rssi-b", "thr-b", s.rssi_behind_dbm, thr.threshold_b_dbm, false);
-  fillTable("links", Object.entries(s.links || {}).map(([name, l]) => [
-    name, fmt(l.signal_dbm, 0), fmt(l.noise_dbm, 0), fmt(l.ccq_pct, 0),
-    fmt(l.tx_mbps, 1), fmt(l.rx_mbps, 1), fmt(l.age_s, 1),
-  ]));
+  renderAges(s, 0, false);
 
   const vmax = thr.v_max_mm_s || 400;
   renderWheel("wheel-l", "wheel-l-val", s.wheels_mm_s.left, vmax);
   renderWheel("wheel-r", "wheel-r-val", s.wheels_mm_s.right, vmax);
   const p = s.pose || {};
+  History.setLive(p);
   setText("pose", p.x_mm === null || p.x_mm === undefined ? "—"
     : `x ${fmt(p.x_mm / 1000, 2, "m")}  y ${fmt(p.y_mm / 1000, 2, "m")}  θ ${fmt(p.theta_deg, 0, "°")}`);
   setText("battery", fmt(s.battery_v, 1, "V"));
@@ -240,46 +275,85 @@ function render(s) {
   setText("scan-count", String(s.scan_count));
   setText("uptime", fmt(s.uptime_s, 0, "s"));
 
-  fillTable("health", Object.entries(s.health || {}).map(([name, h]) => [
-    name,
-    { text: h.connected ? "up" : "down", cls: h.connected ? "ok" : "bad" },
-    fmt(h.age_s, 2), String(h.errors), String(h.reconnects), h.last_error || "",
-  ]));
+
 }
 
 function markLive() {
   lastMessageMs = Date.now();
-  $("live-dot").className = "dot live";
-  setText("live-text", "live");
+  streamBroken = false;
+  checkStale();
+}
+
+function ago() {
+  return lastMessageMs ? `last update ${Math.floor((Date.now() - lastMessageMs) / 1000)} s ago` : "no update yet";
+}
+
+// What may not be shown as current once the data is old: state, mode, wheels, devices.
+function blankCurrent() {
+  for (const id of ["mode", "drive-state", "situation"]) {
+    setText(id, "unknown");
+    $(id).className = "badge state-unknown";
+  }
+  document.title = `relayd · ${lastDoc ? lastDoc.display_name || lastDoc.robot || "" : ""} · no current data`;
+  for (const [bar, val] of [["wheel-l", "wheel-l-val"], ["wheel-r", "wheel-r-val"]]) {
+    setText(val, "—");
+    $(bar).querySelector(".fill").style.height = "0";
+  }
+  setText("motors", "unknown");
+  setText("uptime", "unknown");
+  const last = lastDoc ? `last known: ${Reasons.describe(lastDoc)}` : "nothing received yet";
+  setText("reason", `no current data \u00b7 ${last}`);
 }
 
 function checkStale() {
-  if (lastMessageMs && Date.now() - lastMessageMs > STALE_AFTER_MS) {
+  const old = !lastMessageMs || Date.now() - lastMessageMs > STALE_AFTER_MS;
+  const stale = old || streamBroken;
+  if (stale) {
     $("live-dot").className = "dot stale";
-    setText("live-text", `no data for ${Math.round((Date.now() - lastMessageMs) / 1000)} s`);
+    setText("live-text", streamBroken && lastMessageMs ? `connection lost · ${ago()}` : ago());
+    setText("stale-age", lastMessageMs ? `The last update came ${Math.floor((Date.now() - lastMessageMs) / 1000)} s ago.` : "No update yet.");
+    if (!isStale) blankCurrent();
+    if (lastDoc && lastMessageMs) renderAges(lastDoc, (Date.now() - lastMessageMs) / 1000, true);
+  } else {
+    $("live-dot").className = "dot live";
+    setText("live-text", "live");
+  }
+  if (stale !== isStale) {
+    isStale = stale;
+    document.body.classList.toggle("stale", stale);
+    $("stale-banner").hidden = !stale;
+    if (!stale && lastDoc) render(lastDoc);
   }
 }
 
 function connect() {
   const es = new EventSource("/events");
   es.addEventListener("status", (ev) => {
-    markLive();
     try {
-      render(JSON.parse(ev.data));
+      lastDoc = JSON.parse(ev.data);
     } catch (err) {
       console.error("bad status event", err);
+      return;
     }
+    markLive();
+    if (!isStale) render(lastDoc);
   });
   es.addEventListener("heartbeat", markLive);
   es.onerror = () => {
-    $("live-dot").className = "dot stale";
-    setText("live-text", "reconnecting…");
+    // The browser retries by itself; until then nothing on the page is current.
+    streamBroken = true;
+    checkStale();
   };
 }
 
 document.addEventListener("DOMContentLoaded", () => {
   drawPolarGrid(undefined);
   drawSonarGrid();
+  Control.init();
+  Reasons.load().then(() => { if (lastDoc && !isStale) render(lastDoc); });
   connect();
-  setInterval(checkStale, 1000);
+  History.poll();
+  setInterval(checkStale, 250);
+  setInterval(() => History.draw(), 1000);
+  setInterval(() => History.poll(), 2000);
 });

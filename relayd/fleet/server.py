@@ -1,0 +1,105 @@
+"""The fleet page's web app: GET / (the page), GET /fleet.json, POST /api/hold-all.
+
+Handlers answer from the pollers' memory only, so the page is as fast with a dead
+relay as with none. Hold-all sends `hold` to every relay at once, each with its own
+token and its own timeout, and reports each answer; it needs no token on this page:
+it is the stop button, and a stop that asks for a password fails when it matters.
+So the page binds to loopback by default. A browser cannot send its JSON body from
+another site without a CORS preflight this app never grants, so a foreign page
+cannot press it either.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import aiohttp
+import structlog
+from aiohttp import web
+
+from drivers.clock import REAL_CLOCK, Clock
+from relayd.fleet.chain import fleet_document
+from relayd.fleet.config import FleetSettings, Relay
+from relayd.fleet.poller import Fleet, short_error
+
+log = structlog.get_logger(__name__)
+
+STATIC_DIR = Path(str(resources.files("relayd.fleet") / "static"))
+HOLD_TIMEOUT_S = 2.0
+FLEET: web.AppKey[Fleet] = web.AppKey("relayd_fleet", Fleet)
+CSP = ("default-src 'self'; img-src 'self' data:; style-src 'self'; script-src 'self'; "
+       "connect-src 'self'")
+
+
+def _json(value: Any, status: int = 200) -> web.Response:
+    return web.Response(text=json.dumps(value, allow_nan=False, separators=(",", ":")), status=status,
+                        content_type="application/json", headers={"Cache-Control": "no-store"})
+
+
+async def handle_index(request: web.Request) -> web.Response:
+    return web.Response(body=(STATIC_DIR / "index.html").read_bytes(), content_type="text/html",
+                        charset="utf-8", headers={"Content-Security-Policy": CSP, "Cache-Control": "no-cache"})
+
+
+async def handle_fleet(request: web.Request) -> web.Response:
+    fleet = request.app[FLEET]
+    return _json(fleet_document(fleet.views(), fleet.clock.now(), fleet.stale_after_s))
+
+
+async def hold_one(session: aiohttp.ClientSession, relay: Relay, timeout_s: float) -> dict[str, Any]:
+    """POST {"mode": "hold"} to one relay; the result says plainly what happened."""
+    result: dict[str, Any] = {"name": relay.name, "url": relay.url, "ok": False, "status": None}
+    if relay.token is None:
+        return {**result, "message": "not sent: no token configured for this relay"}
+    try:
+        async with asyncio.timeout(timeout_s), session.post(
+                relay.url + "/api/mode", json={"mode": "hold"},
+                headers={"Authorization": f"Bearer {relay.token}"}) as resp:
+            text = await resp.text()
+            result["status"] = resp.status
+    except TimeoutError:
+        return {**result, "message": f"no answer within {timeout_s:g} s: hold NOT confirmed"}
+    except (aiohttp.ClientError, OSError) as exc:
+        return {**result, "message": f"unreachable: hold NOT sent ({short_error(exc)})"}
+    try:
+        body = json.loads(text)
+    except ValueError:
+        body = {}
+    if resp.status == 200:
+        return {**result, "ok": True, "message": "hold accepted"}
+    error = body.get("error") if isinstance(body, dict) else None
+    return {**result, "message": f"refused: HTTP {resp.status} {error or ''}".rstrip()}
+
+
+async def handle_hold_all(request: web.Request) -> web.Response:
+    if request.content_type != "application/json":
+        return _json({"error": "send Content-Type: application/json"}, 415)
+    fleet = request.app[FLEET]
+    assert fleet.session is not None
+    results = await asyncio.gather(*(hold_one(fleet.session, r, HOLD_TIMEOUT_S) for r in fleet.relays))
+    log.info("fleet_hold_all", peer=request.remote,
+             results={r["name"]: r["message"] for r in results})
+    return _json({"ok": all(r["ok"] for r in results), "results": list(results)})
+
+
+def make_fleet_app(settings: FleetSettings, clock: Clock = REAL_CLOCK) -> web.Application:
+    fleet = Fleet(settings.relays, poll_s=settings.poll_s, timeout_s=settings.timeout_s,
+                  stale_after_s=settings.stale_after_s, clock=clock)
+    app = web.Application(client_max_size=16 * 1024)
+    app[FLEET] = fleet
+
+    async def lifecycle(app: web.Application) -> Any:
+        await fleet.start()
+        yield
+        await fleet.stop()
+
+    app.cleanup_ctx.append(lifecycle)
+    app.router.add_get("/", handle_index)
+    app.router.add_get("/fleet.json", handle_fleet)
+    app.router.add_post("/api/hold-all", handle_hold_all)
+    app.router.add_static("/static/", STATIC_DIR, append_version=False)
+    return app

@@ -1,0 +1,79 @@
+"""Suite-wide test rules: an async test may leave no task and no timer behind.
+
+A task still running after its test (a driver's `run()` nobody cancelled, a fake's
+SIP loop nobody stopped) or a timer still pending (a `call_later` nobody cancelled)
+is a leak: in the daemon it would be a task that outlives a restart, and in the suite
+it runs on into the next test and makes it fail for reasons of its own. Such a test
+fails here, naming what it left; what it left is then cancelled so the next test
+starts clean. Nothing is allowed: fix the leak instead.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import inspect
+from collections.abc import AsyncIterator
+
+import pytest
+
+#: Turns of the loop given to things a test has just cancelled or closed, so their
+#: callbacks (connection_lost, done-callbacks) can run before the check.
+SETTLE_TURNS = 20
+
+
+def _pending_timers(loop: asyncio.AbstractEventLoop) -> list[asyncio.TimerHandle]:
+    # The base event loop keeps its timer heap in `_scheduled`; no public API lists it.
+    scheduled: list[asyncio.TimerHandle] = getattr(loop, "_scheduled", [])
+    return [h for h in scheduled if not h.cancelled()]
+
+
+async def _settle() -> None:
+    for _ in range(SETTLE_TURNS):
+        await asyncio.sleep(0)
+
+
+def leftovers(loop: asyncio.AbstractEventLoop) -> tuple[list[asyncio.Task[object]], list[asyncio.TimerHandle]]:
+    """Tasks (other than the caller's) still running and timers still pending on `loop`."""
+    current = asyncio.current_task(loop)
+    tasks = [t for t in asyncio.all_tasks(loop) if t is not current and not t.done()]
+    return tasks, _pending_timers(loop)
+
+
+def describe(tasks: list[asyncio.Task[object]], timers: list[asyncio.TimerHandle]) -> str:
+    parts = [f"task {t.get_name()}: {t.get_coro()!r}" for t in tasks]
+    parts += [f"timer {h!r}" for h in timers]
+    return "; ".join(parts)
+
+
+@pytest.fixture
+async def _no_leaks_async() -> AsyncIterator[None]:
+    loop = asyncio.get_running_loop()
+    yield
+    await _settle()
+    tasks, timers = leftovers(loop)
+    if not (tasks or timers):
+        return
+    for t in tasks:
+        t.cancel()
+    for h in timers:
+        h.cancel()
+    await asyncio.gather(*tasks, return_exceptions=True)
+    pytest.fail(f"the test leaked {len(tasks)} task(s) and {len(timers)} timer(s): "
+                f"{describe(tasks, timers)}", pytrace=False)
+
+
+@pytest.fixture(autouse=True)
+def _no_leaks(request: pytest.FixtureRequest) -> None:
+    """Applies the leak check to every coroutine test (sync tests have no loop to leak on)."""
+    func = getattr(request.node, "function", None)
+    if func is not None and inspect.iscoroutinefunction(func):
+        request.getfixturevalue("_no_leaks_async")
+
+
+def pytest_asyncio_loop_factories(config: pytest.Config, item: pytest.Item) -> dict[str, object]:
+    """A test marked `virtual_time` runs on the jumping loop; every other on a plain one."""
+    from support import VirtualTimeLoop
+
+    if item.get_closest_marker("virtual_time") is not None:
+        return {"virtual": VirtualTimeLoop}
+    return {"asyncio": asyncio.new_event_loop}
