@@ -17,6 +17,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import IO
 
 import pytest
 
@@ -190,6 +191,34 @@ def _kill_group(p: subprocess.Popen[bytes]) -> None:
         pass
 
 
+def _scheduler(dask_cli: str, port: int, log: IO[bytes]) -> subprocess.Popen[bytes]:
+    return subprocess.Popen([dask_cli, "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
+                            stdout=log, stderr=log, start_new_session=True)
+
+
+@pytest.mark.timeout(120)
+def test_a_cluster_without_workers_does_not_hang_the_sweep(tmp_path: Path) -> None:
+    dask_cli = str(Path(sys.executable).parent / "dask")
+    port = _free_port()
+    log = (tmp_path / "dask.log").open("wb")
+    sched = _scheduler(dask_cli, port, log)
+    try:
+        from distributed import Client
+
+        with Client(f"tcp://127.0.0.1:{port}", timeout="60s"):
+            pass  # the scheduler is up
+        t0 = time.monotonic()
+        code = main(["sweep", *TINY, "--relays", "0", "--seeds", "2", "--scheduler", f"tcp://127.0.0.1:{port}",
+                     "--no-worker-timeout", "3", "--out", str(tmp_path / "x")])
+        assert code == 1 and time.monotonic() - t0 < 60
+        rows = _rows(tmp_path / "x" / "runs.csv")
+        assert [r["status"] for r in rows] == ["failed", "failed"]
+        assert all("no Dask worker for 3 s" in r["error"] for r in rows)
+    finally:
+        _kill_group(sched)
+        log.close()
+
+
 @pytest.mark.timeout(300)
 def test_external_scheduler_two_workers_one_killed(tmp_path: Path) -> None:
     """A real `dask scheduler` and two `dask worker`s on loopback; one worker is killed
@@ -201,8 +230,7 @@ def test_external_scheduler_two_workers_one_killed(tmp_path: Path) -> None:
     procs: list[subprocess.Popen[bytes]] = []
     log = (tmp_path / "dask.log").open("wb")
     try:
-        procs.append(subprocess.Popen([dask_cli, "scheduler", "--host", "127.0.0.1", "--port", str(port),
-                                       "--no-dashboard"], stdout=log, stderr=log, start_new_session=True))
+        procs.append(_scheduler(dask_cli, port, log))
         for _ in range(2):
             procs.append(subprocess.Popen([dask_cli, "worker", addr, "--nthreads", "1", "--host", "127.0.0.1",
                                            "--no-dashboard", "--memory-limit", "0"],

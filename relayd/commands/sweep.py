@@ -3,7 +3,8 @@
     relayd sweep --scenario corridor [--scenario outdoor ...] [--relays 0,1,2]
                  [--seeds N | --seed-list 1,5,9] [--set KEY=V1,V2,... ...]
                  [--seconds S] [--speed X|max] [--out DIR]
-                 [--workers N | --scheduler tcp://HOST:8786] [--run-timeout S] [--trace] [--no-plots]
+                 [--workers N | --scheduler tcp://HOST:8786] [--run-timeout S]
+                 [--no-worker-timeout S] [--trace] [--no-plots]
 
 Runs every combination (scenario x --set values x relay count x seed) once, each in its
 own process on a Dask worker: an embedded LocalCluster with --workers processes (default:
@@ -77,6 +78,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     cluster.add_argument("--scheduler", default=None, help="an existing Dask scheduler, e.g. tcp://host:8786")
     parser.add_argument("--run-timeout", type=_positive, default=3600.0,
                         help="wall seconds one run may take before it counts as failed (default 3600)")
+    parser.add_argument("--no-worker-timeout", type=_positive, default=120.0,
+                        help="give up on the runs still waiting after this many seconds without any worker"
+                             " (default 120)")
     parser.add_argument("--trace", action="store_true", help="keep each run's trace.jsonl (large)")
     parser.add_argument("--no-plots", action="store_true", help="report.md without PNG plots")
 
@@ -108,7 +112,8 @@ def run(args: argparse.Namespace) -> int:
     where = args.scheduler or f"a LocalCluster of {args.workers or 'all cores'} worker(s)"
     print(f"sweep: {len(specs)} runs on {where}; results in {out}/", flush=True)
     opts = SweepOptions(out=out, workers=args.workers, scheduler=args.scheduler,
-                        run_timeout_s=args.run_timeout, trace=args.trace)
+                        run_timeout_s=args.run_timeout, trace=args.trace,
+                        no_worker_timeout_s=args.no_worker_timeout)
     try:
         outcome = run_sweep(specs, set_keys, opts)
     except (OSError, TimeoutError) as exc:
