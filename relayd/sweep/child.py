@@ -48,15 +48,20 @@ def series_1hz(records: Sequence[dict[str, Any]]) -> dict[str, list[float]]:
 
 def run(spec: dict[str, Any], out: Path) -> dict[str, Any]:
     from relayd import vtime
+    from relayd.commands.sim import SimLogFields
     from relayd.logsetup import setup_logging
     from relayd.sim.runner import SimRunner
     from relayd.sim.scenario import parse_scenario
 
     out.mkdir(parents=True, exist_ok=True)
+    fields = SimLogFields()
     with (out / "sim.log").open("w", encoding="utf-8") as log_file:
-        setup_logging("warning", "json", stream=log_file)
+        # sim.log as `relayd sim` writes it (plain JSON lines with relay and t), at warning:
+        # a sweep keeps hundreds of them.
+        setup_logging("warning", "json", stream=log_file, journal=False, extra=[fields])
         sc = parse_scenario(spec["scenario_doc"]).with_relays(int(spec["relays"]))
         runner = SimRunner(sc, speed=spec.get("speed"), seed=int(spec["seed"]), seconds=spec.get("seconds"))
+        fields.runner = runner
         result = vtime.run(runner.run(), speed=spec.get("speed"))
     summary = dict(result.summary)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
