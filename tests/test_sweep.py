@@ -114,7 +114,7 @@ def test_two_workers_equal_one_worker_and_resume(tmp_path: Path, capsys: pytest.
     two, one = tmp_path / "two", tmp_path / "one"
     assert main(["sweep", *grid, "--workers", "2", "--out", str(two)]) == 0
     rows = _rows(two / "runs.csv")
-    assert list(rows[0]) == columns(["radio.shadow_sigma_db"])
+    assert list(rows[0]) == columns(["radio.shadow_sigma_db", "leader.speed_m_s"])
     assert len(rows) == 8 and all(r["status"] == "ok" and r["attempts"] == "1" for r in rows)
     for r in rows:
         summary = json.loads((two / r["run_dir"] / "summary.json").read_text())
