@@ -64,3 +64,21 @@ def test_corridor_start_orders_zero_one_two_relays() -> None:
         w.advance(1.0)
         e2e.append(w.links().e2e_mbps)
     assert e2e[0] > e2e[1] > e2e[2] > 0
+
+
+@pytest.mark.parametrize("name", ["corridor", "outdoor"])
+def test_start_orders_zero_one_two_relays_in_both_paper_scenarios(name: str) -> None:
+    e2e = []
+    for n in (0, 1, 2):
+        w = World(load_scenario(name).with_relays(n), seed=3)
+        w.advance(1.0)
+        e2e.append(w.links().e2e_mbps)
+    assert e2e[0] > e2e[1] > e2e[2] > 0
+
+
+def test_outdoor_without_relays_breaks_round_the_second_corner() -> None:
+    """Fig. 6-21: after almost 60 m the link without relays goes, before the goal."""
+    w = World(load_scenario("outdoor").with_relays(0), seed=1)
+    broke = next((t for t in range(int(w.leader_script.end_s) + 1)
+                  if (w.advance(float(t)) or True) and w.links().broken), None)
+    assert broke is not None and 250 < broke < w.leader_script.end_s
