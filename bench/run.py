@@ -39,6 +39,8 @@ BENCHES: dict[str, str] = {
     "estimator": "bench.estimator",
     "bus": "bench.bus",
     "probe": "bench.probe",
+    "record": "bench.record",
+    "foxglove": "bench.foxglove_live",
 }
 DESCRIPTIONS = {
     "latency": "SIP -> wheel command p50/p99/max, alone and under /status load",
@@ -49,6 +51,8 @@ DESCRIPTIONS = {
     "estimator": "bearing error after 5 scans, noise-free and noisy",
     "bus": "event publish cost with 0, 1 and 3 subscribers (one never reading)",
     "probe": "`relayd probe robot` CPU at 10 Hz SIPs, this tree beside a baseline revision",
+    "record": "control latency with the recorder on vs off; recording size per hour",
+    "foxglove": "control latency with one live Foxglove client vs none; the live server's cost per event",
 }
 RESULTS_MD = Path(__file__).resolve().parent / "RESULTS.md"
 KEEP_MARKER = "<!-- Everything below this line is hand-written and kept when bench/run.py rewrites the file. -->"

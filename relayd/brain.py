@@ -68,6 +68,7 @@ from relayd.events import (
     Tick,
     WheelCommand,
 )
+from relayd.ring import rear_readings
 from relayd.state import DriveState, Mode, ScanRecord
 
 SONAR_COUNT = 16
@@ -126,6 +127,9 @@ class Brain:
         self._heading: float | None = None
         self._robot_down = False
         self._sonar: list[int | None] = [None] * SONAR_COUNT
+        #: Odometry pose of the latest SIP (mm, mm, deg): the obstacle escape's progress
+        #: watchdog and limits (relayd/avoidance.py).
+        self._odom: tuple[float, float, float] | None = None
         # RSSI and scans.
         self._rssi_fresh_t: float | None = None
         self._servo_ok = not params.has_scanner
@@ -212,6 +216,7 @@ class Brain:
     def _on_sip(self, ev: SipEvent) -> list[Action]:
         self._sip_t = ev.t
         self._heading = ev.sip.theta_deg
+        self._odom = (ev.sip.x_mm, ev.sip.y_mm, ev.sip.theta_deg)
         self._robot_down = False
         if len(ev.sonar_mm) == SONAR_COUNT:
             self._sonar = list(ev.sonar_mm)
@@ -341,6 +346,9 @@ class Brain:
             manual_left_mm_s=manual_l,
             manual_right_mm_s=manual_r,
             manual_age_s=manual_age,
+            t_s=now,
+            odom=self._odom,
+            rear_sonar=rear_readings(self._sonar),
         )
 
     def _scan_stale(self, now: float) -> bool:

@@ -26,6 +26,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "sweep": ("relayd.commands.sweep", "Monte Carlo simulator runs over a grid, on a Dask cluster"),
     "status": ("relayd.commands.status", "fetch and pretty-print a robot's /status"),
     "fleet": ("relayd.commands.fleet", "serve one page for the whole chain of relays, with a hold-all button"),
+    "replay": ("relayd.commands.replay", "replay a recording through the brain and compare its decisions"),
 }
 PROBES: dict[str, tuple[str, str]] = {
     "robot": ("relayd.probe.robot", "talk to a P3-AT base (read-only: never enables the motors)"),

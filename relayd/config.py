@@ -181,6 +181,9 @@ class ControlSettings(_Section):
     manual_deadman_s: PositiveFloat = 0.5
     #: RSSI^b older than this many rear-AP polls is stale (not in the spec; 3 polls).
     rear_stale_polls: Annotated[int, Field(ge=1, le=100)] = 3
+    #: The escape when forward motion is blocked (docs/AVOIDANCE.md); false leaves the
+    #: paper's obstacle rule alone (for experiments and benchmarks, not for a robot).
+    escape: bool = True
 
     @model_validator(mode="after")
     def _cross_key_rules(self) -> ControlSettings:
@@ -195,6 +198,15 @@ class ApiSettings(_Section):
     port: Annotated[int, Field(ge=0, le=65535)] = 8080
     token_env: str | None = "RELAYD_API_TOKEN"
     token_file: str | None = None
+    #: PEM certificate (chain) and private key: both set, the API serves HTTPS only.
+    tls_cert: str | None = None
+    tls_key: str | None = None
+
+    @model_validator(mode="after")
+    def _tls_pair(self) -> ApiSettings:
+        if (self.tls_cert is None) != (self.tls_key is None):
+            raise ValueError("set both tls_cert and tls_key, or neither")
+        return self
 
     @model_validator(mode="before")
     @classmethod
@@ -221,6 +233,41 @@ class LogSettings(_Section):
     format: Literal["json", "console"] = "json"
 
 
+class RecordSettings(_Section):
+    """Recording every bus event and action to MCAP files (docs/RECORDING.md)."""
+
+    enabled: bool = False
+    #: A directory (one file per run, `relayd-<UTC time>.mcap`) or a file ending in `.mcap`.
+    path: Annotated[str, Field(min_length=1)] = "/var/lib/relayd/recordings"
+    #: A file this big is finished (summary written) and the next part begun.
+    max_file_mb: Annotated[float, Field(gt=0, le=1_000_000, allow_inf_nan=False)] = 100.0
+    #: The oldest recordings are deleted to keep the total under this.
+    max_total_mb: Annotated[float, Field(gt=0, allow_inf_nan=False)] = 2000.0
+
+    @model_validator(mode="after")
+    def _total_holds_a_file(self) -> RecordSettings:
+        if self.max_total_mb < self.max_file_mb:
+            raise ValueError("max_total_mb must be at least max_file_mb")
+        return self
+
+
+class FoxgloveSettings(_Section):
+    """The live Foxglove WebSocket server: the recorder's channels, as they happen (docs/RECORDING.md)."""
+
+    enabled: bool = False
+    #: Loopback by default: the Foxglove protocol has no authentication, and a viewer
+    #: streaming every channel over the relay's own Wi-Fi competes with the link the robot
+    #: is there to carry. Reach it through `ssh -L`, or bind 0.0.0.0 on purpose.
+    bind: str = "127.0.0.1"
+    #: 8765 is what the Foxglove app offers by default for a WebSocket connection.
+    port: Annotated[int, Field(ge=0, le=65535)] = 8765
+
+    @field_validator("bind")
+    @classmethod
+    def _ip_address(cls, v: str) -> str:
+        return ApiSettings._ip_address(v)
+
+
 class Settings(_Section):
     robot: RobotSettings = RobotSettings()
     pantilt: PanTiltSettings = PanTiltSettings()
@@ -230,6 +277,8 @@ class Settings(_Section):
     control: ControlSettings = ControlSettings()
     api: ApiSettings = ApiSettings()
     log: LogSettings = LogSettings()
+    record: RecordSettings = RecordSettings()
+    foxglove: FoxgloveSettings = FoxgloveSettings()
 
 
 class ConfigError(Exception):
@@ -245,13 +294,26 @@ def semantic_problems(data: Mapping[str, Any]) -> list[str]:
     control = with_defaults(ControlSettings, data.get("control"))
     problems = [*control_rules(control),
                 *pantilt_rules(with_defaults(PanTiltSettings, data.get("pantilt"))),
-                *cross_section_rules(data, control)]
+                *cross_section_rules(data, control), *_port_rules(data)]
     ap = data.get("ap")
     for side in ("rear", "front"):
         section = ap.get(side) if isinstance(ap, Mapping) else None
         if isinstance(section, Mapping):
             problems += ap_rules(side, section)
     return [message(p) for p in problems]
+
+
+def _port_rules(data: Mapping[str, Any]) -> list[tuple[str, str]]:
+    """The live Foxglove server and the API cannot share a port (the second would fail to bind)."""
+    api, fox = data.get("api"), data.get("foxglove")
+    if not isinstance(fox, Mapping) or fox.get("enabled") is not True:
+        return []
+    api = api if isinstance(api, Mapping) else {}
+    api_port = api.get("port", ApiSettings().port)
+    fox_port = fox.get("port", FoxgloveSettings().port)
+    if api.get("enabled", True) is True and fox_port == api_port and fox_port != 0:
+        return [("foxglove.port", f"{fox_port} is also api.port; give the live Foxglove server its own port")]
+    return []
 
 
 def parse_settings(data: Mapping[str, Any]) -> Settings:
@@ -299,14 +361,24 @@ def config_warnings(settings: Settings) -> list[str]:
 
 
 def secret_file_errors(settings: Settings) -> list[str]:
-    """Secret files that cannot be read now (check-config: `relayd run` would refuse to start)."""
+    """Secret and TLS files that cannot be used now (check-config: `relayd run` would refuse
+    to start): unreadable, an API token too short, a certificate that is not one."""
     errors = []
-    for ref in secret_refs(settings).values():
+    for owner, ref in secret_refs(settings).items():
         if ref.file is not None:
             try:
-                resolve_secret(ref, {})
+                value = resolve_secret(ref, {})
+                if owner == "api" and value is not None:
+                    check_api_token(ref, value)
             except ConfigError as exc:
                 errors.extend(exc.errors)
+    if settings.api.enabled:
+        from relayd.api.server import tls_context  # here: the server module imports this one
+
+        try:
+            tls_context(settings.api)
+        except ConfigError as exc:
+            errors.extend(exc.errors)
     return errors
 
 
@@ -342,6 +414,18 @@ def resolve_secret(ref: SecretRef, environ: Mapping[str, str]) -> str | None:
             raise ConfigError([f"{ref.key}: {ref.file} is empty"])
         return value
     return None
+
+
+#: The API token guards the wheels; anything shorter is guessable across the bridge.
+MIN_API_TOKEN_CHARS = 16
+
+
+def check_api_token(ref: SecretRef, token: str) -> str:
+    """The token, or ConfigError naming its key when it is too short to be a secret."""
+    if len(token) < MIN_API_TOKEN_CHARS:
+        raise ConfigError([f"{ref.key}: the API token has {len(token)} characters; "
+                           f"at least {MIN_API_TOKEN_CHARS} are needed (e.g. `openssl rand -hex 16`)"])
+    return token
 
 
 def secret_refs(settings: Settings) -> dict[str, SecretRef]:

@@ -20,10 +20,9 @@ import functools
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import structlog
-from aiohttp import web
 
 from drivers.airos import AirOsClient, AirOsPoller
 from drivers.airos.model import LinkQuality
@@ -33,17 +32,29 @@ from drivers.pantilt import PanTilt
 from drivers.wifi import RssiSource
 from relayd.brain import Brain
 from relayd.bus import Bus
-from relayd.config import ApiSettings, ConfigError, Settings, resolve_secret, secret_refs
+from relayd.config import (
+    ApiSettings,
+    ConfigError,
+    Settings,
+    check_api_token,
+    resolve_secret,
+    secret_refs,
+)
 from relayd.config_checks import api_bind_error
 from relayd.control import ControlShell
 from relayd.events import Action, Event, LinkEvent, LinkSide, ScanPlan, ServoTarget, WheelCommand
 from relayd.health import device_health
 from relayd.metrics import Metrics
 from relayd.params import brain_params, control_params, estimator_params
+from relayd.record.live import BindError, LiveServer, close_soon
+from relayd.record.recorder import Recorder, off_status
 from relayd.scanner import RssiMonitor, Scanner
 from relayd.state import Mode, RelayState
 from relayd.statewriter import StateWriter
 from relayd.supervisor import Supervisor
+
+if TYPE_CHECKING:
+    from relayd.api.server import ApiServer
 
 __all__ = ["Daemon", "DeviceOverrides", "control_params", "estimator_params"]
 
@@ -100,6 +111,11 @@ class Daemon:
         token_ref = refs.get("api")
         self._token = resolve_secret(token_ref, env) \
             if token_ref is not None and _configured(settings.api, env) else None
+        if self._token is not None and token_ref is not None:
+            check_api_token(token_ref, self._token)
+        from relayd.api.server import tls_context
+
+        self._tls = tls_context(settings.api)
 
         c = settings.control
         self.state = RelayState(started_t=clock.now(), mode=Mode(c.mode),
@@ -122,8 +138,20 @@ class Daemon:
         self.monitor: RssiMonitor | None = None
         self.scanner: Scanner | None = None
         self.pollers: dict[str, AirOsPoller] = {}
-        self._runner: web.AppRunner | None = None
+        self._runner: ApiServer | None = None
         self._last_pet: float | None = None
+        self.recorder: Recorder | None = None
+        self._record_task: asyncio.Task[None] | None = None
+        if settings.record.enabled:
+            # One bus subscriber (docs/RECORDING.md); never on the control path.
+            self.recorder = Recorder(self.bus, settings, clock, identity=lambda: (
+                None if self.robot is None else self.robot.identity))
+        self.state.recording_source = self.recorder.status if self.recorder is not None else off_status
+        self.live: LiveServer | None = None
+        self._live_task: asyncio.Task[None] | None = None
+        if settings.foxglove.enabled:
+            # The live Foxglove view: one more bus subscriber, never on the control path.
+            self.live = LiveServer(self.bus, settings, clock)
         self._build()
         self.bus.connect(self.brain.handle, self._on_actions)
 
@@ -243,11 +271,24 @@ class Daemon:
             # Bound before any device is touched: a wrong bind or a taken port is a
             # config error (exit 2 naming the key), not a robot that is already enabled.
             try:
-                self._runner, self.api_port = await start_api(app, s.api.bind, s.api.port)
+                self._runner, self.api_port = await start_api(app, s.api.bind, s.api.port,
+                                                              ssl_context=self._tls)
             except OSError as exc:
                 raise ConfigError([api_bind_error(s.api.bind, s.api.port, exc)]) from None
             log.info("api_control", enabled=self._token is not None,
                      note=None if self._token else "no token configured: POST endpoints answer 403")
+        if self.live is not None:
+            # Bound before any device too: a taken port is a config error, not a half-started robot.
+            try:
+                self.live.start()
+            except BindError as exc:
+                raise ConfigError([f"{exc.key}: cannot listen on {s.foxglove.bind}:{s.foxglove.port}: "
+                                   f"{exc}"]) from None
+            self._live_task = asyncio.create_task(self.live.run(), name="relayd:foxglove")
+        if self.recorder is not None:
+            # Before any device: the first SIP's event is in the file.
+            self.recorder.start()
+            self._record_task = asyncio.create_task(self.recorder.run(), name="relayd:recorder")
         self.supervisor.start()
         if self.notifier is not None:
             self.notifier.ready()
@@ -281,6 +322,14 @@ class Daemon:
             with contextlib.suppress(Exception):
                 await asyncio.wait_for(self._runner.cleanup(), 0.2)
             self._runner = None
+        if self.live is not None or self._live_task is not None:
+            await close_soon(self.live, self._live_task)
+        if self.recorder is not None:
+            # Last: the Shutdown event and the final wheel stop are in the file.
+            await self.recorder.close()
+        if self._record_task is not None:
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await asyncio.wait_for(self._record_task, 0.5)
         log.info("stopped")
 
 

@@ -118,6 +118,8 @@ class RelayState:
     #: Per device, a function returning the driver's own view of its health, read at snapshot time.
     health_sources: dict[str, Callable[[], DeviceHealth]] = field(default_factory=dict, repr=False)
     loop_tick_t: float | None = None
+    #: The recorder's status (relayd.record), read at snapshot time; None: no recorder here.
+    recording_source: Callable[[], dict[str, Any]] | None = field(default=None, repr=False)
     robot_name: str | None = None
     #: The operator's name for this robot (config `robot.display_name`), e.g. "relay 2 (east)".
     display_name: str | None = None
@@ -204,6 +206,7 @@ class RelayState:
                 for name, h in self.health_now().items()
             },
             "thresholds": dict(self.thresholds),
+            "recording": None if self.recording_source is None else self.recording_source(),
         }
 
 

@@ -355,7 +355,8 @@ def test_bearing_is_corrected_for_the_turn_since_the_scan() -> None:
     w.sip(theta_deg=20.0)
     w.loop.step()
     left1, right1 = w.robot.wheels[-1]
-    assert right0 - left0 == pytest.approx(2 * PARAMS.kp * 20.0)
+    # 2 * kp * 20 mm/s of wheel difference, as the nearest whole RVEL (7 deg/s) carries it.
+    assert right0 - left0 == pytest.approx(2 * PARAMS.kp * 20.0, abs=2 * 2.6)
     assert right1 == pytest.approx(left1)
 
 

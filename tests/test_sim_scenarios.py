@@ -78,6 +78,18 @@ def test_convoy_followers_track_and_stop_during_pauses() -> None:
     assert last["y"] > 3.0, last
 
 
+@pytest.mark.timeout(150)
+def test_box_dead_ahead_is_passed_by_real_daemons() -> None:
+    # The geometry with the truthful sonar: the symmetric box no longer holds the
+    # relay (the escape turns it at an executable rate), and nothing is touched.
+    result, _ = _run("box-dead-ahead", 1)
+    s = result.summary
+    assert s["collisions"] == 0
+    past = [r["t"] for r in result.records if r["relays"][0]["x"] > 2.75 + 0.313]
+    assert past and past[0] < 80.0, s
+    assert s["followers"][0]["stopped_reason"] == "leader_near", s
+
+
 @pytest.mark.timeout(120)
 def test_obstacle_follower_gets_round_box_and_corner() -> None:
     result, _ = _run("obstacle", 1)

@@ -61,6 +61,20 @@ class Health(_Model):
     last_error: str | None
 
 
+class Recording(_Model):
+    """The recorder (docs/RECORDING.md); None in /status when the daemon has none."""
+
+    enabled: bool
+    state: Literal["off", "recording", "stopped", "failed"] = Field(
+        description="failed: a write error (e.g. a full disk) ended the recording; the robot keeps working")
+    path: str | None = Field(description="the file being written, or the last one")
+    files: Annotated[int, Field(ge=0)]
+    bytes: Annotated[int, Field(ge=0)]
+    events: Annotated[int, Field(ge=0)]
+    dropped: Annotated[int, Field(ge=0)]
+    error: str | None
+
+
 class Status(_Model):
     version: str
     robot: str | None = Field(description="name the base reports (ARCOS SYNC2)")
@@ -85,6 +99,7 @@ class Status(_Model):
     links: dict[str, Link]
     health: dict[str, Health]
     thresholds: dict[str, float]
+    recording: Recording | None
 
 
 _DROP = {"title", "default"}

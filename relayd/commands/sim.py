@@ -1,12 +1,13 @@
 """`relayd sim`: run real relayd daemons in the simulated world and summarise the run.
 
     relayd sim [--scenario NAME|FILE] [--relays N|all] [--speed X] [--seconds S]
-               [--out DIR] [--seed N] [--no-plots] [--log-level LEVEL]
+               [--out DIR] [--seed N] [--no-plots] [--record] [--log-level LEVEL]
 
 With no arguments: the corridor with two relays at speed 10. Prints each relay's API
 port at start (its live page is at http://127.0.0.1:PORT/), a one-line progress on a
 terminal, then a short summary; writes summary.json, trace.jsonl, sim.log and PNG
-plots (if matplotlib imports) into --out. `--relays all` runs the scenario once per
+plots (if matplotlib imports) into --out, and with --record each relay's recording,
+<out>/<relay name>.mcap, made by that relay's daemon exactly as on a robot. `--relays all` runs the scenario once per
 relay count (0, 1, ... N) into DIR/relays-K/ and draws their throughput in one plot.
 Exit status: 0 when the run(s) completed, 2 for a bad scenario or argument.
 """
@@ -63,6 +64,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="sim-out", help="output directory (default ./sim-out)")
     parser.add_argument("--seed", type=int, default=1, help="world seed (shadowing, fading, sonar noise)")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    parser.add_argument("--record", action="store_true",
+                        help="each relay's daemon records its run to <out>/<relay name>.mcap (docs/RECORDING.md)")
     parser.add_argument("--log-level", default="info",
                         choices=["debug", "info", "warning", "error"],
                         help="daemon log level in sim.log (default info)")
@@ -118,7 +121,7 @@ async def run_one(scenario: Any, relays: int, args: argparse.Namespace, out: Pat
             print(f"{name}: API and live page at http://127.0.0.1:{port}/", flush=True)
 
     runner = SimRunner(sc, speed=args.speed, seed=args.seed, seconds=seconds, out_dir=out,
-                       on_progress=progress, on_ready=ready)
+                       on_progress=progress, on_ready=ready, record_dir=out if args.record else None)
     SIM_LOG_FIELDS.runner = runner
     try:
         result = await runner.run()

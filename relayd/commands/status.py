@@ -90,6 +90,14 @@ def format_status(doc: dict[str, Any]) -> str:
                      f"signal {_f(link.get('signal_dbm'), 0, 'dBm')}  noise {_f(link.get('noise_dbm'), 0, 'dBm')}"
                      f"  ccq {_f(link.get('ccq_pct'), 0, '%')}  tx {_f(link.get('tx_mbps'), 1, 'Mb/s')}"
                      f"  rx {_f(link.get('rx_mbps'), 1, 'Mb/s')}  age {_f(link.get('age_s'), 1, 's')}"))
+    rec = doc.get("recording")
+    if rec and rec.get("enabled"):
+        text = f"{rec.get('state')}  {rec.get('path') or '-'}  {_f((rec.get('bytes') or 0) / 1e6, 1, 'MB')}"
+        if rec.get("dropped"):
+            text += f"  {rec['dropped']} events dropped"
+        if rec.get("error"):
+            text += f"  ({rec['error']})"
+        rows.append(("recording", text.upper() if rec.get("state") == "failed" else text))
     width = max(len(k) for k, _ in rows)
     lines = [f"{k:<{width}}  {v}" for k, v in rows]
     health = doc.get("health") or {}

@@ -151,8 +151,11 @@ class SimRunner:
                  seconds: float | None = None, out_dir: Path | None = None,
                  workdir: Path | None = None,
                  on_progress: Callable[[dict[str, Any]], None] | None = None,
-                 on_ready: Callable[[dict[str, int | None]], None] | None = None) -> None:
+                 on_ready: Callable[[dict[str, int | None]], None] | None = None,
+                 record_dir: Path | None = None) -> None:
         self.scenario = scenario
+        #: Each relay's daemon records to <record_dir>/<name>.mcap (its own [record] config).
+        self.record_dir = record_dir
         self.speed = speed
         # Real-time mode's clock; on a virtual-time loop run() replaces it with the loop's.
         self.clock: Clock = Clock(speed or 1.0)
@@ -223,6 +226,8 @@ class SimRunner:
         doc = relay_settings(robot_port=robot_port, servo_port=servo_port, procfs_path=procfs_path,
                              rear_url=rear_url, front_url=front_url, control=control,
                              scan=dict(self.scenario.scan))
+        if self.record_dir is not None:
+            doc["record"] = {"enabled": True, "path": str(self.record_dir / f"{body.name}.mcap")}
         settings = Settings.model_validate(doc)
         env = {AP_PASSWORD_ENV: self._password, API_TOKEN_ENV: secrets.token_hex(8)}
         daemon = Daemon(settings, clock=clock, env=env, devices=devices)

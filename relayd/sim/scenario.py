@@ -99,9 +99,10 @@ class RadioSpec(_Model):
 
 
 class SonarSpec(_Model):
-    rays: Annotated[int, Field(ge=1, le=15)] = 3
+    """The simulated sonar ring: one exact range per sonar (see `World.sonar_mm`)."""
+
     beam_deg: Annotated[float, Field(gt=0, le=60)] = 30.0
-    noise_mm: NonNeg = 10.0
+    noise_mm: NonNeg = 0.0
     max_range_m: Positive = 5.0
     min_range_m: NonNeg = 0.1
 

@@ -1,4 +1,4 @@
-"""The simulated world: a scripted leader, relay bodies, sonar rays, collisions, radio chain.
+"""The simulated world: a scripted leader, relay bodies, sonar beams, collisions, radio chain.
 
 Pure and deterministic for a seed: no asyncio, no clock. The runner owns time and the
 fake devices; it tells the world the current time (`advance`), the true pose of every
@@ -22,7 +22,7 @@ from relayd.sim.geometry import (
     Point,
     Polygon,
     Segment,
-    cast_ray,
+    cone_range,
     footprint,
     polygon_hits_circle,
     polygon_hits_segment,
@@ -276,8 +276,15 @@ class World:
 
     # --- sensors --------------------------------------------------------------------
     def sonar_mm(self, i: int, x_mm: float, y_mm: float, theta_deg: float) -> list[int]:
-        """The 16 sonar ranges of relay i at that pose: nearest hit of a few rays across each
-        sonar's beam, plus noise, clamped to the sonar's range (max range when no echo)."""
+        """The 16 sonar ranges of relay i at that pose, as a P3-AT reports them.
+
+        One range per sonar: the nearest surface inside its beam (+-beam_deg/2 about the
+        transducer's heading, exact, not sampled by rays), measured from the transducer
+        face, clipped to [min_range_m, max_range_m]; max range when nothing echoes.
+        Gaussian noise only when the scenario sets `sonar.noise_mm` (default 0): noise
+        would break the exact mirror symmetry that a real sonar ring shows, and which
+        the controller must cope with.
+        """
         cfg = self._sonar_cfg
         x, y = x_mm / 1000.0, y_mm / 1000.0
         reach = cfg.max_range_m + 0.5
@@ -295,24 +302,20 @@ class World:
                 segs.extend(polygon_segments(other.polygon()))
         a = math.radians(theta_deg)
         c, s = math.cos(a), math.sin(a)
-        n = cfg.rays
-        offsets = [0.0] if n == 1 else [-cfg.beam_deg / 2 + k * cfg.beam_deg / (n - 1) for k in range(n)]
-        max_mm = int(cfg.max_range_m * 1000)
-        min_mm = int(cfg.min_range_m * 1000)
+        max_mm = round(cfg.max_range_m * 1000)
+        min_mm = round(cfg.min_range_m * 1000)
         out: list[int] = []
         for sx, sy, sh in SONAR_POSES:
             ox = x + (c * sx - s * sy) / 1000.0
             oy = y + (s * sx + c * sy) / 1000.0
-            best: float | None = None
-            for off in offsets:
-                d = cast_ray(ox, oy, theta_deg + sh + off, cfg.max_range_m, segs, circles)
-                if d is not None and (best is None or d < best):
-                    best = d
+            best = cone_range(ox, oy, theta_deg + sh, cfg.beam_deg / 2.0, cfg.max_range_m, segs, circles)
             if best is None:
                 out.append(max_mm)
                 continue
-            mm = best * 1000.0 + self._sonar_rng.gauss(0.0, cfg.noise_mm)
-            out.append(int(min(max_mm, max(min_mm, mm))))
+            mm = best * 1000.0
+            if cfg.noise_mm > 0:
+                mm += self._sonar_rng.gauss(0.0, cfg.noise_mm)
+            out.append(round(min(max_mm, max(min_mm, mm))))
         return out
 
     def yagi_rssi_dbm(self, i: int, scan_deg: float | None = None) -> float:
