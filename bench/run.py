@@ -41,6 +41,7 @@ BENCHES: dict[str, str] = {
     "probe": "bench.probe",
     "record": "bench.record",
     "foxglove": "bench.foxglove_live",
+    "recovery": "bench.recovery",
 }
 DESCRIPTIONS = {
     "latency": "SIP -> wheel command p50/p99/max, alone and under /status load",
@@ -53,6 +54,7 @@ DESCRIPTIONS = {
     "probe": "`relayd probe robot` CPU at 10 Hz SIPs, this tree beside a baseline revision",
     "record": "control latency with the recorder on vs off; recording size per hour",
     "foxglove": "control latency with one live Foxglove client vs none; the live server's cost per event",
+    "recovery": "self-healing on vs off: breaks healed within 60 s, downtime, collisions (5 seeds; full: bench/recovery.py)",
 }
 RESULTS_MD = Path(__file__).resolve().parent / "RESULTS.md"
 KEEP_MARKER = "<!-- Everything below this line is hand-written and kept when bench/run.py rewrites the file. -->"

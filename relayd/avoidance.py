@@ -43,6 +43,7 @@ from relayd.estimator import SONAR_MAX_RANGE_M, SonarReading, wrap_deg
 from relayd.ring import (
     HALF_WIDTH_M,
     LATERAL_M,
+    REAR_M,
     boundary_echo_m,
     by_heading,
     choose_side,
@@ -131,6 +132,7 @@ class AvoidState:
     backoff_from: tuple[float, float] | None = None
     backoff_len_m: float = 0.0  # how far this back-off may go
     after_backoff: AvoidMode = AvoidMode.TURN  # where a back-off hands over
+    unjam: bool = False  # this back-off makes room to turn: it runs its length whatever is ahead
     lane_ref: tuple[float, float, float] | None = None  # pose where the lane change began
     mode_heading_deg: float = 0.0  # odometry heading when the current mode began
     had_wall: bool = False  # WALL: the boundary has been in reach since WALL began
@@ -225,19 +227,27 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
                          goal_deg=s.pose[2] + s.bearing_deg, hit_proj_m=_proj_m(s.pose, s.pose[2] + s.bearing_deg))
         st = _enter(st, AvoidMode.TURN, t, clear_since_t=None)
         if d_min < p.backoff_below_m and rear_min_m(s.rear) > p.stop_distance_m + 0.1:
-            st = _enter(st, AvoidMode.BACKOFF, t, backoff_from=s.pose[:2], backoff_len_m=p.backoff_max_m)
+            st = _enter(st, AvoidMode.BACKOFF, t, backoff_from=s.pose[:2], backoff_len_m=p.backoff_max_m, unjam=False)
         else:
             st = _maybe_lane(st, s, r, p, t)
 
     if st.mode is AvoidMode.BACKOFF:
         assert st.backoff_from is not None
         backed = math.dist(st.backoff_from, s.pose[:2]) / 1000.0
-        if (d_min < p.backoff_to_m and backed < st.backoff_len_m
+        # A back-off after the hit stops once the obstacle is far enough ahead; one to
+        # unjam a turn runs its whole length, because what stops the turn is beside the
+        # robot (a door's jambs), and the way ahead may be wide open.
+        if ((st.unjam or d_min < p.backoff_to_m) and backed < st.backoff_len_m
                 and rear_min_m(s.rear) > p.stop_distance_m + 0.1):
             vel, _ = guard(-act.express(p.backoff_speed_mm_s, 0.0)[0], 0, s.sonar, p.stop_distance_m, s.rear)
-            return st, AvoidCommand(False, vel, 0, "avoiding")
-        st = _enter(st, st.after_backoff, t, backoff_from=None, after_backoff=AvoidMode.TURN)
-        st = _maybe_lane(st, s, r, p, t)
+            reason = "rejoining" if st.after_backoff is AvoidMode.ALIGN else "avoiding"
+            return st, AvoidCommand(False, vel, 0, reason)
+        after = st.after_backoff
+        st = _enter(st, after, t, backoff_from=None, after_backoff=AvoidMode.TURN)
+        if after is AvoidMode.TURN:
+            # Only an escape's first move may become a lane change: after an ALIGN's
+            # back-off the way is onto the leader, not along the latched side.
+            st = _maybe_lane(st, s, r, p, t)
 
     if st.mode is AvoidMode.LANE:
         st, cmd = _lane(st, s, r, p, act, t)
@@ -253,7 +263,7 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
             return st, cmd
         if rear_min_m(s.rear) > p.stop_distance_m + 0.1:
             # No room to turn here (in a doorway): back off a little and turn there.
-            st = _enter(st, AvoidMode.BACKOFF, t, backoff_from=s.pose[:2], backoff_len_m=p.unjam_m,
+            st = _enter(st, AvoidMode.BACKOFF, t, backoff_from=s.pose[:2], backoff_len_m=p.unjam_m, unjam=True,
                         after_backoff=AvoidMode.ALIGN)
             vel, _ = guard(-act.express(p.backoff_speed_mm_s, 0.0)[0], 0, s.sonar,
                            p.stop_distance_m, s.rear)
@@ -271,7 +281,7 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
             if cmd.rvel_deg_s == 0 and rear_min_m(s.rear) > p.stop_distance_m + 0.1:
                 # No room to turn here (a corner, a passage): back off a little and retry.
                 st = _enter(st, AvoidMode.BACKOFF, t, backoff_from=s.pose[:2],
-                            backoff_len_m=p.unjam_m)
+                            backoff_len_m=p.unjam_m, unjam=True)
                 vel, _ = guard(-act.express(p.backoff_speed_mm_s, 0.0)[0], 0, s.sonar,
                                p.stop_distance_m, s.rear)
                 return st, AvoidCommand(False, vel, 0, "avoiding")
@@ -395,6 +405,10 @@ def _lane(st: AvoidState, s: Sense, r: dict[float, float], p: AvoidParams, act: 
             # the abeam beam, must not pull the robot toward it.)
             want = (wall_lat + obstacle_lat) / 2.0
         toward = max(-p.lane_max_deg, min(p.lane_max_deg, p.lane_gain_deg_per_m * (wall_lat - want)))
+        # Heading away from that boundary swings the tail toward it (the centre is 0.31 m
+        # ahead of the rear corners): only as far as keeps the tail corner at the margin.
+        spare = wall_lat - HALF_WIDTH_M - (p.lane_margin_m - 0.02)
+        toward = max(toward, -math.degrees(math.asin(max(0.0, min(1.0, spare / REAR_M)))))
         err = wrap_deg(st.side * toward + wall_angle)
     else:
         # The boundary that made this a passage is gone: no lane to keep, go round instead.

@@ -20,6 +20,7 @@ from drivers.airos.model import LinkQuality
 from drivers.arcos.sip import Sip
 from drivers.wifi.sources import RssiSample
 from relayd.estimator import ScanEstimate
+from relayd.recovery import RecoveryView
 from relayd.state import DriveState, Mode, ScanRecord
 
 # -- events ----------------------------------------------------------------------------
@@ -209,4 +210,11 @@ class ScanResult:
     estimate: ScanEstimate
 
 
-Action = WheelCommand | ServoTarget | ScanPlan | Decision | ScanResult | RearLink
+@dataclass(frozen=True, slots=True)
+class RecoveryReport:
+    """The recovery state machine's phase and progress changed (relayd.recovery)."""
+
+    view: RecoveryView
+
+
+Action = WheelCommand | ServoTarget | ScanPlan | Decision | ScanResult | RearLink | RecoveryReport

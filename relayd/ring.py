@@ -23,6 +23,8 @@ POSE_M: dict[float, tuple[float, float]] = {
 }
 #: Half the P3-AT's width (505 mm): footprint side to centreline.
 HALF_WIDTH_M = 0.2525
+#: From the centre of rotation back to the rear corners (the footprint is 0.626 m long).
+REAR_M = 0.313
 #: Clearance kept between the swept circle of a turn in place and any echo.
 TURN_MARGIN_M = 0.085
 
@@ -32,7 +34,7 @@ REAR_BACK: tuple[int, ...] = (9, 10, 11, 12, 13, 14)
 #: The whole rear ring (8 and 15 look sideways from the rear corners).
 REAR_RING: tuple[int, ...] = tuple(range(8, 16))
 #: The P3-AT's corners are this far from its centre: what a turn in place sweeps.
-SWEEP_RADIUS_M = math.hypot(0.313, HALF_WIDTH_M)
+SWEEP_RADIUS_M = math.hypot(REAR_M, HALF_WIDTH_M)
 
 
 def rear_readings(ranges_mm: Sequence[int | None]) -> tuple[SonarReading, ...]:

@@ -32,6 +32,8 @@ class DriveState(StrEnum):
     STOPPED = "stopped"
     AVOIDING = "avoiding"
     LEADER_LOST = "leader_lost"
+    #: Self-healing a broken link (relayd.recovery): backing along the breadcrumb trail.
+    RECOVERING = "recovering"
     FAULT = "fault"
 
 
@@ -124,6 +126,9 @@ class RelayState:
     #: The operator's name for this robot (config `robot.display_name`), e.g. "relay 2 (east)".
     display_name: str | None = None
     thresholds: dict[str, float] = field(default_factory=dict)
+    #: The recovery state machine as /status shows it (relayd.recovery.RecoveryView as a
+    #: plain dict); None while recovery is disabled.
+    recovery: dict[str, Any] | None = None
     #: Bumped on every change a live view cares about; `changed` is set with it.
     revision: int = 0
     changed: asyncio.Event = field(default_factory=asyncio.Event, repr=False)
@@ -207,6 +212,7 @@ class RelayState:
             },
             "thresholds": dict(self.thresholds),
             "recording": None if self.recording_source is None else self.recording_source(),
+            "recovery": None if self.recovery is None else dict(self.recovery),
         }
 
 

@@ -21,6 +21,7 @@ from relayd.events import (
     Event,
     LinkEvent,
     RearLink,
+    RecoveryReport,
     ScanResult,
     ServoPosition,
     SipEvent,
@@ -103,6 +104,18 @@ class StateWriter:
                     self._metrics.observe_scan_period(rec.period_s)
             case RearLink():
                 st.rssi_behind_dbm = action.rssi_behind_dbm
+                st.touch()
+            case RecoveryReport(view=v):
+                if st.recovery is None or st.recovery.get("phase") != str(v.phase):
+                    log.info("recovery", phase=str(v.phase), kind=None if v.kind is None else str(v.kind),
+                             episode=v.episodes, outcome=v.last_outcome, distance_m=v.distance_m)
+                st.recovery = {
+                    "enabled": v.enabled, "phase": str(v.phase),
+                    "kind": None if v.kind is None else str(v.kind), "episodes": v.episodes,
+                    "elapsed_s": v.elapsed_s, "distance_m": v.distance_m,
+                    "max_distance_m": v.max_distance_m, "max_time_s": v.max_time_s,
+                    "trail_crumbs": v.trail_crumbs, "last_outcome": v.last_outcome,
+                }
                 st.touch()
             case _:
                 pass

@@ -169,6 +169,38 @@ def test_blocked_ends_when_the_way_to_the_leader_opens() -> None:
     assert cmd.follow and st.mode is AvoidMode.FOLLOW
 
 
+def test_a_turn_onto_the_leader_jammed_in_a_doorway_backs_out_and_turns_toward_it() -> None:
+    # The real-daemon doorway run: ALIGN has turned the robot into a 1 m door, the leader
+    # 7 degrees to the right, and the right jamb (sonar 7 at 0.35 m) inside the circle
+    # the corners sweep, so the turn is refused. The way ahead through the door is open.
+    # It used to end the back-off at once (nothing ahead within backoff_to_m) and hand
+    # it to a lane change on the latched side (left, away from the leader), which drove
+    # it into the door's far side and held it there "blocked". It must back out the
+    # unjam distance, then take up ALIGN again, never turning away from the leader.
+    # (The sonars as the run saw them: the left door frame abeam, the right jamb; then,
+    # backed out of the door, the jamb falls behind the right-hand sonar's beam.)
+    first = ring(s0=1350, s7=350, **{f"s{i}": 1026 for i in range(8, 16)})
+    in_door = ring(s0=900, s7=350, **{f"s{i}": 1201 for i in range(8, 16)})
+    out_of_it = ring(s0=900, s7=700, **{f"s{i}": 1201 for i in range(8, 16)})
+    st = AvoidState(mode=AvoidMode.ALIGN, side=1, escape_t=0.0, goal_deg=-3.0,
+                    last_pose=(2717.0, 952.0, 6.3))
+    x, heading = 2717.0, 6.3
+    modes = []
+    for i in range(40):
+        ranges = first if i == 0 else in_door if 2717.0 - x < 200.0 else out_of_it
+        st, cmd = avoid_step(st, sense(50.0 + i * 0.1, ranges, -7.1, (x, 952.0, heading)), P, ACT)
+        modes.append(st.mode)
+        assert cmd.rvel_deg_s <= 0, (i, st.mode, cmd)  # never away from the leader
+        assert not cmd.follow
+        if st.mode is not AvoidMode.BACKOFF:
+            break
+        assert cmd.vel_mm_s < 0 and cmd.reason == "rejoining"
+        x += cmd.vel_mm_s * 0.1 * math.cos(math.radians(heading))
+    assert modes[0] is AvoidMode.BACKOFF
+    assert 2717.0 - x >= P.unjam_m * 1000.0 - 1.0  # backed out the whole unjam distance
+    assert modes[-1] is AvoidMode.ALIGN and cmd.rvel_deg_s < 0  # turning onto the leader
+
+
 def test_the_state_machine_is_pure() -> None:
     s = sense(3.0, ring(s3=320, s4=320), -2.0)
     a = avoid_step(AvoidState(anchor=(0.0, 0.0), anchor_t=-5.0), s, P, ACT)

@@ -40,6 +40,7 @@ from relayd.events import (
     LinkSide,
     ModeCommand,
     RearLink,
+    RecoveryReport,
     RssiEvent,
     ScanDone,
     ScanPlan,
@@ -59,6 +60,7 @@ from relayd.record.meta import recordable_config, strip_userinfo
 from relayd.record.reader import RecordingError, join_parts, read_recording
 from relayd.record.recorder import Recorder
 from relayd.record.replay import apply_overrides, compare, make_brain, parse_override
+from relayd.recovery import Kind, Phase, RecoveryView
 from relayd.state import DriveState, Mode, ScanRecord
 
 
@@ -103,6 +105,8 @@ def every_type(t: float = 5.0) -> tuple[list[Event], list[Action]]:
         ScanResult(ScanRecord(t, (-30.0, 0.0, 30.0), (-60.0, -48.0, -55.0), 12.5, -48.0, 0, 2.5), est),
         RearLink(None),
         RearLink(-61.0),
+        RecoveryReport(RecoveryView(True, Phase.RETRACE, Kind.LEADER, 2, 14.0, 3.5, 8.0, 60.0,
+                                    117, "found")),
     ]
     return events, actions
 

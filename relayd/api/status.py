@@ -75,6 +75,22 @@ class Recording(_Model):
     error: str | None
 
 
+class Recovery(_Model):
+    """The self-healing state machine (docs/CONTROL.md); None in /status while disabled."""
+
+    enabled: bool
+    phase: Literal["idle", "widen", "retrace", "backup", "gave_up"]
+    kind: Literal["leader", "rear"] | None = Field(description="which link the episode heals")
+    episodes: Annotated[int, Field(ge=0)]
+    elapsed_s: float | None = Field(description="seconds into the running episode (whole seconds)")
+    distance_m: float | None = Field(description="odometry travel of the running episode")
+    max_distance_m: float
+    max_time_s: float
+    trail_crumbs: Annotated[int, Field(ge=0)]
+    last_outcome: str | None = Field(
+        description="found, restored, preempted, aborted, gave_up_time or gave_up_distance")
+
+
 class Status(_Model):
     version: str
     robot: str | None = Field(description="name the base reports (ARCOS SYNC2)")
@@ -100,6 +116,7 @@ class Status(_Model):
     health: dict[str, Health]
     thresholds: dict[str, float]
     recording: Recording | None
+    recovery: Recovery | None = Field(description="self-healing state machine; null while disabled")
 
 
 _DROP = {"title", "default"}

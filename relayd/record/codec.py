@@ -50,6 +50,7 @@ TOPICS: dict[str, str] = {
     "Decision": "/action/decision",
     "ScanResult": "/action/scan_result",
     "RearLink": "/action/rear_link",
+    "RecoveryReport": "/action/recovery",
 }
 #: Envelope keys added to every message; no event or action field may use them.
 ENVELOPE = ("seq", "i")
