@@ -203,7 +203,11 @@ class SweepProgress:
 def _start_client(opts: SweepOptions) -> tuple[Any, Any]:
     """A Dask client on the given scheduler, or on an embedded LocalCluster."""
     import dask
-    from distributed import Client, LocalCluster
+    import distributed
+
+    # distributed ships no annotations for these constructors: call them through Any.
+    dist: Any = distributed
+    Client, LocalCluster = dist.Client, dist.LocalCluster
 
     if opts.scheduler:
         return Client(opts.scheduler, timeout="30s"), None
@@ -222,8 +226,11 @@ def _start_client(opts: SweepOptions) -> tuple[Any, Any]:
 def run_sweep(specs: list[RunSpec], set_keys: list[str], opts: SweepOptions,
               progress: SweepProgress | None = None) -> SweepOutcome:
     """Run every spec not yet finished in opts.out; returns the rows in grid order."""
-    from distributed import wait
+    import distributed
     from distributed.client import FutureCancelledError
+
+    dist: Any = distributed  # distributed.wait has no annotations
+    wait = dist.wait
 
     from relayd.sweep.task import run_task
 
