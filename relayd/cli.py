@@ -23,6 +23,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("relayd.commands.run", "run the daemon"),
     "check-config": ("relayd.commands.check_config", "validate a config file and print the effective settings"),
     "sim": ("relayd.commands.sim", "run a convoy of real relayd instances in the simulated world"),
+    "sweep": ("relayd.commands.sweep", "Monte Carlo simulator runs over a grid, on a Dask cluster"),
     "status": ("relayd.commands.status", "fetch and pretty-print a robot's /status"),
     "fleet": ("relayd.commands.fleet", "serve one page for the whole chain of relays, with a hold-all button"),
     "replay": ("relayd.commands.replay", "replay a recording through the brain and compare its decisions"),
