@@ -13,8 +13,10 @@ copying its fields.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from enum import StrEnum
+from typing import Any
 
 from drivers.airos.model import LinkQuality
 from drivers.arcos.sip import Sip
@@ -209,4 +211,12 @@ class ScanResult:
     estimate: ScanEstimate
 
 
-Action = WheelCommand | ServoTarget | ScanPlan | Decision | ScanResult | RearLink
+@dataclass(frozen=True, slots=True)
+class LinkModelView:
+    """The rear limit in force and the rear-link model's state (relayd.linkmodel), for /status."""
+
+    threshold_b_dbm: float
+    model: Mapping[str, Any]
+
+
+Action = WheelCommand | ServoTarget | ScanPlan | Decision | ScanResult | RearLink | LinkModelView

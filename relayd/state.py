@@ -122,6 +122,8 @@ class RelayState:
     #: The operator's name for this robot (config `robot.display_name`), e.g. "relay 2 (east)".
     display_name: str | None = None
     thresholds: dict[str, float] = field(default_factory=dict)
+    #: The rear-link model's state (relayd.linkmodel), None until its first sample.
+    link_model: dict[str, Any] | None = None
     #: Bumped on every change a live view cares about; `changed` is set with it.
     revision: int = 0
     changed: asyncio.Event = field(default_factory=asyncio.Event, repr=False)
@@ -204,6 +206,7 @@ class RelayState:
                 for name, h in self.health_now().items()
             },
             "thresholds": dict(self.thresholds),
+            "link_model": None if self.link_model is None else dict(self.link_model),
         }
 
 

@@ -20,6 +20,7 @@ from relayd.events import (
     DeviceStatus,
     Event,
     LinkEvent,
+    LinkModelView,
     RearLink,
     ScanResult,
     ServoPosition,
@@ -103,6 +104,10 @@ class StateWriter:
                     self._metrics.observe_scan_period(rec.period_s)
             case RearLink():
                 st.rssi_behind_dbm = action.rssi_behind_dbm
+                st.touch()
+            case LinkModelView():
+                st.thresholds["threshold_b_dbm"] = action.threshold_b_dbm
+                st.link_model = dict(action.model)
                 st.touch()
             case _:
                 pass
