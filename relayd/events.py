@@ -13,15 +13,14 @@ copying its fields.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import Any
 
 from drivers.airos.model import LinkQuality
 from drivers.arcos.sip import Sip
 from drivers.wifi.sources import RssiSample
 from relayd.estimator import ScanEstimate
+from relayd.linkmodel import LinkModelStatus
 from relayd.state import DriveState, Mode, ScanRecord
 
 # -- events ----------------------------------------------------------------------------
@@ -216,7 +215,7 @@ class LinkModelView:
     """The rear limit in force and the rear-link model's state (relayd.linkmodel), for /status."""
 
     threshold_b_dbm: float
-    model: Mapping[str, Any]
+    model: LinkModelStatus
 
 
 Action = WheelCommand | ServoTarget | ScanPlan | Decision | ScanResult | RearLink | LinkModelView

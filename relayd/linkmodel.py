@@ -138,7 +138,7 @@ class LinkModel:
     # -- set-up ----------------------------------------------------------------------
 
     def _prior_at(self, centre: float) -> list[float]:
-        out = []
+        out: list[float] = []
         for mu in self.mus:
             lp = -0.5 * ((mu - centre) / PRIOR_SD_DB) ** 2
             out.extend(lp for _ in SPREADS_DB)
@@ -259,28 +259,55 @@ class LinkModel:
     def stale(self, now: float) -> bool:
         return self.last_t is None or now - self.last_t > self.params.stale_s
 
-    def status(self, now: float) -> dict[str, Any]:
+    def status(self, now: float) -> LinkModelStatus:
         """The model's state for /status (rounded: a view, not a computation input)."""
         p = self.params
         mu, s = self.estimate()
         last = self.last_rssi_dbm
-        return {
-            "policy": "adaptive" if p.adaptive else "fixed",
-            "threshold_b_dbm": round(self.threshold_dbm, 2),
-            "configured_threshold_b_dbm": p.fallback_dbm,
-            "bounds_dbm": [p.bounds_dbm[0], p.bounds_dbm[1]],
-            "target_hop_mbps": p.target_hop_mbps,
-            "outage": p.outage,
-            "learning": self.n_eff >= p.min_samples,
-            "samples": self.accepted,
-            "effective_samples": round(self.n_eff, 2),
-            "ok_share": None if self.n_eff <= 0 else round(self.ok_eff / self.n_eff, 3),
-            "mu_dbm": round(mu, 2),
-            "spread_db": round(s, 2),
-            "p_ok_now": None if last is None else round(self.p_ok(last), 3),
-            "last_rssi_dbm": last,
-            "last_delivered_mbps": None if self.last_delivered_mbps is None
-            else round(self.last_delivered_mbps, 2),
-            "stale": self.stale(now),
-            "refused_stale": self.refused_stale,
-        }
+        return LinkModelStatus(
+            policy="adaptive" if p.adaptive else "fixed",
+            threshold_b_dbm=round(self.threshold_dbm, 2),
+            configured_threshold_b_dbm=p.fallback_dbm,
+            bounds_dbm=(p.bounds_dbm[0], p.bounds_dbm[1]),
+            target_hop_mbps=p.target_hop_mbps,
+            outage=p.outage,
+            learning=self.n_eff >= p.min_samples,
+            samples=self.accepted,
+            effective_samples=round(self.n_eff, 2),
+            ok_share=None if self.n_eff <= 0 else round(self.ok_eff / self.n_eff, 3),
+            mu_dbm=round(mu, 2),
+            spread_db=round(s, 2),
+            p_ok_now=None if last is None else round(self.p_ok(last), 3),
+            last_rssi_dbm=last,
+            last_delivered_mbps=None if self.last_delivered_mbps is None else round(self.last_delivered_mbps, 2),
+            stale=self.stale(now),
+            refused_stale=self.refused_stale,
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class LinkModelStatus:
+    """What /status shows of the model (the `link_model` object)."""
+
+    policy: str
+    threshold_b_dbm: float
+    configured_threshold_b_dbm: float
+    bounds_dbm: tuple[float, float]
+    target_hop_mbps: float
+    outage: float
+    learning: bool
+    samples: int
+    effective_samples: float
+    ok_share: float | None
+    mu_dbm: float
+    spread_db: float
+    p_ok_now: float | None
+    last_rssi_dbm: float | None
+    last_delivered_mbps: float | None
+    stale: bool
+    refused_stale: int
+
+    def to_json(self) -> dict[str, Any]:
+        out = {f: getattr(self, f) for f in self.__slots__}  # type: ignore[attr-defined]
+        out["bounds_dbm"] = list(self.bounds_dbm)
+        return out

@@ -107,7 +107,7 @@ class StateWriter:
                 st.touch()
             case LinkModelView():
                 st.thresholds["threshold_b_dbm"] = action.threshold_b_dbm
-                st.link_model = dict(action.model)
+                st.link_model = action.model.to_json()
                 st.touch()
             case _:
                 pass

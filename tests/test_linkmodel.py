@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import random
 from statistics import NormalDist
@@ -97,7 +98,7 @@ def test_bounded(history: list[tuple[float, float, float | None, float | None]],
         t += dt
         m.observe(LinkSample(t, r, rate, rate, ccq), t)
         assert lo <= m.threshold_dbm <= lo + width
-        assert math.isfinite(m.status(t)["mu_dbm"])
+        assert math.isfinite(m.status(t).mu_dbm)
 
 
 @settings(max_examples=60, deadline=None)
@@ -121,7 +122,7 @@ def test_never_relaxes_on_stale_data(history: list[tuple[float, float, float | N
     if m.last_t is not None:  # a repeat of the last poll's time is not news either
         assert not m.observe(LinkSample(m.last_t, -40.0, 300.0, 300.0, 100.0), m.last_t)
     assert m.threshold_dbm == before
-    assert m.status(now + 10.0)["stale"]
+    assert m.status(now + 10.0).stale
 
 
 def test_unusable_polls_are_counted_not_learned() -> None:
@@ -163,9 +164,27 @@ def test_brain_sets_the_controllers_rear_limit_only_when_adaptive(adaptive: bool
         rate = phy_rate_mbps(mean)
         views += [a for a in brain.handle(rear_poll(float(i), round(mean + rng.gauss(0, 1.0)), rate))
                   if isinstance(a, LinkModelView)]
-    assert views and views[-1].model["policy"] == ("adaptive" if adaptive else "fixed")
+    assert views and views[-1].model.policy == ("adaptive" if adaptive else "fixed")
     learned = brain.link_model.threshold_dbm
     assert learned < -70.0  # a clean hop: the model would relax
     in_force = brain._control.threshold_b_dbm
     assert in_force == (pytest.approx(learned) if adaptive else -66.0)
     assert views[-1].threshold_b_dbm == in_force
+
+
+def test_status_shows_the_limit_in_force_and_the_model() -> None:
+    from relayd.api.status import Status
+    from relayd.state import RelayState
+    from relayd.statewriter import StateWriter
+
+    brain = Brain(BrainParams(control=ControlParams(threshold_b_dbm=-66.0), link=params(min_samples=3.0)))
+    state = RelayState()
+    state.thresholds = {"threshold_b_dbm": -66.0}
+    writer = StateWriter(state)
+    for i in range(10):
+        ev = rear_poll(float(i), -60.0, 54.0)
+        writer.apply(ev, brain.handle(ev))
+    doc = state.snapshot(10.0)
+    Status.model_validate_json(json.dumps(doc), strict=True)  # as the API serves it; no extra keys
+    assert doc["link_model"]["policy"] == "adaptive" and doc["link_model"]["samples"] == 10
+    assert doc["thresholds"]["threshold_b_dbm"] == doc["link_model"]["threshold_b_dbm"]
