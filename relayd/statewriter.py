@@ -106,7 +106,7 @@ class StateWriter:
                 st.rssi_behind_dbm = action.rssi_behind_dbm
                 st.touch()
             case LinkModelView():
-                st.thresholds["threshold_b_dbm"] = action.threshold_b_dbm
+                st.thresholds["threshold_b_dbm"] = round(action.threshold_b_dbm, 2)
                 st.link_model = action.model.to_json()
                 st.touch()
             case _:
