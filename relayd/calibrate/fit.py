@@ -221,8 +221,8 @@ def fit_path_loss(distance_m: Sequence[float], rssi_dbm: Sequence[float], *, con
 
     def pct(values: list[float]) -> Interval:
         s = sorted(values)
-        lo = s[max(0, int(math.floor(tail * (len(s) - 1))))]
-        hi = s[min(len(s) - 1, int(math.ceil((1.0 - tail) * (len(s) - 1))))]
+        lo = s[max(0, math.floor(tail * (len(s) - 1)))]
+        hi = s[min(len(s) - 1, math.ceil((1.0 - tail) * (len(s) - 1)))]
         return Interval(lo, hi)
 
     return PathLossFit(l0_dbm=a, n=-b, sigma_db=sd, l0_ci=pct(l0s), n_ci=pct(ns), sigma_ci=pct(sds),
