@@ -42,6 +42,7 @@ import structlog
 
 from drivers.clock import Clock
 from relayd.sim.scenario import Scenario
+from relayd.sim.summary import summarize, unapplied_command_s
 from relayd.sim.world import World
 from relayd.vtime import LoopClock, VirtualTimeLoop
 
@@ -53,9 +54,11 @@ if TYPE_CHECKING:
     from relayd.daemon import Daemon
     from relayd.sim.inproc import MemoryRssi
 
+__all__ = ["SimRelay", "SimResult", "SimRunner", "relay_settings", "summarize", "unapplied_command_s"]
+
 log = structlog.get_logger(__name__)
 
-#: Pulse widths at -90 / 0 / +90 degrees in the generated config (SPEC 4.2 default).
+#: Pulse widths at -90 / 0 / +90 degrees in the generated config (the example config's default).
 PULSE_US = (1000.0, 1500.0, 2000.0)
 AP_PASSWORD_ENV = "RELAYD_SIM_AP_PASSWORD"
 API_TOKEN_ENV = "RELAYD_SIM_API_TOKEN"
@@ -97,7 +100,7 @@ def _pose3(p: Any) -> tuple[float, float, float]:
 
 def relay_settings(*, robot_port: str, servo_port: str, procfs_path: str, rear_url: str,
                    front_url: str, control: dict[str, Any], scan: dict[str, Any]) -> dict[str, Any]:
-    """The config document (SPEC 4.2 sections and keys) of one simulated relay."""
+    """The config document (config/relayd.toml's sections and keys) of one simulated relay."""
     return {
         "robot": {"port": robot_port, "baud": 9600},
         "pantilt": {"port": servo_port, "protocol": "maestro", "scan_channel": 0, "link_channel": 1,
@@ -139,74 +142,6 @@ class SimResult:
     summary: dict[str, Any]
     records: list[dict[str, Any]]
     api_ports: dict[str, int | None] = field(default_factory=dict)
-
-
-def unapplied_command_s(records: Sequence[dict[str, Any]], i: int, grace_s: float = 1.0) -> float:
-    """Clock seconds relay i's daemon commanded wheel motion the robot never started on.
-
-    The fake robot accelerates within a few tenths of a second, so a daemon that has
-    commanded more than 50 mm/s for longer than `grace_s` while the true speed is still
-    zero has commands stuck on their way (a queue backlog, a dead link). Stalls against
-    an obstacle do not count: the robot's speed stays set while the world rejects it.
-    """
-    total = 0.0
-    since: float | None = None
-    prev_t: float | None = None
-    for r in records:
-        rel = r["relays"][i]
-        wheels = rel.get("wheels") or [0, 0]
-        stuck = max(abs(wheels[0]), abs(wheels[1])) > 50 and rel.get("v_mm_s", 0) == 0 \
-            and abs(rel.get("w_deg_s", 0)) == 0
-        if stuck:
-            since = r["t"] if since is None else since
-            if prev_t is not None and r["t"] - since > grace_s:
-                total += r["t"] - prev_t
-        else:
-            since = None
-        prev_t = r["t"]
-    return round(total, 2)
-
-
-def summarize(records: Sequence[dict[str, Any]], *, scenario: str, relays: int, goal: tuple[float, float],
-              goal_radius_m: float, collisions: int, followers: Sequence[dict[str, Any]]) -> dict[str, Any]:
-    """summary.json from the trace: SPEC 5's keys plus a few that help reading a run.
-
-    goal_reached: the leader got within goal_radius_m of its final waypoint while the
-    end-to-end link had held all the way (the paper's "reached the destination while
-    staying connected"). link_broken_at_s: the first record with any hop down.
-    """
-    broken_at = next((r["t"] for r in records if r["broken"]), None)
-    arrived_at = next((r["t"] for r in records
-                       if math.hypot(r["leader"]["x"] - goal[0], r["leader"]["y"] - goal[1]) <= goal_radius_m),
-                      None)
-    reached = arrived_at is not None and (broken_at is None or broken_at > arrived_at)
-    e2e = [r["e2e_mbps"] for r in records]
-    last = records[-1] if records else None
-    out_followers = []
-    for i, f in enumerate(followers):
-        gaps = [r["relays"][i]["gap_m"] for r in records]
-        out_followers.append({
-            "name": f["name"],
-            "max_gap_m": round(max(gaps), 3) if gaps else None,
-            "final_gap_m": round(gaps[-1], 3) if gaps else None,
-            "stopped_reason": None if last is None else last["relays"][i]["reason"],
-            "final_state": None if last is None else last["relays"][i]["state"],
-            "collisions": f["collisions"],
-            "travelled_m": round(f["travelled_m"], 3),
-            "unapplied_command_s": unapplied_command_s(records, i) if records else 0.0,
-        })
-    return {
-        "scenario": scenario,
-        "relays": relays,
-        "sim_seconds": round(last["t"], 2) if last else 0.0,
-        "goal_reached": reached,
-        "goal_reached_at_s": arrived_at,
-        "link_broken_at_s": broken_at,
-        "min_e2e_mbps": min(e2e) if e2e else 0.0,
-        "final_e2e_mbps": e2e[-1] if e2e else 0.0,
-        "collisions": collisions,
-        "followers": out_followers,
-    }
 
 
 class SimRunner:
