@@ -194,7 +194,7 @@ class ControlSettings(_Section):
     #: Share of the PHY rate that reaches the application (802.11 MAC overhead).
     mac_efficiency: Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)] = 0.5
     #: The model forgets a sample's weight by half over this many rear polls.
-    link_half_life_polls: Annotated[float, Field(ge=5, le=10000, allow_inf_nan=False)] = 60.0
+    link_half_life_polls: Annotated[float, Field(ge=5, le=10000, allow_inf_nan=False)] = 20.0
 
     @model_validator(mode="after")
     def _cross_key_rules(self) -> ControlSettings:

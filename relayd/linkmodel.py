@@ -23,6 +23,14 @@ poll from moving it far. The threshold is the r where the posterior predictive
 P(ok | r) equals 1 - outage, clamped to the configured bounds: strong fading (wide s)
 or multipath (high mu) tighten it, a clean open space relaxes it.
 
+Evidence floor. The limit never goes more than `EXTRAPOLATE_DB` below the weakest
+RSSI^b at which one of the last `half_life_samples` polls met the target (when any
+did): the probit
+curve says what happens a few dB below what was seen only by extrapolation, and a
+relay that walks from a clean hall into a corridor must not trust its hall-learned
+curve where it has not been. So the limit relaxes as far as the evidence reaches,
+and follows it as the robot moves on.
+
 Staleness. The model changes only on fresh samples: a sample older than `stale_s`
 when it arrives, or not newer than the last one, is refused and counted; with no fresh
 sample the threshold holds. So it never relaxes on stale data (the controller already
@@ -34,6 +42,7 @@ Pure: no I/O, no clock (every call gets the time), deterministic, bounded work p
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -46,6 +55,8 @@ MU_BELOW_DB, MU_ABOVE_DB = 20.0, 10.0
 PRIOR_SD_DB = 5.0
 #: Probability that a poll's verdict is unrelated to its RSSI (a glitch, a burst of traffic).
 LAPSE = 0.02
+#: How far (dB) the limit may go below the weakest RSSI^b recently seen meeting the target.
+EXTRAPOLATE_DB = 1.0
 #: Cells below this share of the best one are left out of the threshold search.
 PRUNE = 1e-4
 
@@ -63,7 +74,7 @@ class LinkPolicyParams:
     #: The configured threshold_b: the starting point and the value with no evidence.
     fallback_dbm: float = -60.0
     mac_efficiency: float = 0.5
-    half_life_samples: float = 60.0
+    half_life_samples: float = 20.0
     #: Effective samples before the model's threshold replaces the configured one.
     min_samples: float = 10.0
     #: A sample older than this when it arrives is stale (the rear link's staleness limit).
@@ -115,6 +126,8 @@ class LinkModel:
     mus: tuple[float, ...] = field(init=False)
     _prior: list[float] = field(init=False, repr=False)
     _loglik: list[float] = field(init=False, repr=False)
+    #: RSSI^b of the recent polls that met the target (the evidence floor's window).
+    _ok_rssi: deque[float | None] = field(init=False, repr=False)
     n_eff: float = 0.0
     accepted: int = 0
     refused_stale: int = 0
@@ -134,6 +147,7 @@ class LinkModel:
         self._loglik = [0.0] * (len(self.mus) * len(SPREADS_DB))
         self._prior = self._centred_prior()
         self.threshold_dbm = self._clamp(p.fallback_dbm)
+        self._ok_rssi = deque(maxlen=max(1, round(p.half_life_samples)))
 
     # -- set-up ----------------------------------------------------------------------
 
@@ -241,9 +255,16 @@ class LinkModel:
         self.ok_eff = decay * self.ok_eff + (1.0 if ok else 0.0)
         self.accepted += 1
         self.last_t, self.last_rssi_dbm, self.last_delivered_mbps = sample.t, r, delivered
+        self._ok_rssi.append(r if ok else None)
         if self.n_eff >= p.min_samples:
-            self.threshold_dbm = self._solve(*p.bounds_dbm)
+            self.threshold_dbm = max(self._solve(*p.bounds_dbm), self._clamp(self.evidence_floor_dbm()))
         return True
+
+    def evidence_floor_dbm(self) -> float:
+        """The loosest limit the recent evidence supports (see the module docstring)."""
+        seen = [r for r in self._ok_rssi if r is not None]
+        # No recent poll met the target: the failures already hold the model tight.
+        return (min(seen) - EXTRAPOLATE_DB) if seen else -math.inf
 
     # -- views -----------------------------------------------------------------------
 

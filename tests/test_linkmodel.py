@@ -54,7 +54,8 @@ def test_configured_threshold_outside_the_bounds_starts_clamped() -> None:
 @pytest.mark.parametrize("seed", range(5))
 def test_relaxes_in_open_space_and_tightens_under_fading_and_multipath(seed: int) -> None:
     # 10 Mbit/s at 0.5 x 95 % CCQ needs the 24 Mbit/s rate: -74 dBm local mean.
-    open_hall, corridor = LinkModel(params()), LinkModel(params())
+    # A long memory: this test is about the curve, not the forgetting.
+    open_hall, corridor = LinkModel(params(half_life_samples=60.0)), LinkModel(params(half_life_samples=60.0))
     drive_away(open_hall, penalty_db=0.0, fade_sd_db=1.0, seed=seed)
     drive_away(corridor, penalty_db=6.0, fade_sd_db=3.0, seed=seed)
     assert open_hall.threshold_dbm < -70.0  # looser than the configured -66

@@ -284,6 +284,7 @@ class SimRunner:
                 "w_deg_s": round(float(r.robot.rvel_deg_s), 1),
                 "rssi_l_mean_dbm": round(w.radio.mean_power_dbm(body.pos, w.node_pos(i))[0], 1),
                 "situation": st.situation,
+                "threshold_b_dbm": st.thresholds.get("threshold_b_dbm"),
             })
         return {
             "t": round(t, 2),

@@ -142,7 +142,8 @@ class Hop:
 
     @property
     def up(self) -> bool:
-        return self.power_dbm >= HOP_DOWN_DBM
+        # A hop whose multipath leaves no rate is down even above the weakest sensitivity.
+        return self.power_dbm >= HOP_DOWN_DBM and self.rate_mbps > 0
 
 
 @dataclass(slots=True)
@@ -343,7 +344,8 @@ class World:
         a, b = self.node_pos(k), self.node_pos(k + 1)
         power, _ = self.radio.mean_power_dbm(a, b, self._hop_gain_db(k))
         _, n_walls = self.radio.wall_loss_db(a, b)
-        return Hop(k, power, throughput_mbps(power), n_walls)
+        # Multipath costs rate, not signal (relayd/sim/zones.py): the rate sees the penalty.
+        return Hop(k, power, throughput_mbps(power - self.radio.rate_penalty_db(a, b)), n_walls)
 
     def links(self) -> LinkBudget:
         return LinkBudget([self.hop(k) for k in range(len(self.relays) + 1)])
