@@ -178,8 +178,8 @@ def run(quick: bool = False, *, seeds: int | None = None, jobs: int = 1, cache: 
     n_seeds = seeds if seeds is not None else (2 if quick else 10)
     n_other = other_seeds if other_seeds is not None else (1 if quick else 3)
     out = BenchOutput("adaptive")
-    cal, _ = calibration_rows(3 if quick else max(10, n_seeds), cache / "cal" if cache else Path("/tmp"))
     (cache / "cal").mkdir(parents=True, exist_ok=True)
+    cal, _ = calibration_rows(3 if quick else max(10, n_seeds), cache / "cal")
     for corr in (None, 2.0):
         rows = [r for r in cal if r["corr_m"] == corr]
         label = "independent shadowing" if corr is None else "shadowing correlated over 2 m"
