@@ -39,6 +39,7 @@ BENCHES: dict[str, str] = {
     "estimator": "bench.estimator",
     "bus": "bench.bus",
     "probe": "bench.probe",
+    "adaptive": "bench.adaptive",
 }
 DESCRIPTIONS = {
     "latency": "SIP -> wheel command p50/p99/max, alone and under /status load",
@@ -49,6 +50,7 @@ DESCRIPTIONS = {
     "estimator": "bearing error after 5 scans, noise-free and noisy",
     "bus": "event publish cost with 0, 1 and 3 subscribers (one never reading)",
     "probe": "`relayd probe robot` CPU at 10 Hz SIPs, this tree beside a baseline revision",
+    "adaptive": "calibration accuracy; adaptive vs fixed rear limits in `mixed`; other scenarios with adaptive",
 }
 RESULTS_MD = Path(__file__).resolve().parent / "RESULTS.md"
 KEEP_MARKER = "<!-- Everything below this line is hand-written and kept when bench/run.py rewrites the file. -->"
