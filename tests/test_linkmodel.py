@@ -189,3 +189,45 @@ def test_status_shows_the_limit_in_force_and_the_model() -> None:
     Status.model_validate_json(json.dumps(doc), strict=True)  # as the API serves it; no extra keys
     assert doc["link_model"]["policy"] == "adaptive" and doc["link_model"]["samples"] == 10
     assert doc["thresholds"]["threshold_b_dbm"] == doc["link_model"]["threshold_b_dbm"]
+
+
+# -- its settings -------------------------------------------------------------------------
+
+REAR_AP = {"rear": {"url": "http://192.0.2.1", "password_env": "PW"}}
+
+
+def _config_errors(control: dict[str, object]) -> list[str]:
+    from relayd.config import ConfigError, parse_settings
+
+    with pytest.raises(ConfigError) as ei:
+        parse_settings({"ap": REAR_AP, "control": control})
+    return ei.value.errors
+
+
+def test_link_policy_settings_are_strict_and_checked_together() -> None:
+    from relayd.config import parse_settings
+    from relayd.params import brain_params
+
+    assert any(e.startswith("control.link_policy") for e in _config_errors({"link_policy": "adaptve"}))
+    assert any(e.startswith("control.outage_probability") for e in _config_errors({"outage_probability": 0.5}))
+    assert any(e.startswith("control.target_hop_mbps") for e in _config_errors({"target_hop_mbps": "10"}))
+    assert any(e.startswith("control.threshold_b_min_dbm") for e in
+               _config_errors({"threshold_b_min_dbm": -50, "threshold_b_max_dbm": -60}))
+    adaptive = {"link_policy": "adaptive"}
+    assert any(e.startswith("control.threshold_b_dbm") for e in
+               _config_errors({**adaptive, "threshold_b_dbm": -45, "threshold_l_dbm": -30}))
+    assert any(e.startswith("control.threshold_b_max_dbm") for e in
+               _config_errors({**adaptive, "threshold_l_dbm": -52}))
+    from relayd.config import ConfigError
+    with pytest.raises(ConfigError) as ei:
+        parse_settings({"control": {**adaptive, "rear_link": "ignore"}})
+    assert any(e.startswith("control.link_policy") for e in ei.value.errors)
+    # Fixed mode keeps the paper's -40 dBm with the default bounds; the model only advises.
+    fixed = parse_settings({"ap": REAR_AP, "control": {"threshold_b_dbm": -40}})
+    assert brain_params(fixed).link.adaptive is False
+    s = parse_settings({"ap": REAR_AP, "control": {**adaptive, "target_hop_mbps": 20, "outage_probability": 0.05,
+                                                   "threshold_b_min_dbm": -75, "threshold_b_max_dbm": -55}})
+    lp = brain_params(s).link
+    assert (lp.adaptive, lp.target_hop_mbps, lp.outage, lp.bounds_dbm, lp.fallback_dbm) == \
+        (True, 20, 0.05, (-75, -55), -60)
+    assert lp.stale_s == pytest.approx(3.0)  # rear_stale_polls x the rear AP's poll period
