@@ -85,3 +85,24 @@ def test_zone_errors_name_their_key() -> None:
         parse_scenario(doc)
     text = str(err.value)
     assert "radio.zones.0.polygon" in text and "radio.zones.1.multipath" in text
+
+
+def test_adaptive_relays_learn_in_the_simulator() -> None:
+    """Real daemons on virtual time: the rear AP's rates reach the model, /status shows it,
+    and the limit in force (the trace's threshold_b_dbm) is the model's, within the bounds."""
+    import sys
+
+    from relayd import vtime
+    from relayd.sim.runner import SimRunner
+
+    sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parents[1]))
+    from bench.adaptive import scenario_with
+
+    sc = scenario_with("mixed", {"link_policy": "adaptive"}).with_relays(1)
+    runner = SimRunner(sc, speed=None, seed=1, seconds=45.0)
+    result = vtime.run(runner.run())
+    model = runner.relays[0].daemon.state.link_model
+    assert model is not None and model["policy"] == "adaptive" and model["samples"] >= 30
+    limits = {r["relays"][0]["threshold_b_dbm"] for r in result.records}
+    assert all(-78.0 <= v <= -55.0 for v in limits) and len(limits) > 1
+    assert result.records[-1]["relays"][0]["threshold_b_dbm"] == model["threshold_b_dbm"]
