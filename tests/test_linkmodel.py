@@ -231,3 +231,14 @@ def test_link_policy_settings_are_strict_and_checked_together() -> None:
     assert (lp.adaptive, lp.target_hop_mbps, lp.outage, lp.bounds_dbm, lp.fallback_dbm) == \
         (True, 20, 0.05, (-75, -55), -60)
     assert lp.stale_s == pytest.approx(3.0)  # rear_stale_polls x the rear AP's poll period
+
+
+def test_relayd_status_prints_the_model() -> None:
+    from relayd.commands.status import format_status
+
+    m = LinkModel(params(min_samples=1.0))
+    m.observe(LinkSample(1.0, -60.0, 54.0, 54.0, 95.0), 1.0)
+    text = format_status({"thresholds": {"threshold_b_dbm": m.threshold_dbm}, "rssi_behind_dbm": -60.0,
+                          "link_model": m.status(1.0).to_json()})
+    line = next(row for row in text.splitlines() if row.startswith("rear limit model"))
+    assert "in force" in line and "mu" in line and "1 polls" in line
