@@ -10,7 +10,8 @@ constant 300 mm/s and kd = 0 removes the D term, so the control tick (which re-r
 the same step between SIPs) and the scans never produce a command of their own: every
 VEL/RVEL the fake receives is caused by the SIP before it. The robot is held in place
 (a motion guard that refuses every move), so the leader's distance and the link
-thresholds never change during the run.
+thresholds never change during the run; the obstacle escape is off
+(`control.escape = false`), since a robot that cannot move is what it would act on.
 
 Two measurements of the same cycles. In relayd (the project's definition, "SIP
 received to wheel command written"): the driver times each SIP from its bytes arriving to the
@@ -28,6 +29,11 @@ in a minute; each cycle is still complete (command pair done after ~6 ms) before
 next SIP, and the daemon does four times the per-second work a robot would cause, so
 the figures are if anything pessimistic. The loaded run adds bench/load.py in its own
 process fetching /status from the daemon at ~1000 requests per second.
+
+Both runs are repeated with the daemon started under `nice -n -10` and under
+`chrt -f 10` (SCHED_FIFO, the systemd unit's CPUSchedulingPolicy), where this machine
+allows it, to show what the scheduler does to the tail. The target (issue 12) is 99.5 %
+of cycles within 2 ms with /status at 1000 req/s.
 """
 
 from __future__ import annotations
@@ -43,7 +49,7 @@ from typing import Any
 
 import aiohttp
 
-from bench.common import BenchOutput, Result, percentile
+from bench.common import BenchOutput, Result, percentile, proc_cpu_s
 from bench.live import LoadProcess, RelaydProcess
 from drivers.arcos.codec import Command
 from relayd.fakes.rig import FakeRig
@@ -51,6 +57,10 @@ from relayd.sim.runner import scratch_root
 
 NAME = "latency"
 TARGET_P99_MS = 2.0
+#: Share of cycles that must be within TARGET_P99_MS (issue 12 raised it from 99 %).
+TARGET_SHARE = 0.995
+#: Real-time priority for the `chrt` comparison and the systemd unit's CPUSchedulingPriority.
+RT_PRIORITY = 10
 SIP_TYPES = (0x32, 0x33)
 GOLDEN = 0.6180339887498949
 
@@ -147,6 +157,9 @@ class CycleProbe:
             "unmatched": self.unmatched,
             "first_ms": first,
             "pair_ms": pair,
+            # Per cycle: the RVEL after its VEL (the driver's command spacing, as received).
+            "spacing_ms": [(self.pair[i] - self.first[i]) * 1000.0 for i in range(n)
+                           if i in self.pair and i in self.first],
         }
 
 
@@ -195,9 +208,33 @@ async def _measure(probe: CycleProbe, cycles: int, url: str, warmup: int = 10,
     return {**probe.figures(), "in_relayd": in_relayd(before, after)}
 
 
+def scheduling_prefix(kind: str) -> tuple[str, ...] | None:
+    """The command prefix that runs relayd under `kind` ("nice": nice -10, "fifo": SCHED_FIFO
+    RT_PRIORITY), or None where the tool is missing or the change is not permitted."""
+    import shutil
+    import subprocess
+
+    tool = shutil.which("chrt" if kind == "fifo" else "nice")
+    if tool is None:
+        return None
+    prefix = (tool, "-f", str(RT_PRIORITY)) if kind == "fifo" else (tool, "-n", "-10")
+    try:
+        subprocess.run([*prefix, "true"], check=True, capture_output=True, timeout=10)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return prefix
+
+
 async def measure(*, cycles: int = 2000, sip_period_s: float = 0.025, load_rps: float = 1000.0,
-                  work: Path | None = None, scan: dict[str, Any] | None = None) -> dict[str, Any]:
-    """Both runs (alone, then under /status load); raw latencies in ms and the load's report."""
+                  work: Path | None = None, scan: dict[str, Any] | None = None,
+                  command_prefix: Sequence[str] = (),
+                  record: dict[str, Any] | None = None, foxglove_port: int | None = None,
+                  viewer: bool = False) -> dict[str, Any]:
+    """Both runs (alone, then under /status load); raw latencies in ms and the load's report.
+
+    `foxglove_port`: the live Foxglove server on; `viewer`: one Foxglove client
+    (bench/viewer.py, its own process) subscribed to every channel during both runs.
+    """
     with tempfile.TemporaryDirectory(prefix="relayd-bench-lat-", dir=scratch_root()) as tmp:
         rig = FakeRig(work or Path(tmp), leader_xy_m=(6.0, 2.0))
         rig.robot.sonars_per_sip = 16
@@ -207,12 +244,24 @@ async def measure(*, cycles: int = 2000, sip_period_s: float = 0.025, load_rps: 
         rig.robot.sip_period_s = sip_period_s
         await rig.start()
         try:
-            async with RelaydProcess(rig, control={"w1": 0.0, "w2": -300.0, "kd": 0.0}, scan=scan or {},
-                                     log={"level": "warning"}) as relayd:
+            extra: dict[str, Any] = {"record": record} if record is not None else {}
+            if foxglove_port is not None:
+                extra["foxglove"] = {"enabled": True, "port": foxglove_port}
+            async with RelaydProcess(rig, control={"w1": 0.0, "w2": -300.0, "kd": 0.0, "escape": False},
+                                     scan=scan or {}, log={"level": "warning"},
+                                     command_prefix=command_prefix, **extra) as relayd:
                 await relayd.wait_for(lambda d: d.get("state") == "avoiding", 60.0, "state avoiding")
                 probe = CycleProbe(rig.robot, sonar)
                 probe.install()
+                view = None
+                if viewer and foxglove_port is not None:
+                    from bench.viewer import ViewerProcess
+
+                    view = await ViewerProcess(f"ws://127.0.0.1:{foxglove_port}/").start()
+                wall0, cpu0 = time.perf_counter(), proc_cpu_s(relayd.pid)
                 alone = await _measure(probe, cycles, relayd.url)
+                # relayd's own CPU share over the run (its whole process: the SDK's threads too).
+                alone["cpu_pct"] = 100.0 * (proc_cpu_s(relayd.pid) - cpu0) / (time.perf_counter() - wall0)
                 loaded: dict[str, Any] | None = None
                 load_report: dict[str, Any] | None = None
                 if load_rps > 0:
@@ -222,10 +271,12 @@ async def measure(*, cycles: int = 2000, sip_period_s: float = 0.025, load_rps: 
                         loaded = await _measure(probe, cycles, relayd.url)
                     finally:
                         load_report = dict(await load.stop())
+                viewed = await view.stop() if view is not None else None
                 final = await relayd.wait_for(lambda d: True, 10.0, "status")
         finally:
             await rig.stop()
     return {"alone": alone, "loaded": loaded, "load": load_report, "final_state": final.get("state"),
+            "viewer": viewed,
             "sip_period_s": sip_period_s, "pid_note": None}
 
 
@@ -238,8 +289,8 @@ def _rows(label: str, fig: dict[str, Any], judge: bool) -> list[Result]:
     share = inside["within_target"]
     return [
         Result(NAME, f"in relayd: SIP received -> wheel command written, p99, {label}", inside["p99_le_ms"],
-               "ms (<= bucket)", f"< {TARGET_P99_MS:g} ms",
-               (share >= 0.99) if judge and share is not None else None,
+               "ms (<= bucket)", f">= {TARGET_SHARE * 100:g} % within {TARGET_P99_MS:g} ms",
+               (share >= TARGET_SHARE) if judge and share is not None else None,
                f"relayd's own histogram; {inside['count']} commands, "
                + (f"{share * 100:.2f} % within {TARGET_P99_MS:g} ms; p50 <= {inside['p50_le_ms']:g} ms"
                   if share is not None else "no samples")),
@@ -252,16 +303,26 @@ def _rows(label: str, fig: dict[str, Any], judge: bool) -> list[Result]:
     ]
 
 
-def run(quick: bool = False, *, cycles: int | None = None) -> BenchOutput:
+def run(quick: bool = False, *, cycles: int | None = None, rt: bool = True) -> BenchOutput:
+    """Both runs with the default scheduler, then under `nice -n -10` and `chrt -f` where allowed."""
     n = cycles if cycles is not None else (300 if quick else 2000)
-    data = asyncio.run(measure(cycles=n))
     out = BenchOutput(NAME)
-    out.results += _rows("alone", data["alone"], judge=True)
-    if data["loaded"] is not None:
-        out.results += _rows("/status at ~1000 req/s", data["loaded"], judge=True)
-        load = data["load"] or {}
-        out.results.append(Result(NAME, "/status load achieved", load.get("rps"), "req/s", "~1000",
-                                  None, f"p99 {load.get('p99_ms')} ms, {load.get('errors')} errors"))
+    variants: list[tuple[str, tuple[str, ...]]] = [("", ())]
+    for kind, label in (("nice", ", nice -10"), ("fifo", f", SCHED_FIFO {RT_PRIORITY}")):
+        prefix = scheduling_prefix(kind) if rt else None
+        if prefix is not None:
+            variants.append((label, prefix))
+        elif rt:
+            out.details.append(f"{label[2:]} is not available or not permitted here: no such run.")
+    data: dict[str, Any] = {}
+    for suffix, command_prefix in variants:
+        data = asyncio.run(measure(cycles=n, command_prefix=command_prefix))
+        out.results += _rows("alone" + suffix, data["alone"], judge=True)
+        if data["loaded"] is not None:
+            out.results += _rows("/status at ~1000 req/s" + suffix, data["loaded"], judge=True)
+            load = data["load"] or {}
+            out.results.append(Result(NAME, "/status load achieved" + suffix, load.get("rps"), "req/s", "~1000",
+                                      None, f"p99 {load.get('p99_ms')} ms, {load.get('errors')} errors"))
     out.details.append(
         f"SIP period {data['sip_period_s'] * 1000:g} ms (real clock, speed 1); daemon `relayd run` in its "
         f"own process on a FakeRig in the benchmark process; state at the end: {data['final_state']}.")

@@ -14,7 +14,7 @@ import os
 import signal
 import subprocess
 import sys
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -37,8 +37,11 @@ def _child_env() -> dict[str, str]:
 class RelaydProcess:
     """`python -m relayd run -c <rig config>`; `async with` starts it and waits for /status."""
 
-    def __init__(self, rig: FakeRig, *, start_timeout_s: float = 30.0, **config: Any) -> None:
+    def __init__(self, rig: FakeRig, *, start_timeout_s: float = 30.0,
+                 command_prefix: Sequence[str] = (), **config: Any) -> None:
         self.rig = rig
+        #: e.g. ("chrt", "-f", "10"): how the daemon is started (scheduling comparisons).
+        self.command_prefix = tuple(command_prefix)
         self.port = free_port()
         self.config_kw = config
         self.start_timeout_s = start_timeout_s
@@ -86,7 +89,7 @@ class RelaydProcess:
         cfg = self.rig.write_config(self.rig.work / f"{self.rig.name}-bench.toml", secrets_in_files=True,
                                     api_port=self.port, **self.config_kw)
         self._log = self.log_path.open("wb")
-        self.proc = subprocess.Popen([sys.executable, "-m", "relayd", "run", "-c", str(cfg)],
+        self.proc = subprocess.Popen([*self.command_prefix, sys.executable, "-m", "relayd", "run", "-c", str(cfg)],
                                      stdout=self._log, stderr=subprocess.STDOUT, env=_child_env(),
                                      cwd=str(REPO))
         await self.wait_for(lambda doc: True, self.start_timeout_s, "answering /status")

@@ -40,6 +40,9 @@ BENCHES: dict[str, str] = {
     "bus": "bench.bus",
     "probe": "bench.probe",
     "adaptive": "bench.adaptive",
+    "record": "bench.record",
+    "foxglove": "bench.foxglove_live",
+    "recovery": "bench.recovery",
 }
 DESCRIPTIONS = {
     "latency": "SIP -> wheel command p50/p99/max, alone and under /status load",
@@ -51,6 +54,9 @@ DESCRIPTIONS = {
     "bus": "event publish cost with 0, 1 and 3 subscribers (one never reading)",
     "probe": "`relayd probe robot` CPU at 10 Hz SIPs, this tree beside a baseline revision",
     "adaptive": "calibration accuracy; adaptive vs fixed rear limits in `mixed`; other scenarios with adaptive",
+    "record": "control latency with the recorder on vs off; recording size per hour",
+    "foxglove": "control latency with one live Foxglove client vs none; the live server's cost per event",
+    "recovery": "self-healing on vs off: breaks healed within 60 s, downtime, collisions (5 seeds; full: bench/recovery.py)",
 }
 RESULTS_MD = Path(__file__).resolve().parent / "RESULTS.md"
 KEEP_MARKER = "<!-- Everything below this line is hand-written and kept when bench/run.py rewrites the file. -->"

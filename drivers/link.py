@@ -10,15 +10,24 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import os
+import threading
 from collections.abc import Callable
-from typing import TypeVar
+from typing import Any, TypeVar
 
+import serial
 import serial_asyncio_fast
+import structlog
 
 from drivers import memlink
 from drivers.clock import Clock
 
 P = TypeVar("P", bound=asyncio.Protocol)
+
+log = structlog.get_logger(__name__)
+
+#: How long a closing link may take to report connection_lost before we close the OS
+#: port ourselves (wall seconds: executor latency does not scale with the sim clock).
+CLOSE_WAIT_S = 1.0
 
 
 class LinkError(ConnectionError):
@@ -35,17 +44,111 @@ async def open_link(url: str, baudrate: int, protocol_factory: Callable[[], P]) 
             raise LinkError(f"cannot open {url}: {exc}") from exc
         return mtransport, mprotocol
     loop = asyncio.get_running_loop()
-    kwargs: dict[str, object] = {"baudrate": baudrate}
-    if not url.startswith(("socket://", "rfc2217://")):
-        # flock the tty so two daemons (or a daemon and a probe) never share a robot.
-        kwargs["exclusive"] = True
+    if "://" in url:
+        # socket://, rfc2217://, loop://: pyserial-asyncio's own path (TCP transport).
+        try:
+            transport, protocol = await serial_asyncio_fast.create_serial_connection(
+                loop, protocol_factory, url, baudrate=baudrate)
+        except (OSError, ValueError, Exception) as exc:  # serial.SerialException is an IOError
+            raise LinkError(f"cannot open {url}: {exc}") from exc
+        return transport, protocol  # type: ignore[return-value]
+    # A device path: we open the Serial ourselves so that a cancelled open cannot leak it.
+    # The executor keeps opening after our await is cancelled; the port it then opens
+    # holds the tty's flock, and nothing but us could ever close it again.
+    opening = loop.run_in_executor(None, _open_serial, url, baudrate)
     try:
-        transport, protocol = await serial_asyncio_fast.create_serial_connection(
-            loop, protocol_factory, url, **kwargs
-        )
+        port = await asyncio.shield(opening)
+    except asyncio.CancelledError:
+        opening.add_done_callback(_close_opened)
+        raise
     except (OSError, ValueError, Exception) as exc:  # serial.SerialException is an IOError
         raise LinkError(f"cannot open {url}: {exc}") from exc
-    return transport, protocol  # type: ignore[return-value]
+    try:
+        stransport, sprotocol = await serial_asyncio_fast.connection_for_serial(
+            loop, protocol_factory, port)
+    except BaseException:
+        port.close()
+        raise
+    return stransport, sprotocol  # type: ignore[return-value]
+
+
+class LockedSerial(serial.Serial):
+    """A pyserial port whose close() may be called from any thread, any number of times.
+
+    pyserial-asyncio closes the port in an executor thread; our bounded close path
+    may close it too when that background close never comes. Plain pyserial close()
+    is not idempotent across threads (two threads can both see the fd open and
+    os.close it twice, the second time perhaps a fresh port's fd).
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        self._close_lock = threading.Lock()
+        super().__init__(*args, **kwargs)
+
+    def close(self) -> None:
+        with self._close_lock:
+            super().close()
+
+
+def _open_serial(url: str, baudrate: int) -> LockedSerial:
+    # flock the tty so two daemons (or a daemon and a probe) never share a robot.
+    return LockedSerial(url, baudrate=baudrate, exclusive=True)
+
+
+def _close_opened(fut: asyncio.Future[LockedSerial]) -> None:
+    if not fut.cancelled() and fut.exception() is None:
+        fut.result().close()
+        log.info("serial_open_cancelled_closed", port=fut.result().port)
+
+
+def serial_port(transport: asyncio.BaseTransport | None) -> serial.Serial | None:
+    """The OS serial port under a serial transport (None for TCP and memory links)."""
+    if isinstance(transport, serial_asyncio_fast.SerialTransport):
+        return transport.serial
+    return None
+
+
+async def close_link(transport: asyncio.Transport, closed: asyncio.Event, *,
+                     abort: bool = False, timeout_s: float = CLOSE_WAIT_S) -> bool:
+    """Close `transport`, wait (bounded) for its `closed` event, and always end with the port closed.
+
+    `closed` is set by the protocol's connection_lost. pyserial-asyncio reports that
+    only after closing the port in a background task and an executor: a task that is
+    cancelled, never scheduled or stuck (tcdrain on a dead adapter) would otherwise
+    leave the port open and flocked forever, and every reopen would fail. So after the
+    wait, or when cancelled, a port still open is closed here. `abort` drops
+    unwritten bytes instead of draining them. Returns True if connection_lost came.
+    """
+    port = serial_port(transport)
+    if not transport.is_closing():
+        if abort:
+            transport.abort()
+        else:
+            transport.close()
+    try:
+        with contextlib.suppress(TimeoutError):
+            async with asyncio.timeout(timeout_s):
+                await closed.wait()
+    finally:
+        if port is not None and port.is_open:
+            force_close(transport)
+    return closed.is_set()
+
+
+def force_close(transport: asyncio.BaseTransport) -> None:
+    """Close a serial transport's OS port now, without waiting for its background close."""
+    port = serial_port(transport)
+    if port is None or not port.is_open:
+        return
+    log.warning("serial_close_forced", port=port.port)
+    if isinstance(transport, serial_asyncio_fast.SerialTransport):
+        # A write that never drained keeps a writer on the fd: drop it before the fd goes.
+        transport.flush()
+        if not transport.is_closing():
+            transport.abort()
+    with contextlib.suppress(OSError, serial.SerialException):
+        port.reset_output_buffer()  # a real tty's close() would wait for it to drain
+    port.close()
 
 
 def port_missing(url: str) -> bool:

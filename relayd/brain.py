@@ -57,6 +57,7 @@ from relayd.events import (
     LinkSide,
     ModeCommand,
     RearLink,
+    RecoveryReport,
     RssiEvent,
     ScanDone,
     ScanPlan,
@@ -71,6 +72,16 @@ from relayd.events import (
     WheelCommand,
 )
 from relayd.linkmodel import LinkModel, LinkPolicyParams, LinkSample
+from relayd.recovery import (
+    RecoveryInputs,
+    RecoveryMemory,
+    RecoveryOutput,
+    RecoveryParams,
+    RecoveryView,
+    recovery_step,
+    recovery_view,
+)
+from relayd.ring import rear_readings
 from relayd.state import DriveState, Mode, ScanRecord
 
 SONAR_COUNT = 16
@@ -105,6 +116,8 @@ class BrainParams:
     rear_station_mac: str | None = None
     #: The rear-link model; with `adaptive` its threshold replaces control.threshold_b_dbm.
     link: LinkPolicyParams = field(default_factory=LinkPolicyParams)
+    #: Self-healing of broken links (relayd.recovery); disabled by default.
+    recovery: RecoveryParams = field(default_factory=RecoveryParams)
 
 
 def in_current_frame(bearing: float | None, heading_then: float | None,
@@ -131,6 +144,9 @@ class Brain:
         self._heading: float | None = None
         self._robot_down = False
         self._sonar: list[int | None] = [None] * SONAR_COUNT
+        #: Odometry pose of the latest SIP (mm, mm, deg): the obstacle escape's progress
+        #: watchdog and limits (relayd/avoidance.py) and the recovery's breadcrumbs.
+        self._pose: tuple[float, float, float] | None = None
         # RSSI and scans.
         self._rssi_fresh_t: float | None = None
         self._servo_ok = not params.has_scanner
@@ -155,6 +171,11 @@ class Brain:
         # The controller's memory and last word.
         self._memory = ControlMemory()
         self.last_output: ControlOutput | None = None
+        # Breadcrumbs and the recovery episode (relayd.recovery).
+        self._scan_count = 0
+        self._rear_polls = 0
+        self.recovery = RecoveryMemory()
+        self._recovery_shown: RecoveryView | None = None
 
     # -- read-only views (the API's shell checks a drive command against the mode) ------
 
@@ -220,6 +241,7 @@ class Brain:
     def _on_sip(self, ev: SipEvent) -> list[Action]:
         self._sip_t = ev.t
         self._heading = ev.sip.theta_deg
+        self._pose = (ev.sip.x_mm, ev.sip.y_mm, ev.sip.theta_deg)
         self._robot_down = False
         if len(ev.sonar_mm) == SONAR_COUNT:
             self._sonar = list(ev.sonar_mm)
@@ -262,6 +284,7 @@ class Brain:
             peer = q.best_station
             value = peer.signal_dbm if peer is not None else q.signal_dbm
         self._rear_dbm, self._rear_t = value, ev.t
+        self._rear_polls += 1
         return self._rear_view(ev.t) + self._learn_rear(ev, value, peer)
 
     def _learn_rear(self, ev: LinkEvent, rssi_dbm: float | None, peer: Station | None) -> list[Action]:
@@ -332,6 +355,7 @@ class Brain:
                 self.lost_count = update_lost_count(self.lost_count, est.rssi_leader_dbm,
                                                     self.params.scan.lost_rssi_dbm)
                 self._last_scan_t = ev.t
+                self._scan_count += 1
                 record = ScanRecord(
                     t=ev.t, angles_deg=tuple(round(a, 2) for a in est.angles_deg),
                     rssi_dbm=tuple(round(r, 2) for r in est.rssi_dbm),
@@ -370,6 +394,9 @@ class Brain:
             manual_left_mm_s=manual_l,
             manual_right_mm_s=manual_r,
             manual_age_s=manual_age,
+            t_s=now,
+            odom=self._pose,
+            rear_sonar=rear_readings(self._sonar),
         )
 
     def _scan_stale(self, now: float) -> bool:
@@ -386,9 +413,47 @@ class Brain:
         except Exception as exc:  # noqa: BLE001 - a bug or bad data in the brain stops the robot
             return ControlOutput(0.0, 0.0, DriveState.FAULT, f"controller_error: {type(exc).__name__}",
                                  situation, self._memory)
+        out = self._recover(now, out)
         if (out.left_mm_s or out.right_mm_s) and self._scan_stale(now):
             return ControlOutput(0.0, 0.0, DriveState.FAULT, "scan_stale", out.situation, out.memory)
         return out
+
+    def _recover(self, now: float, out: ControlOutput) -> ControlOutput:
+        """The recovery seam: an episode's command replaces the follow controller's (never a fault)."""
+        rp = self.params.recovery
+        if not rp.enabled:
+            return out
+        try:
+            res = self._recovery_step(now, rp, (out.left_mm_s + out.right_mm_s) / 2.0)
+        except Exception as exc:  # noqa: BLE001 - a bug or bad data in recovery stops the robot
+            return ControlOutput(0.0, 0.0, DriveState.FAULT, f"recovery_error: {type(exc).__name__}",
+                                 out.situation, out.memory)
+        self.recovery = res.memory
+        cmd = res.command
+        if cmd is None or out.state is DriveState.FAULT:
+            return out
+        return ControlOutput(cmd.left_mm_s, cmd.right_mm_s, cmd.state, cmd.reason, out.situation, out.memory)
+
+    def _recovery_step(self, now: float, rp: RecoveryParams, forward_mm_s: float) -> RecoveryOutput:
+        return recovery_step(RecoveryInputs(
+            following=self._mode is Mode.FOLLOW and not self._halted, pose=self._pose,
+            sip_age_s=None if self._sip_t is None or self._robot_down else now - self._sip_t,
+            rssi_age_s=None if self._rssi_fresh_t is None else now - self._rssi_fresh_t,
+            scan_age_s=None if self._last_scan_t is None else now - self._last_scan_t,
+            rear_age_s=None if self._rear_t is None else now - self._rear_t,
+            leader_lost=self.leader_lost, rssi_leader_dbm=self.rssi_leader_dbm,
+            rssi_behind_dbm=self._rear_dbm, scan_count=self._scan_count,
+            sonar_mm=tuple(self._sonar), now_s=now, rear_polls=self._rear_polls, forward_mm_s=forward_mm_s,
+        ), rp, self.recovery)
+
+    def _recovery_report(self, now: float) -> list[Action]:
+        if not self.params.recovery.enabled:
+            return []
+        view = recovery_view(self.recovery, self.params.recovery, now)
+        if view == self._recovery_shown:
+            return []
+        self._recovery_shown = view
+        return [RecoveryReport(view)]
 
     def _step(self, now: float, sip_t: float | None) -> list[Action]:
         out = self._decide(now)
@@ -406,4 +471,5 @@ class Brain:
         changed = prev is None or prev.state is not out.state or prev.reason != out.reason
         actions.append(Decision(now, out.left_mm_s, out.right_mm_s, out.state, out.reason,
                                 out.situation, self._mode, changed))
+        actions.extend(self._recovery_report(now))
         return actions

@@ -6,8 +6,10 @@
    order, and its actions go straight to the action handler (wheels, servo, state).
    Nothing queues between a SIP and the wheel command it causes, so no reader can
    make the control path lag.
-2. The *fan-out*: every subscriber (a recorder, a live view, a test) gets the event
-   in its own bounded queue and reads it in its own task.
+2. The *fan-out*: every subscriber (a live view, a test) gets the event in its own
+   bounded queue and reads it in its own task. A subscriber that must also see the
+   decisions (the recorder) subscribes `with_actions` and gets `(event, actions)`
+   pairs: the event and the actions the brain returned for it, as one item.
 
 A slow subscriber never blocks the publisher: when its queue is full the **oldest**
 queued event is dropped and counted in that subscriber's `dropped`. Decision:
@@ -87,6 +89,7 @@ class Bus(Generic[E, A]):
         self._control = control
         self._on_actions = on_actions
         self._subs: list[Subscription[E]] = []
+        self._routed: list[Subscription[tuple[E, Sequence[A]]]] = []
         self._pending: deque[E] = deque()
         self._dispatching = False
         self.published = 0
@@ -102,9 +105,17 @@ class Bus(Generic[E, A]):
         self._subs.append(sub)
         return sub
 
-    def unsubscribe(self, sub: Subscription[E]) -> None:
+    def subscribe_with_actions(self, name: str, maxlen: int = 256) -> Subscription[tuple[E, Sequence[A]]]:
+        """A subscription to each event together with the actions the brain returned for it."""
+        sub: Subscription[tuple[E, Sequence[A]]] = Subscription(name, maxlen)
+        self._routed.append(sub)
+        return sub
+
+    def unsubscribe(self, sub: Subscription[E] | Subscription[tuple[E, Sequence[A]]]) -> None:
         if sub in self._subs:
-            self._subs.remove(sub)
+            self._subs.remove(sub)  # type: ignore[arg-type]
+        if sub in self._routed:
+            self._routed.remove(sub)  # type: ignore[arg-type]
         sub.close()
 
     @property
@@ -125,9 +136,12 @@ class Bus(Generic[E, A]):
     def _dispatch(self, event: E) -> None:
         self.published += 1
         control, on_actions = self._control, self._on_actions
+        actions: Sequence[A] = ()
         if control is not None:
             actions = control(event)
             if on_actions is not None:
                 on_actions(event, actions)
         for sub in self._subs:
             sub._put(event)
+        for routed in self._routed:
+            routed._put((event, actions))

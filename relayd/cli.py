@@ -25,17 +25,20 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "sim": ("relayd.commands.sim", "run a convoy of real relayd instances in the simulated world"),
     "status": ("relayd.commands.status", "fetch and pretty-print a robot's /status"),
     "fleet": ("relayd.commands.fleet", "serve one page for the whole chain of relays, with a hold-all button"),
+    "replay": ("relayd.commands.replay", "replay a recording through the brain and compare its decisions"),
 }
 PROBES: dict[str, tuple[str, str]] = {
     "robot": ("relayd.probe.robot", "talk to a P3-AT base (read-only: never enables the motors)"),
     "pantilt": ("relayd.probe.pantilt", "move or read one servo of the pan-tilt controller"),
     "wifi": ("relayd.probe.wifi", "sample the Wi-Fi adapter's RSSI"),
-    "ap": ("relayd.probe.ap", "read an airOS radio's link quality once"),
+    "ap": ("relayd.probe.ap", "read an airOS radio's link quality, once or for --seconds"
+                                " (password from RELAYD_AP_PASSWORD)"),
 }
 FAKES: dict[str, tuple[str, str]] = {
     "robot": ("relayd.fakes.robot", "serve a protocol-true fake P3-AT on a pty or TCP port"),
     "pantilt": ("relayd.fakes.pantilt", "serve a fake Maestro or SSC-32 servo controller on a pty"),
-    "ap": ("relayd.fakes.ap", "serve a fake airOS radio over HTTP on loopback"),
+    "ap": ("relayd.fakes.ap", "serve a fake airOS radio over HTTP on loopback"
+                               " (accepted password: RELAYD_AP_PASSWORD, default ubnt)"),
     "rig": ("relayd.fakes.rig_cmd", "all of one relay's devices faked, with a leader; writes a config for `relayd run`"),
 }
 
@@ -61,8 +64,7 @@ class CommandParser(argparse.ArgumentParser):
         self._configured = module is None
 
     def configure(self) -> None:
-        if not self._configured:
-            assert self.module is not None
+        if not self._configured and self.module is not None:
             self._configured = True
             importlib.import_module(self.module).configure(self)
 
@@ -118,7 +120,24 @@ def command_tree(parser: argparse.ArgumentParser | None = None,
     return out
 
 
+def _keep_rich_out() -> None:
+    """Stop structlog from importing rich (and pygments) into a relayd process.
+
+    relayd never renders with rich: its console logs use plain tracebacks and its JSON
+    logs drop the frames' locals (relayd.logsetup). structlog imports rich anyway when
+    it is installed, as it is in a development install (schemathesis needs it), which
+    costs the daemon about 3 MB of resident memory. A `None` entry in sys.modules makes
+    `import rich` fail the way a missing package does, which structlog handles. Only a
+    process that relayd's own command line started, before structlog is loaded: never
+    a process (a test run) that imported relayd as a library.
+    """
+    if "structlog" not in sys.modules and "rich" not in sys.modules:
+        sys.modules["rich"] = None  # type: ignore[assignment]  # None: "not installed", by design
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    if argv is None:
+        _keep_rich_out()
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
     runner = importlib.import_module(args._module).run

@@ -9,6 +9,8 @@ order, distances, `rear_link` needing `[ap.rear]`) run in the same pass as the s
 so one `check-config` lists every problem. Secrets never live
 in the TOML: a section names an environment variable (`password_env`, `token_env`)
 or a file (`password_file`, `token_file`) and `resolve_secret` reads it at start-up.
+Writing settings back out as TOML lives in relayd.config_toml, the secrets in
+relayd.config_secrets (re-exported here).
 """
 
 from __future__ import annotations
@@ -17,7 +19,6 @@ import ipaddress
 import os
 import tomllib
 from collections.abc import Mapping
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -31,8 +32,10 @@ from pydantic import (
     model_validator,
 )
 
+from relayd.config_checks import ConfigError as ConfigError
 from relayd.config_checks import (
     ap_rules,
+    avoidance_rules,
     control_rules,
     cross_section_rules,
     message,
@@ -42,6 +45,14 @@ from relayd.config_checks import (
     validation_messages,
     with_defaults,
 )
+
+# Secrets (where each comes from, reading it) live in relayd.config_secrets; re-exported.
+from relayd.config_secrets import MIN_API_TOKEN_CHARS as MIN_API_TOKEN_CHARS
+from relayd.config_secrets import SecretRef as SecretRef
+from relayd.config_secrets import check_api_token as check_api_token
+from relayd.config_secrets import resolve_secret as resolve_secret
+from relayd.config_secrets import secret_file_errors as secret_file_errors
+from relayd.config_secrets import secret_refs as secret_refs
 
 DEFAULT_CONFIG_PATH = Path("/etc/relayd/relayd.toml")
 BAUD_RATES = (9600, 19200, 38400, 57600, 115200)
@@ -179,7 +190,7 @@ class ControlSettings(_Section):
     beta_per_m: NonNegFloat = 1.0
     lost_rssi_dbm: Dbm = -85.0
     manual_deadman_s: PositiveFloat = 0.5
-    #: RSSI^b older than this many rear-AP polls is stale (not in the spec; 3 polls).
+    #: RSSI^b older than this many rear-AP polls is stale (our choice, docs/CONTROL.md 6: 3 polls).
     rear_stale_polls: Annotated[int, Field(ge=1, le=100)] = 3
     #: "fixed": stop at threshold_b_dbm everywhere; "adaptive": learn the rear hop's
     #: RSSI-to-rate relation and set the limit from it (docs/CONTROL.md section 5.1).
@@ -195,11 +206,56 @@ class ControlSettings(_Section):
     mac_efficiency: Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)] = 0.5
     #: The model forgets a sample's weight by half over this many rear polls.
     link_half_life_polls: Annotated[float, Field(ge=5, le=10000, allow_inf_nan=False)] = 20.0
+    #: The escape when forward motion is blocked (docs/AVOIDANCE.md); false leaves the
+    #: paper's obstacle rule alone (for experiments and benchmarks, not for a robot).
+    escape: bool = True
 
     @model_validator(mode="after")
     def _cross_key_rules(self) -> ControlSettings:
         raise_first(control_rules(self.model_dump()))
         return self
+
+
+class AvoidanceSettings(_Section):
+    """The obstacle escape's limits and turn rates (docs/AVOIDANCE.md); the rest of its
+    geometry is fitted to the P3-AT's sonar ring and stays in code (AvoidParams)."""
+
+    #: An escape that has not got past within this time, path or total turn holds
+    #: with reason "blocked" (a dead end is reported, never driven into).
+    max_escape_s: Annotated[float, Field(gt=0, le=3600)] = 300.0
+    max_escape_m: Annotated[float, Field(gt=0, le=500)] = 40.0
+    max_turn_deg: Annotated[float, Field(gt=0, le=36000)] = 1080.0
+    #: Turns in place during the escape.
+    turn_rate_deg_s: Annotated[float, Field(gt=0, le=100)] = 20.0
+    #: No turn in place is ever commanded slower than this (a rate the tyres execute).
+    min_turn_deg_s: Annotated[float, Field(ge=1, le=100)] = 8.0
+
+    @model_validator(mode="after")
+    def _cross_key_rules(self) -> AvoidanceSettings:
+        raise_first(avoidance_rules(self.model_dump()))
+        return self
+
+
+class RecoverySettings(_Section):
+    """Self-healing when a link breaks (docs/CONTROL.md section 9); off: today's behaviour."""
+
+    enabled: bool = False
+    #: An episode gives up (wheels zero, reason leader_lost / rear_lost) after this much travel ...
+    max_distance_m: Annotated[float, Field(gt=0, le=100, allow_inf_nan=False)] = 8.0
+    #: ... or this long.
+    max_time_s: Annotated[float, Field(gt=0, le=3600, allow_inf_nan=False)] = 60.0
+    #: Reverse speed along the trail when the leader is lost / the link behind breaks.
+    retrace_speed_mm_s: Annotated[float, Field(gt=0, le=1500, allow_inf_nan=False)] = 200.0
+    backup_speed_mm_s: Annotated[float, Field(gt=0, le=1500, allow_inf_nan=False)] = 150.0
+    #: Full-range scans, wheels at zero, before retracing.
+    widen_scans: Annotated[int, Field(ge=0, le=20)] = 1
+    #: Breadcrumbs: one every this much travel, the newest trail_len kept.
+    crumb_spacing_m: Annotated[float, Field(ge=0.05, le=5, allow_inf_nan=False)] = 0.25
+    trail_len: Annotated[int, Field(ge=2, le=10000)] = 200
+    #: A crumb counts as reached this close.
+    reach_m: Annotated[float, Field(ge=0.05, le=5, allow_inf_nan=False)] = 0.3
+    #: Wheel-speed difference per degree the crumb lies off the rear axis.
+    turn_gain_mm_s_deg: Annotated[float, Field(ge=0, le=50, allow_inf_nan=False)] = 3.0
 
 
 class ApiSettings(_Section):
@@ -209,6 +265,15 @@ class ApiSettings(_Section):
     port: Annotated[int, Field(ge=0, le=65535)] = 8080
     token_env: str | None = "RELAYD_API_TOKEN"
     token_file: str | None = None
+    #: PEM certificate (chain) and private key: both set, the API serves HTTPS only.
+    tls_cert: str | None = None
+    tls_key: str | None = None
+
+    @model_validator(mode="after")
+    def _tls_pair(self) -> ApiSettings:
+        if (self.tls_cert is None) != (self.tls_key is None):
+            raise ValueError("set both tls_cert and tls_key, or neither")
+        return self
 
     @model_validator(mode="before")
     @classmethod
@@ -235,6 +300,41 @@ class LogSettings(_Section):
     format: Literal["json", "console"] = "json"
 
 
+class RecordSettings(_Section):
+    """Recording every bus event and action to MCAP files (docs/RECORDING.md)."""
+
+    enabled: bool = False
+    #: A directory (one file per run, `relayd-<UTC time>.mcap`) or a file ending in `.mcap`.
+    path: Annotated[str, Field(min_length=1)] = "/var/lib/relayd/recordings"
+    #: A file this big is finished (summary written) and the next part begun.
+    max_file_mb: Annotated[float, Field(gt=0, le=1_000_000, allow_inf_nan=False)] = 100.0
+    #: The oldest recordings are deleted to keep the total under this.
+    max_total_mb: Annotated[float, Field(gt=0, allow_inf_nan=False)] = 2000.0
+
+    @model_validator(mode="after")
+    def _total_holds_a_file(self) -> RecordSettings:
+        if self.max_total_mb < self.max_file_mb:
+            raise ValueError("max_total_mb must be at least max_file_mb")
+        return self
+
+
+class FoxgloveSettings(_Section):
+    """The live Foxglove WebSocket server: the recorder's channels, as they happen (docs/RECORDING.md)."""
+
+    enabled: bool = False
+    #: Loopback by default: the Foxglove protocol has no authentication, and a viewer
+    #: streaming every channel over the relay's own Wi-Fi competes with the link the robot
+    #: is there to carry. Reach it through `ssh -L`, or bind 0.0.0.0 on purpose.
+    bind: str = "127.0.0.1"
+    #: 8765 is what the Foxglove app offers by default for a WebSocket connection.
+    port: Annotated[int, Field(ge=0, le=65535)] = 8765
+
+    @field_validator("bind")
+    @classmethod
+    def _ip_address(cls, v: str) -> str:
+        return ApiSettings._ip_address(v)
+
+
 class Settings(_Section):
     robot: RobotSettings = RobotSettings()
     pantilt: PanTiltSettings = PanTiltSettings()
@@ -242,16 +342,12 @@ class Settings(_Section):
     ap: ApSection = ApSection()
     scan: ScanSettings = ScanSettings()
     control: ControlSettings = ControlSettings()
+    avoidance: AvoidanceSettings = AvoidanceSettings()
+    recovery: RecoverySettings = RecoverySettings()
     api: ApiSettings = ApiSettings()
     log: LogSettings = LogSettings()
-
-
-class ConfigError(Exception):
-    """A config that cannot be used; `errors` lists every problem as 'key.path: message'."""
-
-    def __init__(self, errors: list[str]) -> None:
-        super().__init__("\n".join(errors))
-        self.errors = errors
+    record: RecordSettings = RecordSettings()
+    foxglove: FoxgloveSettings = FoxgloveSettings()
 
 
 def semantic_problems(data: Mapping[str, Any]) -> list[str]:
@@ -259,13 +355,27 @@ def semantic_problems(data: Mapping[str, Any]) -> list[str]:
     control = with_defaults(ControlSettings, data.get("control"))
     problems = [*control_rules(control),
                 *pantilt_rules(with_defaults(PanTiltSettings, data.get("pantilt"))),
-                *cross_section_rules(data, control)]
+                *avoidance_rules(with_defaults(AvoidanceSettings, data.get("avoidance"))),
+                *cross_section_rules(data, control), *_port_rules(data)]
     ap = data.get("ap")
     for side in ("rear", "front"):
         section = ap.get(side) if isinstance(ap, Mapping) else None
         if isinstance(section, Mapping):
             problems += ap_rules(side, section)
     return [message(p) for p in problems]
+
+
+def _port_rules(data: Mapping[str, Any]) -> list[tuple[str, str]]:
+    """The live Foxglove server and the API cannot share a port (the second would fail to bind)."""
+    api, fox = data.get("api"), data.get("foxglove")
+    if not isinstance(fox, Mapping) or fox.get("enabled") is not True:
+        return []
+    api = api if isinstance(api, Mapping) else {}
+    api_port = api.get("port", ApiSettings().port)
+    fox_port = fox.get("port", FoxgloveSettings().port)
+    if api.get("enabled", True) is True and fox_port == api_port and fox_port != 0:
+        return [("foxglove.port", f"{fox_port} is also api.port; give the live Foxglove server its own port")]
+    return []
 
 
 def parse_settings(data: Mapping[str, Any]) -> Settings:
@@ -310,120 +420,3 @@ def config_warnings(settings: Settings) -> list[str]:
             out.append(f"{key}: {section.port!r} looks like a placeholder (XXXX): use your adapter's "
                        "serial, or the udev name (/dev/relay/base, /dev/relay/servo)")
     return out
-
-
-def secret_file_errors(settings: Settings) -> list[str]:
-    """Secret files that cannot be read now (check-config: `relayd run` would refuse to start)."""
-    errors = []
-    for ref in secret_refs(settings).values():
-        if ref.file is not None:
-            try:
-                resolve_secret(ref, {})
-            except ConfigError as exc:
-                errors.extend(exc.errors)
-    return errors
-
-
-@dataclass(frozen=True, slots=True)
-class SecretRef:
-    """Where a secret comes from; `describe()` says so without ever showing it."""
-
-    key: str
-    env: str | None
-    file: str | None
-
-    def describe(self, environ: Mapping[str, str]) -> str:
-        if self.env is not None:
-            return f"env {self.env} ({'set' if environ.get(self.env) else 'NOT SET'})"
-        if self.file is not None:
-            return f"file {self.file} ({'readable' if os.access(self.file, os.R_OK) else 'NOT READABLE'})"
-        return "none"
-
-
-def resolve_secret(ref: SecretRef, environ: Mapping[str, str]) -> str | None:
-    """The secret's value, or None when it is not configured; ConfigError if configured but missing."""
-    if ref.env is not None:
-        value = environ.get(ref.env)
-        if not value:
-            raise ConfigError([f"{ref.key}: environment variable {ref.env} is not set"])
-        return value
-    if ref.file is not None:
-        try:
-            value = Path(ref.file).read_text(encoding="utf-8").strip()
-        except OSError as exc:
-            raise ConfigError([f"{ref.key}: cannot read {ref.file}: {exc.strerror or exc}"]) from None
-        if not value:
-            raise ConfigError([f"{ref.key}: {ref.file} is empty"])
-        return value
-    return None
-
-
-def secret_refs(settings: Settings) -> dict[str, SecretRef]:
-    """Where each secret in use comes from, by owner: "ap.rear", "ap.front", "api"."""
-    refs: dict[str, SecretRef] = {}
-    for name in ("rear", "front"):
-        ap = getattr(settings.ap, name)
-        if ap is not None and ap.enabled:
-            key = f"ap.{name}.password_file" if ap.password_file else f"ap.{name}.password_env"
-            refs[f"ap.{name}"] = SecretRef(key, ap.password_env, ap.password_file)
-    api = settings.api
-    if api.enabled:
-        key = "api.token_file" if api.token_file else "api.token_env"
-        refs["api"] = SecretRef(key, api.token_env, api.token_file)
-    return refs
-
-
-def _toml_value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    if isinstance(v, (int, float)):
-        return repr(v)
-    raise TypeError(f"cannot write {type(v).__name__} to TOML")
-
-
-def dump_toml(doc: Mapping[str, Any]) -> str:
-    """A config document (sections of scalars, lists and sub-tables) as TOML."""
-    lines: list[str] = []
-
-    def table(prefix: str, d: Mapping[str, Any]) -> None:
-        scalars = {k: v for k, v in d.items() if not isinstance(v, Mapping) and v is not None}
-        if scalars or not any(isinstance(v, Mapping) for v in d.values()):
-            lines.append(f"[{prefix}]")
-            lines.extend(f"{k} = {_toml_value(v)}" for k, v in scalars.items())
-            lines.append("")
-        for k, v in d.items():
-            if isinstance(v, Mapping):
-                table(f"{prefix}.{k}", v)
-
-    for name, section in doc.items():
-        table(name, section)
-    return "\n".join(lines)
-
-
-def render_settings(settings: Settings, environ: Mapping[str, str]) -> str:
-    """The effective settings as TOML, with where each secret comes from (never its value)."""
-    lines: list[str] = []
-
-    def section(title: str, values: Mapping[str, Any]) -> None:
-        lines.append(f"[{title}]")
-        for k, v in values.items():
-            if v is not None:
-                lines.append(f"{k} = {_toml_value(v)}")
-        lines.append("")
-
-    data = settings.model_dump(mode="json")
-    for name, values in data.items():
-        if name == "ap":
-            for side, ap in values.items():
-                if ap is not None:
-                    section(f"ap.{side}", ap)
-        else:
-            section(name, values)
-    lines.append("# secrets (values never shown):")
-    for ref in secret_refs(settings).values():
-        lines.append(f"#   {ref.key}: {ref.describe(environ)}")
-    return "\n".join(lines) + "\n"

@@ -18,6 +18,15 @@ from typing import Any, get_args
 
 from pydantic import BaseModel, ValidationError
 
+
+class ConfigError(Exception):
+    """A config that cannot be used; `errors` lists every problem as 'key.path: message'."""
+
+    def __init__(self, errors: list[str]) -> None:
+        super().__init__("\n".join(errors))
+        self.errors = errors
+
+
 #: (key, message): the key is dotted from the top of the config ("control.kp").
 Problem = tuple[str, str]
 
@@ -59,6 +68,14 @@ def control_rules(c: Mapping[str, Any]) -> list[Problem]:
                                                        "link_policy = \"adaptive\": the rear limit may rise "
                                                        "that far"))
     return out
+
+
+def avoidance_rules(a: Mapping[str, Any]) -> list[Problem]:
+    rate, least = _num(a.get("turn_rate_deg_s")), _num(a.get("min_turn_deg_s"))
+    if rate is not None and least is not None and rate < least:
+        return [("avoidance.turn_rate_deg_s", f"must be at least min_turn_deg_s ({least:g}): no turn "
+                                              "in place is ever commanded slower than that")]
+    return []
 
 
 def pantilt_rules(p: Mapping[str, Any]) -> list[Problem]:

@@ -19,7 +19,11 @@ Order of decisions, first match wins:
    "obstacle". Otherwise reason "manual"; state DRIVING when a wheel moves.
 4. follow: leader_lost -> LEADER_LOST; no bearing or RSSI^l yet -> STOPPED
    "no_scan_yet"; the link rule says stop -> STOPPED "leader_near"/"rear_weak";
-   situation 1 -> AVOIDING "obstacle"; else DRIVING "driving".
+   situation 1 -> AVOIDING "obstacle"; else DRIVING "driving". Then, given the time
+   and odometry, the escape (relayd/avoidance.py, docs/AVOIDANCE.md) may take over:
+   AVOIDING "avoiding"/"rejoining", or STOPPED "blocked" past its limits. Every
+   follow-mode command is rounded to what VEL/RVEL can say (relayd/actuator.py) and
+   passes the guard (relayd/ring.py).
 
 Link rule (the paper's eq. 6-12 resolved, with hysteresis; docs/CONTROL.md section 5): while driving, stop when RSSI^l >= threshold_l
 ("leader_near") or RSSI^b <= threshold_b ("rear_weak"); while stopped, resume only
@@ -45,14 +49,17 @@ V_L = v - kp*B - kd*(B - B'), V_R = v + kp*B + kd*(B - B'); each wheel clamped t
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
+from relayd.actuator import Actuator
+from relayd.avoidance import AvoidParams, AvoidState, Sense, avoid_step
 from relayd.estimator import (
     SonarReading,
     avoidance_bearing,
     classify_situation,
     nearest_front_m,
 )
+from relayd.ring import guard
 from relayd.state import DriveState, Mode
 
 
@@ -77,6 +84,13 @@ class ControlParams:
     rssi_timeout_s: float = 5.0  # two scan periods (the daemon computes it)
     rear_timeout_s: float = 3.0  # RSSI^b older than this is stale
     manual_deadman_s: float = 0.5
+    #: False: the paper's obstacle rule alone, no escape (config `control.escape`).
+    escape: bool = True
+    #: The escape when forward motion is blocked (relayd/avoidance.py); its stop
+    #: distance and threshold_o are taken from the two fields above.
+    avoid: AvoidParams = field(default_factory=AvoidParams)
+    #: What VEL/RVEL can express; every follow-mode command is rounded to it here.
+    actuator: Actuator = field(default_factory=Actuator)
 
 
 @dataclass(frozen=True, slots=True)
@@ -98,6 +112,13 @@ class ControlInputs:
     manual_left_mm_s: float | None = None
     manual_right_mm_s: float | None = None
     manual_age_s: float | None = None
+    #: Time of this step (s, the caller's clock) and the odometry pose (mm, mm, deg):
+    #: the escape's progress watchdog and limits need them; None disables the escape.
+    t_s: float | None = None
+    odom: tuple[float, float, float] | None = None
+    #: The backward-looking rear sonars (`avoidance.rear_readings`): the escape backs off
+    #: only when they show room behind.
+    rear_sonar: tuple[SonarReading, ...] = ()
 
 
 @dataclass(frozen=True, slots=True)
@@ -108,6 +129,8 @@ class ControlMemory:
     link_drive: bool = False
     #: Previous steering angle used for the D term in situation 1.
     prev_steer_deg: float | None = None
+    #: The escape state machine (relayd/avoidance.py); reset whenever the robot may not drive.
+    avoid: AvoidState = field(default_factory=AvoidState)
 
 
 @dataclass(frozen=True, slots=True)
@@ -164,10 +187,10 @@ def link_rule(
     margin = 0.0 if was_driving else params.hysteresis_db
     if rssi_leader_dbm >= params.threshold_l_dbm - margin:
         return False, "leader_near"
-    if rear_required:
-        assert rssi_behind_dbm is not None  # checked above; narrows the type
-        if rssi_behind_dbm <= params.threshold_b_dbm + margin:
-            return False, "rear_weak"
+    # rear_required with no rear reading returned "rear_link_stale" above.
+    if rear_required and rssi_behind_dbm is not None \
+            and rssi_behind_dbm <= params.threshold_b_dbm + margin:
+        return False, "rear_weak"
     return True, "driving"
 
 
@@ -182,7 +205,9 @@ def speed_scale(d_min_m: float, threshold_o_m: float, stop_distance_m: float) ->
 def _stopped(
     state: DriveState, reason: str, situation: int, memory: ControlMemory
 ) -> ControlOutput:
-    return ControlOutput(0.0, 0.0, state, reason, situation, replace(memory, prev_steer_deg=None))
+    return ControlOutput(
+        0.0, 0.0, state, reason, situation, replace(memory, prev_steer_deg=None, avoid=AvoidState())
+    )
 
 
 def _stale(age_s: float | None, timeout_s: float) -> bool:
@@ -255,24 +280,37 @@ def control_step(
         return _stopped(DriveState.STOPPED, reason, situation, memory)
 
     v = background_speed(rssi_l, params.w1, params.w2, params.v_max_mm_s)
-    if situation == 1:
-        d_min = nearest_front_m(inputs.front_sonar)
-        assert d_min is not None  # situation 1 means a forward sonar echoed
+    # Situation 1 means a forward sonar echoed inside the detection range: d_min is set.
+    d_min = nearest_front_m(inputs.front_sonar) if situation == 1 else None
+    if d_min is not None:
         steer = avoidance_bearing(inputs.front_sonar, params.gamma_o_m)
         v *= speed_scale(d_min, params.threshold_o_m, params.stop_distance_m)
         left, right = wheel_law(
             v, steer, memory.prev_steer_deg, params.kp, params.kd, params.v_max_mm_s
         )
-        return ControlOutput(
-            left,
-            right,
-            DriveState.AVOIDING,
-            "obstacle",
-            situation,
-            replace(memory, prev_steer_deg=steer),
-        )
+        state, reason, memory = DriveState.AVOIDING, "obstacle", replace(memory, prev_steer_deg=steer)
+    else:
+        left, right = wheel_law(v, bearing, prev, params.kp, params.kd, params.v_max_mm_s)
+        state, reason, memory = DriveState.DRIVING, "driving", replace(memory, prev_steer_deg=None)
 
-    left, right = wheel_law(v, bearing, prev, params.kp, params.kd, params.v_max_mm_s)
-    return ControlOutput(
-        left, right, DriveState.DRIVING, "driving", situation, replace(memory, prev_steer_deg=None)
-    )
+    act = params.actuator
+    if (params.escape and inputs.t_s is not None and inputs.odom is not None
+            and math.isfinite(inputs.t_s)):
+        sense = Sense(inputs.t_s, inputs.odom, inputs.front_sonar, bearing, inputs.rear_sonar)
+        aparams = replace(
+            params.avoid, stop_distance_m=params.stop_distance_m, threshold_o_m=params.threshold_o_m
+        )
+        avoid, cmd = avoid_step(memory.avoid, sense, aparams, act)
+        memory = replace(memory, avoid=avoid)
+        if not cmd.follow:
+            left, right = act.wheels(cmd.vel_mm_s, cmd.rvel_deg_s)
+            moving = cmd.vel_mm_s != 0 or cmd.rvel_deg_s != 0
+            state = DriveState.AVOIDING if moving else DriveState.STOPPED
+            return ControlOutput(
+                left, right, state, cmd.reason, situation, replace(memory, prev_steer_deg=None)
+            )
+    # The paper's command, as the wire will carry it, never into a near echo.
+    vel, rvel = act.within(*act.express(*act.vel_rvel(left, right)), params.v_max_mm_s)
+    vel, rvel = guard(vel, rvel, inputs.front_sonar, params.stop_distance_m)
+    left, right = act.wheels(vel, rvel)
+    return ControlOutput(left, right, state, reason, situation, memory)

@@ -81,6 +81,7 @@ class SonarReading:
 
     heading_deg: float  # sonar heading in the robot frame (ccw +)
     range_m: float | None  # None = no echo (nothing within the sonar's 5 m)
+    index: int | None = None  # the P3-AT sonar number, when known (its mounting pose)
 
 
 @dataclass(frozen=True, slots=True)
@@ -340,5 +341,5 @@ def front_readings(ranges_mm: Sequence[int | None]) -> tuple[SonarReading, ...]:
         if mm is not None and mm < 0:
             raise ValueError(f"sonar {index} range must be >= 0 mm, got {mm}")
         range_m = None if mm is None or mm >= SONAR_MAX_RANGE_MM else mm / 1000.0
-        out.append(SonarReading(heading_deg=SONAR_HEADINGS_DEG[index], range_m=range_m))
+        out.append(SonarReading(heading_deg=SONAR_HEADINGS_DEG[index], range_m=range_m, index=index))
     return tuple(out)

@@ -21,6 +21,7 @@ from drivers.arcos.sip import Sip
 from drivers.wifi.sources import RssiSample
 from relayd.estimator import ScanEstimate
 from relayd.linkmodel import LinkModelStatus
+from relayd.recovery import RecoveryView
 from relayd.state import DriveState, Mode, ScanRecord
 
 # -- events ----------------------------------------------------------------------------
@@ -218,4 +219,12 @@ class LinkModelView:
     model: LinkModelStatus
 
 
-Action = WheelCommand | ServoTarget | ScanPlan | Decision | ScanResult | RearLink | LinkModelView
+@dataclass(frozen=True, slots=True)
+class RecoveryReport:
+    """The recovery state machine's phase and progress changed (relayd.recovery)."""
+
+    view: RecoveryView
+
+
+Action = (WheelCommand | ServoTarget | ScanPlan | Decision | ScanResult | RearLink | RecoveryReport
+          | LinkModelView)

@@ -2,7 +2,7 @@
 
 `ControlParams` and `EstimatorParams` (the pure modules' own frozen dataclasses) take
 every field whose name is a key of the config's `[control]` or `[scan]` section
-straight from it, so a new tunable is written twice (the config model and the
+straight from it (the escape's `AvoidParams` and the `Actuator` from `[avoidance]`), so a new tunable is written twice (the config model and the
 dataclass), never a third time here. Only the fields derived from several settings
 (timeouts, the rear-link switch) are computed below, each with its reason.
 """
@@ -14,11 +14,14 @@ from typing import Any, TypeVar
 
 from pydantic import BaseModel
 
+from relayd.actuator import Actuator
+from relayd.avoidance import AvoidParams
 from relayd.brain import BrainParams, ScanParams
 from relayd.config import Settings
 from relayd.controller import ControlParams
 from relayd.estimator import EstimatorParams
 from relayd.linkmodel import LinkPolicyParams
+from relayd.recovery import RecoveryParams
 
 P = TypeVar("P")
 
@@ -75,6 +78,10 @@ def control_params(settings: Settings) -> ControlParams:
         sip_timeout_s=settings.robot.lost_after_s,
         rssi_timeout_s=rssi_timeout_s(settings.wifi.sample_hz),
         rear_timeout_s=c.rear_stale_polls * rear_poll_s,
+        # The escape's limits and turn rates ([avoidance]); its stop distance and
+        # threshold_o are [control]'s, set by the controller.
+        avoid=_from_sections(AvoidParams, settings.avoidance),
+        actuator=_from_sections(Actuator, settings.avoidance),
     )
 
 
@@ -95,20 +102,37 @@ def link_policy_params(settings: Settings) -> LinkPolicyParams:
     )
 
 
+def recovery_params(settings: Settings, control: ControlParams, scan_timeout_s: float | None) -> RecoveryParams:
+    # [recovery]'s own keys, then the thresholds and staleness limits the controller uses.
+    # The reverse speeds never exceed v_max: a first drive with a low v_max stays slow.
+    r = settings.recovery
+    return _from_sections(
+        RecoveryParams, r, settings.control,
+        retrace_speed_mm_s=min(r.retrace_speed_mm_s, control.v_max_mm_s),
+        backup_speed_mm_s=min(r.backup_speed_mm_s, control.v_max_mm_s),
+        rear_required=control.rear_link_required, sip_timeout_s=control.sip_timeout_s,
+        rssi_timeout_s=control.rssi_timeout_s, rear_timeout_s=control.rear_timeout_s,
+        scan_timeout_s=scan_timeout_s,
+    )
+
+
 def brain_params(settings: Settings) -> BrainParams:
     pt, s = settings.pantilt, settings.scan
     scanning = pt.enabled and settings.wifi.enabled
     rear = settings.ap.rear
+    control = control_params(settings)
+    scan_timeout_s = max(SCAN_STALE_MIN_S, 2.0 * nominal_scan_period_s(settings)) if scanning else None
     return BrainParams(
-        control=control_params(settings),
+        control=control,
         estimator=estimator_params(settings),
         scan=ScanParams(
             scan_channel=pt.scan_channel, link_channel=pt.link_channel, samples=s.samples,
             width_deg=s.width_deg, limits_deg=(float(pt.limits_deg[0]), float(pt.limits_deg[1])),
             lost_rssi_dbm=settings.control.lost_rssi_dbm,
             # The second stale rule: no completed scan for two nominal scan periods.
-            scan_timeout_s=max(SCAN_STALE_MIN_S, 2.0 * nominal_scan_period_s(settings)) if scanning else None,
+            scan_timeout_s=scan_timeout_s,
         ),
+        recovery=recovery_params(settings, control, scan_timeout_s),
         has_scanner=scanning,
         rear_station_mac=rear.station_mac if rear is not None else None,
         link=link_policy_params(settings),

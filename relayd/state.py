@@ -32,6 +32,8 @@ class DriveState(StrEnum):
     STOPPED = "stopped"
     AVOIDING = "avoiding"
     LEADER_LOST = "leader_lost"
+    #: Self-healing a broken link (relayd.recovery): backing along the breadcrumb trail.
+    RECOVERING = "recovering"
     FAULT = "fault"
 
 
@@ -118,12 +120,17 @@ class RelayState:
     #: Per device, a function returning the driver's own view of its health, read at snapshot time.
     health_sources: dict[str, Callable[[], DeviceHealth]] = field(default_factory=dict, repr=False)
     loop_tick_t: float | None = None
+    #: The recorder's status (relayd.record), read at snapshot time; None: no recorder here.
+    recording_source: Callable[[], dict[str, Any]] | None = field(default=None, repr=False)
     robot_name: str | None = None
     #: The operator's name for this robot (config `robot.display_name`), e.g. "relay 2 (east)".
     display_name: str | None = None
     thresholds: dict[str, float] = field(default_factory=dict)
     #: The rear-link model's state (relayd.linkmodel), None until its first sample.
     link_model: dict[str, Any] | None = None
+    #: The recovery state machine as /status shows it (relayd.recovery.RecoveryView as a
+    #: plain dict); None while recovery is disabled.
+    recovery: dict[str, Any] | None = None
     #: Bumped on every change a live view cares about; `changed` is set with it.
     revision: int = 0
     changed: asyncio.Event = field(default_factory=asyncio.Event, repr=False)
@@ -207,6 +214,8 @@ class RelayState:
             },
             "thresholds": dict(self.thresholds),
             "link_model": None if self.link_model is None else dict(self.link_model),
+            "recording": None if self.recording_source is None else self.recording_source(),
+            "recovery": None if self.recovery is None else dict(self.recovery),
         }
 
 

@@ -22,6 +22,7 @@ from relayd.events import (
     LinkEvent,
     LinkModelView,
     RearLink,
+    RecoveryReport,
     ScanResult,
     ServoPosition,
     SipEvent,
@@ -108,6 +109,17 @@ class StateWriter:
             case LinkModelView():
                 st.thresholds["threshold_b_dbm"] = round(action.threshold_b_dbm, 2)
                 st.link_model = action.model.to_json()
+            case RecoveryReport(view=v):
+                if st.recovery is None or st.recovery.get("phase") != str(v.phase):
+                    log.info("recovery", phase=str(v.phase), kind=None if v.kind is None else str(v.kind),
+                             episode=v.episodes, outcome=v.last_outcome, distance_m=v.distance_m)
+                st.recovery = {
+                    "enabled": v.enabled, "phase": str(v.phase),
+                    "kind": None if v.kind is None else str(v.kind), "episodes": v.episodes,
+                    "elapsed_s": v.elapsed_s, "distance_m": v.distance_m,
+                    "max_distance_m": v.max_distance_m, "max_time_s": v.max_time_s,
+                    "trail_crumbs": v.trail_crumbs, "last_outcome": v.last_outcome,
+                }
                 st.touch()
             case _:
                 pass

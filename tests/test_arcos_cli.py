@@ -14,8 +14,9 @@ from pathlib import Path
 
 import pytest
 
-from drivers.arcos import ArcosRobot, FakeRobot
+from drivers.arcos import ArcosRobot
 from drivers.arcos.codec import Command
+from drivers.arcos.fake import FakeRobot
 from relayd.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -122,3 +122,26 @@ def test_display_name_is_optional_and_bounded() -> None:
         with pytest.raises(ConfigError) as info:
             parse_settings({"robot": {"display_name": bad}})
         assert any(e.startswith("robot.display_name") for e in info.value.errors), info.value.errors
+
+
+def test_avoidance_keys_reach_the_escape_and_default_to_its_own() -> None:
+    from relayd.actuator import Actuator
+    from relayd.avoidance import AvoidParams
+    from relayd.params import control_params
+
+    # The shipped defaults are the escape's code defaults (one set of numbers, not two).
+    c = control_params(Settings())
+    assert c.avoid == AvoidParams() and c.actuator == Actuator()
+    alone = {"rear_link": "ignore"}
+    tuned = control_params(parse_settings({"control": alone, "avoidance": {
+        "max_escape_s": 120, "max_escape_m": 15.5, "max_turn_deg": 720,
+        "turn_rate_deg_s": 25, "min_turn_deg_s": 12}}))
+    a = tuned.avoid
+    assert (a.max_escape_s, a.max_escape_m, a.max_turn_deg, a.turn_rate_deg_s) == (120, 15.5, 720, 25)
+    assert tuned.actuator.min_turn_deg_s == 12 and tuned.actuator.turn(3.0) == 12
+    with pytest.raises(ConfigError, match=r"avoidance\.turn_rate_deg_s.*min_turn_deg_s"):
+        parse_settings({"control": alone, "avoidance": {"turn_rate_deg_s": 6}})
+    with pytest.raises(ConfigError, match=r"avoidance\.max_escape_s"):
+        parse_settings({"control": alone, "avoidance": {"max_escape_s": 0}})
+    with pytest.raises(ConfigError, match=r"did you mean 'max_turn_deg'"):
+        parse_settings({"control": alone, "avoidance": {"max_turns_deg": 720}})

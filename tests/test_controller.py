@@ -10,6 +10,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from relayd.actuator import Actuator
 from relayd.controller import (
     ControlInputs,
     ControlMemory,
@@ -26,6 +27,11 @@ from relayd.state import DriveState, Mode
 
 P = ControlParams()
 DRIVING = ControlMemory(link_drive=True)
+
+
+def wire(left: float, right: float) -> tuple[float, float]:
+    """What the paper's wheel law becomes once VEL/RVEL (1 mm/s, 1 deg/s) carry it."""
+    return Actuator().express_wheels(left, right, P.v_max_mm_s)
 
 
 def sonar(**by_index: int | None) -> tuple:
@@ -314,10 +320,10 @@ def test_follow_drives_with_the_wheel_law() -> None:
     out = step()
     assert out.state is DriveState.DRIVING and out.reason == "driving" and out.situation == 0
     # v = 350 (-50 dBm), B = 10, B' = 4 -> turn = 10 + 0.3 * 6 = 11.8.
-    assert (out.left_mm_s, out.right_mm_s) == pytest.approx((338.2, 361.8))
+    assert (out.left_mm_s, out.right_mm_s) == pytest.approx(wire(338.2, 361.8))
     assert out.memory == ControlMemory(link_drive=True, prev_steer_deg=None)
     right = step(bearing_deg=-20.0, prev_bearing_deg=None)
-    assert (right.left_mm_s, right.right_mm_s) == pytest.approx((370.0, 330.0))
+    assert (right.left_mm_s, right.right_mm_s) == pytest.approx(wire(370.0, 330.0))
 
 
 def test_follow_leader_lost_and_no_scan_yet() -> None:
@@ -335,7 +341,7 @@ def test_follow_leader_lost_and_no_scan_yet() -> None:
 
 def test_broken_previous_bearing_only_drops_the_d_term() -> None:
     out = step(prev_bearing_deg=math.nan)
-    assert (out.left_mm_s, out.right_mm_s) == pytest.approx((340.0, 360.0))
+    assert (out.left_mm_s, out.right_mm_s) == pytest.approx(wire(340.0, 360.0))
 
 
 def test_follow_stop_rule_and_latch_through_control_step() -> None:
@@ -365,9 +371,10 @@ def test_situation_one_speed_scaling() -> None:
     assert (out.left_mm_s + out.right_mm_s) / 2 == pytest.approx(175.0)  # half speed
     steer = avoidance_bearing(sonar(s3=550), 1.0)
     assert steer < 0  # obstacle on the left (+10): steer right
-    assert out.right_mm_s - out.left_mm_s == pytest.approx(2 * steer)
+    # A turn of 2 * steer mm/s is below half an RVEL step: a deliberate 0 on the wire.
+    assert (out.left_mm_s, out.right_mm_s) == pytest.approx(wire(175.0 - steer, 175.0 + steer))
     assert out.memory.prev_steer_deg == pytest.approx(steer)
-    assert out.left_mm_s > out.right_mm_s
+    assert out.left_mm_s >= out.right_mm_s
 
 
 @pytest.mark.parametrize(
@@ -382,7 +389,16 @@ def test_speed_scale_bounded(d: float) -> None:
     assert 0.0 <= speed_scale(d, 0.8, 0.3) <= 1.0
 
 
-@pytest.mark.parametrize("d_mm", [299, 200, 50])
+@pytest.mark.parametrize("d_mm", [200, 50])
+def test_an_echo_inside_the_corners_sweep_stops_the_turn_too(d_mm: int) -> None:
+    # This close to the 30 degree sonar the echo may lie inside the circle the corners
+    # sweep (plus the turn margin): a turn in place would swing the body into it, so the
+    # guard holds the wheels (the escape backs off first when it may).
+    out = step(front_sonar=sonar(s2=d_mm), prev_bearing_deg=None)
+    assert zero(out)
+
+
+@pytest.mark.parametrize("d_mm", [299, 260])
 def test_situation_one_only_turns_below_the_stop_distance(d_mm: int) -> None:
     out = step(front_sonar=sonar(s2=d_mm), prev_bearing_deg=None)
     assert out.state is DriveState.AVOIDING
@@ -404,7 +420,8 @@ def test_avoidance_d_term_uses_the_previous_steering_angle() -> None:
     steer2 = second.memory.prev_steer_deg
     assert steer1 is not None and steer2 is not None
     turn = 1.0 * steer2 + 0.3 * (steer2 - steer1)
-    assert second.right_mm_s - second.left_mm_s == pytest.approx(2 * turn)
+    v = (second.left_mm_s + second.right_mm_s) / 2
+    assert (second.left_mm_s, second.right_mm_s) == pytest.approx(wire(v - turn, v + turn), abs=0.6)
     # Leaving situation 1 clears the memory so a stale angle never kicks the D term.
     assert step(memory=second.memory).memory.prev_steer_deg is None
 
@@ -412,13 +429,13 @@ def test_avoidance_d_term_uses_the_previous_steering_angle() -> None:
 def test_situation_two_drives_on_the_scan_bearing() -> None:
     out = step(front_sonar=sonar(s2=1500))
     assert out.state is DriveState.DRIVING and out.situation == 2
-    assert (out.left_mm_s, out.right_mm_s) == pytest.approx((338.2, 361.8))
+    assert (out.left_mm_s, out.right_mm_s) == pytest.approx(wire(338.2, 361.8))
 
 
 def test_side_wall_in_a_corridor_does_not_slow_the_robot() -> None:
     out = step(front_sonar=sonar(s0=400, s7=400))
     assert out.state is DriveState.DRIVING and out.situation == 0
-    assert (out.left_mm_s, out.right_mm_s) == pytest.approx((338.2, 361.8))
+    assert (out.left_mm_s, out.right_mm_s) == pytest.approx(wire(338.2, 361.8))
 
 
 inputs_st = st.builds(

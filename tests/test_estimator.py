@@ -323,8 +323,9 @@ def test_wrap_range(angle: float) -> None:
 def test_front_readings_converts_and_keeps_the_front_ring() -> None:
     readings = front_readings(sonar_mm(s0=700, s3=1500, s7=5000, s8=200, s12=300))
     assert [r.heading_deg for r in readings] == [90, 50, 30, 10, -10, -30, -50, -90]
-    assert readings[0] == SonarReading(90.0, 0.7)
-    assert readings[3] == SonarReading(10.0, 1.5)
+    assert readings[0] == SonarReading(90.0, 0.7, index=0)
+    assert readings[3] == SonarReading(10.0, 1.5, index=3)
+    assert [r.index for r in readings] == list(range(8))  # the mounting pose, for the guard
     assert readings[7].range_m is None  # 5000 mm: the sonar's maximum, no echo
     assert readings[1].range_m is None
 

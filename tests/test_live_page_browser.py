@@ -77,6 +77,7 @@ async def test_live_page_shows_the_daemon_and_redraws_on_a_new_scan(
             assert await page.text_content("#drive-state") == "stopped"
             assert await page.text_content("#reason-code") == "hold"
             assert (await page.text_content("#reason") or "").startswith("stopped: hold mode")
+            assert await page.is_hidden("#recovery-box")  # recovery disabled: nothing shown
             assert await page.text_content("#rssi-b") == "-55.0 dBm"  # the rig's rear radio
             thr_l = daemon.settings.control.threshold_l_dbm
             assert await page.text_content("#thr-l") == f"{thr_l:.0f} dBm"
@@ -117,3 +118,44 @@ async def test_live_page_shows_the_daemon_and_redraws_on_a_new_scan(
     # Offline: every request went to the robot itself (data: URLs need no network).
     foreign: list[Any] = [r for r in requests if not r.startswith(url) and not r.startswith("data:")]
     assert not foreign, foreign
+
+
+async def test_live_page_shows_the_recovery_state_and_progress(tmp_path: Path) -> None:
+    """Recovery enabled, the link behind falls below lost_rssi: the page shows the episode."""
+    from playwright.async_api import async_playwright
+
+    _require_chromium()
+    async with FakeRig(tmp_path, leader_xy_m=(6.0, 2.0)) as rig:
+        doc = rig.config_doc(api_port=0)
+        doc["recovery"] = {"enabled": True, "max_time_s": 300.0}
+        daemon = Daemon(parse_settings(doc), env=rig.env)
+        async with running(daemon) as task:
+            await until(lambda: daemon.api_port is not None or task.done(), "the API to bind", 20.0)
+            if task.done():
+                task.result()
+            url = f"http://127.0.0.1:{daemon.api_port}"
+            problems: list[str] = []
+            async with async_playwright() as pw:
+                browser = await pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+                try:
+                    page = await browser.new_page(viewport={"width": 1400, "height": 1000})
+                    page.on("pageerror", lambda e: problems.append(str(e)))
+                    await page.goto(url + "/")
+                    await page.wait_for_function(
+                        "() => !document.getElementById('recovery-box').hidden", timeout=SCAN_TIMEOUT_MS)
+                    assert (await page.text_content("#recovery-phase") or "").startswith("idle")
+                    rig.set_rear_signal(-92.0)  # below control.lost_rssi_dbm (-85)
+                    await page.wait_for_function(
+                        "() => document.getElementById('recovery-phase').textContent.startsWith('backup')",
+                        timeout=SCAN_TIMEOUT_MS)
+                    assert await page.text_content("#recovery-phase") == "backup · link behind"
+                    assert "of 300 s" in (await page.text_content("#recovery-progress") or "")
+                    assert await page.text_content("#drive-state") == "recovering"
+                    assert daemon.state.recovery is not None and daemon.state.recovery["phase"] == "backup"
+                    rig.set_rear_signal(-50.0)
+                    await page.wait_for_function(
+                        "() => document.getElementById('recovery-progress').textContent.includes('restored')",
+                        timeout=SCAN_TIMEOUT_MS)
+                finally:
+                    await browser.close()
+            assert not problems, problems

@@ -15,7 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from relayd import brain, control, controller
+from relayd import brain, control, controller, recovery
 from relayd.api.reasons import MINUS, comparison, describe, fmt_db, phrasebook
 from relayd.controller import ControlInputs, ControlMemory, ControlParams, control_step
 from relayd.estimator import SonarReading
@@ -23,11 +23,13 @@ from relayd.state import Mode, RelayState
 
 
 def controller_reason_literals() -> set[str]:
-    """Reason codes in relayd/controller.py, relayd/brain.py and relayd/control.py: `_stopped(state, "x", ...)`,
+    """Reason codes in relayd/controller.py, relayd/brain.py and relayd/control.py, plus every
+    reason of relayd/recovery.py (`recovery.REASONS`, which tests/test_recovery.py checks
+    the state machine against): `_stopped(state, "x", ...)`,
     `ControlOutput(l, r, state, "x", ...)`, `return False, "x"` and `reason = "x"`; for
     an f-string reason (`f"controller_error: {name}"`) the code before the colon."""
     trees = [ast.parse(inspect.getsource(module)) for module in (controller, brain, control)]
-    found: set[str] = set()
+    found: set[str] = set(recovery.REASONS)
 
     def literal(node: ast.AST) -> None:
         if isinstance(node, ast.Constant) and isinstance(node.value, str):

@@ -154,7 +154,9 @@ async def test_no_secret_in_any_answer_or_log_line(tmp_path: Path) -> None:
     for event in ("airos_auth_failed", "airos_session_expired", "airos_logged_in", "mode_changed",
                   "robot_connected", "shutting_down", "stopped"):
         assert f'"event": "{event}"' in log_text or f'"event":"{event}"' in log_text, event
-    assert len(log_text.splitlines()) > 30
+    # A whole run's worth (the ten refused tokens are two lines: they are rate-limited).
+    assert len(log_text.splitlines()) > 20
+    assert '"api_auth_failed"' in log_text and '"api_auth_missing"' in log_text
 
     secrets = {"AP password": rig.ap_password, "wrong AP password": WRONG_AP_PASSWORD,
                "API token": rig.api_token}

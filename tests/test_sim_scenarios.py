@@ -15,8 +15,10 @@ from typing import Any
 import pytest
 
 from relayd import vtime
+from relayd.sim.model import clearance_m
 from relayd.sim.runner import SimResult, SimRunner
 from relayd.sim.scenario import load_scenario
+from relayd.sim.world import World
 
 pytestmark = pytest.mark.slow
 
@@ -76,6 +78,49 @@ def test_convoy_followers_track_and_stop_during_pauses() -> None:
     # followers end up along the leader's path: the first follower passed the sharp turn
     last = recs[-1]["relays"][0]
     assert last["y"] > 3.0, last
+
+
+@pytest.mark.timeout(150)
+def test_box_dead_ahead_is_passed_by_real_daemons() -> None:
+    # The geometry with the truthful sonar: the symmetric box no longer holds the
+    # relay (the escape turns it at an executable rate), and nothing is touched.
+    result, _ = _run("box-dead-ahead", 1)
+    s = result.summary
+    assert s["collisions"] == 0
+    past = [r["t"] for r in result.records if r["relays"][0]["x"] > 2.75 + 0.313]
+    assert past and past[0] < 80.0, s
+    assert s["followers"][0]["stopped_reason"] == "leader_near", s
+
+
+@pytest.mark.timeout(150)
+def test_doorway_is_passed_by_real_daemons() -> None:
+    # Along the wall to the door, a turn onto the leader that the jambs refuse, a short
+    # back-out, and through. It used to hand that back-out to a lane change on the
+    # latched side, away from the leader, and hold "blocked" inside the door.
+    result, _ = _run("doorway", 1)
+    s = result.summary
+    assert s["collisions"] == 0, s
+    past = [r["t"] for r in result.records if r["relays"][0]["x"] > 3.0 + 0.313]  # through the wall
+    assert past and past[0] < 120.0, s
+    assert s["followers"][0]["stopped_reason"] == "leader_near", s
+
+
+@pytest.mark.timeout(150)
+def test_person_in_corridor_is_passed_with_a_tenth_of_a_metre_to_spare() -> None:
+    # 0.12 m a side in the gap at best. Turning back to the middle after it swung the
+    # rear corner to 0.08 m from the wall until the lane change minded its tail.
+    result, runner = _run("person-in-corridor", 1)
+    s = result.summary
+    assert s["collisions"] == 0, s
+    world = World(runner.scenario.with_relays(1), seed=0)
+    body, least = world.relays[0], math.inf
+    for rec in result.records:  # the trace's true poses, 10 per second
+        r = rec["relays"][0]
+        world.set_pose(0, r["x"] * 1000.0, r["y"] * 1000.0, r["theta_deg"])
+        least = min(least, clearance_m(body.polygon(), world.obstacles))
+    assert least >= 0.1, least
+    past = [r["t"] for r in result.records if r["relays"][0]["x"] > 2.75 + 0.313]
+    assert past and past[0] < 90.0, s
 
 
 @pytest.mark.timeout(120)

@@ -282,8 +282,7 @@ def test_sonar_sees_a_wall_ahead_and_nothing_behind() -> None:
     d["relays"] = 1
     d["relay"] = [{"name": "r", "x": 0, "y": 0}]
     d["walls"] = [{"points": [[2.245, -3], [2.245, 3]]}]
-    d["sonar"] = {"noise_mm": 0}
-    d["leader"] = {"waypoints": [{"x": -4, "y": 0}]}
+    d["leader"] = {"waypoints": [{"x": -4, "y": 6}]}  # out of every beam's reach
     w = World(parse_scenario(d), seed=0)
     r = w.sonar_mm(0, 0, 0, 0)
     assert r[3] == pytest.approx(2000, abs=15)   # sonar 3 at x=245 looks ahead at +10 deg
@@ -293,6 +292,65 @@ def test_sonar_sees_a_wall_ahead_and_nothing_behind() -> None:
     r = w.sonar_mm(0, 0, 0, 180)
     assert r[11] == pytest.approx(2000, abs=15) and r[12] == pytest.approx(2000, abs=15)
     assert min(r[:8]) == 5000
+
+
+def _one_relay(**extra: object) -> dict:
+    d = _minimal()
+    d["relays"] = 1
+    d["relay"] = [{"name": "r", "x": 0, "y": 0}]
+    d["leader"] = {"waypoints": [{"x": -4, "y": 6}]}  # out of every beam's reach
+    d.update(extra)
+    return d
+
+
+def test_sonar_is_exactly_mirror_symmetric() -> None:
+    # The issue's box: 0.5 m, centred on the heading. A real ring sees it symmetrically,
+    # and so must the simulated one (no rays or noise to break the tie for the robot).
+    w = World(parse_scenario(_one_relay(boxes=[{"min": [2.25, -0.25], "max": [2.75, 0.25]}])), seed=0)
+    for x_mm in (0.0, 1200.0, 1704.0):
+        r = w.sonar_mm(0, x_mm, 0, 0)
+        assert (r[0], r[1], r[2], r[3]) == (r[7], r[6], r[5], r[4])
+        assert r[3] < 5000
+
+
+def test_sonar_reports_the_nearest_echo_anywhere_in_its_beam() -> None:
+    # A 2 cm post 14 degrees off sonar 3's axis (heading 10) is inside its +-15 degree
+    # beam: seen at its true distance; at 20 degrees off it is outside.
+    sx, sy = 0.245, 0.027
+    for off_deg, seen in ((14.0, True), (-14.0, True), (20.0, False)):
+        a = math.radians(10.0 + off_deg)
+        px, py = sx + 1.5 * math.cos(a), sy + 1.5 * math.sin(a)
+        box = {"min": [px - 0.01, py - 0.01], "max": [px + 0.01, py + 0.01]}
+        r = World(parse_scenario(_one_relay(boxes=[box])), seed=0).sonar_mm(0, 0, 0, 0)
+        assert (abs(r[3] - 1490) <= 15) is seen, (off_deg, r[3])
+
+
+def test_sonar_ranges_are_clipped_like_the_hardware() -> None:
+    near = _one_relay(walls=[{"points": [[0.29, -3], [0.29, 3]]}])  # 45 mm off the front face
+    r = World(parse_scenario(near), seed=0).sonar_mm(0, 0, 0, 0)
+    assert r[3] == 100 and r[4] == 100  # below the minimum range: the minimum
+    far = _one_relay(walls=[{"points": [[6.0, -3], [6.0, 3]]}])
+    r = World(parse_scenario(far), seed=0).sonar_mm(0, 0, 0, 0)
+    assert all(v == 5000 for v in r)  # nothing within 5 m: the maximum, as ARIA reads "no echo"
+    assert all(isinstance(v, int) for v in r)
+
+
+def test_sonar_noise_only_when_the_scenario_asks() -> None:
+    d = _one_relay(walls=[{"points": [[2.245, -3], [2.245, 3]]}])
+    clean = [World(parse_scenario(d), seed=s).sonar_mm(0, 0, 0, 0) for s in (0, 1)]
+    assert clean[0] == clean[1]
+    d["sonar"] = {"noise_mm": 20.0}
+    noisy = [World(parse_scenario(d), seed=s).sonar_mm(0, 0, 0, 0) for s in (0, 1)]
+    assert noisy[0] != noisy[1]
+
+
+@pytest.mark.parametrize("name", ["box-dead-ahead", "box-dead-ahead-offset", "u-trap", "doorway",
+                                  "person-in-corridor"])
+def test_obstacle_scenarios_ship_and_start_clear(name: str) -> None:
+    sc = load_scenario(name)
+    w = World(sc, seed=0)
+    assert not w._collides(0, w.relays[0].polygon())
+    assert w.gap_m(0) >= 8.0  # the leader is far beyond the obstacle
 
 
 def test_motion_guard_rejects_and_counts_contact() -> None:

@@ -42,7 +42,10 @@ def test_probe_wifi_procfs_json(tmp_path: Path, capsys: pytest.CaptureFixture[st
     assert code == 0
     assert 4 <= len(samples) <= 8
     assert all(set(s) == {"t", "rssi_dbm", "fresh"} for s in samples)
-    assert samples[0] == {"t": 0.0, "rssi_dbm": -60.0, "fresh": True}
+    # t counts from the probe's start; a loaded machine may deliver the first read late,
+    # after the writer's first flip (every 30 ms from the start).
+    assert samples[0]["rssi_dbm"] in (-60.0, -61.0) and samples[0]["fresh"] is True
+    assert 0.0 <= float(samples[0]["t"]) <= 0.3  # type: ignore[arg-type]
     assert all(s["rssi_dbm"] in (-60.0, -61.0) for s in samples)
     assert sum(bool(s["fresh"]) for s in samples) >= 2
     ts = [float(s["t"]) for s in samples]  # type: ignore[arg-type]
@@ -110,3 +113,28 @@ def test_probe_wifi_iw_source_with_a_fake_binary(tmp_path: Path,
                  "--json"])
     assert code == 0
     assert _lines(capsys.readouterr().out) == [{"t": 0.0, "rssi_dbm": -52.0, "fresh": True}]
+
+
+def test_probe_wifi_after_the_daemons_logging_was_set_up(tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """A probe's warning must print even when the caller had configured the daemon's pipeline.
+
+    The daemon's processors are stdlib-bound (logger names); the probe's own logger is a
+    PrintLogger, so keeping the caller's processors raised AttributeError mid-probe.
+    """
+    import structlog
+
+    from relayd.logsetup import StdStream, setup_logging
+
+    setup_logging("info", "json", StdStream("stderr"))
+    try:
+        path = tmp_path / "wireless"
+        ProcfsWriter(path, "wlan0").write(-50)
+        code = main(["probe", "wifi", "--source", "procfs", "--interface", "wlan1",
+                     "--path", str(path), "--seconds", "5", "--json"])
+    finally:
+        structlog.reset_defaults()
+    captured = capsys.readouterr()
+    assert code == 1
+    assert "wifi_read_failed" in captured.err
+    assert "relayd probe wifi: interface missing: wlan1 not listed" in captured.err

@@ -11,7 +11,6 @@ written, and turns a transport that dies under a write into an immediate loss.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import math
 import time
 from collections import deque
@@ -21,6 +20,7 @@ import structlog
 
 from drivers.arcos.codec import Command, Decoder, Packet
 from drivers.clock import Clock
+from drivers.link import close_link
 
 log = structlog.get_logger(__name__)
 
@@ -217,8 +217,6 @@ class ArcosProtocol(asyncio.Protocol):
         tr, self.transport = self.transport, None
         if tr is None:
             return
-        if not tr.is_closing():
-            tr.close()
-        with contextlib.suppress(TimeoutError):
-            async with asyncio.timeout(CLOSE_WAIT_S):
-                await self._closed.wait()
+        # Drains what is queued (the CLOSE packet), and ends with the port closed even
+        # when the transport's own background close never reports back.
+        await close_link(tr, self._closed, timeout_s=CLOSE_WAIT_S)

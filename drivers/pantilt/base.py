@@ -3,8 +3,10 @@
 Angles map to pulse widths through each servo's `ServoCalibration` (calibration.py).
 `PanTilt` owns the one serial port shared by both servos (scan and link): every
 command goes through one `asyncio.Lock`, requests register their waiter before
-writing, and silence turns into a disconnect so `run()` reconnects with backoff. The back-ends (`maestro.py`, `ssc32.py`) only say how to
-encode a command and how long each reply is.
+writing, and silence turns into a disconnect so `run()` reconnects with backoff. The
+back-ends (`maestro.py`, `ssc32.py`) only say how to encode a command and how long each
+reply is. About 400 lines because the session (lock, waiters, silence -> disconnect,
+reconnect, health) is one state machine; the reconnect loop is drivers/reconnect.py.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ import structlog
 from drivers.backoff import Backoff
 from drivers.clock import REAL_CLOCK, Clock
 from drivers.health import DeviceHealth, LinkState
-from drivers.link import LinkError, open_link
+from drivers.link import LinkError, close_link, open_link
 from drivers.pantilt.calibration import ServoCalibration, check_angle, check_speed
 from drivers.reconnect import Reconnect
 
@@ -44,16 +46,29 @@ class ReplyError(ValueError):
 
 
 class _SerialProtocol(asyncio.Protocol):
-    """Forwards port events to its PanTilt; never raises into the event loop."""
+    """One connection's events, forwarded to its PanTilt; never raises into the event loop.
+
+    A fresh protocol per connection: the serial transport reports connection_lost
+    from a background task, possibly after the driver has reconnected, and a late
+    report from an old port must not be taken for the loss of the new one.
+    """
 
     def __init__(self, owner: PanTilt) -> None:
         self._owner = owner
+        #: Set by connection_lost: this connection's port is really closed.
+        self.closed = asyncio.Event()
 
     def data_received(self, data: bytes) -> None:
-        self._owner._on_data(data)
+        if self._owner._proto is self:
+            self._owner._on_data(data)
+        else:
+            self._owner.counters["stray_bytes"] += len(data)
 
     def connection_lost(self, exc: Exception | None) -> None:
-        self._owner._on_lost(exc)
+        self.closed.set()
+        # A port given up earlier that has finished closing is no news about the current one.
+        if self._owner._proto is self:
+            self._owner._on_lost(exc)
 
 
 class PanTilt(abc.ABC):
@@ -88,6 +103,9 @@ class PanTilt(abc.ABC):
         self._speed_deg_s: dict[int, float] = {}
         self._lock = asyncio.Lock()
         self._transport: asyncio.Transport | None = None
+        self._proto: _SerialProtocol | None = None
+        # Links given up (silent controller) whose port may not be closed yet.
+        self._dropped: list[tuple[asyncio.Transport, _SerialProtocol]] = []
         # Connected = port open AND the controller answered the handshake.
         self._ready = False
         self._handshaking = False
@@ -215,8 +233,10 @@ class PanTilt(abc.ABC):
         """Open the port once and check that the controller answers."""
         if self.connected:
             return
-        transport, _ = await open_link(self.url, self.baud, lambda: _SerialProtocol(self))
-        self._transport = transport
+        # The previous port must be closed (its flock released) before we open again.
+        await self._close_dropped()
+        transport, proto = await open_link(self.url, self.baud, lambda: _SerialProtocol(self))
+        self._transport, self._proto = transport, proto
         self._lost.clear()
         self._rx.clear()
         self._consecutive_timeouts = 0
@@ -286,16 +306,23 @@ class PanTilt(abc.ABC):
     async def _drop(self) -> None:
         self._ready = False
         transport, self._transport = self._transport, None
-        if transport is not None:
-            transport.close()
-        if not self._lost.is_set():
-            # Wait for the port to really close before anyone reopens it (flock); the
-            # serial transport closes in an executor and reports connection_lost after.
-            with contextlib.suppress(TimeoutError):
-                async with asyncio.timeout(1.0):
-                    await self._lost.wait()
+        proto, self._proto = self._proto, None
         self._fail_waiter(PanTiltError("connection closed"))
-        self._lost.set()
+        try:
+            if transport is not None and proto is not None:
+                self._dropped.append((transport, proto))
+            # Wait for the port to really close before anyone reopens it (flock), and
+            # close it ourselves if the transport's background close does not come.
+            await self._close_dropped()
+        finally:
+            self._lost.set()
+
+    async def _close_dropped(self) -> None:
+        while self._dropped:
+            # Taken off the list first: close() and run() may both be closing ports.
+            transport, proto = self._dropped.pop(0)
+            if not await close_link(transport, proto.closed, abort=True):
+                self._log.warning("pantilt_close_forced")
 
     def _note_error(self, message: str) -> None:
         self.counters["errors"] += 1
@@ -324,6 +351,7 @@ class PanTilt(abc.ABC):
             fut.set_result(reply)
 
     def _on_lost(self, exc: Exception | None) -> None:
+        self._proto = None
         if self._transport is not None:
             self._note_error(f"link lost: {exc}" if exc else "link closed")
         self._transport = None
@@ -381,7 +409,15 @@ class PanTilt(abc.ABC):
             self._consecutive_timeouts = 0
             self._ready = False
             transport, self._transport = self._transport, None
-            transport.abort()
+            proto, self._proto = self._proto, None
+            if not transport.is_closing():
+                # (Aborting a closing serial transport would start a second close task.)
+                transport.abort()
+            if proto is not None:
+                # connect() waits for this port to close (bounded) before it reopens.
+                self._dropped.append((transport, proto))
+            # Wake _serve: this link is over (its own connection_lost is ignored now).
+            self._lost.set()
 
     def _reply_error(self, exc: ReplyError) -> PanTiltError:
         self._note_error(f"bad reply: {exc}")

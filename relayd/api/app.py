@@ -27,7 +27,9 @@ from relayd.api.history import History
 from relayd.api.history import install as install_history
 from relayd.api.models import DriveRequest, ModeRequest
 from relayd.api.openapi import build_openapi
+from relayd.api.server import start_api
 from relayd.metrics import Metrics
+from relayd.ratelimit import LogRateLimit
 from relayd.state import Controls, ModeError, RelayState
 
 log = structlog.get_logger(__name__)
@@ -38,6 +40,8 @@ _M = TypeVar("_M", bound=BaseModel)
 DEFAULT_MAX_DRIVE_MM_S = 1200.0
 #: Control bodies are a few dozen bytes; anything large is a mistake or an attack.
 MAX_BODY_BYTES = 16 * 1024
+#: Refused-token warnings: at most one per client and this many seconds, with a count.
+AUTH_LOG_EVERY_S = 60.0
 STATIC_DIR = Path(str(resources.files("relayd.api") / "static"))
 
 
@@ -57,6 +61,7 @@ class ApiContext:
     openapi_body: bytes
     index_body: bytes
     sse_tasks: set[asyncio.Task[Any]] = field(default_factory=set)
+    auth_log_limit: LogRateLimit = field(default_factory=lambda: LogRateLimit(AUTH_LOG_EVERY_S))
 
 
 CONTEXT: web.AppKey[ApiContext] = web.AppKey("relayd_api", ApiContext)
@@ -118,6 +123,15 @@ async def _parse_body(request: web.Request, model: type[_M]) -> _M:
         raise _BadRequest(first["msg"], loc) from exc
 
 
+def _auth_warning(ctx: ApiContext, event: str, request: web.Request) -> None:
+    """A refused token is worth a warning, but not one per request: anyone on the bridge
+    can send them as fast as they like. First one at once, then one a minute with a count."""
+    count = ctx.auth_log_limit.hit(f"{event}:{request.remote}", ctx.clock.now())
+    if count is not None:
+        log.warning(event, path=request.path, peer=request.remote, count=count,
+                    every_s=ctx.auth_log_limit.every_s)
+
+
 def _authorize(ctx: ApiContext, request: web.Request) -> web.Response | None:
     """None when the bearer token matches; otherwise the 401/403 to send."""
     if not ctx.token:
@@ -125,12 +139,12 @@ def _authorize(ctx: ApiContext, request: web.Request) -> web.Response | None:
     scheme, _, presented = request.headers.get("Authorization", "").partition(" ")
     presented = presented.strip()
     if scheme.lower() != "bearer" or not presented:
-        log.warning("api_auth_missing", path=request.path, peer=request.remote)
+        _auth_warning(ctx, "api_auth_missing", request)
         return _error(401, "missing bearer token")
     # Compare bytes: compare_digest refuses non-ASCII str, and a header may hold anything.
     if not hmac.compare_digest(presented.encode("utf-8", "backslashreplace"),
                                ctx.token.encode("utf-8")):
-        log.warning("api_auth_failed", path=request.path, peer=request.remote)
+        _auth_warning(ctx, "api_auth_failed", request)
         return _error(401, "wrong bearer token")
     return None
 
@@ -200,8 +214,7 @@ async def handle_drive(request: web.Request) -> web.Response:
         req = await _parse_body(request, DriveRequest)
     except _BadRequest as exc:
         return _error(400, str(exc), exc.field_name)
-    for name in ("left_mm_s", "right_mm_s"):
-        value = getattr(req, name)
+    for name, value in (("left_mm_s", req.left_mm_s), ("right_mm_s", req.right_mm_s)):
         if abs(value) > ctx.max_drive_mm_s:
             return _error(400, f"{name} must be within ±{ctx.max_drive_mm_s:g} mm/s", name)
     try:
@@ -320,24 +333,5 @@ def make_app(
     return app
 
 
-async def start_api(app: web.Application, host: str, port: int) -> tuple[web.AppRunner, int]:
-    """Serve `app` on host:port (0 = ephemeral); returns the runner and the bound port.
-
-    Stop with `await runner.cleanup()`. The access log is off: the live page and
-    Prometheus poll constantly, and control requests are logged by their handlers.
-    """
-    runner = web.AppRunner(app, access_log=None, shutdown_timeout=2.0)
-    await runner.setup()
-    site = web.TCPSite(runner, host, port)
-    try:
-        await site.start()
-    except BaseException:
-        await runner.cleanup()
-        raise
-    bound = port
-    for address in runner.addresses:
-        if isinstance(address, tuple) and len(address) >= 2:
-            bound = int(address[1])
-            break
-    log.info("api_listening", host=host, port=bound)
-    return runner, bound
+#: `start_api` lives in relayd/api/server.py (the guarded accept loop); importable from here too.
+__all__ = ["make_app", "start_api"]

@@ -17,7 +17,8 @@ import random
 import structlog
 
 from drivers.clock import REAL_CLOCK, Clock
-from relayd.api.app import make_app, start_api
+from relayd.api.app import make_app
+from relayd.api.server import start_api
 from relayd.state import DriveState, LinkInfo, Mode, ModeError, RelayState, ScanRecord
 
 log = structlog.get_logger(__name__)

@@ -82,6 +82,34 @@ class LinkModel(_Model):
     last_delivered_mbps: float | None
     stale: bool
     refused_stale: Annotated[int, Field(ge=0)]
+class Recording(_Model):
+    """The recorder (docs/RECORDING.md); None in /status when the daemon has none."""
+
+    enabled: bool
+    state: Literal["off", "recording", "stopped", "failed"] = Field(
+        description="failed: a write error (e.g. a full disk) ended the recording; the robot keeps working")
+    path: str | None = Field(description="the file being written, or the last one")
+    files: Annotated[int, Field(ge=0)]
+    bytes: Annotated[int, Field(ge=0)]
+    events: Annotated[int, Field(ge=0)]
+    dropped: Annotated[int, Field(ge=0)]
+    error: str | None
+
+
+class Recovery(_Model):
+    """The self-healing state machine (docs/CONTROL.md); None in /status while disabled."""
+
+    enabled: bool
+    phase: Literal["idle", "widen", "retrace", "backup", "gave_up"]
+    kind: Literal["leader", "rear"] | None = Field(description="which link the episode heals")
+    episodes: Annotated[int, Field(ge=0)]
+    elapsed_s: float | None = Field(description="seconds into the running episode (whole seconds)")
+    distance_m: float | None = Field(description="odometry travel of the running episode")
+    max_distance_m: float
+    max_time_s: float
+    trail_crumbs: Annotated[int, Field(ge=0)]
+    last_outcome: str | None = Field(
+        description="found, restored, preempted, aborted, gave_up_time or gave_up_distance")
 
 
 class Status(_Model):
@@ -109,6 +137,8 @@ class Status(_Model):
     health: dict[str, Health]
     thresholds: dict[str, float]
     link_model: LinkModel | None
+    recording: Recording | None
+    recovery: Recovery | None = Field(description="self-healing state machine; null while disabled")
 
 
 _DROP = {"title", "default"}

@@ -90,4 +90,4 @@ def write_recording(path: str | Path, messages: Sequence[tuple[str, dict[str, An
             ns = int(doc["t"] * 1e9)
             w.add_message(channel_id=channels[topic], log_time=ns, publish_time=ns, sequence=seq,
                           data=json.dumps(doc, separators=(",", ":")).encode())
-        w.finish()
+        w.finish()  # type: ignore[no-untyped-call]  # mcap ships no annotation for it

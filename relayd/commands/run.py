@@ -20,6 +20,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help=f"TOML config (default {DEFAULT_CONFIG_PATH})")
     parser.add_argument("--log-format", choices=["json", "console"], default=None,
                         help="override log.format")
+    parser.add_argument("--record", metavar="PATH", default=None,
+                        help="record this run to MCAP: a directory (one file per run) or a file ending "
+                             "in .mcap; turns [record] on with this path (docs/RECORDING.md)")
 
 
 def _config_error(path: str, exc: ConfigError) -> int:
@@ -34,6 +37,9 @@ async def run(args: argparse.Namespace) -> int:
         settings = load_settings(args.config)
     except ConfigError as exc:
         return _config_error(args.config, exc)
+    if args.record is not None:
+        settings = settings.model_copy(update={
+            "record": settings.record.model_copy(update={"enabled": True, "path": args.record})})
     setup_logging(settings.log.level, args.log_format or settings.log.format)
     from relayd.daemon import Daemon
     from relayd.sdnotify import SdNotifier
@@ -51,7 +57,8 @@ async def run(args: argparse.Namespace) -> int:
     # otherwise land as multi-millisecond pauses in the SIP -> wheel command path.
     gc.freeze()
     main = asyncio.current_task()
-    assert main is not None
+    if main is None:
+        raise RuntimeError("relayd run must be called from a task")
     loop = asyncio.get_running_loop()
     task = asyncio.create_task(daemon.run(), name="relayd:daemon")
 

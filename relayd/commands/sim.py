@@ -1,12 +1,14 @@
 """`relayd sim`: run real relayd daemons in the simulated world and summarise the run.
 
-    relayd sim [--scenario NAME|FILE] [--relays N|all] [--speed X] [--seconds S]
-               [--out DIR] [--seed N] [--no-plots] [--log-level LEVEL]
+    relayd sim [--scenario NAME|FILE] [--relays N|all] [--speed X|max] [--seconds S]
+               [--out DIR] [--seed N] [--no-plots] [--record] [--recovery on|off]
+               [--log-level LEVEL]
 
 With no arguments: the corridor with two relays at speed 10. Prints each relay's API
 port at start (its live page is at http://127.0.0.1:PORT/), a one-line progress on a
 terminal, then a short summary; writes summary.json, trace.jsonl, sim.log and PNG
-plots (if matplotlib imports) into --out. `--relays all` runs the scenario once per
+plots (if matplotlib imports) into --out, and with --record each relay's recording,
+<out>/<relay name>.mcap, made by that relay's daemon exactly as on a robot. `--relays all` runs the scenario once per
 relay count (0, 1, ... N) into DIR/relays-K/ and draws their throughput in one plot.
 Exit status: 0 when the run(s) completed, 2 for a bad scenario or argument.
 """
@@ -51,18 +53,26 @@ def _positive(text: str) -> float:
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--scenario", default=DEFAULT_SCENARIO,
-                        help="a shipped scenario name (convoy, obstacle, corridor, parking) or a TOML file")
-    parser.add_argument("--relays", type=_relays_arg, default=None,
+    from relayd.sim.scenario import builtin_names
+
+    parser.add_argument("--scenario", default=DEFAULT_SCENARIO, metavar="NAME|FILE",
+                        help=f"a shipped scenario ({', '.join(builtin_names())}; default {DEFAULT_SCENARIO})"
+                             " or a scenario TOML file (docs/SIMULATOR.md)")
+    parser.add_argument("--relays", type=_relays_arg, default=None, metavar="N|all",
                         help="number of relays, or 'all' for one run per count (default: the scenario's)")
-    parser.add_argument("--speed", type=_speed, default=DEFAULT_SPEED,
+    parser.add_argument("--speed", type=_speed, default=DEFAULT_SPEED, metavar="X|max",
                         help=f"pace of the virtual clock over wall time, or 'max' (default {DEFAULT_SPEED:g});"
                              " the results do not depend on it")
-    parser.add_argument("--seconds", type=_positive, default=None,
+    parser.add_argument("--seconds", type=_positive, default=None, metavar="S",
                         help="simulated seconds to run at most (default: the scenario's duration)")
-    parser.add_argument("--out", default="sim-out", help="output directory (default ./sim-out)")
-    parser.add_argument("--seed", type=int, default=1, help="world seed (shadowing, fading, sonar noise)")
+    parser.add_argument("--out", default="sim-out", metavar="DIR", help="output directory (default ./sim-out)")
+    parser.add_argument("--seed", type=int, default=1, metavar="N", help="world seed (shadowing, fading, sonar noise; default 1)")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    parser.add_argument("--record", action="store_true",
+                        help="each relay's daemon records its run to <out>/<relay name>.mcap (docs/RECORDING.md)")
+
+    parser.add_argument("--recovery", choices=["on", "off"], default=None,
+                        help="force every relay's recovery.enabled (default: the scenario's [recovery])")
     parser.add_argument("--log-level", default="info",
                         choices=["debug", "info", "warning", "error"],
                         help="daemon log level in sim.log (default info)")
@@ -97,9 +107,16 @@ def format_summary(s: dict[str, Any]) -> str:
         f"  end-to-end throughput: min {s['min_e2e_mbps']:.1f} Mbps, final {s['final_e2e_mbps']:.1f} Mbps;"
         f" collisions: {s['collisions']}",
     ]
+    breaks = s.get("link_breaks") or []
+    if breaks:
+        lines.append(f"  link breaks: {len(breaks)}, down {s.get('downtime_s', 0.0):.1f} s in all")
     for f in s["followers"]:
         lines.append(f"  {f['name']}: max gap {f['max_gap_m']:.1f} m, final gap {f['final_gap_m']:.1f} m, "
                      f"travelled {f['travelled_m']:.1f} m, ends {f['final_state']} ({f['stopped_reason']})")
+        for e in f.get("recovery_episodes") or []:
+            lines.append(f"    recovery {e['kind']} {e['start_s']:.1f}-"
+                         + ("..." if e["end_s"] is None else f"{e['end_s']:.1f}")
+                         + f" s: {e['outcome']}, {e['distance_m']:.1f} m")
     return "\n".join(lines)
 
 
@@ -118,7 +135,8 @@ async def run_one(scenario: Any, relays: int, args: argparse.Namespace, out: Pat
             print(f"{name}: API and live page at http://127.0.0.1:{port}/", flush=True)
 
     runner = SimRunner(sc, speed=args.speed, seed=args.seed, seconds=seconds, out_dir=out,
-                       on_progress=progress, on_ready=ready)
+                       on_progress=progress, on_ready=ready, record_dir=out if args.record else None,
+                       recovery=None if args.recovery is None else args.recovery == "on")
     SIM_LOG_FIELDS.runner = runner
     try:
         result = await runner.run()

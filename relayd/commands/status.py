@@ -53,6 +53,19 @@ def _vs(value: Any, threshold: Any, drive_below: bool) -> str:
     return f"{value:.1f} dBm {rel} {threshold:g} dBm ({verdict})"
 
 
+def format_recovery(rec: dict[str, Any]) -> str:
+    """The recovery state machine in one line: phase, what it heals, progress or last outcome."""
+    text = str(rec.get("phase"))
+    if rec.get("kind"):
+        text += f" ({'link behind' if rec['kind'] == 'rear' else 'leader'})"
+    if rec.get("elapsed_s") is not None:
+        text += (f", {_f(rec.get('elapsed_s'), 0, 's')} of {_f(rec.get('max_time_s'), 0, 's')},"
+                 f" {_f(rec.get('distance_m'), 1, 'm')} of {_f(rec.get('max_distance_m'), 1, 'm')}")
+    elif rec.get("last_outcome"):
+        text += f", last {rec['last_outcome']}"
+    return text + f"; {rec.get('episodes', 0)} episode(s), trail {rec.get('trail_crumbs', 0)} crumbs"
+
+
 def format_status(doc: dict[str, Any]) -> str:
     """A compact table of one /status document."""
     rows: list[tuple[str, str]] = []
@@ -94,11 +107,22 @@ def format_status(doc: dict[str, Any]) -> str:
     if scan:
         rows.append(("last scan", f"{len(scan.get('angles') or [])} samples, {_f(scan.get('age_s'), 1, 's')} ago, "
                                   f"period {_f(scan.get('period_s'), 2, 's')}, #{doc.get('scan_count')}"))
+    rec = doc.get("recovery")
+    if isinstance(rec, dict):
+        rows.append(("recovery", format_recovery(rec)))
     for name, link in sorted((doc.get("links") or {}).items()):
         rows.append((f"link {name}",
                      f"signal {_f(link.get('signal_dbm'), 0, 'dBm')}  noise {_f(link.get('noise_dbm'), 0, 'dBm')}"
                      f"  ccq {_f(link.get('ccq_pct'), 0, '%')}  tx {_f(link.get('tx_mbps'), 1, 'Mb/s')}"
                      f"  rx {_f(link.get('rx_mbps'), 1, 'Mb/s')}  age {_f(link.get('age_s'), 1, 's')}"))
+    rec = doc.get("recording")
+    if rec and rec.get("enabled"):
+        text = f"{rec.get('state')}  {rec.get('path') or '-'}  {_f((rec.get('bytes') or 0) / 1e6, 1, 'MB')}"
+        if rec.get("dropped"):
+            text += f"  {rec['dropped']} events dropped"
+        if rec.get("error"):
+            text += f"  ({rec['error']})"
+        rows.append(("recording", text.upper() if rec.get("state") == "failed" else text))
     width = max(len(k) for k, _ in rows)
     lines = [f"{k:<{width}}  {v}" for k, v in rows]
     health = doc.get("health") or {}

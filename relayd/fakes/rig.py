@@ -31,7 +31,8 @@ from drivers.arcos.fake import FakeRobot
 from drivers.clock import REAL_CLOCK, Clock
 from drivers.pantilt.fake import FakeMaestro
 from drivers.wifi.fake import ProcfsWriter
-from relayd.config import dump_toml
+from relayd.config import Settings
+from relayd.config_toml import dump_toml
 from relayd.sim.radio import yagi_gain_db
 
 #: Servo calibration shared by the fake and the generated config.
@@ -202,6 +203,8 @@ class FakeRig:
             "log": {"level": "info", "format": "console"},
         }
         for name, overrides in sections.items():
+            if name not in doc and name in Settings.model_fields:
+                doc[name] = {}  # a section the rig leaves at its defaults (e.g. record)
             if name not in doc:
                 raise KeyError(f"no config section {name!r}")
             if name == "ap":

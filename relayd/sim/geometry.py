@@ -217,3 +217,61 @@ def wrap_deg(a: float) -> float:
     elif a <= -180.0:
         a += 360.0
     return a
+
+
+def _clip_to_half_plane(p: Point, q: Point, nx: float, ny: float) -> tuple[Point, Point] | None:
+    """The part of segment p-q where n . x >= 0, or None."""
+    dp, dq = nx * p[0] + ny * p[1], nx * q[0] + ny * q[1]
+    if dp < 0.0 and dq < 0.0:
+        return None
+    if dp >= 0.0 and dq >= 0.0:
+        return p, q
+    f = dp / (dp - dq)
+    m = (p[0] + f * (q[0] - p[0]), p[1] + f * (q[1] - p[1]))
+    return (p, m) if dp >= 0.0 else (m, q)
+
+
+def cone_range(ox: float, oy: float, heading_deg: float, half_width_deg: float, max_range_m: float,
+               segments: Iterable[Segment],
+               circles: Iterable[tuple[float, float, float]] = ()) -> float | None:
+    """Distance from (ox, oy) to the nearest point of any segment or disc inside the cone
+    heading +- half_width (< 90 deg), or None when nothing lies within max_range_m.
+
+    This is what a sonar's first echo measures: the nearest surface anywhere in its beam,
+    not along a few sampled rays, so it is exact and symmetric under mirroring.
+    """
+    h = math.radians(heading_deg)
+    w = math.radians(half_width_deg)
+    # Inward normals of the cone's two edges (left edge at h + w, right edge at h - w).
+    nlx, nly = math.sin(h + w), -math.cos(h + w)
+    nrx, nry = -math.sin(h - w), math.cos(h - w)
+    best = max_range_m
+    hit = False
+    for s in segments:
+        p, q = (s.x1 - ox, s.y1 - oy), (s.x2 - ox, s.y2 - oy)
+        part = _clip_to_half_plane(p, q, nlx, nly)
+        if part is not None:
+            part = _clip_to_half_plane(part[0], part[1], nrx, nry)
+        if part is None:
+            continue
+        d = point_segment_distance((0.0, 0.0), part[0], part[1])
+        if d <= best:
+            best, hit = d, True
+    cos_w = math.cos(w)
+    dx, dy = math.cos(h), math.sin(h)
+    for cx, cy, r in circles:
+        rx, ry = cx - ox, cy - oy
+        dist = math.hypot(rx, ry)
+        if dist <= r:
+            return 0.0
+        candidates = []
+        if (rx * dx + ry * dy) >= dist * cos_w:  # the centre is inside the cone
+            candidates.append(dist - r)
+        for edge in (h + w, h - w):
+            t = ray_circle_distance(0.0, 0.0, math.cos(edge), math.sin(edge), rx, ry, r)
+            if t is not None:
+                candidates.append(t)
+        for d in candidates:
+            if d <= best:
+                best, hit = d, True
+    return best if hit else None

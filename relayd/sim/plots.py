@@ -8,7 +8,7 @@ needs a display.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -98,7 +98,9 @@ def plot_rssi_bearing(records: Sequence[dict[str, Any]], path: Path) -> None:
         a1.legend(fontsize=8)
         a1.grid(alpha=0.3)
         a2.plot(t, [r["relays"][i]["bearing_deg"] for r in records], label="estimated")
-        a2.plot(t, [r["relays"][i]["true_bearing_deg"] for r in records], label="true", alpha=0.7)
+        true = [r["relays"][i]["true_bearing_deg"] for r in records]
+        if any(v is not None for v in true):  # a recording from a robot has no ground truth
+            a2.plot(t, true, label="true", alpha=0.7)
         a2.set_ylabel("deg")
         a2.set_title(f"{name}: bearing")
         a2.legend(fontsize=8)
@@ -107,6 +109,26 @@ def plot_rssi_bearing(records: Sequence[dict[str, Any]], path: Path) -> None:
         ax.set_xlabel("time (s)")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def plot_paths(paths: Mapping[str, tuple[Sequence[float], Sequence[float]]], path: Path, title: str) -> None:
+    """Paths in the plane (e.g. each robot's odometry), start and end marked, equal axes."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7, 6))
+    for name, (xs, ys) in paths.items():
+        line = ax.plot(xs, ys, lw=1.5, label=name)[0]
+        if xs:
+            ax.plot(xs[0], ys[0], marker="s", color=line.get_color(), ms=7, ls="")
+            ax.plot(xs[-1], ys[-1], marker="o", color=line.get_color(), ms=9, ls="")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title(title)
+    ax.legend(loc="best", fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
     plt.close(fig)
 
 

@@ -99,9 +99,11 @@ def _pose3(p: Any) -> tuple[float, float, float]:
 
 
 def relay_settings(*, robot_port: str, servo_port: str, procfs_path: str, rear_url: str,
-                   front_url: str, control: dict[str, Any], scan: dict[str, Any]) -> dict[str, Any]:
+                   front_url: str, control: dict[str, Any], scan: dict[str, Any],
+                   recovery: dict[str, Any] | None = None) -> dict[str, Any]:
     """The config document (config/relayd.toml's sections and keys) of one simulated relay."""
     return {
+        "recovery": dict(recovery or {}),
         "robot": {"port": robot_port, "baud": 9600},
         "pantilt": {"port": servo_port, "protocol": "maestro", "scan_channel": 0, "link_channel": 1,
                     "scan_pulse_us": list(map(int, PULSE_US)), "link_pulse_us": list(map(int, PULSE_US))},
@@ -151,8 +153,13 @@ class SimRunner:
                  seconds: float | None = None, out_dir: Path | None = None,
                  workdir: Path | None = None,
                  on_progress: Callable[[dict[str, Any]], None] | None = None,
-                 on_ready: Callable[[dict[str, int | None]], None] | None = None) -> None:
+                 on_ready: Callable[[dict[str, int | None]], None] | None = None,
+                 record_dir: Path | None = None, recovery: bool | None = None) -> None:
         self.scenario = scenario
+        #: Each relay's daemon records to <record_dir>/<name>.mcap (its own [record] config).
+        self.record_dir = record_dir
+        #: Forces every relay's recovery.enabled (the bench's on/off); None: the scenario's.
+        self.recovery = recovery
         self.speed = speed
         # Real-time mode's clock; on a virtual-time loop run() replaces it with the loop's.
         self.clock: Clock = Clock(speed or 1.0)
@@ -222,13 +229,21 @@ class SimRunner:
         control.update(self.scenario.relay[i].control)
         doc = relay_settings(robot_port=robot_port, servo_port=servo_port, procfs_path=procfs_path,
                              rear_url=rear_url, front_url=front_url, control=control,
-                             scan=dict(self.scenario.scan))
+                             scan=dict(self.scenario.scan), recovery=self._recovery_section())
+        if self.record_dir is not None:
+            doc["record"] = {"enabled": True, "path": str(self.record_dir / f"{body.name}.mcap")}
         settings = Settings.model_validate(doc)
         env = {AP_PASSWORD_ENV: self._password, API_TOKEN_ENV: secrets.token_hex(8)}
         daemon = Daemon(settings, clock=clock, env=env, devices=devices)
         relay = SimRelay(body.name, robot, maestro, procfs, rear, front, daemon)
         self._update_links()
         return relay
+
+    def _recovery_section(self) -> dict[str, Any]:
+        section = dict(self.scenario.recovery)
+        if self.recovery is not None:
+            section["enabled"] = self.recovery
+        return section
 
     async def _wait_ports(self) -> dict[str, int | None]:
         async with asyncio.timeout(10.0):
@@ -285,10 +300,16 @@ class SimRunner:
                 "rssi_l_mean_dbm": round(w.radio.mean_power_dbm(body.pos, w.node_pos(i))[0], 1),
                 "situation": st.situation,
                 "threshold_b_dbm": st.thresholds.get("threshold_b_dbm"),
+                "recovery": None if st.recovery is None else {
+                    "phase": st.recovery["phase"], "kind": st.recovery["kind"],
+                    "episodes": st.recovery["episodes"], "distance_m": st.recovery["distance_m"],
+                    "outcome": st.recovery["last_outcome"]},
             })
         return {
             "t": round(t, 2),
             "leader": {"x": round(w.leader.x_m, 3), "y": round(w.leader.y_m, 3), "moving": w.leader.moving},
+            "cc": [round(w.cc[0], 3), round(w.cc[1], 3)],
+            "timed_present": list(w.timed_present),
             "relays": relays,
             "hops": [{"dbm": round(h.power_dbm, 1), "mbps": h.rate_mbps, "walls": h.walls} for h in links.hops],
             "e2e_mbps": links.e2e_mbps,

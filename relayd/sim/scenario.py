@@ -44,26 +44,67 @@ class Waypoint(_Model):
     pause_s: NonNeg = 0.0
 
 
+class SpeedChange(_Model):
+    """From clock second `at_s` on, walk at `speed_m_s` (a leader's speed profile)."""
+
+    at_s: NonNeg
+    speed_m_s: Positive
+
+
+def _profile_sorted(v: list[SpeedChange]) -> list[SpeedChange]:
+    times = [c.at_s for c in v]
+    if times != sorted(times):
+        raise ValueError("speed_profile entries must be in time order")
+    return v
+
+
 class LeaderSpec(_Model):
     kind: Literal["person", "robot"] = "person"
     speed_m_s: Positive = 0.2
     start_s: NonNeg = 0.0
     radius_m: Positive = 0.25
     waypoints: list[Waypoint] = Field(min_length=1)
+    #: Speed changes along the walk (clock time); speed_m_s holds until the first.
+    speed_profile: list[SpeedChange] = Field(default_factory=list)
+
+    _profile = field_validator("speed_profile")(_profile_sorted)
 
 
 class NodeSpec(_Model):
+    """The command center: a fixed node, or one carried along waypoints (`drift`)."""
+
     x: Finite
     y: Finite
+    #: Carried from (x, y) through these at speed_m_s, starting at start_s; empty: fixed.
+    waypoints: list[Waypoint] = Field(default_factory=list)
+    speed_m_s: Positive = 0.05
+    start_s: NonNeg = 0.0
 
 
-class WallSpec(_Model):
+class _Timed(_Model):
+    """A timed world event: present from appear_s (default: from the start) until disappear_s."""
+
+    appear_s: NonNeg = 0.0
+    disappear_s: NonNeg | None = None
+
+    @model_validator(mode="after")
+    def _window(self) -> _Timed:
+        if self.disappear_s is not None and self.disappear_s <= self.appear_s:
+            raise ValueError("disappear_s must be after appear_s")
+        return self
+
+    @property
+    def timed(self) -> bool:
+        return self.appear_s > 0 or self.disappear_s is not None
+
+
+class WallSpec(_Timed):
     points: list[tuple[Finite, Finite]] = Field(min_length=2)
     material: str = "brick"
     closed: bool = False
 
 
-class BoxSpec(_Model):
+class BoxSpec(_Timed):
     min: tuple[Finite, Finite]
     max: tuple[Finite, Finite]
     material: str = "box"
@@ -111,9 +152,10 @@ class RadioSpec(_Model):
 
 
 class SonarSpec(_Model):
-    rays: Annotated[int, Field(ge=1, le=15)] = 3
+    """The simulated sonar ring: one exact range per sonar (see `World.sonar_mm`)."""
+
     beam_deg: Annotated[float, Field(gt=0, le=60)] = 30.0
-    noise_mm: NonNeg = 10.0
+    noise_mm: NonNeg = 0.0
     max_range_m: Positive = 5.0
     min_range_m: NonNeg = 0.1
 
@@ -139,6 +181,8 @@ class Scenario(_Model):
     sonar: SonarSpec = SonarSpec()
     control: dict[str, Any] = Field(default_factory=dict)
     scan: dict[str, Any] = Field(default_factory=dict)
+    #: Keys of the daemon's [recovery] section for every relay (the bench overrides enabled).
+    recovery: dict[str, Any] = Field(default_factory=dict)
 
     @field_validator("relay")
     @classmethod
@@ -173,23 +217,44 @@ class Scenario(_Model):
                                   z.rician_k_db, z.multipath_db) for z in r.zones))
 
     def wall_segments(self) -> list[Segment]:
+        """The walls present the whole run (timed ones: `timed_obstacles`)."""
         out: list[Segment] = []
         for w in self.walls:
-            pts = list(w.points)
-            if w.closed:
-                out.extend(polygon_segments(pts, w.material))
-            else:
-                out.extend(Segment(a[0], a[1], b[0], b[1], w.material) for a, b in itertools.pairwise(pts))
+            if not w.timed:
+                out.extend(_wall_segments(w))
         return out
 
     def box_shapes(self) -> list[Box]:
-        return [Box(b.min[0], b.min[1], b.max[0], b.max[1], b.material) for b in self.boxes]
+        """The boxes present the whole run (timed ones: `timed_obstacles`)."""
+        return [_box(b) for b in self.boxes if not b.timed]
+
+    def timed_obstacles(self) -> list[tuple[float, float | None, tuple[Segment, ...]]]:
+        """(appear_s, disappear_s, outline) of every timed wall and box: doors and the like."""
+        out: list[tuple[float, float | None, tuple[Segment, ...]]] = []
+        for w in self.walls:
+            if w.timed:
+                out.append((w.appear_s, w.disappear_s, tuple(_wall_segments(w))))
+        for b in self.boxes:
+            if b.timed:
+                out.append((b.appear_s, b.disappear_s, _box(b).segments()))
+        return out
 
     def with_relays(self, n: int) -> Scenario:
         """The same world with the first `n` relays (counted from the leader backwards)."""
         if not 0 <= n <= len(self.relay):
             raise ScenarioError([f"relays: {n} asked, scenario {self.name!r} has {len(self.relay)} start poses"])
         return self.model_copy(update={"relays": n})
+
+
+def _wall_segments(w: WallSpec) -> list[Segment]:
+    pts = list(w.points)
+    if w.closed:
+        return list(polygon_segments(pts, w.material))
+    return [Segment(a[0], a[1], b[0], b[1], w.material) for a, b in itertools.pairwise(pts)]
+
+
+def _box(b: BoxSpec) -> Box:
+    return Box(b.min[0], b.min[1], b.max[0], b.max[1], b.material)
 
 
 def _messages(exc: ValidationError, prefix: str = "") -> list[str]:
@@ -225,12 +290,15 @@ def scenario_problems(data: dict[str, Any]) -> list[str]:
 
 
 def _daemon_sections(data: dict[str, Any]) -> list[str]:
-    """`control` and `scan` tables (and each relay's `control`) checked as the daemon will check them."""
-    from relayd.config import ControlSettings, ScanSettings
+    """`control`, `scan` and `recovery` tables (and each relay's `control`) checked as the daemon will check them."""
+    from relayd.config import ControlSettings, RecoverySettings, ScanSettings
 
     out: list[str] = []
     base = _dict(data.get("control"))
-    for key, model, doc in (("control", ControlSettings, base), ("scan", ScanSettings, _dict(data.get("scan")))):
+    sections: tuple[tuple[str, Any, dict[str, Any]], ...] = (
+        ("control", ControlSettings, base), ("scan", ScanSettings, _dict(data.get("scan"))),
+        ("recovery", RecoverySettings, _dict(data.get("recovery"))))
+    for key, model, doc in sections:
         try:
             model.model_validate(doc)
         except ValidationError as exc:

@@ -10,6 +10,8 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
+from relayd.sim.outcomes import downtime_s, link_breaks, recovery_episodes
+
 
 def unapplied_command_s(records: Sequence[dict[str, Any]], i: int, grace_s: float = 1.0) -> float:
     """Clock seconds relay i's daemon commanded wheel motion the robot never started on.
@@ -64,6 +66,7 @@ def summarize(records: Sequence[dict[str, Any]], *, scenario: str, relays: int, 
             "collisions": f["collisions"],
             "travelled_m": round(f["travelled_m"], 3),
             "unapplied_command_s": unapplied_command_s(records, i) if records else 0.0,
+            "recovery_episodes": recovery_episodes(records, i),
         })
     return {
         "scenario": scenario,
@@ -75,5 +78,7 @@ def summarize(records: Sequence[dict[str, Any]], *, scenario: str, relays: int, 
         "min_e2e_mbps": min(e2e) if e2e else 0.0,
         "final_e2e_mbps": e2e[-1] if e2e else 0.0,
         "collisions": collisions,
+        "link_breaks": link_breaks(records),
+        "downtime_s": downtime_s(records) if records else 0.0,
         "followers": out_followers,
     }

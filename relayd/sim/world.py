@@ -1,4 +1,4 @@
-"""The simulated world: a scripted leader, relay bodies, sonar rays, collisions, radio chain.
+"""The simulated world: a scripted leader, relay bodies, sonar beams, collisions, radio chain.
 
 Pure and deterministic for a seed: no asyncio, no clock. The runner owns time and the
 fake devices; it tells the world the current time (`advance`), the true pose of every
@@ -22,7 +22,7 @@ from relayd.sim.geometry import (
     Point,
     Polygon,
     Segment,
-    cast_ray,
+    cone_range,
     footprint,
     polygon_hits_circle,
     polygon_hits_segment,
@@ -47,6 +47,13 @@ SONAR_POSES: tuple[tuple[float, float, float], ...] = (
 )
 
 
+def _point_segment_m(px: float, py: float, s: Segment) -> float:
+    ex, ey = s.x2 - s.x1, s.y2 - s.y1
+    n2 = ex * ex + ey * ey
+    u = 0.0 if n2 == 0 else max(0.0, min(1.0, ((px - s.x1) * ex + (py - s.y1) * ey) / n2))
+    return math.hypot(px - (s.x1 + u * ex), py - (s.y1 + u * ey))
+
+
 @dataclass(frozen=True, slots=True)
 class LeaderPose:
     x_m: float
@@ -57,15 +64,18 @@ class LeaderPose:
 
 
 class LeaderScript:
-    """A leader walking waypoints at a constant speed, pausing where told. Pure in time."""
+    """A leader walking waypoints, pausing where told, at a speed that may change with time
+    (`speed_profile`: (clock s, m/s) pairs in time order). Pure in time."""
 
     def __init__(self, waypoints: list[tuple[float, float, float]], speed_m_s: float,
-                 start_s: float = 0.0) -> None:
+                 start_s: float = 0.0, speed_profile: list[tuple[float, float]] | None = None) -> None:
         if not waypoints:
             raise ValueError("a leader script needs at least one waypoint")
-        if speed_m_s <= 0:
+        if speed_m_s <= 0 or any(v <= 0 for _, v in speed_profile or ()):
             raise ValueError("leader speed must be > 0")
         self.speed_m_s = speed_m_s
+        # Speed breakpoints: (from clock s, speed) with the base speed from 0.
+        self._speeds: list[tuple[float, float]] = [(0.0, speed_m_s), *sorted(speed_profile or ())]
         # Legs: (t_start, t_end, from, to, heading); a pause is a leg with from == to.
         self._legs: list[tuple[float, float, Point, Point, float]] = []
         t = start_s
@@ -82,14 +92,38 @@ class LeaderScript:
             d = math.hypot(xb - xa, yb - ya)
             if d > 0:
                 heading = math.degrees(math.atan2(yb - ya, xb - xa))
-                self._legs.append((t, t + d / speed_m_s, (xa, ya), (xb, yb), heading))
-                t += d / speed_m_s
+                t_end = self._time_to_cover(t, d)
+                self._legs.append((t, t_end, (xa, ya), (xb, yb), heading))
+                t = t_end
             if pause > 0:
                 self._legs.append((t, t + pause, (xb, yb), (xb, yb), heading))
                 t += pause
         self.end_s = t
         self._start = (x0, y0, heading)
         self._final = (waypoints[-1][0], waypoints[-1][1], heading)
+
+    def _distance(self, t0: float, t1: float) -> float:
+        """Metres walked between clock t0 and t1 at the profile's speeds."""
+        total = 0.0
+        for k, (ts, v) in enumerate(self._speeds):
+            te = self._speeds[k + 1][0] if k + 1 < len(self._speeds) else math.inf
+            lo, hi = max(t0, ts), min(t1, te)
+            if hi > lo:
+                total += v * (hi - lo)
+        return total
+
+    def _time_to_cover(self, t0: float, d: float) -> float:
+        t, left = t0, d
+        for k, (ts, v) in enumerate(self._speeds):
+            te = self._speeds[k + 1][0] if k + 1 < len(self._speeds) else math.inf
+            if te <= t:
+                continue
+            seg = v * (te - max(t, ts))
+            if seg >= left:
+                return max(t, ts) + left / v
+            left -= seg
+            t = te
+        return t  # unreachable: the last speed holds for ever
 
     @property
     def goal(self) -> Point:
@@ -103,7 +137,7 @@ class LeaderScript:
             if t0 <= t < t1:
                 if a == b:
                     return LeaderPose(a[0], a[1], h, False, False)
-                f = (t - t0) / (t1 - t0)
+                f = min(1.0, self._distance(t0, t) / math.hypot(b[0] - a[0], b[1] - a[1]))
                 return LeaderPose(a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1]), h, True, False)
         x, y, h = self._start
         return LeaderPose(x, y, h, False, False)
@@ -167,14 +201,26 @@ class World:
         self.seed = seed
         self.walls: list[Segment] = scenario.wall_segments()
         self.boxes = scenario.box_shapes()
-        self.obstacles: list[Segment] = list(self.walls)
+        self._static: list[Segment] = list(self.walls)
         for b in self.boxes:
-            self.obstacles.extend(b.segments())
-        # Boxes attenuate too (a crate or a car is in the way of the radio path).
-        self.radio = Radio(scenario.radio_params(), self.obstacles, seed)
+            self._static.extend(b.segments())
+        # Timed world events (a door): (appear_s, disappear_s, outline), and which are present.
+        self.timed = scenario.timed_obstacles()
+        self.timed_present = [False] * len(self.timed)
+        self.obstacles: list[Segment] = list(self._static)
+        # Boxes attenuate too (a crate or a car is in the way of the radio path); the radio
+        # checks every material, timed ones included.
+        self.radio = Radio(scenario.radio_params(), self._static + [s for *_, o in self.timed for s in o], seed)
+        self.radio.walls = tuple(self.obstacles)
         lead = scenario.leader
         self.leader_script = LeaderScript([(w.x, w.y, w.pause_s) for w in lead.waypoints],
-                                          lead.speed_m_s, lead.start_s)
+                                          lead.speed_m_s, lead.start_s,
+                                          [(c.at_s, c.speed_m_s) for c in lead.speed_profile])
+        cc = scenario.command_center
+        self.cc_script: LeaderScript | None = None
+        if cc.waypoints:
+            self.cc_script = LeaderScript([(cc.x, cc.y, 0.0)] + [(w.x, w.y, w.pause_s) for w in cc.waypoints],
+                                          cc.speed_m_s, cc.start_s)
         self.leader_kind = lead.kind
         self.leader_radius_m = lead.radius_m
         self.cc: Point = (scenario.command_center.x, scenario.command_center.y)
@@ -183,12 +229,46 @@ class World:
         self.t = 0.0
         self.leader = self.leader_script.pose(0.0)
         self._sonar_cfg = scenario.sonar
+        self._apply_timed(0.0)
 
     # --- time and poses -------------------------------------------------------------
     def advance(self, t: float) -> None:
-        """Move the scripted leader to time t (clock seconds since the run started)."""
+        """Move the scripted leader (and a carried command center) to time t (clock seconds
+        since the run started), and apply the timed world events due by then."""
         self.t = t
         self.leader = self.leader_script.pose(t)
+        if self.cc_script is not None:
+            p = self.cc_script.pose(t)
+            self.cc = (p.x_m, p.y_m)
+        self._apply_timed(t)
+
+    def _apply_timed(self, t: float) -> None:
+        """Timed obstacles appear and disappear on time, except that one never appears on top
+        of a body: a door waits until nobody stands in the doorway (a person closing it would)."""
+        changed = False
+        for k, (on_s, off_s, outline) in enumerate(self.timed):
+            want = on_s <= t and (off_s is None or t < off_s)
+            if want == self.timed_present[k]:
+                continue
+            if want and self._blocked(outline):
+                continue
+            self.timed_present[k] = want
+            changed = True
+        if changed:
+            self.obstacles = list(self._static)
+            for k, (_, _, outline) in enumerate(self.timed):
+                if self.timed_present[k]:
+                    self.obstacles.extend(outline)
+            self.radio.walls = tuple(self.obstacles)
+
+    def _blocked(self, outline: tuple[Segment, ...]) -> bool:
+        margin = 2 * CONTACT_CLEAR_M
+        for r in self.relays:
+            poly = footprint(r.x_m, r.y_m, r.theta_deg, ROBOT_LENGTH_M + margin, ROBOT_WIDTH_M + margin)
+            if any(polygon_hits_segment(poly, s) for s in outline):
+                return True
+        lx, ly, rad = self.leader.x_m, self.leader.y_m, self.leader_radius_m + margin
+        return any(_point_segment_m(lx, ly, s) < rad for s in outline)
 
     def set_pose(self, i: int, x_mm: float, y_mm: float, theta_deg: float) -> None:
         r = self.relays[i]
@@ -265,8 +345,15 @@ class World:
 
     # --- sensors --------------------------------------------------------------------
     def sonar_mm(self, i: int, x_mm: float, y_mm: float, theta_deg: float) -> list[int]:
-        """The 16 sonar ranges of relay i at that pose: nearest hit of a few rays across each
-        sonar's beam, plus noise, clamped to the sonar's range (max range when no echo)."""
+        """The 16 sonar ranges of relay i at that pose, as a P3-AT reports them.
+
+        One range per sonar: the nearest surface inside its beam (+-beam_deg/2 about the
+        transducer's heading, exact, not sampled by rays), measured from the transducer
+        face, clipped to [min_range_m, max_range_m]; max range when nothing echoes.
+        Gaussian noise only when the scenario sets `sonar.noise_mm` (default 0): noise
+        would break the exact mirror symmetry that a real sonar ring shows, and which
+        the controller must cope with.
+        """
         cfg = self._sonar_cfg
         x, y = x_mm / 1000.0, y_mm / 1000.0
         reach = cfg.max_range_m + 0.5
@@ -284,24 +371,20 @@ class World:
                 segs.extend(polygon_segments(other.polygon()))
         a = math.radians(theta_deg)
         c, s = math.cos(a), math.sin(a)
-        n = cfg.rays
-        offsets = [0.0] if n == 1 else [-cfg.beam_deg / 2 + k * cfg.beam_deg / (n - 1) for k in range(n)]
-        max_mm = int(cfg.max_range_m * 1000)
-        min_mm = int(cfg.min_range_m * 1000)
+        max_mm = round(cfg.max_range_m * 1000)
+        min_mm = round(cfg.min_range_m * 1000)
         out: list[int] = []
         for sx, sy, sh in SONAR_POSES:
             ox = x + (c * sx - s * sy) / 1000.0
             oy = y + (s * sx + c * sy) / 1000.0
-            best: float | None = None
-            for off in offsets:
-                d = cast_ray(ox, oy, theta_deg + sh + off, cfg.max_range_m, segs, circles)
-                if d is not None and (best is None or d < best):
-                    best = d
+            best = cone_range(ox, oy, theta_deg + sh, cfg.beam_deg / 2.0, cfg.max_range_m, segs, circles)
             if best is None:
                 out.append(max_mm)
                 continue
-            mm = best * 1000.0 + self._sonar_rng.gauss(0.0, cfg.noise_mm)
-            out.append(int(min(max_mm, max(min_mm, mm))))
+            mm = best * 1000.0
+            if cfg.noise_mm > 0:
+                mm += self._sonar_rng.gauss(0.0, cfg.noise_mm)
+            out.append(round(min(max_mm, max(min_mm, mm))))
         return out
 
     def yagi_rssi_dbm(self, i: int, scan_deg: float | None = None) -> float:

@@ -219,6 +219,26 @@ function renderWheel(barId, valId, mmS, vmax) {
   fill.className = mmS >= 0 ? "fill fwd" : "fill rev";
 }
 
+// Recovery (self-healing of a broken link): phase badge and the running episode's progress
+// against its limits; hidden while recovery is disabled in the config.
+function renderRecovery(r) {
+  const box = $("recovery-box");
+  box.hidden = !r;
+  if (!r) return;
+  const what = r.kind === "rear" ? "link behind" : r.kind === "leader" ? "leader" : "";
+  setText("recovery-phase", r.phase === "idle" ? "idle" : `${r.phase.replace("_", " ")}${what ? " · " + what : ""}`);
+  $("recovery-phase").className = `badge recovery-${r.phase}`;
+  let text = "";
+  if (r.elapsed_s !== null && r.elapsed_s !== undefined) {
+    text = `${fmt(r.elapsed_s, 0, "s")} of ${fmt(r.max_time_s, 0, "s")}, ` +
+      `${fmt(r.distance_m, 1, "m")} of ${fmt(r.max_distance_m, 1, "m")}`;
+  } else if (r.last_outcome) {
+    text = `last: ${r.last_outcome.replaceAll("_", " ")} (${r.episodes} episode${r.episodes === 1 ? "" : "s"})`;
+  }
+  text += ` · trail ${r.trail_crumbs} crumbs`;
+  setText("recovery-progress", text);
+}
+
 // Everything that carries an age, aged by `extraS` seconds: while the page has no
 // current data, ages keep growing from the last update instead of freezing at "0.0 s".
 function renderAges(s, extraS, stale) {
@@ -254,6 +274,7 @@ function render(s) {
   setText("reason", Reasons.describe(s));
   setText("reason-code", s.reason);
   setText("version", s.version);
+  renderRecovery(s.recovery);
 
   renderScan(s);
   renderSonar(s);
