@@ -44,6 +44,11 @@ FAKES: dict[str, tuple[str, str]] = {
 }
 
 
+CALIBRATIONS: dict[str, tuple[str, str]] = {
+    "path-loss": ("relayd.calibrate.cli", "fit L0, n and sigma on a straight drive away from a node; print thresholds"),
+}
+
+
 class CommandParser(argparse.ArgumentParser):
     """A subcommand's parser that lets its module add the options the first time it parses.
 
@@ -92,6 +97,9 @@ def build_parser() -> argparse.ArgumentParser:
     probe = sub.add_parser("probe", help="bring-up tools, one device at a time")
     _add_group(probe.add_subparsers(dest="device", required=True, metavar="DEVICE",
                                     parser_class=CommandParser), PROBES)
+    calibrate = sub.add_parser("calibrate", help="guided bring-up measurements")
+    _add_group(calibrate.add_subparsers(dest="what", required=True, metavar="WHAT",
+                                        parser_class=CommandParser), CALIBRATIONS)
     fake = sub.add_parser("fake", help="serve a fake device for trying relayd without hardware")
     _add_group(fake.add_subparsers(dest="device", required=True, metavar="DEVICE",
                                    parser_class=CommandParser), FAKES)

@@ -25,6 +25,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 from relayd.sim.geometry import Point, Segment, crossings
+from relayd.sim.zones import PathEnvironment, RadioZone, path_environment
 
 #: 802.11g OFDM receiver minimum sensitivity (dBm) -> PHY rate (Mbps), fastest first.
 RATE_TABLE_80211G: tuple[tuple[float, float], ...] = (
@@ -130,6 +131,8 @@ class RadioParams:
     @property
     def rate_table(self) -> tuple[tuple[float, float], ...]:
         return RATE_TABLES[self.phy]
+    #: Per-zone environments (relayd/sim/zones.py); outside them the values above hold.
+    zones: tuple[RadioZone, ...] = ()
 
     @classmethod
     def indoor(cls, **kw: object) -> RadioParams:
@@ -180,26 +183,39 @@ class Radio:
         hit = crossings(a, b, self.walls)
         return sum(self.params.wall_loss_db[w.material] for w in hit), len(hit)
 
-    def shadowing_db(self, a: Point, b: Point) -> float:
+    def environment(self, a: Point, b: Point) -> PathEnvironment:
+        """L0, n, sigma, K and the multipath penalty of the link a-b (per zone, else [radio]'s)."""
+        p = self.params
+        return path_environment(a, b, p.zones, l0_dbm=p.l0_dbm, exponent=p.exponent,
+                                shadow_sigma_db=p.shadow_sigma_db, rician_k_db=p.rician_k_db)
+
+    def shadowing_db(self, a: Point, b: Point, sigma_db: float | None = None) -> float:
         """Slow shadowing of the link a-b: symmetric, smooth as either end moves."""
         s = (self._shadow.value(*a) + self._shadow.value(*b)) / math.sqrt(2.0)
-        return self.params.shadow_sigma_db * s
+        return (self.params.shadow_sigma_db if sigma_db is None else sigma_db) * s
 
     def mean_power_dbm(self, a: Point, b: Point, gain_db: float = 0.0) -> tuple[float, bool]:
         """Local-mean received power (no fast fading) and whether the path is line of sight."""
         p = self.params
+        env = self.environment(a, b)
         d = max(p.min_distance_m, math.hypot(b[0] - a[0], b[1] - a[1]))
         loss, n_walls = self.wall_loss_db(a, b)
-        power = p.l0_dbm - 10.0 * p.exponent * math.log10(d) - loss + self.shadowing_db(a, b) + gain_db
+        power = (env.l0_dbm - 10.0 * env.exponent * math.log10(d) - loss
+                 + self.shadowing_db(a, b, env.shadow_sigma_db) + gain_db)
         return power, n_walls == 0
 
-    def fading_db(self, los: bool) -> float:
+    def rate_penalty_db(self, a: Point, b: Point) -> float:
+        """SNR margin the link's multipath costs its rate (0 outside zones that set it)."""
+        return self.environment(a, b).multipath_db if self.params.zones else 0.0
+
+    def fading_db(self, los: bool, rician_k_db: float | None = None) -> float:
         """One fast-fading draw: Rician (K = rician_k_db) on LOS, Rayleigh otherwise, averaged
         over `fading_avg_frames` frames in linear power as an adapter's signal average is."""
         p = self.params
         if not p.fading:
             return 0.0
-        k = 10.0 ** (p.rician_k_db / 10.0) if los else 0.0
+        k_db = p.rician_k_db if rician_k_db is None else rician_k_db
+        k = 10.0 ** (k_db / 10.0) if los else 0.0
         los_amp = math.sqrt(k / (k + 1.0))
         sc = math.sqrt(1.0 / (2.0 * (k + 1.0)))
         frames = max(1, p.fading_avg_frames)
@@ -214,4 +230,5 @@ class Radio:
     def sample_dbm(self, a: Point, b: Point, gain_db: float = 0.0) -> float:
         """A reported RSSI: local mean plus a fast-fading draw, never below the noise floor."""
         mean, los = self.mean_power_dbm(a, b, gain_db)
-        return max(self.params.noise_floor_dbm, mean + self.fading_db(los))
+        k_db = self.environment(a, b).rician_k_db if self.params.zones else None
+        return max(self.params.noise_floor_dbm, mean + self.fading_db(los, k_db))

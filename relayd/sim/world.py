@@ -186,7 +186,8 @@ class Hop:
 
     @property
     def up(self) -> bool:
-        return self.power_dbm >= HOP_DOWN_DBM
+        # A hop whose multipath leaves no rate is down even above the weakest sensitivity.
+        return self.power_dbm >= HOP_DOWN_DBM and self.rate_mbps > 0
 
 
 @dataclass(slots=True)
@@ -438,7 +439,8 @@ class World:
         a, b = self.node_pos(k), self.node_pos(k + 1)
         power, _ = self.radio.mean_power_dbm(a, b, self._hop_gain_db(k))
         _, n_walls = self.radio.wall_loss_db(a, b)
-        phy = phy_rate_mbps(power, self.radio.params.rate_table)
+        # Multipath costs rate, not signal (relayd/sim/zones.py): the rate sees the penalty.
+        phy = phy_rate_mbps(power - self.radio.rate_penalty_db(a, b), self.radio.params.rate_table)
         return Hop(k, power, phy * MAC_EFFICIENCY, n_walls, phy)
 
     def links(self) -> LinkBudget:
