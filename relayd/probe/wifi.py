@@ -16,7 +16,7 @@ import sys
 
 from drivers.clock import REAL_CLOCK
 from drivers.wifi import SOURCE_KINDS, make_source
-from relayd.probe import warnings_to_stderr
+from relayd.probe import emit, warnings_to_stderr
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -40,12 +40,12 @@ async def run(args: argparse.Namespace) -> int:
         return await _sample(args)
 
 
-def _print(args: argparse.Namespace, t: float, rssi_dbm: float | None, fresh: bool) -> None:
+def _print(args: argparse.Namespace, t: float, rssi_dbm: float | None, fresh: bool) -> bool:
+    """One sample on stdout; False when the reader has gone."""
     if args.json:
-        print(json.dumps({"t": t, "rssi_dbm": rssi_dbm, "fresh": fresh}), flush=True)
-    else:
-        level = "   --" if rssi_dbm is None else f"{rssi_dbm:5.0f}"
-        print(f"{t:8.3f} s  {level} dBm  {'fresh' if fresh else 'stale'}", flush=True)
+        return emit(json.dumps({"t": t, "rssi_dbm": rssi_dbm, "fresh": fresh}))
+    level = "   --" if rssi_dbm is None else f"{rssi_dbm:5.0f}"
+    return emit(f"{t:8.3f} s  {level} dBm  {'fresh' if fresh else 'stale'}")
 
 
 async def _sample(args: argparse.Namespace) -> int:
@@ -70,7 +70,8 @@ async def _sample(args: argparse.Namespace) -> int:
                     print(f"relayd probe wifi: {source.last_error}", file=sys.stderr)
                     return 1
                 fresh_seen += sample.fresh
-                _print(args, t, sample.rssi_dbm, sample.fresh)
+                if not _print(args, t, sample.rssi_dbm, sample.fresh):
+                    return 0  # the reader took what it wanted (`| head -1`)
                 printed += 1
     except TimeoutError:
         print(f"relayd probe wifi: {args.source} did not answer within {args.seconds:g} s", file=sys.stderr)
