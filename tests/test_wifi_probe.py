@@ -76,6 +76,15 @@ def test_probe_wifi_missing_file_exits_1_at_once(tmp_path: Path, capsys: pytest.
     assert "does not exist" in captured.err
 
 
+def test_probe_wifi_missing_iw_binary_exits_1_at_once(capsys: pytest.CaptureFixture[str]) -> None:
+    t0 = time.monotonic()
+    code = main(["probe", "wifi", "--source", "iw", "--iw", "/nonexistent", "--seconds", "30"])
+    captured = capsys.readouterr()
+    assert code == 1 and time.monotonic() - t0 < 5
+    assert captured.out == ""  # no "-- dBm stale" lines
+    assert "no iw binary at '/nonexistent'" in captured.err
+
+
 def test_probe_wifi_a_hung_source_is_bounded_by_seconds(tmp_path: Path,
                                                         capsys: pytest.CaptureFixture[str]) -> None:
     iw = tmp_path / "iw"

@@ -3,8 +3,8 @@
 Prints one line per sample at the sample rate: with `--json` an object
 `{"t", "rssi_dbm", "fresh"}` (t in seconds since the probe started), otherwise a
 readable line. Exits 0 when at least one fresh sample was seen, 1 otherwise (with the
-source's last error on stderr), so it doubles as a bring-up check. A missing interface
-or procfs file exits 1 at the first read, with the reason; `--seconds` bounds every run.
+source's last error on stderr), so it doubles as a bring-up check. A missing interface,
+procfs file or `iw` binary exits 1 at once, with the reason; `--seconds` bounds every run.
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import shutil
 import sys
 
 from drivers.clock import REAL_CLOCK
@@ -36,6 +37,11 @@ async def run(args: argparse.Namespace) -> int:
     if not args.hz > 0 or not args.seconds >= 0:
         print("relayd probe wifi: --hz must be > 0 and --seconds >= 0", file=sys.stderr)
         return 2
+    if args.source == "iw" and shutil.which(args.iw) is None:
+        # Every read would fail the same way: say so now, not after --seconds of "stale".
+        print(f"relayd probe wifi: no iw binary at {args.iw!r} (install the iw package, "
+              "or give its path with --iw)", file=sys.stderr)
+        return 1
     with warnings_to_stderr():
         return await _sample(args)
 
