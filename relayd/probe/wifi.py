@@ -23,7 +23,8 @@ from relayd.probe import emit, warnings_to_stderr
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--source", choices=SOURCE_KINDS, default="nl80211",
                         help="where the RSSI comes from (default nl80211)")
-    parser.add_argument("--interface", default="wlan1", help="wireless interface (default wlan1)")
+    parser.add_argument("--interface", default="yagi0",
+                        help="wireless interface (default yagi0, the udev rules' name)")
     parser.add_argument("--path", default=None,
                         help="procfs source: the /proc/net/wireless-format file to read")
     parser.add_argument("--iw", default="iw", help="iw source: the iw binary (default: on PATH)")
