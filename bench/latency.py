@@ -157,6 +157,9 @@ class CycleProbe:
             "unmatched": self.unmatched,
             "first_ms": first,
             "pair_ms": pair,
+            # Per cycle: the RVEL after its VEL (the driver's command spacing, as received).
+            "spacing_ms": [(self.pair[i] - self.first[i]) * 1000.0 for i in range(n)
+                           if i in self.pair and i in self.first],
         }
 
 

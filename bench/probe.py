@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.common import BenchOutput, Result, proc_cpu_s
-from drivers.arcos import FakeRobot
+from drivers.arcos.fake import FakeRobot
 from relayd.sim.runner import scratch_root
 
 NAME = "probe"

@@ -232,8 +232,9 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
             st = _maybe_lane(st, s, r, p, t)
 
     if st.mode is AvoidMode.BACKOFF:
-        assert st.backoff_from is not None
-        backed = math.dist(st.backoff_from, s.pose[:2]) / 1000.0
+        if st.backoff_from is None:  # entered without its origin: back off from here
+            st = replace(st, backoff_from=s.pose[:2])
+        backed = math.dist(st.backoff_from or s.pose[:2], s.pose[:2]) / 1000.0
         # A back-off after the hit stops once the obstacle is far enough ahead; one to
         # unjam a turn runs its whole length, because what stops the turn is beside the
         # robot (a door's jambs), and the way ahead may be wide open.
@@ -288,8 +289,10 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
             return st, cmd
 
     if st.mode is AvoidMode.CORNER:
-        assert st.corner_heading_deg is not None
-        if abs(wrap_deg(s.pose[2] - st.corner_heading_deg)) < 5.0 or d_min < p.stop_distance_m:
+        # A corner without its target heading is over (follow the wall again).
+        if (st.corner_heading_deg is None
+                or abs(wrap_deg(s.pose[2] - st.corner_heading_deg)) < 5.0
+                or d_min < p.stop_distance_m):
             st = _enter(st, AvoidMode.WALL, t, lost_at=None, corner_heading_deg=None)
         else:
             return st, _turn(act, s, p, -st.side * p.turn_rate_deg_s, "avoiding")
@@ -369,7 +372,8 @@ def _lane(st: AvoidState, s: Sense, r: dict[float, float], p: AvoidParams, act: 
     """Run beside the free side's boundary at the lane's distance (the middle of a narrow
     gap once the obstacle is abeam) until the obstacle is behind, then drift back and
     hand over to the paper's law; None hands over to TURN (the lane is shut)."""
-    assert st.lane_ref is not None
+    if st.lane_ref is None:  # no lane to keep: hand over to TURN, as a shut lane does
+        return st, None
     x0, y0, h0 = st.lane_ref
     along = ((s.pose[0] - x0) * math.cos(math.radians(h0))
              + (s.pose[1] - y0) * math.sin(math.radians(h0))) / 1000.0

@@ -75,7 +75,7 @@ def _rear_avoid_deg(ranges: list[float | None], gamma_o_m: float) -> float:
     d = [5.0 if r is None else r for r in ranges]
     top = max(d)
     w = [10.0 ** ((x - top) / gamma_o_m) for x in d]
-    return sum(wi * a for wi, a in zip(w, REAR_RELATIVE_DEG, strict=True)) / sum(w)
+    return float(sum(wi * a for wi, a in zip(w, REAR_RELATIVE_DEG, strict=True)) / sum(w))
 
 
 def _wrap(a: float) -> float:

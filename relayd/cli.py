@@ -23,6 +23,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("relayd.commands.run", "run the daemon"),
     "check-config": ("relayd.commands.check_config", "validate a config file and print the effective settings"),
     "sim": ("relayd.commands.sim", "run a convoy of real relayd instances in the simulated world"),
+    "sweep": ("relayd.commands.sweep", "Monte Carlo simulator runs over a grid, on a Dask cluster"),
     "status": ("relayd.commands.status", "fetch and pretty-print a robot's /status"),
     "fleet": ("relayd.commands.fleet", "serve one page for the whole chain of relays, with a hold-all button"),
     "replay": ("relayd.commands.replay", "replay a recording through the brain and compare its decisions"),
@@ -59,8 +60,7 @@ class CommandParser(argparse.ArgumentParser):
         self._configured = module is None
 
     def configure(self) -> None:
-        if not self._configured:
-            assert self.module is not None
+        if not self._configured and self.module is not None:
             self._configured = True
             importlib.import_module(self.module).configure(self)
 
@@ -113,7 +113,24 @@ def command_tree(parser: argparse.ArgumentParser | None = None,
     return out
 
 
+def _keep_rich_out() -> None:
+    """Stop structlog from importing rich (and pygments) into a relayd process.
+
+    relayd never renders with rich: its console logs use plain tracebacks and its JSON
+    logs drop the frames' locals (relayd.logsetup). structlog imports rich anyway when
+    it is installed, as it is in a development install (schemathesis needs it), which
+    costs the daemon about 3 MB of resident memory. A `None` entry in sys.modules makes
+    `import rich` fail the way a missing package does, which structlog handles. Only a
+    process that relayd's own command line started, before structlog is loaded: never
+    a process (a test run) that imported relayd as a library.
+    """
+    if "structlog" not in sys.modules and "rich" not in sys.modules:
+        sys.modules["rich"] = None  # type: ignore[assignment]  # None: "not installed", by design
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    if argv is None:
+        _keep_rich_out()
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
     runner = importlib.import_module(args._module).run

@@ -9,6 +9,8 @@ order, distances, `rear_link` needing `[ap.rear]`) run in the same pass as the s
 so one `check-config` lists every problem. Secrets never live
 in the TOML: a section names an environment variable (`password_env`, `token_env`)
 or a file (`password_file`, `token_file`) and `resolve_secret` reads it at start-up.
+Writing settings back out as TOML lives in relayd.config_toml, the secrets in
+relayd.config_secrets (re-exported here).
 """
 
 from __future__ import annotations
@@ -17,7 +19,6 @@ import ipaddress
 import os
 import tomllib
 from collections.abc import Mapping
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -31,6 +32,7 @@ from pydantic import (
     model_validator,
 )
 
+from relayd.config_checks import ConfigError as ConfigError
 from relayd.config_checks import (
     ap_rules,
     avoidance_rules,
@@ -43,6 +45,14 @@ from relayd.config_checks import (
     validation_messages,
     with_defaults,
 )
+
+# Secrets (where each comes from, reading it) live in relayd.config_secrets; re-exported.
+from relayd.config_secrets import MIN_API_TOKEN_CHARS as MIN_API_TOKEN_CHARS
+from relayd.config_secrets import SecretRef as SecretRef
+from relayd.config_secrets import check_api_token as check_api_token
+from relayd.config_secrets import resolve_secret as resolve_secret
+from relayd.config_secrets import secret_file_errors as secret_file_errors
+from relayd.config_secrets import secret_refs as secret_refs
 
 DEFAULT_CONFIG_PATH = Path("/etc/relayd/relayd.toml")
 BAUD_RATES = (9600, 19200, 38400, 57600, 115200)
@@ -182,7 +192,7 @@ class ControlSettings(_Section):
     beta_per_m: NonNegFloat = 1.0
     lost_rssi_dbm: Dbm = -85.0
     manual_deadman_s: PositiveFloat = 0.5
-    #: RSSI^b older than this many rear-AP polls is stale (not in the spec; 3 polls).
+    #: RSSI^b older than this many rear-AP polls is stale (our choice, docs/CONTROL.md 6: 3 polls).
     rear_stale_polls: Annotated[int, Field(ge=1, le=100)] = 3
     #: The escape when forward motion is blocked (docs/AVOIDANCE.md); false leaves the
     #: paper's obstacle rule alone (for experiments and benchmarks, not for a robot).
@@ -328,14 +338,6 @@ class Settings(_Section):
     foxglove: FoxgloveSettings = FoxgloveSettings()
 
 
-class ConfigError(Exception):
-    """A config that cannot be used; `errors` lists every problem as 'key.path: message'."""
-
-    def __init__(self, errors: list[str]) -> None:
-        super().__init__("\n".join(errors))
-        self.errors = errors
-
-
 def semantic_problems(data: Mapping[str, Any]) -> list[str]:
     """The cross-key rules on a raw config document, whatever else is wrong with it."""
     control = with_defaults(ControlSettings, data.get("control"))
@@ -406,142 +408,3 @@ def config_warnings(settings: Settings) -> list[str]:
             out.append(f"{key}: {section.port!r} looks like a placeholder (XXXX): use your adapter's "
                        "serial, or the udev name (/dev/relay/base, /dev/relay/servo)")
     return out
-
-
-def secret_file_errors(settings: Settings) -> list[str]:
-    """Secret and TLS files that cannot be used now (check-config: `relayd run` would refuse
-    to start): unreadable, an API token too short, a certificate that is not one."""
-    errors = []
-    for owner, ref in secret_refs(settings).items():
-        if ref.file is not None:
-            try:
-                value = resolve_secret(ref, {})
-                if owner == "api" and value is not None:
-                    check_api_token(ref, value)
-            except ConfigError as exc:
-                errors.extend(exc.errors)
-    if settings.api.enabled:
-        from relayd.api.server import tls_context  # here: the server module imports this one
-
-        try:
-            tls_context(settings.api)
-        except ConfigError as exc:
-            errors.extend(exc.errors)
-    return errors
-
-
-@dataclass(frozen=True, slots=True)
-class SecretRef:
-    """Where a secret comes from; `describe()` says so without ever showing it."""
-
-    key: str
-    env: str | None
-    file: str | None
-
-    def describe(self, environ: Mapping[str, str]) -> str:
-        if self.env is not None:
-            return f"env {self.env} ({'set' if environ.get(self.env) else 'NOT SET'})"
-        if self.file is not None:
-            return f"file {self.file} ({'readable' if os.access(self.file, os.R_OK) else 'NOT READABLE'})"
-        return "none"
-
-
-def resolve_secret(ref: SecretRef, environ: Mapping[str, str]) -> str | None:
-    """The secret's value, or None when it is not configured; ConfigError if configured but missing."""
-    if ref.env is not None:
-        value = environ.get(ref.env)
-        if not value:
-            raise ConfigError([f"{ref.key}: environment variable {ref.env} is not set"])
-        return value
-    if ref.file is not None:
-        try:
-            value = Path(ref.file).read_text(encoding="utf-8").strip()
-        except OSError as exc:
-            raise ConfigError([f"{ref.key}: cannot read {ref.file}: {exc.strerror or exc}"]) from None
-        if not value:
-            raise ConfigError([f"{ref.key}: {ref.file} is empty"])
-        return value
-    return None
-
-
-#: The API token guards the wheels; anything shorter is guessable across the bridge.
-MIN_API_TOKEN_CHARS = 16
-
-
-def check_api_token(ref: SecretRef, token: str) -> str:
-    """The token, or ConfigError naming its key when it is too short to be a secret."""
-    if len(token) < MIN_API_TOKEN_CHARS:
-        raise ConfigError([f"{ref.key}: the API token has {len(token)} characters; "
-                           f"at least {MIN_API_TOKEN_CHARS} are needed (e.g. `openssl rand -hex 16`)"])
-    return token
-
-
-def secret_refs(settings: Settings) -> dict[str, SecretRef]:
-    """Where each secret in use comes from, by owner: "ap.rear", "ap.front", "api"."""
-    refs: dict[str, SecretRef] = {}
-    for name in ("rear", "front"):
-        ap = getattr(settings.ap, name)
-        if ap is not None and ap.enabled:
-            key = f"ap.{name}.password_file" if ap.password_file else f"ap.{name}.password_env"
-            refs[f"ap.{name}"] = SecretRef(key, ap.password_env, ap.password_file)
-    api = settings.api
-    if api.enabled:
-        key = "api.token_file" if api.token_file else "api.token_env"
-        refs["api"] = SecretRef(key, api.token_env, api.token_file)
-    return refs
-
-
-def _toml_value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    if isinstance(v, (int, float)):
-        return repr(v)
-    raise TypeError(f"cannot write {type(v).__name__} to TOML")
-
-
-def dump_toml(doc: Mapping[str, Any]) -> str:
-    """A config document (sections of scalars, lists and sub-tables) as TOML."""
-    lines: list[str] = []
-
-    def table(prefix: str, d: Mapping[str, Any]) -> None:
-        scalars = {k: v for k, v in d.items() if not isinstance(v, Mapping) and v is not None}
-        if scalars or not any(isinstance(v, Mapping) for v in d.values()):
-            lines.append(f"[{prefix}]")
-            lines.extend(f"{k} = {_toml_value(v)}" for k, v in scalars.items())
-            lines.append("")
-        for k, v in d.items():
-            if isinstance(v, Mapping):
-                table(f"{prefix}.{k}", v)
-
-    for name, section in doc.items():
-        table(name, section)
-    return "\n".join(lines)
-
-
-def render_settings(settings: Settings, environ: Mapping[str, str]) -> str:
-    """The effective settings as TOML, with where each secret comes from (never its value)."""
-    lines: list[str] = []
-
-    def section(title: str, values: Mapping[str, Any]) -> None:
-        lines.append(f"[{title}]")
-        for k, v in values.items():
-            if v is not None:
-                lines.append(f"{k} = {_toml_value(v)}")
-        lines.append("")
-
-    data = settings.model_dump(mode="json")
-    for name, values in data.items():
-        if name == "ap":
-            for side, ap in values.items():
-                if ap is not None:
-                    section(f"ap.{side}", ap)
-        else:
-            section(name, values)
-    lines.append("# secrets (values never shown):")
-    for ref in secret_refs(settings).values():
-        lines.append(f"#   {ref.key}: {ref.describe(environ)}")
-    return "\n".join(lines) + "\n"

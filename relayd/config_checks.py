@@ -18,6 +18,15 @@ from typing import Any, get_args
 
 from pydantic import BaseModel, ValidationError
 
+
+class ConfigError(Exception):
+    """A config that cannot be used; `errors` lists every problem as 'key.path: message'."""
+
+    def __init__(self, errors: list[str]) -> None:
+        super().__init__("\n".join(errors))
+        self.errors = errors
+
+
 #: (key, message): the key is dotted from the top of the config ("control.kp").
 Problem = tuple[str, str]
 

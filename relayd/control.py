@@ -6,8 +6,12 @@ Thin I/O around the brain (`relayd.brain`), which decides everything:
   the driver's own callback, so the brain's step and the wheel command it causes run
   on the SIP's stack with no queue in between (the control latency);
 - a timer publishes a `Tick` every `tick_s`, because silence (no SIP) is exactly when
-  the robot must be stopped and no SIP would arrive to do it; before it, the robot's
-  and the scan servo's up/down state is looked at and changes are published;
+  the robot must be stopped and no SIP would arrive to do it; before it, every
+  device's state is looked at and changes are published as `DeviceEvent`s: UP, DOWN,
+  or FAULT when its driver's health says the last attempt failed. A fault the
+  supervisor reports (a device's task failed and is restarted) comes in through
+  `report_fault`. FAULT holds until the device is up again (a faulted device that is
+  still down is not re-announced as merely DOWN);
 - the API's mode and drive requests (`Controls`) become events;
 - `execute` turns a `WheelCommand` into the driver call; the driver's write-time
   latency report is counted only for commands a SIP caused.
@@ -17,11 +21,12 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Protocol
 
 from drivers.arcos.sip import Sip
 from drivers.clock import REAL_CLOCK, Clock
+from drivers.health import DeviceHealth as DriverHealth
 from relayd.brain import PANTILT, ROBOT, Brain
 from relayd.events import (
     DeviceEvent,
@@ -34,6 +39,7 @@ from relayd.events import (
     Tick,
     WheelCommand,
 )
+from relayd.health import device_status
 from relayd.state import Mode, ModeError
 
 #: Bytes in to SIP decoded: the driver's latency starts this much before the SIP's `t`.
@@ -74,7 +80,8 @@ class ControlShell:
                  on_step: Callable[[float], None] | None = None,
                  servo_up: Callable[[], bool] | None = None,
                  robot_name: Callable[[], str | None] | None = None,
-                 on_tick: Callable[[float], None] | None = None) -> None:
+                 on_tick: Callable[[float], None] | None = None,
+                 health: Mapping[str, Callable[[], DriverHealth]] | None = None) -> None:
         self._bus = bus
         self._brain = brain
         self._robot = robot
@@ -85,9 +92,11 @@ class ControlShell:
         self._servo_up = servo_up
         self._robot_name = robot_name or (lambda: None)
         self._on_tick = on_tick
+        #: Each device's own `health()`, by device name (robot, pantilt, wifi, ap.rear...).
+        self._health = dict(health or {})
         self._halted = False
         self._remove_listener: Callable[[], None] | None = None
-        self._up: dict[str, bool] = {}
+        self._status: dict[str, DeviceStatus] = {}
         #: The SIP behind the wheel command last handed to the driver; None: a timer,
         #: a scan or the operator caused it.
         self._cause_sip_t: float | None = None
@@ -132,19 +141,41 @@ class ControlShell:
             self._on_step(time.perf_counter() - started)
 
     def check_devices(self) -> None:
-        """Publish the robot's and the scan servo's up/down changes (the drivers have no events)."""
-        now = self._clock.now()
-        if self._robot is not None:
-            self._publish_change(ROBOT, bool(self._robot.connected) and not bool(self._robot.stale), now,
-                                 self._robot_name())
-        if self._servo_up is not None:
-            self._publish_change(PANTILT, self._servo_up(), now, None)
+        """Publish each device's UP/DOWN/FAULT changes (the drivers have no events).
 
-    def _publish_change(self, device: str, up: bool, now: float, detail: str | None) -> None:
-        if self._up.get(device) is up:
+        The robot is up when connected and not stale, the scan servo when the scanner
+        can use it; every other device by its driver's health alone.
+        """
+        now = self._clock.now()
+        health = {name: source() for name, source in self._health.items()}
+        for name, h in health.items():
+            if name not in (ROBOT, PANTILT):
+                self._change(name, device_status(h), now, h.last_error)
+        if self._robot is not None:
+            up = bool(self._robot.connected) and not bool(self._robot.stale)
+            self._judge(ROBOT, up, health.get(ROBOT), now, self._robot_name() if up else None)
+        if self._servo_up is not None:
+            self._judge(PANTILT, self._servo_up(), health.get(PANTILT), now, None)
+
+    def report_fault(self, device: str, detail: str) -> None:
+        """A device failed (its task raised and is being restarted): publish FAULT now."""
+        self._status[device] = DeviceStatus.FAULT
+        self._bus.publish(DeviceEvent(self._clock.now(), device, DeviceStatus.FAULT, detail))
+
+    def _judge(self, device: str, up: bool, h: DriverHealth | None, now: float, detail: str | None) -> None:
+        if up:
+            self._change(device, DeviceStatus.UP, now, detail)
+        elif h is not None and device_status(h) is DeviceStatus.FAULT:
+            self._change(device, DeviceStatus.FAULT, now, h.last_error)
+        else:
+            self._change(device, DeviceStatus.DOWN, now, None)
+
+    def _change(self, device: str, status: DeviceStatus, now: float, detail: str | None) -> None:
+        old = self._status.get(device)
+        if old is status or (old is DeviceStatus.FAULT and status is DeviceStatus.DOWN):
             return
-        self._up[device] = up
-        self._bus.publish(DeviceEvent(now, device, DeviceStatus.UP if up else DeviceStatus.DOWN, detail))
+        self._status[device] = status
+        self._bus.publish(DeviceEvent(now, device, status, detail))
 
     async def run(self) -> None:
         """The control tick; also subscribes to the robot's SIPs (a held task holds both)."""

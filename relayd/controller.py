@@ -187,10 +187,10 @@ def link_rule(
     margin = 0.0 if was_driving else params.hysteresis_db
     if rssi_leader_dbm >= params.threshold_l_dbm - margin:
         return False, "leader_near"
-    if rear_required:
-        assert rssi_behind_dbm is not None  # checked above; narrows the type
-        if rssi_behind_dbm <= params.threshold_b_dbm + margin:
-            return False, "rear_weak"
+    # rear_required with no rear reading returned "rear_link_stale" above.
+    if rear_required and rssi_behind_dbm is not None \
+            and rssi_behind_dbm <= params.threshold_b_dbm + margin:
+        return False, "rear_weak"
     return True, "driving"
 
 
@@ -280,9 +280,9 @@ def control_step(
         return _stopped(DriveState.STOPPED, reason, situation, memory)
 
     v = background_speed(rssi_l, params.w1, params.w2, params.v_max_mm_s)
-    if situation == 1:
-        d_min = nearest_front_m(inputs.front_sonar)
-        assert d_min is not None  # situation 1 means a forward sonar echoed
+    # Situation 1 means a forward sonar echoed inside the detection range: d_min is set.
+    d_min = nearest_front_m(inputs.front_sonar) if situation == 1 else None
+    if d_min is not None:
         steer = avoidance_bearing(inputs.front_sonar, params.gamma_o_m)
         v *= speed_scale(d_min, params.threshold_o_m, params.stop_distance_m)
         left, right = wheel_law(

@@ -9,7 +9,7 @@ READY is sent; /status says so.
 Shutdown (SIGTERM/SIGINT cancel `run()`): the control tick stops and the wheels are
 zeroed at once, the robot driver disables the motors and sends CLOSE, the servo and
 poll tasks are cancelled, the API closes. The robot's safe stop is bounded so the
-whole sequence fits in the 0.5 s the spec allows.
+whole sequence fits in 0.5 s (docs/CONTROL.md 6, "Shutdown").
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import asyncio
 import contextlib
 import functools
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol
 
@@ -28,6 +28,7 @@ from drivers.airos import AirOsClient, AirOsPoller
 from drivers.airos.model import LinkQuality
 from drivers.arcos import ArcosRobot
 from drivers.clock import REAL_CLOCK, Clock
+from drivers.health import DeviceHealth as DriverHealth
 from drivers.pantilt import PanTilt
 from drivers.wifi import RssiSource
 from relayd.brain import Brain
@@ -46,8 +47,7 @@ from relayd.events import Action, Event, LinkEvent, LinkSide, ScanPlan, ServoTar
 from relayd.health import device_health
 from relayd.metrics import Metrics
 from relayd.params import brain_params, control_params, estimator_params
-from relayd.record.live import BindError, LiveServer, close_soon
-from relayd.record.recorder import Recorder, off_status
+from relayd.record import off_status
 from relayd.scanner import RssiMonitor, Scanner
 from relayd.state import Mode, RelayState
 from relayd.statewriter import StateWriter
@@ -55,6 +55,8 @@ from relayd.supervisor import Supervisor
 
 if TYPE_CHECKING:
     from relayd.api.server import ApiServer
+    from relayd.record.live import LiveServer
+    from relayd.record.recorder import Recorder
 
 __all__ = ["Daemon", "DeviceOverrides", "control_params", "estimator_params"]
 
@@ -127,7 +129,7 @@ class Daemon:
         }
         self.api_port: int | None = None
         self.notifier = notifier
-        self.supervisor = Supervisor(self.state, clock)
+        self.supervisor = Supervisor(self.state, clock, on_fault=self._on_task_fault)
         self.metrics = Metrics(self.state, clock)
         self.brain = Brain(brain_params(settings), mode=Mode(c.mode))
         self.bus: Bus[Event, Action] = Bus()
@@ -142,7 +144,11 @@ class Daemon:
         self._last_pet: float | None = None
         self.recorder: Recorder | None = None
         self._record_task: asyncio.Task[None] | None = None
+        # The recorder and the live view (and their MCAP writer) are imported only when
+        # configured: a daemon without them does not carry them in memory.
         if settings.record.enabled:
+            from relayd.record.recorder import Recorder
+
             # One bus subscriber (docs/RECORDING.md); never on the control path.
             self.recorder = Recorder(self.bus, settings, clock, identity=lambda: (
                 None if self.robot is None else self.robot.identity))
@@ -150,6 +156,8 @@ class Daemon:
         self.live: LiveServer | None = None
         self._live_task: asyncio.Task[None] | None = None
         if settings.foxglove.enabled:
+            from relayd.record.live import LiveServer
+
             # The live Foxglove view: one more bus subscriber, never on the control path.
             self.live = LiveServer(self.bus, settings, clock)
         self._build()
@@ -220,12 +228,21 @@ class Daemon:
                 pantilt, usable=scanner_ is None or scanner_.servo_ok,
                 extra_errors=0 if scanner_ is None else scanner_.link_errors)
         robot_ = self.robot
+        health: dict[str, Callable[[], DriverHealth]] = {}
+        if self.robot is not None:
+            health["robot"] = self.robot.health
+        if self.pantilt is not None:
+            health["pantilt"] = self.pantilt.health
+        if self.source is not None:
+            health["wifi"] = self.source.health
+        for side, poller in self.pollers.items():
+            health[f"ap.{side}"] = poller.health
         self.control = ControlShell(
             bus=self.bus, brain=self.brain, robot=robot_, clock=clock, tick_s=TICK_S,
             on_latency=self.metrics.observe_control_latency, on_step=self.metrics.observe_control_step,
             servo_up=None if self.scanner is None else (lambda: self.scanner is not None and self.scanner.servo_ok),
             robot_name=lambda: None if robot_ is None or robot_.identity is None else robot_.identity.name,
-            on_tick=self._on_tick,
+            on_tick=self._on_tick, health=health,
         )
         self.supervisor.add("control", self.control.run)
 
@@ -249,6 +266,9 @@ class Daemon:
                         self.writer.on_action(action)
             except Exception:
                 log.exception("action_failed", action=type(action).__name__)
+
+    def _on_task_fault(self, device: str, message: str) -> None:
+        self.control.report_fault(device, message)
 
     def _on_link(self, side: LinkSide, quality: LinkQuality) -> None:
         self.bus.publish(LinkEvent(self.clock.now(), side, quality))
@@ -278,6 +298,8 @@ class Daemon:
             log.info("api_control", enabled=self._token is not None,
                      note=None if self._token else "no token configured: POST endpoints answer 403")
         if self.live is not None:
+            from relayd.record.live import BindError
+
             # Bound before any device too: a taken port is a config error, not a half-started robot.
             try:
                 self.live.start()
@@ -323,6 +345,8 @@ class Daemon:
                 await asyncio.wait_for(self._runner.cleanup(), 0.2)
             self._runner = None
         if self.live is not None or self._live_task is not None:
+            from relayd.record.live import close_soon
+
             await close_soon(self.live, self._live_task)
         if self.recorder is not None:
             # Last: the Shutdown event and the final wheel stop are in the file.

@@ -16,6 +16,8 @@ from collections.abc import Callable
 from typing import Protocol
 
 from drivers.health import DeviceHealth as DriverHealth
+from drivers.health import LinkState
+from relayd.events import DeviceStatus
 from relayd.state import DeviceHealth
 
 HealthSource = Callable[[], DeviceHealth]
@@ -23,6 +25,16 @@ HealthSource = Callable[[], DeviceHealth]
 
 class HasHealth(Protocol):
     def health(self) -> DriverHealth: ...
+
+
+def device_status(h: DriverHealth) -> DeviceStatus:
+    """What a driver's health means on the bus: UP when its data are usable, FAULT when its
+    last attempt failed (it retries on backoff), DOWN otherwise (connecting, quiet, closed)."""
+    if h.state is LinkState.UP:
+        return DeviceStatus.UP
+    if h.state is LinkState.DOWN:
+        return DeviceStatus.FAULT
+    return DeviceStatus.DOWN
 
 
 def device_health(driver: HasHealth, *, usable: bool = True, extra_errors: int = 0,

@@ -17,7 +17,7 @@ import logging
 import sys
 import time
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, TextIO
 
 import structlog
 from aiohttp.http_exceptions import HttpProcessingError
@@ -50,8 +50,8 @@ class StdStream:
         self._name = name
 
     @property
-    def _stream(self) -> Any:
-        return getattr(sys, self._name)
+    def _stream(self) -> TextIO:
+        return sys.stdout if self._name == "stdout" else sys.stderr
 
     def write(self, text: str) -> int:
         return int(self._stream.write(text))
@@ -60,7 +60,7 @@ class StdStream:
         self._stream.flush()
 
     def isatty(self) -> bool:
-        return bool(getattr(self._stream, "isatty", lambda: False)())
+        return self._stream.isatty()
 
 
 class BadRequestFilter(logging.Filter):
@@ -117,7 +117,7 @@ def setup_logging(level: str = "info", fmt: str = "console", stream: Any = None,
     processors add fields to every line, structlog's and the stdlib's alike.
     """
     stream = stream or StdStream("stdout")
-    numeric = getattr(logging, level.upper())
+    numeric = logging.getLevelNamesMapping()[level.upper()]
     shared: list[Any] = [
         structlog.contextvars.merge_contextvars,
         *extra,

@@ -301,8 +301,7 @@ def _run_episode(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> R
     lost_reason = "rear_lost" if rear else "leader_lost"
     if m.incident_t is None:  # an episode always starts one; a memory built by hand may not
         m = replace(m, incident_t=m.started_t if m.started_t is not None else inp.now_s, incident_m=m.distance_m)
-    assert m.incident_t is not None
-    elapsed = inp.now_s - m.incident_t
+    elapsed = inp.now_s - (m.incident_t if m.incident_t is not None else inp.now_s)
     if elapsed >= p.max_time_s:
         m = _close(m, Phase.GAVE_UP, "gave_up_time")
         return RecoveryOutput(_zero(lost_state, lost_reason), m)
@@ -319,7 +318,8 @@ def _run_episode(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> R
         m = replace(m, phase=Phase.RETRACE, target=leader_target(m.trail, p.threshold_l_dbm))
 
     # Drop the crumbs already reached (the newest first); the trail is consumed going back.
-    assert inp.pose is not None  # inputs_stale checked it
+    if inp.pose is None:  # inputs_stale checks it; no pose is never a reason to move
+        return RecoveryOutput(_zero(DriveState.FAULT, "recovery_stale_input"), m)
     x, y, _ = inp.pose
     trail = m.trail
     while trail and math.hypot(trail[-1].x_mm - x, trail[-1].y_mm - y) < p.reach_m * 1000.0:

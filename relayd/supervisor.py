@@ -3,7 +3,8 @@
 A bare `asyncio.TaskGroup` cancels every sibling when one child fails; on a robot a
 flaky servo adapter must never take the base driver down. So each task runs inside a
 keeper loop that logs the failure, counts it in the device's health and restarts the
-task after a capped backoff, leaving the others alone. Shutdown cancels tasks in the
+task after a capped backoff, leaving the others alone; a device's task failing is also
+reported to `on_fault` (the daemon publishes it as the device's FAULT). Shutdown cancels tasks in the
 reverse of the order they were added, waiting for each, so the robot driver (added
 first) is the last to go and its safe stop still has a controller-free port.
 """
@@ -40,9 +41,12 @@ class _Entry:
 class Supervisor:
     """Start, keep alive and stop a fixed set of named tasks."""
 
-    def __init__(self, state: RelayState, clock: Clock = REAL_CLOCK) -> None:
+    def __init__(self, state: RelayState, clock: Clock = REAL_CLOCK,
+                 on_fault: Callable[[str, str], None] | None = None) -> None:
         self._state = state
         self._clock = clock
+        #: Told (device, message) when a device's task fails; the daemon publishes a FAULT.
+        self._on_fault = on_fault
         self._entries: list[_Entry] = []
         self._stopping = False
 
@@ -90,6 +94,11 @@ class Supervisor:
             health = self._state.device(entry.device)
             health.errors += 1
             health.last_error = message
+            if self._on_fault is not None:
+                try:
+                    self._on_fault(entry.device, message)
+                except Exception:
+                    log.exception("fault_report_failed", task=entry.name)
 
     def begin_stop(self) -> None:
         """Shutdown has begun: a task ending from now on is neither restarted nor reported."""

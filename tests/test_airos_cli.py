@@ -17,7 +17,8 @@ from pathlib import Path
 import pytest
 from support import piped_into_head
 
-from drivers.airos import FakeAirOs, Station
+from drivers.airos import Station
+from drivers.airos.fake import FakeAirOs
 from relayd.cli import main
 
 FIXTURES = Path(__file__).parent / "fixtures" / "airos"

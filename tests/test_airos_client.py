@@ -20,11 +20,11 @@ from drivers.airos import (
     AirOsConnectionError,
     AirOsPoller,
     AirOsSessionExpired,
-    FakeAirOs,
     LinkQuality,
     Station,
     legacy_tls_context,
 )
+from drivers.airos.fake import FakeAirOs
 from drivers.clock import Clock
 
 pytestmark = pytest.mark.virtual_time

@@ -7,9 +7,12 @@ fake airOS radio, the fake robot's pose and battery, device counters after injec
 faults), /healthz follows the control loop, and the control endpoints really move the
 fake robot (the VEL/RVEL commands it receives) or refuse to.
 
-One daemon serves the module (its first scan takes a few seconds); it starts in hold
-mode so the robot stands still and the world's expectations (true bearing, path loss)
-can be computed from the rig at any time. Tests that change the mode put it back.
+One daemon serves the module; it starts in hold mode so the robot stands still and the
+world's expectations (true bearing, path loss) can be computed from the rig at any
+time. Tests that change the mode put it back. The module runs in virtual time
+(`relayd.vtime`): the rig's robot and servo controller are on memory links, the API
+and the airOS fakes on real loopback sockets, and the seconds of scans, SIPs and
+dead-man waits cost no wall time.
 """
 
 from __future__ import annotations
@@ -35,15 +38,16 @@ from relayd.config import parse_settings
 from relayd.daemon import Daemon
 from relayd.fakes.rig import API_TOKEN_ENV, FakeRig
 from relayd.state import Mode
+from relayd.vtime import LoopClock
 
-pytestmark = pytest.mark.asyncio(loop_scope="module")
+pytestmark = [pytest.mark.asyncio(loop_scope="module"), pytest.mark.virtual_time]
 
 #: The /status fields every client may rely on.
 SPEC_FIELDS = {"mode", "state", "reason", "bearing_deg", "rssi_leader_dbm", "rssi_behind_dbm",
                "situation", "wheels_mm_s", "pose", "battery_v", "sonar_mm", "last_scan", "links",
                "health", "uptime_s", "version"}
 DEVICES = {"robot", "pantilt", "wifi", "ap.rear", "ap.front"}
-#: Generous: two cores shared with other test runs.
+#: Virtual seconds: a first scan takes a few.
 FIRST_SCAN_TIMEOUT_S = 30.0
 DISPLAY_NAME = "relay 1 (east stairs)"
 T = TypeVar("T")
@@ -109,9 +113,10 @@ async def running(work: Path, *, with_token: bool = True, **config: Any) -> Asyn
 
     `with_token=False` leaves the API token's variable out of the daemon's environment.
     """
-    async with FakeRig(work) as rig:
+    clock = LoopClock()
+    async with FakeRig(work, clock=clock, links="memory") as rig:
         env = rig.env if with_token else {k: v for k, v in rig.env.items() if k != API_TOKEN_ENV}
-        daemon = Daemon(parse_settings(rig.config_doc(api_port=0, **config)), env=env)
+        daemon = Daemon(parse_settings(rig.config_doc(api_port=0, **config)), env=env, clock=clock)
         async with run_daemon(daemon) as task:
 
             async def bound() -> int | None:

@@ -39,7 +39,9 @@ HERE = Path(__file__).resolve().parent
 SCAN = {"samples": 9, "width_deg": 120, "settle_s": 0.02}
 PANTILT = {"speed_deg_s": 1000}
 IDLE, SLOW = 1100, 100
-HOLD_S = 25.0
+#: Past the server's 10 s idle timeout (idle and slow-header clients are cut once, by it)
+#: and past the /healthz window below: a longer hold only repeats the same.
+HOLD_S = 16.0
 HEALTHZ_WITHIN_S = 15.0
 MAX_LOG_BYTES = 1_000_000
 _PRIORITY = re.compile(r"^<\d>")

@@ -16,8 +16,9 @@ from pathlib import Path
 import pytest
 from support import piped_into_head
 
-from drivers.arcos import ArcosRobot, FakeRobot
+from drivers.arcos import ArcosRobot
 from drivers.arcos.codec import CLOSE, Command
+from drivers.arcos.fake import FakeRobot
 from relayd.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]

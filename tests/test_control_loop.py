@@ -20,6 +20,8 @@ import relayd.brain
 from drivers.airos.model import LinkQuality
 from drivers.arcos.sip import Sip as ArcosSip
 from drivers.clock import Clock
+from drivers.health import DeviceHealth as DriverHealth
+from drivers.health import LinkState
 from drivers.wifi.sources import RssiSample
 from relayd.brain import PANTILT, Brain, BrainParams
 from relayd.bus import Bus
@@ -402,3 +404,54 @@ async def test_halt_stops_commanding_the_robot_at_once() -> None:
     task.cancel()
     with pytest.raises(asyncio.CancelledError):
         await task
+
+
+def test_a_driver_reporting_a_failure_is_published_as_fault_until_it_is_up() -> None:
+    """The shell turns each driver's own health into UP/DOWN/FAULT events on the bus."""
+    clock = ManualClock()
+    robot = StandInRobot()
+    brain = Brain(BrainParams(control=PARAMS, has_scanner=False), mode=Mode.FOLLOW)
+    bus: Bus[Event, Action] = Bus()
+    bus.connect(brain.handle, lambda event, actions: None)
+    seen = bus.subscribe("devices")
+    robot_state = {"state": LinkState.UP, "error": None}
+    radio_state = {"state": LinkState.CONNECTING, "error": None}
+
+    def health_of(device: str, now: dict[str, object]) -> Callable[[], DriverHealth]:
+        return lambda: DriverHealth(device=device, state=LinkState(now["state"]),
+                                    last_error=str(now["error"]) if now["error"] else None)
+
+    shell = ControlShell(bus=bus, brain=brain, robot=robot, clock=clock,
+                         health={"robot": health_of("robot", robot_state),
+                                 "ap.rear": health_of("ap.rear", radio_state)})
+
+    def events() -> list[tuple[str, DeviceStatus, str | None]]:
+        return [(e.device, e.status, e.detail) for e in iter(seen.get_nowait, None)
+                if isinstance(e, DeviceEvent)]
+
+    shell.check_devices()
+    assert events() == [("ap.rear", DeviceStatus.DOWN, None), ("robot", DeviceStatus.UP, None)]
+    # The robot's link fails (the driver retries on backoff); the radio's login fails.
+    robot.connected = False
+    robot_state.update(state=LinkState.DOWN, error="SerialException: device disconnected")
+    radio_state.update(state=LinkState.DOWN, error="login refused")
+    shell.check_devices()
+    assert events() == [("ap.rear", DeviceStatus.FAULT, "login refused"),
+                        ("robot", DeviceStatus.FAULT, "SerialException: device disconnected")]
+    bus.publish(Tick(clock.now()))
+    assert brain.last_output is not None and brain.last_output.state is DriveState.FAULT
+    assert (brain.last_output.left_mm_s, brain.last_output.right_mm_s) == (0.0, 0.0)
+    # Reconnecting (no failure yet) does not hide the fault: FAULT holds until UP.
+    robot_state.update(state=LinkState.CONNECTING)
+    shell.check_devices()
+    assert events() == []
+    robot.connected = True
+    robot_state.update(state=LinkState.UP, error=None)
+    radio_state.update(state=LinkState.UP, error=None)
+    shell.check_devices()
+    assert events() == [("ap.rear", DeviceStatus.UP, None), ("robot", DeviceStatus.UP, None)]
+    # A fault the supervisor reports (the task failed while the driver looks fine).
+    shell.report_fault("robot", "OSError: helper lost the robot")
+    shell.check_devices()
+    assert events() == [("robot", DeviceStatus.FAULT, "OSError: helper lost the robot"),
+                        ("robot", DeviceStatus.UP, None)]

@@ -9,8 +9,10 @@ from pathlib import Path
 import pytest
 from support import running, until
 
-from drivers.airos import AirOsPoller, FakeAirOs
-from drivers.arcos import ArcosRobot, FakeRobot
+from drivers.airos import AirOsPoller
+from drivers.airos.fake import FakeAirOs
+from drivers.arcos import ArcosRobot
+from drivers.arcos.fake import FakeRobot
 from drivers.backoff import Backoff
 from drivers.clock import Clock
 from drivers.health import DeviceHealth, LinkState

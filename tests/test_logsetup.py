@@ -216,3 +216,29 @@ async def test_wrong_token_warnings_are_rate_limited_with_a_count() -> None:
     missing = [(p, e) for p, e in everything if e["event"] == "api_auth_missing"]
     assert len(missing) == 1 and missing[0][0] == 4
     assert TOKEN not in buf.getvalue()
+
+
+def test_the_command_line_keeps_rich_out_of_the_process() -> None:
+    """relayd never renders with rich; a dev install has it, and structlog would load it
+    (about 3 MB of the daemon's memory). The command line blocks it, and an exception
+    still logs with its traceback."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "from relayd import cli\n"
+        "sys.argv = ['relayd', 'check-config', '/nonexistent.toml']\n"
+        "rc = cli.main()\n"
+        "import structlog\n"
+        "from relayd.logsetup import StdStream, setup_logging\n"
+        "setup_logging('info', 'console', stream=StdStream('stdout'))\n"
+        "try:\n"
+        "    1 / 0\n"
+        "except ZeroDivisionError:\n"
+        "    structlog.get_logger('t').exception('boom')\n"
+        "print('RICH', sys.modules.get('rich'), 'RC', rc)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert "RICH None RC 2" in out.stdout, (out.stdout, out.stderr)
+    assert "ZeroDivisionError: division by zero" in out.stdout

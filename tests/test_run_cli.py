@@ -24,7 +24,7 @@ import pytest
 from support import until
 
 from drivers.arcos.codec import CLOSE, Command
-from relayd.config import dump_toml
+from relayd.config_toml import dump_toml
 from relayd.fakes.rig import AP_PASSWORD_ENV, FakeRig
 
 pytestmark = pytest.mark.slow

@@ -43,6 +43,7 @@ from relayd.config import parse_settings
 from relayd.control import ControlShell
 from relayd.daemon import WATCHDOG_PET_S, Daemon
 from relayd.fakes.rig import FakeRig
+from relayd.vtime import LoopClock
 
 ROOT = Path(__file__).resolve().parent.parent
 UNIT = ROOT / "systemd" / "relayd.service"
@@ -321,9 +322,14 @@ async def _until(probe: Callable[[], Awaitable[bool]], what: str, timeout_s: flo
         raise AssertionError(f"timed out waiting for {what}") from None
 
 
+@pytest.mark.virtual_time
 async def test_watchdog_pets_only_while_the_control_loop_ticks(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """The control task is held back, then runs, then wedges; pets follow the ticks."""
+    """The control task is held back, then runs, then wedges; pets follow the ticks.
+
+    In virtual time, the rig's robot and servo on memory links: the pet periods waited
+    out to see an absence cost no wall time.
+    """
     release, wedge = asyncio.Event(), asyncio.Event()
     original_run = ControlShell.run
 
@@ -342,9 +348,10 @@ async def test_watchdog_pets_only_while_the_control_loop_ticks(
 
     monkeypatch.setattr(ControlShell, "run", gated_run)
     notifier = RecordingNotifier()
-    async with FakeRig(tmp_path) as rig:
+    clock = LoopClock()
+    async with FakeRig(tmp_path, clock=clock, links="memory") as rig:
         daemon = Daemon(parse_settings(rig.config_doc(api_port=0, control={"mode": "hold"})),
-                        env=rig.env, notifier=notifier)
+                        env=rig.env, notifier=notifier, clock=clock)
         task = asyncio.create_task(daemon.run())
         try:
             async with ClientSession() as session:

@@ -1,4 +1,8 @@
-"""Ubiquiti airOS radios: link-quality model, HTTP client, poller, and a fake radio."""
+"""Ubiquiti airOS radios: link-quality model, HTTP client and poller.
+
+The fake radio is `drivers.airos.fake.FakeAirOs`, not imported here: the daemon does
+not load test fakes into its memory.
+"""
 
 from drivers.airos.client import (
     AirOsAuthError,
@@ -9,7 +13,6 @@ from drivers.airos.client import (
     AirOsTimeoutError,
     legacy_tls_context,
 )
-from drivers.airos.fake import FakeAirOs
 from drivers.airos.model import (
     RSSI_OFFSET_DB,
     AirOsDataError,
@@ -34,7 +37,6 @@ __all__ = [
     "AirOsPoller",
     "AirOsSessionExpired",
     "AirOsTimeoutError",
-    "FakeAirOs",
     "LinkQuality",
     "Station",
     "decode_stations",

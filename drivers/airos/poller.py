@@ -7,7 +7,8 @@ The poller is the long-running task the daemon supervises: `run()` never raises 
   a second expiry straight after a fresh login backs off like a network error;
 * network error / timeout: capped exponential backoff (drivers.backoff), state "unreachable";
 * malformed JSON / not a status document: counted, state "bad_data", log in again on the next
-  try (the doc's "non-JSON -> re-login once, then back off"), with backoff;
+  try (an HTML or garbled answer is how an expired session looks, docs/PROTOCOLS.md 4.1:
+  log in again once, then back off);
 * wrong credentials: state "auth_failed", retried on the same capped backoff as any other
   failure: a password fixed on the radio is picked up within seconds, because the robot
   may be held until it is. Even at the cap that is one login a few seconds apart, which
@@ -192,7 +193,7 @@ class AirOsPoller:
             return self._fail("unreachable", exc)
         except AirOsDataError as exc:
             self.counters["bad_json"] += 1
-            self.client.logged_in = False  # the doc's remedy: log in again, then back off
+            self.client.logged_in = False  # maybe an expired session: log in again, then back off
             return self._fail("bad_data", exc)
         except Exception as exc:  # noqa: BLE001 - a long-running task must survive anything
             return self._fail("unreachable", f"{type(exc).__name__}: {exc}", event="airos_poll_crashed",

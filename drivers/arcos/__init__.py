@@ -1,8 +1,11 @@
-"""Pioneer P3-AT over ARCOS: codec, SIP decoding, sonar ring, ArcosRobot driver, FakeRobot."""
+"""Pioneer P3-AT over ARCOS: codec, SIP decoding, sonar ring, the ArcosRobot driver.
+
+The fake robot is `drivers.arcos.fake.FakeRobot`, not imported here: the daemon does
+not load test fakes (and their pty plumbing) into its memory.
+"""
 
 from drivers.arcos.codec import Command, Decoder, Packet, PacketType, encode_command
 from drivers.arcos.driver import ArcosError, ArcosRobot, HandshakeError, SessionLost
-from drivers.arcos.fake import FakeRobot
 from drivers.arcos.sip import RawSip, RobotConfig, RobotIdentity, Sip, conv_factors
 from drivers.arcos.sonar import SONAR_POSES, SonarPoint, SonarPose, SonarRing
 
@@ -12,7 +15,6 @@ __all__ = [
     "ArcosRobot",
     "Command",
     "Decoder",
-    "FakeRobot",
     "HandshakeError",
     "Packet",
     "PacketType",

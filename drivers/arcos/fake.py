@@ -12,6 +12,12 @@ starts at 0,0,0 at OPEN and is reported in robot units (mm / DistConvFactor, 15-
 wrapped). A pty hang-up leaves the robot in its session (it will answer the next
 SYNC0 with SIPs, as a real robot does after a pulled cable); a TCP client going away
 ends the session, as MobileSim does.
+
+Why one room of about 470 lines: it is one robot. The session (sync, open, motors,
+watchdog), the command handlers, the SIP builder and the adversarial wire switches all
+read and write the same state, and tests reach for all of it on one object; split into
+mixins, one state machine would be spread over files that cannot be read alone. What
+stands alone already does: the motion model (fakemotion.py), the codec, the ports.
 """
 
 from __future__ import annotations

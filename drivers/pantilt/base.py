@@ -3,8 +3,10 @@
 Angles map to pulse widths through each servo's `ServoCalibration` (calibration.py).
 `PanTilt` owns the one serial port shared by both servos (scan and link): every
 command goes through one `asyncio.Lock`, requests register their waiter before
-writing, and silence turns into a disconnect so `run()` reconnects with backoff. The back-ends (`maestro.py`, `ssc32.py`) only say how to
-encode a command and how long each reply is.
+writing, and silence turns into a disconnect so `run()` reconnects with backoff. The
+back-ends (`maestro.py`, `ssc32.py`) only say how to encode a command and how long each
+reply is. About 400 lines because the session (lock, waiters, silence -> disconnect,
+reconnect, health) is one state machine; the reconnect loop is drivers/reconnect.py.
 """
 
 from __future__ import annotations

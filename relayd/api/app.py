@@ -214,8 +214,7 @@ async def handle_drive(request: web.Request) -> web.Response:
         req = await _parse_body(request, DriveRequest)
     except _BadRequest as exc:
         return _error(400, str(exc), exc.field_name)
-    for name in ("left_mm_s", "right_mm_s"):
-        value = getattr(req, name)
+    for name, value in (("left_mm_s", req.left_mm_s), ("right_mm_s", req.right_mm_s)):
         if abs(value) > ctx.max_drive_mm_s:
             return _error(400, f"{name} must be within ±{ctx.max_drive_mm_s:g} mm/s", name)
     try:

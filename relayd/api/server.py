@@ -72,7 +72,7 @@ class _Conn:
     idle_since: float
     busy: int = 0
     transport: asyncio.BaseTransport | None = None
-    handler: Any = None
+    handler: asyncio.Protocol | None = None
     task: asyncio.Task[Any] | None = None
     closing: bool = False
 
@@ -211,7 +211,8 @@ class GuardedServer:
             log.warning(event, count=count, every_s=LOG_EVERY_S, **kw)
 
     def _on_readable(self) -> None:
-        assert self._loop is not None and self._listen is not None
+        if self._loop is None or self._listen is None:
+            return  # not started, or closed: nothing to accept on
         now = self._loop.time()
         for _ in range(ACCEPT_BATCH):
             if self._active() >= self.max_connections and not self._evict(now):
@@ -243,7 +244,10 @@ class GuardedServer:
             conn.task = self._loop.create_task(self._connect(conn))
 
     async def _connect(self, conn: _Conn) -> None:
-        assert self._loop is not None and self._factory is not None
+        if self._loop is None or self._factory is None:
+            conn.sock.close()  # the guard closed before this connection was set up
+            self.drop(conn)
+            return
         factory = self._factory
         try:
             await self._loop.connect_accepted_socket(
@@ -280,10 +284,10 @@ class GuardedServer:
             self._resume()
 
     async def _sweep(self) -> None:
-        assert self._loop is not None
+        loop = asyncio.get_running_loop()
         while True:
             await asyncio.sleep(SWEEP_S)
-            now = self._loop.time()
+            now = loop.time()
             for conn in list(self.conns):
                 if not conn.closing and conn.busy == 0 and conn.transport is not None \
                         and now - conn.idle_since > self.idle_timeout_s:
@@ -309,6 +313,26 @@ class ApiServer:
             self.guard.abort_all()
 
 
+class _AcceptErrorLimit:
+    """A loop exception handler: asyncio's accept-resource reports rate-limited, the rest passed on."""
+
+    def __init__(self, previous: Callable[[asyncio.AbstractEventLoop, dict[str, Any]], object] | None) -> None:
+        self._previous = previous
+        self._limit = LogRateLimit(LOG_EVERY_S)
+
+    def __call__(self, lp: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
+        if context.get("message") == _ACCEPT_RESOURCE_MESSAGE:
+            count = self._limit.hit("accept", lp.time())
+            if count is not None:
+                log.warning("accept_failed", error=str(context.get("exception")), count=count,
+                            every_s=LOG_EVERY_S)
+            return
+        if self._previous is not None:
+            self._previous(lp, context)
+        else:
+            lp.default_exception_handler(context)
+
+
 def install_accept_error_limit(loop: asyncio.AbstractEventLoop) -> None:
     """Rate-limit asyncio's own 'accept() out of system resource' reports for this loop.
 
@@ -317,24 +341,9 @@ def install_accept_error_limit(loop: asyncio.AbstractEventLoop) -> None:
     of thousands of lines a minute. Other reports go to the previous handler unchanged.
     """
     previous = loop.get_exception_handler()
-    if getattr(previous, "relayd_accept_limit", False):
+    if isinstance(previous, _AcceptErrorLimit):
         return
-    limit = LogRateLimit(LOG_EVERY_S)
-
-    def handler(lp: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
-        if context.get("message") == _ACCEPT_RESOURCE_MESSAGE:
-            count = limit.hit("accept", lp.time())
-            if count is not None:
-                log.warning("accept_failed", error=str(context.get("exception")), count=count,
-                            every_s=LOG_EVERY_S)
-            return
-        if previous is not None:
-            previous(lp, context)
-        else:
-            lp.default_exception_handler(context)
-
-    handler.relayd_accept_limit = True  # type: ignore[attr-defined]
-    loop.set_exception_handler(handler)
+    loop.set_exception_handler(_AcceptErrorLimit(previous))
 
 
 def tls_context(api: ApiSettings) -> ssl.SSLContext | None:
@@ -389,7 +398,10 @@ async def start_api(app: web.Application, host: str, port: int, *,
     except BaseException:
         await runner.cleanup()
         raise
-    assert runner.server is not None
+    if runner.server is None:  # AppRunner.setup() always makes one
+        await runner.cleanup()
+        sock.close()
+        raise RuntimeError("aiohttp's runner has no server after setup()")
     guard.start(sock, runner.server, ssl_context)
     bound = int(sock.getsockname()[1])
     log.info("api_listening", host=host, port=bound, tls=ssl_context is not None,

@@ -14,9 +14,9 @@ from relayd.config import (
     ConfigError,
     config_warnings,
     load_settings,
-    render_settings,
     secret_file_errors,
 )
+from relayd.config_toml import render_settings
 
 
 def configure(parser: argparse.ArgumentParser) -> None:

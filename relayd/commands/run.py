@@ -57,7 +57,8 @@ async def run(args: argparse.Namespace) -> int:
     # otherwise land as multi-millisecond pauses in the SIP -> wheel command path.
     gc.freeze()
     main = asyncio.current_task()
-    assert main is not None
+    if main is None:
+        raise RuntimeError("relayd run must be called from a task")
     loop = asyncio.get_running_loop()
     task = asyncio.create_task(daemon.run(), name="relayd:daemon")
 

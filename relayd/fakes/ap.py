@@ -12,7 +12,7 @@ import asyncio
 import os
 import sys
 
-from drivers.airos import FakeAirOs
+from drivers.airos.fake import FakeAirOs
 
 PASSWORD_ENV = "RELAYD_AP_PASSWORD"
 

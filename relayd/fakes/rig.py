@@ -31,7 +31,8 @@ from drivers.arcos.fake import FakeRobot
 from drivers.clock import REAL_CLOCK, Clock
 from drivers.pantilt.fake import FakeMaestro
 from drivers.wifi.fake import ProcfsWriter
-from relayd.config import Settings, dump_toml
+from relayd.config import Settings
+from relayd.config_toml import dump_toml
 from relayd.sim.radio import yagi_gain_db
 
 #: Servo calibration shared by the fake and the generated config.

@@ -10,7 +10,7 @@ import argparse
 import asyncio
 import sys
 
-from drivers.arcos import FakeRobot
+from drivers.arcos.fake import FakeRobot
 
 
 def configure(parser: argparse.ArgumentParser) -> None:

@@ -28,7 +28,8 @@ from urllib.parse import urlsplit
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from relayd.config import ConfigError, SecretRef, resolve_secret, validation_messages
+from relayd.config import ConfigError, SecretRef, resolve_secret
+from relayd.config_checks import validation_messages
 
 DEFAULT_PORT = 8090
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]

@@ -79,7 +79,8 @@ async def handle_hold_all(request: web.Request) -> web.Response:
     if request.content_type != "application/json":
         return _json({"error": "send Content-Type: application/json"}, 415)
     fleet = request.app[FLEET]
-    assert fleet.session is not None
+    if fleet.session is None:  # only between shutdown and the last request
+        return _json({"error": "the fleet view is shutting down"}, 503)
     results = await asyncio.gather(*(hold_one(fleet.session, r, HOLD_TIMEOUT_S) for r in fleet.relays))
     log.info("fleet_hold_all", peer=request.remote,
              results={r["name"]: r["message"] for r in results})

@@ -5,4 +5,17 @@ that read it back (docs/RECORDING.md).
 - `codec`: events and actions to JSON and JSON schemas, `foxglove`: Foxglove views,
 - `meta`: the file's metadata, `reader`: reading a file with errors that say where,
 - `replay`: the recorded inputs through a new brain, compared with the recorded actions.
+
+`off_status` is here, not in `recorder`: a daemon that does not record never imports the
+recorder and its MCAP writer (about 1 MB of resident memory).
 """
+
+from __future__ import annotations
+
+from typing import Any
+
+
+def off_status() -> dict[str, Any]:
+    """/status's `recording` when recording is not configured."""
+    return {"enabled": False, "state": "off", "path": None, "files": 0, "bytes": 0, "events": 0,
+            "dropped": 0, "error": None}

@@ -170,7 +170,7 @@ class McapSink:
                 cid = channels[spec.topic] = writer.register_channel(spec.topic, "json", sid)
             writer.add_message(cid, log_time=ns, data=data, publish_time=ns)
         time.sleep(0)
-        writer.flush()  # the chunk ends here: compressed and handed to the OS
+        writer.flush()  # type: ignore[no-untyped-call]  # mcap's; the chunk ends here: compressed and handed to the OS
         size = self._stream.tell() if self._stream is not None else 0
         # Read by the event loop for /status: one int, replaced whole.
         self.bytes_written = self.bytes_done + size
@@ -184,7 +184,7 @@ class McapSink:
         if writer is None or stream is None:
             return
         try:
-            writer.finish()
+            writer.finish()  # type: ignore[no-untyped-call]  # mcap's Writer.finish has no annotations
             self.bytes_done += stream.tell()
             self.bytes_written = self.bytes_done
         finally:

@@ -29,7 +29,8 @@ def link_breaks(records: Sequence[dict[str, Any]], merge_s: float = BREAK_MERGE_
             spells[-1][1] = t
     out = []
     for start, end in spells:
-        assert start is not None
+        if start is None:  # a spell always opens with its start; nothing to report otherwise
+            continue
         out.append({"start_s": start, "end_s": end,
                     "duration_s": None if end is None else round(end - start, 2)})
     return out

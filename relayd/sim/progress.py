@@ -48,8 +48,7 @@ class ProgressLine:
         self.stream = sys.stderr if stream is None else stream
         self.duration_s = duration_s
         self.every_s = every_s
-        isatty = getattr(self.stream, "isatty", None)
-        self.enabled = bool(isatty and isatty()) if enabled is None else enabled
+        self.enabled = self.stream.isatty() if enabled is None else enabled
         self._last = 0.0
         self._width = 0
         self.lines = 0

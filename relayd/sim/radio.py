@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 import random
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 from relayd.sim.geometry import Point, Segment, crossings
@@ -31,25 +31,61 @@ RATE_TABLE_80211G: tuple[tuple[float, float], ...] = (
     (-65.0, 54.0), (-66.0, 48.0), (-70.0, 36.0), (-74.0, 24.0),
     (-77.0, 18.0), (-79.0, 12.0), (-81.0, 9.0), (-82.0, 6.0),
 )
+#: 802.11n, one spatial stream, 20 MHz, 800 ns guard interval: MCS7..MCS0 with the
+#: standard's minimum sensitivities (IEEE 802.11-2012, table 20-22). The paper's radios
+#: are airMAX M2 (802.11n); the leader's PicoStation M2HP and each relay's omni AP have
+#: one chain, so every hop is limited to one stream.
+RATE_TABLE_80211N_1X1: tuple[tuple[float, float], ...] = (
+    (-64.0, 65.0), (-65.0, 58.5), (-66.0, 52.0), (-70.0, 39.0),
+    (-74.0, 26.0), (-77.0, 19.5), (-79.0, 13.0), (-82.0, 6.5),
+)
+RATE_TABLES: Mapping[str, tuple[tuple[float, float], ...]] = {
+    "802.11g": RATE_TABLE_80211G, "802.11n-1x1": RATE_TABLE_80211N_1X1}
 MAC_EFFICIENCY = 0.5
-#: Below this a hop is down (the slowest rate's sensitivity).
+#: Below this a hop is down (the slowest rate's sensitivity; -82 dBm in both tables).
 HOP_DOWN_DBM = RATE_TABLE_80211G[-1][0]
 
 DEFAULT_WALL_LOSS_DB: Mapping[str, float] = {"brick": 10.0, "light": 3.0, "concrete": 15.0,
                                              "glass": 2.0, "box": 3.0}
+#: Airtime coupling of neighbouring hops (docs/SIMULATOR.md, "Multi-hop throughput").
+DEFAULT_HOP_COUPLING = 0.2
 
 
-def phy_rate_mbps(power_dbm: float) -> float:
-    """The fastest 802.11g rate whose sensitivity `power_dbm` meets; 0 when the hop is down."""
-    for sens, rate in RATE_TABLE_80211G:
+def phy_rate_mbps(power_dbm: float, table: Sequence[tuple[float, float]] = RATE_TABLE_80211G) -> float:
+    """The fastest rate of `table` whose sensitivity `power_dbm` meets; 0 when the hop is down."""
+    for sens, rate in table:
         if power_dbm >= sens:
             return rate
     return 0.0
 
 
-def throughput_mbps(power_dbm: float) -> float:
-    """Application throughput of one hop: PHY rate times the MAC efficiency."""
-    return phy_rate_mbps(power_dbm) * MAC_EFFICIENCY
+def throughput_mbps(power_dbm: float, table: Sequence[tuple[float, float]] = RATE_TABLE_80211G) -> float:
+    """Application throughput of one hop alone: PHY rate times the MAC efficiency."""
+    return phy_rate_mbps(power_dbm, table) * MAC_EFFICIENCY
+
+
+def chain_throughput_mbps(hop_mbps: Sequence[float], coupling: float = DEFAULT_HOP_COUPLING) -> float:
+    """End-to-end throughput of a relay chain whose neighbouring hops share airtime.
+
+    Carrying x Mbps end to end, hop k is busy x/T_k of the time (T_k: its throughput
+    alone). Each relay's two radios sit a few decimetres apart in the 2.4 GHz band, so
+    a hop also loses `coupling` of the airtime its neighbours use (0: independent
+    channels, 1: one shared channel, where a two-hop chain halves the throughput).
+    Hops further apart reuse the air. The largest x that keeps every hop within its
+    airtime is
+
+        x = min_k 1 / (1/T_k + coupling * sum_{j = k-1, k+1} 1/T_j)
+
+    which is the weakest hop (T_k) with no relays and 0 when any hop is down.
+    """
+    n = len(hop_mbps)
+    if n == 0 or any(t <= 0 for t in hop_mbps):
+        return 0.0
+    best = math.inf
+    for k, t in enumerate(hop_mbps):
+        load = 1.0 / t + coupling * sum(1.0 / hop_mbps[j] for j in (k - 1, k + 1) if 0 <= j < n)
+        best = min(best, 1.0 / load)
+    return round(best, 3)
 
 
 def yagi_gain_db(off_axis_deg: float, floor_db: float = -20.0) -> float:
@@ -88,6 +124,12 @@ class RadioParams:
     yagi_floor_db: float = -20.0
     patch_floor_db: float = -10.0
     min_distance_m: float = 0.5
+    phy: str = "802.11g"
+    hop_coupling: float = DEFAULT_HOP_COUPLING
+
+    @property
+    def rate_table(self) -> tuple[tuple[float, float], ...]:
+        return RATE_TABLES[self.phy]
 
     @classmethod
     def indoor(cls, **kw: object) -> RadioParams:

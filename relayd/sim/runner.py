@@ -276,7 +276,7 @@ class SimRunner:
                 if k > n:
                     continue
                 level = w.hop_sample_dbm(k)
-                rate = w.hop(k).rate_mbps / 0.5
+                rate = w.hop(k).phy_mbps
                 ap.set_link(level, noise_dbm=noise, ccq_pct=95.0 if rate else 0.0,
                             tx_mbps=rate, rx_mbps=rate)
 

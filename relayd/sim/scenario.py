@@ -18,7 +18,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from relayd.sim.geometry import Box, Segment, polygon_segments
-from relayd.sim.radio import DEFAULT_WALL_LOSS_DB, RadioParams
+from relayd.sim.radio import DEFAULT_HOP_COUPLING, DEFAULT_WALL_LOSS_DB, RadioParams
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
@@ -135,6 +135,8 @@ class RadioSpec(_Model):
     noise_floor_dbm: Finite = -95.0
     yagi_floor_db: Annotated[float, Field(le=0)] = -20.0
     patch_floor_db: Annotated[float, Field(le=0)] = -10.0
+    phy: Literal["802.11g", "802.11n-1x1"] = "802.11g"
+    hop_coupling: Annotated[float, Field(ge=0, le=1)] = DEFAULT_HOP_COUPLING
 
 
 class SonarSpec(_Model):
@@ -198,7 +200,8 @@ class Scenario(_Model):
             wall_loss_db=self.wall_losses(), shadow_sigma_db=r.shadow_sigma_db,
             shadow_corr_m=r.shadow_corr_m, rician_k_db=r.rician_k_db, fading=r.fading,
             fading_avg_frames=r.fading_avg_frames, noise_floor_dbm=r.noise_floor_dbm,
-            yagi_floor_db=r.yagi_floor_db, patch_floor_db=r.patch_floor_db)
+            yagi_floor_db=r.yagi_floor_db, patch_floor_db=r.patch_floor_db, phy=r.phy,
+            hop_coupling=r.hop_coupling)
 
     def wall_segments(self) -> list[Segment]:
         """The walls present the whole run (timed ones: `timed_obstacles`)."""
