@@ -1,10 +1,10 @@
-"""One sweep run in its own process: `python -m relayd.sweep.child SPEC.json OUT_DIR`.
+"""One sweep run in its own process: `python -m relayd.sweep.child RUN.json OUT_DIR`.
 
-SPEC.json is a `RunSpec.payload()`. The run is the same as `relayd sim` on virtual
+RUN.json is a `RunSpec.payload()`. The run is the same as `relayd sim` on virtual
 time (deterministic for a scenario and seed), without plots or a progress line. It
 writes into OUT_DIR: summary.json (the simulator's), series.json (end-to-end
 throughput once per simulated second, for the report's bands), sim.log, and
-trace.jsonl when the spec asks for it. Exit status 0 on success; anything else is a
+trace.jsonl when the run spec asks for it. Exit status 0 on success; anything else is a
 failed run, its reason on stderr.
 
 Why a process per run: the worker stays alive whatever a run does (an exception, a
@@ -96,7 +96,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     die_with_parent()
     args = list(sys.argv[1:] if argv is None else argv)
     if len(args) != 2:
-        print("usage: python -m relayd.sweep.child SPEC.json OUT_DIR", file=sys.stderr)
+        print("usage: python -m relayd.sweep.child RUN.json OUT_DIR", file=sys.stderr)
         return 2
     spec = json.loads(Path(args[0]).read_text(encoding="utf-8"))
     run(spec, Path(args[1]))
