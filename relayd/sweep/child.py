@@ -4,7 +4,7 @@ RUN.json is a `RunSpec.payload()`. The run is the same as `relayd sim` on virtua
 time (deterministic for a scenario and seed), without plots or a progress line. It
 writes into OUT_DIR: summary.json (the simulator's), series.json (end-to-end
 throughput once per simulated second, for the report's bands), sim.log, and
-trace.jsonl when the run spec asks for it. Exit status 0 on success; anything else is a
+trace.jsonl when the run asks for it. Exit status 0 on success; anything else is a
 failed run, its reason on stderr.
 
 Why a process per run: the worker stays alive whatever a run does (an exception, a
