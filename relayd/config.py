@@ -128,7 +128,9 @@ class PanTiltSettings(_Section):
 class WifiSettings(_Section):
     enabled: bool = True
     source: Literal["nl80211", "procfs", "iw"] = "nl80211"
-    interface: Annotated[str, Field(min_length=1, max_length=15)] = "wlan1"
+    # The name config/99-relayd.rules gives the Yagi's adapter: a robot set up from
+    # docs/DEPLOY.md needs no [wifi] interface line.
+    interface: Annotated[str, Field(min_length=1, max_length=15)] = "yagi0"
     procfs_path: str = "/proc/net/wireless"
     sample_hz: Annotated[float, Field(gt=0, le=1000)] = 20.0
 
