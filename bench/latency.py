@@ -32,7 +32,7 @@ process fetching /status from the daemon at ~1000 requests per second.
 
 Both runs are repeated with the daemon started under `nice -n -10` and under
 `chrt -f 10` (SCHED_FIFO, the systemd unit's CPUSchedulingPolicy), where this machine
-allows it, to show what the scheduler does to the tail. The target (issue 12) is 99.5 %
+allows it, to show what the scheduler does to the tail. The target is 99.5 %
 of cycles within 2 ms with /status at 1000 req/s.
 """
 
@@ -57,7 +57,7 @@ from relayd.sim.runner import scratch_root
 
 NAME = "latency"
 TARGET_P99_MS = 2.0
-#: Share of cycles that must be within TARGET_P99_MS (issue 12 raised it from 99 %).
+#: Share of cycles that must be within TARGET_P99_MS (stricter than a p99: 99.5 %).
 TARGET_SHARE = 0.995
 #: Real-time priority for the `chrt` comparison and the systemd unit's CPUSchedulingPriority.
 RT_PRIORITY = 10

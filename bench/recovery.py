@@ -1,4 +1,4 @@
-"""Self-healing (issue 14): recovery on vs off, the same scenarios and seeds, one run.
+"""Self-healing (relayd/recovery.py): recovery on vs off, the same scenarios and seeds, one run.
 
 For each scenario and seed the simulator runs twice on virtual time (flat out), once
 with every relay's `recovery.enabled = false` (today's behaviour, the baseline) and

@@ -1,4 +1,4 @@
-"""Soak: a long simulated convoy with a fault injected every minute (issue 7; not in CI).
+"""Soak: a long simulated convoy with a fault injected every minute (fault tolerance over time; not in CI).
 
 Runs the `convoy` scenario in `relayd.sim.runner.SimRunner` (real daemons on fake
 devices, one shared clock at `--speed`) for `--minutes` of wall time, kept going past

@@ -26,8 +26,9 @@ Decisions:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
+from drivers.airos.model import Station
 from relayd.controller import (
     ControlInputs,
     ControlMemory,
@@ -51,6 +52,7 @@ from relayd.events import (
     DriveCommand,
     Event,
     LinkEvent,
+    LinkModelView,
     LinkSide,
     ModeCommand,
     RearLink,
@@ -69,6 +71,7 @@ from relayd.events import (
     WheelCommand,
 )
 from relayd.leader import LeaderParams, make_model
+from relayd.linkmodel import LinkModel, LinkPolicyParams, LinkSample
 from relayd.recovery import (
     RecoveryInputs,
     RecoveryMemory,
@@ -79,8 +82,8 @@ from relayd.recovery import (
     recovery_view,
 )
 from relayd.ring import rear_readings
-from relayd.state import DriveState, Mode, ScanRecord
 from relayd.scanplan import ScanParams, full_window, in_current_frame, next_window, sweep_plan
+from relayd.state import DriveState, Mode, ScanRecord
 
 SONAR_COUNT = 16
 #: Device names the brain listens to in `DeviceEvent`s.
@@ -101,6 +104,8 @@ class BrainParams:
     has_scanner: bool = True
     #: RSSI^b from this station of the rear AP; None: the strongest station heard.
     rear_station_mac: str | None = None
+    #: The rear-link model; with `adaptive` its threshold replaces control.threshold_b_dbm.
+    link: LinkPolicyParams = field(default_factory=LinkPolicyParams)
     #: Self-healing of broken links (relayd.recovery); disabled by default.
     recovery: RecoveryParams = field(default_factory=RecoveryParams)
 
@@ -142,6 +147,9 @@ class Brain:
         self._rear_dbm: float | None = None
         self._rear_t: float | None = None
         self._rear_shown: float | None = None
+        # The rear-link model learns in both policies (fixed: advice shown on /status only).
+        self.link_model = LinkModel(params.link)
+        self._control = self._with_rear_limit()
         # The controller's memory and last word.
         self._memory = ControlMemory()
         self.last_output: ControlOutput | None = None
@@ -249,15 +257,36 @@ class Brain:
         if ev.side is not LinkSide.REAR:
             return []
         q, mac = ev.quality, self.params.rear_station_mac
+        peer: Station | None
         if mac is not None:
             value = q.station_signal_dbm(mac)
+            peer = next((s for s in q.stations if s.mac is not None and s.signal_dbm == value
+                         and s.mac.lower().replace("-", ":") == mac.lower().replace("-", ":")), None)
         else:
             # A rear radio in station mode has no station list: its own signal is the link's.
-            best = q.best_station_signal_dbm
-            value = best if best is not None else q.signal_dbm
+            peer = q.best_station
+            value = peer.signal_dbm if peer is not None else q.signal_dbm
         self._rear_dbm, self._rear_t = value, ev.t
         self._rear_polls += 1
-        return self._rear_view(ev.t)
+        return self._rear_view(ev.t) + self._learn_rear(ev, value, peer)
+
+    def _learn_rear(self, ev: LinkEvent, rssi_dbm: float | None, peer: Station | None) -> list[Action]:
+        """Feed the rear-link model one poll; in adaptive mode its limit becomes the controller's."""
+        if rssi_dbm is None:
+            return []
+        q = ev.quality
+        tx, rx, ccq = (peer.tx_mbps, peer.rx_mbps, peer.ccq_pct) if peer is not None \
+            else (q.tx_mbps, q.rx_mbps, q.ccq_pct)
+        sample = LinkSample(q.t if math.isfinite(q.t) else ev.t, rssi_dbm, tx, rx, ccq)
+        if not self.link_model.observe(sample, ev.t):
+            return []
+        self._control = self._with_rear_limit()
+        return [LinkModelView(self._control.threshold_b_dbm, self.link_model.status(ev.t))]
+
+    def _with_rear_limit(self) -> ControlParams:
+        if not self.params.link.adaptive:
+            return self.params.control
+        return replace(self.params.control, threshold_b_dbm=self.link_model.threshold_dbm)
 
     def _rear_view(self, now: float) -> list[Action]:
         """RSSI^b as /status may show it: not a value the controller already refuses as stale."""
@@ -367,7 +396,7 @@ class Brain:
         if self._halted:
             return ControlOutput(0.0, 0.0, DriveState.STOPPED, "shutdown", situation, self._memory)
         try:
-            out = control_step(self.inputs(now), self.params.control, self._memory)
+            out = control_step(self.inputs(now), self._control, self._memory)
         except Exception as exc:  # noqa: BLE001 - a bug or bad data in the brain stops the robot
             return ControlOutput(0.0, 0.0, DriveState.FAULT, f"controller_error: {type(exc).__name__}",
                                  situation, self._memory)

@@ -23,6 +23,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("relayd.commands.run", "run the daemon"),
     "check-config": ("relayd.commands.check_config", "validate a config file and print the effective settings"),
     "sim": ("relayd.commands.sim", "run a convoy of real relayd instances in the simulated world"),
+    "sweep": ("relayd.commands.sweep", "Monte Carlo simulator runs over a grid, on a Dask cluster"),
     "status": ("relayd.commands.status", "fetch and pretty-print a robot's /status"),
     "fleet": ("relayd.commands.fleet", "serve one page for the whole chain of relays, with a hold-all button"),
     "replay": ("relayd.commands.replay", "replay a recording through the brain and compare its decisions"),
@@ -40,6 +41,11 @@ FAKES: dict[str, tuple[str, str]] = {
     "ap": ("relayd.fakes.ap", "serve a fake airOS radio over HTTP on loopback"
                                " (accepted password: RELAYD_AP_PASSWORD, default ubnt)"),
     "rig": ("relayd.fakes.rig_cmd", "all of one relay's devices faked, with a leader; writes a config for `relayd run`"),
+}
+
+
+CALIBRATIONS: dict[str, tuple[str, str]] = {
+    "path-loss": ("relayd.calibrate.cli", "fit L0, n and sigma on a straight drive away from a node; print thresholds"),
 }
 
 
@@ -91,6 +97,9 @@ def build_parser() -> argparse.ArgumentParser:
     probe = sub.add_parser("probe", help="bring-up tools, one device at a time")
     _add_group(probe.add_subparsers(dest="device", required=True, metavar="DEVICE",
                                     parser_class=CommandParser), PROBES)
+    calibrate = sub.add_parser("calibrate", help="guided bring-up measurements")
+    _add_group(calibrate.add_subparsers(dest="what", required=True, metavar="WHAT",
+                                        parser_class=CommandParser), CALIBRATIONS)
     fake = sub.add_parser("fake", help="serve a fake device for trying relayd without hardware")
     _add_group(fake.add_subparsers(dest="device", required=True, metavar="DEVICE",
                                    parser_class=CommandParser), FAKES)

@@ -128,7 +128,9 @@ class PanTiltSettings(_Section):
 class WifiSettings(_Section):
     enabled: bool = True
     source: Literal["nl80211", "procfs", "iw"] = "nl80211"
-    interface: Annotated[str, Field(min_length=1, max_length=15)] = "wlan1"
+    # The name config/99-relayd.rules gives the Yagi's adapter: a robot set up from
+    # docs/DEPLOY.md needs no [wifi] interface line.
+    interface: Annotated[str, Field(min_length=1, max_length=15)] = "yagi0"
     procfs_path: str = "/proc/net/wireless"
     sample_hz: Annotated[float, Field(gt=0, le=1000)] = 20.0
 
@@ -204,6 +206,20 @@ class ControlSettings(_Section):
     manual_deadman_s: PositiveFloat = 0.5
     #: RSSI^b older than this many rear-AP polls is stale (our choice, docs/CONTROL.md 6: 3 polls).
     rear_stale_polls: Annotated[int, Field(ge=1, le=100)] = 3
+    #: "fixed": stop at threshold_b_dbm everywhere; "adaptive": learn the rear hop's
+    #: RSSI-to-rate relation and set the limit from it (docs/CONTROL.md section 5.1).
+    link_policy: Literal["fixed", "adaptive"] = "fixed"
+    #: The throughput the hop behind must carry (Mbit/s, after MAC overhead).
+    target_hop_mbps: Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)] = 10.0
+    #: Accepted probability that the hop delivers less than target_hop_mbps where the relay stops.
+    outage_probability: Annotated[float, Field(gt=0, lt=0.5, allow_inf_nan=False)] = 0.1
+    #: The adaptive limit stays within [threshold_b_min_dbm, threshold_b_max_dbm].
+    threshold_b_min_dbm: Dbm = -80.0
+    threshold_b_max_dbm: Dbm = -50.0
+    #: Share of the PHY rate that reaches the application (802.11 MAC overhead).
+    mac_efficiency: Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)] = 0.5
+    #: The model forgets a sample's weight by half over this many rear polls.
+    link_half_life_polls: Annotated[float, Field(ge=5, le=10000, allow_inf_nan=False)] = 20.0
     #: The escape when forward motion is blocked (docs/AVOIDANCE.md); false leaves the
     #: paper's obstacle rule alone (for experiments and benchmarks, not for a robot).
     escape: bool = True

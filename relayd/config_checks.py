@@ -51,6 +51,22 @@ def control_rules(c: Mapping[str, Any]) -> list[Problem]:
     if thr_l is not None and lost is not None and not lost < thr_l:
         out.append(("control.lost_rssi_dbm", f"must be below threshold_l_dbm ({thr_l:g}): a leader heard "
                                              "well enough to stop for cannot also be lost"))
+    b_min, b_max = _num(c.get("threshold_b_min_dbm")), _num(c.get("threshold_b_max_dbm"))
+    if b_min is not None and b_max is not None and not b_min < b_max:
+        out.append(("control.threshold_b_min_dbm", f"must be below threshold_b_max_dbm ({b_max:g}): they are "
+                                                   "the adaptive rear limit's bounds"))
+    elif c.get("link_policy") == "adaptive" and b_min is not None and b_max is not None:
+        if thr_b is not None and not b_min <= thr_b <= b_max:
+            out.append(("control.threshold_b_dbm", f"must lie within threshold_b_min_dbm..threshold_b_max_dbm "
+                                                   f"({b_min:g}..{b_max:g}) with link_policy = \"adaptive\": "
+                                                   "it is where the adaptive limit starts"))
+        if c.get("rear_link") == "ignore":
+            out.append(("control.link_policy", '"adaptive" sets the rear limit, and rear_link = "ignore" has '
+                                               'none: use "fixed" or rear_link = "require"'))
+        if thr_l is not None and not thr_l > b_max:
+            out.append(("control.threshold_b_max_dbm", f"must be below threshold_l_dbm ({thr_l:g}) with "
+                                                       "link_policy = \"adaptive\": the rear limit may rise "
+                                                       "that far"))
     return out
 
 

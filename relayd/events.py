@@ -20,6 +20,7 @@ from drivers.airos.model import LinkQuality
 from drivers.arcos.sip import Sip
 from drivers.wifi.sources import RssiSample
 from relayd.estimator import ScanEstimate
+from relayd.linkmodel import LinkModelStatus
 from relayd.recovery import RecoveryView
 from relayd.state import DriveState, Mode, ScanRecord
 
@@ -211,10 +212,19 @@ class ScanResult:
 
 
 @dataclass(frozen=True, slots=True)
+class LinkModelView:
+    """The rear limit in force and the rear-link model's state (relayd.linkmodel), for /status."""
+
+    threshold_b_dbm: float
+    model: LinkModelStatus
+
+
+@dataclass(frozen=True, slots=True)
 class RecoveryReport:
     """The recovery state machine's phase and progress changed (relayd.recovery)."""
 
     view: RecoveryView
 
 
-Action = WheelCommand | ServoTarget | ScanPlan | Decision | ScanResult | RearLink | RecoveryReport
+Action = (WheelCommand | ServoTarget | ScanPlan | Decision | ScanResult | RearLink | RecoveryReport
+          | LinkModelView)

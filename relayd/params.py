@@ -21,6 +21,7 @@ from relayd.config import Settings
 from relayd.controller import ControlParams
 from relayd.estimator import EstimatorParams
 from relayd.leader import LeaderParams
+from relayd.linkmodel import LinkPolicyParams
 from relayd.recovery import RecoveryParams
 from relayd.scanplan import ScanParams
 
@@ -91,6 +92,18 @@ def estimator_params(settings: Settings) -> EstimatorParams:
     return _from_sections(EstimatorParams, settings.scan, settings.control)
 
 
+def link_policy_params(settings: Settings) -> LinkPolicyParams:
+    """The rear-link model's settings: its staleness limit is the controller's."""
+    c = settings.control
+    rear_poll_s = settings.ap.rear.poll_s if settings.ap.rear is not None else 1.0
+    return LinkPolicyParams(
+        adaptive=c.link_policy == "adaptive", target_hop_mbps=c.target_hop_mbps,
+        outage=c.outage_probability, bounds_dbm=(c.threshold_b_min_dbm, c.threshold_b_max_dbm),
+        fallback_dbm=c.threshold_b_dbm, mac_efficiency=c.mac_efficiency,
+        half_life_samples=c.link_half_life_polls, stale_s=c.rear_stale_polls * rear_poll_s,
+    )
+
+
 def recovery_params(settings: Settings, control: ControlParams, scan_timeout_s: float | None) -> RecoveryParams:
     # [recovery]'s own keys, then the thresholds and staleness limits the controller uses.
     # The reverse speeds never exceed v_max: a first drive with a low v_max stays slow.
@@ -125,4 +138,5 @@ def brain_params(settings: Settings) -> BrainParams:
         recovery=recovery_params(settings, control, scan_timeout_s),
         has_scanner=scanning,
         rear_station_mac=rear.station_mac if rear is not None else None,
+        link=link_policy_params(settings),
     )

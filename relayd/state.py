@@ -128,6 +128,8 @@ class RelayState:
     #: The operator's name for this robot (config `robot.display_name`), e.g. "relay 2 (east)".
     display_name: str | None = None
     thresholds: dict[str, float] = field(default_factory=dict)
+    #: The rear-link model's state (relayd.linkmodel), None until its first sample.
+    link_model: dict[str, Any] | None = None
     #: The recovery state machine as /status shows it (relayd.recovery.RecoveryView as a
     #: plain dict); None while recovery is disabled.
     recovery: dict[str, Any] | None = None
@@ -214,6 +216,7 @@ class RelayState:
                 for name, h in self.health_now().items()
             },
             "thresholds": dict(self.thresholds),
+            "link_model": None if self.link_model is None else dict(self.link_model),
             "recording": None if self.recording_source is None else self.recording_source(),
             "recovery": None if self.recovery is None else dict(self.recovery),
         }

@@ -20,6 +20,7 @@ from relayd.events import (
     DeviceStatus,
     Event,
     LinkEvent,
+    LinkModelView,
     RearLink,
     RecoveryReport,
     ScanResult,
@@ -107,6 +108,9 @@ class StateWriter:
             case RearLink():
                 st.rssi_behind_dbm = action.rssi_behind_dbm
                 st.touch()
+            case LinkModelView():
+                st.thresholds["threshold_b_dbm"] = round(action.threshold_b_dbm, 2)
+                st.link_model = action.model.to_json()
             case RecoveryReport(view=v):
                 if st.recovery is None or st.recovery.get("phase") != str(v.phase):
                     log.info("recovery", phase=str(v.phase), kind=None if v.kind is None else str(v.kind),

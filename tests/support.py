@@ -16,8 +16,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import os
+import subprocess
+import sys
+import tempfile
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable
+from pathlib import Path
 from typing import NoReturn, Protocol
 
 import pytest
@@ -25,7 +29,10 @@ import pytest
 from drivers.clock import Clock
 from relayd.vtime import LoopClock, VirtualTimeLoop
 
-__all__ = ["LoopClock", "ManualClock", "VirtualTimeLoop", "clock_for", "running", "until"]
+__all__ = ["LoopClock", "ManualClock", "VirtualTimeLoop", "clock_for", "piped_into_head", "running",
+           "until"]
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 class ManualClock(Clock):
@@ -114,3 +121,30 @@ def skip_or_fail(message: str) -> NoReturn:
     if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
         pytest.fail(message)
     pytest.skip(message)
+
+
+def piped_into_head(argv: list[str], lines: int = 1,
+                    timeout_s: float = 30.0) -> tuple[int, list[str], str, float]:
+    """`relayd ARGV | head -LINES`: read LINES lines of stdout, close it, wait for the exit.
+
+    With `lines=0` the reader closes before the command printed anything. Returns the
+    exit code, the lines read, stderr, and the seconds from closing to the exit.
+    stderr goes to a file: a flood of log lines must not block the command on a full pipe.
+    """
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    with tempfile.TemporaryFile("w+") as err:
+        proc = subprocess.Popen([sys.executable, "-m", "relayd", *argv], stdout=subprocess.PIPE,
+                                stderr=err, text=True, env=env, cwd=ROOT)
+        try:
+            assert proc.stdout is not None
+            got = [proc.stdout.readline() for _ in range(lines)]
+            proc.stdout.close()
+            t0 = time.monotonic()
+            code = proc.wait(timeout_s)
+            waited_s = time.monotonic() - t0
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+        err.seek(0)
+        return code, got, err.read(), waited_s

@@ -15,6 +15,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
+from support import piped_into_head
 
 from drivers.airos import Station
 from drivers.airos.fake import FakeAirOs
@@ -163,3 +164,16 @@ def test_probe_ap_rejects_bad_series_options(monkeypatch, capsys) -> None:
     monkeypatch.setenv("RELAYD_AP_PASSWORD", SECRET)
     assert main(["probe", "ap", "--url", "http://127.0.0.1:9", "--seconds", "5", "--interval", "0"]) == 2
     assert "--interval" in capsys.readouterr().err
+
+
+def test_probe_ap_series_piped_into_head_stops_quietly(monkeypatch) -> None:
+    """`relayd probe ap --seconds 60 | head -1`: exit 0 at the next reading, no traceback."""
+    monkeypatch.setenv("RELAYD_AP_PASSWORD", SECRET)
+    with fake_in_thread("admin", SECRET) as fake:
+        code, got, err, _ = piped_into_head(
+            ["probe", "ap", "--url", fake.base_url or "", "--username", "admin", "--json",
+             "--seconds", "60", "--interval", "0.1"], lines=1, timeout_s=30)
+    assert json.loads(got[0])["signal_dbm"] == -46
+    assert code == 0, err
+    for noise in ("BrokenPipe", "Traceback", "Exception ignored", "reading(s)"):
+        assert noise not in err, err[:2000]

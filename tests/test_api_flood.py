@@ -1,4 +1,4 @@
-"""A connection flood on the API does not stop the robot (issue 12).
+"""A connection flood on the API does not stop the robot.
 
 `relayd run` in a subprocess under the default descriptor limit (RLIMIT_NOFILE 1024,
 soft and hard, as systemd leaves it without LimitNOFILE) drives a FakeRig toward a

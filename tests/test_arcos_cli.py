@@ -9,13 +9,15 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from support import piped_into_head
 
 from drivers.arcos import ArcosRobot
-from drivers.arcos.codec import Command
+from drivers.arcos.codec import CLOSE, Command
 from drivers.arcos.fake import FakeRobot
 from relayd.cli import main
 
@@ -85,6 +87,27 @@ def test_probe_text_mode(fake_robot: ThreadedFake, capsys: pytest.CaptureFixture
     out = capsys.readouterr().out.splitlines()
     assert out[0].startswith("robot 'probe-me': class Pioneer, subclass p3at-sh")
     assert "motors=off" in out[-1] and "bat=13.0V" in out[-1]
+
+
+def test_probe_piped_into_head_stops_quietly(fake_robot: ThreadedFake) -> None:
+    """`relayd probe robot | head -1`: stop at the next SIP, exit 0, log nothing.
+
+    It used to run on to --seconds, logging robot_listener_error with a BrokenPipeError
+    traceback on every SIP (10 a second).
+    """
+    code, got, err, _ = piped_into_head(
+        ["probe", "robot", "--port", fake_robot.path, "--seconds", "60"], lines=1, timeout_s=30)
+    assert got[0].startswith("robot 'probe-me': class Pioneer")
+    assert code == 0, err
+    for noise in ("robot_listener_error", "BrokenPipe", "Traceback", "Exception ignored"):
+        assert noise not in err, err[:2000]
+    # It left through the usual safe stop.
+    assert fake_robot.fake is not None
+    deadline = time.monotonic() + 10
+    while fake_robot.fake.commands[-1][0] != CLOSE and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert fake_robot.fake.commands[-1][0] == CLOSE
+    assert (Command.ENABLE, 1) not in fake_robot.fake.commands
 
 
 def test_probe_missing_port(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

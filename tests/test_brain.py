@@ -114,7 +114,7 @@ def driving_script(cfg: Settings) -> Script:
     return s
 
 
-# ---------------------------------------------------------------- stale RSSI (issue 12)
+# ---------------------------------------------------------------- stale RSSI ----------
 
 @settings(max_examples=25, deadline=None)
 @given(samples=st.integers(3, 361), settle_s=st.floats(0.0, 2.0), width_deg=st.floats(10.0, 360.0),

@@ -308,7 +308,7 @@ def test_readme_command_table_names_real_subcommands_and_options() -> None:
         if not words or words[0] not in _choices():
             raise AssertionError(f"README: `{span}`: no subcommand {words[:1]}")
         path = [words[0]]
-        if words[0] in ("probe", "fake") and len(words) > 1 and not words[1].startswith(("-", "[", ".")):
+        if words[0] in ("probe", "fake", "calibrate") and len(words) > 1 and not words[1].startswith(("-", "[", ".")):
             path.append(words[1])
         for alternative in (path[1].split("|") if len(path) > 1 else [None]):
             argv = [path[0]] + ([alternative] if alternative else [])

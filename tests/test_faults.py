@@ -1,4 +1,4 @@
-"""Fault injection against a whole in-process `Daemon` driving a `FakeRig` (issue 7).
+"""Fault injection against a whole in-process `Daemon` driving a `FakeRig`.
 
 Each test starts the real daemon on the rig's fakes (robot and servo controller on
 ptys, RSSI file, airOS radios on loopback), lets it reach DRIVING towards the rig's

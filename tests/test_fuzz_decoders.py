@@ -1,4 +1,4 @@
-"""Fuzzing the decoders where bytes and text from devices enter relayd (issue 7).
+"""Fuzzing the decoders where bytes and text from devices enter relayd.
 
 The per-codec test files already fuzz the pure functions one input at a time
 (tests/test_arcos_codec.py: clean streams at any split, garbage without sync bytes in

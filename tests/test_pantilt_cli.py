@@ -10,6 +10,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from support import piped_into_head
 
 from relayd.cli import main
 
@@ -67,6 +68,16 @@ def test_probe_moves_waits_and_reads_back(served: tuple[str, str],
     # A calibration with decreasing pulses (servo upside down): the pulse is the one sent.
     code, out, _ = probe(capsys, *base, "--angle", "90", "--pulse-us", "2000,1500,1000")
     assert code == 0 and json.loads(out)["pulse_us"] == pytest.approx(1000, abs=4)
+
+
+def test_probe_into_a_reader_that_closed_exits_0(served: tuple[str, str]) -> None:
+    """`relayd probe pantilt ... | true`: the reading is done, so no traceback and exit 0."""
+    protocol, path = served
+    code, _, err, _ = piped_into_head(["probe", "pantilt", "--port", path, "--protocol", protocol,
+                                       "--channel", "1", "--angle", "0"], lines=0, timeout_s=30)
+    assert code == 0, err
+    for noise in ("BrokenPipe", "Traceback", "Exception ignored"):
+        assert noise not in err, err[:2000]
 
 
 def test_probe_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -37,6 +37,7 @@ from relayd.events import (
     DriveCommand,
     Event,
     LinkEvent,
+    LinkModelView,
     LinkSide,
     ModeCommand,
     RearLink,
@@ -54,6 +55,7 @@ from relayd.events import (
     Tick,
     WheelCommand,
 )
+from relayd.linkmodel import LinkModelStatus
 from relayd.record import codec, writer
 from relayd.record.foxglove import VIEWS
 from relayd.record.meta import recordable_config, strip_userinfo
@@ -107,6 +109,8 @@ def every_type(t: float = 5.0) -> tuple[list[Event], list[Action]]:
         RearLink(-61.0),
         RecoveryReport(RecoveryView(True, Phase.RETRACE, Kind.LEADER, 2, 14.0, 3.5, 8.0, 60.0,
                                     117, "found")),
+        LinkModelView(-68.25, LinkModelStatus("adaptive", -68.25, -66.0, (-80.0, -50.0), 10.0, 0.1, True, 42, 19.5,
+                                              0.9, -73.5, 1.5, 0.97, -64.0, 11.4, False, 0)),
     ]
     return events, actions
 

@@ -41,10 +41,10 @@ from relayd.events import (
 )
 from relayd.fakes.rig import pulse_to_deg
 from relayd.scanner import RssiMonitor, Scanner, ScanServoError
+from relayd.scanplan import ScanParams
 from relayd.sim.radio import yagi_gain_db
 from relayd.state import RelayState
 from relayd.statewriter import StateWriter
-from relayd.scanplan import ScanParams
 from relayd.vtime import LoopClock
 
 _names = itertools.count()

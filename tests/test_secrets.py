@@ -1,4 +1,4 @@
-"""No secret leaves relayd: not over HTTP, not in the logs (issue 7).
+"""No secret leaves relayd: not over HTTP, not in the logs.
 
 One whole run of a real in-process `Daemon` on a `FakeRig`, configured as `relayd run`
 reads it (AP password and API token in files), with the front radio given a *wrong*

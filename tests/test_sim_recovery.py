@@ -1,4 +1,4 @@
-"""Simulator pieces for issue 14: timed world events, the leader's speed profile, a carried
+"""Simulator pieces for self-healing: timed world events, the leader's speed profile, a carried
 command center, the break/downtime/episode summary, and the three shipped scenarios."""
 
 from __future__ import annotations

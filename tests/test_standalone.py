@@ -6,7 +6,8 @@ code or docs need from it is written down in the repo itself: docs/PROTOCOLS.md 
 facts and their public sources), docs/CONTROL.md (estimator and control law), README.
 These tests fail when a file points outside again (a `../shared/...` path, `SPEC.md`,
 "SPEC 2.4"-style section numbers, the research notes by file name or as "the protocol
-doc"), and when a pointer
+doc", "issue 14"-style numbers of the tracker the work was planned in; tests included),
+and when a pointer
 to one of the repo's own docs names a section that does not exist.
 """
 
@@ -34,6 +35,9 @@ FORBIDDEN: tuple[tuple[str, re.Pattern[str]], ...] = (
     ("an outside research note", re.compile(r"servo-wifi-airos|p3at-arcos")),
     ("the outside contract or notes, by name",
      re.compile(r"\b(?:[Tt]he spec(?:'s)?|[Pp]rotocol doc|doc pitfall|the doc's)\b")),
+    # "issue 14" pointed into the tracker the work was planned in, which does not ship;
+    # an upstream project's issue is cited with its name and a '#' ("AriaCoda issue #15").
+    ("a tracker issue number instead of what it was about", re.compile(r"\b[Ii]ssues? \d")),
 )
 
 _SKIP_DIRS = {".git", ".venv", "node_modules", "__pycache__", ".mypy_cache", ".ruff_cache",
@@ -148,6 +152,12 @@ def test_the_own_docs_exist_and_the_readme_points_to_them() -> None:
         ("SPEC_FIELDS = {'mode'}", False),
         ("spec = runner.scenario.leader", False),
         ("docs/PROTOCOLS.md 1.11", False),
+        ("# A door closes (issue 14): a person", True),
+        ("Issues 7 and 12 raised it", True),
+        ("fixed in AriaCoda PR #16, reported in AriaCoda issue #15", False),
+        ("(mt76, openwrt/mt76 issue #20)", False),
+        ("ROSARIA (`RosAria.cpp`; issues #31, #65 on", False),
+        ("station_get_mt76_issue20_bogus_signal.txt", False),
     ],
 )
 def test_the_patterns_catch_what_they_should(line: str, caught: bool) -> None:

@@ -406,7 +406,7 @@ async def _pet_periods(daemon: Daemon, periods: int = 3) -> None:
     await asyncio.sleep(daemon.clock.to_real(periods * WATCHDOG_PET_S))
 
 
-# --- resources and scheduling (issue 12) -------------------------------------------------
+# --- resources and scheduling ----------------------------------------------------------
 
 def test_descriptor_limit_leaves_room_for_the_api_cap_and_the_devices() -> None:
     from relayd.api.server import FD_RESERVE, MAX_CONNECTIONS

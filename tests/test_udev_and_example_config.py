@@ -2,7 +2,8 @@
 
 A robot set up from the docs must work with the example config unchanged apart from
 serials and MACs: the device paths and the interface name are parsed out of each file
-and compared, so renaming one without the others fails here.
+and compared, so renaming one without the others fails here. The built-in defaults
+(config and `relayd probe wifi`) use the same names, so leaving a key out is no trap.
 """
 
 from __future__ import annotations
@@ -69,6 +70,20 @@ def test_example_config_uses_the_udev_names() -> None:
     assert links[config["pantilt"]["port"]]["ATTRS{idVendor}"][1] == "1ffb"
     assert config["wifi"]["interface"] == net["NAME"][1]
     assert "XXXX" not in EXAMPLE.read_text()
+
+
+def test_built_in_defaults_use_the_udev_names() -> None:
+    from relayd.cli import build_parser
+    from relayd.config import Settings
+
+    rules = parse_rules(RULES.read_text())
+    links = _symlinks(rules)
+    name = _rule_with(rules, "NAME")["NAME"][1]
+    defaults = Settings()
+    assert defaults.wifi.interface == name
+    assert defaults.robot.port in links and defaults.pantilt.port in links
+    probe = build_parser().parse_args(["probe", "wifi"])
+    assert probe.interface == name
 
 
 def test_deploy_guide_uses_the_same_names() -> None:

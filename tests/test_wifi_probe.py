@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 import pytest
+from support import piped_into_head
 
 from drivers.wifi import ProcfsWriter
 from relayd.cli import main
@@ -76,6 +77,15 @@ def test_probe_wifi_missing_file_exits_1_at_once(tmp_path: Path, capsys: pytest.
     assert "does not exist" in captured.err
 
 
+def test_probe_wifi_missing_iw_binary_exits_1_at_once(capsys: pytest.CaptureFixture[str]) -> None:
+    t0 = time.monotonic()
+    code = main(["probe", "wifi", "--source", "iw", "--iw", "/nonexistent", "--seconds", "30"])
+    captured = capsys.readouterr()
+    assert code == 1 and time.monotonic() - t0 < 5
+    assert captured.out == ""  # no "-- dBm stale" lines
+    assert "no iw binary at '/nonexistent'" in captured.err
+
+
 def test_probe_wifi_a_hung_source_is_bounded_by_seconds(tmp_path: Path,
                                                         capsys: pytest.CaptureFixture[str]) -> None:
     iw = tmp_path / "iw"
@@ -138,3 +148,20 @@ def test_probe_wifi_after_the_daemons_logging_was_set_up(tmp_path: Path,
     assert code == 1
     assert "wifi_read_failed" in captured.err
     assert "relayd probe wifi: interface missing: wlan1 not listed" in captured.err
+
+
+@pytest.mark.parametrize("fmt", [[], ["--json"]])
+def test_probe_wifi_piped_into_head_stops_quietly(tmp_path: Path, fmt: list[str]) -> None:
+    """`relayd probe wifi | head -1`: exit 0 at the next sample, no traceback.
+
+    It used to die with a BrokenPipeError traceback and exit 1.
+    """
+    path = tmp_path / "wireless"
+    ProcfsWriter(path, "wlan1").write(-47)
+    code, got, err, _ = piped_into_head(
+        ["probe", "wifi", "--source", "procfs", "--interface", "wlan1", "--path", str(path),
+         "--seconds", "60", *fmt], lines=1, timeout_s=30)
+    assert "-47" in got[0]
+    assert code == 0, err
+    for noise in ("BrokenPipe", "Traceback", "Exception ignored"):
+        assert noise not in err, err[:2000]

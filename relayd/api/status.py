@@ -61,6 +61,27 @@ class Health(_Model):
     last_error: str | None
 
 
+class LinkModel(_Model):
+    """The rear-link model (docs/CONTROL.md section 5.1): the limit it sets and why."""
+
+    policy: Literal["fixed", "adaptive"] = Field(
+        description="adaptive: threshold_b_dbm is the model's; fixed: the model only advises")
+    threshold_b_dbm: float = Field(description="the model's rear limit (in force when adaptive)")
+    configured_threshold_b_dbm: float
+    bounds_dbm: Annotated[list[float], Field(min_length=2, max_length=2)]
+    target_hop_mbps: float
+    outage: float
+    learning: bool = Field(description="enough samples for the model's limit to replace the configured one")
+    samples: Annotated[int, Field(ge=0)]
+    effective_samples: float
+    ok_share: float | None = Field(description="share of recent polls that met target_hop_mbps")
+    mu_dbm: float = Field(description="RSSI^b at which the hop meets the target half of the time")
+    spread_db: float = Field(description="how gradually P(meets target) rises with RSSI^b (fading)")
+    p_ok_now: float | None = Field(description="P(meets target) at the last RSSI^b")
+    last_rssi_dbm: float | None
+    last_delivered_mbps: float | None
+    stale: bool
+    refused_stale: Annotated[int, Field(ge=0)]
 class Recording(_Model):
     """The recorder (docs/RECORDING.md); None in /status when the daemon has none."""
 
@@ -117,6 +138,7 @@ class Status(_Model):
     links: dict[str, Link]
     health: dict[str, Health]
     thresholds: dict[str, float]
+    link_model: LinkModel | None
     recording: Recording | None
     recovery: Recovery | None = Field(description="self-healing state machine; null while disabled")
 

@@ -84,6 +84,15 @@ def format_status(doc: dict[str, Any]) -> str:
                             f"(link antenna {_f(doc.get('link_bearing_deg'), 1, 'deg')})"))
     rows.append(("RSSI^l leader", _vs(doc.get("rssi_leader_dbm"), thr.get("threshold_l_dbm"), True)))
     rows.append(("RSSI^b behind", _vs(doc.get("rssi_behind_dbm"), thr.get("threshold_b_dbm"), False)))
+    model = doc.get("link_model")
+    if isinstance(model, dict):
+        in_force = "in force" if model.get("policy") == "adaptive" else "advice only (fixed policy)"
+        rows.append(("rear limit model", f"{_f(model.get('threshold_b_dbm'), 1, 'dBm')} {in_force}; "
+                                         f"mu {_f(model.get('mu_dbm'), 1, 'dBm')}, spread "
+                                         f"{_f(model.get('spread_db'), 1, 'dB')}, P(>= "
+                                         f"{_f(model.get('target_hop_mbps'), 0, 'Mb/s')}) now "
+                                         f"{_f(model.get('p_ok_now'), 2)}, {model.get('samples')} polls"
+                                         f"{'' if model.get('learning') else ', still learning'}"))
     wheels = doc.get("wheels_mm_s") or {}
     rows.append(("wheels", f"L {_f(wheels.get('left'), 0, 'mm/s')}  R {_f(wheels.get('right'), 0, 'mm/s')}"
                            f"  motors {'on' if doc.get('motors_enabled') else 'off'}"))

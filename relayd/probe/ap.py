@@ -23,7 +23,7 @@ import sys
 
 from drivers.airos import AirOsAuthError, AirOsClient, AirOsError, LinkQuality
 from drivers.airos.client import Firmware
-from relayd.probe import warnings_to_stderr
+from relayd.probe import emit, warnings_to_stderr
 
 PASSWORD_ENV = "RELAYD_AP_PASSWORD"
 FIRMWARES: dict[str, Firmware] = {"auto": "auto", "6": 6, "8": 8}
@@ -104,7 +104,8 @@ async def _readings(args: argparse.Namespace, client: AirOsClient) -> int:
             read += 1
             if quality.signal_dbm is not None:
                 signals.append(quality.signal_dbm)
-            _show(args, quality, round(t, 3) if series else None)
+            if not _show(args, quality, round(t, 3) if series else None):
+                return 0  # the reader took what it wanted (`| head -1`)
         next_t = t + args.interval
         if not series or next_t > args.seconds:
             break
@@ -115,11 +116,11 @@ async def _readings(args: argparse.Namespace, client: AirOsClient) -> int:
     return 0 if read else 1
 
 
-def _show(args: argparse.Namespace, quality: LinkQuality, t: float | None) -> None:
+def _show(args: argparse.Namespace, quality: LinkQuality, t: float | None) -> bool:
+    """One reading on stdout; False when the reader has gone."""
     if args.json:
         doc = quality.to_json()
-        print(json.dumps(doc if t is None else {"t": t, **doc}), flush=True)
-    elif t is None:
-        print(_human(quality), flush=True)
-    else:
-        print(f"{t:8.3f} s  " + _human(quality).replace("\n", "\n            "), flush=True)
+        return emit(json.dumps(doc if t is None else {"t": t, **doc}))
+    if t is None:
+        return emit(_human(quality))
+    return emit(f"{t:8.3f} s  " + _human(quality).replace("\n", "\n            "))

@@ -16,7 +16,7 @@ from collections.abc import Callable
 
 from drivers.link import LinkError
 from drivers.pantilt import PROTOCOLS, MaestroPanTilt, PanTiltError, ServoCalibration, make_pantilt
-from relayd.probe import warnings_to_stderr
+from relayd.probe import emit, warnings_to_stderr
 
 
 def _floats(count: int) -> Callable[[str], tuple[float, ...]]:
@@ -97,10 +97,11 @@ async def _probe(args: argparse.Namespace) -> int:
         await pt.close()
     # The pulse width is what calibration writes into scan_pulse_us / link_pulse_us.
     pulse_us = cal.angle_to_pulse_us(angle)
+    # One line: a reader that closed before it is no failure of the controller.
     if args.json:
-        print(json.dumps({"channel": args.channel, "angle_deg": round(angle, 2),
-                          "pulse_us": round(pulse_us, 1), "moving": moving}), flush=True)
+        emit(json.dumps({"channel": args.channel, "angle_deg": round(angle, 2),
+                         "pulse_us": round(pulse_us, 1), "moving": moving}))
     else:
-        print(f"channel {args.channel}: {angle:.2f} deg, pulse {pulse_us:.0f} us, {'moving' if moving else 'still'}"
-              + (f", controller errors: {', '.join(errors)}" if errors else ""), flush=True)
+        emit(f"channel {args.channel}: {angle:.2f} deg, pulse {pulse_us:.0f} us, {'moving' if moving else 'still'}"
+             + (f", controller errors: {', '.join(errors)}" if errors else ""))
     return 0

@@ -14,7 +14,7 @@ import sys
 
 from drivers.arcos import ArcosRobot, HandshakeError, Sip
 from drivers.link import LinkError
-from relayd.probe import warnings_to_stderr
+from relayd.probe import emit, warnings_to_stderr
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -69,21 +69,29 @@ async def _probe(args: argparse.Namespace) -> int:
         print(f"relayd probe robot: {exc}", file=sys.stderr)
         return 1
     if args.json:
-        print(json.dumps({"name": ident.name, "class": ident.robot_class,
-                          "subclass": ident.subclass}), flush=True)
+        head = json.dumps({"name": ident.name, "class": ident.robot_class, "subclass": ident.subclass})
     else:
-        print(f"robot {ident.name!r}: class {ident.robot_class}, subclass {ident.subclass}, "
-              f"baud {robot.current_baud}", flush=True)
+        head = (f"robot {ident.name!r}: class {ident.robot_class}, subclass {ident.subclass}, "
+                f"baud {robot.current_baud}")
+    reader_gone = asyncio.Event()
+    if not emit(head):
+        reader_gone.set()
     t0 = robot.clock.now()
 
     def on_sip(sip: Sip) -> None:
+        # A listener's exception is logged by the driver on every SIP: a closed stdout
+        # is told to the main task instead, which stops the probe.
+        if reader_gone.is_set():
+            return
         rec = sip_record(sip, robot, t0)
-        print(json.dumps(rec) if args.json else _text(rec), flush=True)
+        if not emit(json.dumps(rec) if args.json else _text(rec)):
+            reader_gone.set()
 
     robot.add_listener(on_sip)
     task = asyncio.create_task(robot.run())
     try:
-        await asyncio.sleep(max(0.0, args.seconds))
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(reader_gone.wait(), max(0.0, args.seconds))
     finally:
         await robot.shutdown()
         task.cancel()

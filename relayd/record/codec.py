@@ -51,6 +51,7 @@ TOPICS: dict[str, str] = {
     "ScanResult": "/action/scan_result",
     "RearLink": "/action/rear_link",
     "RecoveryReport": "/action/recovery",
+    "LinkModelView": "/action/link_model",
 }
 #: Envelope keys added to every message; no event or action field may use them.
 ENVELOPE = ("seq", "i")

@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from relayd.events import RearLink, ScanResult, SipEvent
+from relayd.events import Decision, RearLink, ScanResult, SipEvent
 from relayd.record.reader import Recording
 from relayd.sim import plots as sim_plots
 
@@ -25,6 +25,7 @@ def trace_records(rec: Recording) -> tuple[list[dict[str, Any]], list[float], li
     rssi_l: float | None = None
     rssi_b: float | None = None
     bearing: float | None = None
+    state, reason = "starting", ""
     xs: list[float] = []
     ys: list[float] = []
     records: list[dict[str, Any]] = []
@@ -39,11 +40,13 @@ def trace_records(rec: Recording) -> tuple[list[dict[str, Any]], list[float], li
                 rssi_l, bearing = a.estimate.rssi_leader_dbm, a.estimate.bearing_deg
             elif isinstance(a, RearLink):
                 rssi_b = a.rssi_behind_dbm
+            elif isinstance(a, Decision):
+                state, reason = a.state.value, a.reason
         t = ev.t - t0
         if next_t is None or t >= next_t:
             records.append({"t": round(t, 3), "relays": [{
                 "name": name, "rssi_l_dbm": rssi_l, "rssi_b_dbm": rssi_b, "bearing_deg": bearing,
-                "true_bearing_deg": None}]})
+                "true_bearing_deg": None, "state": state, "reason": reason}]})
             next_t = t + 1.0 / TRACE_HZ
     return records, xs, ys
 

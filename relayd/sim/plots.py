@@ -1,5 +1,6 @@
 """PNG figures of a simulation run, like the paper's: the map with every path, RSSI^l and
-bearing histories, end-to-end throughput over time, and 0/1/2-relay comparisons.
+bearing histories, end-to-end throughput over time, 0/1/2-relay comparisons, and the
+sweeps' mean-and-band throughput plots.
 
 matplotlib is optional (the `sim` extra): `available()` says whether it imports, and
 every function here is only called when it does. The Agg backend is used so nothing
@@ -35,11 +36,58 @@ def _plt() -> Any:
     return plt
 
 
+#: Shading of a relay's drive state (the daemon's DriveState) behind its time plots.
+STATE_COLORS: dict[str, str] = {"driving": "#c7e9c0", "stopped": "#fdd0a2", "avoiding": "#fcbba1",
+                                "leader_lost": "#d9d9d9", "fault": "#bcbddc"}
+#: Hatching of the stop reasons that matter for a relay chain (the link rule's two halves).
+REASON_HATCH: dict[str, str] = {"leader_near": "//", "rear_weak": "\\\\"}
+#: Where map legends go: outside the axes, right of them, so no legend covers a wall.
+LEGEND_OUTSIDE: dict[str, Any] = {"loc": "upper left", "bbox_to_anchor": (1.02, 1.0), "borderaxespad": 0.0}
+
+
+def marks_every(records: Sequence[dict[str, Any]], every_s: float = 20.0) -> list[dict[str, Any]]:
+    """The first record at or after each multiple of `every_s` (the paper's 20 s circles)."""
+    out = []
+    nxt = 0.0
+    for r in records:
+        if r["t"] >= nxt:
+            out.append(r)
+            nxt = (int(r["t"] // every_s) + 1) * every_s
+    return out
+
+
+def spans(records: Sequence[dict[str, Any]], i: int, key: str) -> list[tuple[float, float, str]]:
+    """Consecutive runs of relay i's `key` (state or reason): (t_start, t_end, value)."""
+    out: list[tuple[float, float, str]] = []
+    for r in records:
+        v = str(r["relays"][i][key])
+        t = float(r["t"])
+        if out and out[-1][2] == v:
+            out[-1] = (out[-1][0], t, v)
+        else:
+            if out:
+                out[-1] = (out[-1][0], t, out[-1][2])
+            out.append((t, t, v))
+    return out
+
+
+def relay_thresholds(world: World, i: int) -> tuple[float, float]:
+    """Relay i's threshold_l and threshold_b (dBm): the scenario's [control], its own
+    overrides, else the daemon's defaults."""
+    from relayd.config import ControlSettings
+
+    control = dict(world.scenario.control)
+    control.update(world.scenario.relay[i].control)
+    c = ControlSettings.model_validate(control)
+    return float(c.threshold_l_dbm), float(c.threshold_b_dbm)
+
+
 def plot_map(world: World, records: Sequence[dict[str, Any]], path: Path) -> None:
     """Walls, boxes, the command center, the leader's path and every relay's path, with
-    markers every 20 s as in the paper's convoy figure."""
+    a filled start marker, circles every 20 s labelled with their time (as in the paper's
+    convoy figure) and the goal; the legend sits outside the map."""
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(8, 6))
+    fig, ax = plt.subplots(figsize=(9.5, 6))
     for w in world.walls:
         ax.plot([w.x1, w.x2], [w.y1, w.y2], color="saddlebrown" if w.material == "brick" else "grey",
                 lw=2.5 if w.material in ("brick", "concrete") else 1.2)
@@ -51,6 +99,7 @@ def plot_map(world: World, records: Sequence[dict[str, Any]], path: Path) -> Non
         lx = [r["leader"]["x"] for r in records]
         ly = [r["leader"]["y"] for r in records]
         ax.plot(lx, ly, color="red", lw=1.5, label="leader")
+        ax.plot(lx[0], ly[0], marker="o", color="red", ms=8, ls="", label="start")
         ax.plot(lx[-1], ly[-1], marker="*", color="red", ms=14, ls="")
         colors = ["tab:blue", "tab:green", "tab:purple", "tab:orange", "tab:cyan"]
         for i, body in enumerate(world.relays):
@@ -58,44 +107,81 @@ def plot_map(world: World, records: Sequence[dict[str, Any]], path: Path) -> Non
             ys = [r["relays"][i]["y"] for r in records]
             c = colors[i % len(colors)]
             ax.plot(xs, ys, color=c, lw=1.5, label=body.name)
-            ax.plot(xs[-1], ys[-1], marker="o", color=c, ms=9, ls="")
-        marks = []
-        next_mark = 0.0
-        for r in records:
-            if r["t"] >= next_mark:
-                marks.append(r)
-                next_mark += 20.0
-        for r in marks:
-            ax.plot(r["leader"]["x"], r["leader"]["y"], marker="o", mfc="white", mec="red", ms=5, ls="")
-            for rel in r["relays"]:
-                ax.plot(rel["x"], rel["y"], marker="o", mfc="white", mec="black", ms=5, ls="")
+            ax.plot(xs[0], ys[0], marker="o", color=c, ms=8, ls="")
+            ax.plot(xs[-1], ys[-1], marker="D", color=c, ms=7, ls="")
+        # A body standing still gets one label (its first time there), not a pile of them.
+        last_labelled: dict[int, tuple[float, float]] = {}
+        for r in marks_every(records):
+            if r["t"] == 0:
+                continue
+            label = f"{r['t']:.0f} s"
+            bodies = [(-1, r["leader"]["x"], r["leader"]["y"])] + [
+                (i, rel["x"], rel["y"]) for i, rel in enumerate(r["relays"])]
+            for k, x, y in bodies:
+                ax.plot(x, y, marker="o", mfc="white", mec="red" if k < 0 else "black", ms=5, ls="")
+                prev = last_labelled.get(k)
+                if prev is not None and abs(prev[0] - x) + abs(prev[1] - y) < 0.5:
+                    continue
+                last_labelled[k] = (x, y)
+                ax.annotate(label, (x, y), xytext=(4, 4) if k < 0 else (4, -8), textcoords="offset points",
+                            fontsize=6, color="red" if k < 0 else "dimgrey")
     gx, gy = world.leader_script.goal
     ax.plot(gx, gy, marker="o", mfc="none", mec="red", ms=12, ls="", label="goal")
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
-    ax.set_title(f"{world.scenario.name}: paths (circles every 20 s)")
-    ax.legend(loc="best", fontsize=8)
+    ax.set_title(f"{world.scenario.name}: paths (filled: start, circles every 20 s, diamonds: end)")
+    ax.legend(fontsize=8, **LEGEND_OUTSIDE)
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
 
 
-def plot_rssi_bearing(records: Sequence[dict[str, Any]], path: Path) -> None:
-    """Per relay: RSSI^l and RSSI^b over time, and the estimated vs true bearing."""
+def _shade(ax: Any, records: Sequence[dict[str, Any]], i: int) -> None:
+    """Drive states as coloured spans, the link rule's stop reasons hatched on top."""
+    for t0, t1, state in spans(records, i, "state"):
+        ax.axvspan(t0, t1, color=STATE_COLORS.get(state, "white"), alpha=0.5, lw=0)
+    for t0, t1, reason in spans(records, i, "reason"):
+        hatch = REASON_HATCH.get(reason)
+        if hatch:
+            ax.axvspan(t0, t1, facecolor="none", edgecolor="grey", hatch=hatch, lw=0, alpha=0.5)
+
+
+def _shade_legend(ax: Any) -> None:
+    import matplotlib.patches as mpatches
+
+    handles = [mpatches.Patch(color=c, alpha=0.5, label=s) for s, c in STATE_COLORS.items()]
+    handles += [mpatches.Patch(facecolor="none", edgecolor="grey", hatch=h, label=f"stopped: {r}")
+                for r, h in REASON_HATCH.items()]
+    ax.legend(handles=handles, fontsize=7, ncol=len(handles), loc="upper center", bbox_to_anchor=(0.5, -0.35),
+              frameon=False)
+
+
+def plot_rssi_bearing(records: Sequence[dict[str, Any]], path: Path,
+                      thresholds: Sequence[tuple[float, float]] | None = None) -> None:
+    """Per relay: RSSI$^l$ and RSSI$^b$ over time with the thresholds, and the estimated
+    vs true bearing; the relay's drive state shaded behind both, its stop reason hatched."""
     plt = _plt()
     n = len(records[0]["relays"]) if records else 0
-    fig, axes = plt.subplots(max(1, n), 2, figsize=(11, 3.2 * max(1, n)), squeeze=False)
+    fig, axes = plt.subplots(max(1, n), 2, figsize=(11, 3.4 * max(1, n)), squeeze=False)
     t = [r["t"] for r in records]
     for i in range(n):
         name = records[0]["relays"][i]["name"]
         a1, a2 = axes[i][0], axes[i][1]
-        a1.plot(t, [r["relays"][i]["rssi_l_dbm"] for r in records], label="RSSI^l")
-        a1.plot(t, [r["relays"][i]["rssi_b_dbm"] for r in records], label="RSSI^b", alpha=0.8)
+        _shade(a1, records, i)
+        _shade(a2, records, i)
+        a1.plot(t, [r["relays"][i]["rssi_l_dbm"] for r in records], label=r"RSSI$^l$")
+        a1.plot(t, [r["relays"][i]["rssi_b_dbm"] for r in records], label=r"RSSI$^b$", alpha=0.8)
+        if thresholds is not None and i < len(thresholds):
+            th_l, th_b = thresholds[i]
+            a1.axhline(th_l, color="tab:blue", ls="--", lw=0.9, label=rf"Threshold$_l$ {th_l:g} dBm")
+            a1.axhline(th_b, color="tab:orange", ls="--", lw=0.9, label=rf"Threshold$_b$ {th_b:g} dBm")
+            lo, hi = a1.get_ylim()
+            a1.set_ylim(min(lo, th_l - 3, th_b - 3), max(hi, th_l + 3, th_b + 3))
         a1.set_ylabel("dBm")
         a1.set_title(f"{name}: RSSI")
-        a1.legend(fontsize=8)
+        a1.legend(fontsize=7, loc="lower left")
         a1.grid(alpha=0.3)
         a2.plot(t, [r["relays"][i]["bearing_deg"] for r in records], label="estimated")
         true = [r["relays"][i]["true_bearing_deg"] for r in records]
@@ -103,12 +189,14 @@ def plot_rssi_bearing(records: Sequence[dict[str, Any]], path: Path) -> None:
             a2.plot(t, true, label="true", alpha=0.7)
         a2.set_ylabel("deg")
         a2.set_title(f"{name}: bearing")
-        a2.legend(fontsize=8)
+        a2.legend(fontsize=7, loc="lower left")
         a2.grid(alpha=0.3)
     for ax in axes[-1]:
         ax.set_xlabel("time (s)")
+    if n:
+        _shade_legend(axes[-1][0])
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    fig.savefig(path, dpi=100, bbox_inches="tight")
     plt.close(fig)
 
 
@@ -149,6 +237,37 @@ def plot_throughput(runs: Sequence[tuple[str, Sequence[dict[str, Any]]]], path: 
     plt.close(fig)
 
 
+def plot_throughput_bands(curves: Sequence[tuple[str, Sequence[float], Sequence[float], Sequence[float]]],
+                          path: Path, title: str, marks: Sequence[tuple[float, str]] = (),
+                          hlines: Sequence[tuple[float, str]] = ()) -> None:
+    """Paper-style throughput over time for several seeds: per curve (label, t, mean, sd)
+    a mean line and a +-1 sd band (clipped at 0 Mbps); `marks` are labelled vertical
+    lines (e.g. when the leader passes a corner), `hlines` labelled horizontal ones."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(9, 4))
+    for x, label in marks:
+        ax.axvline(x, color="grey", ls="--", lw=0.8)
+        ax.annotate(label, (x, 1.0), xycoords=("data", "axes fraction"), xytext=(3, -12),
+                    textcoords="offset points", fontsize=8, color="dimgrey")
+    for y, label in hlines:
+        ax.axhline(y, color="grey", ls=":", lw=0.8)
+        ax.annotate(label, (0.0, y), xycoords=("axes fraction", "data"), xytext=(3, 2),
+                    textcoords="offset points", fontsize=8, color="dimgrey")
+    for label, t, mean, sd in curves:
+        (line,) = ax.plot(t, mean, label=label)
+        ax.fill_between(t, [max(0.0, m - s) for m, s in zip(mean, sd, strict=True)],
+                        [m + s for m, s in zip(mean, sd, strict=True)], color=line.get_color(), alpha=0.2, lw=0)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("end-to-end throughput (Mbps)")
+    ax.set_ylim(bottom=0)
+    ax.set_title(title)
+    ax.legend()
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
 def write_run_plots(world: World, records: Sequence[dict[str, Any]], out: Path) -> list[Path]:
     """The standard figures of one run into `out`; returns the files written."""
     out.mkdir(parents=True, exist_ok=True)
@@ -158,5 +277,6 @@ def write_run_plots(world: World, records: Sequence[dict[str, Any]], out: Path) 
                     f"{world.scenario.name}: end-to-end throughput")
     if world.relays:
         files.append(out / "rssi_bearing.png")
-        plot_rssi_bearing(records, files[-1])
+        plot_rssi_bearing(records, files[-1],
+                          [relay_thresholds(world, i) for i in range(len(world.relays))])
     return files

@@ -21,35 +21,72 @@ from __future__ import annotations
 
 import math
 import random
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 from relayd.sim.geometry import Point, Segment, crossings
+from relayd.sim.zones import PathEnvironment, RadioZone, path_environment
 
 #: 802.11g OFDM receiver minimum sensitivity (dBm) -> PHY rate (Mbps), fastest first.
 RATE_TABLE_80211G: tuple[tuple[float, float], ...] = (
     (-65.0, 54.0), (-66.0, 48.0), (-70.0, 36.0), (-74.0, 24.0),
     (-77.0, 18.0), (-79.0, 12.0), (-81.0, 9.0), (-82.0, 6.0),
 )
+#: 802.11n, one spatial stream, 20 MHz, 800 ns guard interval: MCS7..MCS0 with the
+#: standard's minimum sensitivities (IEEE 802.11-2012, table 20-22). The paper's radios
+#: are airMAX M2 (802.11n); the leader's PicoStation M2HP and each relay's omni AP have
+#: one chain, so every hop is limited to one stream.
+RATE_TABLE_80211N_1X1: tuple[tuple[float, float], ...] = (
+    (-64.0, 65.0), (-65.0, 58.5), (-66.0, 52.0), (-70.0, 39.0),
+    (-74.0, 26.0), (-77.0, 19.5), (-79.0, 13.0), (-82.0, 6.5),
+)
+RATE_TABLES: Mapping[str, tuple[tuple[float, float], ...]] = {
+    "802.11g": RATE_TABLE_80211G, "802.11n-1x1": RATE_TABLE_80211N_1X1}
 MAC_EFFICIENCY = 0.5
-#: Below this a hop is down (the slowest rate's sensitivity).
+#: Below this a hop is down (the slowest rate's sensitivity; -82 dBm in both tables).
 HOP_DOWN_DBM = RATE_TABLE_80211G[-1][0]
 
 DEFAULT_WALL_LOSS_DB: Mapping[str, float] = {"brick": 10.0, "light": 3.0, "concrete": 15.0,
                                              "glass": 2.0, "box": 3.0}
+#: Airtime coupling of neighbouring hops (docs/SIMULATOR.md, "Multi-hop throughput").
+DEFAULT_HOP_COUPLING = 0.2
 
 
-def phy_rate_mbps(power_dbm: float) -> float:
-    """The fastest 802.11g rate whose sensitivity `power_dbm` meets; 0 when the hop is down."""
-    for sens, rate in RATE_TABLE_80211G:
+def phy_rate_mbps(power_dbm: float, table: Sequence[tuple[float, float]] = RATE_TABLE_80211G) -> float:
+    """The fastest rate of `table` whose sensitivity `power_dbm` meets; 0 when the hop is down."""
+    for sens, rate in table:
         if power_dbm >= sens:
             return rate
     return 0.0
 
 
-def throughput_mbps(power_dbm: float) -> float:
-    """Application throughput of one hop: PHY rate times the MAC efficiency."""
-    return phy_rate_mbps(power_dbm) * MAC_EFFICIENCY
+def throughput_mbps(power_dbm: float, table: Sequence[tuple[float, float]] = RATE_TABLE_80211G) -> float:
+    """Application throughput of one hop alone: PHY rate times the MAC efficiency."""
+    return phy_rate_mbps(power_dbm, table) * MAC_EFFICIENCY
+
+
+def chain_throughput_mbps(hop_mbps: Sequence[float], coupling: float = DEFAULT_HOP_COUPLING) -> float:
+    """End-to-end throughput of a relay chain whose neighbouring hops share airtime.
+
+    Carrying x Mbps end to end, hop k is busy x/T_k of the time (T_k: its throughput
+    alone). Each relay's two radios sit a few decimetres apart in the 2.4 GHz band, so
+    a hop also loses `coupling` of the airtime its neighbours use (0: independent
+    channels, 1: one shared channel, where a two-hop chain halves the throughput).
+    Hops further apart reuse the air. The largest x that keeps every hop within its
+    airtime is
+
+        x = min_k 1 / (1/T_k + coupling * sum_{j = k-1, k+1} 1/T_j)
+
+    which is the weakest hop (T_k) with no relays and 0 when any hop is down.
+    """
+    n = len(hop_mbps)
+    if n == 0 or any(t <= 0 for t in hop_mbps):
+        return 0.0
+    best = math.inf
+    for k, t in enumerate(hop_mbps):
+        load = 1.0 / t + coupling * sum(1.0 / hop_mbps[j] for j in (k - 1, k + 1) if 0 <= j < n)
+        best = min(best, 1.0 / load)
+    return round(best, 3)
 
 
 def yagi_gain_db(off_axis_deg: float, floor_db: float = -20.0) -> float:
@@ -88,6 +125,14 @@ class RadioParams:
     yagi_floor_db: float = -20.0
     patch_floor_db: float = -10.0
     min_distance_m: float = 0.5
+    phy: str = "802.11g"
+    hop_coupling: float = DEFAULT_HOP_COUPLING
+
+    @property
+    def rate_table(self) -> tuple[tuple[float, float], ...]:
+        return RATE_TABLES[self.phy]
+    #: Per-zone environments (relayd/sim/zones.py); outside them the values above hold.
+    zones: tuple[RadioZone, ...] = ()
 
     @classmethod
     def indoor(cls, **kw: object) -> RadioParams:
@@ -138,26 +183,39 @@ class Radio:
         hit = crossings(a, b, self.walls)
         return sum(self.params.wall_loss_db[w.material] for w in hit), len(hit)
 
-    def shadowing_db(self, a: Point, b: Point) -> float:
+    def environment(self, a: Point, b: Point) -> PathEnvironment:
+        """L0, n, sigma, K and the multipath penalty of the link a-b (per zone, else [radio]'s)."""
+        p = self.params
+        return path_environment(a, b, p.zones, l0_dbm=p.l0_dbm, exponent=p.exponent,
+                                shadow_sigma_db=p.shadow_sigma_db, rician_k_db=p.rician_k_db)
+
+    def shadowing_db(self, a: Point, b: Point, sigma_db: float | None = None) -> float:
         """Slow shadowing of the link a-b: symmetric, smooth as either end moves."""
         s = (self._shadow.value(*a) + self._shadow.value(*b)) / math.sqrt(2.0)
-        return self.params.shadow_sigma_db * s
+        return (self.params.shadow_sigma_db if sigma_db is None else sigma_db) * s
 
     def mean_power_dbm(self, a: Point, b: Point, gain_db: float = 0.0) -> tuple[float, bool]:
         """Local-mean received power (no fast fading) and whether the path is line of sight."""
         p = self.params
+        env = self.environment(a, b)
         d = max(p.min_distance_m, math.hypot(b[0] - a[0], b[1] - a[1]))
         loss, n_walls = self.wall_loss_db(a, b)
-        power = p.l0_dbm - 10.0 * p.exponent * math.log10(d) - loss + self.shadowing_db(a, b) + gain_db
+        power = (env.l0_dbm - 10.0 * env.exponent * math.log10(d) - loss
+                 + self.shadowing_db(a, b, env.shadow_sigma_db) + gain_db)
         return power, n_walls == 0
 
-    def fading_db(self, los: bool) -> float:
+    def rate_penalty_db(self, a: Point, b: Point) -> float:
+        """SNR margin the link's multipath costs its rate (0 outside zones that set it)."""
+        return self.environment(a, b).multipath_db if self.params.zones else 0.0
+
+    def fading_db(self, los: bool, rician_k_db: float | None = None) -> float:
         """One fast-fading draw: Rician (K = rician_k_db) on LOS, Rayleigh otherwise, averaged
         over `fading_avg_frames` frames in linear power as an adapter's signal average is."""
         p = self.params
         if not p.fading:
             return 0.0
-        k = 10.0 ** (p.rician_k_db / 10.0) if los else 0.0
+        k_db = p.rician_k_db if rician_k_db is None else rician_k_db
+        k = 10.0 ** (k_db / 10.0) if los else 0.0
         los_amp = math.sqrt(k / (k + 1.0))
         sc = math.sqrt(1.0 / (2.0 * (k + 1.0)))
         frames = max(1, p.fading_avg_frames)
@@ -172,4 +230,5 @@ class Radio:
     def sample_dbm(self, a: Point, b: Point, gain_db: float = 0.0) -> float:
         """A reported RSSI: local mean plus a fast-fading draw, never below the noise floor."""
         mean, los = self.mean_power_dbm(a, b, gain_db)
-        return max(self.params.noise_floor_dbm, mean + self.fading_db(los))
+        k_db = self.environment(a, b).rician_k_db if self.params.zones else None
+        return max(self.params.noise_floor_dbm, mean + self.fading_db(los, k_db))

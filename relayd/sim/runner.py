@@ -276,7 +276,7 @@ class SimRunner:
                 if k > n:
                     continue
                 level = w.hop_sample_dbm(k)
-                rate = w.hop(k).rate_mbps / 0.5
+                rate = w.hop(k).phy_mbps
                 ap.set_link(level, noise_dbm=noise, ccq_pct=95.0 if rate else 0.0,
                             tx_mbps=rate, rx_mbps=rate)
 
@@ -299,6 +299,7 @@ class SimRunner:
                 "w_deg_s": round(float(r.robot.rvel_deg_s), 1),
                 "rssi_l_mean_dbm": round(w.radio.mean_power_dbm(body.pos, w.node_pos(i))[0], 1),
                 "situation": st.situation,
+                "threshold_b_dbm": st.thresholds.get("threshold_b_dbm"),
                 "recovery": None if st.recovery is None else {
                     "phase": st.recovery["phase"], "kind": st.recovery["kind"],
                     "episodes": st.recovery["episodes"], "distance_m": st.recovery["distance_m"],

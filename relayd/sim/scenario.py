@@ -18,7 +18,8 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from relayd.sim.geometry import Box, Segment, polygon_segments
-from relayd.sim.radio import DEFAULT_WALL_LOSS_DB, RadioParams
+from relayd.sim.radio import DEFAULT_HOP_COUPLING, DEFAULT_WALL_LOSS_DB, RadioParams
+from relayd.sim.zones import RadioZone
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
@@ -123,6 +124,18 @@ class RelaySpec(_Model):
     control: dict[str, Any] = Field(default_factory=dict)
 
 
+class ZoneSpec(_Model):
+    """One polygon with its own radio environment (relayd/sim/zones.py)."""
+
+    name: str = Field(min_length=1)
+    polygon: list[tuple[Finite, Finite]] = Field(min_length=3)
+    l0_dbm: Finite | None = None
+    exponent: Positive | None = None
+    shadow_sigma_db: NonNeg | None = None
+    rician_k_db: Finite | None = None
+    multipath_db: NonNeg = 0.0
+
+
 class RadioSpec(_Model):
     l0_dbm: Finite | None = None
     exponent: Positive | None = None
@@ -135,6 +148,9 @@ class RadioSpec(_Model):
     noise_floor_dbm: Finite = -95.0
     yagi_floor_db: Annotated[float, Field(le=0)] = -20.0
     patch_floor_db: Annotated[float, Field(le=0)] = -10.0
+    phy: Literal["802.11g", "802.11n-1x1"] = "802.11g"
+    hop_coupling: Annotated[float, Field(ge=0, le=1)] = DEFAULT_HOP_COUPLING
+    zones: list[ZoneSpec] = Field(default_factory=list)
 
 
 class SonarSpec(_Model):
@@ -198,7 +214,10 @@ class Scenario(_Model):
             wall_loss_db=self.wall_losses(), shadow_sigma_db=r.shadow_sigma_db,
             shadow_corr_m=r.shadow_corr_m, rician_k_db=r.rician_k_db, fading=r.fading,
             fading_avg_frames=r.fading_avg_frames, noise_floor_dbm=r.noise_floor_dbm,
-            yagi_floor_db=r.yagi_floor_db, patch_floor_db=r.patch_floor_db)
+            yagi_floor_db=r.yagi_floor_db, patch_floor_db=r.patch_floor_db, phy=r.phy,
+            hop_coupling=r.hop_coupling,
+            zones=tuple(RadioZone(z.name, tuple(z.polygon), z.l0_dbm, z.exponent, z.shadow_sigma_db,
+                                  z.rician_k_db, z.multipath_db) for z in r.zones))
 
     def wall_segments(self) -> list[Segment]:
         """The walls present the whole run (timed ones: `timed_obstacles`)."""

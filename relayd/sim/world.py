@@ -30,7 +30,16 @@ from relayd.sim.geometry import (
     polygons_overlap,
     wrap_deg,
 )
-from relayd.sim.radio import HOP_DOWN_DBM, Radio, patch_gain_db, throughput_mbps, yagi_gain_db
+from relayd.sim.radio import (
+    DEFAULT_HOP_COUPLING,
+    HOP_DOWN_DBM,
+    MAC_EFFICIENCY,
+    Radio,
+    chain_throughput_mbps,
+    patch_gain_db,
+    phy_rate_mbps,
+    yagi_gain_db,
+)
 from relayd.sim.scenario import Scenario
 
 #: P3-AT body (docs/PROTOCOLS.md 1.11, from ARIA's p3at.p: RobotLength 626 mm, RobotWidth 505 mm).
@@ -171,21 +180,25 @@ class Hop:
 
     front: int
     power_dbm: float
-    rate_mbps: float
+    rate_mbps: float  # the hop's throughput alone (PHY rate x MAC efficiency)
     walls: int
+    phy_mbps: float = 0.0
 
     @property
     def up(self) -> bool:
-        return self.power_dbm >= HOP_DOWN_DBM
+        # A hop whose multipath leaves no rate is down even above the weakest sensitivity.
+        return self.power_dbm >= HOP_DOWN_DBM and self.rate_mbps > 0
 
 
 @dataclass(slots=True)
 class LinkBudget:
     hops: list[Hop] = field(default_factory=list)
+    #: airtime coupling of neighbouring hops (radio.chain_throughput_mbps)
+    coupling: float = DEFAULT_HOP_COUPLING
 
     @property
     def e2e_mbps(self) -> float:
-        return min((h.rate_mbps for h in self.hops), default=0.0)
+        return chain_throughput_mbps([h.rate_mbps for h in self.hops], self.coupling)
 
     @property
     def broken(self) -> bool:
@@ -426,10 +439,12 @@ class World:
         a, b = self.node_pos(k), self.node_pos(k + 1)
         power, _ = self.radio.mean_power_dbm(a, b, self._hop_gain_db(k))
         _, n_walls = self.radio.wall_loss_db(a, b)
-        return Hop(k, power, throughput_mbps(power), n_walls)
+        # Multipath costs rate, not signal (relayd/sim/zones.py): the rate sees the penalty.
+        phy = phy_rate_mbps(power - self.radio.rate_penalty_db(a, b), self.radio.params.rate_table)
+        return Hop(k, power, phy * MAC_EFFICIENCY, n_walls, phy)
 
     def links(self) -> LinkBudget:
-        return LinkBudget([self.hop(k) for k in range(len(self.relays) + 1)])
+        return LinkBudget([self.hop(k) for k in range(len(self.relays) + 1)], self.radio.params.hop_coupling)
 
     def hop_sample_dbm(self, k: int) -> float:
         """A reported (faded) signal level of hop k, as an airOS radio shows it."""

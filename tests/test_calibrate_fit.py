@@ -1,0 +1,98 @@
+"""The path-loss fit (relayd/calibrate/fit.py): recovery on synthetic drives, robustness, thresholds."""
+
+from __future__ import annotations
+
+import math
+import random
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from relayd.calibrate.fit import (
+    FitError,
+    fit_path_loss,
+    huber_line,
+    required_rssi_dbm,
+    threshold_for_hop_length,
+    threshold_for_throughput,
+)
+
+
+def synthetic_drive(l0: float, n: float, sigma: float, seed: int, *, points: int = 400, far_m: float = 30.0,
+                    outliers: float = 0.0) -> tuple[list[float], list[float]]:
+    """A robot pushed from 1 m to `far_m` away from the node, one reading every few cm:
+    log-normal shadowing per reading, integer dBm as a radio reports, and a share of
+    wild readings (a person walking between the antennas: 15-30 dB down)."""
+    rng = random.Random(seed)
+    d = [1.0 + (far_m - 1.0) * i / (points - 1) for i in range(points)]
+    rssi = []
+    for di in d:
+        r = l0 - 10.0 * n * math.log10(di) + rng.gauss(0.0, sigma)
+        if rng.random() < outliers:
+            r -= rng.uniform(15.0, 30.0)
+        rssi.append(float(round(r)))
+    return d, rssi
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_recovers_n_within_0_2_and_l0_within_2_db(seed: int) -> None:
+    rng = random.Random(1000 + seed)
+    l0, n, sigma = rng.uniform(-25.0, -10.0), rng.uniform(2.0, 4.0), rng.uniform(2.0, 6.0)
+    d, r = synthetic_drive(l0, n, sigma, seed)
+    fit = fit_path_loss(d, r, resamples=60, seed=seed)
+    assert fit.n == pytest.approx(n, abs=0.2)
+    assert fit.l0_dbm == pytest.approx(l0, abs=2.0)
+    assert fit.sigma_db == pytest.approx(sigma, rel=0.25)
+    assert fit.n_ci.low <= fit.n <= fit.n_ci.high
+    assert fit.l0_ci.low <= fit.l0_dbm <= fit.l0_ci.high
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_robust_to_a_tenth_of_wild_readings(seed: int) -> None:
+    d, r = synthetic_drive(-15.0, 3.0, 4.0, seed, outliers=0.1)
+    fit = fit_path_loss(d, r, resamples=40, seed=seed)
+    assert fit.n == pytest.approx(3.0, abs=0.2)
+    assert fit.l0_dbm == pytest.approx(-15.0, abs=2.0)
+    assert fit.sigma_db == pytest.approx(4.0, rel=0.25)  # the wild readings do not inflate sigma
+
+
+@settings(max_examples=30, deadline=None)
+@given(a=st.floats(-40, 0), b=st.floats(-5, -1), xs=st.lists(st.floats(0, 20), min_size=3, max_size=30, unique=True))
+def test_huber_is_exact_on_a_line(a: float, b: float, xs: list[float]) -> None:
+    if max(xs) - min(xs) < 1.0:
+        return
+    ys = [a + b * x for x in xs]
+    fa, fb, sd = huber_line(xs, ys)
+    assert fa == pytest.approx(a, abs=1e-6) and fb == pytest.approx(b, abs=1e-6) and sd < 1e-6
+
+
+def test_refuses_data_without_a_slope() -> None:
+    with pytest.raises(FitError, match="usable readings"):
+        fit_path_loss([1.0, 2.0, 3.0], [-20.0, -28.0, -33.0])
+    with pytest.raises(FitError, match="drive to at least"):
+        fit_path_loss([4.0 + 0.01 * i for i in range(50)], [-40.0] * 50)
+    with pytest.raises(FitError, match="differ"):
+        fit_path_loss([1.0], [])
+
+
+def test_near_field_and_noise_floor_are_left_out() -> None:
+    d, r = synthetic_drive(-15.0, 3.0, 2.0, 1)
+    fit = fit_path_loss([0.1, 0.2, *d, 25.0], [-5.0, -5.0, *r, -95.0], floor_dbm=-95.0, resamples=20)
+    assert fit.dropped == 3
+    assert fit.n == pytest.approx(3.0, abs=0.2)
+
+
+def test_thresholds() -> None:
+    d, r = synthetic_drive(-15.0, 3.0, 4.0, 2)
+    fit = fit_path_loss(d, r, resamples=20)
+    # Median RSSI at 10 m is L0 - 10 n; a 10 % outage raises it by 1.28 sigma.
+    want = fit.l0_dbm - 10.0 * fit.n + 1.2816 * fit.sigma_db
+    assert threshold_for_hop_length(fit, 10.0, 0.1) == pytest.approx(want, abs=0.01)
+    # 10 Mbit/s after a MAC efficiency of 0.5 needs 802.11g's 24 Mbit/s rate: -74 dBm.
+    assert required_rssi_dbm(10.0) == -74.0
+    assert required_rssi_dbm(10.0, "802.11n-1x1") == -74.0
+    assert threshold_for_throughput(fit, 10.0, 0.05) == pytest.approx(-74.0 + 1.6449 * fit.sigma_db, abs=0.01)
+    with pytest.raises(ValueError, match="more than"):
+        required_rssi_dbm(40.0)
+    assert fit.distance_at(fit.rssi_at(7.0)) == pytest.approx(7.0)
