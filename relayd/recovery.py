@@ -180,7 +180,9 @@ def inputs_stale(inp: RecoveryInputs, p: RecoveryParams, *, need_rear: bool) -> 
         return True
     if _stale(inp.sip_age_s, p.sip_timeout_s) or _stale(inp.rssi_age_s, p.rssi_timeout_s):
         return True
-    if p.scan_timeout_s is not None and inp.scan_age_s is not None and inp.scan_age_s > p.scan_timeout_s:
+    # `not <=` so that a NaN age is stale too (a broken clock is no reason to move).
+    if (p.scan_timeout_s is not None and inp.scan_age_s is not None
+            and not inp.scan_age_s <= p.scan_timeout_s):
         return True
     rear_needed = need_rear or p.rear_required
     return rear_needed and (_stale(inp.rear_age_s, p.rear_timeout_s) or inp.rssi_behind_dbm is None)

@@ -390,3 +390,13 @@ def test_after_a_restore_it_does_not_drive_straight_back_over_the_edge() -> None
     strong = recovery_step(inputs(pose=(4300.0, 0.0, 0.0), rssi_behind_dbm=-40.0, rear_polls=5, now_s=7.0,
                                   forward_mm_s=200.0), P, m)
     assert strong.command is None and strong.memory.fence is None
+
+
+def test_a_nan_scan_age_is_stale() -> None:
+    """Found by the property above: `age > limit` is False for NaN, so it read as fresh."""
+    fresh = inputs(sip_age_s=0.0, rssi_age_s=0.0, scan_age_s=0.0, rear_age_s=0.0,
+                   rssi_behind_dbm=-50.0)
+    assert not inputs_stale(fresh, P, need_rear=False)
+    broken = inputs(sip_age_s=0.0, rssi_age_s=0.0, scan_age_s=math.nan, rear_age_s=0.0,
+                    rssi_behind_dbm=-50.0)
+    assert inputs_stale(broken, P, need_rear=False)
