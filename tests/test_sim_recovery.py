@@ -12,7 +12,7 @@ from relayd import vtime
 from relayd.sim.outcomes import downtime_s, link_breaks, recovery_episodes
 from relayd.sim.runner import SimRunner
 from relayd.sim.scenario import ScenarioError, load_scenario, parse_scenario
-from relayd.sim.world import LeaderScript, World
+from relayd.sim.world import DOOR_CLEAR_M, ROBOT_LENGTH_M, LeaderScript, World
 
 
 def doc(**extra: Any) -> dict[str, Any]:
@@ -86,6 +86,20 @@ def test_a_door_never_shuts_on_a_robot_in_the_doorway() -> None:
     w.advance(6.1)
     assert w.timed_present == [True]
     assert w.collisions() == 0
+
+
+def test_a_door_is_held_open_for_a_robot_about_to_pass_it() -> None:
+    """A door appearing 0.1 m ahead of a moving relay is a contact no controller avoids."""
+    sc = parse_scenario(doc(walls=[{"points": [[0, -1.5], [0, 1.5]], "material": "door", "appear_s": 5}],
+                            radio={"wall_loss_db": {"door": 40.0}}))
+    w = World(sc, seed=1)
+    # The robot's front (half its length ahead of the centre) 0.3 m short of the door.
+    w.set_pose(0, -(ROBOT_LENGTH_M / 2 + 0.3) * 1000.0, 0.0, 0.0)
+    w.advance(6.0)
+    assert w.timed_present == [False]
+    w.set_pose(0, -(ROBOT_LENGTH_M / 2 + DOOR_CLEAR_M + 0.1) * 1000.0, 0.0, 0.0)
+    w.advance(6.1)
+    assert w.timed_present == [True]
 
 
 def test_the_command_center_is_carried_along_its_waypoints() -> None:

@@ -45,6 +45,8 @@ from relayd.sim.scenario import Scenario
 #: P3-AT body (docs/PROTOCOLS.md 1.11, from ARIA's p3at.p: RobotLength 626 mm, RobotWidth 505 mm).
 ROBOT_LENGTH_M = 0.626
 ROBOT_WIDTH_M = 0.505
+#: How close to a doorway a robot holds a timed door open (see World._blocked).
+DOOR_CLEAR_M = 0.6
 #: A contact episode ends once the footprint is this far from everything again.
 CONTACT_CLEAR_M = 0.02
 #: P3-AT sonar ring (docs/PROTOCOLS.md 1.11): x forward, y left (mm), heading (deg, ccw).
@@ -274,12 +276,16 @@ class World:
             self.radio.walls = tuple(self.obstacles)
 
     def _blocked(self, outline: tuple[Segment, ...]) -> bool:
-        margin = 2 * CONTACT_CLEAR_M
+        # A person does not swing a door shut into a robot about to pass it: a robot's
+        # footprint within DOOR_CLEAR_M of the doorway holds the door open (at 0.3 m/s that
+        # is two seconds, more than the sonar's stop distance and a stop). Without it a door
+        # could appear 0.1 m ahead of a moving relay, a contact no controller can avoid.
+        margin = 2 * DOOR_CLEAR_M
         for r in self.relays:
             poly = footprint(r.x_m, r.y_m, r.theta_deg, ROBOT_LENGTH_M + margin, ROBOT_WIDTH_M + margin)
             if any(polygon_hits_segment(poly, s) for s in outline):
                 return True
-        lx, ly, rad = self.leader.x_m, self.leader.y_m, self.leader_radius_m + margin
+        lx, ly, rad = self.leader.x_m, self.leader.y_m, self.leader_radius_m + 2 * CONTACT_CLEAR_M
         return any(_point_segment_m(lx, ly, s) < rad for s in outline)
 
     def set_pose(self, i: int, x_mm: float, y_mm: float, theta_deg: float) -> None:
