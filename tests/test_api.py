@@ -90,6 +90,26 @@ SPEC_FIELDS = {"mode", "state", "reason", "bearing_deg", "rssi_leader_dbm", "rss
                "health", "uptime_s", "version"}
 
 
+async def test_status_body_is_reused_only_while_nothing_changed(
+        client: TestClient[Any, Any], state: RelayState, clock: ManualClock) -> None:
+    """A poll flood renders the snapshot at most once per STATUS_REUSE_S of an unchanged state."""
+    from relayd.api.app import STATUS_REUSE_S
+
+    first = await (await client.get("/status")).json()
+    state.battery_v = 11.1  # written without touch(): no revision, so the body is reused
+    clock.advance(STATUS_REUSE_S / 2)
+    assert await (await client.get("/status")).json() == first
+    state.reason = "changed"
+    state.touch()  # any state change renders anew at once
+    doc = await (await client.get("/status")).json()
+    assert doc["reason"] == "changed" and doc["battery_v"] == 11.1
+    state.battery_v = 12.5
+    clock.advance(1.01 * STATUS_REUSE_S)  # and so does time: nothing lags by more than this
+    doc = await (await client.get("/status")).json()
+    assert doc["battery_v"] == 12.5
+    assert doc["uptime_s"] == pytest.approx(first["uptime_s"] + 1.51 * STATUS_REUSE_S, abs=1e-3)
+
+
 async def test_status_has_every_spec_field(client: TestClient[Any, Any], state: RelayState) -> None:
     resp = await client.get("/status")
     assert resp.status == 200

@@ -62,6 +62,8 @@ class ApiContext:
     index_body: bytes
     sse_tasks: set[asyncio.Task[Any]] = field(default_factory=set)
     auth_log_limit: LogRateLimit = field(default_factory=lambda: LogRateLimit(AUTH_LOG_EVERY_S))
+    #: The last /status body and what it was rendered for: (state revision, clock time).
+    status_cache: tuple[int, float, str] | None = None
 
 
 CONTEXT: web.AppKey[ApiContext] = web.AppKey("relayd_api", ApiContext)
@@ -149,9 +151,21 @@ def _authorize(ctx: ApiContext, request: web.Request) -> web.Response | None:
     return None
 
 
+#: How long a rendered /status body is served again while the state has not changed (s).
+#: Under a poll flood (a dashboard wall, a scraper gone wrong) the snapshot and its JSON,
+#: about 60 us with every driver's health read, would otherwise be redone per request;
+#: ages and uptime in the body are then at most this old. Any state change renders anew.
+STATUS_REUSE_S = 0.05
+
+
 async def handle_status(request: web.Request) -> web.Response:
     ctx = request.app[CONTEXT]
-    return _json(ctx.state.snapshot(ctx.clock.now()))
+    now = ctx.clock.now()
+    cached = ctx.status_cache
+    if cached is None or cached[0] != ctx.state.revision or not 0.0 <= now - cached[1] < STATUS_REUSE_S:
+        cached = (ctx.state.revision, now, dumps(ctx.state.snapshot(now)))
+        ctx.status_cache = cached
+    return web.Response(text=cached[2], content_type="application/json")
 
 
 async def handle_healthz(request: web.Request) -> web.Response:
