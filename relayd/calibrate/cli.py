@@ -35,16 +35,10 @@ from relayd.calibrate.sources import (
     readings_from_recording,
     sample_live,
 )
+from relayd.commands.argtypes import positive_float
 
 #: --drive never goes faster than this (mm/s): a calibration is a slow, watched drive.
 MAX_DRIVE_MM_S = 300.0
-
-
-def _positive(text: str) -> float:
-    value = float(text)
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
-    return value
 
 
 def _outage(text: str) -> float:
@@ -61,25 +55,25 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--link", choices=LINKS, default="rear",
                         help="rear: the rear AP's RSSI^b and rates (default); front: the NanoStation's; "
                              "leader: the Yagi adapter's RSSI (point the Yagi at the node)")
-    parser.add_argument("--start-distance-m", type=_positive, default=1.0,
+    parser.add_argument("--start-distance-m", type=positive_float, default=1.0,
                         help="distance from the node where the drive starts (default 1 m)")
-    parser.add_argument("--hop-m", type=_positive, help="wanted hop length (or following gap for --link leader)")
-    parser.add_argument("--target-mbps", type=_positive, help="wanted hop throughput (Mbit/s, after MAC overhead)")
+    parser.add_argument("--hop-m", type=positive_float, help="wanted hop length (or following gap for --link leader)")
+    parser.add_argument("--target-mbps", type=positive_float, help="wanted hop throughput (Mbit/s, after MAC overhead)")
     parser.add_argument("--outage", type=_outage, default=0.1, help="accepted outage probability (default 0.1)")
     parser.add_argument("--phy", choices=sorted(RATE_TABLES), default="802.11g",
                         help="the rate table for --target-mbps (default 802.11g)")
-    parser.add_argument("--mac-efficiency", type=_positive, default=0.5, help="(default 0.5)")
+    parser.add_argument("--mac-efficiency", type=positive_float, default=0.5, help="(default 0.5)")
     parser.add_argument("--out", type=Path, default=Path("."), help="where the .toml, .json and .png go (default .)")
     parser.add_argument("--seed", type=int, default=0, help="bootstrap seed (default 0)")
     live = parser.add_argument_group("live (--url)")
     live.add_argument("--drive", action="store_true",
                       help="drive the robot straight ahead at --speed-mm-s through the daemon's manual mode "
                            "(every fail-safe applies; ends in hold). Without it: read-only, push the robot.")
-    live.add_argument("--speed-mm-s", type=_positive, default=150.0,
+    live.add_argument("--speed-mm-s", type=positive_float, default=150.0,
                       help=f"--drive speed (default 150, at most {MAX_DRIVE_MM_S:g})")
-    live.add_argument("--distance-m", type=_positive, default=20.0, help="stop after this far (default 20 m)")
-    live.add_argument("--seconds", type=_positive, default=180.0, help="stop after this long (default 180 s)")
-    live.add_argument("--hz", type=_positive, default=4.0, help="/status polls per second (default 4)")
+    live.add_argument("--distance-m", type=positive_float, default=20.0, help="stop after this far (default 20 m)")
+    live.add_argument("--seconds", type=positive_float, default=180.0, help="stop after this long (default 180 s)")
+    live.add_argument("--hz", type=positive_float, default=4.0, help="/status polls per second (default 4)")
     live.add_argument("--token-env", default="RELAYD_API_TOKEN",
                       help="environment variable with the API token, for --drive (default RELAYD_API_TOKEN)")
 

@@ -21,6 +21,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from relayd.commands.argtypes import positive_float, speed
+
 DEFAULT_SCENARIO = "corridor"
 DEFAULT_SPEED = 10.0
 
@@ -37,21 +39,6 @@ def _relays_arg(text: str) -> int | str:
     return n
 
 
-def _speed(text: str) -> float | None:
-    """A pace over wall time, or 'max': as fast as the CPU goes (virtual time never waits)."""
-    return None if text == "max" else _positive(text)
-
-
-def _positive(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not v > 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
-    return v
-
-
 def configure(parser: argparse.ArgumentParser) -> None:
     from relayd.sim.scenario import builtin_names
 
@@ -60,10 +47,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              " or a scenario TOML file (docs/SIMULATOR.md)")
     parser.add_argument("--relays", type=_relays_arg, default=None, metavar="N|all",
                         help="number of relays, or 'all' for one run per count (default: the scenario's)")
-    parser.add_argument("--speed", type=_speed, default=DEFAULT_SPEED, metavar="X|max",
+    parser.add_argument("--speed", type=speed, default=DEFAULT_SPEED, metavar="X|max",
                         help=f"pace of the virtual clock over wall time, or 'max' (default {DEFAULT_SPEED:g});"
                              " the results do not depend on it")
-    parser.add_argument("--seconds", type=_positive, default=None, metavar="S",
+    parser.add_argument("--seconds", type=positive_float, default=None, metavar="S",
                         help="simulated seconds to run at most (default: the scenario's duration)")
     parser.add_argument("--out", default="sim-out", metavar="DIR", help="output directory (default ./sim-out)")
     parser.add_argument("--seed", type=int, default=1, metavar="N", help="world seed (shadowing, fading, sonar noise; default 1)")

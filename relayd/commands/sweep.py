@@ -20,6 +20,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from relayd.commands.argtypes import positive_float, speed
+
 
 def _int_list(text: str) -> list[int]:
     try:
@@ -41,20 +43,6 @@ def _positive_int(text: str) -> int:
     return v
 
 
-def _positive(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not v > 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
-    return v
-
-
-def _speed(text: str) -> float | None:
-    return None if text == "max" else _positive(text)
-
-
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scenario", action="append", required=True,
                         help="a shipped scenario name or a TOML file (repeatable)")
@@ -66,9 +54,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--set", action="append", default=[], metavar="KEY=V1,V2,...", dest="sets",
                         help="a parameter grid axis (repeatable): a dotted scenario key (radio.exponent, "
                              "leader.speed_m_s) or a daemon [control]/[scan] key (threshold_b_dbm)")
-    parser.add_argument("--seconds", type=_positive, default=None,
+    parser.add_argument("--seconds", type=positive_float, default=None,
                         help="simulated seconds per run at most (default: each scenario's duration)")
-    parser.add_argument("--speed", type=_speed, default=None,
+    parser.add_argument("--speed", type=speed, default=None,
                         help="pace of each run's virtual clock over wall time, or 'max' (default: max);"
                              " results do not depend on it")
     parser.add_argument("--out", default="sweep-out", help="output directory (default ./sweep-out)")
@@ -76,9 +64,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     cluster.add_argument("--workers", type=_positive_int, default=None,
                          help="worker processes of the embedded LocalCluster (default: the core count)")
     cluster.add_argument("--scheduler", default=None, help="an existing Dask scheduler, e.g. tcp://host:8786")
-    parser.add_argument("--run-timeout", type=_positive, default=3600.0,
+    parser.add_argument("--run-timeout", type=positive_float, default=3600.0,
                         help="wall seconds one run may take before it counts as failed (default 3600)")
-    parser.add_argument("--no-worker-timeout", type=_positive, default=120.0,
+    parser.add_argument("--no-worker-timeout", type=positive_float, default=120.0,
                         help="give up on the runs still waiting after this many seconds without any worker"
                              " (default 120)")
     parser.add_argument("--trace", action="store_true", help="keep each run's trace.jsonl (large)")
