@@ -76,7 +76,10 @@ async def test_fleet_page_three_relays_one_stopped_mid_run(tmp_path: Path) -> No
                                 await page.wait_for_selector(f"{card(name, 'link')}:text-is('live')", timeout=20_000)
                             assert await page.locator(".hop").count() == 4
                             assert await page.text_content(card("relay3", "mode")) == "hold"
-                            assert "hold mode" in (await page.text_content(card("relay3", "reason")) or "")
+                            # relay3's fakes share this busy test process: a starved SIP
+                            # can show a passing no-SIP fault first; hold mode must follow.
+                            await page.wait_for_selector(f"{card('relay3', 'reason')}:has-text('hold mode')",
+                                                         timeout=20_000)
                             assert await page.text_content(card("relay1", "battery")) == \
                                 f"{rig1.robot.battery_v:.1f} V"
                             # The first hop is measured by relay1's front radio (the rig's -50 dBm).
