@@ -226,15 +226,7 @@ def plot_throughput(runs: Sequence[tuple[str, Sequence[dict[str, Any]]]], path: 
     fig, ax = plt.subplots(figsize=(9, 4))
     for label, records in runs:
         ax.plot([r["t"] for r in records], [r["e2e_mbps"] for r in records], label=label)
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("end-to-end throughput (Mbps)")
-    ax.set_ylim(bottom=0)
-    ax.set_title(title)
-    ax.legend()
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    _finish_throughput(plt, fig, ax, title, path)
 
 
 def plot_throughput_bands(curves: Sequence[tuple[str, Sequence[float], Sequence[float], Sequence[float]]],
@@ -257,15 +249,7 @@ def plot_throughput_bands(curves: Sequence[tuple[str, Sequence[float], Sequence[
         (line,) = ax.plot(t, mean, label=label)
         ax.fill_between(t, [max(0.0, m - s) for m, s in zip(mean, sd, strict=True)],
                         [m + s for m, s in zip(mean, sd, strict=True)], color=line.get_color(), alpha=0.2, lw=0)
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("end-to-end throughput (Mbps)")
-    ax.set_ylim(bottom=0)
-    ax.set_title(title)
-    ax.legend()
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    _finish_throughput(plt, fig, ax, title, path)
 
 
 def write_run_plots(world: World, records: Sequence[dict[str, Any]], out: Path) -> list[Path]:
@@ -280,3 +264,16 @@ def write_run_plots(world: World, records: Sequence[dict[str, Any]], out: Path) 
         plot_rssi_bearing(records, files[-1],
                           [relay_thresholds(world, i) for i in range(len(world.relays))])
     return files
+
+
+def _finish_throughput(plt: Any, fig: Any, ax: Any, title: str, path: Path) -> None:
+    """The axes, title, legend and file every throughput-over-time plot shares."""
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("end-to-end throughput (Mbps)")
+    ax.set_ylim(bottom=0)
+    ax.set_title(title)
+    ax.legend()
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
