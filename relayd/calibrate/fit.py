@@ -43,6 +43,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from statistics import NormalDist
 
+from relayd.ratetables import RATE_TABLES
+
 HUBER_K = 1.345
 BISQUARE_C = 4.685
 MAD_TO_SD = 1.4826
@@ -231,16 +233,6 @@ def fit_path_loss(distance_m: Sequence[float], rssi_dbm: Sequence[float], *, con
 
 
 # -- thresholds --------------------------------------------------------------------------
-
-#: 802.11 receiver minimum sensitivities (dBm) -> PHY rate (Mbit/s), fastest first: the
-#: standard's tables for 802.11g and for 802.11n one stream, 20 MHz, long guard interval.
-RATE_TABLES: dict[str, tuple[tuple[float, float], ...]] = {
-    "802.11g": ((-65.0, 54.0), (-66.0, 48.0), (-70.0, 36.0), (-74.0, 24.0),
-                (-77.0, 18.0), (-79.0, 12.0), (-81.0, 9.0), (-82.0, 6.0)),
-    "802.11n-1x1": ((-64.0, 65.0), (-65.0, 58.5), (-66.0, 52.0), (-70.0, 39.0),
-                    (-74.0, 26.0), (-77.0, 19.5), (-79.0, 13.0), (-82.0, 6.5)),
-}
-
 
 def z_of(outage: float) -> float:
     """The one-sided normal quantile for an outage probability (0.1 -> 1.28)."""
