@@ -142,7 +142,7 @@ def calibration_rows(seeds: int, tmp: Path) -> tuple[list[dict[str, Any]], list[
         return list(json.loads(done.read_text())), []
 
     from relayd.calibrate.fit import fit_path_loss
-    from relayd.calibrate.sources import readings_from_recording
+    from relayd.calibrate.sources import NEAR_M, readings_from_recording
     from relayd.calibrate.synthetic import drive_messages, write_recording
 
     rows = []
@@ -151,9 +151,10 @@ def calibration_rows(seeds: int, tmp: Path) -> tuple[list[dict[str, Any]], list[
             rng = random.Random(7000 + seed)
             l0, n, sigma = rng.uniform(-25, -10), rng.uniform(2.0, 4.0), rng.uniform(2.0, 6.0)
             path = tmp / f"cal-{corr}-{seed}.mcap"
-            # 40 m at 0.15 m/s with a poll every 0.5 s: ~520 readings, as a slow real drive gives.
+            # The guided drive from 1 m: a third of 0.15 m/s to 4 m, then 0.15 m/s to 40 m, a poll
+            # every 0.5 s: ~600 readings, as `--drive` gives.
             write_recording(path, drive_messages(l0_dbm=l0, n=n, sigma_db=sigma, seed=seed, far_m=40.0,
-                                                 corr_m=corr, poll_s=0.5))
+                                                 corr_m=corr, poll_s=0.5, near_m=NEAR_M))
             readings = readings_from_recording(path)
             fit = fit_path_loss([r.distance_m for r in readings], [r.rssi_dbm for r in readings], seed=seed,
                                 resamples=200)
