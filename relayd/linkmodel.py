@@ -23,6 +23,20 @@ poll from moving it far. The threshold is the r where the posterior predictive
 P(ok | r) equals 1 - outage, clamped to the configured bounds: strong fading (wide s)
 or multipath (high mu) tighten it, a clean open space relaxes it.
 
+Rate ladder. A yes/no verdict says nothing about where the target's edge is until the
+relay has crossed it, and a relay never backs up. So a poll whose rate is on the
+802.11g or one-stream 802.11n ladder (relayd/ratetables.py) is read as an ordered
+probit: the radio chose rate i, so RSSI^b - mu lay in rate i's band, [sens_i - sens_t,
+sens_(i-1) - sens_t) with sens_t the sensitivity of the slowest rate that meets the
+target at this poll's CCQ. Only the standard's sensitivity differences are assumed;
+the level is mu's. Every step passed on the way out says where the target's step is.
+
+Ground covered. Each poll carries how far the relay drove since the previous one; it
+counts (in the likelihood and in the forgetting) in full from MOVE_REF_M, and only
+STANDING_WEIGHT standing still, so a relay standing at its limit does not forget what
+the rate steps said on the way out. A standing poll may tighten the limit, never relax
+it: it says nothing of the ground beyond, and the relay would go there on extrapolation.
+
 Evidence floor. The limit never goes more than `EXTRAPOLATE_DB` below the weakest
 RSSI^b at which one of the last `half_life_samples` polls met the target (when any
 did): the probit
