@@ -16,6 +16,7 @@ from relayd.brain import Brain, BrainParams
 from relayd.controller import ControlParams
 from relayd.events import LinkEvent, LinkModelView, LinkSide
 from relayd.linkmodel import LinkModel, LinkPolicyParams, LinkSample
+from relayd.ratetables import RATE_TABLES
 from relayd.sim.radio import phy_rate_mbps
 
 BOUNDS = (-80.0, -50.0)
@@ -93,8 +94,6 @@ def test_converges_on_the_rate_ladder(penalty: float, fade: float, seed: int, ph
     """A relay driving away whose radio picks its rate from the local mean minus a penalty:
     every rate step it passes says where the target's step is, so mu ends at the target
     rate's sensitivity plus the penalty, and the limit a little above it (never below)."""
-    from relayd.ratetables import RATE_TABLES
-
     table = RATE_TABLES[phy]
     rng = random.Random(seed)
     m = LinkModel(params(half_life_samples=60.0))
@@ -150,8 +149,11 @@ def test_never_relaxes_standing_still(penalty: float, seed: int, stand_at: float
         before = m.threshold_dbm
 
 
+LADDER_RATES = sorted({rate for table in RATE_TABLES.values() for _sens, rate in table})
+#: Poll histories: time step, RSSI^b, a rate (none, any, or one on an 802.11 ladder), CCQ.
 samples = st.lists(st.tuples(st.floats(0.0, 5.0), st.floats(-110.0, -10.0),
-                             st.one_of(st.none(), st.floats(0.0, 300.0)), st.one_of(st.none(), st.floats(0.0, 100.0))),
+                             st.one_of(st.none(), st.floats(0.0, 300.0), st.sampled_from(LADDER_RATES)),
+                             st.one_of(st.none(), st.floats(0.0, 100.0))),
                    max_size=60)
 
 
@@ -162,7 +164,7 @@ def test_bounded(history: list[tuple[float, float, float | None, float | None]],
     t = 0.0
     for dt, r, rate, ccq in history:
         t += dt
-        m.observe(LinkSample(t, r, rate, rate, ccq), t)
+        m.observe(LinkSample(t, r, rate, rate, ccq, dt / 5.0), t)  # standing (dt 0) to a metre
         assert lo <= m.threshold_dbm <= lo + width
         assert math.isfinite(m.status(t).mu_dbm)
 
