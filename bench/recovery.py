@@ -5,7 +5,7 @@ with every relay's `recovery.enabled = false` (today's behaviour, the baseline) 
 once with it on, and reads summary.json:
 
 - **recovery rate**: the share of end-to-end link breaks (spells closer than 1 s merged,
-  `relayd.sim.runner.link_breaks`) that ended within 60 s of simulated time; a break
+  `relayd.sim.outcomes.link_breaks`) that ended within 60 s of simulated time; a break
   still open at the end of the run counts as not healed, except one that began less
   than 60 s before the end (it had no chance to be judged: counted as "censored");
 - **downtime**: the end-to-end link's total down time per run, median and worst;

@@ -52,7 +52,8 @@ import math
 from dataclasses import dataclass, field, replace
 
 from relayd.actuator import Actuator
-from relayd.avoidance import AvoidParams, AvoidState, Sense, avoid_step
+from relayd.avoidance import avoid_step
+from relayd.avoidstate import AvoidParams, AvoidState, Sense
 from relayd.estimator import (
     SonarReading,
     avoidance_bearing,
@@ -116,7 +117,7 @@ class ControlInputs:
     #: the escape's progress watchdog and limits need them; None disables the escape.
     t_s: float | None = None
     odom: tuple[float, float, float] | None = None
-    #: The backward-looking rear sonars (`avoidance.rear_readings`): the escape backs off
+    #: The backward-looking rear sonars (`ring.rear_readings`): the escape backs off
     #: only when they show room behind.
     rear_sonar: tuple[SonarReading, ...] = ()
 

@@ -13,7 +13,8 @@ from hypothesis import strategies as st
 
 from drivers.arcos.sip import wheel_to_vel_rvel
 from relayd.actuator import Actuator
-from relayd.avoidance import AvoidMode, AvoidParams, AvoidState, Sense, avoid_step
+from relayd.avoidance import avoid_step
+from relayd.avoidstate import AvoidMode, AvoidParams, AvoidState, Sense
 from relayd.controller import ControlInputs, ControlMemory, ControlParams, control_step
 from relayd.estimator import front_readings
 from relayd.ring import choose_side, guard, path_blocked, rear_min_m, rear_readings
