@@ -25,8 +25,9 @@ Decisions:
   correlated over metres, so neighbouring readings are not independent and the
   textbook (i.i.d.) intervals would be too narrow. Resampling blocks of neighbouring
   readings keeps that correlation. The percentile interval of 300 resamples; a
-  block spans `block_m` (4 m: twice a typical indoor shadowing correlation length)
-  of the drive. Deterministic for a given seed. A straight pass of D metres holds
+  block is the readings within `block_m` (4 m: twice a typical indoor shadowing
+  correlation length) of the drive from a start drawn uniformly in distance, so a
+  drive slower in its first metres keeps its proportions. Deterministic for a given seed. A straight pass of D metres holds
   only about D / 4 independent shadowing values, so a short drive gives honest but
   wide intervals: drive 30 m or more, or several passes.
 - Readings nearer than `min_distance_m` (0.5 m, the antennas' near field and the
@@ -37,6 +38,7 @@ Pure: lists of floats in, a frozen result out; no I/O, no clock, no numpy.
 
 from __future__ import annotations
 
+import bisect
 import math
 import random
 from collections.abc import Sequence
@@ -197,17 +199,20 @@ def fit_path_loss(distance_m: Sequence[float], rssi_dbm: Sequence[float], *, con
     fast = min(_fast_sd(x, res), sd)
     slow = math.sqrt(max(0.0, sd * sd - fast * fast))
 
-    # Moving-block bootstrap over distance order.
+    # Moving-block bootstrap over distance: each block is the readings within block_m of
+    # drive from a start drawn uniformly in distance, so a drive that went slower in
+    # places (the first metres, relayd/calibrate/sources.py) is resampled in its own
+    # proportions, and a block is block_m long wherever it falls.
     rng = random.Random(seed)
     count = len(x)
-    block = min(count, max(2, round(count * block_m / (d_hi - d_lo))))
-    starts = count - block + 1
+    dists = [d for d, _ in pairs]
+    room = max(0.0, (d_hi - d_lo) - block_m)
     l0s, ns, sds = [], [], []
     for _ in range(resamples):
         idx: list[int] = []
         while len(idx) < count:
-            s = rng.randrange(starts)
-            idx.extend(range(s, s + block))
+            d0 = d_lo + rng.random() * room
+            idx.extend(range(bisect.bisect_left(dists, d0), bisect.bisect_right(dists, d0 + block_m)))
         idx = idx[:count]
         bx, by = [x[i] for i in idx], [y[i] for i in idx]
         try:
