@@ -304,7 +304,7 @@ def _one_relay(**extra: object) -> dict:
 
 
 def test_sonar_is_exactly_mirror_symmetric() -> None:
-    # The box: 0.5 m, centred on the heading. A real ring sees it symmetrically,
+    # The box-dead-ahead case: 0.5 m, centred on the heading. A real ring sees it symmetrically,
     # and so must the simulated one (no rays or noise to break the tie for the robot).
     w = World(parse_scenario(_one_relay(boxes=[{"min": [2.25, -0.25], "max": [2.75, 0.25]}])), seed=0)
     for x_mm in (0.0, 1200.0, 1704.0):

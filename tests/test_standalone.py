@@ -6,7 +6,8 @@ code or docs need from it is written down in the repo itself: docs/PROTOCOLS.md 
 facts and their public sources), docs/CONTROL.md (estimator and control law), README.
 These tests fail when a file points outside again (a `../shared/...` path, `SPEC.md`,
 "SPEC 2.4"-style section numbers, the research notes by file name or as "the protocol
-doc", "issue 14"-style numbers of the tracker the work was planned in; tests included),
+doc", "issue 14"-style numbers of the tracker the work was planned in, or that tracker and
+the planning notes as "the issue", "the hardening issue", "the brief"; tests included),
 and when a pointer
 to one of the repo's own docs names a section that does not exist.
 """
@@ -38,6 +39,11 @@ FORBIDDEN: tuple[tuple[str, re.Pattern[str]], ...] = (
     # "issue 14" pointed into the tracker the work was planned in, which does not ship;
     # an upstream project's issue is cited with its name and a '#' ("AriaCoda issue #15").
     ("a tracker issue number instead of what it was about", re.compile(r"\b[Ii]ssues? \d")),
+    # The same tracker and the planning notes without a number. Only "the/this issue" as a
+    # noun: the verb ("the controller issues a stop") and plural are left alone.
+    ("the tracker's issue instead of what it asked for",
+     re.compile(r"\b[Tt]h(?:e|is) (?:[a-z]+ing )?issue(?:'s)?\b")),
+    ("the planning brief instead of what it asked for", re.compile(r"\b[Tt]he brief\b")),
 )
 
 _SKIP_DIRS = {".git", ".venv", "node_modules", "__pycache__", ".mypy_cache", ".ruff_cache",
@@ -158,6 +164,18 @@ def test_the_own_docs_exist_and_the_readme_points_to_them() -> None:
         ("(mt76, openwrt/mt76 issue #20)", False),
         ("ROSARIA (`RosAria.cpp`; issues #31, #65 on", False),
         ("station_get_mt76_issue20_bogus_signal.txt", False),
+        ("`drivers` is a top-level package, as the brief lays out", True),
+        ("The brief asks for a 60 s soak", True),
+        ("45 minutes, not the 60 the hardening issue asks for", True),
+        ("The relays did what the issue asks: the back relay", True),
+        ("# The issue's picture: sonars 3 and 4 at 300 mm", True),
+        ("as this issue says", True),
+        ("the controller issues a stop command", False),
+        ("it issues a command every 100 ms", False),
+        ("the issues #31, #65 on ROSARIA", False),
+        ("brief blips must not fire it", False),
+        ("a brief dip in the one-minute average", False),
+        ("the debriefing notes", False),
     ],
 )
 def test_the_patterns_catch_what_they_should(line: str, caught: bool) -> None:
