@@ -100,17 +100,17 @@ async def test_exception_during_login_never_logs_the_password(fmt: str) -> None:
 # --- one pipeline, priority prefix ---------------------------------------------------------
 
 def test_foreign_lines_are_json_with_a_priority_prefix() -> None:
-    with captured("json", "debug") as buf:
+    # setup_logging runs inside catch_warnings, so it is its own captureWarnings that
+    # routes the warning (pytest's per-test catch_warnings would undo one made before).
+    with warnings.catch_warnings(), captured("json", "debug") as buf:
+        warnings.simplefilter("always")
         structlog.get_logger("relayd.test").info("own_line", answer=42)
         structlog.get_logger("relayd.test").debug("own_debug")
         logging.getLogger("aiohttp.server").error("an aiohttp error %s", "here")
         logging.getLogger("asyncio").warning("an asyncio warning")
         logging.getLogger("aiohttp.web").info("an aiohttp info")
         logging.getLogger("asyncio").debug("asyncio debug chatter stays out")
-        with warnings.catch_warnings():
-            warnings.simplefilter("always")
-            logging.captureWarnings(True)  # catch_warnings restored showwarning: re-route
-            warnings.warn("a deprecated thing", DeprecationWarning, stacklevel=1)
+        warnings.warn("a deprecated thing", DeprecationWarning, stacklevel=1)
     lines = json_lines(buf.getvalue())
     by_event = {e["event"].split("\n")[0]: (prio, e) for prio, e in lines}
     assert by_event["own_line"][0] == 6 and by_event["own_line"][1]["answer"] == 42
