@@ -192,7 +192,7 @@ async def test_robot_port_vanishes_and_returns(tmp_path: Path) -> None:
 
 async def status_until(run: Run, pred: Callable[[dict[str, Any]], bool], what: str,
                        timeout_s: float = 5.0) -> dict[str, Any]:
-    """GET /status until `pred` holds (the daemon copies device health twice a second)."""
+    """GET /status until `pred` holds (a driver notices a failure a moment after it happens)."""
     try:
         async with asyncio.timeout(timeout_s):
             while not pred(doc := await run.status()):
