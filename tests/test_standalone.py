@@ -9,7 +9,8 @@ These tests fail when a file points outside again (a `../shared/...` path, `SPEC
 doc", "issue 14"-style numbers of the tracker the work was planned in, or that tracker and
 the planning notes as "the issue", "the hardening issue", "the brief"; tests included),
 and when a pointer
-to one of the repo's own docs names a section that does not exist.
+to one of the repo's own docs names a section that does not exist, or a file path in
+the repo (`relayd/api/guard.py`) names a file that is not there.
 """
 
 from __future__ import annotations
@@ -136,6 +137,55 @@ def test_section_pointers_into_docs_exist() -> None:
                     if num not in sections[doc]:
                         bad.append(f"{name}:{lineno}: docs/{doc}.md has no section {num}")
     assert not bad, "\n".join(bad)
+
+
+# -- file paths the repo names ------------------------------------------------------------
+
+#: "relayd/api/guard.py", "drivers/arcos/fakebody.py", "bench/RESULTS.md",
+#: "deploy/prometheus/relayd-alerts.yml": a path into one of the repo's own top-level
+#: folders, ending in a file extension. Not one inside another path (`/etc/relayd/x.toml`,
+#: `tmp/config/a.toml`) and not a glob (`scenarios/*.toml` has no name to check).
+_REPO_PATH = re.compile(
+    r"(?<![\w/.*-])((?:relayd|drivers|bench|tests|scripts|deploy|systemd|config|docs)"
+    r"/[\w./-]*\w\.(?:py|md|toml|json|ya?ml|service|js|css|html|sh|txt|csv))\b(?![/*])"
+)
+
+
+def _named_paths(line: str) -> list[str]:
+    return _REPO_PATH.findall(line)
+
+
+def test_every_file_path_named_in_the_repo_exists() -> None:
+    # Modules get split and moved; a doc, comment or docstring that still names the old
+    # file sends the reader nowhere.
+    missing = []
+    for name in _checked_files():
+        text = _text(name)
+        if text is None:
+            continue
+        for lineno, line in enumerate(text.splitlines(), 1):
+            missing += [f"{name}:{lineno}: {path}" for path in _named_paths(line)
+                        if not (ROOT / path).exists()]
+    assert not missing, "these lines name files that do not exist:\n" + "\n".join(missing)
+
+
+@pytest.mark.parametrize(
+    ("line", "paths"),
+    [
+        ("the guarded accept loop (relayd/api/guard.py)", ["relayd/api/guard.py"]),
+        ("`drivers/arcos/fake.py` and `drivers/arcos/fakebody.py`",
+         ["drivers/arcos/fake.py", "drivers/arcos/fakebody.py"]),
+        ("figures go in bench/RESULTS.md.", ["bench/RESULTS.md"]),
+        ("relayd/tracking.py   new: the filter", ["relayd/tracking.py"]),
+        ("ExecStart=/opt/relayd/venv/bin/relayd run -c /etc/relayd/relayd.toml", []),
+        ('package-data: "sim/scenarios/*.toml", relayd/sim/scenarios/*.toml', []),
+        ("tmp_path / 'x/config/relayd.toml'", []),
+        ("the relayd/ package, drivers/arcos/", []),
+        ("relayd.sim.runner.scratch_root", []),
+    ],
+)
+def test_the_path_pattern_finds_what_it_should(line: str, paths: list[str]) -> None:
+    assert _named_paths(line) == paths
 
 
 def test_the_own_docs_exist_and_the_readme_points_to_them() -> None:
