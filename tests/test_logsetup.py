@@ -25,11 +25,10 @@ from typing import Any
 import aiohttp
 import pytest
 import structlog
-from support import until
+from support import ManualClock, until
 
 from drivers.airos.client import AirOsClient
 from drivers.airos.fake import FakeAirOs
-from drivers.clock import Clock
 from relayd.api import make_app, start_api
 from relayd.logsetup import setup_logging
 from relayd.state import RelayState
@@ -147,20 +146,6 @@ async def _raw(port: int, data: bytes) -> bytes:
             await writer.wait_closed()
 
 
-class ManualClock(Clock):
-    """now() set by the test; sleeps stay real."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.t = 1000.0
-
-    def now(self) -> float:
-        return self.t
-
-    def advance(self, dt_s: float) -> None:
-        self.t += dt_s
-
-
 class _Controls:
     def set_mode(self, mode: Any) -> None:
         raise AssertionError("not reached")
@@ -170,7 +155,7 @@ class _Controls:
 
 
 async def test_malformed_requests_are_info_without_traceback_and_rate_limited() -> None:
-    clock = ManualClock()
+    clock = ManualClock(1000.0)
     with captured("json") as buf:
         server, port = await start_api(make_app(RelayState(), _Controls(), clock=clock, token=TOKEN),
                                        "127.0.0.1", 0)
@@ -188,7 +173,7 @@ async def test_malformed_requests_are_info_without_traceback_and_rate_limited() 
 
 
 async def test_wrong_token_warnings_are_rate_limited_with_a_count() -> None:
-    clock = ManualClock()
+    clock = ManualClock(1000.0)
     with captured("json") as buf:
         server, port = await start_api(make_app(RelayState(), _Controls(), clock=clock, token=TOKEN),
                                        "127.0.0.1", 0)
