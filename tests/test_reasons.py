@@ -25,19 +25,20 @@ from relayd.state import Mode, RelayState
 RELAYD = Path(recovery.__file__).resolve().parent
 
 
-def _reason_positions(trees: list[ast.Module]) -> dict[str, int | None]:
-    """name -> position of its `reason` argument (None: keyword-only), for every function
+def _reason_positions(trees: list[ast.Module]) -> dict[str, set[int | None]]:
+    """name -> positions of its `reason` argument (None: keyword-only), for every function
     and every field class (dataclass, NamedTuple) that takes one: `_stopped(state,
     reason, ...)`, `ControlOutput(l, r, state, reason, ...)`, `turn_cmd(act, s, p, rvel,
-    reason)`. A `reason=` that lands in `**fields` (a log line's field) is not a code."""
-    out: dict[str, int | None] = {}
+    reason)`; a set, as two modules may each have a `_zero`. A `reason=` that lands in
+    `**fields` (a log line's field) is not a code."""
+    out: dict[str, set[int | None]] = {}
     for node in (n for tree in trees for n in ast.walk(tree)):
         if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
             names = [a.arg for a in (*node.args.posonlyargs, *node.args.args)]
             if names and names[0] in ("self", "cls"):
                 names = names[1:]
             if "reason" in (a.arg for a in node.args.kwonlyargs):
-                out[node.name] = None
+                out.setdefault(node.name, set()).add(None)
         elif isinstance(node, ast.ClassDef):
             names = [s.target.id for s in node.body
                      if isinstance(s, ast.AnnAssign) and isinstance(s.target, ast.Name)
@@ -45,7 +46,7 @@ def _reason_positions(trees: list[ast.Module]) -> dict[str, int | None]:
         else:
             continue
         if "reason" in names:
-            out[node.name] = names.index("reason")
+            out.setdefault(node.name, set()).add(names.index("reason"))
     return out
 
 
@@ -75,9 +76,9 @@ def reason_literals(trees: list[ast.Module]) -> set[str]:
             name = func.id if isinstance(func, ast.Name) else func.attr if isinstance(func, ast.Attribute) else ""
             if name not in positions:
                 continue
-            pos = positions[name]
-            if pos is not None and len(node.args) > pos:
-                literal(node.args[pos])
+            for pos in positions[name]:
+                if pos is not None and len(node.args) > pos:
+                    literal(node.args[pos])
             for kw in node.keywords:
                 if kw.arg == "reason":
                     literal(kw.value)
@@ -92,9 +93,9 @@ def reason_literals(trees: list[ast.Module]) -> set[str]:
     return found
 
 
-def controller_reason_literals() -> set[str]:
-    """Every reason code in relayd's source, plus every reason of relayd/recovery.py (`recovery.REASONS`, which tests/test_recovery.py checks the state
-    machine against)."""
+def source_reason_codes() -> set[str]:
+    """Every reason code in relayd's source, plus every reason of relayd/recovery.py
+    (`recovery.REASONS`, which tests/test_recovery.py checks the state machine against)."""
     files = sorted(RELAYD.rglob("*.py"))
     trees = [ast.parse(p.read_text(encoding="utf-8")) for p in files]
     return set(recovery.REASONS) | reason_literals(trees)
@@ -103,7 +104,7 @@ def controller_reason_literals() -> set[str]:
 def test_the_source_scan_finds_the_controller_reasons() -> None:
     # Guards the scanner itself: if the code's shape changed so that it finds nothing,
     # the test below would pass vacuously. One code per shape it reads, per module.
-    found = controller_reason_literals()
+    found = source_reason_codes()
     assert {"hold", "rear_weak", "leader_near", "no_sip", "manual", "driving", "shutdown",
             "controller_error", "recovery_error", "scan_stale",  # controller, brain, control
             "blocked", "avoiding", "rejoining",  # avoidance, avoidstate (positional and keyword)
@@ -128,19 +129,19 @@ def test_the_source_scan_reads_every_shape() -> None:
         "    lost_reason = 'k_then' if x else 'k_else'\n"
         "    return False, f'k_fstring: {x}'\n"
     )
-    assert _reason_positions([tree]) == {"turn": 2, "stop": None, "Cmd": 1}
+    assert _reason_positions([tree]) == {"turn": {2}, "stop": {None}, "Cmd": {1}}
     assert reason_literals([tree]) == {"k_default", "k_positional", "k_method", "k_field", "k_keyword",
                                        "k_kwonly", "k_then", "k_else", "k_fstring"}
 
 
 def test_every_reason_in_the_controller_source_has_a_phrase() -> None:
-    codes = controller_reason_literals() | {RelayState().reason}  # "starting"
+    codes = source_reason_codes() | {RelayState().reason}  # "starting"
     missing = sorted(codes - set(phrasebook()))
     assert not missing, f"reason codes without a phrase in relayd/api/static/reasons.json: {missing}"
 
 
 def test_every_phrase_is_for_a_code_that_exists() -> None:
-    stale = sorted(set(phrasebook()) - controller_reason_literals() - {RelayState().reason})
+    stale = sorted(set(phrasebook()) - source_reason_codes() - {RelayState().reason})
     assert not stale, f"phrases for codes nothing produces: {stale}"
 
 
