@@ -9,6 +9,7 @@ an ERROR with its traceback, kept in the driver's health, and the driver goes on
 from __future__ import annotations
 
 import asyncio
+import itertools
 from typing import Any
 
 import pytest
@@ -133,3 +134,18 @@ async def test_a_bug_in_an_airos_poll_is_loud_and_polling_goes_on() -> None:
                 await until(lambda: poller.state == "ok" and len(updates) >= 3, "polling again")
         assert errors_with_traceback(logs, "airos_poll_crashed") == ["KeyError: 'wireless'"]
         assert poller.counters["logins"] == 1  # the session was kept across the bug
+
+
+async def test_airos_polls_at_a_fixed_rate_and_backs_off_on_the_shared_loop() -> None:
+    clock = LoopClock()
+    polled_t: list[float] = []
+    async with FakeAirOs("ubnt", "secret-pass", clock=clock) as fake:
+        poller = AirOsPoller(fake.base_url or "", "ubnt", "secret-pass", poll_s=1.0, clock=clock,
+                             on_update=lambda q: polled_t.append(clock.now()),
+                             backoff=Backoff(initial_s=1.0, maximum_s=5.0, jitter=0))
+        async with running(poller):
+            await until(lambda: len(polled_t) >= 4, "four polls")
+            gaps = [b - a for a, b in itertools.pairwise(polled_t)]
+            # The request's own latency is not added: one poll per clock second.
+            assert gaps == pytest.approx([1.0] * len(gaps), abs=0.05)
+            assert poller.counters["errors"] == 0
