@@ -25,7 +25,7 @@ from typing import Any
 import pytest
 from support import running, until
 
-from relayd.config import parse_settings
+from relayd.config_load import parse_settings
 from relayd.daemon import Daemon, control_params
 from relayd.fakes.rig import FakeRig
 from relayd.state import DriveState, Mode

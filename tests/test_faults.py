@@ -29,7 +29,7 @@ from support import until
 
 from drivers.clock import REAL_CLOCK
 from drivers.link import port_missing, wait_before_retry
-from relayd.config import load_settings, parse_settings
+from relayd.config_load import load_settings, parse_settings
 from relayd.daemon import Daemon, control_params
 from relayd.events import Action, Decision, Event
 from relayd.fakes.rig import FakeRig

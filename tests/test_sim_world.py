@@ -20,6 +20,7 @@ from relayd.sim.geometry import (
     ray_circle_distance,
     wrap_deg,
 )
+from relayd.sim.leader_script import LeaderScript
 from relayd.sim.radio import (
     HOP_DOWN_DBM,
     Radio,
@@ -30,7 +31,7 @@ from relayd.sim.radio import (
     yagi_gain_db,
 )
 from relayd.sim.scenario import ScenarioError, builtin_names, load_scenario, parse_scenario
-from relayd.sim.world import LeaderScript, World
+from relayd.sim.world import World
 
 # --- geometry -----------------------------------------------------------------------
 
