@@ -82,7 +82,9 @@ class ControlParams:
     detect_range_m: float = 3.0
     gamma_o_m: float = 1.0
     sip_timeout_s: float = 0.5  # robot.lost_after_s
-    rssi_timeout_s: float = 5.0  # two scan periods (the daemon computes it)
+    #: No fresh RSSI sample for this long is a fault. The daemon sets max(0.5 s, 5 sample
+    #: periods) from wifi.sample_hz (relayd/params.py): 0.5 s at the default 20 Hz.
+    rssi_timeout_s: float = 0.5
     rear_timeout_s: float = 3.0  # RSSI^b older than this is stale
     manual_deadman_s: float = 0.5
     #: False: the paper's obstacle rule alone, no escape (config `control.escape`).

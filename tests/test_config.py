@@ -7,14 +7,8 @@ from pathlib import Path
 import pytest
 
 from relayd.cli import main
-from relayd.config import (
-    ConfigError,
-    SecretRef,
-    Settings,
-    load_settings,
-    parse_settings,
-    resolve_secret,
-)
+from relayd.config import ConfigError, SecretRef, Settings, resolve_secret
+from relayd.config_load import load_settings, parse_settings
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "config" / "relayd.toml"
 

@@ -39,7 +39,7 @@ from aiohttp import ClientSession
 from support import parse_unit, skip_or_fail
 
 from relayd.cli import build_parser
-from relayd.config import parse_settings
+from relayd.config_load import parse_settings
 from relayd.control import ControlShell
 from relayd.daemon import WATCHDOG_PET_S, Daemon
 from relayd.fakes.rig import FakeRig

@@ -4,7 +4,7 @@
 command goes through one `asyncio.Lock`, a request registers its reply waiter before
 writing, a reply is exactly the length the back-end says, and `max_timeouts`
 unanswered requests in a row turn into a disconnect, so `run()` reconnects with
-backoff (the loop itself is drivers/reconnect.py). A port given up is closed, bounded,
+backoff (the loop itself is `Reconnect.run`, drivers/reconnect.py). A port given up is closed, bounded,
 before the next one opens (its flock). `health()` reports all of it. What the commands
 mean, servos in degrees, is `PanTilt` (base.py) and the back-ends.
 """
@@ -22,7 +22,7 @@ from drivers.backoff import Backoff
 from drivers.clock import REAL_CLOCK, Clock
 from drivers.health import DeviceHealth, LinkState
 from drivers.link import LinkError, close_link, open_link
-from drivers.reconnect import Reconnect
+from drivers.reconnect import Failure, Reconnect, expecting
 
 log = structlog.get_logger(__name__)
 
@@ -35,6 +35,10 @@ MAX_RX_BUFFER = 256
 
 class PanTiltError(Exception):
     """A servo command could not be carried out: not connected, no reply, bad reply."""
+
+
+#: What ends a connection as device trouble; anything else is a bug.
+_describe = expecting(PanTiltError, LinkError)
 
 
 class ReplyError(ValueError):
@@ -162,27 +166,10 @@ class ServoSession(abc.ABC):
         """Connect, poll, reconnect with backoff, until `close()`; raises only CancelledError."""
         self._closed = False
         self._close_requested.clear()
-        reconnect = self._reconnect
         try:
-            while not self._closed:
-                reconnect.attempt()
-                try:
-                    await self.connect()
-                    reconnect.succeeded()
-                    await self._serve()
-                except (PanTiltError, LinkError) as exc:
-                    if isinstance(exc, LinkError):
-                        self._note_error(str(exc))  # PanTiltErrors were counted where raised
-                    reconnect.failed(exc)
-                except Exception as exc:  # noqa: BLE001
-                    # A bug, not a device problem: keep the servo task alive, but say so
-                    # loudly (reconnect logs it with its traceback).
-                    self._note_error(reconnect.failed(exc, unexpected=True))
-                if self._closed:
-                    break
-                # Back off, but let close() end the wait at once, and retry a replugged
-                # adapter as soon as its path is back.
-                await reconnect.wait(self._close_requested)
+            # A replugged adapter is retried as soon as its path is back.
+            await self._reconnect.run(self.connect, self._serve, stop=self._close_requested,
+                                      describe=_describe, on_failure=self._failed)
         finally:
             await self._drop()
 
@@ -206,6 +193,12 @@ class ServoSession(abc.ABC):
                     await self._poll()
         if not self._closed:
             self._log.warning("pantilt_link_lost", error=self.last_error)
+
+    def _failed(self, exc: Exception, failure: Failure, text: str) -> None:
+        # A PanTiltError was counted where it was raised; a bug is loud (logged with
+        # its traceback) but must not end the servo task.
+        if isinstance(exc, LinkError) or failure.unexpected:
+            self._note_error(text)
 
     async def _drop(self) -> None:
         self._ready = False

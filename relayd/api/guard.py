@@ -34,7 +34,7 @@ import socket
 import ssl
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import structlog
 from aiohttp import web
@@ -69,7 +69,7 @@ class _Conn:
     peer: str
     idle_since: float
     busy: int = 0
-    transport: asyncio.BaseTransport | None = None
+    transport: asyncio.Transport | None = None
     handler: asyncio.Protocol | None = None
     task: asyncio.Task[Any] | None = None
     closing: bool = False
@@ -84,7 +84,8 @@ class _Relay(asyncio.Protocol):
         self._inner = inner
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        self._conn.transport = transport
+        # connect_accepted_socket makes a stream transport (plain or TLS): it can abort.
+        self._conn.transport = cast(asyncio.Transport, transport)
         self._conn.handler = self._inner
         self._guard.handlers[self._inner] = self._conn
         self._inner.connection_made(transport)
@@ -125,7 +126,7 @@ class GuardedServer:
         #: Accepted descriptors numbered at or above this are refused.
         self.fd_limit = fd_limit
         self.conns: set[_Conn] = set()
-        self.handlers: dict[Any, _Conn] = {}
+        self.handlers: dict[asyncio.BaseProtocol, _Conn] = {}
         self.counters = {"accepted": 0, "evicted": 0, "idle_closed": 0, "refused": 0, "accept_errors": 0}
         self._factory: Callable[[], asyncio.Protocol] | None = None
         self._listen: socket.socket | None = None
@@ -179,7 +180,7 @@ class GuardedServer:
             if conn.task is not None and not conn.task.done():
                 conn.task.cancel()
             if conn.transport is not None:
-                conn.transport.abort()  # type: ignore[attr-defined]
+                conn.transport.abort()
             else:
                 conn.sock.close()
             self.drop(conn)
