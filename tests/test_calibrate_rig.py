@@ -27,7 +27,7 @@ import pytest
 from support import running as run_daemon
 
 from relayd.calibrate.sources import NEAR_SPEED_SHARE, LiveOptions, sample_live
-from relayd.config import parse_settings
+from relayd.config_load import parse_settings
 from relayd.daemon import Daemon
 from relayd.fakes.rig import FakeRig
 from relayd.vtime import LoopClock
