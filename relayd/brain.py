@@ -81,6 +81,7 @@ from relayd.recovery import (
     recovery_step,
     recovery_view,
 )
+from relayd.retreat import RetreatMemory, held_limit, record_poll, retreat_step
 from relayd.ring import rear_readings
 from relayd.scanplan import ScanParams, full_window, in_current_frame, next_window, sweep_plan
 from relayd.state import DriveState, Mode, ScanRecord
@@ -159,6 +160,7 @@ class Brain:
         self._scan_count = 0
         self._rear_polls = 0
         self.recovery = RecoveryMemory()
+        self.retreat = RetreatMemory()  # stepping back out of a shadow (relayd.retreat, adaptive only)
         self._recovery_shown: RecoveryView | None = None
 
     # -- read-only views (the API's shell checks a drive command against the mode) ------
@@ -286,6 +288,9 @@ class Brain:
         if not self.link_model.observe(sample, ev.t):
             return []
         self._rear_pose = self._pose
+        delivered = self.link_model.last_delivered_mbps
+        self.retreat = record_poll(self.retreat, self._pose, rssi_dbm,
+                                   delivered is not None and delivered >= self.params.link.target_hop_mbps)
         self._control = self._with_rear_limit()
         return [LinkModelView(self._control.threshold_b_dbm, self.link_model.status(ev.t))]
 
@@ -402,7 +407,10 @@ class Brain:
         if self._halted:
             return ControlOutput(0.0, 0.0, DriveState.STOPPED, "shutdown", situation, self._memory)
         try:
-            out = control_step(self.inputs(now), self._control, self._memory)
+            ci, link = self.inputs(now), self.params.link
+            out = control_step(ci, held_limit(self._control, self.retreat, link.bounds_dbm[1]), self._memory)
+            out, self.retreat = retreat_step(ci, tuple(self._sonar), out, self._control, self.retreat,
+                                             enabled=link.adaptive)
         except Exception as exc:  # noqa: BLE001 - a bug or bad data in the brain stops the robot
             return ControlOutput(0.0, 0.0, DriveState.FAULT, f"controller_error: {type(exc).__name__}",
                                  situation, self._memory)
