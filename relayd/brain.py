@@ -292,12 +292,16 @@ class Brain:
         self.retreat = record_poll(self.retreat, self._pose, rssi_dbm,
                                    delivered is not None and delivered >= self.params.link.target_hop_mbps)
         self._control = self._with_rear_limit()
-        return [LinkModelView(self._control.threshold_b_dbm, self.link_model.status(ev.t))]
+        return [LinkModelView(self._in_force().threshold_b_dbm, self.link_model.status(ev.t))]
 
     def _with_rear_limit(self) -> ControlParams:
         if not self.params.link.adaptive:
             return self.params.control
         return replace(self.params.control, threshold_b_dbm=self.link_model.threshold_dbm)
+
+    def _in_force(self) -> ControlParams:
+        """The controller's params: the rear limit, raised while holding after a retreat (relayd.retreat)."""
+        return held_limit(self._control, self.retreat, self.params.link.bounds_dbm[1])
 
     def _rear_view(self, now: float) -> list[Action]:
         """RSSI^b as /status may show it: not a value the controller already refuses as stale."""
@@ -407,10 +411,10 @@ class Brain:
         if self._halted:
             return ControlOutput(0.0, 0.0, DriveState.STOPPED, "shutdown", situation, self._memory)
         try:
-            ci, link = self.inputs(now), self.params.link
-            out = control_step(ci, held_limit(self._control, self.retreat, link.bounds_dbm[1]), self._memory)
+            ci = self.inputs(now)
+            out = control_step(ci, self._in_force(), self._memory)
             out, self.retreat = retreat_step(ci, tuple(self._sonar), out, self._control, self.retreat,
-                                             enabled=link.adaptive)
+                                             enabled=self.params.link.adaptive)
         except Exception as exc:  # noqa: BLE001 - a bug or bad data in the brain stops the robot
             return ControlOutput(0.0, 0.0, DriveState.FAULT, f"controller_error: {type(exc).__name__}",
                                  situation, self._memory)

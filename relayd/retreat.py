@@ -222,8 +222,3 @@ def retreat_step(ci: ControlInputs, sonar_mm: tuple[int | None, ...], out: Contr
     state = DriveState.STOPPED if left == 0.0 and right == 0.0 else DriveState.RECOVERING
     return ControlOutput(left, right, state, reason, out.situation, out.memory), m
 
-
-def retreat_view(m: RetreatMemory) -> dict[str, object]:
-    """What /status may show: moving or not, the floor held, how many retreats, the last outcome."""
-    return {"moving": m.target is not None, "floor_dbm": m.floor_dbm, "retreats": m.retreats,
-            "spent_m": round(m.spent_m, 2), "last_outcome": m.last_outcome}
