@@ -24,10 +24,10 @@ P(ok | r) equals 1 - outage, clamped to the configured bounds: strong fading (wi
 or multipath (high mu) tighten it, a clean open space relaxes it.
 
 Rate ladder. A yes/no verdict says nothing about where the target's edge is until the
-relay has crossed it, and a relay never backs up. So a poll whose rate is on the
-802.11g or one-stream 802.11n ladder (relayd/ratetables.py) is read as an ordered
-probit: the radio chose rate i, so RSSI^b - mu lay in rate i's band, [sens_i - sens_t,
-sens_(i-1) - sens_t) with sens_t the sensitivity of the slowest rate that meets the
+relay has crossed it, and a relay backs up only out of a shadow (relayd/retreat.py).
+So a poll whose rate is on the 802.11g or one-stream 802.11n ladder
+(relayd/ratetables.py) is read as an ordered probit: the radio chose rate i, so
+RSSI^b - mu lay in rate i's band, [sens_i - sens_t, sens_(i-1) - sens_t) with sens_t the sensitivity of the slowest rate that meets the
 target at this poll's CCQ. Only the standard's sensitivity differences are assumed;
 the level is mu's. Every step passed on the way out says where the target's step is.
 
@@ -304,7 +304,7 @@ class LinkModel:
             limit = max(self._solve(*p.bounds_dbm), self._clamp(self.evidence_floor_dbm()))
             standing = sample.moved_m is not None and sample.moved_m < STANDING_M
             # A relay standing at its limit learns only about the spot it stands on; relaxing
-            # from there would send it on by extrapolation, and it never backs up.
+            # from there would send it on by extrapolation, and it backs up only out of a shadow.
             self.threshold_dbm = max(limit, self.threshold_dbm) if standing else limit
         return True
 
