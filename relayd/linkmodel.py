@@ -28,8 +28,9 @@ relay has crossed it, and a relay backs up only out of a shadow (relayd/retreat.
 So a poll whose rate is on the 802.11g or one-stream 802.11n ladder
 (relayd/ratetables.py) is read as an ordered probit: the radio chose rate i, so
 RSSI^b - mu lay in rate i's band, [sens_i - sens_t, sens_(i-1) - sens_t) with sens_t
-the sensitivity of the slowest rate that meets the target at this poll's CCQ. Only the standard's sensitivity differences are assumed;
-the level is mu's. Every step passed on the way out says where the target's step is.
+the sensitivity of the slowest rate that meets the target at this poll's CCQ. Only
+the standard's sensitivity differences are assumed; the level is mu's. Every step
+passed on the way out says where the target's step is.
 
 Ground covered. Each poll carries how far the relay drove since the previous one; it
 counts (in the likelihood and in the forgetting) in full from MOVE_REF_M, and only
