@@ -13,11 +13,9 @@ the last spot where its hop met the target, and hold there.
   verdict (a relay standing still re-measures one spot; the newest word counts). The
   trail keeps the newest KEEP spots (at least 5 m).
 - **When.** Only with `link_policy = "adaptive"`, in follow mode, and only after
-  `BELOW_POLLS` rear polls in a row missed the target while the relay stood (the
-  controller's wheels at zero, whatever its reason: a relay in a shadow may stand
-  "leader_near" between two "rear_weak" spells): one deep fade does not do it. The
-  controller must say "rear_weak" (the relay is past its own rear limit) on the step
-  that starts the move.
+  `BELOW_POLLS` rear polls in a row missed the target while the controller held the
+  relay standing at its rear limit (reason "rear_weak"): one deep fade does not do it.
+  The controller must still say "rear_weak" on the step that starts the move.
 - **Where to.** Back along its own trail (ground it has driven over) to the newest spot
   more than REACH_M away where a poll met the target, if that is within what is left of
   `MAX_RETREAT_M` of path. None within reach: it stays (the controller's stop stands).
@@ -46,7 +44,7 @@ from relayd.breadcrumbs import Crumb, reverse_toward
 from relayd.controller import ControlInputs, ControlOutput, ControlParams
 from relayd.state import DriveState, Mode
 
-#: Rear polls in a row below the target, standing, before it steps back.
+#: Rear polls in a row below the target, standing at the rear limit, before it steps back.
 BELOW_POLLS = 3
 #: The most path (m) it may reverse before it has driven CLEAR_M away from where it held.
 MAX_RETREAT_M = 3.0
@@ -82,9 +80,9 @@ class Spot:
 @dataclass(frozen=True, slots=True)
 class RetreatMemory:
     trail: tuple[Spot, ...] = ()
-    #: The last step's controller held the relay standing (zero wheels, following, no fault).
-    standing: bool = False
-    #: Polls in a row that missed the target while standing.
+    #: The last step's controller held the relay at its rear limit (standing).
+    rear_stopped: bool = False
+    #: Polls in a row that missed the target while standing at the rear limit.
     below: int = 0
     #: Index into trail of the spot a running move heads for; None: no move.
     target: int | None = None
@@ -106,7 +104,7 @@ def _pose_ok(pose: tuple[float, float, float] | None) -> bool:
 def record_poll(m: RetreatMemory, pose: tuple[float, float, float] | None, rssi_b_dbm: float,
                 met: bool) -> RetreatMemory:
     """One rear poll the link model accepted: its spot and verdict, and the run below target."""
-    below = m.below + 1 if (m.standing and not met) else 0
+    below = m.below + 1 if (m.rear_stopped and not met) else 0
     if m.target is not None:
         return replace(m, below=0)  # a move runs: its trail's indices must hold still
     if not _pose_ok(pose) or not math.isfinite(rssi_b_dbm) or pose is None:
@@ -172,10 +170,9 @@ def retreat_step(ci: ControlInputs, sonar_mm: tuple[int | None, ...], out: Contr
     """One control step: the controller's output, or a retreat's command in its place."""
     if not enabled:
         return out, m
-    still = out.left_mm_s == 0.0 and out.right_mm_s == 0.0
-    stopped = still and out.reason == REAR_WEAK
+    stopped = out.left_mm_s == 0.0 and out.right_mm_s == 0.0 and out.reason == REAR_WEAK
     following = ci.mode is Mode.FOLLOW and out.state is not DriveState.FAULT
-    m = replace(m, standing=still and following)
+    m = replace(m, rear_stopped=stopped and following)
     if not following or ci.odom is None or not _pose_ok(ci.odom):
         if m.target is not None:
             return _zero(out, out.state, out.reason), _end(m, "aborted")

@@ -254,15 +254,3 @@ def test_a_move_that_runs_longer_than_planned_stops_at_the_bound(left_m: float, 
             break
     assert m.target is None and m.last_outcome in ("gave_up_distance", "gave_up_time")
     assert moved_m <= left_m + 0.03
-
-
-def test_polls_standing_for_another_reason_count_but_only_rear_weak_starts_the_move() -> None:
-    """A relay in a shadow may stand "leader_near" between two "rear_weak" spells."""
-    m, x = walked_into_shadow()
-    near = ControlOutput(0.0, 0.0, DriveState.STOPPED, "leader_near", 1, ControlMemory())
-    for _ in range(BELOW_POLLS + 1):
-        out, m = retreat_step(ci((x, 0.0, 0.0)), OPEN, near, P, m, enabled=True)
-        m = record_poll(m, (x, 0.0, 0.0), -80.0, False)
-        assert out is near
-    out, m = retreat_step(ci((x, 0.0, 0.0)), OPEN, STOP_REAR, P, m, enabled=True)
-    assert out.reason == "retreat" and out.left_mm_s < 0
