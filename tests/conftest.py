@@ -1,4 +1,5 @@
-"""Suite-wide test rules: an async test may leave no task and no timer behind.
+"""Suite-wide test rules: an async test may leave no task and no timer behind; the
+longest files run first.
 
 A task still running after its test (a driver's `run()` nobody cancelled, a fake's
 SIP loop nobody stopped) or a timer still pending (a `call_later` nobody cancelled)
@@ -15,6 +16,42 @@ import inspect
 from collections.abc import AsyncIterator
 
 import pytest
+
+#: The files that take longest (seconds of wall time, measured on a loaded 2-core
+#: machine), longest first. scripts/test runs the suite on pytest-xdist workers, one
+#: file at a time per worker (--dist loadfile), handed out in collection order
+#: (--no-loadscope-reorder): with the long files first, the last file to finish is a
+#: short one, instead of a 30 s one started last on one worker while the other idles.
+#: A stale list costs only wall time; every file not named runs after these, in order.
+LONGEST_FILES_FIRST = (
+    "test_sim_scenarios.py",   # ~80 s
+    "test_foxglove_live.py",   # ~50 s
+    "test_sweep.py",           # ~45 s
+    "test_fuzz_decoders.py",   # ~40 s
+    "test_sim_recovery.py",    # ~35 s
+    "test_offline_install.py",  # ~30 s, one test
+    "test_api_flood.py",       # ~30 s, one test
+    "test_live_page_ops.py",   # ~25 s
+    "test_serial_leaks.py",    # ~25 s
+    "test_bench_smoke.py",     # ~23 s
+    "test_avoidance.py",       # ~19 s
+    "test_airos_model.py",     # ~18 s
+    "test_sigterm.py",         # ~17 s
+    "test_linkmodel.py",       # ~16 s
+    "test_record.py",          # ~15 s
+    "test_recovery.py",        # ~15 s
+    "test_api_tls.py",         # ~14 s
+    "test_api_schemathesis.py",  # ~13 s, one test
+    "test_live_page_browser.py",  # ~13 s
+    "test_record_daemon.py",   # ~13 s
+)
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Longest files first (see LONGEST_FILES_FIRST); a stable sort keeps each file's order."""
+    rank = {name: i for i, name in enumerate(LONGEST_FILES_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
+
 
 #: Turns of the loop given to things a test has just cancelled or closed, so their
 #: callbacks (connection_lost, done-callbacks) can run before the check.
