@@ -24,7 +24,8 @@ import pytest
 #: short one, instead of a 30 s one started last on one worker while the other idles.
 #: A stale list costs only wall time; every file not named runs after these, in order.
 LONGEST_FILES_FIRST = (
-    "test_sim_scenarios.py",   # ~80 s
+    "test_sim_convoy_corridor.py",  # ~50 s
+    "test_sim_scenarios.py",   # ~30 s
     "test_foxglove_live.py",   # ~50 s
     "test_sweep.py",           # ~45 s
     "test_fuzz_decoders.py",   # ~40 s
