@@ -17,34 +17,37 @@ from collections.abc import AsyncIterator
 
 import pytest
 
-#: The files that take longest (seconds of wall time, measured on a loaded 2-core
-#: machine), longest first. scripts/test runs the suite on pytest-xdist workers, one
-#: file at a time per worker (--dist loadfile), handed out in collection order
-#: (--no-loadscope-reorder): with the long files first, the last file to finish is a
-#: short one, instead of a 30 s one started last on one worker while the other idles.
-#: A stale list costs only wall time; every file not named runs after these, in order.
+#: The files that take longest, longest first: roughly seconds on an idle 2-core machine
+#: (wall time where a file mostly waits, CPU time where it computes). scripts/test runs
+#: the suite on pytest-xdist workers, one file at a time per worker (--dist loadfile),
+#: handed out in collection order (--no-loadscope-reorder): with the long files first,
+#: the last file to finish is a short one, instead of a 25 s one started last on one
+#: worker while the other idles. A stale list costs only wall time; every file not named
+#: runs after these, in their usual order.
 LONGEST_FILES_FIRST = (
-    "test_sim_convoy_corridor.py",  # ~50 s
-    "test_sim_scenarios.py",   # ~30 s
-    "test_foxglove_live.py",   # ~50 s
-    "test_sweep.py",           # ~45 s
-    "test_fuzz_decoders.py",   # ~40 s
-    "test_sim_recovery.py",    # ~35 s
-    "test_offline_install.py",  # ~30 s, one test
-    "test_api_flood.py",       # ~30 s, one test
-    "test_live_page_ops.py",   # ~25 s
-    "test_serial_leaks.py",    # ~25 s
-    "test_bench_smoke.py",     # ~23 s
-    "test_avoidance.py",       # ~19 s
-    "test_airos_model.py",     # ~18 s
-    "test_sigterm.py",         # ~17 s
-    "test_linkmodel.py",       # ~16 s
-    "test_record.py",          # ~15 s
-    "test_recovery.py",        # ~15 s
-    "test_api_tls.py",         # ~14 s
-    "test_api_schemathesis.py",  # ~13 s, one test
-    "test_live_page_browser.py",  # ~13 s
-    "test_record_daemon.py",   # ~13 s
+    "test_api_flood.py",            # ~25 s, waits: a 16 s flood
+    "test_sweep.py",                # ~25 s, Dask clusters and child processes
+    "test_foxglove_live.py",        # ~25 s, a 12 s stalled-client window, a virtual-time flood
+    "test_offline_install.py",      # ~20 s, pip against the index
+    "test_live_page_ops.py",        # ~18 s, waits: the page's stale timers
+    "test_sim_convoy_corridor.py",  # ~16 s, CPU: four paper scenarios
+    "test_bench_smoke.py",          # ~12 s
+    "test_fuzz_decoders.py",        # ~12 s, CPU: hypothesis
+    "test_sim_recovery.py",         # ~11 s, CPU: drift and door, recovery off and on
+    "test_sim_scenarios.py",        # ~10 s, CPU: the obstacle scenarios
+    "test_serial_leaks.py",         # ~10 s, waits: pty hang-ups
+    "test_sigterm.py",
+    "test_api_tls.py",
+    "test_live_page_browser.py",
+    "test_api_schemathesis.py",
+    "test_avoidance.py",
+    "test_linkmodel.py",
+    "test_airos_model.py",
+    "test_record.py",
+    "test_recovery.py",
+    "test_record_daemon.py",
+    "test_fleet_browser.py",
+    "test_bridge_netns.py",
 )
 
 
