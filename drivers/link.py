@@ -153,7 +153,7 @@ def force_close(transport: asyncio.BaseTransport) -> None:
 
 def port_missing(url: str) -> bool:
     """True when `url` is a device path that is not there now (USB adapter unplugged)."""
-    if "://" in url:
+    if not url or "://" in url:  # no port at all (an HTTP device), or not a device path
         return False
     return not os.path.exists(url)
 

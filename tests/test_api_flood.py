@@ -6,7 +6,7 @@ far leader; the rig runs in a process of its own (tests/rig_proc.py), so a busy 
 process cannot starve the fake devices into a stop of their own making. tests/flood.py,
 in a fourth process, then opens 1,100 idle connections
 and 100 slow-header clients to the API and holds them. Before the guard in
-relayd/api/server.py this exhausted the daemon's descriptors: the RSSI source failed
+relayd/api/guard.py this exhausted the daemon's descriptors: the RSSI source failed
 with EMFILE, the robot stopped on rssi_stale, /healthz timed out and asyncio logged
 the failed accept tens of thousands of times. Now:
 
