@@ -1,5 +1,5 @@
-"""Suite-wide test rules: an async test may leave no task and no timer behind; the
-longest files run first.
+"""Suite-wide test rules: an async test may leave no task and no timer behind, no test
+leaves its structlog configuration to the next; the longest files run first.
 
 A task still running after its test (a driver's `run()` nobody cancelled, a fake's
 SIP loop nobody stopped) or a timer still pending (a `call_later` nobody cancelled)
@@ -13,9 +13,10 @@ from __future__ import annotations
 
 import asyncio
 import inspect
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Iterator
 
 import pytest
+import structlog
 
 #: The files that take longest, longest first: roughly seconds on an idle 2-core machine
 #: (wall time where a file mostly waits, CPU time where it computes). scripts/test runs
@@ -109,6 +110,17 @@ def _no_leaks(request: pytest.FixtureRequest) -> None:
     func = getattr(request.node, "function", None)
     if func is not None and inspect.iscoroutinefunction(func):
         request.getfixturevalue("_no_leaks_async")
+
+
+@pytest.fixture(autouse=True)
+def _structlog_restored() -> Iterator[None]:
+    """Whatever structlog configuration a test leaves (a benchmark or command run in this
+    process calls setup_logging, e.g. at level "error") is undone after it: otherwise a
+    later test's capture_logs() misses warnings, depending on which file ran before it
+    on the same worker."""
+    before = structlog.get_config()
+    yield
+    structlog.configure(**before)
 
 
 def pytest_asyncio_loop_factories(config: pytest.Config, item: pytest.Item) -> dict[str, object]:
