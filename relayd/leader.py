@@ -48,6 +48,21 @@ class WindowParams:
 
 
 @dataclass(frozen=True, slots=True)
+class PoolParams:
+    """When consecutive scans are fitted as one (`ScanPool`)."""
+
+    #: At most this many scans, the newest included, are fitted together.
+    scans: int = 5
+    #: ... while the filter says the bearing is steady: |rate| at most this (deg/s) ...
+    max_rate_deg_s: float = 2.0
+    #: ... and an older scan is carried to the newest one's frame to within this (deg, 1 sd
+    #: of rate x time between them); older scans are left out.
+    max_shift_sd_deg: float = 4.0
+    #: The pooled fit must agree with the newest scan's own within this many sd.
+    agree_sigma: float = 3.0
+
+
+@dataclass(frozen=True, slots=True)
 class LeaderParams:
     estimator: str = "wca"
     window: str = "full"
@@ -56,6 +71,7 @@ class LeaderParams:
     adaptive: WindowParams = field(default_factory=WindowParams)
     #: Two-sided fits the beamwidth is learnt from (median of the last ones).
     beamwidth_memory: int = 9
+    pool: PoolParams = field(default_factory=PoolParams)
 
     def __post_init__(self) -> None:
         if self.estimator not in ESTIMATORS:
@@ -108,6 +124,71 @@ def _median(xs: Sequence[float]) -> float:
     return s[n // 2] if n % 2 else 0.5 * (s[n // 2 - 1] + s[n // 2])
 
 
+@dataclass(frozen=True, slots=True)
+class PooledScan:
+    """One scan as the pool keeps it: its samples, when and in which frame, and the track before it."""
+
+    angles_deg: tuple[float, ...]
+    rssi_dbm: tuple[float, ...]
+    t: float
+    heading_deg: float
+    before: Track | None
+
+
+class ScanPool:
+    """Consecutive scans of a steady bearing fitted as one: a fixed-lag batch fit.
+
+    Under fading one scan's lobe fit is noisy and, where a servo limit cuts the lobe, its
+    curvature is poorly seen, which biases the centre toward the samples (`relayd.bearing`).
+    A relay that stands still keeps scanning a leader that stands still; fitting the last
+    few scans together (each with its own level, their angles carried into the newest
+    scan's frame by the odometry heading change and the filter's rate) averages the noise
+    before the nonlinear centre = -b / 2c instead of after it. The filter is then updated
+    from the track as it was before the oldest pooled scan, so no scan is counted twice.
+    """
+
+    def __init__(self, params: PoolParams) -> None:
+        self.params = params
+        self._scans: deque[PooledScan] = deque(maxlen=max(0, params.scans - 1))
+
+    def clear(self) -> None:
+        self._scans.clear()
+
+    def add(self, scan: PooledScan) -> None:
+        if self._scans.maxlen:
+            self._scans.append(scan)
+
+    def fit(self, track: Track | None, newest: PooledScan, single: LobeFit, lobe: LobeParams,
+            beamwidth_prior_deg: float | None) -> tuple[LobeFit, Track | None] | None:
+        """(pooled fit, track to update from), or None when the scans may not be pooled."""
+        p = self.params
+        if track is None or abs(track.rate_deg_s) > p.max_rate_deg_s:
+            return None
+        used = [s for s in self._scans
+                if track.rate_sd_deg_s * abs(newest.t - s.t) <= p.max_shift_sd_deg]
+        if not used:
+            return None
+        angles: list[float] = []
+        rssi: list[float] = []
+        ids: list[int] = []
+        for k, s in enumerate([*used, newest]):
+            shift = track.rate_deg_s * (newest.t - s.t) - _wrap(newest.heading_deg - s.heading_deg)
+            angles += [a + shift for a in s.angles_deg]
+            rssi += s.rssi_dbm
+            ids += [k] * len(s.angles_deg)
+        pooled = fit_main_lobe(angles, rssi, lobe, beamwidth_prior_deg=beamwidth_prior_deg, scan_ids=ids)
+        if pooled is None:
+            return None
+        gap = abs(_wrap(pooled.bearing_deg - single.bearing_deg))
+        if gap > p.agree_sigma * math.hypot(single.sd_deg, pooled.sd_deg):
+            return None
+        return pooled, used[0].before
+
+
+def _wrap(angle_deg: float) -> float:
+    return (angle_deg + 180.0) % 360.0 - 180.0
+
+
 class TrackingModel:
     """Lobe fit + Kalman filter + learned beamwidth + (optionally) the adaptive window."""
 
@@ -118,6 +199,7 @@ class TrackingModel:
         self._beamwidths: deque[float] = deque(maxlen=max(1, params.beamwidth_memory))
         #: How long the last sweep took (s): the window leads the prediction by half of it.
         self._sweep_s = 0.0
+        self._pool = ScanPool(params.pool)
 
     @property
     def beamwidth_deg(self) -> float | None:
@@ -141,12 +223,14 @@ class TrackingModel:
     def scan_done(self, t: float, heading_deg: float, est: ScanEstimate,
                   sample_t: Sequence[float]) -> ScanEstimate:
         p = self.params
-        fit = fit_main_lobe(est.angles_deg, est.nrssi_dbm, p.lobe, beamwidth_prior_deg=self.beamwidth_deg)
+        values = est.nrssi_dbm
+        fit = fit_main_lobe(est.angles_deg, values, p.lobe, beamwidth_prior_deg=self.beamwidth_deg)
         if fit is None and est.situation == 2:
             # The PRSSI penalty carved up the lobe itself: the "obstacle" is the leader, or
             # right beside it (a relay close behind its leader robot). The raw scan still
             # says where the leader is; losing the track over it would stop the relay.
-            fit = fit_main_lobe(est.angles_deg, est.rssi_dbm, p.lobe, beamwidth_prior_deg=self.beamwidth_deg)
+            values = est.rssi_dbm
+            fit = fit_main_lobe(est.angles_deg, values, p.lobe, beamwidth_prior_deg=self.beamwidth_deg)
         self.last_fit = fit
         if len(sample_t) >= 2:
             self._sweep_s = max(0.0, sample_t[-1] - sample_t[0])
@@ -157,19 +241,37 @@ class TrackingModel:
             if len(sample_t) == len(est.angles_deg) and sample_t:
                 nearest = min(range(len(sample_t)), key=lambda i: abs(est.angles_deg[i] - fit.bearing_deg))
                 t_meas = min(sample_t[nearest], t)
-            if self.track is None:
-                self.track = tracker.start(t_meas, heading_deg, fit.bearing_deg, fit.sd_deg, p.tracker)
-            else:
-                self.track, _ = tracker.update(self.track, t_meas, heading_deg, fit.bearing_deg,
-                                               fit.sd_deg, p.tracker)
-        elif self.track is not None:
-            self.track = tracker.miss(self.track, t, heading_deg, p.tracker)
+            scan = PooledScan(tuple(est.angles_deg), tuple(values), t_meas, heading_deg, self.track)
+            self._update(scan, fit)
+        else:
+            self._pool.clear()
+            if self.track is not None:
+                self.track = tracker.miss(self.track, t, heading_deg, p.tracker)
         now = self._now(t, heading_deg)
         if now is None or tracker.is_lost(now, p.tracker):
             # No track to speak of: the scan's own word (the fit, else the centroid), flagged unsure.
             bearing = fit.bearing_deg if fit is not None else est.bearing_deg
             return replace(est, bearing_deg=bearing, bearing_sd_deg=None)
         return replace(est, bearing_deg=now.bearing_deg, bearing_sd_deg=now.sd_deg)
+
+    def _update(self, scan: PooledScan, fit: LobeFit) -> None:
+        """Update the filter with the pooled fit where the scans may be pooled, else with this scan's."""
+        tp = self.params.tracker
+        pooled = self._pool.fit(self.track, scan, fit, self.params.lobe, self.beamwidth_deg)
+        if pooled is not None:
+            fit, base = pooled
+            self.last_fit = fit
+        else:
+            base = self.track
+            self._pool.clear()
+        if base is None or tracker.is_lost(base, tp):
+            self.track, accepted = tracker.start(scan.t, scan.heading_deg, fit.bearing_deg, fit.sd_deg, tp), True
+        else:
+            self.track, accepted = tracker.update(base, scan.t, scan.heading_deg, fit.bearing_deg, fit.sd_deg, tp)
+        if not accepted or self.track.updates == 1:
+            self._pool.clear()  # a gated scan or a new track: what came before is another leader
+        if accepted:
+            self._pool.add(scan)
 
     def bearing_now(self, t: float, heading_deg: float | None) -> float | None:
         now = self._now(t, heading_deg)
