@@ -83,6 +83,8 @@ class LobeFit:
     used: int  # samples in the fitted run
     #: The centre lies outside the sampled span (only one side of the lobe was seen).
     extrapolated: bool
+    #: The residuals' robust scale (dB) the sd was computed with.
+    noise_db: float = 0.0
 
 
 def _solve3(m: list[list[float]], v: list[float]) -> list[float] | None:
@@ -303,7 +305,7 @@ def fit_main_lobe(angles_deg: Sequence[float], rssi_dbm: Sequence[float],
     if beamwidth > params.max_beamwidth_deg:
         return None
     return LobeFit(bearing_deg=centre, sd_deg=sd, beamwidth_deg=beamwidth, peak_dbm=peak_dbm,
-                   used=hi - lo + 1, extrapolated=extrapolated)
+                   used=hi - lo + 1, extrapolated=extrapolated, noise_db=resid_scale)
 
 
 def _scan_levels(angles: Sequence[float], rssi: Sequence[float], ids: Sequence[int]) -> dict[int, float]:

@@ -10,11 +10,14 @@ scan says (`scan_done`: the estimate it publishes), where the leader is now
 - `TrackingModel` ("lobe"): each scan's main lobe is fitted (`relayd.bearing`), the fit
   feeds a Kalman filter on bearing and bearing rate with the odometry heading change
   as its control input (`relayd.tracker`), and the filter's prediction is the bearing
-  the wheels steer by, every control step. It learns the antenna's beamwidth from
-  its own two-sided scans (the curvature prior of one-sided ones at a servo limit).
-  With `window = "adaptive"` a confident filter narrows the sweep around its
-  prediction at the full window's sample spacing, so a sweep takes less time; an
-  unsure or lost one sweeps the servo's whole range.
+  the wheels steer by, every control step. While the filter says the bearing is
+  steady, the last few scans are fitted together (`relayd.scanpool`). A fit's sd is
+  never below what the recent scans' residual noise allows. It learns the antenna's
+  beamwidth from its own two-sided scans (the curvature prior of one-sided ones at a
+  servo limit). With `window = "adaptive"` a confident filter narrows the sweep around
+  its prediction: at the full window's spacing while the bearing is steady, coarser
+  (a few samples per beamwidth) and narrower while it moves, so a sweep takes less
+  time; an unsure or lost one sweeps the servo's whole range.
 
 Pure: times and headings come in as arguments; no clock, no I/O.
 """
@@ -30,6 +33,7 @@ from typing import Protocol
 from relayd import tracker
 from relayd.bearing import LobeFit, LobeParams, fit_main_lobe
 from relayd.estimator import ScanEstimate
+from relayd.scanpool import PooledScan, PoolParams, ScanPool
 from relayd.tracker import Track, TrackerParams
 
 ESTIMATORS = ("wca", "lobe")
@@ -40,26 +44,19 @@ WINDOWS = ("full", "adaptive")
 class WindowParams:
     """How the adaptive window sizes itself."""
 
-    #: The window spans this many (learned) 3 dB beamwidths: the fit needs both flanks.
+    #: The window spans this many (learned) 3 dB beamwidths: the fit needs both flanks ...
     beams: float = 1.5
     #: ... plus this many standard deviations of the predicted bearing on each side.
     sigmas: float = 3.0
     min_samples: int = 7
-
-
-@dataclass(frozen=True, slots=True)
-class PoolParams:
-    """When consecutive scans are fitted as one (`ScanPool`)."""
-
-    #: At most this many scans, the newest included, are fitted together.
-    scans: int = 5
-    #: ... while the filter says the bearing is steady: |rate| at most this (deg/s) ...
-    max_rate_deg_s: float = 2.0
-    #: ... and an older scan is carried to the newest one's frame to within this (deg, 1 sd
-    #: of rate x time between them); older scans are left out.
-    max_shift_sd_deg: float = 4.0
-    #: The pooled fit must agree with the newest scan's own within this many sd.
-    agree_sigma: float = 3.0
+    #: While the bearing moves faster than this (deg/s), the sweep is for speed: this many
+    #: beamwidths at this many samples per beamwidth (never finer than the full window's
+    #: spacing), so a wide antenna too sweeps in well under half the full window's time.
+    #: While it is steadier, the sweep is for accuracy: the full window's spacing, every
+    #: sample of the lobe, which the scan pool averages.
+    moving_rate_deg_s: float = 2.0
+    moving_beams: float = 1.2
+    per_beamwidth: float = 6.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -124,71 +121,6 @@ def _median(xs: Sequence[float]) -> float:
     return s[n // 2] if n % 2 else 0.5 * (s[n // 2 - 1] + s[n // 2])
 
 
-@dataclass(frozen=True, slots=True)
-class PooledScan:
-    """One scan as the pool keeps it: its samples, when and in which frame, and the track before it."""
-
-    angles_deg: tuple[float, ...]
-    rssi_dbm: tuple[float, ...]
-    t: float
-    heading_deg: float
-    before: Track | None
-
-
-class ScanPool:
-    """Consecutive scans of a steady bearing fitted as one: a fixed-lag batch fit.
-
-    Under fading one scan's lobe fit is noisy and, where a servo limit cuts the lobe, its
-    curvature is poorly seen, which biases the centre toward the samples (`relayd.bearing`).
-    A relay that stands still keeps scanning a leader that stands still; fitting the last
-    few scans together (each with its own level, their angles carried into the newest
-    scan's frame by the odometry heading change and the filter's rate) averages the noise
-    before the nonlinear centre = -b / 2c instead of after it. The filter is then updated
-    from the track as it was before the oldest pooled scan, so no scan is counted twice.
-    """
-
-    def __init__(self, params: PoolParams) -> None:
-        self.params = params
-        self._scans: deque[PooledScan] = deque(maxlen=max(0, params.scans - 1))
-
-    def clear(self) -> None:
-        self._scans.clear()
-
-    def add(self, scan: PooledScan) -> None:
-        if self._scans.maxlen:
-            self._scans.append(scan)
-
-    def fit(self, track: Track | None, newest: PooledScan, single: LobeFit, lobe: LobeParams,
-            beamwidth_prior_deg: float | None) -> tuple[LobeFit, Track | None] | None:
-        """(pooled fit, track to update from), or None when the scans may not be pooled."""
-        p = self.params
-        if track is None or abs(track.rate_deg_s) > p.max_rate_deg_s:
-            return None
-        used = [s for s in self._scans
-                if track.rate_sd_deg_s * abs(newest.t - s.t) <= p.max_shift_sd_deg]
-        if not used:
-            return None
-        angles: list[float] = []
-        rssi: list[float] = []
-        ids: list[int] = []
-        for k, s in enumerate([*used, newest]):
-            shift = track.rate_deg_s * (newest.t - s.t) - _wrap(newest.heading_deg - s.heading_deg)
-            angles += [a + shift for a in s.angles_deg]
-            rssi += s.rssi_dbm
-            ids += [k] * len(s.angles_deg)
-        pooled = fit_main_lobe(angles, rssi, lobe, beamwidth_prior_deg=beamwidth_prior_deg, scan_ids=ids)
-        if pooled is None:
-            return None
-        gap = abs(_wrap(pooled.bearing_deg - single.bearing_deg))
-        if gap > p.agree_sigma * math.hypot(single.sd_deg, pooled.sd_deg):
-            return None
-        return pooled, used[0].before
-
-
-def _wrap(angle_deg: float) -> float:
-    return (angle_deg + 180.0) % 360.0 - 180.0
-
-
 class TrackingModel:
     """Lobe fit + Kalman filter + learned beamwidth + (optionally) the adaptive window."""
 
@@ -197,6 +129,9 @@ class TrackingModel:
         self.track: Track | None = None
         self.last_fit: LobeFit | None = None
         self._beamwidths: deque[float] = deque(maxlen=max(1, params.beamwidth_memory))
+        #: The residual noise (dB) of recent fits: a fit whose few residuals happen to be
+        #: small is not trusted beyond what the channel's noise allows.
+        self._noise: deque[float] = deque(maxlen=max(1, params.beamwidth_memory))
         #: How long the last sweep took (s): the window leads the prediction by half of it.
         self._sweep_s = 0.0
         self._pool = ScanPool(params.pool)
@@ -237,12 +172,12 @@ class TrackingModel:
         if fit is not None:
             self._learn(fit, est.angles_deg)
             # The beam crossed the leader when the sample nearest the fitted bearing was taken.
-            t_meas = t
+            t_meas, centre = t, fit.bearing_deg
             if len(sample_t) == len(est.angles_deg) and sample_t:
-                nearest = min(range(len(sample_t)), key=lambda i: abs(est.angles_deg[i] - fit.bearing_deg))
+                nearest = min(range(len(sample_t)), key=lambda i: abs(est.angles_deg[i] - centre))
                 t_meas = min(sample_t[nearest], t)
-            scan = PooledScan(tuple(est.angles_deg), tuple(values), t_meas, heading_deg, self.track)
-            self._update(scan, fit)
+            fit = self.last_fit = self._trusted(fit)
+            self._update(PooledScan(tuple(est.angles_deg), tuple(values), t_meas, heading_deg, self.track, fit))
         else:
             self._pool.clear()
             if self.track is not None:
@@ -254,10 +189,21 @@ class TrackingModel:
             return replace(est, bearing_deg=bearing, bearing_sd_deg=None)
         return replace(est, bearing_deg=now.bearing_deg, bearing_sd_deg=now.sd_deg)
 
-    def _update(self, scan: PooledScan, fit: LobeFit) -> None:
+    def _trusted(self, fit: LobeFit) -> LobeFit:
+        """The fit with its sd as the channel's noise allows: a scan's few residuals can
+        happen to be small (a lucky MAD), and its sd with them; the typical noise of the
+        recent scans is the floor."""
+        self._noise.append(fit.noise_db)
+        typical = _median(self._noise)
+        if fit.noise_db >= typical or fit.noise_db <= 0.0:
+            return fit
+        return replace(fit, sd_deg=fit.sd_deg * typical / fit.noise_db, noise_db=typical)
+
+    def _update(self, scan: PooledScan) -> None:
         """Update the filter with the pooled fit where the scans may be pooled, else with this scan's."""
         tp = self.params.tracker
-        pooled = self._pool.fit(self.track, scan, fit, self.params.lobe, self.beamwidth_deg)
+        fit = scan.fit
+        pooled = self._pool.fit(self.track, scan, self.params.lobe, self.beamwidth_deg)
         if pooled is not None:
             fit, base = pooled
             self.last_fit = fit
@@ -305,10 +251,14 @@ class TrackingModel:
         bw = self.beamwidth_deg
         if bw is None:
             return None
+        wp = p.adaptive
         spacing = full.width_deg / max(1, full.samples - 1)
+        beams = wp.beams
+        if abs(now.rate_deg_s) > wp.moving_rate_deg_s:
+            spacing, beams = max(spacing, bw / wp.per_beamwidth), wp.moving_beams
         # Half a sweep from now the leader will have moved on by the rate.
         centre = now.bearing_deg + now.rate_deg_s * self._sweep_s / 2.0
-        width = p.adaptive.beams * bw + 2.0 * p.adaptive.sigmas * now.sd_deg
+        width = beams * bw + 2.0 * wp.sigmas * now.sd_deg
         samples = max(p.adaptive.min_samples, math.ceil(width / spacing) + 1)
         if samples >= full.samples:
             return Window(centre, full.width_deg, full.samples)

@@ -51,7 +51,7 @@ class TrackerParams:
     accel_q: float = 0.05
     #: ... and for one that manoeuvres, used when an innovation is over `manoeuvre_sigma`.
     manoeuvre_q: float = 20.0
-    manoeuvre_sigma: float = 2.0
+    manoeuvre_sigma: float = 2.5
     #: Odometry heading error, as a fraction of the heading change.
     heading_noise: float = 0.05
     #: A new track's rate uncertainty (deg/s).

@@ -20,7 +20,8 @@ from relayd import tracker
 from relayd.bearing import fit_main_lobe
 from relayd.config import Settings
 from relayd.estimator import ScanEstimate
-from relayd.leader import LeaderParams, PooledScan, PoolParams, ScanPool, TrackingModel
+from relayd.leader import LeaderParams, TrackingModel, Window
+from relayd.scanpool import PooledScan, PoolParams, ScanPool
 from relayd.state import DriveState, Mode, RelayState
 
 
@@ -136,6 +137,13 @@ def _faded_scan(rng: random.Random, bearing_deg: float, sd_db: float = 3.0) -> t
     return angles, tuple(-50.0 + pattern(a - bearing_deg) + rng.gauss(0.0, sd_db) for a in angles)
 
 
+def _pooled(angles: tuple[float, ...], rssi: tuple[float, ...], t: float, heading: float,
+            before: tracker.Track | None) -> PooledScan:
+    fit = fit_main_lobe(angles, rssi)
+    assert fit is not None
+    return PooledScan(angles, rssi, t, heading, before, fit)
+
+
 @settings(max_examples=60, deadline=None)
 @given(turn=st.lists(st.floats(-15.0, 15.0), min_size=4, max_size=4), seed=st.integers(0, 1000))
 def test_a_still_leader_is_fitted_over_several_scans_in_the_newest_frame(turn, seed) -> None:
@@ -149,13 +157,11 @@ def test_a_still_leader_is_fitted_over_several_scans_in_the_newest_frame(turn, s
     track = tracker.start(0.0, 0.0, 20.0, 2.0, params.tracker)
     for dh in turn:
         angles, rssi = _faded_scan(rng, 20.0 - heading, 0.0)
-        pool.add(PooledScan(angles, rssi, t, heading, track))
+        pool.add(_pooled(angles, rssi, t, heading, track))
         heading, t = heading + dh, t + 2.5
     angles, rssi = _faded_scan(rng, 20.0 - heading, 0.0)
-    newest = PooledScan(angles, rssi, t, heading, track)
-    single = fit_main_lobe(angles, rssi)
-    assert single is not None
-    out = pool.fit(replace(track, t=t - 2.5, heading_deg=heading - turn[-1]), newest, single, params.lobe, None)
+    newest = _pooled(angles, rssi, t, heading, track)
+    out = pool.fit(replace(track, t=t - 2.5, heading_deg=heading - turn[-1]), newest, params.lobe, None)
     assert out is not None
     fit, base = out
     assert base is track
@@ -168,21 +174,15 @@ def test_a_moving_bearing_or_a_disagreeing_scan_is_not_pooled() -> None:
     params = LeaderParams(estimator="lobe")
     pool = ScanPool(params.pool)
     track = tracker.start(0.0, 0.0, 0.0, 2.0, params.tracker)
-    pool.add(PooledScan(*_faded_scan(rng, 0.0, 0.0), 0.0, 0.0, track))
-    angles, rssi = _faded_scan(rng, 0.0, 0.0)
-    newest = PooledScan(angles, rssi, 2.5, 0.0, track)
-    single = fit_main_lobe(angles, rssi)
-    assert single is not None
-    assert pool.fit(track, newest, single, params.lobe, None) is not None
+    pool.add(_pooled(*_faded_scan(rng, 0.0, 0.0), 0.0, 0.0, track))
+    newest = _pooled(*_faded_scan(rng, 0.0, 0.0), 2.5, 0.0, track)
+    assert pool.fit(track, newest, params.lobe, None) is not None
     # The filter says the bearing moves (10 deg/s): the older scan is elsewhere now.
-    assert pool.fit(replace(track, rate_deg_s=10.0), newest, single, params.lobe, None) is None
+    assert pool.fit(replace(track, rate_deg_s=10.0), newest, params.lobe, None) is None
     # The newest scan sees the leader 40 deg away from the older one: no pooling.
-    moved_angles, moved = _faded_scan(rng, 40.0, 0.0)
-    moved_fit = fit_main_lobe(moved_angles, moved)
-    assert moved_fit is not None
-    assert pool.fit(track, PooledScan(moved_angles, moved, 2.5, 0.0, track), moved_fit, params.lobe, None) is None
+    assert pool.fit(track, _pooled(*_faded_scan(rng, 40.0, 0.0), 2.5, 0.0, track), params.lobe, None) is None
     pool.clear()
-    assert pool.fit(track, newest, single, params.lobe, None) is None
+    assert pool.fit(track, newest, params.lobe, None) is None
 
 
 def test_standing_still_under_fading_the_pooled_estimate_is_better_than_one_scan_at_a_time() -> None:
@@ -206,3 +206,35 @@ def test_standing_still_under_fading_the_pooled_estimate_is_better_than_one_scan
     def rms(xs: list[float]) -> float:
         return math.sqrt(sum(x * x for x in xs) / len(xs))
     assert rms(pooled) < 0.8 * rms(alone)
+
+
+def test_a_moving_leader_gets_a_shorter_coarser_sweep_a_still_one_every_sample_of_the_lobe() -> None:
+    # A 90 deg antenna: the full window's 7.5 deg spacing is finer than a lobe that wide
+    # needs. While the bearing moves the sweep is for speed, while it stands for accuracy.
+    model = TrackingModel(LeaderParams(estimator="lobe", window="adaptive"))
+    model._beamwidths.extend([80.0] * 3)
+    model._sweep_s = 1.5
+    full = Window(0.0, 180.0, 25)
+    still_track = tracker.start(10.0, 0.0, 20.0, 2.0, model.params.tracker)
+    model.track = still_track
+    still = model.window(10.0, 0.0, full)
+    model.track = replace(still_track, rate_deg_s=8.0)
+    moving = model.window(10.0, 0.0, full)
+    assert still is not None and moving is not None
+    assert still.width_deg / (still.samples - 1) == pytest.approx(7.5)
+    assert moving.width_deg / (moving.samples - 1) >= 80.0 / 6.0 - 1e-9
+    assert moving.samples <= 0.6 * still.samples
+    assert moving.centre_deg > still.centre_deg  # led by the rate
+
+
+def test_a_fit_whose_few_residuals_happen_to_be_small_is_not_trusted_beyond_the_channels_noise() -> None:
+    rng = random.Random(5)
+    model = TrackingModel(LeaderParams(estimator="lobe", pool=PoolParams(scans=1)))
+    for k in range(6):  # the channel: 3 dB of fading
+        angles, rssi = _faded_scan(rng, 0.0)
+        model.scan_done(2.5 * (k + 1), 0.0, ScanEstimate(0.0, max(rssi), 0, angles, rssi, rssi), [])
+    angles, clean = _faded_scan(rng, 0.0, 0.0)
+    alone = fit_main_lobe(angles, clean)
+    assert alone is not None
+    model.scan_done(20.0, 0.0, ScanEstimate(0.0, max(clean), 0, angles, clean, clean), [])
+    assert model.last_fit is not None and model.last_fit.sd_deg > 3.0 * alone.sd_deg
