@@ -48,7 +48,7 @@ class WindowParams:
     beams: float = 1.5
     #: ... plus this many standard deviations of the predicted bearing on each side.
     sigmas: float = 3.0
-    min_samples: int = 7
+    min_samples: int = 9
     #: While the bearing moves faster than this (deg/s), the sweep is for speed: this many
     #: beamwidths at this many samples per beamwidth (never finer than the full window's
     #: spacing), so a wide antenna too sweeps in well under half the full window's time.
@@ -56,7 +56,7 @@ class WindowParams:
     #: sample of the lobe, which the scan pool averages.
     moving_rate_deg_s: float = 2.0
     moving_beams: float = 1.2
-    per_beamwidth: float = 6.0
+    per_beamwidth: float = 8.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -258,11 +258,17 @@ class TrackingModel:
             spacing, beams = max(spacing, bw / wp.per_beamwidth), wp.moving_beams
         # Half a sweep from now the leader will have moved on by the rate.
         centre = now.bearing_deg + now.rate_deg_s * self._sweep_s / 2.0
-        width = beams * bw + 2.0 * wp.sigmas * now.sd_deg
-        samples = max(p.adaptive.min_samples, math.ceil(width / spacing) + 1)
+        half = (beams * bw + 2.0 * wp.sigmas * now.sd_deg) / 2.0
+        # Clipped at the servo limits, not shifted inside them: beyond a limit there is no
+        # lobe to see, and samples on the far side of the window would only cost time.
+        lo_lim, hi_lim = full.centre_deg - full.width_deg / 2.0, full.centre_deg + full.width_deg / 2.0
+        lo, hi = max(lo_lim, centre - half), min(hi_lim, centre + half)
+        samples = max(wp.min_samples, math.ceil((hi - lo) / spacing) + 1)
         if samples >= full.samples:
-            return Window(centre, full.width_deg, full.samples)
-        return Window(centre, (samples - 1) * spacing, samples)
+            return Window(full.centre_deg, full.width_deg, full.samples)
+        width = (samples - 1) * spacing
+        mid = min(max((lo + hi) / 2.0, lo_lim + width / 2.0), hi_lim - width / 2.0)
+        return Window(mid, width, samples)
 
 
 def make_model(params: LeaderParams) -> BearingModel:
