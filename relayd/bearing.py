@@ -33,6 +33,12 @@ How (`fit_main_lobe`):
    (residual variance, floored at `min_noise_db`) through -b/2c. It is what the
    tracking filter weighs this scan by.
 
+Several scans can be fitted as one (`scan_ids`: which scan each sample came from): each
+scan then has its own level (the leader's distance and the shadowing change from scan to
+scan, the lobe's shape does not), and the shape is fitted on all of them. That is how
+`relayd.scanpool` averages a still leader's scans before the nonlinear -b/2c rather than
+after it.
+
 No I/O, no clock, no NumPy: a 3x3 solve in plain Python is a few microseconds.
 """
 

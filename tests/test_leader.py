@@ -253,3 +253,11 @@ def test_near_a_servo_limit_the_adaptive_window_is_clipped_not_shifted_inside() 
     assert edge.centre_deg + edge.width_deg / 2.0 <= 90.0 + 1e-9
     assert edge.centre_deg - edge.width_deg / 2.0 <= 75.0 - 40.0  # the near flank is in
     assert edge.samples < middle.samples
+
+
+def test_the_default_is_the_lobe_fit_with_the_adaptive_window_and_wca_alone_is_the_papers() -> None:
+    assert (Settings().scan.estimator, Settings().scan.window) == ("lobe", "adaptive")
+    wca = Settings.model_validate({"scan": {"estimator": "wca"}}).scan
+    assert (wca.estimator, wca.window) == ("wca", "full")
+    with pytest.raises(ValidationError):
+        Settings.model_validate({"scan": {"estimator": "wca", "window": "adaptive"}})
