@@ -44,7 +44,7 @@ async def _latency_rounds(rounds: int, cycles: int) -> list[tuple[bool, dict[str
 
 async def _rig_size(seconds: float) -> tuple[float, float]:
     """(bytes, clock seconds) of one relay's recording at the default settings."""
-    from relayd.config import parse_settings
+    from relayd.config_load import parse_settings
     from relayd.daemon import Daemon
     from relayd.fakes.rig import FakeRig
     from relayd.record.reader import read_recording
@@ -112,7 +112,7 @@ async def _loop_cost(events: int) -> tuple[float, float]:
     from drivers.arcos.sip import Sip
     from drivers.wifi.sources import RssiSample
     from relayd.bus import Bus
-    from relayd.config import parse_settings
+    from relayd.config_load import parse_settings
     from relayd.events import Action, Event, RssiEvent, ScanSampleEvent, SipEvent, Tick
     from relayd.record.recorder import Recorder
     from relayd.record.replay import make_brain

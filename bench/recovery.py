@@ -5,13 +5,13 @@ with every relay's `recovery.enabled = false` (today's behaviour, the baseline) 
 once with it on, and reads summary.json:
 
 - **recovery rate**: the share of end-to-end link breaks (spells closer than 1 s merged,
-  `relayd.sim.runner.link_breaks`) that ended within 60 s of simulated time; a break
+  `relayd.sim.outcomes.link_breaks`) that ended within 60 s of simulated time; a break
   still open at the end of the run counts as not healed, except one that began less
   than 60 s before the end (it had no chance to be judged: counted as "censored");
 - **downtime**: the end-to-end link's total down time per run, median and worst;
 - **collisions** and recovery episodes (count, outcomes, distance driven).
 
-The issue's own scenarios (blind-corner, door, drift) get `--seeds` seeds each; the
+The self-healing scenarios (blind-corner, door, drift) get `--seeds` seeds each; the
 shipped paper scenarios (corridor, convoy, obstacle, parking) get `--check-seeds` each
 and must behave as before with recovery on: goal reached as often, no more collisions,
 downtime no worse.
@@ -40,7 +40,7 @@ from bench.common import BenchOutput, Result
 NAME = "recovery"
 HEAL_WITHIN_S = 60.0
 TARGET_RATE = 0.95
-ISSUE_SCENARIOS = ("blind-corner", "door", "drift")
+HEALING_SCENARIOS = ("blind-corner", "door", "drift")
 CHECK_SCENARIOS = ("corridor", "convoy", "obstacle", "parking")
 
 
@@ -152,11 +152,11 @@ def measure(scenarios: Sequence[str], seeds: int, *, log: Any = None,
     return rows
 
 
-def results(rows: dict[str, dict[str, dict[str, Any]]], issue: Sequence[str]) -> list[Result]:
+def results(rows: dict[str, dict[str, dict[str, Any]]], healing: Sequence[str]) -> list[Result]:
     out: list[Result] = []
     for sc, by in rows.items():
         on, off = by["on"], by["off"]
-        if sc in issue:
+        if sc in healing:
             rate = on["rate"]
             out.append(Result(NAME, f"{sc}: breaks healed within 60 s, recovery on", None if rate is None
                               else 100 * rate, "%", ">= 95 %", None if rate is None else rate >= TARGET_RATE,
@@ -179,9 +179,9 @@ def run(quick: bool = False) -> BenchOutput:
     """bench/run.py's entry: a few seeds (the full figure is `python bench/recovery.py`)."""
     _quiet_daemons()
     seeds, checks = (2, 1) if quick else (5, 1)
-    rows = measure(ISSUE_SCENARIOS, seeds)
+    rows = measure(HEALING_SCENARIOS, seeds)
     rows.update(measure(CHECK_SCENARIOS, checks))
-    out = BenchOutput(NAME, results(rows, ISSUE_SCENARIOS))
+    out = BenchOutput(NAME, results(rows, HEALING_SCENARIOS))
     out.details.append(table(rows))
     return out
 
@@ -198,9 +198,9 @@ def _quiet_daemons() -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     _quiet_daemons()
     p = argparse.ArgumentParser(prog="python bench/recovery.py", description=__doc__.splitlines()[0])
-    p.add_argument("--seeds", type=int, default=20, help="seeds per issue scenario (default 20)")
+    p.add_argument("--seeds", type=int, default=20, help="seeds per self-healing scenario (default 20)")
     p.add_argument("--check-seeds", type=int, default=3, help="seeds per paper scenario (default 3)")
-    p.add_argument("--scenarios", default=",".join(ISSUE_SCENARIOS))
+    p.add_argument("--scenarios", default=",".join(HEALING_SCENARIOS))
     p.add_argument("--checks", default=",".join(CHECK_SCENARIOS), help="paper scenarios ('' for none)")
     p.add_argument("--results", type=Path, default=None, help="also write the table to this file")
     p.add_argument("--summaries", type=Path, default=None, help="write every run's summary.json here (JSON)")
@@ -209,20 +209,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--window", choices=("full", "adaptive"), default=None, help="scan.window, likewise")
     args = p.parse_args(argv)
     scan = {k: v for k, v in (("estimator", args.estimator), ("window", args.window)) if v is not None}
-    issue = [s for s in args.scenarios.split(",") if s]
+    healing = [s for s in args.scenarios.split(",") if s]
     checks = [s for s in args.checks.split(",") if s]
     t0 = time.perf_counter()
     keep: dict[str, Any] = {}
-    rows = measure(issue, args.seeds, log=sys.stderr, keep=keep, scan=scan)
+    rows = measure(healing, args.seeds, log=sys.stderr, keep=keep, scan=scan)
     if args.summaries is not None:
         args.summaries.write_text(json.dumps(keep) + "\n", encoding="utf-8")
     rows.update(measure(checks, args.check_seeds, log=sys.stderr, keep=keep, scan=scan))
     if args.summaries is not None:
         args.summaries.write_text(json.dumps(keep) + "\n", encoding="utf-8")
-    res = results(rows, issue)
+    res = results(rows, healing)
     text = [table(rows), "", "| benchmark | figure | value | target | result | notes |", "|---|---|---|---|---|---|"]
     text += [f"| {r.bench} | {r.figure} | {r.value_text()} | {r.target} | {r.verdict()} | {r.note} |" for r in res]
-    text.append(f"\n{args.seeds} seeds per issue scenario, {args.check_seeds} per paper scenario, "
+    text.append(f"\n{args.seeds} seeds per self-healing scenario, {args.check_seeds} per paper scenario, "
                 f"scan {scan or 'as configured'}, {time.perf_counter() - t0:.0f} s wall")
     doc = "\n".join(text)
     print(doc)

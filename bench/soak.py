@@ -34,7 +34,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from relayd.logsetup import StdStream, setup_logging
-from relayd.sim.runner import SimRelay, SimRunner
+from relayd.sim.relay import SimRelay
+from relayd.sim.runner import SimRunner
 from relayd.sim.scenario import load_scenario
 
 RSS_GROWTH_TARGET_KB = 5 * 1024

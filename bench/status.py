@@ -30,7 +30,10 @@ from relayd.fakes.rig import FakeRig
 from relayd.sim.runner import scratch_root
 
 NAME = "status"
-TARGET_RATIO = 0.7
+#: /status throughput at least this share of bare aiohttp's (the event core's limit).
+TARGET_RATIO = 0.84
+#: CPU per request: bare's over relayd's, at least this (what an idle core could serve).
+TARGET_CPU_RATIO = 0.7
 
 
 async def _bare_server(payload_path: Path, port: int) -> asyncio.subprocess.Process:
@@ -118,8 +121,8 @@ def run(quick: bool = False, *, seconds: float | None = None, rounds: int | None
         Result(NAME, "server CPU per /status request, relayd", relayd_cpu, "us", "", None,
                "whole process, including the daemon's own background work (see steady)"),
         Result(NAME, "server CPU per /status request, bare aiohttp", bare_cpu, "us"),
-        Result(NAME, "/status efficiency relayd / bare (CPU per request)", cpu_ratio, "", f">= {TARGET_RATIO:g}",
-               cpu_ratio >= TARGET_RATIO,
+        Result(NAME, "/status efficiency relayd / bare (CPU per request)", cpu_ratio, "", f">= {TARGET_CPU_RATIO:g}",
+               cpu_ratio >= TARGET_CPU_RATIO,
                "bare CPU/request over relayd's: the capacity ratio on an otherwise idle core; "
                "unlike throughput it does not move with other processes' load"),
         Result(NAME, "/status p99 latency, relayd", relayd_p99, "ms", "", None, "8 connections, back to back"),

@@ -2,8 +2,10 @@
 
 Every timer in relayd (SIP period, resend interval, staleness limits, servo slew,
 poll periods) is expressed in *clock seconds*. On a robot the clock is the monotonic
-clock. In the simulator every party shares one `ScaledClock(speed)`, so a 100 ms SIP
-period passes in 100/speed ms of wall time and the behaviour is the same at any speed.
+clock. The real-time simulator (bench/soak.py) shares one `Clock(speed)` between every
+party, so a 100 ms SIP period passes in 100/speed ms of wall time and the behaviour is
+the same at any speed; `relayd sim` runs on virtual time instead (relayd/vtime.py's
+`LoopClock`, a subclass reading the virtual loop's time).
 """
 
 from __future__ import annotations

@@ -1,11 +1,13 @@
-"""The one reconnect policy of every driver: capped backoff and log discipline.
+"""The one reconnect loop of every driver: capped backoff and log discipline.
 
 A driver's long-running task connects, serves until the link fails, and tries again.
-`Reconnect` is the small state machine behind "tries again": it counts failures in a
-row, picks the next delay from a capped `Backoff`, waits it out (ending early on
-close, or at once when an unplugged serial adapter is plugged back in), and resets
-when a connection succeeds. It also owns how failures are logged, the same way for
-every device:
+`Reconnect.run()` is that loop, written once: a driver hands it how to connect and
+how to serve one connection, and how to read a failure (`Failure`); the loop counts,
+logs, backs off and stops. `Reconnect` is the small state machine behind "tries
+again": it counts failures in a row, picks the next delay from a capped `Backoff`,
+waits it out (ending early on stop, or at once when an unplugged serial adapter is
+plugged back in), and resets when a connection succeeds. It also owns how failures
+are logged, the same way for every device:
 
 * the first failure of a streak is a WARNING, repeats are DEBUG, so an unplugged
   device writes one line, not one per retry;
@@ -14,11 +16,18 @@ every device:
 * an unexpected exception (a bug, not a device problem) is an ERROR with its
   traceback, every time;
 * the first success after failures is an INFO line with the streak's length.
+
+Stopping: `run()` returns once `stop` is set (a failure that the stop itself caused,
+the port closed under a session, is not counted), and a cancel goes straight
+through it: it starts no task of its own, so nothing outlives it, and what a cancel
+must still do on the wire (the robot's safe stop) is the driver's, around `run()`.
 """
 
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Awaitable, Callable, Mapping
+from dataclasses import dataclass, field
 from enum import StrEnum
 
 import structlog
@@ -26,6 +35,42 @@ import structlog
 from drivers.backoff import Backoff
 from drivers.clock import Clock
 from drivers.link import wait_before_retry
+
+
+@dataclass(frozen=True, slots=True)
+class Failure:
+    """How a driver reads one failed attempt; see `Reconnect.failed` for the fields.
+
+    `unexpected` marks a bug rather than a device problem (ERROR with traceback, and
+    counted even while stopping); `text` replaces the exception's own text as the
+    error kept in `last_error`.
+    """
+
+    kind: str | None = None
+    event: str | None = None
+    unexpected: bool = False
+    text: str | None = None
+    fields: Mapping[str, object] = field(default_factory=dict)
+
+
+#: The reading of an exception no driver expects: a bug.
+UNEXPECTED = Failure(unexpected=True)
+
+#: One step of a connection (connect, serve, clean up after a loss).
+Step = Callable[[], Awaitable[object]]
+#: Reads an exception out of connect or serve; pure (bookkeeping goes in `OnFailure`).
+Describe = Callable[[Exception], Failure]
+#: The driver's own record of a counted failure: the exception, its reading, the text kept.
+OnFailure = Callable[[Exception, Failure, str], None]
+
+
+def expecting(*types: type[Exception]) -> Describe:
+    """The usual reading: an exception of `types` is device trouble, any other a bug."""
+
+    def describe(exc: Exception) -> Failure:
+        return Failure() if isinstance(exc, types) else UNEXPECTED
+
+    return describe
 
 
 class Phase(StrEnum):
@@ -131,3 +176,38 @@ class Reconnect:
 
     def close(self) -> None:
         self.phase = Phase.CLOSED
+
+    async def run(self, connect: Step, serve: Step, *, stop: asyncio.Event, describe: Describe,
+                  on_failure: OnFailure | None = None, after_loss: Step | None = None) -> None:
+        """Connect, serve until the link is lost, back off, again; until `stop` is set.
+
+        `connect()` opens and proves one connection (its success resets the backoff);
+        `serve()` runs until that connection ends, by returning (a loss the driver has
+        already reported: no failure is counted, the wait is the reset backoff's first
+        step) or by raising. An exception out of either is read by `describe` and
+        counted and logged by `failed`, then given to `on_failure`; an expected one
+        while `stop` is set is the stop's doing and ends the loop uncounted.
+        `after_loss()` tidies up a lost connection before the wait (never on stop or
+        cancel: a driver's safe stop may still need the port). Returns when `stop`
+        is set; raises only what is not an `Exception` (CancelledError).
+        """
+        while not stop.is_set():
+            self.attempt()
+            try:
+                await connect()
+                self.succeeded()
+                await serve()
+            except Exception as exc:  # noqa: BLE001 - nothing from a device may end the loop; bugs are logged with their traceback
+                failure = describe(exc)
+                if stop.is_set() and not failure.unexpected:
+                    break
+                error: BaseException | str = exc if failure.text is None else failure.text
+                text = self.failed(error, unexpected=failure.unexpected, kind=failure.kind,
+                                   event=failure.event, **failure.fields)
+                if on_failure is not None:
+                    on_failure(exc, failure, text)
+            if stop.is_set():
+                break
+            if after_loss is not None:
+                await after_loss()
+            await self.wait(stop)

@@ -25,21 +25,27 @@ the command; nothing here reads a clock. docs/AVOIDANCE.md has the state diagram
 - BLOCKED: the escape exceeded `max_escape_s`, `max_escape_m` or `max_turn_deg`:
   wheels zero, reason `blocked`, until the leader's direction is open ahead again.
 
-Every command goes through `Actuator`, so what leaves here is exactly what VEL (1 mm/s)
-and RVEL (1 deg/s) can say and a turn in place is at least `min_turn_deg_s`; and through
-`guard`, the last line: no forward motion toward an echo nearer than the stop distance
-in the robot's path, no reversing without the rear sonars, no turn in place toward a
-near side or with anything inside the circle the corners sweep.
+The escape's vocabulary (modes, settings, memory, one step's view and verdict) and
+the guarded turn and drive commands are in relayd/avoidstate.py.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
-from enum import StrEnum
+from dataclasses import replace
 
 from relayd.actuator import Actuator
-from relayd.estimator import SONAR_MAX_RANGE_M, SonarReading, wrap_deg
+from relayd.avoidstate import (
+    AvoidCommand,
+    AvoidMode,
+    AvoidParams,
+    AvoidState,
+    Sense,
+    drive_cmd,
+    enter,
+    turn_cmd,
+)
+from relayd.estimator import SONAR_MAX_RANGE_M, wrap_deg
 from relayd.ring import (
     HALF_WIDTH_M,
     LATERAL_M,
@@ -57,116 +63,9 @@ from relayd.ring import (
 )
 
 
-class AvoidMode(StrEnum):
-    FOLLOW = "follow"
-    BACKOFF = "backoff"
-    LANE = "lane"
-    TURN = "turn"
-    WALL = "wall"
-    CORNER = "corner"
-    ALIGN = "align"
-    BLOCKED = "blocked"
-
-
-@dataclass(frozen=True, slots=True)
-class AvoidParams:
-    """The escape's settings; distances in metres, speeds in mm/s, turns in deg/s.
-    stop_distance_m and threshold_o_m are overwritten from ControlParams."""
-
-    stop_distance_m: float = 0.3
-    threshold_o_m: float = 0.8
-    no_progress_s: float = 4.0
-    progress_m: float = 0.1
-    turn_rate_deg_s: float = 20.0
-    backoff_below_m: float = 0.5  # hit closer than this: back off first, to have room to turn
-    backoff_to_m: float = 1.4
-    backoff_max_m: float = 1.2
-    backoff_speed_mm_s: float = 100.0
-    unjam_m: float = 0.3  # back-off when a turn in place has no room
-    lane_detect_m: float = 1.5  # a boundary this close abeam on the free side: a passage, not open ground
-    lane_margin_m: float = 0.12  # footprint to that boundary while changing lanes
-    lane_min_shift_m: float = 0.3
-    lane_speed_mm_s: float = 100.0
-    lane_gain_deg_per_m: float = 150.0
-    lane_max_deg: float = 35.0
-    wall_speed_mm_s: float = 150.0
-    wall_gap_m: float = 0.3  # footprint side to the followed boundary
-    wall_gain_deg_s_per_m: float = 60.0
-    wall_angle_gain: float = 1.0  # deg/s of turn per degree the boundary runs off the heading
-    fit_range_m: float = 1.2  # echoes beyond this on the wall side: the boundary is lost
-    front_clear_m: float = 0.45  # forward sonars beyond this: the way ahead is open
-    corner_run_m: float = 0.45
-    leave_clear_m: float = 1.2
-    leave_progress_m: float = 0.2  # along the leader's line beyond the hit point (Bug2)
-    door_progress_m: float = -0.3  # ... through an opening abeam: a door level with the hit point
-    door_run_m: float = 0.3  # run on along an opening abeam before turning into it (its middle)
-    turn_clear_m: float = 1.5  # a turn in place goes on until the front is this open ...
-    turn_max_deg: float = 100.0  # ... or it has turned this far with the front merely clear
-    align_tol_deg: float = 5.0
-    tie_m: float = 0.05
-    episode_clear_s: float = 8.0  # free this long after an escape: the next obstacle is a new one
-    max_escape_s: float = 300.0
-    max_escape_m: float = 40.0
-    max_turn_deg: float = 1080.0
-
-
-@dataclass(frozen=True, slots=True)
-class AvoidState:
-    """Everything the escape needs from one step to the next; the caller keeps it
-    (ControlMemory.avoid) and hands it back, so the step stays pure."""
-
-    mode: AvoidMode = AvoidMode.FOLLOW
-    side: int = 0  # +1 turns left (obstacle on the right), -1 right; 0: no episode
-    mode_t: float = 0.0
-    anchor: tuple[float, float] | None = None  # where the robot last made progress (mm)
-    anchor_t: float = 0.0
-    escape_t: float | None = None  # start of the current escape episode
-    path_m: float = 0.0
-    turned_deg: float = 0.0
-    goal_deg: float = 0.0  # odometry heading of the leader when the obstacle was hit
-    hit_proj_m: float = 0.0
-    last_pose: tuple[float, float, float] | None = None
-    lost_at: tuple[float, float] | None = None  # WALL: where the boundary was lost
-    corner_heading_deg: float | None = None
-    clear_since_t: float | None = None
-    backoff_from: tuple[float, float] | None = None
-    backoff_len_m: float = 0.0  # how far this back-off may go
-    after_backoff: AvoidMode = AvoidMode.TURN  # where a back-off hands over
-    unjam: bool = False  # this back-off makes room to turn: it runs its length whatever is ahead
-    lane_ref: tuple[float, float, float] | None = None  # pose where the lane change began
-    mode_heading_deg: float = 0.0  # odometry heading when the current mode began
-    had_wall: bool = False  # WALL: the boundary has been in reach since WALL began
-    opening_at: tuple[float, float] | None = None  # WALL: where an opening abeam began
-
-
-@dataclass(frozen=True, slots=True)
-class Sense:
-    """One step's view: time, odometry pose (mm, mm, deg), sonars, leader bearing."""
-
-    t_s: float
-    pose: tuple[float, float, float]
-    sonar: tuple[SonarReading, ...]
-    bearing_deg: float  # leader, robot frame, ccw +
-    rear: tuple[SonarReading, ...] = ()  # the rear ring; without it the robot never reverses
-
-
 def _proj_m(pose: tuple[float, float, float], goal_deg: float) -> float:
     g = math.radians(goal_deg)
     return (pose[0] * math.cos(g) + pose[1] * math.sin(g)) / 1000.0
-
-
-def _enter(st: AvoidState, mode: AvoidMode, t: float, **changes: object) -> AvoidState:
-    return replace(st, mode=mode, mode_t=t, **changes)  # type: ignore[arg-type]
-
-
-@dataclass(frozen=True, slots=True)
-class AvoidCommand:
-    """The step's verdict: follow the paper's law (`follow`), or this (VEL, RVEL) and why."""
-
-    follow: bool
-    vel_mm_s: int = 0
-    rvel_deg_s: int = 0
-    reason: str = "driving"
 
 
 def _bookkeep(st: AvoidState, s: Sense) -> AvoidState:
@@ -198,12 +97,12 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
     if st.escape_t is not None and st.mode is not AvoidMode.BLOCKED and (
             t - st.escape_t > p.max_escape_s or st.path_m > p.max_escape_m
             or st.turned_deg > p.max_turn_deg):
-        return _enter(st, AvoidMode.BLOCKED, t), AvoidCommand(False, reason="blocked")
+        return enter(st, AvoidMode.BLOCKED, t), AvoidCommand(False, reason="blocked")
 
     if st.mode is AvoidMode.BLOCKED:
         if abs(s.bearing_deg) < 30.0 and leader_clear(r, s.bearing_deg, p.leave_clear_m) \
                 and d_min > p.threshold_o_m:
-            st = _enter(AvoidState(), AvoidMode.FOLLOW, t, anchor=s.pose[:2], anchor_t=t, last_pose=s.pose)
+            st = enter(AvoidState(), AvoidMode.FOLLOW, t, anchor=s.pose[:2], anchor_t=t, last_pose=s.pose)
             return st, AvoidCommand(True)
         return st, AvoidCommand(False, reason="blocked")
 
@@ -225,9 +124,9 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
             st = replace(st, escape_t=t, path_m=0.0, turned_deg=0.0,
                          side=choose_side(s.sonar, s.bearing_deg, p.tie_m),
                          goal_deg=s.pose[2] + s.bearing_deg, hit_proj_m=_proj_m(s.pose, s.pose[2] + s.bearing_deg))
-        st = _enter(st, AvoidMode.TURN, t, clear_since_t=None)
+        st = enter(st, AvoidMode.TURN, t, clear_since_t=None)
         if d_min < p.backoff_below_m and rear_min_m(s.rear) > p.stop_distance_m + 0.1:
-            st = _enter(st, AvoidMode.BACKOFF, t, backoff_from=s.pose[:2], backoff_len_m=p.backoff_max_m, unjam=False)
+            st = enter(st, AvoidMode.BACKOFF, t, backoff_from=s.pose[:2], backoff_len_m=p.backoff_max_m, unjam=False)
         else:
             st = _maybe_lane(st, s, r, p, t)
 
@@ -244,7 +143,7 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
             reason = "rejoining" if st.after_backoff is AvoidMode.ALIGN else "avoiding"
             return st, AvoidCommand(False, vel, 0, reason)
         after = st.after_backoff
-        st = _enter(st, after, t, backoff_from=None, after_backoff=AvoidMode.TURN)
+        st = enter(st, after, t, backoff_from=None, after_backoff=AvoidMode.TURN)
         if after is AvoidMode.TURN:
             # Only an escape's first move may become a lane change: after an ALIGN's
             # back-off the way is onto the leader, not along the latched side.
@@ -257,31 +156,31 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
 
     if st.mode is AvoidMode.ALIGN:
         if abs(s.bearing_deg) <= p.align_tol_deg:
-            st = _enter(st, AvoidMode.FOLLOW, t, anchor=s.pose[:2], anchor_t=t)
+            st = enter(st, AvoidMode.FOLLOW, t, anchor=s.pose[:2], anchor_t=t)
             return st, AvoidCommand(True)
-        cmd = _turn(act, s, p, math.copysign(p.turn_rate_deg_s, s.bearing_deg), "rejoining")
+        cmd = turn_cmd(act, s, p, math.copysign(p.turn_rate_deg_s, s.bearing_deg), "rejoining")
         if cmd.rvel_deg_s != 0:
             return st, cmd
         if rear_min_m(s.rear) > p.stop_distance_m + 0.1:
             # No room to turn here (in a doorway): back off a little and turn there.
-            st = _enter(st, AvoidMode.BACKOFF, t, backoff_from=s.pose[:2], backoff_len_m=p.unjam_m, unjam=True,
+            st = enter(st, AvoidMode.BACKOFF, t, backoff_from=s.pose[:2], backoff_len_m=p.unjam_m, unjam=True,
                         after_backoff=AvoidMode.ALIGN)
             vel, _ = guard(-act.express(p.backoff_speed_mm_s, 0.0)[0], 0, s.sonar,
                            p.stop_distance_m, s.rear)
             return st, AvoidCommand(False, vel, 0, "rejoining")
-        st = _enter(st, AvoidMode.WALL, t, lost_at=None)  # too close to turn: keep rounding
+        st = enter(st, AvoidMode.WALL, t, lost_at=None)  # too close to turn: keep rounding
 
     if st.mode is AvoidMode.TURN:
         front = min_at(r, (10.0, -10.0, 30.0, -30.0))
         turned = abs(wrap_deg(s.pose[2] - st.mode_heading_deg))
         if (front > p.front_clear_m and min_at(r, (50.0 * -st.side,)) > p.stop_distance_m
                 and (front > p.turn_clear_m or turned >= p.turn_max_deg)):
-            st = _enter(st, AvoidMode.WALL, t, lost_at=None)
+            st = enter(st, AvoidMode.WALL, t, lost_at=None)
         else:
-            cmd = _turn(act, s, p, st.side * p.turn_rate_deg_s, "avoiding")
+            cmd = turn_cmd(act, s, p, st.side * p.turn_rate_deg_s, "avoiding")
             if cmd.rvel_deg_s == 0 and rear_min_m(s.rear) > p.stop_distance_m + 0.1:
                 # No room to turn here (a corner, a passage): back off a little and retry.
-                st = _enter(st, AvoidMode.BACKOFF, t, backoff_from=s.pose[:2],
+                st = enter(st, AvoidMode.BACKOFF, t, backoff_from=s.pose[:2],
                             backoff_len_m=p.unjam_m, unjam=True)
                 vel, _ = guard(-act.express(p.backoff_speed_mm_s, 0.0)[0], 0, s.sonar,
                                p.stop_distance_m, s.rear)
@@ -293,9 +192,9 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
         if (st.corner_heading_deg is None
                 or abs(wrap_deg(s.pose[2] - st.corner_heading_deg)) < 5.0
                 or d_min < p.stop_distance_m):
-            st = _enter(st, AvoidMode.WALL, t, lost_at=None, corner_heading_deg=None)
+            st = enter(st, AvoidMode.WALL, t, lost_at=None, corner_heading_deg=None)
         else:
-            return st, _turn(act, s, p, -st.side * p.turn_rate_deg_s, "avoiding")
+            return st, turn_cmd(act, s, p, -st.side * p.turn_rate_deg_s, "avoiding")
 
     # WALL: the boundary is on side w = -side.
     w = -st.side
@@ -306,36 +205,36 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
         st = replace(st, opening_at=st.opening_at or s.pose[:2])
         door = math.dist(st.opening_at or s.pose[:2], s.pose[:2]) >= p.door_run_m * 1000.0
         if not door:
-            return st, _drive(act, s, p, p.wall_speed_mm_s, 0.0)
+            return st, drive_cmd(act, s, p, p.wall_speed_mm_s, 0.0)
     else:
         st = replace(st, opening_at=None)
     if (progress > (p.door_progress_m if door else p.leave_progress_m)
             and leader_clear(r, s.bearing_deg, p.leave_clear_m, w)):
-        st = _enter(st, AvoidMode.ALIGN, t)
+        st = enter(st, AvoidMode.ALIGN, t)
         if abs(s.bearing_deg) <= p.align_tol_deg:
-            st = _enter(st, AvoidMode.FOLLOW, t, anchor=s.pose[:2], anchor_t=t)
+            st = enter(st, AvoidMode.FOLLOW, t, anchor=s.pose[:2], anchor_t=t)
             return st, AvoidCommand(True)
-        return st, _turn(act, s, p, math.copysign(p.turn_rate_deg_s, s.bearing_deg), "rejoining")
+        return st, turn_cmd(act, s, p, math.copysign(p.turn_rate_deg_s, s.bearing_deg), "rejoining")
     if min_at(r, (10.0, -10.0, 30.0 * w)) < p.front_clear_m or d_min < p.stop_distance_m:
         if st.lost_at is not None:
             # Blocked while rounding an outer corner: the way on is round it, toward the wall.
-            st = _enter(st, AvoidMode.CORNER, t, lost_at=None,
+            st = enter(st, AvoidMode.CORNER, t, lost_at=None,
                         corner_heading_deg=wrap_deg(s.pose[2] + w * 90.0))
-            return st, _turn(act, s, p, w * p.turn_rate_deg_s, "avoiding")
-        st = _enter(st, AvoidMode.TURN, t)
-        return st, _turn(act, s, p, st.side * p.turn_rate_deg_s, "avoiding")
+            return st, turn_cmd(act, s, p, w * p.turn_rate_deg_s, "avoiding")
+        st = enter(st, AvoidMode.TURN, t)
+        return st, turn_cmd(act, s, p, st.side * p.turn_rate_deg_s, "avoiding")
     fit = wall_fit(r, w, p.fit_range_m)
     if fit is None and not st.had_wall:
         # Turned away from it and it is not beside us yet: drive on, past it, until it is.
-        return st, _drive(act, s, p, p.wall_speed_mm_s, 0.0)
+        return st, drive_cmd(act, s, p, p.wall_speed_mm_s, 0.0)
     if fit is None:
         lost = st.lost_at or s.pose[:2]
         st = replace(st, lost_at=lost)
         if math.dist(lost, s.pose[:2]) >= p.corner_run_m * 1000.0:
-            st = _enter(st, AvoidMode.CORNER, t, lost_at=None,
+            st = enter(st, AvoidMode.CORNER, t, lost_at=None,
                         corner_heading_deg=wrap_deg(s.pose[2] + w * 90.0))
-            return st, _turn(act, s, p, w * p.turn_rate_deg_s, "avoiding")
-        return st, _drive(act, s, p, p.wall_speed_mm_s, 0.0)
+            return st, turn_cmd(act, s, p, w * p.turn_rate_deg_s, "avoiding")
+        return st, drive_cmd(act, s, p, p.wall_speed_mm_s, 0.0)
     st = replace(st, lost_at=None, had_wall=True)
     lateral, angle = fit
     target = HALF_WIDTH_M + p.wall_gap_m
@@ -345,7 +244,7 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
         target = (lateral + other) / 2.0  # a narrow gap: keep to its middle
     rvel = p.wall_angle_gain * angle + w * p.wall_gain_deg_s_per_m * (lateral - target)
     rvel = max(-p.turn_rate_deg_s, min(p.turn_rate_deg_s, rvel))
-    return st, _drive(act, s, p, p.wall_speed_mm_s, rvel)
+    return st, drive_cmd(act, s, p, p.wall_speed_mm_s, rvel)
 
 
 def _maybe_lane(st: AvoidState, s: Sense, r: dict[float, float], p: AvoidParams, t: float) -> AvoidState:
@@ -364,7 +263,7 @@ def _maybe_lane(st: AvoidState, s: Sense, r: dict[float, float], p: AvoidParams,
         expected = boundary_echo_m(fit, st.side, st.side * h)
         if r.get(st.side * h, SONAR_MAX_RANGE_M) < expected - 0.15:
             return st
-    return _enter(st, AvoidMode.LANE, t, lane_ref=s.pose)
+    return enter(st, AvoidMode.LANE, t, lane_ref=s.pose)
 
 
 def _lane(st: AvoidState, s: Sense, r: dict[float, float], p: AvoidParams, act: Actuator,
@@ -386,11 +285,11 @@ def _lane(st: AvoidState, s: Sense, r: dict[float, float], p: AvoidParams, act: 
     if passed and forward_min_m(s.sonar) >= p.threshold_o_m:
         # Out of the gap and clear of its sides: the paper's law takes over, turning
         # gently onto the leader as it drives.
-        return _enter(st, AvoidMode.FOLLOW, t, lane_ref=None, anchor=s.pose[:2], anchor_t=t), AvoidCommand(True)
+        return enter(st, AvoidMode.FOLLOW, t, lane_ref=None, anchor=s.pose[:2], anchor_t=t), AvoidCommand(True)
     if max(r.get(10.0, SONAR_MAX_RANGE_M), r.get(-10.0, SONAR_MAX_RANGE_M)) < p.front_clear_m:
         # Both forward sonars close: something across the lane (a diagonal approach to
         # the side boundary shows in one of them only). Go round it instead.
-        return _enter(st, AvoidMode.TURN, t, lane_ref=None), None
+        return enter(st, AvoidMode.TURN, t, lane_ref=None), None
     fit = wall_fit(r, st.side, p.fit_range_m, edge=True)
     if fit is not None:
         # The free side's boundary is in reach: run parallel to it at the lane's distance
@@ -416,25 +315,13 @@ def _lane(st: AvoidState, s: Sense, r: dict[float, float], p: AvoidParams, act: 
         err = wrap_deg(st.side * toward + wall_angle)
     else:
         # The boundary that made this a passage is gone: no lane to keep, go round instead.
-        return _enter(st, AvoidMode.TURN, t, lane_ref=None), None
+        return enter(st, AvoidMode.TURN, t, lane_ref=None), None
     rvel = max(-p.turn_rate_deg_s, min(p.turn_rate_deg_s, 2.0 * err))
     # Keep rolling while turning: between close boundaries there is no room to turn in
     # place, only to arc (the guard still stops the wheels before anything in the path).
     vel = p.lane_speed_mm_s * max(0.4, math.cos(math.radians(min(90.0, 3.0 * abs(err)))))
-    cmd = _drive(act, s, p, vel, rvel)
+    cmd = drive_cmd(act, s, p, vel, rvel)
     if cmd.vel_mm_s == 0 and cmd.rvel_deg_s == 0 and forward_min_m(s.sonar) < p.front_clear_m:
-        return _enter(st, AvoidMode.TURN, t, lane_ref=None), None  # the lane is shut: go round
+        return enter(st, AvoidMode.TURN, t, lane_ref=None), None  # the lane is shut: go round
     return st, cmd
 
-
-def _turn(act: Actuator, s: Sense, p: AvoidParams, rvel: float, reason: str) -> AvoidCommand:
-    vel, rv = guard(0, act.turn(rvel), s.sonar, p.stop_distance_m, s.rear)
-    if rv == 0:
-        # Neither turning that way nor driving is safe: hold, and the next steps decide.
-        return AvoidCommand(False, 0, 0, "blocked")
-    return AvoidCommand(False, vel, rv, reason)
-
-
-def _drive(act: Actuator, s: Sense, p: AvoidParams, vel: float, rvel: float) -> AvoidCommand:
-    v, rv = guard(*act.express(vel, rvel), s.sonar, p.stop_distance_m, s.rear)
-    return AvoidCommand(False, v, rv, "avoiding")

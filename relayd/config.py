@@ -1,25 +1,22 @@
-"""relayd's settings: pydantic models for every config key, TOML loading, check-config.
+"""relayd's settings: a pydantic model for every config key and its default.
 
 Every key has the paper's default; unknown keys are errors (a typo such as
 `kpp = 2` must not silently leave kp at its default on a robot) and come with a
 "did you mean" suggestion. Types are strict: `enabled = "off"`, `enabled = 1` and
 `kp = "2.5"` are errors, not conversions; an integer is accepted where a float is
-expected (`kp = 2` is natural TOML). Floats must be finite. Cross-key rules (threshold
-order, distances, `rear_link` needing `[ap.rear]`) run in the same pass as the schema,
-so one `check-config` lists every problem. Secrets never live
-in the TOML: a section names an environment variable (`password_env`, `token_env`)
-or a file (`password_file`, `token_file`) and `resolve_secret` reads it at start-up.
-Writing settings back out as TOML lives in relayd.config_toml, the secrets in
-relayd.config_secrets (re-exported here).
+expected (`kp = 2` is natural TOML). Floats must be finite. The models' validators
+call the cross-key rules of relayd.config_checks (threshold order, distances), so a
+Settings built in code obeys them too. Secrets never live in the TOML: a section
+names an environment variable (`password_env`, `token_env`) or a file
+(`password_file`, `token_file`) and `resolve_secret` reads it at start-up.
+Reading a TOML file into Settings (every problem in one pass, check-config's
+warnings) lives in relayd.config_load, writing settings back out as TOML in
+relayd.config_toml, the secrets in relayd.config_secrets (re-exported here).
 """
 
 from __future__ import annotations
 
 import ipaddress
-import os
-import tomllib
-from collections.abc import Mapping
-from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from pydantic import (
@@ -27,7 +24,6 @@ from pydantic import (
     BeforeValidator,
     ConfigDict,
     Field,
-    ValidationError,
     field_validator,
     model_validator,
 )
@@ -37,13 +33,8 @@ from relayd.config_checks import (
     ap_rules,
     avoidance_rules,
     control_rules,
-    cross_section_rules,
-    message,
     pantilt_rules,
     raise_first,
-    undecodable,
-    validation_messages,
-    with_defaults,
 )
 
 # Secrets (where each comes from, reading it) live in relayd.config_secrets; re-exported.
@@ -54,7 +45,6 @@ from relayd.config_secrets import resolve_secret as resolve_secret
 from relayd.config_secrets import secret_file_errors as secret_file_errors
 from relayd.config_secrets import secret_refs as secret_refs
 
-DEFAULT_CONFIG_PATH = Path("/etc/relayd/relayd.toml")
 BAUD_RATES = (9600, 19200, 38400, 57600, 115200)
 
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
@@ -182,7 +172,7 @@ class ScanSettings(_Section):
     @model_validator(mode="before")
     @classmethod
     def _window_follows_estimator(cls, data: Any) -> Any:
-        if isinstance(data, Mapping) and "window" not in data and data.get("estimator") == "wca":
+        if isinstance(data, dict) and "window" not in data and data.get("estimator") == "wca":
             return {**data, "window": "full"}
         return data
 
@@ -370,75 +360,3 @@ class Settings(_Section):
     log: LogSettings = LogSettings()
     record: RecordSettings = RecordSettings()
     foxglove: FoxgloveSettings = FoxgloveSettings()
-
-
-def semantic_problems(data: Mapping[str, Any]) -> list[str]:
-    """The cross-key rules on a raw config document, whatever else is wrong with it."""
-    control = with_defaults(ControlSettings, data.get("control"))
-    problems = [*control_rules(control),
-                *pantilt_rules(with_defaults(PanTiltSettings, data.get("pantilt"))),
-                *avoidance_rules(with_defaults(AvoidanceSettings, data.get("avoidance"))),
-                *cross_section_rules(data, control), *_port_rules(data)]
-    ap = data.get("ap")
-    for side in ("rear", "front"):
-        section = ap.get(side) if isinstance(ap, Mapping) else None
-        if isinstance(section, Mapping):
-            problems += ap_rules(side, section)
-    return [message(p) for p in problems]
-
-
-def _port_rules(data: Mapping[str, Any]) -> list[tuple[str, str]]:
-    """The live Foxglove server and the API cannot share a port (the second would fail to bind)."""
-    api, fox = data.get("api"), data.get("foxglove")
-    if not isinstance(fox, Mapping) or fox.get("enabled") is not True:
-        return []
-    api = api if isinstance(api, Mapping) else {}
-    api_port = api.get("port", ApiSettings().port)
-    fox_port = fox.get("port", FoxgloveSettings().port)
-    if api.get("enabled", True) is True and fox_port == api_port and fox_port != 0:
-        return [("foxglove.port", f"{fox_port} is also api.port; give the live Foxglove server its own port")]
-    return []
-
-
-def parse_settings(data: Mapping[str, Any]) -> Settings:
-    """Validate a config document: every schema error and every cross-key rule, in one pass."""
-    semantic = semantic_problems(data)
-    try:
-        settings = Settings.model_validate(data)
-        schema: list[str] = []
-    except ValidationError as exc:
-        schema = validation_messages(exc, Settings)
-    # A model's own validator may have raised the same rule: report it once.
-    texts = {m.split(": ", 1)[1] for m in semantic}
-    errors = [m for m in schema if m.split(": ", 1)[-1] not in texts] + semantic
-    if errors:
-        raise ConfigError(errors)
-    return settings
-
-
-def load_settings(path: str | os.PathLike[str]) -> Settings:
-    """Read and validate a TOML config, or raise ConfigError naming every bad key."""
-    p = Path(path)
-    try:
-        raw = p.read_bytes()
-    except OSError as exc:
-        raise ConfigError([f"{p}: cannot read: {exc.strerror or exc}"]) from None
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ConfigError([undecodable(raw, exc)]) from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError([f"{p}: not valid TOML: {exc}"]) from None
-    return parse_settings(data)
-
-
-def config_warnings(settings: Settings) -> list[str]:
-    """Usable but suspicious settings: check-config prints them, `relayd run` logs them."""
-    out = []
-    for key, section in (("robot.port", settings.robot), ("pantilt.port", settings.pantilt)):
-        if section.enabled and "XXXX" in section.port:
-            out.append(f"{key}: {section.port!r} looks like a placeholder (XXXX): use your adapter's "
-                       "serial, or the udev name (/dev/relay/base, /dev/relay/servo)")
-    return out

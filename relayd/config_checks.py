@@ -1,9 +1,10 @@
 """Config rules that span several keys, and the helpers that make config errors readable.
 
 The rules work on plain dicts (one section, defaults filled in), so they run in the
-same pass as the schema even when other keys of the section are invalid: a config
-with a wrong type *and* inverted thresholds reports both at once. The pydantic models
-in relayd.config call the same rules, so a Settings built in code obeys them too.
+same pass as the schema (relayd.config_load) even when other keys of the section are
+invalid: a config with a wrong type *and* inverted thresholds reports both at once.
+The pydantic models in relayd.config call the same rules, so a Settings built in code
+obeys them too.
 A rule skips a comparison when one of its inputs is not a usable number; the schema
 error for that key is reported instead.
 """

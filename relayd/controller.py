@@ -52,7 +52,8 @@ import math
 from dataclasses import dataclass, field, replace
 
 from relayd.actuator import Actuator
-from relayd.avoidance import AvoidParams, AvoidState, Sense, avoid_step
+from relayd.avoidance import avoid_step
+from relayd.avoidstate import AvoidParams, AvoidState, Sense
 from relayd.estimator import (
     SonarReading,
     avoidance_bearing,
@@ -81,7 +82,9 @@ class ControlParams:
     detect_range_m: float = 3.0
     gamma_o_m: float = 1.0
     sip_timeout_s: float = 0.5  # robot.lost_after_s
-    rssi_timeout_s: float = 5.0  # two scan periods (the daemon computes it)
+    #: No fresh RSSI sample for this long is a fault. The daemon sets max(0.5 s, 5 sample
+    #: periods) from wifi.sample_hz (relayd/params.py): 0.5 s at the default 20 Hz.
+    rssi_timeout_s: float = 0.5
     rear_timeout_s: float = 3.0  # RSSI^b older than this is stale
     manual_deadman_s: float = 0.5
     #: False: the paper's obstacle rule alone, no escape (config `control.escape`).
@@ -116,7 +119,7 @@ class ControlInputs:
     #: the escape's progress watchdog and limits need them; None disables the escape.
     t_s: float | None = None
     odom: tuple[float, float, float] | None = None
-    #: The backward-looking rear sonars (`avoidance.rear_readings`): the escape backs off
+    #: The backward-looking rear sonars (`ring.rear_readings`): the escape backs off
     #: only when they show room behind.
     rear_sonar: tuple[SonarReading, ...] = ()
 

@@ -83,7 +83,7 @@ class DeviceOverrides:
 
 
 class Notifier(Protocol):
-    """What the daemon tells systemd (relayd.sdnotify.Notifier)."""
+    """What the daemon tells systemd (relayd.sdnotify.SdNotifier implements it)."""
 
     def ready(self) -> None: ...
     def status(self, text: str) -> None: ...

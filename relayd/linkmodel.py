@@ -329,6 +329,6 @@ class LinkModelStatus:
     refused_stale: int
 
     def to_json(self) -> dict[str, Any]:
-        out = {f: getattr(self, f) for f in self.__slots__}  # type: ignore[attr-defined]
+        out = {f: getattr(self, f) for f in self.__slots__}
         out["bounds_dbm"] = list(self.bounds_dbm)
         return out

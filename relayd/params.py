@@ -15,7 +15,7 @@ from typing import Any, TypeVar
 from pydantic import BaseModel
 
 from relayd.actuator import Actuator
-from relayd.avoidance import AvoidParams
+from relayd.avoidstate import AvoidParams
 from relayd.brain import BrainParams
 from relayd.config import Settings
 from relayd.controller import ControlParams

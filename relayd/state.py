@@ -14,9 +14,13 @@ import asyncio
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import StrEnum
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, TypedDict
 
 from relayd import __version__
+
+if TYPE_CHECKING:
+    from relayd.linkmodel import LinkModelStatus
+    from relayd.record import RecordingStatus
 
 SONAR_COUNT = 16
 
@@ -75,7 +79,21 @@ class LinkInfo:
     tx_mbps: float | None = None
     rx_mbps: float | None = None
     t: float | None = None
-    stations: tuple[dict[str, Any], ...] = ()
+
+
+class RecoveryStatus(TypedDict):
+    """/status's `recovery` object: relayd.recovery.RecoveryView in JSON types."""
+
+    enabled: bool
+    phase: str
+    kind: str | None
+    episodes: int
+    elapsed_s: float | None
+    distance_m: float | None
+    max_distance_m: float
+    max_time_s: float
+    trail_crumbs: int
+    last_outcome: str | None
 
 
 class Controls(Protocol):
@@ -123,16 +141,15 @@ class RelayState:
     health_sources: dict[str, Callable[[], DeviceHealth]] = field(default_factory=dict, repr=False)
     loop_tick_t: float | None = None
     #: The recorder's status (relayd.record), read at snapshot time; None: no recorder here.
-    recording_source: Callable[[], dict[str, Any]] | None = field(default=None, repr=False)
+    recording_source: Callable[[], RecordingStatus] | None = field(default=None, repr=False)
     robot_name: str | None = None
     #: The operator's name for this robot (config `robot.display_name`), e.g. "relay 2 (east)".
     display_name: str | None = None
     thresholds: dict[str, float] = field(default_factory=dict)
     #: The rear-link model's state (relayd.linkmodel), None until its first sample.
-    link_model: dict[str, Any] | None = None
-    #: The recovery state machine as /status shows it (relayd.recovery.RecoveryView as a
-    #: plain dict); None while recovery is disabled.
-    recovery: dict[str, Any] | None = None
+    link_model: LinkModelStatus | None = None
+    #: The recovery state machine as /status shows it; None while recovery is disabled.
+    recovery: RecoveryStatus | None = None
     #: Bumped on every change a live view cares about; `changed` is set with it.
     revision: int = 0
     changed: asyncio.Event = field(default_factory=asyncio.Event, repr=False)
@@ -216,7 +233,7 @@ class RelayState:
                 for name, h in self.health_now().items()
             },
             "thresholds": dict(self.thresholds),
-            "link_model": None if self.link_model is None else dict(self.link_model),
+            "link_model": None if self.link_model is None else self.link_model.to_json(),
             "recording": None if self.recording_source is None else self.recording_source(),
             "recovery": None if self.recovery is None else dict(self.recovery),
         }

@@ -110,7 +110,7 @@ class StateWriter:
                 st.touch()
             case LinkModelView():
                 st.thresholds["threshold_b_dbm"] = round(action.threshold_b_dbm, 2)
-                st.link_model = action.model.to_json()
+                st.link_model = action.model
             case RecoveryReport(view=v):
                 if st.recovery is None or st.recovery.get("phase") != str(v.phase):
                     log.info("recovery", phase=str(v.phase), kind=None if v.kind is None else str(v.kind),

@@ -400,7 +400,7 @@ async def test_poller_wrong_password_retries_on_the_capped_backoff_and_logs_once
 
 
 async def test_poller_picks_up_a_fixed_password_within_the_backoff_cap() -> None:
-    """The radio's password was changed, then changed back while polling (issue: a refused
+    """The radio's password was changed, then changed back while polling (a refused
     login once held the robot for up to 60 s)."""
     clock = LoopClock()
     async with FakeAirOs("ubnt", SECRET, clock=clock) as fake:

@@ -34,7 +34,7 @@ from support import running as run_daemon
 from drivers.arcos.codec import Command
 from drivers.arcos.sip import wheel_to_vel_rvel
 from relayd import __version__
-from relayd.config import parse_settings
+from relayd.config_load import parse_settings
 from relayd.daemon import Daemon
 from relayd.fakes.rig import API_TOKEN_ENV, FakeRig
 from relayd.state import Mode

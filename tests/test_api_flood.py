@@ -4,7 +4,7 @@
 soft and hard, as systemd leaves it without LimitNOFILE) drives a FakeRig toward a
 far leader. tests/flood.py, in a third process, then opens 1,100 idle connections
 and 100 slow-header clients to the API and holds them. Before the guard in
-relayd/api/server.py this exhausted the daemon's descriptors: the RSSI source failed
+relayd/api/guard.py this exhausted the daemon's descriptors: the RSSI source failed
 with EMFILE, the robot stopped on rssi_stale, /healthz timed out and asyncio logged
 the failed accept tens of thousands of times. Now:
 

@@ -7,33 +7,22 @@ from typing import Any
 
 import pytest
 from aiohttp.test_utils import TestClient, TestServer
+from support import ManualClock
 
-from drivers.clock import Clock
 from relayd.api import make_app
 from relayd.api.demo import DemoControls, populate
 from relayd.api.history import FIELDS, History, parse_after
 from relayd.state import DriveState, RelayState
 
 
-class StepClock(Clock):
-    """now() is set by the test; sleeps stay real."""
-
-    def __init__(self, t: float = 500.0) -> None:
-        super().__init__()
-        self.t = t
-
-    def now(self) -> float:
-        return self.t
-
-
-def _state(clock: StepClock) -> RelayState:
+def _state(clock: ManualClock) -> RelayState:
     st = RelayState()
     populate(st, clock)
     return st
 
 
 def test_samples_come_from_the_snapshot_and_the_ring_is_bounded() -> None:
-    clock = StepClock()
+    clock = ManualClock(500.0)
     st = _state(clock)
     hist = History(st.snapshot, clock, period_s=1.0, window_s=5.0)
     for i in range(8):
@@ -55,7 +44,7 @@ def test_samples_come_from_the_snapshot_and_the_ring_is_bounded() -> None:
 
 
 def test_after_returns_only_newer_samples_and_a_future_after_returns_all() -> None:
-    clock = StepClock()
+    clock = ManualClock(500.0)
     st = _state(clock)
     hist = History(st.snapshot, clock, period_s=0.5, window_s=300.0)
     for _ in range(4):
@@ -67,7 +56,7 @@ def test_after_returns_only_newer_samples_and_a_future_after_returns_all() -> No
 
 
 def test_non_finite_values_become_null() -> None:
-    clock = StepClock()
+    clock = ManualClock(500.0)
     st = _state(clock)
     st.bearing_deg = float("nan")
     st.rssi_leader_dbm = float("-inf")
@@ -85,7 +74,7 @@ def test_parse_after() -> None:
 
 
 def test_bad_window_settings_are_refused() -> None:
-    clock = StepClock()
+    clock = ManualClock(500.0)
     with pytest.raises(ValueError):
         History(_state(clock).snapshot, clock, period_s=0.0)
     with pytest.raises(ValueError):
@@ -93,7 +82,7 @@ def test_bad_window_settings_are_refused() -> None:
 
 
 async def test_a_broken_snapshot_costs_a_sample_not_the_sampler() -> None:
-    clock = StepClock()
+    clock = ManualClock(500.0)
     st = _state(clock)
     calls = {"n": 0}
 
@@ -116,7 +105,7 @@ async def test_a_broken_snapshot_costs_a_sample_not_the_sampler() -> None:
 
 
 async def test_history_endpoint_samples_while_the_app_runs() -> None:
-    clock = StepClock()
+    clock = ManualClock(500.0)
     st = _state(clock)
     app = make_app(st, DemoControls(st), clock=clock, token="t" * 20)
     async with TestClient(TestServer(app)) as client:

@@ -27,7 +27,7 @@ from hypothesis import HealthCheck, given, settings
 from schemathesis import GenerationMode
 
 from drivers.arcos.codec import Command
-from relayd.config import parse_settings
+from relayd.config_load import parse_settings
 from relayd.daemon import Daemon
 from relayd.fakes.rig import FakeRig
 

@@ -1,4 +1,4 @@
-"""The API's guarded accept loop (relayd/api/server.py), with small limits so it runs fast.
+"""The API's guarded accept loop (relayd/api/guard.py), with small limits so it runs fast.
 
 tests/test_api_flood.py shows the whole daemon surviving a flood; this file pins each
 rule on its own: idle and slow-header connections are closed at the deadline, busy ones
@@ -21,7 +21,8 @@ from support import until
 
 from drivers.clock import Clock
 from relayd.api import make_app, start_api
-from relayd.api.server import GuardedServer, install_accept_error_limit
+from relayd.api.guard import GuardedServer
+from relayd.api.server import install_accept_error_limit
 from relayd.state import RelayState
 
 IDLE_S = 0.6

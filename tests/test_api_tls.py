@@ -21,7 +21,8 @@ import pytest
 from support import running, skip_or_fail, until
 from test_run_cli import SCAN, clean_env, refused
 
-from relayd.config import ConfigError, parse_settings
+from relayd.config import ConfigError
+from relayd.config_load import parse_settings
 from relayd.config_toml import dump_toml
 from relayd.daemon import Daemon
 from relayd.fakes.rig import API_TOKEN_ENV, FakeRig

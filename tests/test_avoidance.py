@@ -13,7 +13,8 @@ from hypothesis import strategies as st
 
 from drivers.arcos.sip import wheel_to_vel_rvel
 from relayd.actuator import Actuator
-from relayd.avoidance import AvoidMode, AvoidParams, AvoidState, Sense, avoid_step
+from relayd.avoidance import avoid_step
+from relayd.avoidstate import AvoidMode, AvoidParams, AvoidState, Sense
 from relayd.controller import ControlInputs, ControlMemory, ControlParams, control_step
 from relayd.estimator import front_readings
 from relayd.ring import choose_side, guard, path_blocked, rear_min_m, rear_readings
@@ -132,7 +133,8 @@ def run_steps(ranges: list[int | None], bearing: float, seconds: float,
 
 
 def test_box_dead_ahead_at_the_stop_distance_backs_off_on_the_leaders_side() -> None:
-    # The picture: sonars 3 and 4 at 300 mm, bearing -2, everything else clear.
+    # A box dead ahead on the way to the leader (the symmetric case that would hold the
+    # paper's centroid steering at 0): sonars 3 and 4 at 300 mm, bearing -2, all else clear.
     # Below the back-off trigger with room behind, it first backs off, then turns right.
     # Closer than the back-off trigger with room behind: it backs off first (room to turn
     # and to go round), the side already latched toward the leader (right).

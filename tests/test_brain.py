@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from support import ManualClock
 
 from drivers.airos.model import LinkQuality
 from drivers.arcos.sip import Sip
@@ -200,7 +201,7 @@ def test_the_shell_counts_driver_latency_only_for_sip_caused_commands() -> None:
         class sonar:
             ranges_mm = (None,) * 16
 
-        def __init__(self, clock: FakeClock) -> None:
+        def __init__(self, clock: ManualClock) -> None:
             self.clock = clock
             self.last_sip_rx = 0.0
 
@@ -217,11 +218,11 @@ def test_the_shell_counts_driver_latency_only_for_sip_caused_commands() -> None:
         def set_wheels(self, left_mm_s: float, right_mm_s: float) -> None:
             self._written()
 
-    clock = FakeClock()
+    clock = ManualClock(10.0)
     robot = Robot(clock)
     latencies: list[float] = []
     shell = ControlShell(bus=None, brain=Brain(brain_params(config())), robot=robot,  # type: ignore[arg-type]
-                         clock=clock, on_latency=latencies.append)  # type: ignore[arg-type]
+                         clock=clock, on_latency=latencies.append)
     robot.last_sip_rx = clock.t = 10.0
     clock.t = 10.0004
     shell.execute(WheelCommand(100.0, 120.0, False, 10.0))  # the SIP decoded at 10.0 caused it
@@ -235,16 +236,6 @@ def test_the_shell_counts_driver_latency_only_for_sip_caused_commands() -> None:
     clock.t = 10.2
     shell.execute(WheelCommand(90.0, 90.0, False, 10.2 - 0.0003))
     assert latencies == [pytest.approx(0.0004)] and shell.latency_dropped == 1
-
-
-class FakeClock:
-    t = 10.0
-
-    def now(self) -> float:
-        return self.t
-
-    def to_real(self, seconds: float) -> float:
-        return seconds
 
 
 # ---------------------------------------------------------------- scans and the bearing memory

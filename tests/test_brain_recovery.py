@@ -170,7 +170,8 @@ def test_a_recovery_bug_stops_the_wheels_and_says_so(monkeypatch: pytest.MonkeyP
 
 
 def test_recovery_config_is_strict_and_reaches_the_brain() -> None:
-    from relayd.config import ConfigError, parse_settings
+    from relayd.config import ConfigError
+    from relayd.config_load import parse_settings
 
     rear = {"rear": {"url": "http://10.0.0.2", "password_env": "X"}}
     for bad in ({"enabled": "off"}, {"max_time_s": float("inf")}, {"widen_scans": 1.5}, {"speed": 1}):

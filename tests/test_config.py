@@ -7,14 +7,8 @@ from pathlib import Path
 import pytest
 
 from relayd.cli import main
-from relayd.config import (
-    ConfigError,
-    SecretRef,
-    Settings,
-    load_settings,
-    parse_settings,
-    resolve_secret,
-)
+from relayd.config import ConfigError, SecretRef, Settings, resolve_secret
+from relayd.config_load import load_settings, parse_settings
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "config" / "relayd.toml"
 
@@ -126,7 +120,7 @@ def test_display_name_is_optional_and_bounded() -> None:
 
 def test_avoidance_keys_reach_the_escape_and_default_to_its_own() -> None:
     from relayd.actuator import Actuator
-    from relayd.avoidance import AvoidParams
+    from relayd.avoidstate import AvoidParams
     from relayd.params import control_params
 
     # The shipped defaults are the escape's code defaults (one set of numbers, not two).

@@ -11,7 +11,8 @@ from pathlib import Path
 import pytest
 
 from relayd.cli import main
-from relayd.config import ConfigError, load_settings, parse_settings
+from relayd.config import ConfigError
+from relayd.config_load import load_settings, parse_settings
 
 FIRST = {"control": {"rear_link": "ignore"}}  # a config valid without an [ap.rear]
 REPO = Path(__file__).resolve().parents[1]

@@ -219,7 +219,7 @@ def test_fail_safes_stop_the_wheels(changes: dict, reason: str) -> None:
 
 
 def test_fail_safe_boundaries_are_still_fresh() -> None:
-    out = step(sip_age_s=0.5, rssi_age_s=5.0, rear_age_s=3.0)
+    out = step(sip_age_s=P.sip_timeout_s, rssi_age_s=P.rssi_timeout_s, rear_age_s=P.rear_timeout_s)
     assert out.state is DriveState.DRIVING
 
 

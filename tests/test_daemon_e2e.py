@@ -25,7 +25,7 @@ from typing import Any
 import pytest
 from support import running, until
 
-from relayd.config import parse_settings
+from relayd.config_load import parse_settings
 from relayd.daemon import Daemon, control_params
 from relayd.fakes.rig import FakeRig
 from relayd.state import DriveState, Mode
@@ -171,7 +171,7 @@ async def test_stops_within_one_sip_period_of_rssi_going_stale_and_resumes(tmp_p
         try:
             await driving(rig, daemon)
             assert daemon.monitor is not None
-            timeout = control_params(daemon.settings).rssi_timeout_s  # two scan periods
+            timeout = control_params(daemon.settings).rssi_timeout_s  # max(0.5 s, 5 sample periods)
             frozen_t = daemon.clock.now()
             rig.rssi_frozen = True
             # Wait on the recorder, not the state: the recorder's task may not have run yet

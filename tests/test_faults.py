@@ -29,7 +29,7 @@ from support import until
 
 from drivers.clock import REAL_CLOCK
 from drivers.link import port_missing, wait_before_retry
-from relayd.config import load_settings, parse_settings
+from relayd.config_load import load_settings, parse_settings
 from relayd.daemon import Daemon, control_params
 from relayd.events import Action, Decision, Event
 from relayd.fakes.rig import FakeRig
@@ -192,7 +192,7 @@ async def test_robot_port_vanishes_and_returns(tmp_path: Path) -> None:
 
 async def status_until(run: Run, pred: Callable[[dict[str, Any]], bool], what: str,
                        timeout_s: float = 5.0) -> dict[str, Any]:
-    """GET /status until `pred` holds (the daemon copies device health twice a second)."""
+    """GET /status until `pred` holds (a driver notices a failure a moment after it happens)."""
     try:
         async with asyncio.timeout(timeout_s):
             while not pred(doc := await run.status()):

@@ -22,7 +22,7 @@ from test_live_page_ops import PANTILT, SCAN, free_port, wait_http
 from test_run_cli import Relayd
 
 from relayd.api.app import start_api
-from relayd.config import parse_settings
+from relayd.config_load import parse_settings
 from relayd.daemon import Daemon
 from relayd.fakes.rig import FakeRig
 from relayd.fleet.config import FleetSettings, Relay

@@ -35,7 +35,8 @@ import pytest
 from support import running, until
 
 from drivers.arcos.codec import Command
-from relayd.config import ConfigError, FoxgloveSettings, parse_settings
+from relayd.config import ConfigError, FoxgloveSettings
+from relayd.config_load import parse_settings
 from relayd.daemon import Daemon
 from relayd.fakes.rig import FakeRig
 from relayd.record import codec

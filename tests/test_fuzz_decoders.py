@@ -48,7 +48,8 @@ from drivers.arcos.sip import (
 )
 from drivers.pantilt import maestro as mc
 from drivers.pantilt import ssc32 as sc
-from drivers.pantilt.base import ReplyError, ServoCalibration
+from drivers.pantilt.base import ServoCalibration
+from drivers.pantilt.session import ReplyError
 from drivers.wifi.fake import format_proc_row, link_quality_for
 from drivers.wifi.parsers import PROC_HEADER_1, PROC_HEADER_2, parse_proc_net_wireless
 from drivers.wifi.sources import IwSource, ProcfsSource

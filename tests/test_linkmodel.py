@@ -197,7 +197,8 @@ REAR_AP = {"rear": {"url": "http://192.0.2.1", "password_env": "PW"}}
 
 
 def _config_errors(control: dict[str, object]) -> list[str]:
-    from relayd.config import ConfigError, parse_settings
+    from relayd.config import ConfigError
+    from relayd.config_load import parse_settings
 
     with pytest.raises(ConfigError) as ei:
         parse_settings({"ap": REAR_AP, "control": control})
@@ -205,7 +206,7 @@ def _config_errors(control: dict[str, object]) -> list[str]:
 
 
 def test_link_policy_settings_are_strict_and_checked_together() -> None:
-    from relayd.config import parse_settings
+    from relayd.config_load import parse_settings
     from relayd.params import brain_params
 
     assert any(e.startswith("control.link_policy") for e in _config_errors({"link_policy": "adaptve"}))

@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 from support import running, skip_or_fail, until
 
-from relayd.config import parse_settings
+from relayd.config_load import parse_settings
 from relayd.daemon import Daemon
 from relayd.fakes.rig import FakeRig
 

@@ -29,7 +29,7 @@ from test_live_page_browser import CHROMIUM, CHROMIUM_ARGS, _require_chromium
 from test_run_cli import Relayd
 
 from relayd.api.reasons import describe
-from relayd.config import parse_settings
+from relayd.config_load import parse_settings
 from relayd.daemon import Daemon
 from relayd.fakes.rig import FakeRig
 

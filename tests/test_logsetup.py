@@ -25,11 +25,10 @@ from typing import Any
 import aiohttp
 import pytest
 import structlog
-from support import until
+from support import ManualClock, until
 
 from drivers.airos.client import AirOsClient
 from drivers.airos.fake import FakeAirOs
-from drivers.clock import Clock
 from relayd.api import make_app, start_api
 from relayd.logsetup import setup_logging
 from relayd.state import RelayState
@@ -100,17 +99,17 @@ async def test_exception_during_login_never_logs_the_password(fmt: str) -> None:
 # --- one pipeline, priority prefix ---------------------------------------------------------
 
 def test_foreign_lines_are_json_with_a_priority_prefix() -> None:
-    with captured("json", "debug") as buf:
+    # setup_logging runs inside catch_warnings, so it is its own captureWarnings that
+    # routes the warning (pytest's per-test catch_warnings would undo one made before).
+    with warnings.catch_warnings(), captured("json", "debug") as buf:
+        warnings.simplefilter("always")
         structlog.get_logger("relayd.test").info("own_line", answer=42)
         structlog.get_logger("relayd.test").debug("own_debug")
         logging.getLogger("aiohttp.server").error("an aiohttp error %s", "here")
         logging.getLogger("asyncio").warning("an asyncio warning")
         logging.getLogger("aiohttp.web").info("an aiohttp info")
         logging.getLogger("asyncio").debug("asyncio debug chatter stays out")
-        with warnings.catch_warnings():
-            warnings.simplefilter("always")
-            logging.captureWarnings(True)  # catch_warnings restored showwarning: re-route
-            warnings.warn("a deprecated thing", DeprecationWarning, stacklevel=1)
+        warnings.warn("a deprecated thing", DeprecationWarning, stacklevel=1)
     lines = json_lines(buf.getvalue())
     by_event = {e["event"].split("\n")[0]: (prio, e) for prio, e in lines}
     assert by_event["own_line"][0] == 6 and by_event["own_line"][1]["answer"] == 42
@@ -147,20 +146,6 @@ async def _raw(port: int, data: bytes) -> bytes:
             await writer.wait_closed()
 
 
-class ManualClock(Clock):
-    """now() set by the test; sleeps stay real."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.t = 1000.0
-
-    def now(self) -> float:
-        return self.t
-
-    def advance(self, dt_s: float) -> None:
-        self.t += dt_s
-
-
 class _Controls:
     def set_mode(self, mode: Any) -> None:
         raise AssertionError("not reached")
@@ -170,7 +155,7 @@ class _Controls:
 
 
 async def test_malformed_requests_are_info_without_traceback_and_rate_limited() -> None:
-    clock = ManualClock()
+    clock = ManualClock(1000.0)
     with captured("json") as buf:
         server, port = await start_api(make_app(RelayState(), _Controls(), clock=clock, token=TOKEN),
                                        "127.0.0.1", 0)
@@ -188,7 +173,7 @@ async def test_malformed_requests_are_info_without_traceback_and_rate_limited() 
 
 
 async def test_wrong_token_warnings_are_rate_limited_with_a_count() -> None:
-    clock = ManualClock()
+    clock = ManualClock(1000.0)
     with captured("json") as buf:
         server, port = await start_api(make_app(RelayState(), _Controls(), clock=clock, token=TOKEN),
                                        "127.0.0.1", 0)

@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 from drivers.pantilt import ServoCalibration
 from drivers.pantilt import maestro as mc
 from drivers.pantilt import ssc32 as sc
-from drivers.pantilt.base import ReplyError, check_speed
+from drivers.pantilt.base import check_speed
+from drivers.pantilt.session import ReplyError
 
 # ---- Maestro compact protocol: vectors from the Maestro guide (docs/PROTOCOLS.md 2.2) ----------
 

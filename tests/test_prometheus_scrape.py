@@ -30,7 +30,7 @@ from aiohttp import ClientError, ClientSession
 from support import running, skip_or_fail, until
 from test_deploy_prometheus import RULES, SCRAPE_CONFIG, dashboard_exprs
 
-from relayd.config import parse_settings
+from relayd.config_load import parse_settings
 from relayd.daemon import Daemon
 from relayd.fakes.rig import FakeRig
 

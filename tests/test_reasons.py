@@ -1,48 +1,84 @@
 """Every reason code the daemon can report has a plain-language phrase, rendered right.
 
-The codes are found two ways: read out of the controller's source (every string the
-controller hands back as a reason), and produced by running the controller on
-generated inputs. Either way, a new code without a phrase fails here.
+The codes are found two ways: read out of the source of every relayd module (every
+string handed to a `reason` parameter or field, or assigned to a `*reason` variable),
+and produced by running the controller on generated inputs. Either way, a new code
+without a phrase fails here, in whichever module it appears.
 """
 
 from __future__ import annotations
 
 import ast
-import inspect
 import math
+from pathlib import Path
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from relayd import brain, control, controller, recovery
+from relayd import recovery
 from relayd.api.reasons import MINUS, comparison, describe, fmt_db, phrasebook
 from relayd.controller import ControlInputs, ControlMemory, ControlParams, control_step
 from relayd.estimator import SonarReading
 from relayd.state import Mode, RelayState
 
+RELAYD = Path(recovery.__file__).resolve().parent
 
-def controller_reason_literals() -> set[str]:
-    """Reason codes in relayd/controller.py, relayd/brain.py and relayd/control.py, plus every
-    reason of relayd/recovery.py (`recovery.REASONS`, which tests/test_recovery.py checks
-    the state machine against): `_stopped(state, "x", ...)`,
-    `ControlOutput(l, r, state, "x", ...)`, `return False, "x"` and `reason = "x"`; for
-    an f-string reason (`f"controller_error: {name}"`) the code before the colon."""
-    trees = [ast.parse(inspect.getsource(module)) for module in (controller, brain, control)]
-    found: set[str] = set(recovery.REASONS)
 
-    def literal(node: ast.AST) -> None:
+def _reason_positions(trees: list[ast.Module]) -> dict[str, set[int | None]]:
+    """name -> positions of its `reason` argument (None: keyword-only), for every function
+    and every field class (dataclass, NamedTuple) that takes one: `_stopped(state,
+    reason, ...)`, `ControlOutput(l, r, state, reason, ...)`, `turn_cmd(act, s, p, rvel,
+    reason)`; a set, as two modules may each have a `_zero`. A `reason=` that lands in
+    `**fields` (a log line's field) is not a code."""
+    out: dict[str, set[int | None]] = {}
+    for node in (n for tree in trees for n in ast.walk(tree)):
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+            names = [a.arg for a in (*node.args.posonlyargs, *node.args.args)]
+            if names and names[0] in ("self", "cls"):
+                names = names[1:]
+            if "reason" in (a.arg for a in node.args.kwonlyargs):
+                out.setdefault(node.name, set()).add(None)
+        elif isinstance(node, ast.ClassDef):
+            names = [s.target.id for s in node.body
+                     if isinstance(s, ast.AnnAssign) and isinstance(s.target, ast.Name)
+                     and "ClassVar" not in ast.unparse(s.annotation)]
+        else:
+            continue
+        if "reason" in names:
+            out.setdefault(node.name, set()).add(names.index("reason"))
+    return out
+
+
+def reason_literals(trees: list[ast.Module]) -> set[str]:
+    """The reason codes in these modules: a string given to a `reason` parameter or field
+    (by keyword or by position), assigned to a name ending in `reason` (a field default
+    included), or returned as `return False, "x"`; both arms of `a if c else b`; for an
+    f-string reason (`f"controller_error: {name}"`) the code before the colon."""
+    positions = _reason_positions(trees)
+    found: set[str] = set()
+
+    def literal(node: ast.AST | None) -> None:
         if isinstance(node, ast.Constant) and isinstance(node.value, str):
             found.add(node.value)
         elif isinstance(node, ast.JoinedStr) and node.values and isinstance(node.values[0], ast.Constant):
             found.add(str(node.values[0].value).partition(":")[0].strip())
+        elif isinstance(node, ast.IfExp):
+            literal(node.body)
+            literal(node.orelse)
+
+    def is_reason(target: ast.AST) -> bool:
+        return isinstance(target, ast.Name) and target.id.endswith("reason")
 
     for node in (n for tree in trees for n in ast.walk(tree)):
-        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name):
-            if node.func.id == "_stopped" and len(node.args) >= 2:
-                literal(node.args[1])
-            if node.func.id == "ControlOutput" and len(node.args) >= 4:
-                literal(node.args[3])
+        if isinstance(node, ast.Call):
+            func = node.func
+            name = func.id if isinstance(func, ast.Name) else func.attr if isinstance(func, ast.Attribute) else ""
+            if name not in positions:
+                continue
+            for pos in positions[name]:
+                if pos is not None and len(node.args) > pos:
+                    literal(node.args[pos])
             for kw in node.keywords:
                 if kw.arg == "reason":
                     literal(kw.value)
@@ -50,28 +86,62 @@ def controller_reason_literals() -> set[str]:
                 and len(node.value.elts) == 2 and isinstance(node.value.elts[0], ast.Constant) \
                 and isinstance(node.value.elts[0].value, bool):
             literal(node.value.elts[1])
-        elif isinstance(node, ast.Assign) and any(
-                isinstance(t, ast.Name) and t.id == "reason" for t in node.targets):
-            literal(node.value)
+        elif isinstance(node, ast.Assign | ast.AnnAssign):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            if any(is_reason(t) for t in targets):
+                literal(node.value)
     return found
 
 
+def source_reason_codes() -> set[str]:
+    """Every reason code in relayd's source, plus every reason of relayd/recovery.py
+    (`recovery.REASONS`, which tests/test_recovery.py checks the state machine against)."""
+    files = sorted(RELAYD.rglob("*.py"))
+    trees = [ast.parse(p.read_text(encoding="utf-8")) for p in files]
+    return set(recovery.REASONS) | reason_literals(trees)
+
+
 def test_the_source_scan_finds_the_controller_reasons() -> None:
-    # Guards the scanner itself: if the controller's shape changed so that it finds
-    # nothing, the test below would pass vacuously.
-    found = controller_reason_literals()
+    # Guards the scanner itself: if the code's shape changed so that it finds nothing,
+    # the test below would pass vacuously. One code per shape it reads, per module.
+    found = source_reason_codes()
     assert {"hold", "rear_weak", "leader_near", "no_sip", "manual", "driving", "shutdown",
-            "controller_error", "scan_stale"} <= found
+            "controller_error", "recovery_error", "scan_stale",  # controller, brain, control
+            "blocked", "avoiding", "rejoining",  # avoidance, avoidstate (positional and keyword)
+            "rear_obstacle",  # breadcrumbs
+            } <= found
+
+
+def test_the_source_scan_reads_every_shape() -> None:
+    tree = ast.parse(
+        "def turn(a, b, reason): ...\n"
+        "def note(event, **fields): ...\n"
+        "async def stop(*, reason): ...\n"
+        "class Cmd:\n    go: bool\n    reason: str = 'k_default'\n"
+        "def f(x):\n"
+        "    turn(1, 2, 'k_positional')\n"
+        "    self.turn(1, 2, 'k_method')\n"
+        "    Cmd(False, 'k_field')\n"
+        "    Cmd(False, reason='k_keyword')\n"
+        "    stop(reason='k_kwonly')\n"
+        "    note('x', reason='a log field')\n"
+        "    log.info('x', reason='another log field')\n"
+        "    lost_reason = 'k_then' if x else 'k_else'\n"
+        "    return False, f'k_fstring: {x}'\n"
+    )
+    assert _reason_positions([tree]) == {"turn": {2}, "stop": {None}, "Cmd": {1}}
+    assert reason_literals([tree]) == {"k_default", "k_positional", "k_method", "k_field", "k_keyword",
+                                       "k_kwonly", "k_then", "k_else", "k_fstring"}
 
 
 def test_every_reason_in_the_controller_source_has_a_phrase() -> None:
-    codes = controller_reason_literals() | {RelayState().reason}  # "starting"
+    codes = source_reason_codes() | {RelayState().reason}  # "starting"
     missing = sorted(codes - set(phrasebook()))
     assert not missing, f"reason codes without a phrase in relayd/api/static/reasons.json: {missing}"
 
 
 def test_every_phrase_is_for_a_code_that_exists() -> None:
-    stale = sorted(set(phrasebook()) - controller_reason_literals() - {RelayState().reason})
+    stale = sorted(set(phrasebook()) - source_reason_codes() - {RelayState().reason})
     assert not stale, f"phrases for codes nothing produces: {stale}"
 
 
@@ -119,6 +189,8 @@ THR = {"threshold_l_dbm": -30.0, "threshold_b_dbm": -60.0, "hysteresis_db": 2.0}
      "stopped: the link behind is weak"),
     ({"reason": "obstacle", "mode": "manual"}, "manual: an obstacle ahead, forward motion blocked"),
     ({"reason": "obstacle", "mode": "follow"}, "avoiding an obstacle ahead (slower, steering around it)"),
+    ({"reason": "blocked", "mode": "follow"},
+     "stopped: hemmed in by obstacles, waiting until the way to the leader is open"),
     ({"reason": "something_new"}, "something_new"),
     ({"reason": "controller_error: ZeroDivisionError"},
      "fault: the controller failed (a bug: see the log) (ZeroDivisionError)"),

@@ -27,7 +27,8 @@ from drivers.arcos.sip import Sip
 from drivers.wifi.sources import RssiSample
 from relayd import cli
 from relayd.bus import Bus
-from relayd.config import ConfigError, Settings, parse_settings
+from relayd.config import ConfigError, Settings
+from relayd.config_load import parse_settings
 from relayd.estimator import ScanEstimate
 from relayd.events import (
     Action,

@@ -35,7 +35,7 @@ from test_record import FullDisk
 
 from drivers.arcos.codec import Command
 from relayd import cli
-from relayd.config import parse_settings
+from relayd.config_load import parse_settings
 from relayd.daemon import Daemon
 from relayd.events import ScanResult, Shutdown, WheelCommand
 from relayd.fakes.rig import FakeRig

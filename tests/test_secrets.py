@@ -27,7 +27,7 @@ import aiohttp
 import structlog
 from support import until
 
-from relayd.config import load_settings
+from relayd.config_load import load_settings
 from relayd.daemon import Daemon
 from relayd.fakes.rig import FakeRig
 from relayd.logsetup import setup_logging

@@ -12,7 +12,8 @@ import pytest
 from relayd.cli import main
 from relayd.commands.sim import format_summary
 from relayd.sim.progress import ProgressLine, progress_text
-from relayd.sim.runner import PULSE_US, pulse_to_deg, relay_settings, summarize
+from relayd.sim.relay import PULSE_US, pulse_to_deg, relay_settings
+from relayd.sim.runner import summarize
 
 
 def test_pulse_to_deg_inverts_the_default_calibration() -> None:

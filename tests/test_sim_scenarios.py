@@ -82,7 +82,7 @@ def test_convoy_followers_track_and_stop_during_pauses() -> None:
 
 @pytest.mark.timeout(150)
 def test_box_dead_ahead_is_passed_by_real_daemons() -> None:
-    # The geometry with the truthful sonar: the symmetric box no longer holds the
+    # The box-dead-ahead geometry with the truthful sonar: the symmetric box no longer holds the
     # relay (the escape turns it at an executable rate), and nothing is touched.
     result, _ = _run("box-dead-ahead", 1)
     s = result.summary

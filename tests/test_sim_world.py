@@ -20,6 +20,7 @@ from relayd.sim.geometry import (
     ray_circle_distance,
     wrap_deg,
 )
+from relayd.sim.leader_script import LeaderScript
 from relayd.sim.radio import (
     HOP_DOWN_DBM,
     Radio,
@@ -30,7 +31,7 @@ from relayd.sim.radio import (
     yagi_gain_db,
 )
 from relayd.sim.scenario import ScenarioError, builtin_names, load_scenario, parse_scenario
-from relayd.sim.world import LeaderScript, World
+from relayd.sim.world import World
 
 # --- geometry -----------------------------------------------------------------------
 
@@ -304,7 +305,7 @@ def _one_relay(**extra: object) -> dict:
 
 
 def test_sonar_is_exactly_mirror_symmetric() -> None:
-    # The box: 0.5 m, centred on the heading. A real ring sees it symmetrically,
+    # The box-dead-ahead case: 0.5 m, centred on the heading. A real ring sees it symmetrically,
     # and so must the simulated one (no rays or noise to break the tie for the robot).
     w = World(parse_scenario(_one_relay(boxes=[{"min": [2.25, -0.25], "max": [2.75, 0.25]}])), seed=0)
     for x_mm in (0.0, 1200.0, 1704.0):

@@ -102,7 +102,7 @@ def test_adaptive_relays_learn_in_the_simulator() -> None:
     runner = SimRunner(sc, speed=None, seed=1, seconds=45.0)
     result = vtime.run(runner.run())
     model = runner.relays[0].daemon.state.link_model
-    assert model is not None and model["policy"] == "adaptive" and model["samples"] >= 30
+    assert model is not None and model.policy == "adaptive" and model.samples >= 30
     limits = {r["relays"][0]["threshold_b_dbm"] for r in result.records}
     assert all(-78.0 <= v <= -55.0 for v in limits) and len(limits) > 1
-    assert result.records[-1]["relays"][0]["threshold_b_dbm"] == model["threshold_b_dbm"]
+    assert result.records[-1]["relays"][0]["threshold_b_dbm"] == model.threshold_b_dbm

@@ -6,9 +6,11 @@ code or docs need from it is written down in the repo itself: docs/PROTOCOLS.md 
 facts and their public sources), docs/CONTROL.md (estimator and control law), README.
 These tests fail when a file points outside again (a `../shared/...` path, `SPEC.md`,
 "SPEC 2.4"-style section numbers, the research notes by file name or as "the protocol
-doc", "issue 14"-style numbers of the tracker the work was planned in; tests included),
+doc", "issue 14"-style numbers of the tracker the work was planned in, or that tracker and
+the planning notes as "the issue", "the hardening issue", "the brief"; tests included),
 and when a pointer
-to one of the repo's own docs names a section that does not exist.
+to one of the repo's own docs names a section that does not exist, or a file path in
+the repo (`relayd/api/guard.py`) names a file that is not there.
 """
 
 from __future__ import annotations
@@ -38,6 +40,11 @@ FORBIDDEN: tuple[tuple[str, re.Pattern[str]], ...] = (
     # "issue 14" pointed into the tracker the work was planned in, which does not ship;
     # an upstream project's issue is cited with its name and a '#' ("AriaCoda issue #15").
     ("a tracker issue number instead of what it was about", re.compile(r"\b[Ii]ssues? \d")),
+    # The same tracker and the planning notes without a number. Only "the/this issue" as a
+    # noun: the verb ("the controller issues a stop") and plural are left alone.
+    ("the tracker's issue instead of what it asked for",
+     re.compile(r"\b[Tt]h(?:e|is) (?:[a-z]+ing )?issue(?:'s)?\b")),
+    ("the planning brief instead of what it asked for", re.compile(r"\b[Tt]he brief\b")),
 )
 
 _SKIP_DIRS = {".git", ".venv", "node_modules", "__pycache__", ".mypy_cache", ".ruff_cache",
@@ -132,6 +139,55 @@ def test_section_pointers_into_docs_exist() -> None:
     assert not bad, "\n".join(bad)
 
 
+# -- file paths the repo names ------------------------------------------------------------
+
+#: "relayd/api/guard.py", "drivers/arcos/fakebody.py", "bench/RESULTS.md",
+#: "deploy/prometheus/relayd-alerts.yml": a path into one of the repo's own top-level
+#: folders, ending in a file extension. Not one inside another path (`/etc/relayd/x.toml`,
+#: `tmp/config/a.toml`) and not a glob (`scenarios/*.toml` has no name to check).
+_REPO_PATH = re.compile(
+    r"(?<![\w/.*-])((?:relayd|drivers|bench|tests|scripts|deploy|systemd|config|docs)"
+    r"/[\w./-]*\w\.(?:py|md|toml|json|ya?ml|service|js|css|html|sh|txt|csv))\b(?![/*])"
+)
+
+
+def _named_paths(line: str) -> list[str]:
+    return _REPO_PATH.findall(line)
+
+
+def test_every_file_path_named_in_the_repo_exists() -> None:
+    # Modules get split and moved; a doc, comment or docstring that still names the old
+    # file sends the reader nowhere.
+    missing = []
+    for name in _checked_files():
+        text = _text(name)
+        if text is None:
+            continue
+        for lineno, line in enumerate(text.splitlines(), 1):
+            missing += [f"{name}:{lineno}: {path}" for path in _named_paths(line)
+                        if not (ROOT / path).exists()]
+    assert not missing, "these lines name files that do not exist:\n" + "\n".join(missing)
+
+
+@pytest.mark.parametrize(
+    ("line", "paths"),
+    [
+        ("the guarded accept loop (relayd/api/guard.py)", ["relayd/api/guard.py"]),
+        ("`drivers/arcos/fake.py` and `drivers/arcos/fakebody.py`",
+         ["drivers/arcos/fake.py", "drivers/arcos/fakebody.py"]),
+        ("figures go in bench/RESULTS.md.", ["bench/RESULTS.md"]),
+        ("relayd/tracking.py   new: the filter", ["relayd/tracking.py"]),
+        ("ExecStart=/opt/relayd/venv/bin/relayd run -c /etc/relayd/relayd.toml", []),
+        ('package-data: "sim/scenarios/*.toml", relayd/sim/scenarios/*.toml', []),
+        ("tmp_path / 'x/config/relayd.toml'", []),
+        ("the relayd/ package, drivers/arcos/", []),
+        ("relayd.sim.runner.scratch_root", []),
+    ],
+)
+def test_the_path_pattern_finds_what_it_should(line: str, paths: list[str]) -> None:
+    assert _named_paths(line) == paths
+
+
 def test_the_own_docs_exist_and_the_readme_points_to_them() -> None:
     readme = (ROOT / "README.md").read_text(encoding="utf-8")
     for doc in ("docs/PROTOCOLS.md", "docs/CONTROL.md", "docs/ARCHITECTURE.md"):
@@ -158,6 +214,18 @@ def test_the_own_docs_exist_and_the_readme_points_to_them() -> None:
         ("(mt76, openwrt/mt76 issue #20)", False),
         ("ROSARIA (`RosAria.cpp`; issues #31, #65 on", False),
         ("station_get_mt76_issue20_bogus_signal.txt", False),
+        ("`drivers` is a top-level package, as the brief lays out", True),
+        ("The brief asks for a 60 s soak", True),
+        ("45 minutes, not the 60 the hardening issue asks for", True),
+        ("The relays did what the issue asks: the back relay", True),
+        ("# The issue's picture: sonars 3 and 4 at 300 mm", True),
+        ("as this issue says", True),
+        ("the controller issues a stop command", False),
+        ("it issues a command every 100 ms", False),
+        ("the issues #31, #65 on ROSARIA", False),
+        ("brief blips must not fire it", False),
+        ("a brief dip in the one-minute average", False),
+        ("the debriefing notes", False),
     ],
 )
 def test_the_patterns_catch_what_they_should(line: str, caught: bool) -> None:

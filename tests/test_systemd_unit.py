@@ -39,7 +39,7 @@ from aiohttp import ClientSession
 from support import parse_unit, skip_or_fail
 
 from relayd.cli import build_parser
-from relayd.config import parse_settings
+from relayd.config_load import parse_settings
 from relayd.control import ControlShell
 from relayd.daemon import WATCHDOG_PET_S, Daemon
 from relayd.fakes.rig import FakeRig
@@ -409,7 +409,7 @@ async def _pet_periods(daemon: Daemon, periods: int = 3) -> None:
 # --- resources and scheduling ----------------------------------------------------------
 
 def test_descriptor_limit_leaves_room_for_the_api_cap_and_the_devices() -> None:
-    from relayd.api.server import FD_RESERVE, MAX_CONNECTIONS
+    from relayd.api.guard import FD_RESERVE, MAX_CONNECTIONS
 
     # Without LimitNOFILE the soft limit is 1024; the API guard copes with that too
     # (tests/test_api_flood.py), but the unit gives the cap and the reserve ample room.

@@ -14,12 +14,14 @@ The poller is the long-running task the daemon supervises: `run()` never raises 
   may be held until it is. Even at the cap that is one login a few seconds apart, which
   airOS does not lock out. The refusal is logged once, then once a minute while it lasts.
 
-Every failure goes through the shared `drivers.reconnect.Reconnect` (backoff and log
-discipline); a change of failure class is logged at WARNING as news.
+The loop itself is the shared `drivers.reconnect.Reconnect.run` (backoff and log
+discipline): a connection is a login and a first good poll, serving it is polling at a
+fixed rate until a poll fails. A change of failure class is logged at WARNING as news.
 """
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Callable
 
 import aiohttp
@@ -38,7 +40,7 @@ from drivers.airos.model import AirOsDataError, LinkQuality
 from drivers.backoff import Backoff
 from drivers.clock import REAL_CLOCK, Clock
 from drivers.health import DeviceHealth, LinkState
-from drivers.reconnect import Reconnect
+from drivers.reconnect import Failure, Reconnect
 
 log = structlog.get_logger(__name__)
 
@@ -102,7 +104,10 @@ class AirOsPoller:
         }
         self._had_session = False
         self._expired_in_row = 0
-        self._healthy = False
+        #: When the next poll is due while the link is healthy (fixed rate).
+        self._next_t = 0.0
+        # Never set: the poller stops by being cancelled (the daemon's shutdown).
+        self._stop = asyncio.Event()
 
     def __repr__(self) -> str:
         return f"AirOsPoller(url={self.url!r}, username={self.client.username!r}, state={self.state!r})"
@@ -129,21 +134,10 @@ class AirOsPoller:
         return age is not None and age <= max_age_s
 
     async def run(self) -> None:
-        """Poll forever; on cancel, log out and close the session."""
+        """Poll until cancelled; on cancel, log out and close the session."""
         try:
-            next_t = self._clock.now()
-            while True:
-                delay = await self.poll_once()
-                if self._healthy:
-                    # Fixed rate while healthy: the request's own latency is not added.
-                    next_t += self.poll_s
-                    now = self._clock.now()
-                    if next_t < now:
-                        next_t = now
-                    await self._clock.sleep(next_t - now)
-                else:
-                    await self._clock.sleep(delay)
-                    next_t = self._clock.now()
+            await self._reconnect.run(self._first_poll, self._serve, stop=self._stop,
+                                      describe=_describe, on_failure=self._failed)
         finally:
             await self.close()
 
@@ -154,57 +148,56 @@ class AirOsPoller:
         except (TimeoutError, AirOsConnectionError, aiohttp.ClientError) as exc:
             log.debug("airos_close_failed", url=self.url, error=str(exc))
 
-    def _fail(self, state: str, error: BaseException | str, *, event: str | None = None,
-              unexpected: bool = False, **fields: object) -> float:
-        """Record a failed poll in `state`; returns the backoff delay before the next."""
-        self.counters["errors"] += 1
-        text = self._reconnect.failed(error, kind=state, event=event or "airos_link_" + state,
-                                      unexpected=unexpected, **fields)
-        self.state = state
-        self.last_error = text
-        return self._reconnect.next_delay()
+    async def _first_poll(self) -> None:
+        # A connection is a login (if the session needs one) and a first good poll.
+        self._next_t = self._clock.now()
+        await self._poll()
 
-    async def poll_once(self) -> float:
-        """One attempt (login if needed, then fetch). Returns the clock seconds to wait."""
-        self._healthy = False
-        try:
-            if not self.client.logged_in:
-                await self.client.login()
-                self.counters["logins"] += 1
-                if self._had_session:
-                    self.counters["relogins"] += 1
-                self._had_session = True
-            quality = await self.client.fetch()
-        except AirOsAuthError as exc:
-            self.counters["auth_failures"] += 1
-            return self._fail("auth_failed", exc, event="airos_auth_failed",
-                              hint="check the username and password")
-        except AirOsSessionExpired as exc:
-            self._expired_in_row += 1
-            self.client.logged_in = False
-            if self._expired_in_row == 1:
+    async def _serve(self) -> None:
+        # Fixed rate while healthy: the request's own latency is not added. A failed
+        # poll raises, and the reconnect loop backs off.
+        while True:
+            self._next_t += self.poll_s
+            now = self._clock.now()
+            if self._next_t < now:
+                self._next_t = now
+            await self._clock.sleep(self._next_t - now)
+            await self._poll()
+
+    async def _poll(self) -> None:
+        """One poll (login if needed, then fetch); raises what went wrong, counted."""
+        while True:
+            try:
+                if not self.client.logged_in:
+                    await self.client.login()
+                    self.counters["logins"] += 1
+                    if self._had_session:
+                        self.counters["relogins"] += 1
+                    self._had_session = True
+                quality = await self.client.fetch()
+                break
+            except AirOsSessionExpired as exc:
+                self._expired_in_row += 1
+                self.client.logged_in = False
+                if self._expired_in_row > 1:
+                    raise _ExpiredAgain(f"session refused right after login: {exc}") from exc
+                # Once: log in again at once (a new schedule starts with this poll).
                 log.info("airos_session_expired", url=self.url, error=str(exc))
-                return 0.0
-            return self._fail("bad_data", f"session refused right after login: {exc}")
-        except AirOsTimeoutError as exc:
-            self.counters["timeouts"] += 1
-            return self._fail("unreachable", exc)
-        except AirOsConnectionError as exc:
-            return self._fail("unreachable", exc)
-        except AirOsDataError as exc:
-            self.counters["bad_json"] += 1
-            self.client.logged_in = False  # maybe an expired session: log in again, then back off
-            return self._fail("bad_data", exc)
-        except Exception as exc:  # noqa: BLE001 - a long-running task must survive anything
-            return self._fail("unreachable", f"{type(exc).__name__}: {exc}", event="airos_poll_crashed",
-                              unexpected=True)
-
+                self._next_t = self._clock.now()
+            except AirOsAuthError:
+                self.counters["auth_failures"] += 1
+                raise
+            except AirOsTimeoutError:
+                self.counters["timeouts"] += 1
+                raise
+            except AirOsDataError:
+                self.counters["bad_json"] += 1
+                self.client.logged_in = False  # maybe an expired session: log in again, then back off
+                raise
         self._expired_in_row = 0
-        self._healthy = True
         self.counters["polls"] += 1
         self.latest = quality
         self.last_update_t = quality.t
-        self._reconnect.succeeded()
         if self.state != "ok":
             log.info("airos_link_up", url=self.url, previous=self.state)
         self.state = "ok"
@@ -215,4 +208,26 @@ class AirOsPoller:
             except Exception:  # a consumer bug must not stop the polling
                 self.counters["callback_errors"] += 1
                 log.exception("airos_on_update_failed", url=self.url)
-        return self.poll_s
+
+    def _failed(self, exc: Exception, failure: Failure, text: str) -> None:
+        self.counters["errors"] += 1
+        self.state = failure.kind or "unreachable"
+        self.last_error = text
+
+
+class _ExpiredAgain(Exception):
+    """The radio refused a session it had just granted."""
+
+
+def _describe(exc: Exception) -> Failure:
+    """A failed poll's class: its state ("kind") and its log line."""
+    if isinstance(exc, AirOsAuthError):
+        return Failure(kind="auth_failed", event="airos_auth_failed",
+                       fields={"hint": "check the username and password"})
+    if isinstance(exc, AirOsConnectionError):  # timeouts included
+        return Failure(kind="unreachable", event="airos_link_unreachable")
+    if isinstance(exc, AirOsDataError | _ExpiredAgain):
+        return Failure(kind="bad_data", event="airos_link_bad_data")
+    # A long-running task must survive anything; a bug is logged with its traceback.
+    return Failure(kind="unreachable", event="airos_poll_crashed", unexpected=True,
+                   text=f"{type(exc).__name__}: {exc}")

@@ -5,7 +5,7 @@ docs/ARCHITECTURE.md). One `run()` task keeps a session up: each session
 (`session.py`) does the handshake, state reflection and safe stop over one port
 whose bytes an `ArcosProtocol` (`protocol.py`) decodes and paces. When a session
 ends, the robot's state is unknown at once (`connected` False, `stale` True) and
-`run()` reconnects on the shared capped backoff (`drivers.reconnect`). Cancel or
+`run()` reconnects through the shared loop (`drivers.reconnect`). Cancel or
 `shutdown()` stops the wheels, disables the motors and CLOSEs before the port is
 closed.
 """
@@ -45,7 +45,7 @@ from drivers.backoff import Backoff
 from drivers.clock import REAL_CLOCK, Clock
 from drivers.health import DeviceHealth, LinkState
 from drivers.link import LinkError, open_link
-from drivers.reconnect import Reconnect
+from drivers.reconnect import Failure, Reconnect, expecting
 
 log = structlog.get_logger(__name__)
 
@@ -55,6 +55,9 @@ __all__ = [
 ]
 
 Listener = Callable[[Sip], None]
+
+#: What ends a session as device trouble; anything else out of a session is a bug.
+_describe = expecting(ArcosError, LinkError, OSError, CodecError)
 
 
 class ArcosRobot:
@@ -89,7 +92,7 @@ class ArcosRobot:
         self.sonar = SonarRing()
         self.odometry = Odometry()
         self.decoder = Decoder()
-        self.stats = {"bytes_tx": 0, "sips": 0, "reconnects": 0, "old_sessions": 0,
+        self.stats = {"bytes_tx": 0, "sips": 0, "old_sessions": 0,
                       "handshake_failures": 0, "link_errors": 0, "bad_sips": 0,
                       "listener_errors": 0, "sessions": 0}
         #: Called with the seconds from a SIP's bytes arriving to the wheel command it
@@ -140,7 +143,7 @@ class ArcosRobot:
 
     @property
     def counters(self) -> dict[str, int]:
-        return {**self.decoder.counters(), **self.stats}
+        return {**self.decoder.counters(), **self.stats, "reconnects": self._reconnect.reconnects}
 
     def health(self) -> DeviceHealth:
         """The robot link's health now (see drivers.health)."""
@@ -231,36 +234,10 @@ class ArcosRobot:
 
     async def run(self) -> None:
         """Keep a session up until cancelled or shut down. Never raises but CancelledError."""
-        reconnect = self._reconnect
         try:
-            while not self._closing:
-                reconnect.attempt()
-                try:
-                    await self.connect()
-                    if reconnect.succeeded():
-                        self.stats["reconnects"] += 1
-                    session = self._session
-                    if session is None:
-                        raise NotConnected(f"robot at {self.url}: no session after connect")
-                    await session.serve()
-                except (ArcosError, LinkError, OSError, CodecError) as exc:
-                    if self._closing:
-                        break  # shutdown() closed the port under the session: not a failure
-                    if isinstance(exc, LinkError | OSError):
-                        self.stats["link_errors"] += 1
-                    self.last_error = reconnect.failed(exc)
-                except Exception as exc:  # noqa: BLE001 - a driver bug must not end the task (logged with its traceback)
-                    self.last_error = reconnect.failed(exc, unexpected=True)
-                if self._closing:
-                    break
-                # Not on cancel: the port stays open for the safe stop below.
-                self.connected = False
-                self.stale = True
-                if self._session is not None:
-                    await self._session.close()
-                # A replugged adapter is retried at once, not after the backoff that
-                # grew while it was away.
-                await reconnect.wait(self._closed)
+            await self._reconnect.run(self.connect, self._serve, stop=self._closed,
+                                      describe=_describe, on_failure=self._failed,
+                                      after_loss=self._after_loss)
         except asyncio.CancelledError:
             await self._safe_stop()
             raise
@@ -305,6 +282,24 @@ class ArcosRobot:
         finally:
             self._in_sip = None
         return now
+
+    async def _serve(self) -> None:
+        session = self._session
+        if session is None:
+            raise NotConnected(f"robot at {self.url}: no session after connect")
+        await session.serve()
+
+    def _failed(self, exc: Exception, failure: Failure, text: str) -> None:
+        if isinstance(exc, LinkError | OSError):
+            self.stats["link_errors"] += 1
+        self.last_error = text
+
+    async def _after_loss(self) -> None:
+        # Not on cancel or shutdown: the port stays open for the safe stop.
+        self.connected = False
+        self.stale = True
+        if self._session is not None:
+            await self._session.close()
 
     def _caused_by_sip(self) -> None:
         # A wheel wish changed inside a SIP listener: time that SIP to its command.

@@ -2,32 +2,24 @@
 
 Built on the same codec as the driver. It mirrors MobileSim (docs/PROTOCOLS.md 1.12)
 and adds what MobileSim lacks: the real 2 s watchdog stop, SIP type 0x33 while moving,
-and a sonar that reports a few sonars per SIP. Sonar policy: `sonars_per_sip`
-readings per SIP (default 8), taken round-robin from the front and rear rings in
-parallel (0, 8, 1, 9, ...), so the whole ring refreshes every 200 ms; 16 = all every
-SIP like MobileSim. No echo (None from `sonar_fn`) is reported as 5000 mm.
+and a sonar that reports a few sonars per SIP (the policy is in fakebody.py).
 
-The fake keeps a TRUE world pose for the simulator and, separately, odometry that
-starts at 0,0,0 at OPEN and is reported in robot units (mm / DistConvFactor, 15-bit
-wrapped). A pty hang-up leaves the robot in its session (it will answer the next
-SYNC0 with SIPs, as a real robot does after a pulled cable); a TCP client going away
-ends the session, as MobileSim does.
-
-Why one room of about 470 lines: it is one robot. The session (sync, open, motors,
-watchdog), the command handlers, the SIP builder and the adversarial wire switches all
-read and write the same state, and tests reach for all of it on one object; split into
-mixins, one state machine would be spread over files that cannot be read alone. What
-stands alone already does: the motion model (fakemotion.py), the codec, the ports.
+`FakeRobot` is a `FakeBody` (fakebody.py: the TRUE world pose, the motion, the
+odometry reported in robot units, the sonar firing and the SIP they make) that speaks
+ARCOS: here are the session (SYNC0/1/2, OPEN, CLOSE, motors, the watchdog), the
+command handlers, the SIP loop, the ports it serves on and the adversarial wire
+switches (split writes, garbage, corrupt checksums, silence). A pty hang-up leaves the
+robot in its session (it will answer the next SYNC0 with SIPs, as a real robot does
+after a pulled cable); a TCP client going away ends the session, as MobileSim does.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import math
 import random
 from collections import deque
-from collections.abc import Awaitable, Callable, Coroutine, Sequence
+from collections.abc import Awaitable, Callable, Coroutine
 
 import structlog
 
@@ -41,41 +33,27 @@ from drivers.arcos.codec import (
     encode_packet,
     split_vel2,
 )
-from drivers.arcos.fakemotion import MotionGuard, Pose, approach, drive_step
+from drivers.arcos.fakebody import FakeBody, SonarFn
+from drivers.arcos.fakemotion import MotionGuard, Pose
 from drivers.arcos.sip import (
-    ANGLE_CONV_RAD,
-    FLAG_ESTOP,
-    FLAG_MOTORS,
-    FLAG_SONARS,
     MAX_RVEL_DEG_S,
     MAX_VEL_MM_S,
-    NO_ECHO_MM,
-    STALL_LEFT,
-    STALL_RIGHT,
     VEL2_DIVISOR_MM_S,
-    RawSip,
     RobotIdentity,
-    conv_factors,
     encode_config,
     encode_identity,
-    normalize_deg,
-    vel_rvel_to_wheels,
     wheel_to_vel_rvel,
 )
-from drivers.arcos.sonar import SONAR_COUNT
 from drivers.clock import REAL_CLOCK, Clock
 from drivers.fakeio import PtyPort, TcpPort
 from drivers.memlink import LinkFaults, MemoryPort
 
 log = structlog.get_logger(__name__)
 
-SonarFn = Callable[[float, float, float], Sequence[float | None]]
-
 SIP_PERIOD_S = 0.1
-FIRING_ORDER = tuple(i for pair in zip(range(8), range(8, 16), strict=True) for i in pair)
 
 
-class FakeRobot:
+class FakeRobot(FakeBody):
     """A protocol-true P3-AT served over a pty, loopback TCP and/or an in-memory link."""
 
     def __init__(self, name: str = "relay", robot_class: str = "Pioneer", subclass: str = "p3at",
@@ -84,16 +62,11 @@ class FakeRobot:
                  battery_v: float = 13.0, trans_accel_mm_s2: float = 300.0,
                  rot_accel_deg_s2: float = 100.0, sonars_per_sip: int = 8,
                  watchdog_s: float = 2.0, old_session: bool = False, seed: int | None = None) -> None:
+        super().__init__(subclass, sonar_fn=sonar_fn, motion_guard=motion_guard, pose=pose,
+                         battery_v=battery_v, trans_accel_mm_s2=trans_accel_mm_s2,
+                         rot_accel_deg_s2=rot_accel_deg_s2, sonars_per_sip=sonars_per_sip)
         self.identity = RobotIdentity(name, robot_class, subclass)
-        self.factors = conv_factors(subclass)
         self.clock = clock
-        self.sonar_fn = sonar_fn
-        self.motion_guard = motion_guard
-        self.x_mm, self.y_mm, self.theta_deg = (float(v) for v in pose)
-        self.battery_v = battery_v
-        self.trans_accel_mm_s2 = trans_accel_mm_s2
-        self.rot_accel_deg_s2 = rot_accel_deg_s2
-        self.sonars_per_sip = max(1, min(SONAR_COUNT, sonars_per_sip))
         self.watchdog_s = watchdog_s
         #: SIP cycle (clock s); ARCOS's default is 100 ms. Benchmarks shorten it to get
         #: many control cycles in little wall time.
@@ -110,22 +83,12 @@ class FakeRobot:
         self.garbage = False  # random bytes (never 0xFA) between packets
         self.corrupt_rate = 0.0  # probability of a corrupted checksum per packet
         self.silent = False  # deaf and mute: no replies, no SIPs
-        self.estop_pressed = False  # the red STOP button (FLAGS bit 5)
 
         self.synced = False
         self.opened = False
-        self.motors_enabled = False
-        self.sonar_on = False
-        self.target_vel_mm_s = 0.0
-        self.target_rvel_deg_s = 0.0
-        self.vel_mm_s = 0.0
-        self.rvel_deg_s = 0.0
-        self.stalled = False
         self._sync_state = 0
-        self._odo: list[float] = [0.0, 0.0, 0.0]
         self._last_cmd_t = clock.now()
         self._watchdog_tripped = False
-        self._fire_pos = 0
         self._rng = random.Random(seed)
         self._decoder = Decoder()
         self._pty: PtyPort | None = None
@@ -139,20 +102,7 @@ class FakeRobot:
         if old_session:
             self.start_old_session()
 
-    # ------------------------------------------------------------------ world and serving
-
-    @property
-    def pose(self) -> Pose:
-        return (self.x_mm, self.y_mm, self.theta_deg)
-
-    def set_pose(self, x_mm: float, y_mm: float, theta_deg: float) -> None:
-        """Move the robot in the world (odometry does not see it, as with a kidnapped robot)."""
-        self.x_mm, self.y_mm, self.theta_deg = float(x_mm), float(y_mm), normalize_deg(theta_deg)
-
-    @property
-    def odometry_mm_deg(self) -> Pose:
-        """The robot's own odometric pose (mm, deg) since OPEN."""
-        return (self._odo[0], self._odo[1], self._odo[2])
+    # ------------------------------------------------------------------ serving
 
     @property
     def port_path(self) -> str | None:
@@ -304,7 +254,7 @@ class FakeRobot:
                 self.identity, watchdog_ms=round(self.watchdog_s * 1000),
                 trans_accel=round(self.trans_accel_mm_s2), rot_accel=round(self.rot_accel_deg_s2))))
         elif cmd == Command.SETO:
-            self._odo = [0.0, 0.0, 0.0]
+            self.reset_odometry()
         # PULSE, OPEN and everything else: recorded only (MobileSim ignores unknown numbers).
 
     def _handle_sync(self, cmd: int) -> None:
@@ -327,7 +277,7 @@ class FakeRobot:
         self.sessions += 1
         self.motors_enabled = False  # motors are off after every connect (docs/PROTOCOLS.md 1.5)
         self.sonar_on = True  # "ARIA assumes sonar are on at start" (MobileSim)
-        self._odo = [0.0, 0.0, 0.0]
+        self.reset_odometry()
         self._halt(hard=True)
         self._last_cmd_t = self.clock.now()
 
@@ -338,15 +288,7 @@ class FakeRobot:
         self.motors_enabled = False
         self._halt(hard=True)
 
-    def _can_move(self) -> bool:
-        return self.motors_enabled and not self.estop_pressed
-
-    def _halt(self, *, hard: bool) -> None:
-        self.target_vel_mm_s = self.target_rvel_deg_s = 0.0
-        if hard:
-            self.vel_mm_s = self.rvel_deg_s = 0.0
-
-    # ------------------------------------------------------------------ physics and SIPs
+    # ------------------------------------------------------------------ the SIP loop
 
     async def _sip_loop(self) -> None:
         last = next_t = self.clock.now()
@@ -366,60 +308,16 @@ class FakeRobot:
                 last = now
 
     def step(self, dt: float, now: float | None = None) -> None:
-        """Advance the physics by `dt` clock seconds (the SIP loop calls this)."""
+        """Advance by `dt` clock seconds: the ARCOS watchdog, then the motion (the SIP loop
+        calls this)."""
         now = self.clock.now() if now is None else now
         if self.opened and now - self._last_cmd_t > self.watchdog_s and not self._watchdog_tripped:
             # The ARCOS watchdog: no packet for `watchdog_s` stops the robot.
             self._watchdog_tripped = True
             self._halt(hard=False)
             log.info("fake_robot_watchdog_stop")
-        if not self._can_move():
-            self._halt(hard=True)
-        self.vel_mm_s = approach(self.vel_mm_s, self.target_vel_mm_s, self.trans_accel_mm_s2 * dt)
-        self.rvel_deg_s = approach(self.rvel_deg_s, self.target_rvel_deg_s, self.rot_accel_deg_s2 * dt)
-        self.stalled = False
-        if dt <= 0 or (self.vel_mm_s == 0 and self.rvel_deg_s == 0):
-            return
-        move = drive_step(self.pose, self.vel_mm_s, self.rvel_deg_s, dt, self.motion_guard)
-        self.stalled = move.stalled
-        self.x_mm, self.y_mm, self.theta_deg = move.pose
-        # Odometry sees the same wheel motion, in its own frame.
-        omid = math.radians(self._odo[2] + move.turn_deg / 2.0)
-        self._odo[0] += move.dist_mm * math.cos(omid)
-        self._odo[1] += move.dist_mm * math.sin(omid)
-        self._odo[2] = normalize_deg(self._odo[2] + move.turn_deg)
+        self.move(dt)
 
-    def _sonar_readings(self) -> tuple[tuple[int, int], ...]:
-        if not self.sonar_on:
-            return ()
-        ranges: Sequence[float | None] = (
-            self.sonar_fn(self.x_mm, self.y_mm, self.theta_deg) if self.sonar_fn is not None
-            else [None] * SONAR_COUNT)
-        out = []
-        for _ in range(self.sonars_per_sip):
-            idx = FIRING_ORDER[self._fire_pos % SONAR_COUNT]
-            self._fire_pos += 1
-            r = ranges[idx] if idx < len(ranges) else None
-            out.append((idx, NO_ECHO_MM if r is None else max(0, min(NO_ECHO_MM, round(r)))))
-        return tuple(out)
-
-    def build_sip(self) -> RawSip:
-        dist = self.factors.dist_mm_per_unit
-        vel = 0.0 if self.stalled else self.vel_mm_s
-        left, right = vel_rvel_to_wheels(vel, self.rvel_deg_s)
-        flags = (FLAG_MOTORS if self.motors_enabled else 0) | (FLAG_SONARS if self.sonar_on else 0)
-        flags |= FLAG_ESTOP if self.estop_pressed else 0
-        th_units = round(math.radians(self._odo[2]) / ANGLE_CONV_RAD)
-        return RawSip(
-            moving=abs(vel) > 0 or abs(self.rvel_deg_s) > 0,
-            x_raw=round(self._odo[0] / dist) & 0x7FFF, y_raw=round(self._odo[1] / dist) & 0x7FFF,
-            th_raw=max(-2048, min(2047, th_units)) if th_units != 2048 else -2048,
-            left_raw=round(left), right_raw=round(right),
-            battery_dv=max(0, min(255, round(self.battery_v * 10))),
-            stall_bumpers=(STALL_LEFT | STALL_RIGHT) if self.stalled else 0, control=0,
-            flags=flags, compass=0, sonar=self._sonar_readings(),
-            battery_x10=round(self.battery_v * 10), charge_state=0,
-            rotvel_x10=round(self.rvel_deg_s * 10), fault_flags=0)
 
     def _send_sip(self) -> None:
         ptype, payload = self.build_sip().encode()

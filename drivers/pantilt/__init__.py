@@ -11,9 +11,10 @@ from collections.abc import Mapping
 from typing import Any, Literal
 
 from drivers.clock import REAL_CLOCK, Clock
-from drivers.pantilt.base import PanTilt, PanTiltError, ReplyError
+from drivers.pantilt.base import PanTilt
 from drivers.pantilt.calibration import ServoCalibration
 from drivers.pantilt.maestro import MaestroPanTilt
+from drivers.pantilt.session import PanTiltError, ReplyError
 from drivers.pantilt.ssc32 import Ssc32PanTilt
 
 PROTOCOLS: dict[str, type[PanTilt]] = {"maestro": MaestroPanTilt, "ssc32": Ssc32PanTilt}

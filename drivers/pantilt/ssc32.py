@@ -16,8 +16,9 @@ from dataclasses import dataclass
 from typing import Any
 
 from drivers.clock import REAL_CLOCK, Clock
-from drivers.pantilt.base import PanTilt, PanTiltError, ReplyError
+from drivers.pantilt.base import PanTilt
 from drivers.pantilt.calibration import ServoCalibration
+from drivers.pantilt.session import PanTiltError, ReplyError
 
 MAX_CHANNELS = 32
 MIN_PULSE_US = 500

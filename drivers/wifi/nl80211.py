@@ -10,7 +10,7 @@ from __future__ import annotations
 import asyncio
 import errno
 import socket
-from collections.abc import Callable, Sequence
+from collections.abc import AsyncIterable, Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
@@ -96,10 +96,19 @@ def _netlink_errno(exc: BaseException) -> int | None:
     return None
 
 
-def _default_iw_factory() -> Any:
+class StationDumper(Protocol):
+    """What this source uses of pyroute2's `AsyncIW` (pyroute2 ships no type information)."""
+
+    def close(self) -> None: ...
+
+    async def get_stations(self, ifindex: int) -> AsyncIterable[Any]: ...
+
+
+def _default_iw_factory() -> StationDumper:
     from pyroute2 import AsyncIW  # pyroute2 >= 0.9.3: the asyncio nl80211 socket
 
-    return AsyncIW()
+    iw: StationDumper = AsyncIW()
+    return iw
 
 
 class Nl80211Source(RssiSource):
@@ -116,14 +125,14 @@ class Nl80211Source(RssiSource):
     def __init__(self, interface: str, *, clock: Clock = REAL_CLOCK,
                  min_dbm: float = RSSI_MIN_DBM, bssid: str | None = None,
                  timeout_s: float = 0.5,
-                 iw_factory: Callable[[], Any] = _default_iw_factory,
+                 iw_factory: Callable[[], StationDumper] = _default_iw_factory,
                  ifindex_of: Callable[[str], int] = socket.if_nametoindex) -> None:
         super().__init__(interface, clock=clock, min_dbm=min_dbm)
         self.bssid = bssid
         self.timeout_s = timeout_s
         self._iw_factory = iw_factory
         self._ifindex_of = ifindex_of
-        self._iw: Any = None
+        self._iw: StationDumper | None = None
 
     async def close(self) -> None:
         iw, self._iw = self._iw, None

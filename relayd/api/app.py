@@ -347,5 +347,6 @@ def make_app(
     return app
 
 
-#: `start_api` lives in relayd/api/server.py (the guarded accept loop); importable from here too.
+#: `start_api` lives in relayd/api/server.py (behind the guarded accept loop of
+#: relayd/api/guard.py); importable from here too.
 __all__ = ["make_app", "start_api"]

@@ -10,12 +10,8 @@ import argparse
 import os
 import sys
 
-from relayd.config import (
-    ConfigError,
-    config_warnings,
-    load_settings,
-    secret_file_errors,
-)
+from relayd.config import ConfigError, secret_file_errors
+from relayd.config_load import config_warnings, load_settings
 from relayd.config_toml import render_settings
 
 

@@ -40,7 +40,8 @@ def _fail(message: str) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from relayd.config import ConfigError, parse_settings
+    from relayd.config import ConfigError
+    from relayd.config_load import parse_settings
     from relayd.record.codec import FORMAT
     from relayd.record.reader import RecordingError, join_parts, read_recording
     from relayd.record.replay import (

@@ -11,7 +11,8 @@ import sys
 
 import structlog
 
-from relayd.config import DEFAULT_CONFIG_PATH, ConfigError, config_warnings, load_settings
+from relayd.config import ConfigError
+from relayd.config_load import DEFAULT_CONFIG_PATH, config_warnings, load_settings
 from relayd.logsetup import setup_logging
 
 

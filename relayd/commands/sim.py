@@ -19,9 +19,12 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from relayd.commands.argtypes import positive_float, speed
+
+if TYPE_CHECKING:  # the simulator is imported when a run starts, not with the command line
+    from relayd.sim.runner import SimRunner
 
 DEFAULT_SCENARIO = "corridor"
 DEFAULT_SPEED = 10.0
@@ -73,7 +76,7 @@ class SimLogFields:
     """
 
     def __init__(self) -> None:
-        self.runner: Any = None
+        self.runner: SimRunner | None = None
 
     def __call__(self, _logger: Any, _method: str, event: dict[str, Any]) -> dict[str, Any]:
         event.setdefault("relay", None)

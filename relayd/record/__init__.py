@@ -12,10 +12,23 @@ recorder and its MCAP writer (about 1 MB of resident memory).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TypedDict
 
 
-def off_status() -> dict[str, Any]:
+class RecordingStatus(TypedDict):
+    """/status's `recording` object."""
+
+    enabled: bool
+    state: str  # off, recording, stopped, failed
+    path: str | None
+    files: int
+    bytes: int
+    events: int
+    dropped: int
+    error: str | None
+
+
+def off_status() -> RecordingStatus:
     """/status's `recording` when recording is not configured."""
     return {"enabled": False, "state": "off", "path": None, "files": 0, "bytes": 0, "events": 0,
             "dropped": 0, "error": None}

@@ -28,7 +28,7 @@ from __future__ import annotations
 import asyncio
 import json
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import structlog
 
@@ -39,6 +39,9 @@ from relayd.record import codec
 from relayd.record.foxglove import VIEWS, Views, log_line
 from relayd.record.recorder import Routed, RoutedBus
 from relayd.record.writer import ChannelSpec, channel_spec
+
+if TYPE_CHECKING:  # the SDK itself is imported only when the server is enabled
+    from foxglove.websocket import WebSocketServer
 
 log = structlog.get_logger(__name__)
 
@@ -97,7 +100,7 @@ class LiveServer:
         #: Set by the SDK's thread when a client subscribes to /state (a bool: atomic under the GIL).
         self._latch_wanted = False
         self._last: Decision | None = None
-        self._server: Any = None
+        self._server: WebSocketServer | None = None
         self._seen_dropped = 0
         self.port: int | None = None
         self.events = 0

@@ -35,7 +35,7 @@ from drivers.clock import Clock
 from relayd.bus import Subscription
 from relayd.config import Settings
 from relayd.events import Action, DeviceEvent, DeviceStatus, Event
-from relayd.record import codec
+from relayd.record import RecordingStatus, codec
 from relayd.record import off_status as off_status  # here since the daemon may skip this module
 from relayd.record import writer as file_writer
 from relayd.record.foxglove import VIEWS, Views
@@ -124,7 +124,7 @@ class Recorder:
     def dropped(self) -> int:
         return self._sub.dropped
 
-    def status(self) -> dict[str, Any]:
+    def status(self) -> RecordingStatus:
         """The `recording` object of /status."""
         return {
             "enabled": True, "state": self.state,

@@ -23,7 +23,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from relayd.brain import Brain
-from relayd.config import Settings, parse_settings
+from relayd.config import Settings
+from relayd.config_load import parse_settings
 from relayd.events import Action, Decision, ScanResult
 from relayd.params import brain_params
 from relayd.record.reader import Recording, action_doc

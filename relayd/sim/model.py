@@ -25,7 +25,7 @@ import random
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
-from drivers.arcos.fake import FIRING_ORDER
+from drivers.arcos.fakebody import FIRING_ORDER
 from drivers.arcos.sip import wheel_to_vel_rvel
 from relayd.controller import (
     ControlInputs,

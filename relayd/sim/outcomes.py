@@ -21,7 +21,7 @@ def link_breaks(records: Sequence[dict[str, Any]], merge_s: float = BREAK_MERGE_
     for r in records:
         t = r["t"]
         if r["broken"]:
-            if spells and spells[-1][1] is not None and t - spells[-1][1] <= merge_s:  # type: ignore[operator]
+            if spells and spells[-1][1] is not None and t - spells[-1][1] <= merge_s:
                 spells[-1][1] = None  # flickered back up only briefly: the same break
             elif not spells or spells[-1][1] is not None:
                 spells.append([t, None])

@@ -3,7 +3,8 @@
 For each relay it starts a FakeRobot (its true pose integrated by the fake, sonar and
 collisions answered by the world), a FakeMaestro, the Yagi's RSSI and two FakeAirOs
 radios, generates that relay's Settings and runs a `relayd.daemon.Daemon` on them in
-this event loop, exactly as `relayd run` would on a robot.
+this event loop, exactly as `relayd run` would on a robot (relayd/sim/relay.py builds
+each relay; this module runs them and the world).
 
 Two modes, chosen by the loop it runs on:
 
@@ -33,35 +34,24 @@ import math
 import os
 import secrets
 import tempfile
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import structlog
 
 from drivers.clock import Clock
+from relayd.sim.relay import SimRelay, pulse_to_deg, start_relay
 from relayd.sim.scenario import Scenario
 from relayd.sim.summary import summarize, unapplied_command_s
 from relayd.sim.world import World
 from relayd.vtime import LoopClock, VirtualTimeLoop
 
-if TYPE_CHECKING:
-    from drivers.airos.fake import FakeAirOs
-    from drivers.arcos.fake import FakeRobot
-    from drivers.pantilt.fake import FakeMaestro
-    from drivers.wifi.fake import ProcfsWriter
-    from relayd.daemon import Daemon
-    from relayd.sim.inproc import MemoryRssi
-
-__all__ = ["SimRelay", "SimResult", "SimRunner", "relay_settings", "summarize", "unapplied_command_s"]
+__all__ = ["SimResult", "SimRunner", "summarize", "unapplied_command_s"]
 
 log = structlog.get_logger(__name__)
 
-#: Pulse widths at -90 / 0 / +90 degrees in the generated config (the example config's default).
-PULSE_US = (1000.0, 1500.0, 2000.0)
-AP_PASSWORD_ENV = "RELAYD_SIM_AP_PASSWORD"
-API_TOKEN_ENV = "RELAYD_SIM_API_TOKEN"
 #: How often the airOS fakes get new link values (clock s); the pollers poll at 1 s.
 AIROS_UPDATE_S = 0.5
 #: Trace records per clock second.
@@ -83,60 +73,10 @@ def scratch_root() -> str | None:
     return None
 
 
-def pulse_to_deg(pulse_us: float, pulse: Sequence[float] = PULSE_US) -> float:
-    """Invert the piecewise-linear servo calibration (pulse widths at -90, 0, +90 deg)."""
-    lo, mid, hi = pulse
-    if (pulse_us - mid) * (hi - mid) >= 0:
-        return 90.0 * (pulse_us - mid) / (hi - mid)
-    return -90.0 * (pulse_us - mid) / (lo - mid)
-
-
-def _pose3(p: Any) -> tuple[float, float, float]:
-    """A pose from the FakeRobot: a (x_mm, y_mm, theta_deg) tuple or an object with them."""
-    if isinstance(p, tuple | list):
-        return float(p[0]), float(p[1]), float(p[2])
-    return float(p.x_mm), float(p.y_mm), float(p.theta_deg)
-
-
-def relay_settings(*, robot_port: str, servo_port: str, procfs_path: str, rear_url: str,
-                   front_url: str, control: dict[str, Any], scan: dict[str, Any],
-                   recovery: dict[str, Any] | None = None) -> dict[str, Any]:
-    """The config document (config/relayd.toml's sections and keys) of one simulated relay."""
-    return {
-        "recovery": dict(recovery or {}),
-        "robot": {"port": robot_port, "baud": 9600},
-        "pantilt": {"port": servo_port, "protocol": "maestro", "scan_channel": 0, "link_channel": 1,
-                    "scan_pulse_us": list(map(int, PULSE_US)), "link_pulse_us": list(map(int, PULSE_US))},
-        "wifi": {"source": "procfs", "interface": "wlan1", "procfs_path": procfs_path, "sample_hz": 20},
-        "ap": {
-            "rear": {"url": rear_url, "username": "ubnt", "password_env": AP_PASSWORD_ENV},
-            "front": {"url": front_url, "username": "ubnt", "password_env": AP_PASSWORD_ENV},
-        },
-        "scan": dict(scan),
-        "control": dict(control),
-        "api": {"bind": "127.0.0.1", "port": 0, "token_env": API_TOKEN_ENV},
-        "log": {"level": "warning", "format": "console"},
-    }
-
-
 def _relay_context(name: str) -> contextvars.Context:
     ctx = contextvars.copy_context()
     ctx.run(structlog.contextvars.bind_contextvars, relay=name)
     return ctx
-
-
-@dataclass(slots=True)
-class SimRelay:
-    """One simulated relay: its fakes and its daemon."""
-
-    name: str
-    robot: FakeRobot
-    maestro: FakeMaestro
-    procfs: ProcfsWriter | MemoryRssi
-    rear: FakeAirOs
-    front: FakeAirOs
-    daemon: Daemon
-    task: asyncio.Task[None] | None = None
 
 
 @dataclass(slots=True)
@@ -179,63 +119,10 @@ class SimRunner:
 
     # -- bring-up ---------------------------------------------------------------------
     async def _start_relay(self, i: int, work: Path) -> SimRelay:
-        from drivers.airos.fake import FakeAirOs
-        from drivers.arcos.fake import FakeRobot
-        from drivers.pantilt.fake import FakeMaestro
-        from drivers.wifi.fake import ProcfsWriter
-        from relayd.config import Settings
-        from relayd.daemon import Daemon, DeviceOverrides
-        from relayd.sim.inproc import InProcessAirOs, MemoryRssi
-
-        body = self.world.relays[i]
-        world = self.world
-        clock = self.clock
-
-        def sonar_fn(x_mm: float, y_mm: float, theta_deg: float) -> list[int]:
-            return world.sonar_mm(i, x_mm, y_mm, theta_deg)
-
-        def motion_guard(old: Any, new: Any) -> bool:
-            return world.motion_ok(i, *_pose3(new), old=_pose3(old))
-
-        robot = FakeRobot(name=body.name, clock=clock, sonar_fn=sonar_fn, motion_guard=motion_guard,
-                          pose=(body.x_m * 1000.0, body.y_m * 1000.0, body.theta_deg),
-                          seed=self.seed * 1000 + i)
-        maestro = FakeMaestro(clock=clock, initial_us=PULSE_US[1])
-        rear = FakeAirOs("ubnt", self._password, clock=clock)
-        front = FakeAirOs("ubnt", self._password, clock=clock)
-        devices = None
-        procfs: ProcfsWriter | MemoryRssi
-        if self.virtual:
-            tag = f"sim{id(self):x}-{body.name}"
-            robot_port = robot.serve_memory(f"{tag}-base")
-            servo_port = maestro.serve_memory(f"{tag}-servo")
-            procfs = MemoryRssi("wlan1", clock=clock)
-            procfs_path = str(work / f"{body.name}-wireless")  # unused: the source is in memory
-            rear_url, front_url = f"http://{tag}-rear.inproc", f"http://{tag}-front.inproc"
-            devices = DeviceOverrides(rssi_source=procfs, airos_clients={
-                "rear": InProcessAirOs(rear, clock=clock, name=f"{tag}-rear"),
-                "front": InProcessAirOs(front, clock=clock, name=f"{tag}-front"),
-            })
-        else:
-            robot_port = robot.serve_pty(str(work / f"{body.name}-base"))
-            servo_port = maestro.serve_pty(str(work / f"{body.name}-servo"))
-            procfs = ProcfsWriter(work / f"{body.name}-wireless", "wlan1")
-            procfs_path = str(procfs.path)
-            rear_url = await rear.start()
-            front_url = await front.start()
-        await robot.start()
-        procfs.write(world.yagi_rssi_dbm(i, 0.0))
-        control = dict(self.scenario.control)
-        control.update(self.scenario.relay[i].control)
-        doc = relay_settings(robot_port=robot_port, servo_port=servo_port, procfs_path=procfs_path,
-                             rear_url=rear_url, front_url=front_url, control=control,
-                             scan=dict(self.scenario.scan), recovery=self._recovery_section())
-        if self.record_dir is not None:
-            doc["record"] = {"enabled": True, "path": str(self.record_dir / f"{body.name}.mcap")}
-        settings = Settings.model_validate(doc)
-        env = {AP_PASSWORD_ENV: self._password, API_TOKEN_ENV: secrets.token_hex(8)}
-        daemon = Daemon(settings, clock=clock, env=env, devices=devices)
-        relay = SimRelay(body.name, robot, maestro, procfs, rear, front, daemon)
+        relay = await start_relay(self.scenario, self.world, i, clock=self.clock, virtual=self.virtual,
+                                  work=work, prefix=f"sim{id(self):x}", seed=self.seed,
+                                  password=self._password, recovery=self._recovery_section(),
+                                  record_dir=self.record_dir)
         self._update_links()
         return relay
 

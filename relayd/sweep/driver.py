@@ -165,8 +165,7 @@ class SweepProgress:
         self.t0 = now()
         self.ok = 0
         self.failed = 0
-        isatty = getattr(self.stream, "isatty", None)
-        self.tty = bool(isatty and isatty()) if enabled is None else enabled
+        self.tty = self.stream.isatty() if enabled is None else enabled
 
     def text(self) -> str:
         done = self.skipped + self.ok + self.failed

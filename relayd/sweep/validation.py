@@ -59,8 +59,8 @@ def first_below(s: Series, mbps: float, after_s: float = 0.0) -> float | None:
 def leader_corner_s(scenario: str, k: int) -> float:
     """When the scenario's scripted leader reaches waypoint k (0 is where it starts; the
     shipped corridor and outdoor scenarios have their corners at 1 and 2)."""
+    from relayd.sim.leader_script import LeaderScript
     from relayd.sim.scenario import load_scenario
-    from relayd.sim.world import LeaderScript
 
     sc = load_scenario(scenario)
     wps = sc.leader.waypoints
