@@ -231,7 +231,10 @@ def fit_main_lobe(angles_deg: Sequence[float], rssi_dbm: Sequence[float],
     offsets = _scan_levels(angles_deg, rssi_dbm, ids) if scan_ids is not None else {0: 0.0}
     # Each scan at its own top (its level is fitted again below): the peak and the run are
     # then chosen on the lobe's shape, not on which scan was loudest.
-    triples = sorted((a, r - offsets[g], g) for a, r, g in zip(angles_deg, rssi_dbm, ids, strict=True))
+    # Sorted by angle, then scan (not by value): the same samples give the same order
+    # whatever each scan's level was, to the last bit.
+    triples = sorted(((a, r - offsets[g], g) for a, r, g in zip(angles_deg, rssi_dbm, ids, strict=True)),
+                     key=lambda x: (x[0], x[2]))
     pairs = [(a, r) for a, r, _ in triples]
     groups = [g for _, _, g in triples] if scan_ids is not None else None
     for a, r in pairs:

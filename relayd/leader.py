@@ -135,6 +135,8 @@ class TrackingModel:
         #: How long the last sweep took (s): the window leads the prediction by half of it.
         self._sweep_s = 0.0
         self._pool = ScanPool(params.pool)
+        #: The servo's range (from the full window the brain plans with), once known.
+        self._span: tuple[float, float] | None = None
 
     @property
     def beamwidth_deg(self) -> float | None:
@@ -187,7 +189,16 @@ class TrackingModel:
             # No track to speak of: the scan's own word (the fit, else the centroid), flagged unsure.
             bearing = fit.bearing_deg if fit is not None else est.bearing_deg
             return replace(est, bearing_deg=bearing, bearing_sd_deg=None)
-        return replace(est, bearing_deg=now.bearing_deg, bearing_sd_deg=now.sd_deg)
+        return replace(est, bearing_deg=self._seen(now.bearing_deg), bearing_sd_deg=now.sd_deg)
+
+    def _seen(self, bearing_deg: float) -> float:
+        """A prediction kept where a scan could have put it: the servo's range, plus the lobe
+        fit's extrapolation. Beyond, a rate (perhaps from a leader that jumped) would steer
+        the robot toward a bearing no scan has seen; turning toward the limit is right."""
+        if self._span is None:
+            return bearing_deg
+        ext = self.params.lobe.max_extrapolation_deg
+        return min(max(bearing_deg, self._span[0] - ext), self._span[1] + ext)
 
     def _trusted(self, fit: LobeFit) -> LobeFit:
         """The fit with its sd as the channel's noise allows: a scan's few residuals can
@@ -223,7 +234,7 @@ class TrackingModel:
         now = self._now(t, heading_deg)
         if now is None or tracker.is_lost(now, self.params.tracker):
             return None
-        return now.bearing_deg
+        return self._seen(now.bearing_deg)
 
     def lost(self, t: float, heading_deg: float | None) -> bool:
         now = self._now(t, heading_deg)
@@ -241,6 +252,7 @@ class TrackingModel:
         takes fewer samples; the servo's whole range while it is not.
         """
         p = self.params
+        self._span = (full.centre_deg - full.width_deg / 2.0, full.centre_deg + full.width_deg / 2.0)
         now = self._now(t, heading_deg)
         if now is None or tracker.is_lost(now, p.tracker):
             return None if p.window == "full" else full
