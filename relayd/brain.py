@@ -126,6 +126,8 @@ class Brain:
         #: Odometry pose of the latest SIP (mm, mm, deg): the obstacle escape's progress
         #: watchdog and limits (relayd/avoidance.py) and the recovery's breadcrumbs.
         self._pose: tuple[float, float, float] | None = None
+        #: ... and at the last rear poll the link model learned from (how far it moved between polls).
+        self._rear_pose: tuple[float, float, float] | None = None
         # RSSI and scans.
         self._rssi_fresh_t: float | None = None
         self._servo_ok = not params.has_scanner
@@ -277,9 +279,13 @@ class Brain:
         q = ev.quality
         tx, rx, ccq = (peer.tx_mbps, peer.rx_mbps, peer.ccq_pct) if peer is not None \
             else (q.tx_mbps, q.rx_mbps, q.ccq_pct)
-        sample = LinkSample(q.t if math.isfinite(q.t) else ev.t, rssi_dbm, tx, rx, ccq)
+        moved = None
+        if self._pose is not None and self._rear_pose is not None:
+            moved = math.hypot(self._pose[0] - self._rear_pose[0], self._pose[1] - self._rear_pose[1]) / 1000.0
+        sample = LinkSample(q.t if math.isfinite(q.t) else ev.t, rssi_dbm, tx, rx, ccq, moved)
         if not self.link_model.observe(sample, ev.t):
             return []
+        self._rear_pose = self._pose
         self._control = self._with_rear_limit()
         return [LinkModelView(self._control.threshold_b_dbm, self.link_model.status(ev.t))]
 

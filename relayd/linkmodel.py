@@ -23,6 +23,20 @@ poll from moving it far. The threshold is the r where the posterior predictive
 P(ok | r) equals 1 - outage, clamped to the configured bounds: strong fading (wide s)
 or multipath (high mu) tighten it, a clean open space relaxes it.
 
+Rate ladder. A yes/no verdict says nothing about where the target's edge is until the
+relay has crossed it, and a relay never backs up. So a poll whose rate is on the
+802.11g or one-stream 802.11n ladder (relayd/ratetables.py) is read as an ordered
+probit: the radio chose rate i, so RSSI^b - mu lay in rate i's band, [sens_i - sens_t,
+sens_(i-1) - sens_t) with sens_t the sensitivity of the slowest rate that meets the
+target at this poll's CCQ. Only the standard's sensitivity differences are assumed;
+the level is mu's. Every step passed on the way out says where the target's step is.
+
+Ground covered. Each poll carries how far the relay drove since the previous one; it
+counts (in the likelihood and in the forgetting) in full from MOVE_REF_M, and only
+STANDING_WEIGHT standing still, so a relay standing at its limit does not forget what
+the rate steps said on the way out. A standing poll may tighten the limit, never relax
+it: it says nothing of the ground beyond, and the relay would go there on extrapolation.
+
 Evidence floor. The limit never goes more than `EXTRAPOLATE_DB` below the weakest
 RSSI^b at which one of the last `half_life_samples` polls met the target (when any
 did): the probit
@@ -46,6 +60,8 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
+from relayd.ratetables import ladder_of
+
 #: The spread grid (dB): from a clean line of sight to a deep-fading corridor.
 SPREADS_DB: tuple[float, ...] = (0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)
 #: The mu grid step (dB) and how far it reaches beyond the bounds.
@@ -57,6 +73,14 @@ PRIOR_SD_DB = 5.0
 LAPSE = 0.02
 #: How far (dB) the limit may go below the weakest RSSI^b recently seen meeting the target.
 EXTRAPOLATE_DB = 1.0
+#: A poll counts in full once the relay moved this far since the previous one (m): about
+#: one poll's travel at a follower's speed, and several fast-fading lengths at 2.4 GHz.
+MOVE_REF_M = 0.2
+#: What a poll taken standing still counts for: the node behind may move (so it is news),
+#: but mostly it repeats what the last one said about this spot.
+STANDING_WEIGHT = 0.05
+#: Below this travel (m) since the previous poll the relay stands: such a poll may tighten the limit, never relax it.
+STANDING_M = 0.02
 #: Cells below this share of the best one are left out of the threshold search.
 PRUNE = 1e-4
 
@@ -99,6 +123,15 @@ class LinkSample:
     tx_mbps: float | None
     rx_mbps: float | None
     ccq_pct: float | None
+    #: How far the relay itself travelled since its previous rear poll (odometry, m);
+    #: None when unknown (taken as a moving poll).
+    moved_m: float | None = None
+
+    def weight(self) -> float:
+        """How much news the poll carries: 1 on the move, STANDING_WEIGHT standing still."""
+        if self.moved_m is None or not math.isfinite(self.moved_m):
+            return 1.0
+        return min(1.0, max(STANDING_WEIGHT, self.moved_m / MOVE_REF_M))
 
     def delivered_mbps(self, mac_efficiency: float) -> float | None:
         """min(tx, rx) x CCQ x MAC efficiency; None when the radio gave no rate."""
@@ -133,6 +166,8 @@ class LinkModel:
     refused_stale: int = 0
     unusable: int = 0
     ok_eff: float = 0.0
+    #: Effective samples whose rate sat on a known 802.11 ladder (the rest gave a yes/no verdict only).
+    ladder_eff: float = 0.0
     last_t: float | None = None
     last_rssi_dbm: float | None = None
     last_delivered_mbps: float | None = None
@@ -243,22 +278,60 @@ class LinkModel:
             return False
         ok = delivered >= p.target_hop_mbps
         r = sample.rssi_dbm
-        decay = 0.5 ** (1.0 / p.half_life_samples)
+        band = self._band(sample, p)
+        w = sample.weight()
+        decay = 0.5 ** (w / p.half_life_samples)
         k = 0
         ll = self._loglik
         for mu in self.mus:
             for s in SPREADS_DB:
-                q = LAPSE / 2.0 + (1.0 - LAPSE) * _phi((r - mu) / s)
-                ll[k] = decay * ll[k] + math.log(q if ok else 1.0 - q)
+                if band is None:
+                    q = _phi((r - mu) / s)
+                    lik = LAPSE / 2.0 + (1.0 - LAPSE) * (q if ok else 1.0 - q)
+                else:
+                    lo, hi = band
+                    q = _phi((r - mu - lo) / s) - (_phi((r - mu - hi) / s) if hi < math.inf else 0.0)
+                    lik = LAPSE / 2.0 + (1.0 - LAPSE) * q
+                ll[k] = decay * ll[k] + w * math.log(lik)
                 k += 1
-        self.n_eff = decay * self.n_eff + 1.0
-        self.ok_eff = decay * self.ok_eff + (1.0 if ok else 0.0)
+        self.ladder_eff = decay * self.ladder_eff + (w if band is not None else 0.0)
+        self.n_eff = decay * self.n_eff + w
+        self.ok_eff = decay * self.ok_eff + (w if ok else 0.0)
         self.accepted += 1
         self.last_t, self.last_rssi_dbm, self.last_delivered_mbps = sample.t, r, delivered
         self._ok_rssi.append(r if ok else None)
         if self.n_eff >= p.min_samples:
-            self.threshold_dbm = max(self._solve(*p.bounds_dbm), self._clamp(self.evidence_floor_dbm()))
+            limit = max(self._solve(*p.bounds_dbm), self._clamp(self.evidence_floor_dbm()))
+            standing = sample.moved_m is not None and sample.moved_m < STANDING_M
+            # A relay standing at its limit learns only about the spot it stands on; relaxing
+            # from there would send it on by extrapolation, and it never backs up.
+            self.threshold_dbm = max(limit, self.threshold_dbm) if standing else limit
         return True
+
+    @staticmethod
+    def _band(sample: LinkSample, p: LinkPolicyParams) -> tuple[float, float] | None:
+        """Where on its rate ladder the poll's rate puts RSSI^b - mu, in dB; None off the ladders.
+
+        The radio sent at rate i of a known ladder, so its signal lay between rate i's
+        sensitivity and the next faster rate's. Relative to the sensitivity of the slowest
+        rate that meets the target at this poll's CCQ (the target's own step, where mu is),
+        that is [sens_i - sens_t, sens_(i-1) - sens_t): the band RSSI^b - mu fell in.
+        """
+        rates = [x for x in (sample.tx_mbps, sample.rx_mbps) if x is not None and math.isfinite(x) and x > 0]
+        found = ladder_of(min(rates)) if rates else None
+        if found is None:
+            return None
+        ladder, i = found
+        per_mbps = (sample.delivered_mbps(p.mac_efficiency) or 0.0) / ladder[i][1]
+        target = None
+        for sens, rate in ladder:
+            if rate * per_mbps >= p.target_hop_mbps:
+                target = sens
+        if target is None:  # no rate of this ladder meets the target at this CCQ: the binary verdict says it
+            return None
+        lo = ladder[i][0] - target
+        hi = ladder[i - 1][0] - target if i > 0 else math.inf
+        return lo, hi
 
     def evidence_floor_dbm(self) -> float:
         """The loosest limit the recent evidence supports (see the module docstring)."""

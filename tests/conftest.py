@@ -15,6 +15,7 @@ import inspect
 from collections.abc import AsyncIterator
 
 import pytest
+import pytest_asyncio
 
 #: Turns of the loop given to things a test has just cancelled or closed, so their
 #: callbacks (connection_lost, done-callbacks) can run before the check.
@@ -62,12 +63,42 @@ async def _no_leaks_async() -> AsyncIterator[None]:
                 f"{describe(tasks, timers)}", pytrace=False)
 
 
+@pytest_asyncio.fixture(loop_scope="module")
+async def _no_new_tasks_module() -> AsyncIterator[None]:
+    """The check for a test on a module-wide loop (a daemon shared by the file's tests).
+
+    The shared daemon's own tasks and timers live on between tests by design; what the
+    test itself started must not. Timers are left out: the daemon re-arms its own.
+    """
+    loop = asyncio.get_running_loop()
+    before = set(asyncio.all_tasks(loop))
+    yield
+    await _settle()
+    tasks = [t for t in leftovers(loop)[0] if t not in before]
+    if not tasks:
+        return
+    for t in tasks:
+        t.cancel()
+    await asyncio.gather(*tasks, return_exceptions=True)
+    pytest.fail(f"the test leaked {len(tasks)} task(s) on its module's loop: {describe(tasks, [])}",
+                pytrace=False)
+
+
 @pytest.fixture(autouse=True)
 def _no_leaks(request: pytest.FixtureRequest) -> None:
     """Applies the leak check to every coroutine test (sync tests have no loop to leak on)."""
     func = getattr(request.node, "function", None)
-    if func is not None and inspect.iscoroutinefunction(func):
+    if func is None or not inspect.iscoroutinefunction(func):
+        return
+    marker = request.node.get_closest_marker("asyncio")
+    loop_scope = marker.kwargs.get("loop_scope", "function") if marker is not None else "function"
+    if loop_scope == "module":
+        request.getfixturevalue("_no_new_tasks_module")
+    elif loop_scope == "function":
         request.getfixturevalue("_no_leaks_async")
+    else:
+        pytest.fail(f"no leak check for loop_scope={loop_scope!r}: add one to tests/conftest.py",
+                    pytrace=False)
 
 
 def pytest_asyncio_loop_factories(config: pytest.Config, item: pytest.Item) -> dict[str, object]:

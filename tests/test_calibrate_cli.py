@@ -170,3 +170,13 @@ async def test_drive_needs_a_token(monkeypatch: pytest.MonkeyPatch, capsys: pyte
     args = parser.parse_args(["--url", "http://127.0.0.1:9", "--drive"])
     assert await calibrate_cli.run(args) == 2
     assert "token" in capsys.readouterr().err
+
+
+def test_synthetic_guided_drive_is_slow_through_the_first_metres() -> None:
+    """As --drive: a third of the speed inside near_m, so three times the readings per metre there."""
+    msgs = drive_messages(l0_dbm=-20.0, n=3.0, sigma_db=0.0, seed=1, far_m=12.0, near_m=4.0, poll_s=0.5)
+    readings = readings_from_messages(msgs)
+    near = sum(1 for r in readings if 1.5 <= r.distance_m < 3.5)
+    far = sum(1 for r in readings if 6.0 <= r.distance_m < 8.0)
+    assert near == pytest.approx(3 * far, rel=0.1)
+    assert readings[-1].distance_m == pytest.approx(12.0, abs=0.1)

@@ -16,6 +16,7 @@ from relayd.brain import Brain, BrainParams
 from relayd.controller import ControlParams
 from relayd.events import LinkEvent, LinkModelView, LinkSide
 from relayd.linkmodel import LinkModel, LinkPolicyParams, LinkSample
+from relayd.ratetables import RATE_TABLES
 from relayd.sim.radio import phy_rate_mbps
 
 BOUNDS = (-80.0, -50.0)
@@ -73,20 +74,86 @@ def test_relaxes_in_open_space_and_tightens_under_fading_and_multipath(seed: int
        seed=st.integers(0, 10_000))
 def test_converges_to_the_true_outage_quantile(mu: float, s: float, outage: float, seed: int) -> None:
     """Synthetic polls with P(ok | r) = Phi((r - mu) / s), RSSI^b spread over the region that
-    matters: the limit ends near mu + z(1 - outage) s, the RSSI^b that meets the outage."""
+    matters: the limit ends near mu + z(1 - outage) s, the RSSI^b that meets the outage.
+    The rates are on no 802.11 ladder (100 or 1 Mbit/s), so each poll is a bare yes/no."""
     rng = random.Random(seed)
     m = LinkModel(params(outage=outage, half_life_samples=400.0))
     for i in range(600):
         r = rng.uniform(mu - 3 * s - 2, mu + 3 * s + 2)
         ok = rng.random() < NormalDist(mu, s).cdf(r)
-        rate = 54.0 if ok else 6.0
+        rate = 100.0 if ok else 1.0
         m.observe(LinkSample(float(i), r, rate, rate, 100.0), float(i))
     want = min(max(mu + NormalDist().inv_cdf(1 - outage) * s, BOUNDS[0]), BOUNDS[1])
     assert m.threshold_dbm == pytest.approx(want, abs=1.0 + 0.3 * s)
 
 
+@settings(max_examples=20, deadline=None)
+@given(penalty=st.floats(-6.0, 10.0), fade=st.sampled_from([0.5, 1.0, 2.0]), seed=st.integers(0, 10_000),
+       phy=st.sampled_from(["802.11g", "802.11n-1x1"]))
+def test_converges_on_the_rate_ladder(penalty: float, fade: float, seed: int, phy: str) -> None:
+    """A relay driving away whose radio picks its rate from the local mean minus a penalty:
+    every rate step it passes says where the target's step is, so mu ends at the target
+    rate's sensitivity plus the penalty, and the limit a little above it (never below)."""
+    table = RATE_TABLES[phy]
+    rng = random.Random(seed)
+    m = LinkModel(params(half_life_samples=60.0))
+    for i in range(300):
+        mean = -50.0 - 35.0 * i / 300
+        rate = phy_rate_mbps(mean - penalty, table)
+        m.observe(LinkSample(float(i), round(mean + rng.gauss(0.0, fade)), rate, rate, 95.0), float(i))
+    edge = -74.0 + penalty  # 24 (or 26) Mbit/s x 95 % x 0.5 >= 10 Mbit/s; 18 (19.5) falls short
+    mu, _s = m.estimate()
+    assert mu == pytest.approx(edge, abs=1.0 + fade)
+    assert edge - 0.5 <= m.threshold_dbm <= edge + 2.0 + 2.0 * fade
+
+
+def test_a_poll_on_a_ladder_says_which_band_rssi_was_in() -> None:
+    band = LinkModel._band
+    p = params()
+    assert band(LinkSample(0.0, -60.0, 24.0, 36.0, 95.0), p) == (0.0, 4.0)     # the target's own step
+    assert band(LinkSample(0.0, -60.0, 54.0, 54.0, 95.0), p) == (9.0, math.inf)  # the fastest: no top
+    assert band(LinkSample(0.0, -60.0, 18.0, 18.0, 95.0), p) == (-3.0, 0.0)    # one step short
+    assert band(LinkSample(0.0, -60.0, 39.0, 39.0, 60.0), p) == (0.0, 4.0)     # n, low CCQ: 39 is the target
+    assert band(LinkSample(0.0, -60.0, 130.0, 130.0, 95.0), p) is None          # two streams: a bare verdict
+    assert band(LinkSample(0.0, -60.0, 54.0, 54.0, 10.0), p) is None            # no rate meets it at 10 % CCQ
+
+
+def test_polls_count_by_the_ground_covered() -> None:
+    assert LinkSample(0, -60, 54, 54, 95, None).weight() == 1.0
+    assert LinkSample(0, -60, 54, 54, 95, 0.4).weight() == 1.0
+    assert LinkSample(0, -60, 54, 54, 95, 0.1).weight() == pytest.approx(0.5)
+    assert LinkSample(0, -60, 54, 54, 95, 0.0).weight() == pytest.approx(0.05)
+    assert LinkSample(0, -60, 54, 54, 95, math.nan).weight() == 1.0
+
+
+@settings(max_examples=40, deadline=None)
+@given(penalty=st.floats(-4.0, 8.0), seed=st.integers(0, 10_000), stand_at=st.floats(-76.0, -62.0),
+       polls=st.integers(1, 300), fade=st.sampled_from([0.5, 1.5, 3.0]))
+def test_never_relaxes_standing_still(penalty: float, seed: int, stand_at: float, polls: int, fade: float) -> None:
+    """Polls taken standing still may tighten the limit, never relax it: however long the
+    relay stands where the hop meets the target (or does not), the limit in force only rises."""
+    rng = random.Random(seed)
+    m = LinkModel(params())
+    t = 0.0
+    for i in range(120):  # the drive out to the spot
+        mean = -55.0 + (stand_at + 55.0) * i / 120
+        rate = phy_rate_mbps(mean - penalty)
+        t += 1.0
+        m.observe(LinkSample(t, round(mean + rng.gauss(0.0, fade)), rate, rate, 95.0, 0.3), t)
+    rate = phy_rate_mbps(stand_at - penalty)
+    before = m.threshold_dbm
+    for _ in range(polls):
+        t += 1.0
+        m.observe(LinkSample(t, round(stand_at + rng.gauss(0.0, fade)), rate, rate, 95.0, 0.0), t)
+        assert m.threshold_dbm >= before
+        before = m.threshold_dbm
+
+
+LADDER_RATES = sorted({rate for table in RATE_TABLES.values() for _sens, rate in table})
+#: Poll histories: time step, RSSI^b, a rate (none, any, or one on an 802.11 ladder), CCQ.
 samples = st.lists(st.tuples(st.floats(0.0, 5.0), st.floats(-110.0, -10.0),
-                             st.one_of(st.none(), st.floats(0.0, 300.0)), st.one_of(st.none(), st.floats(0.0, 100.0))),
+                             st.one_of(st.none(), st.floats(0.0, 300.0), st.sampled_from(LADDER_RATES)),
+                             st.one_of(st.none(), st.floats(0.0, 100.0))),
                    max_size=60)
 
 
@@ -97,7 +164,7 @@ def test_bounded(history: list[tuple[float, float, float | None, float | None]],
     t = 0.0
     for dt, r, rate, ccq in history:
         t += dt
-        m.observe(LinkSample(t, r, rate, rate, ccq), t)
+        m.observe(LinkSample(t, r, rate, rate, ccq, dt / 5.0), t)  # standing (dt 0) to a metre
         assert lo <= m.threshold_dbm <= lo + width
         assert math.isfinite(m.status(t).mu_dbm)
 
@@ -171,6 +238,28 @@ def test_brain_sets_the_controllers_rear_limit_only_when_adaptive(adaptive: bool
     in_force = brain._control.threshold_b_dbm
     assert in_force == (pytest.approx(learned) if adaptive else -66.0)
     assert views[-1].threshold_b_dbm == in_force
+
+
+def test_brain_tells_the_model_how_far_the_relay_moved_between_rear_polls() -> None:
+    from drivers.arcos.sip import Sip
+    from relayd.events import SipEvent
+
+    seen: list[LinkSample] = []
+
+    class Spy(LinkModel):
+        def observe(self, sample: LinkSample, now: float) -> bool:
+            seen.append(sample)
+            return super().observe(sample, now)
+
+    brain = Brain(BrainParams(control=ControlParams(threshold_b_dbm=-66.0), link=params(min_samples=1.0)))
+    brain.link_model = Spy(brain.link_model.params)
+    for i, x_mm in enumerate((0.0, 300.0, 300.0)):
+        sip = Sip(t=float(i), x_mm=x_mm, y_mm=400.0 * i, theta_deg=0.0, left_mm_s=0.0, right_mm_s=0.0,
+                  battery_v=13.0, motors_enabled=True, estop=False, stall_left=False, stall_right=False,
+                  moving=False, sonar=())
+        brain.handle(SipEvent(float(i), sip, ()))
+        brain.handle(rear_poll(float(i) + 0.5, -60.0, 54.0))
+    assert [s.moved_m for s in seen] == [None, pytest.approx(0.5), pytest.approx(0.4)]
 
 
 def test_status_shows_the_limit_in_force_and_the_model() -> None:

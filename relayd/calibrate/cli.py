@@ -18,7 +18,7 @@ import os
 import sys
 from pathlib import Path
 
-from relayd.calibrate.fit import RATE_TABLES, FitError, PathLossFit, fit_path_loss
+from relayd.calibrate.fit import FitError, PathLossFit, fit_path_loss
 from relayd.calibrate.report import (
     Thresholds,
     Wanted,
@@ -29,6 +29,7 @@ from relayd.calibrate.report import (
 )
 from relayd.calibrate.sources import (
     LINKS,
+    NEAR_M,
     LiveOptions,
     Reading,
     SourceError,
@@ -36,6 +37,7 @@ from relayd.calibrate.sources import (
     sample_live,
 )
 from relayd.commands.argtypes import positive_float
+from relayd.ratetables import RATE_TABLES
 
 #: --drive never goes faster than this (mm/s): a calibration is a slow, watched drive.
 MAX_DRIVE_MM_S = 300.0
@@ -71,6 +73,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                            "(every fail-safe applies; ends in hold). Without it: read-only, push the robot.")
     live.add_argument("--speed-mm-s", type=positive_float, default=150.0,
                       help=f"--drive speed (default 150, at most {MAX_DRIVE_MM_S:g})")
+    live.add_argument("--near-m", type=float, default=NEAR_M,
+                      help="--drive goes at a third of --speed-mm-s until this far from the node: the first "
+                           "metres pin L0 (default 4 m; 0: one speed)")
     live.add_argument("--distance-m", type=positive_float, default=20.0, help="stop after this far (default 20 m)")
     live.add_argument("--seconds", type=positive_float, default=180.0, help="stop after this long (default 180 s)")
     live.add_argument("--hz", type=positive_float, default=4.0, help="/status polls per second (default 4)")
@@ -98,7 +103,7 @@ async def run(args: argparse.Namespace) -> int:
                 return 2
             opts = LiveOptions(url=args.url, link=args.link, start_distance_m=args.start_distance_m, hz=args.hz,
                                seconds=args.seconds, distance_m=args.distance_m, drive=args.drive,
-                               speed_mm_s=args.speed_mm_s, token=token)
+                               speed_mm_s=args.speed_mm_s, token=token, near_m=args.near_m)
             how = f"driving at {args.speed_mm_s:g} mm/s" if args.drive else "read-only"
             print(f"sampling {args.url} ({how}); Ctrl-C ends it", file=sys.stderr)
             readings, why = await sample_live(opts)

@@ -25,8 +25,9 @@ Decisions:
   correlated over metres, so neighbouring readings are not independent and the
   textbook (i.i.d.) intervals would be too narrow. Resampling blocks of neighbouring
   readings keeps that correlation. The percentile interval of 300 resamples; a
-  block spans `block_m` (4 m: twice a typical indoor shadowing correlation length)
-  of the drive. Deterministic for a given seed. A straight pass of D metres holds
+  block is the readings within `block_m` (4 m: twice a typical indoor shadowing
+  correlation length) of the drive from a start drawn uniformly in distance, so a
+  drive slower in its first metres keeps its proportions. Deterministic for a given seed. A straight pass of D metres holds
   only about D / 4 independent shadowing values, so a short drive gives honest but
   wide intervals: drive 30 m or more, or several passes.
 - Readings nearer than `min_distance_m` (0.5 m, the antennas' near field and the
@@ -37,11 +38,14 @@ Pure: lists of floats in, a frozen result out; no I/O, no clock, no numpy.
 
 from __future__ import annotations
 
+import bisect
 import math
 import random
 from collections.abc import Sequence
 from dataclasses import dataclass
 from statistics import NormalDist
+
+from relayd.ratetables import RATE_TABLES
 
 HUBER_K = 1.345
 BISQUARE_C = 4.685
@@ -195,17 +199,20 @@ def fit_path_loss(distance_m: Sequence[float], rssi_dbm: Sequence[float], *, con
     fast = min(_fast_sd(x, res), sd)
     slow = math.sqrt(max(0.0, sd * sd - fast * fast))
 
-    # Moving-block bootstrap over distance order.
+    # Moving-block bootstrap over distance: each block is the readings within block_m of
+    # drive from a start drawn uniformly in distance, so a drive that went slower in
+    # places (the first metres, relayd/calibrate/sources.py) is resampled in its own
+    # proportions, and a block is block_m long wherever it falls.
     rng = random.Random(seed)
     count = len(x)
-    block = min(count, max(2, round(count * block_m / (d_hi - d_lo))))
-    starts = count - block + 1
+    dists = [d for d, _ in pairs]
+    room = max(0.0, (d_hi - d_lo) - block_m)
     l0s, ns, sds = [], [], []
     for _ in range(resamples):
         idx: list[int] = []
         while len(idx) < count:
-            s = rng.randrange(starts)
-            idx.extend(range(s, s + block))
+            d0 = d_lo + rng.random() * room
+            idx.extend(range(bisect.bisect_left(dists, d0), bisect.bisect_right(dists, d0 + block_m)))
         idx = idx[:count]
         bx, by = [x[i] for i in idx], [y[i] for i in idx]
         try:
@@ -231,16 +238,6 @@ def fit_path_loss(distance_m: Sequence[float], rssi_dbm: Sequence[float], *, con
 
 
 # -- thresholds --------------------------------------------------------------------------
-
-#: 802.11 receiver minimum sensitivities (dBm) -> PHY rate (Mbit/s), fastest first: the
-#: standard's tables for 802.11g and for 802.11n one stream, 20 MHz, long guard interval.
-RATE_TABLES: dict[str, tuple[tuple[float, float], ...]] = {
-    "802.11g": ((-65.0, 54.0), (-66.0, 48.0), (-70.0, 36.0), (-74.0, 24.0),
-                (-77.0, 18.0), (-79.0, 12.0), (-81.0, 9.0), (-82.0, 6.0)),
-    "802.11n-1x1": ((-64.0, 65.0), (-65.0, 58.5), (-66.0, 52.0), (-70.0, 39.0),
-                    (-74.0, 26.0), (-77.0, 19.5), (-79.0, 13.0), (-82.0, 6.5)),
-}
-
 
 def z_of(outage: float) -> float:
     """The one-sided normal quantile for an outage probability (0.1 -> 1.28)."""

@@ -22,7 +22,7 @@ from typing import Any
 
 from drivers.airos.model import LinkQuality, Station
 from drivers.arcos.sip import Sip
-from relayd.calibrate.fit import RATE_TABLES
+from relayd.ratetables import RATE_TABLES
 
 
 def _rate(power_dbm: float) -> float:
@@ -38,8 +38,15 @@ def _json(value: Any) -> Any:
 
 def drive_messages(*, l0_dbm: float, n: float, sigma_db: float, seed: int, start_m: float = 1.0,
                    far_m: float = 30.0, speed_m_s: float = 0.15, corr_m: float | None = None,
-                   penalty_db: float = 0.0, poll_s: float = 1.0) -> list[tuple[str, dict[str, Any]]]:
-    """(topic, message) pairs in time order for one straight drive."""
+                   penalty_db: float = 0.0, poll_s: float = 1.0,
+                   near_m: float = 0.0) -> list[tuple[str, dict[str, Any]]]:
+    """(topic, message) pairs in time order for one straight drive.
+
+    With `near_m` the drive goes at a third of the speed until that far from the node,
+    as `relayd calibrate path-loss --drive` does (relayd/calibrate/sources.py).
+    """
+    from relayd.calibrate.sources import NEAR_SPEED_SHARE
+
     rng = random.Random(seed)
     field = None
     if corr_m is not None:
@@ -47,13 +54,13 @@ def drive_messages(*, l0_dbm: float, n: float, sigma_db: float, seed: int, start
 
         field = ShadowField(seed, corr_m)
     out: list[tuple[str, dict[str, Any]]] = []
-    duration = (far_m - start_m) / speed_m_s
     seq = 0
     t = 0.0
     next_poll = 0.5
-    while t <= duration:
-        x_mm = 1000.0 * speed_m_s * t
-        sip = Sip(t=t, x_mm=x_mm, y_mm=0.0, theta_deg=0.0, left_mm_s=speed_m_s * 1000, right_mm_s=speed_m_s * 1000,
+    x_mm = 0.0
+    while start_m + x_mm / 1000.0 <= far_m:
+        v = speed_m_s * (NEAR_SPEED_SHARE if start_m + x_mm / 1000.0 < near_m else 1.0)
+        sip = Sip(t=t, x_mm=x_mm, y_mm=0.0, theta_deg=0.0, left_mm_s=v * 1000, right_mm_s=v * 1000,
                   battery_v=13.0, motors_enabled=True, estop=False, stall_left=False, stall_right=False,
                   moving=True, sonar=())
         out.append(("/robot/sip", {"seq": seq, "t": t, "sip": _json(sip), "sonar_mm": [None] * 16}))
@@ -71,6 +78,7 @@ def drive_messages(*, l0_dbm: float, n: float, sigma_db: float, seed: int, start
             seq += 1
             next_poll += poll_s
         t = round(t + 0.1, 6)
+        x_mm += 100.0 * v
     return out
 
 

@@ -24,24 +24,10 @@ import random
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
+from relayd.ratetables import RATE_TABLE_80211G, RATE_TABLE_80211N_1X1, RATE_TABLES  # noqa: F401 (re-exported)
 from relayd.sim.geometry import Point, Segment, crossings
 from relayd.sim.zones import PathEnvironment, RadioZone, path_environment
 
-#: 802.11g OFDM receiver minimum sensitivity (dBm) -> PHY rate (Mbps), fastest first.
-RATE_TABLE_80211G: tuple[tuple[float, float], ...] = (
-    (-65.0, 54.0), (-66.0, 48.0), (-70.0, 36.0), (-74.0, 24.0),
-    (-77.0, 18.0), (-79.0, 12.0), (-81.0, 9.0), (-82.0, 6.0),
-)
-#: 802.11n, one spatial stream, 20 MHz, 800 ns guard interval: MCS7..MCS0 with the
-#: standard's minimum sensitivities (IEEE 802.11-2012, table 20-22). The paper's radios
-#: are airMAX M2 (802.11n); the leader's PicoStation M2HP and each relay's omni AP have
-#: one chain, so every hop is limited to one stream.
-RATE_TABLE_80211N_1X1: tuple[tuple[float, float], ...] = (
-    (-64.0, 65.0), (-65.0, 58.5), (-66.0, 52.0), (-70.0, 39.0),
-    (-74.0, 26.0), (-77.0, 19.5), (-79.0, 13.0), (-82.0, 6.5),
-)
-RATE_TABLES: Mapping[str, tuple[tuple[float, float], ...]] = {
-    "802.11g": RATE_TABLE_80211G, "802.11n-1x1": RATE_TABLE_80211N_1X1}
 MAC_EFFICIENCY = 0.5
 #: Below this a hop is down (the slowest rate's sensitivity; -82 dBm in both tables).
 HOP_DOWN_DBM = RATE_TABLE_80211G[-1][0]
