@@ -98,7 +98,7 @@ class BrainParams:
     estimator: EstimatorParams = field(default_factory=EstimatorParams)
     scan: ScanParams = field(default_factory=ScanParams)
     #: Which bearing estimator and scan window (`relayd.leader`); built from the config, whose
-    #: default is "lobe"/"full" (this bare default, "wca"/"full", is the paper's).
+    #: default is "lobe"/"adaptive" (this bare default, "wca"/"full", is the paper's).
     leader: LeaderParams = field(default_factory=LeaderParams)
     #: A scan servo is configured: until it answers, follow mode stops on "scan_servo".
     has_scanner: bool = True
