@@ -18,6 +18,7 @@ downtime no worse.
 
     python bench/recovery.py                 # 20 seeds x 3 scenarios, 3 x 4 checks
     python bench/recovery.py --seeds 5 --check-seeds 1 --results /tmp/r.md
+    python bench/recovery.py --scenarios blind-corner --seeds 10 --checks '' --estimator lobe --window adaptive
 """
 
 from __future__ import annotations
@@ -43,13 +44,16 @@ HEALING_SCENARIOS = ("blind-corner", "door", "drift")
 CHECK_SCENARIOS = ("corridor", "convoy", "obstacle", "parking")
 
 
-def run_sim(scenario: str, seed: int, recovery: bool) -> dict[str, Any]:
-    """One flat-out virtual-time run; its summary."""
+def run_sim(scenario: str, seed: int, recovery: bool, scan: dict[str, Any] | None = None) -> dict[str, Any]:
+    """One flat-out virtual-time run; its summary. `scan`: settings laid over the scenario's
+    `[scan]` (e.g. the bearing estimator)."""
     from relayd import vtime
     from relayd.sim.runner import SimRunner
     from relayd.sim.scenario import load_scenario
 
     sc = load_scenario(scenario)
+    if scan:
+        sc = sc.model_copy(update={"scan": {**sc.scan, **scan}})
 
     async def go() -> dict[str, Any]:
         result = await SimRunner(sc, speed=None, seed=seed, recovery=recovery).run()
@@ -125,7 +129,8 @@ def table(rows: dict[str, dict[str, dict[str, Any]]]) -> str:
 
 
 def measure(scenarios: Sequence[str], seeds: int, *, log: Any = None,
-            keep: dict[str, Any] | None = None) -> dict[str, dict[str, dict[str, Any]]]:
+            keep: dict[str, Any] | None = None,
+            scan: dict[str, Any] | None = None) -> dict[str, dict[str, dict[str, Any]]]:
     """Run every scenario and seed with recovery off and on; `keep` collects the summaries."""
     rows: dict[str, dict[str, dict[str, Any]]] = {}
     for sc in scenarios:
@@ -133,7 +138,7 @@ def measure(scenarios: Sequence[str], seeds: int, *, log: Any = None,
         for seed in range(1, seeds + 1):
             for mode in ("off", "on"):
                 t0 = time.perf_counter()
-                s = run_sim(sc, seed, mode == "on")
+                s = run_sim(sc, seed, mode == "on", scan)
                 runs[mode].append(s)
                 if keep is not None:
                     keep.setdefault(sc, {}).setdefault(mode, []).append(s)
@@ -199,22 +204,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--checks", default=",".join(CHECK_SCENARIOS), help="paper scenarios ('' for none)")
     p.add_argument("--results", type=Path, default=None, help="also write the table to this file")
     p.add_argument("--summaries", type=Path, default=None, help="write every run's summary.json here (JSON)")
+    p.add_argument("--estimator", choices=("wca", "lobe"), default=None,
+                   help="scan.estimator for every relay (default: the scenario's, else relayd's default)")
+    p.add_argument("--window", choices=("full", "adaptive"), default=None, help="scan.window, likewise")
     args = p.parse_args(argv)
+    scan = {k: v for k, v in (("estimator", args.estimator), ("window", args.window)) if v is not None}
     healing = [s for s in args.scenarios.split(",") if s]
     checks = [s for s in args.checks.split(",") if s]
     t0 = time.perf_counter()
     keep: dict[str, Any] = {}
-    rows = measure(healing, args.seeds, log=sys.stderr, keep=keep)
+    rows = measure(healing, args.seeds, log=sys.stderr, keep=keep, scan=scan)
     if args.summaries is not None:
         args.summaries.write_text(json.dumps(keep) + "\n", encoding="utf-8")
-    rows.update(measure(checks, args.check_seeds, log=sys.stderr, keep=keep))
+    rows.update(measure(checks, args.check_seeds, log=sys.stderr, keep=keep, scan=scan))
     if args.summaries is not None:
         args.summaries.write_text(json.dumps(keep) + "\n", encoding="utf-8")
     res = results(rows, healing)
     text = [table(rows), "", "| benchmark | figure | value | target | result | notes |", "|---|---|---|---|---|---|"]
     text += [f"| {r.bench} | {r.figure} | {r.value_text()} | {r.target} | {r.verdict()} | {r.note} |" for r in res]
     text.append(f"\n{args.seeds} seeds per self-healing scenario, {args.check_seeds} per paper scenario, "
-                f"{time.perf_counter() - t0:.0f} s wall")
+                f"scan {scan or 'as configured'}, {time.perf_counter() - t0:.0f} s wall")
     doc = "\n".join(text)
     print(doc)
     if args.results is not None:

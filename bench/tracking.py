@@ -15,8 +15,10 @@ runs the real `relayd.brain.Brain`:
    relay has found it) to +70 deg of bearing; "tracked" =
    the bearing the controller steers by stays within 30 deg of the truth whenever the
    leader is within +-60 deg (the link antenna, pointed by it, then loses at most
-   1.25 dB). Speeds rise in 0.05 m/s steps until a run fails; theorem 1's bound
-   V_perp <= theta_dot * d is printed with the measured sweep rate.
+   1.25 dB). Per seed, speeds rise in 0.05 m/s steps until a run fails; the figure is
+   the median over 10 seeds (the worst beside it: one seed's figure is noisy, a single
+   faded scan at the wrong moment decides it). Theorem 1's bound V_perp <= theta_dot * d
+   is printed with the measured sweep rate.
 4. The simulated convoy (outdoor, LOS) and corridor (indoor, brick corners: NLOS) with
    `relayd.sim.SimRunner` (real daemons, virtual time), several seeds: the share of
    trace records in which each relay is within 5 m of its own leader.
@@ -32,6 +34,7 @@ import asyncio
 import math
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 from bench.brainrig import BrainRig, cos_n_pattern, crossing, sim_yagi, still
@@ -94,44 +97,92 @@ def crossing_error(cfg: tuple[str, str], speed_m_s: float, *, distance_m: float 
     return worst, (sum(sweeps) / len(sweeps) if sweeps else math.nan)
 
 
-def fastest(cfg: tuple[str, str], seeds: int, top_m_s: float = 2.0) -> tuple[float, float]:
-    """The highest speed (0.05 m/s steps) tracked on every seed, and the sweep rate there."""
+def fastest_per_seed(cfg: tuple[str, str], seed: int, top_m_s: float = 2.0) -> tuple[float, float]:
+    """The highest speed (0.05 m/s steps) this seed tracks at and below, and the sweep rate there."""
     best, rate = 0.0, math.nan
     v = 0.05
     while v <= top_m_s + 1e-9:
-        runs = [crossing_error(cfg, v, seed=s) for s in range(1, seeds + 1)]
-        if any(w > TRACK_TOLERANCE_DEG for w, _ in runs):
+        worst, r = crossing_error(cfg, v, seed=seed)
+        if worst > TRACK_TOLERANCE_DEG:
             break
-        best, rate = v, sum(r for _, r in runs) / len(runs)
+        best, rate = v, r
         v = round(v + 0.05, 2)
     return best, rate
 
 
-async def _sim(scenario: str, cfg: tuple[str, str], seed: int, seconds: float | None) -> list[float]:
+def fastest(cfg: tuple[str, str], seeds: int, top_m_s: float = 2.0) -> tuple[list[float], float]:
+    """Per seed, the fastest leader tracked (sorted), and the mean sweep rate.
+
+    One seed's figure is a noisy thing (one faded scan at the wrong moment loses a fast
+    leader), so the figure compared is the median over seeds, with the worst beside it.
+    """
+    runs = [fastest_per_seed(cfg, s, top_m_s) for s in range(1, seeds + 1)]
+    rates = [r for _, r in runs if math.isfinite(r)]
+    return sorted(v for v, _ in runs), (sum(rates) / len(rates) if rates else math.nan)
+
+
+def median(xs: list[float]) -> float:
+    s = sorted(xs)
+    n = len(s)
+    return s[n // 2] if n % 2 else 0.5 * (s[n // 2 - 1] + s[n // 2])
+
+
+#: Why a relay beyond 5 m of its leader was there, as its trace records say.
+HELD_REAR, HELD_NEAR, DRIVING = "rear_weak", "leader_near", "driving"
+
+
+@dataclass(frozen=True)
+class Share:
+    """One relay in one run: the share of time within 5 m, and what it was doing beyond."""
+
+    within: float
+    #: The same share over the time it was free to follow: not held by "rear_weak" (its
+    #: duty: it stands so the link behind it holds, wherever its leader goes).
+    within_free: float
+    #: Share of all time spent beyond 5 m, by the relay's reason then.
+    beyond: dict[str, float]
+
+
+def relay_shares(records: list[dict[str, Any]]) -> list[Share]:
+    """Per relay, its `Share` of one simulator run's trace records."""
+    out = []
+    for i in range(len(records[0]["relays"]) if records else 0):
+        rows = [r["relays"][i] for r in records]
+        free = [r for r in rows if r["reason"] != HELD_REAR]
+        beyond: dict[str, float] = {}
+        for r in rows:
+            if r["gap_m"] > 5.0:
+                beyond[r["reason"]] = beyond.get(r["reason"], 0.0) + 1.0 / len(rows)
+        out.append(Share(sum(r["gap_m"] <= 5.0 for r in rows) / len(rows),
+                         sum(r["gap_m"] <= 5.0 for r in free) / len(free) if free else math.nan, beyond))
+    return out
+
+
+async def _sim(scenario: str, cfg: tuple[str, str], seed: int, seconds: float | None) -> list[Share]:
     from relayd.sim.runner import SimRunner
     from relayd.sim.scenario import load_scenario
 
     sc = load_scenario(scenario)
     sc = sc.model_copy(update={"scan": {**sc.scan, **_scan(cfg)}})
     result = await SimRunner(sc, speed=None, seed=seed, seconds=seconds).run()
-    recs = result.records
-    out = []
-    for i in range(len(recs[0]["relays"]) if recs else 0):
-        gaps = [r["relays"][i]["gap_m"] for r in recs]
-        out.append(sum(g <= 5.0 for g in gaps) / len(gaps))
-    return out
+    return relay_shares(result.records)
 
 
-def sim_share(scenario: str, cfg: tuple[str, str], seeds: int, seconds: float | None = None) -> list[float]:
+def sim_share(scenario: str, cfg: tuple[str, str], seeds: int, seconds: float | None = None) -> list[Share]:
     """Per relay and seed, the share of time within 5 m of its own leader."""
     from relayd import vtime
     from relayd.logsetup import StdStream, setup_logging
 
     setup_logging("error", "console", StdStream("stderr"))  # the daemons' info lines cost time
-    shares: list[float] = []
+    shares: list[Share] = []
     for seed in range(1, seeds + 1):
         shares += vtime.run(_sim(scenario, cfg, seed, seconds))
     return shares
+
+
+def _mean(xs: list[float]) -> float:
+    xs = [x for x in xs if math.isfinite(x)]
+    return sum(xs) / len(xs) if xs else math.nan
 
 
 def event_cpu_us(cfg: tuple[str, str]) -> tuple[float, float]:
@@ -156,7 +207,8 @@ def event_cpu_us(cfg: tuple[str, str]) -> tuple[float, float]:
             1e6 * sum(times["ScanDone"]) / max(1, len(times["ScanDone"])))
 
 
-def run(quick: bool = False, *, sim_seeds: int | None = None, noisy_seeds: int | None = None) -> BenchOutput:
+def run(quick: bool = False, *, sim_seeds: int | None = None, noisy_seeds: int | None = None,
+        cross_seeds: int | None = None) -> BenchOutput:
     out = BenchOutput(NAME)
     step = 20.0 if quick else 5.0
     bearings = [-85.0 + step * i for i in range(int(170 / step) + 1)]
@@ -185,26 +237,35 @@ def run(quick: bool = False, *, sim_seeds: int | None = None, noisy_seeds: int |
                 value <= NOISY_TARGET_DEG if lobe else None, f"{len(errs)} runs, bearings -60..60"))
     # 3. fastest leader at 2 m
     speeds = {}
+    n_cross = cross_seeds if cross_seeds is not None else (2 if quick else 10)
     for cfg in CONFIGS:
-        v, rate = fastest(cfg, 1 if quick else 3, top_m_s=0.3 if quick else 2.0)
+        per_seed, rate = fastest(cfg, n_cross, top_m_s=0.3 if quick else 2.0)
+        v = median(per_seed)
         speeds[cfg] = v
         bound = math.radians(rate) * 2.0 if math.isfinite(rate) else math.nan
         out.results.append(Result(
-            NAME, f"fastest leader tracked at 2 m (straight pass), {_label(cfg)}", v, "m/s",
+            NAME, f"fastest leader tracked at 2 m (straight pass; median over seeds), {_label(cfg)}", v, "m/s",
             "" if cfg[0] == "wca" else ">= 2x wca/full",
             None if cfg[0] == "wca" else v >= 2.0 * speeds[CONFIGS[0]],
-            f"sweep rate {rate:.0f} deg/s; theorem 1 bound theta_dot*d = {bound:.2f} m/s"))
+            f"{n_cross} seeds, worst {per_seed[0]:.2f} m/s; sweep rate {rate:.0f} deg/s; "
+            f"theorem 1 bound theta_dot*d = {bound:.2f} m/s"))
     # 4. simulated convoy (LOS) and corridor (NLOS)
     n_sim = sim_seeds if sim_seeds is not None else (1 if quick else 10)
     for scenario, target in (("convoy", 0.99), ("corridor", 0.95)):
         for cfg in CONFIGS:
             shares = sim_share(scenario, cfg, n_sim, seconds=20.0 if quick else None)
-            worst = min(shares) if shares else math.nan
-            mean = sum(shares) / len(shares) if shares else math.nan
+            mean = _mean([x.within for x in shares])
+            worst = min((x.within for x in shares), default=math.nan)
+            free = _mean([x.within_free for x in shares])
+            reasons = sorted({k for x in shares for k in x.beyond})
+            beyond = ", ".join(f"{k} {100 * _mean([x.beyond.get(k, 0.0) for x in shares]):.1f} %" for k in reasons)
             out.results.append(Result(
                 NAME, f"{scenario}: share of time within 5 m of its leader (mean over relays and seeds), {_label(cfg)}",
                 100.0 * mean, "%", f">= {100 * target:g} %", mean >= target,
-                f"{n_sim} seeds; worst relay-run {100 * worst:.1f} %"))
+                f"{n_sim} seeds; worst relay-run {100 * worst:.1f} %; beyond 5 m: {beyond or 'never'}"))
+            out.results.append(Result(
+                NAME, f"{scenario}: the same while free to follow (not held by rear_weak), {_label(cfg)}",
+                100.0 * free, "%", "", None, "share of the time the relay was not standing for the link behind it"))
     # 5. CPU of the decision core, and of the whole daemon on the fakes
     for cfg in CONFIGS:
         sip_us, scan_us = event_cpu_us(cfg)

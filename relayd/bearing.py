@@ -33,6 +33,12 @@ How (`fit_main_lobe`):
    (residual variance, floored at `min_noise_db`) through -b/2c. It is what the
    tracking filter weighs this scan by.
 
+Several scans can be fitted as one (`scan_ids`: which scan each sample came from): each
+scan then has its own level (the leader's distance and the shadowing change from scan to
+scan, the lobe's shape does not), and the shape is fitted on all of them. That is how
+`relayd.scanpool` averages a still leader's scans before the nonlinear -b/2c rather than
+after it.
+
 No I/O, no clock, no NumPy: a 3x3 solve in plain Python is a few microseconds.
 """
 
@@ -83,6 +89,8 @@ class LobeFit:
     used: int  # samples in the fitted run
     #: The centre lies outside the sampled span (only one side of the lobe was seen).
     extrapolated: bool
+    #: The residuals' robust scale (dB) the sd was computed with.
+    noise_db: float = 0.0
 
 
 def _solve3(m: list[list[float]], v: list[float]) -> list[float] | None:
@@ -110,13 +118,20 @@ def _inverse3(m: list[list[float]]) -> list[list[float]] | None:
     return [[cols[j][i] for j in range(3)] for i in range(3)]  # type: ignore[index]
 
 
+Fit = tuple[list[float], list[list[float]], dict[int, float]]
+
+
 def _wls(us: Sequence[float], ys: Sequence[float], ws: Sequence[float],
-         prior: tuple[float, float] | None) -> tuple[list[float], list[list[float]]] | None:
-    """Weighted quadratic fit: coefficients (a, b, c) and (X^T W X)^-1.
+         prior: tuple[float, float] | None, gs: Sequence[int] | None = None) -> Fit | None:
+    """Weighted quadratic fit: coefficients (a, b, c), (X^T W X)^-1 and each scan's level.
 
     `prior` = (c0, weight): a pseudo-observation c = c0 of that weight (in units of one
-    sample's weight), so a one-sided lobe still has a curvature.
+    sample's weight), so a one-sided lobe still has a curvature. `gs`: the scan each
+    sample came from; each scan then has its own level a_g (the leader's distance and the
+    shadowing change between scans, the lobe's shape does not), and `a` is the newest's.
     """
+    if gs is not None:
+        return _wls_pooled(us, ys, ws, prior, gs)
     s = [0.0] * 5  # sums of w u^k, k = 0..4
     t = [0.0] * 3  # sums of w y u^k, k = 0..2
     for u, y, w in zip(us, ys, ws, strict=True):
@@ -133,7 +148,41 @@ def _wls(us: Sequence[float], ys: Sequence[float], ws: Sequence[float],
     inv = _inverse3(normal)
     if coef is None or inv is None:
         return None
-    return coef, inv
+    return coef, inv, {}
+
+
+def _wls_pooled(us: Sequence[float], ys: Sequence[float], ws: Sequence[float],
+                prior: tuple[float, float] | None, gs: Sequence[int]) -> Fit | None:
+    """`_wls` with one level per scan: (b, c) from the data centred within each scan."""
+    sums: dict[int, list[float]] = {}
+    for u, y, w, g in zip(us, ys, ws, gs, strict=True):
+        acc = sums.setdefault(g, [0.0, 0.0, 0.0, 0.0])
+        acc[0] += w
+        acc[1] += w * u
+        acc[2] += w * u * u
+        acc[3] += w * y
+    means = {g: (a[1] / a[0], a[2] / a[0], a[3] / a[0]) for g, a in sums.items() if a[0] > 0}
+    m00 = m01 = m11 = r0 = r1 = 0.0
+    for u, y, w, g in zip(us, ys, ws, gs, strict=True):
+        if g not in means:
+            continue
+        mu, mv, my = means[g]
+        du, dv, dy = u - mu, u * u - mv, y - my
+        m00 += w * du * du
+        m01 += w * du * dv
+        m11 += w * dv * dv
+        r0 += w * du * dy
+        r1 += w * dv * dy
+    if prior is not None:
+        m11 += prior[1]
+        r1 += prior[1] * prior[0]
+    det = m00 * m11 - m01 * m01
+    if not means or abs(det) < 1e-12 * max(1.0, m00 * m11):
+        return None
+    b, c = (m11 * r0 - m01 * r1) / det, (m00 * r1 - m01 * r0) / det
+    levels = {g: my - b * mu - c * mv for g, (mu, mv, my) in means.items()}
+    inv = [[0.0, 0.0, 0.0], [0.0, m11 / det, -m01 / det], [0.0, -m01 / det, m00 / det]]
+    return [levels[max(levels)], b, c], inv, levels
 
 
 def _run_around(values: Sequence[float], peak: int, floor: float) -> tuple[int, int]:
@@ -161,7 +210,8 @@ def _median(xs: Sequence[float]) -> float:
 
 def fit_main_lobe(angles_deg: Sequence[float], rssi_dbm: Sequence[float],
                   params: LobeParams = LobeParams(), *,
-                  beamwidth_prior_deg: float | None = None) -> LobeFit | None:
+                  beamwidth_prior_deg: float | None = None,
+                  scan_ids: Sequence[int] | None = None) -> LobeFit | None:
     """The leader's bearing from one scan by a parabolic fit of the main lobe in dB.
 
     `beamwidth_prior_deg`: the antenna's 3 dB beamwidth as learned from earlier scans
@@ -175,7 +225,18 @@ def fit_main_lobe(angles_deg: Sequence[float], rssi_dbm: Sequence[float],
     """
     if len(angles_deg) != len(rssi_dbm):
         raise ValueError(f"{len(angles_deg)} angles but {len(rssi_dbm)} RSSI values")
-    pairs = sorted(zip(angles_deg, rssi_dbm, strict=True))
+    if scan_ids is not None and len(scan_ids) != len(angles_deg):
+        raise ValueError(f"{len(angles_deg)} angles but {len(scan_ids)} scan ids")
+    ids = list(scan_ids) if scan_ids is not None else [0] * len(angles_deg)
+    offsets = _scan_levels(angles_deg, rssi_dbm, ids) if scan_ids is not None else {0: 0.0}
+    # Each scan at its own top (its level is fitted again below): the peak and the run are
+    # then chosen on the lobe's shape, not on which scan was loudest.
+    # Sorted by angle, then scan (not by value): the same samples give the same order
+    # whatever each scan's level was, to the last bit.
+    triples = sorted(((a, r - offsets[g], g) for a, r, g in zip(angles_deg, rssi_dbm, ids, strict=True)),
+                     key=lambda x: (x[0], x[2]))
+    pairs = [(a, r) for a, r, _ in triples]
+    groups = [g for _, _, g in triples] if scan_ids is not None else None
     for a, r in pairs:
         if not (math.isfinite(a) and math.isfinite(r)):
             raise ValueError(f"samples must be finite, got angle {a!r}, rssi {r!r}")
@@ -208,12 +269,14 @@ def fit_main_lobe(angles_deg: Sequence[float], rssi_dbm: Sequence[float],
         us = [angles[i] - u0 for i in idx]
         ys = [rssi[i] for i in idx]
         ws = [weights.get(i, 1.0) for i in idx]
-        fit = _wls(us, ys, ws, prior)
+        gs = None if groups is None else [groups[i] for i in idx]
+        fit = _wls(us, ys, ws, prior, gs)
         if fit is None:
             return None
-        coef, inv = fit
+        coef, inv, levels = fit
         a, b, c = coef
-        res = [y - (a + b * u + c * u * u) for u, y in zip(us, ys, strict=True)]
+        lv = [a] * len(idx) if gs is None else [levels[g] for g in gs]
+        res = [y - (la + b * u + c * u * u) for u, y, la in zip(us, ys, lv, strict=True)]
         # Huber weights: a robust scale from the median absolute residual.
         mad = _median([abs(x) for x in res]) / 0.6745
         resid_scale = max(params.min_noise_db, mad)
@@ -246,12 +309,24 @@ def fit_main_lobe(angles_deg: Sequence[float], rssi_dbm: Sequence[float],
     span_lo, span_hi = angles[0], angles[-1]
     extrapolated = not (span_lo <= centre <= span_hi)
     centre = min(max(centre, span_lo - params.max_extrapolation_deg), span_hi + params.max_extrapolation_deg)
-    peak_dbm = a + b * centre_u + c * centre_u * centre_u
+    peak_dbm = a + b * centre_u + c * centre_u * centre_u + offsets[max(offsets)]
     beamwidth = 2.0 * math.sqrt(_DB_AT_HALF_BEAMWIDTH / -c)
     if beamwidth > params.max_beamwidth_deg:
         return None
     return LobeFit(bearing_deg=centre, sd_deg=sd, beamwidth_deg=beamwidth, peak_dbm=peak_dbm,
-                   used=hi - lo + 1, extrapolated=extrapolated)
+                   used=hi - lo + 1, extrapolated=extrapolated, noise_db=resid_scale)
+
+
+def _scan_levels(angles: Sequence[float], rssi: Sequence[float], ids: Sequence[int]) -> dict[int, float]:
+    """Each scan's top: the highest 3-point running mean of its samples in angle order."""
+    by_scan: dict[int, list[tuple[float, float]]] = {}
+    for a, r, g in zip(angles, rssi, ids, strict=True):
+        by_scan.setdefault(g, []).append((a, r))
+    levels = {}
+    for g, pairs in by_scan.items():
+        v = [r for _, r in sorted(pairs)]
+        levels[g] = max(sum(v[max(0, i - 1): i + 2]) / len(v[max(0, i - 1): i + 2]) for i in range(len(v)))
+    return levels
 
 
 def _widen(lo: int, hi: int, n: int, centre: float, angles: Sequence[float]) -> tuple[int, int]:

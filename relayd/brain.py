@@ -9,6 +9,12 @@ and plans the next sweep. It does no I/O and reads no clock: the time is in each
 event, so the same events give the same actions, on a robot, in the simulator and in
 a test.
 
+Why this room is over 400 lines: it is the routing and the memory of one state machine,
+and every concern with logic of its own already lives in its own pure module (the
+controller, the estimator, the tracking filter and its scan windows, recovery, the
+rear-link model); what is left here are the handlers that read and write the one shared
+memory, and cutting them apart would put the brain's single writer in several files.
+
 Decisions:
 - Stale RSSI is judged on the sample stream: no fresh sample for `rssi_timeout_s`
   (the daemon sets max(0.5 s, 5 sample periods)) stops the wheels with reason
@@ -99,7 +105,7 @@ class BrainParams:
     estimator: EstimatorParams = field(default_factory=EstimatorParams)
     scan: ScanParams = field(default_factory=ScanParams)
     #: Which bearing estimator and scan window (`relayd.leader`); built from the config, whose
-    #: default is "lobe"/"full" (this bare default, "wca"/"full", is the paper's).
+    #: default is "lobe"/"adaptive" (this bare default, "wca"/"full", is the paper's).
     leader: LeaderParams = field(default_factory=LeaderParams)
     #: A scan servo is configured: until it answers, follow mode stops on "scan_servo".
     has_scanner: bool = True

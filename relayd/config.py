@@ -161,12 +161,20 @@ class ScanSettings(_Section):
     gamma: PositiveFloat = 10.0
     mode: Literal["step", "continuous"] = "step"
     settle_s: NonNegFloat = 0.05
-    #: Bearing estimator: "wca" (the paper's weighted centroid) or "lobe" (main-lobe fit
-    #: and tracking filter, docs/CONTROL.md section 10).
-    estimator: Literal["wca", "lobe"] = "wca"
-    #: "full": every sweep `width_deg` wide; "adaptive": narrower around a confident
-    #: prediction (needs estimator "lobe").
-    window: Literal["full", "adaptive"] = "full"
+    #: Bearing estimator: "lobe" (main-lobe fit and tracking filter, docs/CONTROL.md
+    #: section 10; the default: it measured best) or "wca" (the paper's weighted centroid).
+    estimator: Literal["wca", "lobe"] = "lobe"
+    #: "adaptive": narrower around a confident prediction (needs estimator "lobe");
+    #: "full": every sweep `width_deg` wide. Unset: "adaptive" with "lobe", "full" with
+    #: "wca" (so `estimator = "wca"` alone is the paper's estimator, as it always was).
+    window: Literal["full", "adaptive"] = "adaptive"
+
+    @model_validator(mode="before")
+    @classmethod
+    def _window_follows_estimator(cls, data: Any) -> Any:
+        if isinstance(data, dict) and "window" not in data and data.get("estimator") == "wca":
+            return {**data, "window": "full"}
+        return data
 
     @model_validator(mode="after")
     def _adaptive_needs_tracking(self) -> ScanSettings:

@@ -10,11 +10,14 @@ scan says (`scan_done`: the estimate it publishes), where the leader is now
 - `TrackingModel` ("lobe"): each scan's main lobe is fitted (`relayd.bearing`), the fit
   feeds a Kalman filter on bearing and bearing rate with the odometry heading change
   as its control input (`relayd.tracker`), and the filter's prediction is the bearing
-  the wheels steer by, every control step. It learns the antenna's beamwidth from
-  its own two-sided scans (the curvature prior of one-sided ones at a servo limit).
-  With `window = "adaptive"` a confident filter narrows the sweep around its
-  prediction at the full window's sample spacing, so a sweep takes less time; an
-  unsure or lost one sweeps the servo's whole range.
+  the wheels steer by, every control step. While the filter says the bearing is
+  steady, the last few scans are fitted together (`relayd.scanpool`). A fit's sd is
+  never below what the recent scans' residual noise allows. It learns the antenna's
+  beamwidth from its own two-sided scans (the curvature prior of one-sided ones at a
+  servo limit). With `window = "adaptive"` a confident filter narrows the sweep around
+  its prediction: at the full window's spacing while the bearing is steady, coarser
+  (a few samples per beamwidth) and narrower while it moves, so a sweep takes less
+  time; an unsure or lost one sweeps the servo's whole range.
 
 Pure: times and headings come in as arguments; no clock, no I/O.
 """
@@ -30,6 +33,7 @@ from typing import Protocol
 from relayd import tracker
 from relayd.bearing import LobeFit, LobeParams, fit_main_lobe
 from relayd.estimator import ScanEstimate
+from relayd.scanpool import PooledScan, PoolParams, ScanPool
 from relayd.tracker import Track, TrackerParams
 
 ESTIMATORS = ("wca", "lobe")
@@ -40,11 +44,19 @@ WINDOWS = ("full", "adaptive")
 class WindowParams:
     """How the adaptive window sizes itself."""
 
-    #: The window spans this many (learned) 3 dB beamwidths: the fit needs both flanks.
+    #: The window spans this many (learned) 3 dB beamwidths: the fit needs both flanks ...
     beams: float = 1.5
     #: ... plus this many standard deviations of the predicted bearing on each side.
     sigmas: float = 3.0
-    min_samples: int = 7
+    min_samples: int = 9
+    #: While the bearing moves faster than this (deg/s), the sweep is for speed: this many
+    #: beamwidths at this many samples per beamwidth (never finer than the full window's
+    #: spacing), so a wide antenna too sweeps in well under half the full window's time.
+    #: While it is steadier, the sweep is for accuracy: the full window's spacing, every
+    #: sample of the lobe, which the scan pool averages.
+    moving_rate_deg_s: float = 2.0
+    moving_beams: float = 1.2
+    per_beamwidth: float = 8.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -56,6 +68,7 @@ class LeaderParams:
     adaptive: WindowParams = field(default_factory=WindowParams)
     #: Two-sided fits the beamwidth is learnt from (median of the last ones).
     beamwidth_memory: int = 9
+    pool: PoolParams = field(default_factory=PoolParams)
 
     def __post_init__(self) -> None:
         if self.estimator not in ESTIMATORS:
@@ -116,8 +129,14 @@ class TrackingModel:
         self.track: Track | None = None
         self.last_fit: LobeFit | None = None
         self._beamwidths: deque[float] = deque(maxlen=max(1, params.beamwidth_memory))
+        #: The residual noise (dB) of recent fits: a fit whose few residuals happen to be
+        #: small is not trusted beyond what the channel's noise allows.
+        self._noise: deque[float] = deque(maxlen=max(1, params.beamwidth_memory))
         #: How long the last sweep took (s): the window leads the prediction by half of it.
         self._sweep_s = 0.0
+        self._pool = ScanPool(params.pool)
+        #: The servo's range (from the full window the brain plans with), once known.
+        self._span: tuple[float, float] | None = None
 
     @property
     def beamwidth_deg(self) -> float | None:
@@ -141,41 +160,81 @@ class TrackingModel:
     def scan_done(self, t: float, heading_deg: float, est: ScanEstimate,
                   sample_t: Sequence[float]) -> ScanEstimate:
         p = self.params
-        fit = fit_main_lobe(est.angles_deg, est.nrssi_dbm, p.lobe, beamwidth_prior_deg=self.beamwidth_deg)
+        values = est.nrssi_dbm
+        fit = fit_main_lobe(est.angles_deg, values, p.lobe, beamwidth_prior_deg=self.beamwidth_deg)
         if fit is None and est.situation == 2:
             # The PRSSI penalty carved up the lobe itself: the "obstacle" is the leader, or
             # right beside it (a relay close behind its leader robot). The raw scan still
             # says where the leader is; losing the track over it would stop the relay.
-            fit = fit_main_lobe(est.angles_deg, est.rssi_dbm, p.lobe, beamwidth_prior_deg=self.beamwidth_deg)
+            values = est.rssi_dbm
+            fit = fit_main_lobe(est.angles_deg, values, p.lobe, beamwidth_prior_deg=self.beamwidth_deg)
         self.last_fit = fit
         if len(sample_t) >= 2:
             self._sweep_s = max(0.0, sample_t[-1] - sample_t[0])
         if fit is not None:
             self._learn(fit, est.angles_deg)
             # The beam crossed the leader when the sample nearest the fitted bearing was taken.
-            t_meas = t
+            t_meas, centre = t, fit.bearing_deg
             if len(sample_t) == len(est.angles_deg) and sample_t:
-                nearest = min(range(len(sample_t)), key=lambda i: abs(est.angles_deg[i] - fit.bearing_deg))
+                nearest = min(range(len(sample_t)), key=lambda i: abs(est.angles_deg[i] - centre))
                 t_meas = min(sample_t[nearest], t)
-            if self.track is None:
-                self.track = tracker.start(t_meas, heading_deg, fit.bearing_deg, fit.sd_deg, p.tracker)
-            else:
-                self.track, _ = tracker.update(self.track, t_meas, heading_deg, fit.bearing_deg,
-                                               fit.sd_deg, p.tracker)
-        elif self.track is not None:
-            self.track = tracker.miss(self.track, t, heading_deg, p.tracker)
+            fit = self.last_fit = self._trusted(fit)
+            self._update(PooledScan(tuple(est.angles_deg), tuple(values), t_meas, heading_deg, self.track, fit))
+        else:
+            self._pool.clear()
+            if self.track is not None:
+                self.track = tracker.miss(self.track, t, heading_deg, p.tracker)
         now = self._now(t, heading_deg)
         if now is None or tracker.is_lost(now, p.tracker):
             # No track to speak of: the scan's own word (the fit, else the centroid), flagged unsure.
             bearing = fit.bearing_deg if fit is not None else est.bearing_deg
             return replace(est, bearing_deg=bearing, bearing_sd_deg=None)
-        return replace(est, bearing_deg=now.bearing_deg, bearing_sd_deg=now.sd_deg)
+        return replace(est, bearing_deg=self._seen(now.bearing_deg), bearing_sd_deg=now.sd_deg)
+
+    def _seen(self, bearing_deg: float) -> float:
+        """A prediction kept where a scan could have put it: the servo's range, plus the lobe
+        fit's extrapolation. Beyond, a rate (perhaps from a leader that jumped) would steer
+        the robot toward a bearing no scan has seen; turning toward the limit is right."""
+        if self._span is None:
+            return bearing_deg
+        ext = self.params.lobe.max_extrapolation_deg
+        return min(max(bearing_deg, self._span[0] - ext), self._span[1] + ext)
+
+    def _trusted(self, fit: LobeFit) -> LobeFit:
+        """The fit with its sd as the channel's noise allows: a scan's few residuals can
+        happen to be small (a lucky MAD), and its sd with them; the typical noise of the
+        recent scans is the floor."""
+        self._noise.append(fit.noise_db)
+        typical = _median(self._noise)
+        if fit.noise_db >= typical or fit.noise_db <= 0.0:
+            return fit
+        return replace(fit, sd_deg=fit.sd_deg * typical / fit.noise_db, noise_db=typical)
+
+    def _update(self, scan: PooledScan) -> None:
+        """Update the filter with the pooled fit where the scans may be pooled, else with this scan's."""
+        tp = self.params.tracker
+        fit = scan.fit
+        pooled = self._pool.fit(self.track, scan, self.params.lobe, self.beamwidth_deg)
+        if pooled is not None:
+            fit, base = pooled
+            self.last_fit = fit
+        else:
+            base = self.track
+            self._pool.clear()
+        if base is None or tracker.is_lost(base, tp):
+            self.track, accepted = tracker.start(scan.t, scan.heading_deg, fit.bearing_deg, fit.sd_deg, tp), True
+        else:
+            self.track, accepted = tracker.update(base, scan.t, scan.heading_deg, fit.bearing_deg, fit.sd_deg, tp)
+        if not accepted or self.track.updates == 1:
+            self._pool.clear()  # a gated scan or a new track: what came before is another leader
+        if accepted:
+            self._pool.add(scan)
 
     def bearing_now(self, t: float, heading_deg: float | None) -> float | None:
         now = self._now(t, heading_deg)
         if now is None or tracker.is_lost(now, self.params.tracker):
             return None
-        return now.bearing_deg
+        return self._seen(now.bearing_deg)
 
     def lost(self, t: float, heading_deg: float | None) -> bool:
         now = self._now(t, heading_deg)
@@ -193,6 +252,7 @@ class TrackingModel:
         takes fewer samples; the servo's whole range while it is not.
         """
         p = self.params
+        self._span = (full.centre_deg - full.width_deg / 2.0, full.centre_deg + full.width_deg / 2.0)
         now = self._now(t, heading_deg)
         if now is None or tracker.is_lost(now, p.tracker):
             return None if p.window == "full" else full
@@ -203,14 +263,24 @@ class TrackingModel:
         bw = self.beamwidth_deg
         if bw is None:
             return None
+        wp = p.adaptive
         spacing = full.width_deg / max(1, full.samples - 1)
+        beams = wp.beams
+        if abs(now.rate_deg_s) > wp.moving_rate_deg_s:
+            spacing, beams = max(spacing, bw / wp.per_beamwidth), wp.moving_beams
         # Half a sweep from now the leader will have moved on by the rate.
         centre = now.bearing_deg + now.rate_deg_s * self._sweep_s / 2.0
-        width = p.adaptive.beams * bw + 2.0 * p.adaptive.sigmas * now.sd_deg
-        samples = max(p.adaptive.min_samples, math.ceil(width / spacing) + 1)
+        half = (beams * bw + 2.0 * wp.sigmas * now.sd_deg) / 2.0
+        # Clipped at the servo limits, not shifted inside them: beyond a limit there is no
+        # lobe to see, and samples on the far side of the window would only cost time.
+        lo_lim, hi_lim = full.centre_deg - full.width_deg / 2.0, full.centre_deg + full.width_deg / 2.0
+        lo, hi = max(lo_lim, centre - half), min(hi_lim, centre + half)
+        samples = max(wp.min_samples, math.ceil((hi - lo) / spacing) + 1)
         if samples >= full.samples:
-            return Window(centre, full.width_deg, full.samples)
-        return Window(centre, (samples - 1) * spacing, samples)
+            return Window(full.centre_deg, full.width_deg, full.samples)
+        width = (samples - 1) * spacing
+        mid = min(max((lo + hi) / 2.0, lo_lim + width / 2.0), hi_lim - width / 2.0)
+        return Window(mid, width, samples)
 
 
 def make_model(params: LeaderParams) -> BearingModel:

@@ -51,7 +51,7 @@ class TrackerParams:
     accel_q: float = 0.05
     #: ... and for one that manoeuvres, used when an innovation is over `manoeuvre_sigma`.
     manoeuvre_q: float = 20.0
-    manoeuvre_sigma: float = 2.0
+    manoeuvre_sigma: float = 2.5
     #: Odometry heading error, as a fraction of the heading change.
     heading_noise: float = 0.05
     #: A new track's rate uncertainty (deg/s).
@@ -145,7 +145,11 @@ def update(track: Track, t: float, heading_deg: float, bearing_deg: float, sd_de
         rejects = prior.rejects + 1
         if rejects >= params.reacquire_after:
             return start(t, heading_deg, bearing_deg, sd_deg, params), True
-        return replace(prior, rejects=rejects), False
+        # The prediction is this far off: its rate is not to be run on (a leader that
+        # jumped, a reflection that set it). Hold the last bearing, forget the rate.
+        held = predict(replace(track, rate_deg_s=0.0, p_bw=0.0, p_ww=params.init_rate_sd_deg_s ** 2),
+                       t, heading_deg, params)
+        return replace(held, rejects=rejects), False
     k_b, k_w = prior.p_bb / s, prior.p_bw / s
     b = _wrap(prior.bearing_deg + k_b * innovation)
     w = prior.rate_deg_s + k_w * innovation

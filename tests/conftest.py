@@ -1,4 +1,5 @@
-"""Suite-wide test rules: an async test may leave no task and no timer behind.
+"""Suite-wide test rules: an async test may leave no task and no timer behind, no test
+leaves its structlog configuration to the next; the longest files run first.
 
 A task still running after its test (a driver's `run()` nobody cancelled, a fake's
 SIP loop nobody stopped) or a timer still pending (a `call_later` nobody cancelled)
@@ -12,9 +13,51 @@ from __future__ import annotations
 
 import asyncio
 import inspect
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Iterator
 
 import pytest
+import pytest_asyncio
+import structlog
+
+#: The files that take longest, longest first: roughly seconds on an idle 2-core machine
+#: (wall time where a file mostly waits, CPU time where it computes). scripts/test runs
+#: the suite on pytest-xdist workers, one file at a time per worker (--dist loadfile),
+#: handed out in collection order (--no-loadscope-reorder): with the long files first,
+#: the last file to finish is a short one, instead of a 25 s one started last on one
+#: worker while the other idles. A stale list costs only wall time; every file not named
+#: runs after these, in their usual order.
+LONGEST_FILES_FIRST = (
+    "test_api_flood.py",            # ~25 s, waits: a 16 s flood
+    "test_sweep.py",                # ~25 s, Dask clusters and child processes
+    "test_foxglove_live.py",        # ~25 s, a 12 s stalled-client window, a virtual-time flood
+    "test_offline_install.py",      # ~20 s, pip against the index
+    "test_live_page_ops.py",        # ~18 s, waits: the page's stale timers
+    "test_sim_convoy_corridor.py",  # ~16 s, CPU: four paper scenarios
+    "test_bench_smoke.py",          # ~12 s
+    "test_fuzz_decoders.py",        # ~12 s, CPU: hypothesis
+    "test_sim_recovery.py",         # ~11 s, CPU: drift and door, recovery off and on
+    "test_sim_scenarios.py",        # ~10 s, CPU: the obstacle scenarios
+    "test_serial_leaks.py",         # ~10 s, waits: pty hang-ups
+    "test_sigterm.py",
+    "test_api_tls.py",
+    "test_live_page_browser.py",
+    "test_api_schemathesis.py",
+    "test_avoidance.py",
+    "test_linkmodel.py",
+    "test_airos_model.py",
+    "test_record.py",
+    "test_recovery.py",
+    "test_record_daemon.py",
+    "test_fleet_browser.py",
+    "test_bridge_netns.py",
+)
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Longest files first (see LONGEST_FILES_FIRST); a stable sort keeps each file's order."""
+    rank = {name: i for i, name in enumerate(LONGEST_FILES_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
+
 
 #: Turns of the loop given to things a test has just cancelled or closed, so their
 #: callbacks (connection_lost, done-callbacks) can run before the check.
@@ -62,12 +105,53 @@ async def _no_leaks_async() -> AsyncIterator[None]:
                 f"{describe(tasks, timers)}", pytrace=False)
 
 
+@pytest_asyncio.fixture(loop_scope="module")
+async def _no_new_tasks_module() -> AsyncIterator[None]:
+    """The check for a test on a module-wide loop (a daemon shared by the file's tests).
+
+    The shared daemon's own tasks and timers live on between tests by design; what the
+    test itself started must not. Timers are left out: the daemon re-arms its own.
+    """
+    loop = asyncio.get_running_loop()
+    before = set(asyncio.all_tasks(loop))
+    yield
+    await _settle()
+    tasks = [t for t in leftovers(loop)[0] if t not in before]
+    if not tasks:
+        return
+    for t in tasks:
+        t.cancel()
+    await asyncio.gather(*tasks, return_exceptions=True)
+    pytest.fail(f"the test leaked {len(tasks)} task(s) on its module's loop: {describe(tasks, [])}",
+                pytrace=False)
+
+
 @pytest.fixture(autouse=True)
 def _no_leaks(request: pytest.FixtureRequest) -> None:
     """Applies the leak check to every coroutine test (sync tests have no loop to leak on)."""
     func = getattr(request.node, "function", None)
-    if func is not None and inspect.iscoroutinefunction(func):
+    if func is None or not inspect.iscoroutinefunction(func):
+        return
+    marker = request.node.get_closest_marker("asyncio")
+    loop_scope = marker.kwargs.get("loop_scope", "function") if marker is not None else "function"
+    if loop_scope == "module":
+        request.getfixturevalue("_no_new_tasks_module")
+    elif loop_scope == "function":
         request.getfixturevalue("_no_leaks_async")
+    else:
+        pytest.fail(f"no leak check for loop_scope={loop_scope!r}: add one to tests/conftest.py",
+                    pytrace=False)
+
+
+@pytest.fixture(autouse=True)
+def _structlog_restored() -> Iterator[None]:
+    """Whatever structlog configuration a test leaves (a benchmark or command run in this
+    process calls setup_logging, e.g. at level "error") is undone after it: otherwise a
+    later test's capture_logs() misses warnings, depending on which file ran before it
+    on the same worker."""
+    before = structlog.get_config()
+    yield
+    structlog.configure(**before)
 
 
 def pytest_asyncio_loop_factories(config: pytest.Config, item: pytest.Item) -> dict[str, object]:

@@ -22,15 +22,18 @@ import tempfile
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 from pathlib import Path
-from typing import NoReturn, Protocol
+from typing import TYPE_CHECKING, NoReturn, Protocol
 
 import pytest
 
 from drivers.clock import Clock
 from relayd.vtime import LoopClock, VirtualTimeLoop
 
-__all__ = ["LoopClock", "ManualClock", "VirtualTimeLoop", "clock_for", "piped_into_head", "running",
-           "until"]
+if TYPE_CHECKING:
+    from relayd.sim.runner import SimResult, SimRunner
+
+__all__ = ["LoopClock", "ManualClock", "VirtualTimeLoop", "clock_for", "piped_into_head", "run_scenario",
+           "running", "until"]
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -148,3 +151,20 @@ def piped_into_head(argv: list[str], lines: int = 1,
                 proc.wait()
         err.seek(0)
         return code, got, err.read(), waited_s
+
+
+_scenario_runs: dict[tuple[str, int, float | None], tuple[SimResult, SimRunner]] = {}
+
+
+def run_scenario(name: str, relays: int, pace: float | None = None) -> tuple[SimResult, SimRunner]:
+    """A shipped scenario run once per process on virtual time, with `relays` relays:
+    (SimResult, SimRunner). `pace`: paced to that many times wall time (None: flat out)."""
+    from relayd import vtime
+    from relayd.sim.runner import SimRunner
+    from relayd.sim.scenario import load_scenario
+
+    key = (name, relays, pace)
+    if key not in _scenario_runs:
+        runner = SimRunner(load_scenario(name).with_relays(relays), speed=pace, seed=1)
+        _scenario_runs[key] = (vtime.run(runner.run(), speed=pace), runner)
+    return _scenario_runs[key]

@@ -2,7 +2,9 @@
 
 `relayd run` in a subprocess under the default descriptor limit (RLIMIT_NOFILE 1024,
 soft and hard, as systemd leaves it without LimitNOFILE) drives a FakeRig toward a
-far leader. tests/flood.py, in a third process, then opens 1,100 idle connections
+far leader; the rig runs in a process of its own (tests/rig_proc.py), so a busy test
+process cannot starve the fake devices into a stop of their own making. tests/flood.py,
+in a fourth process, then opens 1,100 idle connections
 and 100 slow-header clients to the API and holds them. Before the guard in
 relayd/api/guard.py this exhausted the daemon's descriptors: the RSSI source failed
 with EMFILE, the robot stopped on rssi_stale, /healthz timed out and asyncio logged
@@ -30,8 +32,6 @@ from typing import Any
 
 import aiohttp
 import pytest
-
-from relayd.fakes.rig import FakeRig
 
 pytestmark = pytest.mark.slow
 
@@ -95,94 +95,107 @@ async def test_connection_flood_does_not_stop_the_robot(tmp_path: Path) -> None:
     if hard != resource.RLIM_INFINITY and hard < IDLE + SLOW + 256:
         pytest.skip(f"the flood needs {IDLE + SLOW + 256} descriptors; hard limit {hard}")
     # Far ahead: the robot drives for the whole test, never reaching threshold_l.
-    async with FakeRig(tmp_path, leader_xy_m=(60.0, 0.0)) as rig:
-        port = _free_port()
-        config = rig.write_config(secrets_in_files=True, scan=SCAN, pantilt=PANTILT, api_port=port,
-                                  log={"format": "json"})
-        log_path = tmp_path / "relayd.log"
+    port = _free_port()
+    config_kw = {"secrets_in_files": True, "scan": SCAN, "pantilt": PANTILT, "api_port": port,
+                 "log": {"format": "json"}}
+    rig = await asyncio.create_subprocess_exec(
+        sys.executable, str(HERE / "rig_proc.py"), str(tmp_path), "60.0", "0.0", json.dumps(config_kw),
+        stdin=asyncio.subprocess.PIPE, stdout=asyncio.subprocess.PIPE)
+    assert rig.stdin is not None and rig.stdout is not None
+    rig_in, rig_out = rig.stdin, rig.stdout
+
+    async def ask(command: str) -> dict[str, Any]:
+        rig_in.write(command.encode() + b"\n")
+        await rig_in.drain()
+        answer: dict[str, Any] = json.loads(await asyncio.wait_for(rig_out.readline(), 30.0))
+        return answer
+
+    relayd: subprocess.Popen[bytes] | None = None
+    flood: asyncio.subprocess.Process | None = None
+    log_path = tmp_path / "relayd.log"
+    try:
+        config = json.loads(await asyncio.wait_for(rig_out.readline(), 60.0))["config"]
         with log_path.open("wb") as log_file:
-            relayd = subprocess.Popen([sys.executable, "-m", "relayd", "run", "-c", str(config)],
+            relayd = subprocess.Popen([sys.executable, "-m", "relayd", "run", "-c", config],
                                       stdout=log_file, stderr=subprocess.STDOUT,
                                       preexec_fn=_default_nofile)
-        flood: asyncio.subprocess.Process | None = None
-        try:
-            async def driving() -> bool:
-                if relayd.poll() is not None:
-                    raise AssertionError(f"relayd exited {relayd.returncode}: {log_path.read_text()[-3000:]}")
-                doc = await _status(port)
-                return doc is not None and doc["state"] == "driving" and rig.robot.target_vel_mm_s > 0
 
-            async def driving_now() -> None:
-                while not await driving():
-                    await asyncio.sleep(0.2)
+        async def driving() -> bool:
+            assert relayd is not None
+            if relayd.poll() is not None:
+                raise AssertionError(f"relayd exited {relayd.returncode}: {log_path.read_text()[-3000:]}")
+            doc = await _status(port)
+            return (doc is not None and doc["state"] == "driving"
+                    and (await ask("vel"))["target_vel_mm_s"] > 0)
 
-            try:
-                await asyncio.wait_for(driving_now(), 60.0)
-            except TimeoutError:
-                pytest.fail("the robot never started driving:\n" + log_path.read_text()[-3000:])
-
-            # Watch the wheels from here on: the fake robot's target speed, every 20 ms.
-            stops: list[float] = []
-            watching = True
-
-            async def watch() -> None:
-                while watching:
-                    if rig.robot.target_vel_mm_s <= 0:
-                        stops.append(time.monotonic())
-                    await asyncio.sleep(0.02)
-
-            watcher = asyncio.create_task(watch())
-            mark = len(_events(log_path))
-            flood = await asyncio.create_subprocess_exec(
-                sys.executable, str(HERE / "flood.py"), str(port), "--idle", str(IDLE),
-                "--slow", str(SLOW), "--hold-s", str(HOLD_S), stdout=asyncio.subprocess.PIPE)
-            assert flood.stdout is not None
-            line = await asyncio.wait_for(flood.stdout.readline(), 90.0)
-            assert json.loads(line).get("flooding"), line
-            t_flood = time.monotonic()
-
-            # /healthz answers again on a fresh connection, while the flood holds.
-            t_ok: float | None = None
-            while time.monotonic() - t_flood < HEALTHZ_WITHIN_S + 5:
-                if await _healthz(port) == 200:
-                    t_ok = time.monotonic()
-                    break
+        async def driving_now() -> None:
+            while not await driving():
                 await asyncio.sleep(0.2)
-            figures_line = await asyncio.wait_for(flood.stdout.readline(), HOLD_S + 60)
-            await flood.wait()
-            figures = json.loads(figures_line)
-            # And after the flood: still driving, still answering.
-            await asyncio.sleep(1.0)
-            watching = False
-            await watcher
-            after = await _status(port)
-        finally:
-            if flood is not None and flood.returncode is None:
-                flood.kill()
-                await flood.wait()
-            if relayd.poll() is None:
-                relayd.send_signal(signal.SIGTERM)
-                try:
-                    await asyncio.to_thread(relayd.wait, 10)
-                except subprocess.TimeoutExpired:
-                    relayd.kill()
-                    await asyncio.to_thread(relayd.wait)
 
-        log_bytes = log_path.stat().st_size
-        events = _events(log_path)
-        names = [e.get("event") for e in events]
-        events = events[:names.index("signal")] if "signal" in names else events  # not our SIGTERM
-        tail = log_path.read_text(errors="replace")[-3000:]
-        print(f"flood {figures}; /healthz 200 after {None if t_ok is None else round(t_ok - t_flood, 2)} s; "
-              f"log {log_bytes} bytes")
-        assert figures["idle_connected"] + figures["slow_connected"] > 200, figures  # a real flood
-        assert t_ok is not None and t_ok - t_flood <= HEALTHZ_WITHIN_S, \
-            f"/healthz not answering within {HEALTHZ_WITHIN_S} s of the flood\n{tail}"
-        assert stops == [], f"the wheels stopped {len(stops)} times during the flood\n{tail}"
-        not_driving = [e for e in events[mark:] if e.get("event") == "drive_state" and e.get("state") != "driving"]
-        assert not_driving == [], not_driving[:5]
-        stale = [e for e in events if "stale" in json.dumps(e)]
-        assert stale == [], stale[:5]
-        assert after is not None and after["state"] == "driving", after
-        assert log_bytes < MAX_LOG_BYTES, f"log grew to {log_bytes} bytes"
-        assert not any("EMFILE" in json.dumps(e) or "Too many open files" in json.dumps(e) for e in events)
+        try:
+            await asyncio.wait_for(driving_now(), 60.0)
+        except TimeoutError:
+            pytest.fail("the robot never started driving:\n" + log_path.read_text()[-3000:])
+
+        # Watch the wheels from here on: the fake robot's target speed, every 20 ms (in
+        # the rig's process, which samples it).
+        assert (await ask("watch"))["watching"]
+        mark = len(_events(log_path))
+        flood = await asyncio.create_subprocess_exec(
+            sys.executable, str(HERE / "flood.py"), str(port), "--idle", str(IDLE),
+            "--slow", str(SLOW), "--hold-s", str(HOLD_S), stdout=asyncio.subprocess.PIPE)
+        assert flood.stdout is not None
+        line = await asyncio.wait_for(flood.stdout.readline(), 90.0)
+        assert json.loads(line).get("flooding"), line
+        t_flood = time.monotonic()
+
+        # /healthz answers again on a fresh connection, while the flood holds.
+        t_ok: float | None = None
+        while time.monotonic() - t_flood < HEALTHZ_WITHIN_S + 5:
+            if await _healthz(port) == 200:
+                t_ok = time.monotonic()
+                break
+            await asyncio.sleep(0.2)
+        figures_line = await asyncio.wait_for(flood.stdout.readline(), HOLD_S + 60)
+        await flood.wait()
+        figures = json.loads(figures_line)
+        # And after the flood: still driving, still answering.
+        await asyncio.sleep(1.0)
+        stops = (await ask("stops"))["stops"]
+        after = await _status(port)
+    finally:
+        if flood is not None and flood.returncode is None:
+            flood.kill()
+            await flood.wait()
+        if relayd is not None and relayd.poll() is None:
+            relayd.send_signal(signal.SIGTERM)
+            try:
+                await asyncio.to_thread(relayd.wait, 10)
+            except subprocess.TimeoutExpired:
+                relayd.kill()
+                await asyncio.to_thread(relayd.wait)
+        rig_in.close()  # end of stdin: the rig stops and exits
+        try:
+            await asyncio.wait_for(rig.wait(), 30.0)
+        except TimeoutError:
+            rig.kill()
+            await rig.wait()
+
+    log_bytes = log_path.stat().st_size
+    events = _events(log_path)
+    names = [e.get("event") for e in events]
+    events = events[:names.index("signal")] if "signal" in names else events  # not our SIGTERM
+    tail = log_path.read_text(errors="replace")[-3000:]
+    print(f"flood {figures}; /healthz 200 after {None if t_ok is None else round(t_ok - t_flood, 2)} s; "
+          f"log {log_bytes} bytes")
+    assert figures["idle_connected"] + figures["slow_connected"] > 200, figures  # a real flood
+    assert t_ok is not None and t_ok - t_flood <= HEALTHZ_WITHIN_S, \
+        f"/healthz not answering within {HEALTHZ_WITHIN_S} s of the flood\n{tail}"
+    assert stops == [], f"the wheels stopped {len(stops)} times during the flood\n{tail}"
+    not_driving = [e for e in events[mark:] if e.get("event") == "drive_state" and e.get("state") != "driving"]
+    assert not_driving == [], not_driving[:5]
+    stale = [e for e in events if "stale" in json.dumps(e)]
+    assert stale == [], stale[:5]
+    assert after is not None and after["state"] == "driving", after
+    assert log_bytes < MAX_LOG_BYTES, f"log grew to {log_bytes} bytes"
+    assert not any("EMFILE" in json.dumps(e) or "Too many open files" in json.dumps(e) for e in events)

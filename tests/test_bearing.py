@@ -99,3 +99,48 @@ def test_a_leader_beyond_the_servo_limit_is_extrapolated_but_bounded() -> None:
     assert fit is not None and fit.extrapolated and 92.0 <= fit.bearing_deg <= 110.0
     far = fit_main_lobe(FULL, scan(cos_n_pattern(45.0, 20.0), 170.0))
     assert far is None or far.bearing_deg <= 90.0 + 20.0
+
+
+@settings(max_examples=150, deadline=None)
+@given(make=patterns, beamwidth=st.floats(30.0, 60.0), bearing=st.floats(-85.0, 85.0),
+       levels=st.lists(st.floats(-15.0, 15.0), min_size=2, max_size=5))
+def test_scans_fitted_together_each_keep_their_level(make, beamwidth, bearing, levels) -> None:
+    # The same lobe heard at different levels (the leader nearer, other shadowing) is the
+    # same lobe: the scans' levels do not move the pooled bearing, the peak is the newest
+    # scan's, and the pooled fit is as good as one scan's (noise-free).
+    pattern = make(beamwidth, 20.0)
+    ids = [k for k in range(len(levels)) for _ in FULL]
+    flat = fit_main_lobe(FULL * len(levels), scan(pattern, bearing) * len(levels), scan_ids=ids)
+    pooled = fit_main_lobe(FULL * len(levels), [x for lv in levels for x in scan(pattern, bearing, level=-50.0 + lv)],
+                           scan_ids=ids)
+    assert flat is not None and pooled is not None
+    assert pooled.bearing_deg == pytest.approx(flat.bearing_deg, abs=1e-6)
+    assert pooled.peak_dbm == pytest.approx(flat.peak_dbm + levels[-1], abs=1e-6)
+    assert abs(pooled.bearing_deg - bearing) <= 4.0
+
+
+def test_five_faded_scans_fitted_together_beat_five_fits_averaged_at_a_servo_limit() -> None:
+    # A 90 deg lobe at +60 deg is cut by the +90 deg limit; under 3 dB of jitter one scan's
+    # curvature is poorly seen, and the fits that claim the sharpest lobe (the smallest
+    # sd) are the ones pulled toward the samples: a weighted mean of single fits is biased.
+    rng = random.Random(7)
+    pattern = cos_n_pattern(90.0, 20.0)
+    single_err, pooled_err = [], []
+    for _ in range(60):
+        scans = [[x + rng.gauss(0.0, 3.0) for x in scan(pattern, 60.0)] for _ in range(5)]
+        fits = [f for f in (fit_main_lobe(FULL, s) for s in scans) if f is not None]
+        w = [1.0 / f.sd_deg ** 2 for f in fits]
+        single_err.append(sum(f.bearing_deg * x for f, x in zip(fits, w, strict=True)) / sum(w) - 60.0)
+        pooled = fit_main_lobe(FULL * 5, [x for s in scans for x in s], scan_ids=[k for k in range(5) for _ in FULL])
+        assert pooled is not None
+        pooled_err.append(pooled.bearing_deg - 60.0)
+
+    def rms(xs: list[float]) -> float:
+        return math.sqrt(sum(x * x for x in xs) / len(xs))
+    assert rms(pooled_err) < 0.75 * rms(single_err)
+    assert abs(sum(pooled_err) / len(pooled_err)) < 1.5
+
+
+def test_scan_ids_must_match_the_samples() -> None:
+    with pytest.raises(ValueError):
+        fit_main_lobe(FULL, scan(cos_n_pattern(45.0, 20.0), 0.0), scan_ids=[0, 1])

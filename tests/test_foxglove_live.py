@@ -388,7 +388,11 @@ async def test_the_benchmark_measures_with_a_viewer_connected() -> None:
     data = await measure(cycles=20, load_rps=0.0, foxglove_port=free_port(), viewer=True)
     viewer = data["viewer"]
     assert viewer["channels"] == len(channel_specs()) and viewer["messages"] > 20
-    assert data["alone"]["in_relayd"]["count"] >= 20
+    # relayd's histogram counted the cycles' commands. Not all 20: on a loaded machine
+    # relayd reads some SIPs together and commands only the newer one (superseded), so a
+    # share of the cycles, as tests/test_bench_smoke.py has it.
+    alone = data["alone"]
+    assert alone["cycles"] // 2 <= alone["in_relayd"]["count"] <= alone["cycles"] + 20, alone
 
 
 async def test_an_address_not_on_this_machine_names_foxglove_bind(tmp_path: Path) -> None:

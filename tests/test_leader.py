@@ -7,13 +7,21 @@ RSSI and step-mode sweeps timed like the scanner's, in a small kinematic world.
 from __future__ import annotations
 
 import math
+import random
+from dataclasses import replace
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pydantic import ValidationError
 
 from bench.brainrig import BrainRig, cos_n_pattern, still
+from relayd import tracker
+from relayd.bearing import fit_main_lobe
 from relayd.config import Settings
-from relayd.leader import LeaderParams
+from relayd.estimator import ScanEstimate
+from relayd.leader import LeaderParams, TrackingModel, Window
+from relayd.scanpool import PooledScan, PoolParams, ScanPool
 from relayd.state import DriveState, Mode, RelayState
 
 
@@ -87,7 +95,6 @@ def test_the_filter_steers_by_its_prediction_between_scans() -> None:
 
 
 def test_selection_is_strict() -> None:
-    assert Settings().scan.estimator == "wca" and Settings().scan.window == "full"
     Settings.model_validate({"scan": {"estimator": "wca", "window": "full"}})
     with pytest.raises(ValidationError):
         Settings.model_validate({"scan": {"estimator": "wca", "window": "adaptive"}})
@@ -121,3 +128,143 @@ def test_a_lobe_carved_up_by_the_prssi_penalty_still_gives_the_leader() -> None:
         out = model.scan_done(2.5 * k, 0.0, est, [2.5 * k] * len(angles))
         assert abs(out.bearing_deg) < 5.0
     assert not model.lost(12.0, 0.0)
+
+
+def _faded_scan(rng: random.Random, bearing_deg: float, sd_db: float = 3.0) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    pattern = cos_n_pattern(90.0, 20.0)
+    angles = tuple(-90.0 + 7.5 * i for i in range(25))
+    return angles, tuple(-50.0 + pattern(a - bearing_deg) + rng.gauss(0.0, sd_db) for a in angles)
+
+
+def _pooled(angles: tuple[float, ...], rssi: tuple[float, ...], t: float, heading: float,
+            before: tracker.Track | None) -> PooledScan:
+    fit = fit_main_lobe(angles, rssi)
+    assert fit is not None
+    return PooledScan(angles, rssi, t, heading, before, fit)
+
+
+@settings(max_examples=60, deadline=None)
+@given(turn=st.lists(st.floats(-10.0, 10.0), min_size=4, max_size=4), seed=st.integers(0, 1000))
+def test_a_still_leader_is_fitted_over_several_scans_in_the_newest_frame(turn, seed) -> None:
+    # The relay turns between scans (odometry heading), the leader stands still: the pool
+    # carries each older scan into the newest frame, so the pooled bearing is the newest
+    # frame's, and it is fitted from every scan the filter allows.
+    rng = random.Random(seed)
+    params = LeaderParams(estimator="lobe")
+    pool = ScanPool(params.pool)
+    heading, t = 0.0, 0.0
+    track = tracker.start(0.0, 0.0, 20.0, 2.0, params.tracker)
+    for dh in turn:
+        angles, rssi = _faded_scan(rng, 20.0 - heading, 0.0)
+        pool.add(_pooled(angles, rssi, t, heading, track))
+        heading, t = heading + dh, t + 2.5
+    angles, rssi = _faded_scan(rng, 20.0 - heading, 0.0)
+    newest = _pooled(angles, rssi, t, heading, track)
+    out = pool.fit(replace(track, t=t - 2.5, heading_deg=heading - turn[-1]), newest, params.lobe, None)
+    assert out is not None
+    fit, base = out
+    assert base is track
+    assert abs(fit.bearing_deg - (20.0 - heading)) <= 4.0
+    assert fit.used > len(angles)  # more than one scan's samples
+
+
+def test_a_moving_bearing_or_a_disagreeing_scan_is_not_pooled() -> None:
+    rng = random.Random(3)
+    params = LeaderParams(estimator="lobe")
+    pool = ScanPool(params.pool)
+    track = tracker.start(0.0, 0.0, 0.0, 2.0, params.tracker)
+    pool.add(_pooled(*_faded_scan(rng, 0.0, 0.0), 0.0, 0.0, track))
+    newest = _pooled(*_faded_scan(rng, 0.0, 0.0), 2.5, 0.0, track)
+    assert pool.fit(track, newest, params.lobe, None) is not None
+    # The filter says the bearing moves (10 deg/s): the older scan is elsewhere now.
+    assert pool.fit(replace(track, rate_deg_s=10.0), newest, params.lobe, None) is None
+    # The newest scan sees the leader 40 deg away from the older one: no pooling.
+    assert pool.fit(track, _pooled(*_faded_scan(rng, 40.0, 0.0), 2.5, 0.0, track), params.lobe, None) is None
+    pool.clear()
+    assert pool.fit(track, newest, params.lobe, None) is None
+
+
+def test_standing_still_under_fading_the_pooled_estimate_is_better_than_one_scan_at_a_time() -> None:
+    # The same faded scans of a leader at 60 deg (a 90 deg lobe cut by the servo limit),
+    # through the brain's model with and without pooling.
+    def run(scans: int, seed: int) -> float:
+        rng = random.Random(seed)
+        model = TrackingModel(LeaderParams(estimator="lobe", pool=PoolParams(scans=scans)))
+        out = None
+        for k in range(5):
+            angles, rssi = _faded_scan(rng, 60.0)
+            est = ScanEstimate(bearing_deg=0.0, rssi_leader_dbm=max(rssi), situation=0, angles_deg=angles,
+                               rssi_dbm=rssi, nrssi_dbm=rssi)
+            out = model.scan_done(2.5 * (k + 1), 0.0, est, [2.5 * k + 0.1 * i for i in range(len(angles))])
+        assert out is not None
+        return out.bearing_deg - 60.0
+
+    pooled = [run(5, s) for s in range(40)]
+    alone = [run(1, s) for s in range(40)]
+
+    def rms(xs: list[float]) -> float:
+        return math.sqrt(sum(x * x for x in xs) / len(xs))
+    assert rms(pooled) < 0.8 * rms(alone)
+
+
+def test_a_moving_leader_gets_a_shorter_coarser_sweep_a_still_one_every_sample_of_the_lobe() -> None:
+    # A 90 deg antenna: the full window's 7.5 deg spacing is finer than a lobe that wide
+    # needs. While the bearing moves the sweep is for speed, while it stands for accuracy.
+    model = TrackingModel(LeaderParams(estimator="lobe", window="adaptive"))
+    model._beamwidths.extend([80.0] * 3)
+    model._sweep_s = 1.5
+    full = Window(0.0, 180.0, 25)
+    still_track = tracker.start(10.0, 0.0, 20.0, 2.0, model.params.tracker)
+    model.track = still_track
+    still = model.window(10.0, 0.0, full)
+    model.track = replace(still_track, rate_deg_s=8.0)
+    moving = model.window(10.0, 0.0, full)
+    assert still is not None and moving is not None
+    assert still.width_deg / (still.samples - 1) == pytest.approx(7.5)
+    assert moving.width_deg / (moving.samples - 1) >= 80.0 / 8.0 - 1e-9
+    assert moving.samples <= 0.7 * still.samples
+    assert moving.centre_deg > still.centre_deg  # led by the rate
+
+
+def test_a_fit_whose_few_residuals_happen_to_be_small_is_not_trusted_beyond_the_channels_noise() -> None:
+    rng = random.Random(5)
+    model = TrackingModel(LeaderParams(estimator="lobe", pool=PoolParams(scans=1)))
+    for k in range(6):  # the channel: 3 dB of fading
+        angles, rssi = _faded_scan(rng, 0.0)
+        model.scan_done(2.5 * (k + 1), 0.0, ScanEstimate(0.0, max(rssi), 0, angles, rssi, rssi), [])
+    angles, clean = _faded_scan(rng, 0.0, 0.0)
+    alone = fit_main_lobe(angles, clean)
+    assert alone is not None
+    model.scan_done(20.0, 0.0, ScanEstimate(0.0, max(clean), 0, angles, clean, clean), [])
+    assert model.last_fit is not None and model.last_fit.sd_deg > 3.0 * alone.sd_deg
+
+
+def test_near_a_servo_limit_the_adaptive_window_is_clipped_not_shifted_inside() -> None:
+    # Beyond the limit there is no lobe to see: the sweep is shorter, not moved inward.
+    model = TrackingModel(LeaderParams(estimator="lobe", window="adaptive"))
+    model._beamwidths.extend([80.0] * 3)
+    full = Window(0.0, 180.0, 25)
+    model.track = tracker.start(10.0, 0.0, 0.0, 2.0, model.params.tracker)
+    middle = model.window(10.0, 0.0, full)
+    model.track = tracker.start(10.0, 0.0, 75.0, 2.0, model.params.tracker)
+    edge = model.window(10.0, 0.0, full)
+    assert middle is not None and edge is not None
+    assert edge.centre_deg + edge.width_deg / 2.0 <= 90.0 + 1e-9
+    assert edge.centre_deg - edge.width_deg / 2.0 <= 75.0 - 40.0  # the near flank is in
+    assert edge.samples < middle.samples
+
+
+def test_the_default_is_the_lobe_fit_with_the_adaptive_window_and_wca_alone_is_the_papers() -> None:
+    assert (Settings().scan.estimator, Settings().scan.window) == ("lobe", "adaptive")
+    wca = Settings.model_validate({"scan": {"estimator": "wca"}}).scan
+    assert (wca.estimator, wca.window) == ("wca", "full")
+    with pytest.raises(ValidationError):
+        Settings.model_validate({"scan": {"estimator": "wca", "window": "adaptive"}})
+
+
+def test_the_steered_bearing_stays_where_a_scan_could_have_put_it() -> None:
+    model = TrackingModel(LeaderParams(estimator="lobe", window="adaptive"))
+    model.track = replace(tracker.start(0.0, 0.0, 80.0, 2.0, model.params.tracker), rate_deg_s=20.0)
+    model.window(0.0, 0.0, Window(0.0, 180.0, 25))  # the brain plans with the servo's range
+    now = model.bearing_now(3.0, 0.0)  # 80 + 3 s x 20 deg/s = 140 predicted
+    assert now == pytest.approx(90.0 + model.params.lobe.max_extrapolation_deg)

@@ -382,21 +382,31 @@ class StalledDisk(FullDisk):
     def __init__(self, path: Path, release: threading.Event) -> None:
         super().__init__(path, 1 << 30)
         self.release = release
+        self.stuck = threading.Event()
 
     def write(self, data: bytes) -> int:
+        self.stuck.set()
         self.release.wait(30)
         return super().write(data)
 
 
 async def test_a_stalled_disk_ends_the_recording_instead_of_growing_memory(tmp_path: Path) -> None:
     release = threading.Event()
-    route = Route(settings_for(tmp_path / "r.mcap"), ManualClock(),
-                  opener=lambda p: StalledDisk(p, release), stall_s=0.2)
+    disks: list[StalledDisk] = []
+
+    def opener(p: Path) -> StalledDisk:
+        disks.append(StalledDisk(p, release))
+        return disks[-1]
+
+    route = Route(settings_for(tmp_path / "r.mcap"), ManualClock(), opener=opener, stall_s=0.2)
     route.recorder.start()
     task = asyncio.create_task(route.recorder.run())
     try:
         await route.drive(2.0)
-        await asyncio.sleep(0.3)  # wall time: the first chunk's write hangs past stall_s
+        # The writer thread is inside a hung write (on a busy machine it may start late),
+        # and stays there past stall_s of wall time.
+        await until(lambda: bool(disks) and disks[0].stuck.is_set(), "the writer to hang", 10)
+        await asyncio.sleep(0.3)
         await route.drive(2.0)
         await until(lambda: route.recorder.state == "failed", "the recorder to give up", 10)
         assert "not keeping up" in (route.recorder.error or "")

@@ -62,17 +62,27 @@ def lockable(path: str) -> bool:
     return True
 
 
+#: Loop turns given to a late close report's callbacks (the transport's connection_lost,
+#: the driver's handling of it) once the report itself is in.
+SETTLE_TURNS = 20
+
+
 @pytest.fixture
-async def late_close(monkeypatch: pytest.MonkeyPatch) -> AsyncIterator[None]:
-    """The loop's executor closes a Serial at once but reports it `LATE_CLOSE_S` later."""
+async def late_close(monkeypatch: pytest.MonkeyPatch) -> AsyncIterator[list[asyncio.Future[Any]]]:
+    """The loop's executor closes a Serial at once but reports it `LATE_CLOSE_S` later.
+
+    Yields the reports (futures) handed out so far, so a test can wait until every one
+    has come in instead of sleeping for the longest it might take."""
     loop = asyncio.get_running_loop()
     orig = loop.run_in_executor
+    reports: list[asyncio.Future[Any]] = []
 
     def run_in_executor(executor: Any, fn: Callable[..., Any], *args: Any) -> asyncio.Future[Any]:
         fut = orig(executor, fn, *args)
         if getattr(fn, "__name__", "") != "close":
             return fut
         late: asyncio.Future[Any] = loop.create_future()
+        reports.append(late)
 
         def report() -> None:
             if late.done():
@@ -88,7 +98,7 @@ async def late_close(monkeypatch: pytest.MonkeyPatch) -> AsyncIterator[None]:
         return late
 
     monkeypatch.setattr(loop, "run_in_executor", run_in_executor)
-    yield
+    yield reports
 
 
 async def _rig(tmp_path: Path, **options: float) -> tuple[FakeMaestro, PanTilt, asyncio.Task[None]]:
@@ -113,7 +123,8 @@ async def _close(fake: FakeMaestro, pt: PanTilt, task: asyncio.Task[None]) -> No
     fake.close()
 
 
-async def _connected_and_alone(fake: FakeMaestro, pt: PanTilt, what: str) -> None:
+async def _connected_and_alone(fake: FakeMaestro, pt: PanTilt, what: str,
+                               reports: list[asyncio.Future[Any]]) -> None:
     # Connected to the port that is there now: a request is answered (right after a
     # quick pull and replug the driver may still hold the port that just went away).
     async with asyncio.timeout(20.0):
@@ -124,13 +135,15 @@ async def _connected_and_alone(fake: FakeMaestro, pt: PanTilt, what: str) -> Non
                     break
             await asyncio.sleep(0.02)
     # Every late report has come in (and been ignored) before we look.
-    await asyncio.sleep(LATE_CLOSE_S + 0.2)
+    await until(lambda: all(r.done() for r in reports), f"{what}: the late close reports", timeout_s=20.0)
+    for _ in range(SETTLE_TURNS):
+        await asyncio.sleep(0)
     assert pt.connected, f"{what}: a late close report took the new port down ({pt.last_error})"
     assert fds_on(fake.path) == 2, f"{what}: descriptors on the tty besides the fake's and the driver's"
 
 
-@pytest.mark.usefixtures("late_close")
-async def test_a_late_close_report_of_a_dropped_port_leaves_the_new_port_alone(tmp_path: Path) -> None:
+async def test_a_late_close_report_of_a_dropped_port_leaves_the_new_port_alone(
+        tmp_path: Path, late_close: list[asyncio.Future[Any]]) -> None:
     """The soak's failure: silent controller, drop, fast reconnect, late report; five times."""
     fake, pt, task = await _rig(tmp_path, poll_s=0.5)
     try:
@@ -139,14 +152,14 @@ async def test_a_late_close_report_of_a_dropped_port_leaves_the_new_port_alone(t
             fake.silent = True
             await until(lambda: not pt.connected, "the silent controller dropped")
             fake.silent = False
-            await _connected_and_alone(fake, pt, f"cycle {cycle}")
+            await _connected_and_alone(fake, pt, f"cycle {cycle}", late_close)
             assert pt.counters["reconnects"] == reconnects + 1
     finally:
         await _close(fake, pt, task)
 
 
-@pytest.mark.usefixtures("late_close")
-async def test_hang_ups_idle_under_a_write_and_during_a_connect(tmp_path: Path) -> None:
+async def test_hang_ups_idle_under_a_write_and_during_a_connect(
+        tmp_path: Path, late_close: list[asyncio.Future[Any]]) -> None:
     """Pulled and replugged twelve times, in the three places it hurts; reconnects every time."""
     fake, pt, task = await _rig(tmp_path, reply_timeout_s=0.5)
     try:
@@ -171,7 +184,7 @@ async def test_hang_ups_idle_under_a_write_and_during_a_connect(tmp_path: Path) 
                 fake.hang_up()
                 await asyncio.sleep(0.05)
             fake.reappear()
-            await _connected_and_alone(fake, pt, f"cycle {cycle} ({kind})")
+            await _connected_and_alone(fake, pt, f"cycle {cycle} ({kind})", late_close)
             assert pt.counters["reconnects"] > reconnects
     finally:
         await _close(fake, pt, task)

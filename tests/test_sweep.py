@@ -109,13 +109,15 @@ def test_progress_bar_counts_and_eta() -> None:
 
 @pytest.mark.timeout(240)
 def test_two_workers_equal_one_worker_and_resume(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    grid = [*TINY, "--relays", "0,1", "--seed-list", "1,2", "--set", "radio.shadow_sigma_db=2,8",
+    # 4 runs: two relay counts x two values of one axis; a second, one-valued axis still
+    # checks the column order of several --set keys.
+    grid = [*TINY, "--relays", "0,1", "--seed-list", "2", "--set", "radio.shadow_sigma_db=2,8",
             "--set", "leader.speed_m_s=0.2"]
     two, one = tmp_path / "two", tmp_path / "one"
     assert main(["sweep", *grid, "--workers", "2", "--out", str(two)]) == 0
     rows = _rows(two / "runs.csv")
     assert list(rows[0]) == columns(["radio.shadow_sigma_db", "leader.speed_m_s"])
-    assert len(rows) == 8 and all(r["status"] == "ok" and r["attempts"] == "1" for r in rows)
+    assert len(rows) == 4 and all(r["status"] == "ok" and r["attempts"] == "1" for r in rows)
     for r in rows:
         summary = json.loads((two / r["run_dir"] / "summary.json").read_text())
         assert summary["relays"] == int(r["relays"]) and summary["sim_seconds"] >= 3.0
@@ -130,13 +132,13 @@ def test_two_workers_equal_one_worker_and_resume(tmp_path: Path, capsys: pytest.
     capsys.readouterr()
     stamp = (two / rows[0]["run_dir"] / "run.json").stat().st_mtime_ns
     assert main(["sweep", *grid, "--workers", "2", "--out", str(two)]) == 0
-    assert "0 run, 8 already done" in capsys.readouterr().out
+    assert "0 run, 4 already done" in capsys.readouterr().out
     assert (two / rows[0]["run_dir"] / "run.json").stat().st_mtime_ns == stamp
-    victim = two / rows[5]["run_dir"]
+    victim = two / rows[3]["run_dir"]
     for f in victim.iterdir():
         f.unlink()
     assert main(["sweep", *grid, "--workers", "1", "--out", str(two)]) == 0
-    assert "1 run, 7 already done" in capsys.readouterr().out
+    assert "1 run, 3 already done" in capsys.readouterr().out
     assert _without_wall(_rows(two / "runs.csv")) == _without_wall(rows)
 
 
@@ -167,9 +169,11 @@ def test_a_failing_run_is_retried_once_then_recorded(tmp_path: Path, capsys: pyt
 def test_an_unreachable_scheduler_is_an_error_not_a_hang(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     port = _free_port()
     t0 = time.monotonic()
+    # --connect-timeout bounds the wait (default 30 s); a short one keeps the test short.
     code = main(["sweep", *TINY, "--relays", "0", "--seeds", "1", "--scheduler", f"tcp://127.0.0.1:{port}",
-                 "--out", str(tmp_path / "x")])
-    assert code == 2 and time.monotonic() - t0 < 90
+                 "--connect-timeout", "2", "--out", str(tmp_path / "x")])
+    waited_s = time.monotonic() - t0
+    assert code == 2 and 2.0 <= waited_s < 60, waited_s
     assert "no Dask cluster" in capsys.readouterr().err
 
 
@@ -241,7 +245,7 @@ def test_external_scheduler_two_workers_one_killed(tmp_path: Path) -> None:
             c.wait_for_workers(2, timeout=90)
         out = tmp_path / "ext"
         sweep = subprocess.Popen([sys.executable, "-m", "relayd", "sweep", *TINY, "--relays", "0,1",
-                                  "--seeds", "3", "--scheduler", addr, "--out", str(out)],
+                                  "--seeds", "2", "--scheduler", addr, "--out", str(out)],
                                  stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
         procs.append(sweep)
         deadline = time.monotonic() + 120
@@ -252,7 +256,7 @@ def test_external_scheduler_two_workers_one_killed(tmp_path: Path) -> None:
         text, _ = sweep.communicate(timeout=200)
         assert sweep.returncode == 0, text.decode()
         rows = _rows(out / "runs.csv")
-        assert len(rows) == 6 and all(r["status"] == "ok" for r in rows), rows
+        assert len(rows) == 4 and all(r["status"] == "ok" for r in rows), rows
     finally:
         for p in reversed(procs):
             _kill_group(p)

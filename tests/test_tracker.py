@@ -96,6 +96,23 @@ def test_an_outlier_is_gated_and_a_real_jump_is_reacquired() -> None:
     assert ok and tr.bearing_deg == pytest.approx(61.0, abs=1.0)
 
 
+@settings(max_examples=100, deadline=None)
+@given(rate=st.floats(-30.0, 30.0), turn=st.floats(-40.0, 40.0), off=st.floats(40.0, 120.0))
+def test_a_rejected_measurement_stops_the_prediction_running_on_at_its_rate(rate, turn, off) -> None:
+    # A track that learnt a rate (perhaps from a leader that jumped) and then sees the
+    # leader far from its prediction: it holds its last bearing (in today's frame)
+    # instead of extrapolating further, until the next scan decides.
+    tr = tracker.Track(t=10.0, heading_deg=0.0, bearing_deg=0.0, rate_deg_s=rate, p_bb=4.0, p_bw=0.0,
+                       p_ww=0.25, updates=5)
+    predicted = tracker.predict(tr, 12.0, turn, P).bearing_deg
+    held, ok = tracker.update(tr, 12.0, turn, predicted + off, 1.0, P)
+    assert not ok and held.rejects == 1
+    assert held.rate_deg_s == 0.0
+    assert held.bearing_deg == pytest.approx(-turn, abs=1e-9)  # the last bearing, seen after the turn
+    later = tracker.predict(held, 20.0, turn, P)
+    assert later.bearing_deg == pytest.approx(-turn, abs=1e-9)
+
+
 def test_non_finite_input_is_refused() -> None:
     tr = tracker.start(0.0, 0.0, 0.0, 1.0, P)
     with pytest.raises(ValueError):

@@ -4,7 +4,7 @@
                  [--seeds N | --seed-list 1,5,9] [--set KEY=V1,V2,... ...]
                  [--seconds S] [--speed X|max] [--out DIR]
                  [--workers N | --scheduler tcp://HOST:8786] [--run-timeout S]
-                 [--no-worker-timeout S] [--trace] [--no-plots]
+                 [--no-worker-timeout S] [--connect-timeout S] [--trace] [--no-plots]
 
 Runs every combination (scenario x --set values x relay count x seed) once, each in its
 own process on a Dask worker: an embedded LocalCluster with --workers processes (default:
@@ -69,6 +69,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-worker-timeout", type=positive_float, default=120.0,
                         help="give up on the runs still waiting after this many seconds without any worker"
                              " (default 120)")
+    parser.add_argument("--connect-timeout", type=positive_float, default=30.0,
+                        help="seconds to reach the --scheduler before giving up with exit 2 (default 30)")
     parser.add_argument("--trace", action="store_true", help="keep each run's trace.jsonl (large)")
     parser.add_argument("--no-plots", action="store_true", help="report.md without PNG plots")
 
@@ -101,7 +103,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"sweep: {len(specs)} runs on {where}; results in {out}/", flush=True)
     opts = SweepOptions(out=out, workers=args.workers, scheduler=args.scheduler,
                         run_timeout_s=args.run_timeout, trace=args.trace,
-                        no_worker_timeout_s=args.no_worker_timeout)
+                        no_worker_timeout_s=args.no_worker_timeout,
+                        connect_timeout_s=args.connect_timeout)
     try:
         outcome = run_sweep(specs, set_keys, opts)
     except (OSError, TimeoutError) as exc:

@@ -62,6 +62,8 @@ class SweepOptions:
     retries: int = 1
     trace: bool = False
     no_worker_timeout_s: float = 120.0
+    #: How long to try reaching an external scheduler before the sweep gives up.
+    connect_timeout_s: float = 30.0
 
 
 @dataclass(slots=True)
@@ -209,7 +211,7 @@ def _start_client(opts: SweepOptions) -> tuple[Any, Any]:
     Client, LocalCluster = dist.Client, dist.LocalCluster
 
     if opts.scheduler:
-        return Client(opts.scheduler, timeout="30s"), None
+        return Client(opts.scheduler, timeout=f"{opts.connect_timeout_s:g}s"), None
     n = opts.workers or default_workers()
     # The scheduler serves HTTP (health, metrics, the dashboard if bokeh is installed) on
     # a free loopback port: the default 8787 clashes with any other cluster on the machine.
