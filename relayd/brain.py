@@ -12,7 +12,7 @@ a test.
 Why this room is over 400 lines: it is the routing and the memory of one state machine,
 and every concern with logic of its own already lives in its own pure module (the
 controller, the estimator, the tracking filter and its scan windows, recovery, the
-rear-link model); what is left here are the handlers that read and write the one shared
+rear-link model, the step back out of a shadow); what is left here are the handlers that read and write the one shared
 memory, and cutting them apart would put the brain's single writer in several files.
 
 Decisions:
