@@ -361,6 +361,14 @@ class RecoveryView:
     trail_crumbs: int
     last_outcome: str | None
 
+    def to_json(self) -> dict[str, object]:
+        """/status's `recovery` object (the enums as their strings)."""
+        return {"enabled": self.enabled, "phase": str(self.phase),
+                "kind": None if self.kind is None else str(self.kind), "episodes": self.episodes,
+                "elapsed_s": self.elapsed_s, "distance_m": self.distance_m,
+                "max_distance_m": self.max_distance_m, "max_time_s": self.max_time_s,
+                "trail_crumbs": self.trail_crumbs, "last_outcome": self.last_outcome}
+
 
 def recovery_view(m: RecoveryMemory, p: RecoveryParams, now_s: float) -> RecoveryView:
     active = m.phase in (Phase.WIDEN, Phase.RETRACE, Phase.BACKUP) and m.started_t is not None

@@ -14,13 +14,14 @@ import asyncio
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import StrEnum
-from typing import TYPE_CHECKING, Any, Protocol, TypedDict
+from typing import TYPE_CHECKING, Any, Protocol
 
 from relayd import __version__
 
 if TYPE_CHECKING:
     from relayd.linkmodel import LinkModelStatus
     from relayd.record import RecordingStatus
+    from relayd.recovery import RecoveryView
 
 SONAR_COUNT = 16
 
@@ -81,21 +82,6 @@ class LinkInfo:
     t: float | None = None
 
 
-class RecoveryStatus(TypedDict):
-    """/status's `recovery` object: relayd.recovery.RecoveryView in JSON types."""
-
-    enabled: bool
-    phase: str
-    kind: str | None
-    episodes: int
-    elapsed_s: float | None
-    distance_m: float | None
-    max_distance_m: float
-    max_time_s: float
-    trail_crumbs: int
-    last_outcome: str | None
-
-
 class Controls(Protocol):
     """What the API may ask of the daemon (the controller task implements it)."""
 
@@ -149,7 +135,7 @@ class RelayState:
     #: The rear-link model's state (relayd.linkmodel), None until its first sample.
     link_model: LinkModelStatus | None = None
     #: The recovery state machine as /status shows it; None while recovery is disabled.
-    recovery: RecoveryStatus | None = None
+    recovery: RecoveryView | None = None
     #: Bumped on every change a live view cares about; `changed` is set with it.
     revision: int = 0
     changed: asyncio.Event = field(default_factory=asyncio.Event, repr=False)
@@ -235,7 +221,7 @@ class RelayState:
             "thresholds": dict(self.thresholds),
             "link_model": None if self.link_model is None else self.link_model.to_json(),
             "recording": None if self.recording_source is None else self.recording_source(),
-            "recovery": None if self.recovery is None else dict(self.recovery),
+            "recovery": None if self.recovery is None else self.recovery.to_json(),
         }
 
 

@@ -112,16 +112,10 @@ class StateWriter:
                 st.thresholds["threshold_b_dbm"] = round(action.threshold_b_dbm, 2)
                 st.link_model = action.model
             case RecoveryReport(view=v):
-                if st.recovery is None or st.recovery.get("phase") != str(v.phase):
+                if st.recovery is None or st.recovery.phase != v.phase:
                     log.info("recovery", phase=str(v.phase), kind=None if v.kind is None else str(v.kind),
                              episode=v.episodes, outcome=v.last_outcome, distance_m=v.distance_m)
-                st.recovery = {
-                    "enabled": v.enabled, "phase": str(v.phase),
-                    "kind": None if v.kind is None else str(v.kind), "episodes": v.episodes,
-                    "elapsed_s": v.elapsed_s, "distance_m": v.distance_m,
-                    "max_distance_m": v.max_distance_m, "max_time_s": v.max_time_s,
-                    "trail_crumbs": v.trail_crumbs, "last_outcome": v.last_outcome,
-                }
+                st.recovery = v
                 st.touch()
             case _:
                 pass

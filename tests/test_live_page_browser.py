@@ -155,7 +155,7 @@ async def test_live_page_shows_the_recovery_state_and_progress(tmp_path: Path) -
                     await page.wait_for_function(
                         "() => document.getElementById('drive-state').textContent === 'recovering'",
                         timeout=SCAN_TIMEOUT_MS)
-                    assert daemon.state.recovery is not None and daemon.state.recovery["phase"] == "backup"
+                    assert daemon.state.recovery is not None and daemon.state.recovery.phase == "backup"
                     rig.set_rear_signal(-50.0)
                     await page.wait_for_function(
                         "() => document.getElementById('recovery-progress').textContent.includes('restored')",

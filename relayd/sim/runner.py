@@ -187,10 +187,9 @@ class SimRunner:
                 "rssi_l_mean_dbm": round(w.radio.mean_power_dbm(body.pos, w.node_pos(i))[0], 1),
                 "situation": st.situation,
                 "threshold_b_dbm": st.thresholds.get("threshold_b_dbm"),
-                "recovery": None if st.recovery is None else {
-                    "phase": st.recovery["phase"], "kind": st.recovery["kind"],
-                    "episodes": st.recovery["episodes"], "distance_m": st.recovery["distance_m"],
-                    "outcome": st.recovery["last_outcome"]},
+                "recovery": None if (rv := st.recovery) is None else {
+                    "phase": str(rv.phase), "kind": None if rv.kind is None else str(rv.kind),
+                    "episodes": rv.episodes, "distance_m": rv.distance_m, "outcome": rv.last_outcome},
             })
         return {
             "t": round(t, 2),
