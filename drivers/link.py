@@ -11,7 +11,6 @@ import asyncio
 import contextlib
 import os
 import threading
-import weakref
 from collections.abc import Callable
 from typing import Any, TypeVar
 
@@ -21,6 +20,7 @@ import structlog
 
 from drivers import memlink
 from drivers.clock import Clock
+from drivers.loopreports import add_report_filter
 
 P = TypeVar("P", bound=asyncio.Protocol)
 
@@ -45,7 +45,7 @@ async def open_link(url: str, baudrate: int, protocol_factory: Callable[[], P]) 
             raise LinkError(f"cannot open {url}: {exc}") from exc
         return mtransport, mprotocol
     loop = asyncio.get_running_loop()
-    report_serial_errors_once(loop)
+    add_report_filter(loop, "serial_failure", _serial_failure_report)
     if "://" in url:
         # socket://, rfc2217://, loop://: pyserial-asyncio's own path (TCP transport).
         try:
@@ -74,43 +74,23 @@ async def open_link(url: str, baudrate: int, protocol_factory: Callable[[], P]) 
     return stransport, sprotocol  # type: ignore[return-value]
 
 
-class _SerialErrorReports:
-    """A loop exception handler: a serial transport's fatal I/O error is one warning line.
+def _serial_failure_report(loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> bool:
+    """A serial transport's fatal I/O error as one warning line (a drivers.loopreports filter).
 
     pyserial-asyncio-fast reports a port that fails under it (a USB adapter pulled, a pty
     hung up) to the loop's exception handler, which asyncio logs at ERROR with two
     tracebacks, and then tells the protocol through connection_lost. The driver's
     reconnect loop already logs that loss and counts it in health(); an unplugged device
-    is an expected event, not a bug, so here it is one warning without a traceback. Any
-    other report goes to the previous handler unchanged.
+    is an expected event, not a bug, so here it is one warning without a traceback.
     """
-
-    def __init__(self, previous: Callable[[asyncio.AbstractEventLoop, dict[str, Any]], object] | None) -> None:
-        self._previous = previous
-
-    def __call__(self, loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
-        exc = context.get("exception")
-        transport = context.get("transport")
-        if isinstance(transport, serial_asyncio_fast.SerialTransport) and isinstance(exc, OSError):
-            port = serial_port(transport)
-            log.warning("serial_transport_failed", port=port.port if port is not None else None,
-                        what=context.get("message"), error=str(exc))
-        elif self._previous is not None:
-            self._previous(loop, context)
-        else:
-            loop.default_exception_handler(context)
-
-
-#: Loops that have the handler: every open_link asks, and other code (the API's accept
-#: limit) may wrap it later, so the top handler alone cannot say.
-_REPORTING: weakref.WeakSet[asyncio.AbstractEventLoop] = weakref.WeakSet()
-
-
-def report_serial_errors_once(loop: asyncio.AbstractEventLoop) -> None:
-    """Install `_SerialErrorReports` on `loop`, once per loop."""
-    if loop not in _REPORTING:
-        _REPORTING.add(loop)
-        loop.set_exception_handler(_SerialErrorReports(loop.get_exception_handler()))
+    exc = context.get("exception")
+    transport = context.get("transport")
+    if not (isinstance(transport, serial_asyncio_fast.SerialTransport) and isinstance(exc, OSError)):
+        return False
+    port = serial_port(transport)
+    log.warning("serial_transport_failed", port=port.port if port is not None else None,
+                what=context.get("message"), error=str(exc))
+    return True
 
 
 class LockedSerial(serial.Serial):

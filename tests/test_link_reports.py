@@ -79,3 +79,22 @@ async def test_reopening_does_not_stack_handlers() -> None:
     assert handlers[0] is handlers[1] is handlers[2]
     loop.set_exception_handler(None)
 
+
+
+async def test_the_api_and_serial_filters_stack_once_whatever_the_order() -> None:
+    from relayd.api.server import install_accept_error_limit
+
+    loop = asyncio.get_running_loop()
+    install_accept_error_limit(loop)
+    master, name = _pty()
+    try:
+        transport, proto = await open_link(name, 115200, _Lost)
+        await close_link(transport, proto.closed)
+        installed = loop.get_exception_handler()
+        install_accept_error_limit(loop)  # the serial filter now wraps the API's: still no second one
+        transport, proto = await open_link(name, 115200, _Lost)
+        await close_link(transport, proto.closed)
+        assert loop.get_exception_handler() is installed
+    finally:
+        os.close(master)
+        loop.set_exception_handler(None)

@@ -13,12 +13,12 @@ from __future__ import annotations
 import asyncio
 import socket
 import ssl
-from collections.abc import Callable
 from typing import Any
 
 import structlog
 from aiohttp import web
 
+from drivers.loopreports import add_report_filter
 from relayd.api.guard import LOG_EVERY_S, GuardedServer
 from relayd.config import ApiSettings, ConfigError
 from relayd.ratelimit import LogRateLimit
@@ -45,23 +45,19 @@ class ApiServer:
 
 
 class _AcceptErrorLimit:
-    """A loop exception handler: asyncio's accept-resource reports rate-limited, the rest passed on."""
+    """A drivers.loopreports filter: asyncio's accept-resource reports, rate-limited."""
 
-    def __init__(self, previous: Callable[[asyncio.AbstractEventLoop, dict[str, Any]], object] | None) -> None:
-        self._previous = previous
+    def __init__(self) -> None:
         self._limit = LogRateLimit(LOG_EVERY_S)
 
-    def __call__(self, lp: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
-        if context.get("message") == _ACCEPT_RESOURCE_MESSAGE:
-            count = self._limit.hit("accept", lp.time())
-            if count is not None:
-                log.warning("accept_failed", error=str(context.get("exception")), count=count,
-                            every_s=LOG_EVERY_S)
-            return
-        if self._previous is not None:
-            self._previous(lp, context)
-        else:
-            lp.default_exception_handler(context)
+    def __call__(self, lp: asyncio.AbstractEventLoop, context: dict[str, Any]) -> bool:
+        if context.get("message") != _ACCEPT_RESOURCE_MESSAGE:
+            return False
+        count = self._limit.hit("accept", lp.time())
+        if count is not None:
+            log.warning("accept_failed", error=str(context.get("exception")), count=count,
+                        every_s=LOG_EVERY_S)
+        return True
 
 
 def install_accept_error_limit(loop: asyncio.AbstractEventLoop) -> None:
@@ -71,10 +67,7 @@ def install_accept_error_limit(loop: asyncio.AbstractEventLoop) -> None:
     process would: under descriptor exhaustion asyncio reports every failed accept, tens
     of thousands of lines a minute. Other reports go to the previous handler unchanged.
     """
-    previous = loop.get_exception_handler()
-    if isinstance(previous, _AcceptErrorLimit):
-        return
-    loop.set_exception_handler(_AcceptErrorLimit(previous))
+    add_report_filter(loop, "accept_limit", _AcceptErrorLimit())
 
 
 def tls_context(api: ApiSettings) -> ssl.SSLContext | None:
