@@ -88,12 +88,9 @@ def describe(tasks: list[asyncio.Task[object]], timers: list[asyncio.TimerHandle
     return "; ".join(parts)
 
 
-@pytest.fixture
-async def _no_leaks_async() -> AsyncIterator[None]:
-    loop = asyncio.get_running_loop()
-    yield
-    await _settle()
-    tasks, timers = leftovers(loop)
+async def _fail_on(tasks: list[asyncio.Task[object]], timers: list[asyncio.TimerHandle],
+                   where: str = "") -> None:
+    """Fail the test naming what it left, after cancelling it so the next test starts clean."""
     if not (tasks or timers):
         return
     for t in tasks:
@@ -101,8 +98,16 @@ async def _no_leaks_async() -> AsyncIterator[None]:
     for h in timers:
         h.cancel()
     await asyncio.gather(*tasks, return_exceptions=True)
-    pytest.fail(f"the test leaked {len(tasks)} task(s) and {len(timers)} timer(s): "
+    pytest.fail(f"the test leaked {len(tasks)} task(s) and {len(timers)} timer(s){where}: "
                 f"{describe(tasks, timers)}", pytrace=False)
+
+
+@pytest.fixture
+async def _no_leaks_async() -> AsyncIterator[None]:
+    loop = asyncio.get_running_loop()
+    yield
+    await _settle()
+    await _fail_on(*leftovers(loop))
 
 
 @pytest_asyncio.fixture(loop_scope="module")
@@ -116,14 +121,7 @@ async def _no_new_tasks_module() -> AsyncIterator[None]:
     before = set(asyncio.all_tasks(loop))
     yield
     await _settle()
-    tasks = [t for t in leftovers(loop)[0] if t not in before]
-    if not tasks:
-        return
-    for t in tasks:
-        t.cancel()
-    await asyncio.gather(*tasks, return_exceptions=True)
-    pytest.fail(f"the test leaked {len(tasks)} task(s) on its module's loop: {describe(tasks, [])}",
-                pytrace=False)
+    await _fail_on([t for t in leftovers(loop)[0] if t not in before], [], " on its module's loop")
 
 
 @pytest.fixture(autouse=True)
