@@ -23,7 +23,7 @@ runs the real `relayd.brain.Brain`:
    `relayd.sim.SimRunner` (real daemons, virtual time), several seeds: the share of
    trace records in which each relay is within 5 m of its own leader, under the paper's
    stop policy and under two that ask for a following distance (bench/followshare.py).
-   Just this item: `python -m bench.tracking --sim-only [--seeds N] [--quick]`.
+   Just this item: `python -m bench.tracking --sim-only [--seeds N] [--scenario NAME] [--quick]`.
 5. CPU per brain event (SIP steps and scan ends): the decision core's share of the
    control latency and of the steady CPU; then a real relayd on the fakes (bench/steady.py,
    bench/latency.py) with each estimator, one after the other: steady CPU and the SIP ->
@@ -152,7 +152,7 @@ def event_cpu_us(cfg: tuple[str, str]) -> tuple[float, float]:
             1e6 * sum(times["ScanDone"]) / max(1, len(times["ScanDone"])))
 
 
-def sim_items(quick: bool, sim_seeds: int | None = None) -> list[Result]:
+def sim_items(quick: bool, sim_seeds: int | None = None, scenarios: list[str] | None = None) -> list[Result]:
     """Item 4 (bench/followshare.py): the share of time within 5 m, per scenario, policy and estimator."""
     from bench.followshare import sim_rows
 
@@ -160,14 +160,14 @@ def sim_items(quick: bool, sim_seeds: int | None = None) -> list[Result]:
         print(line, file=sys.stderr, flush=True)
 
     return sim_rows(CONFIGS, quick=quick, seeds=sim_seeds if sim_seeds is not None else (1 if quick else 10),
-                    progress=progress)
+                    scenarios=scenarios, progress=progress)
 
 
 def run(quick: bool = False, *, sim_seeds: int | None = None, noisy_seeds: int | None = None,
-        cross_seeds: int | None = None, sim_only: bool = False) -> BenchOutput:
+        cross_seeds: int | None = None, sim_only: bool = False, scenarios: list[str] | None = None) -> BenchOutput:
     out = BenchOutput(NAME)
     if sim_only:
-        out.results += sim_items(quick, sim_seeds)
+        out.results += sim_items(quick, sim_seeds, scenarios)
         return out
     step = 20.0 if quick else 5.0
     bearings = [-85.0 + step * i for i in range(int(170 / step) + 1)]
@@ -247,9 +247,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--quick", action="store_true", help="shorter runs (1 seed, 20 s of simulation)")
     p.add_argument("--sim-only", action="store_true", help="item 4 alone: the share of time within 5 m")
     p.add_argument("--seeds", type=int, default=None, help="simulator seeds per row (default 10; --quick 1)")
+    p.add_argument("--scenario", action="append", choices=("convoy", "corridor"),
+                   help="with --sim-only: this scenario only (repeatable; default both)")
     args = p.parse_args(argv)
     t0 = time.perf_counter()
-    out = run(args.quick, sim_seeds=args.seeds, sim_only=args.sim_only)
+    out = run(args.quick, sim_seeds=args.seeds, sim_only=args.sim_only, scenarios=args.scenario)
     print(table(out.results))
     print(f"\n{time.perf_counter() - t0:.0f} s", file=sys.stderr)
     return 0
