@@ -126,11 +126,10 @@ async def test_run_drives_and_sigterm_zeroes_wheels_disables_and_closes(tmp_path
             relayd.proc.send_signal(signal.SIGTERM)
             t_close: float | None = None
             try:
-                async with asyncio.timeout(10):
-                    while (seq := find_stop_sequence(rig.robot.commands[mark:])) is None:
-                        await asyncio.sleep(0.002)
+                seq = await until(lambda: find_stop_sequence(rig.robot.commands[mark:]),
+                                  "VEL 0, ENABLE 0, CLOSE after SIGTERM", 10.0, poll_s=0.002)
                 t_close = time.monotonic()
-            except TimeoutError:
+            except AssertionError:
                 pytest.fail(f"no VEL 0, ENABLE 0, CLOSE after SIGTERM: {rig.robot.commands[mark:]}\n"
                             + relayd.output())
             code = await relayd.wait(10)
@@ -167,7 +166,9 @@ async def refused(rig: FakeRig, config: Path, env: dict[str, str] | None = None)
     finally:
         await relayd.kill()
     assert code == 2, relayd.output()
-    await asyncio.sleep(0.2)  # anything written to the ptys has been read by now
+    # Anything the process wrote to the ptys before it exited is read before we look.
+    await until(lambda: rig.robot.unread_bytes() == 0 and rig.maestro.unread_bytes() == 0,
+                "the fakes to read what is in their ptys", 10.0)
     assert rig.robot.commands == [], "the robot was touched"
     assert not rig.maestro.received, "the servo controller was touched"
     return relayd.output()
