@@ -14,10 +14,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import fcntl
 import os
-import struct
-import termios
 import tty
 from collections.abc import Callable
 from pathlib import Path
@@ -65,16 +62,6 @@ class PtyPort:
             tmp.replace(self._link)
         self._loop.add_reader(master, self._readable)
         return self.path
-
-    def unread_bytes(self) -> int:
-        """Bytes the driver wrote that this end has not read yet (0 while hung up).
-
-        A test that checks a driver wrote nothing waits for 0 here before looking, so
-        bytes still in the pty are not mistaken for none sent."""
-        if self._master is None:
-            return 0
-        count: int = struct.unpack("i", fcntl.ioctl(self._master, termios.FIONREAD, b"\0\0\0\0"))[0]
-        return count
 
     def _readable(self) -> None:
         if self._master is None:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import asyncio
-import os
 
 from support import until
 
@@ -66,18 +65,3 @@ async def test_tcp_round_trip() -> None:
     assert bytes(proto.data) == b"world"
     transport.close()
     await port.close()
-
-
-async def test_unread_bytes_counts_what_the_device_end_has_not_read_yet() -> None:
-    received = bytearray()
-    port = PtyPort(received.extend)
-    fd = os.open(port.open(), os.O_RDWR | os.O_NOCTTY)
-    try:
-        os.write(fd, b"abc")  # the driver's side; the loop has not had a turn to read it
-        assert port.unread_bytes() == 3 and not received
-        await until(lambda: port.unread_bytes() == 0, "the device end to read")
-        assert bytes(received) == b"abc"
-    finally:
-        os.close(fd)
-        port.close()
-    assert port.unread_bytes() == 0  # closed: nothing can be waiting

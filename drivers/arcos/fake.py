@@ -112,10 +112,6 @@ class FakeRobot(FakeBody):
     def url(self) -> str | None:
         return self._tcp.url if self._tcp is not None else None
 
-    def unread_bytes(self) -> int:
-        """Bytes the driver wrote on the pty that this fake has not read yet."""
-        return self._pty.unread_bytes() if self._pty is not None else 0
-
     def serve_pty(self, link_path: str | None = None) -> str:
         """Serve on a new pty (a stable symlink at `link_path` if given). Returns the path."""
         if self._pty is None:

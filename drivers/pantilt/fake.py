@@ -71,10 +71,6 @@ class _FakeController(abc.ABC):
     def path(self) -> str:
         return self._port.path if self._port is not None else ""
 
-    def unread_bytes(self) -> int:
-        """Bytes the driver wrote on the pty that this fake has not read yet."""
-        return self._port.unread_bytes() if isinstance(self._port, PtyPort) else 0
-
     def hang_up(self) -> None:
         """Drop the port as a pulled USB cable does; servo state is kept."""
         if self._port is not None:
