@@ -42,7 +42,7 @@ from relayd.sim.scenario import RelaySpec, Scenario
 
 NAME = "tracking"
 WITHIN_M = 5.0
-#: (scenario, target share) of the issue: LOS convoy and NLOS corridor.
+#: (scenario, target share): the convoy in line of sight, the corridor round brick corners.
 SCENARIOS: tuple[tuple[str, float], ...] = (("convoy", 0.99), ("corridor", 0.95))
 #: Where a third corridor relay starts: behind relay2 (x 0.5), 1 m in front of the command center.
 EXTRA_RELAY = RelaySpec(name="relay3", x=-0.5, y=0.0)
