@@ -68,6 +68,14 @@ def _proj_m(pose: tuple[float, float, float], goal_deg: float) -> float:
     return (pose[0] * math.cos(g) + pose[1] * math.sin(g)) / 1000.0
 
 
+def _strayed(st: AvoidState, s: Sense, p: AvoidParams) -> bool:
+    """The escape (not the paper's law) has taken the robot beyond max_stray_m of where it
+    took over: a relay in a building is then going round the building, away from its
+    leader and its link behind, not round an obstacle."""
+    return (st.mode is not AvoidMode.FOLLOW and st.hit_at is not None
+            and math.dist(st.hit_at, s.pose[:2]) > p.max_stray_m * 1000.0)
+
+
 def _bookkeep(st: AvoidState, s: Sense) -> AvoidState:
     """Path and turn accumulated since the last step, for the escape limits."""
     if st.last_pose is None:
@@ -96,7 +104,7 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
 
     if st.escape_t is not None and st.mode is not AvoidMode.BLOCKED and (
             t - st.escape_t > p.max_escape_s or st.path_m > p.max_escape_m
-            or st.turned_deg > p.max_turn_deg):
+            or st.turned_deg > p.max_turn_deg or _strayed(st, s, p)):
         return enter(st, AvoidMode.BLOCKED, t), AvoidCommand(False, reason="blocked")
 
     if st.mode is AvoidMode.BLOCKED:
@@ -116,19 +124,30 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
                 since = t
             st = replace(st, clear_since_t=since)
             if since is not None and t - since > p.episode_clear_s:
-                st = replace(st, escape_t=None, side=0, path_m=0.0, turned_deg=0.0, clear_since_t=None)
+                st = replace(st, escape_t=None, side=0, path_m=0.0, turned_deg=0.0, clear_since_t=None,
+                             hit_at=None)
         stuck = t - st.anchor_t > p.no_progress_s
         if d_min >= p.stop_distance_m and not stuck:
             return st, AvoidCommand(True)
+        st = replace(st, hit_at=s.pose[:2], clear_since_t=None)
         if st.escape_t is None:
-            st = replace(st, escape_t=t, path_m=0.0, turned_deg=0.0,
-                         side=choose_side(s.sonar, s.bearing_deg, p.tie_m),
+            st = replace(st, escape_t=t, path_m=0.0, turned_deg=0.0, side=0,
                          goal_deg=s.pose[2] + s.bearing_deg, hit_proj_m=_proj_m(s.pose, s.pose[2] + s.bearing_deg))
-        st = enter(st, AvoidMode.TURN, t, clear_since_t=None)
-        if d_min < p.backoff_below_m and rear_min_m(s.rear) > p.stop_distance_m + 0.1:
-            st = enter(st, AvoidMode.BACKOFF, t, backoff_from=s.pose[:2], backoff_len_m=p.backoff_max_m, unjam=False)
-        else:
-            st = _maybe_lane(st, s, r, p, t)
+            if abs(s.bearing_deg) >= p.align_first_deg:
+                # The leader is off to a side or behind (round a corner the robot overran):
+                # what blocks the way ahead is not between them, and going round it would
+                # take the robot away. Turn onto the leader first; the side is chosen only
+                # if something blocks that way too.
+                st = enter(st, AvoidMode.ALIGN, t)
+        if st.mode is AvoidMode.FOLLOW:
+            if st.side == 0:
+                st = replace(st, side=choose_side(s.sonar, s.bearing_deg, p.tie_m))
+            st = enter(st, AvoidMode.TURN, t)
+            if d_min < p.backoff_below_m and rear_min_m(s.rear) > p.stop_distance_m + 0.1:
+                st = enter(st, AvoidMode.BACKOFF, t, backoff_from=s.pose[:2], backoff_len_m=p.backoff_max_m,
+                           unjam=False)
+            else:
+                st = _maybe_lane(st, s, r, p, t)
 
     if st.mode is AvoidMode.BACKOFF:
         if st.backoff_from is None:  # entered without its origin: back off from here
@@ -168,7 +187,9 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
             vel, _ = guard(-act.express(p.backoff_speed_mm_s, 0.0)[0], 0, s.sonar,
                            p.stop_distance_m, s.rear)
             return st, AvoidCommand(False, vel, 0, "rejoining")
-        st = enter(st, AvoidMode.WALL, t, lost_at=None)  # too close to turn: keep rounding
+        # Too close to turn: keep rounding (on the freer side, if none is latched yet).
+        side = st.side or choose_side(s.sonar, s.bearing_deg, p.tie_m)
+        st = enter(st, AvoidMode.WALL, t, lost_at=None, side=side)
 
     if st.mode is AvoidMode.TURN:
         front = min_at(r, (10.0, -10.0, 30.0, -30.0))

@@ -75,6 +75,12 @@ class AvoidParams:
     max_escape_s: float = 300.0
     max_escape_m: float = 40.0
     max_turn_deg: float = 1080.0
+    #: The escape never takes the robot further than this from where it left the paper's
+    #: law (a room's diagonal): what needs more is not an obstacle to go round.
+    max_stray_m: float = 6.0
+    #: A leader this far off the nose is not beyond what blocks the way ahead: the escape
+    #: turns onto it first (ALIGN) instead of going round the obstacle.
+    align_first_deg: float = 60.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -92,6 +98,7 @@ class AvoidState:
     turned_deg: float = 0.0
     goal_deg: float = 0.0  # odometry heading of the leader when the obstacle was hit
     hit_proj_m: float = 0.0
+    hit_at: tuple[float, float] | None = None  # where the escape last took over from FOLLOW (mm)
     last_pose: tuple[float, float, float] | None = None
     lost_at: tuple[float, float] | None = None  # WALL: where the boundary was lost
     corner_heading_deg: float | None = None
