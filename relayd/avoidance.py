@@ -11,7 +11,10 @@ the command; nothing here reads a clock. docs/AVOIDANCE.md has the state diagram
 - FOLLOW: the paper's law drives; a watchdog says "blocked" when a forward sonar reads
   below the stop distance, or the robot has not moved `progress_m` in `no_progress_s`
   while the link rule says its leader is beyond.
-- An escape begins: the side is latched for the whole episode (the freer side; a tie
+- An escape begins. A leader `align_first_deg` (60) or more off the nose is not beyond
+  what blocks the way (it is round a corner the robot overran, or behind it): ALIGN
+  first, turning onto it; only what then blocks the way to it is gone round. Otherwise
+  the side is latched for the whole episode (the freer side; a tie
   goes to the leader's side, bearing 0 to the left). BACKOFF first when the robot is
   closer than `backoff_below_m` and the rear sonars show room. In a passage (a boundary
   abeam on the free side) LANE: run beside that boundary, or down the middle of a
@@ -22,7 +25,8 @@ the command; nothing here reads a clock. docs/AVOIDANCE.md has the state diagram
   leader's direction is open and the robot is further along the leader's line than
   where it hit (Bug2; a door abeam may be level with the hit point): ALIGN (turn in
   place onto the leader's bearing), then FOLLOW.
-- BLOCKED: the escape exceeded `max_escape_s`, `max_escape_m` or `max_turn_deg`:
+- BLOCKED: the escape exceeded `max_escape_s`, `max_escape_m` or `max_turn_deg`, or
+  took the robot more than `max_stray_m` from where it took over from the paper's law:
   wheels zero, reason `blocked`, until the leader's direction is open ahead again.
 
 The escape's vocabulary (modes, settings, memory, one step's view and verdict) and

@@ -203,6 +203,92 @@ def test_a_turn_onto_the_leader_jammed_in_a_doorway_backs_out_and_turns_toward_i
     assert modes[-1] is AvoidMode.ALIGN and cmd.rvel_deg_s < 0  # turning onto the leader
 
 
+def test_a_leader_behind_round_a_corner_is_turned_onto_not_escaped_from() -> None:
+    # The corridor's corner 2 (seed 2, three relays): relay1 overran the corner and stands
+    # 0.31 m from the end wall, its leader at -96 deg (behind-right, round the corner).
+    # The freer side by the front sonars is the left, away from the leader; the escape used
+    # to latch it and follow the wall 12 m back down the corridor. The leader is not
+    # beyond the wall: the escape turns right, onto it, and never drives away.
+    at_wall = ring(s0=1030, s1=640, s2=410, s3=330, s4=310, s5=310, s6=350, s7=710,
+                   **{f"s{i}": 1500 for i in range(8, 16)})
+    st = AvoidState(anchor=(17699.0, 20952.0), anchor_t=0.0)
+    modes = []
+    for i in range(10):
+        st, cmd = avoid_step(st, sense(P.no_progress_s + 0.1 * (i + 1), at_wall, -96.4,
+                                       (17699.0, 20952.0, 107.0)), P, ACT)
+        modes.append(st.mode)
+        assert not cmd.follow and cmd.vel_mm_s <= 0 and cmd.rvel_deg_s <= 0, (i, st, cmd)
+    assert modes[0] in (AvoidMode.ALIGN, AvoidMode.BACKOFF) and st.side in (0, -1)
+    assert any(m is AvoidMode.ALIGN for m in modes)
+
+
+def corner_world() -> Scenario:
+    """Corner 2 of the corridor: corridor B (x 18.5-21.5) north into C (y 18.5-21.5) east;
+    the relay has overrun the corner, facing the end wall, its leader 6 m down C."""
+    return parse_scenario({
+        "name": "corner", "environment": "indoor", "relays": 1,
+        "command_center": {"x": 20.0, "y": 0.0},
+        "leader": {"waypoints": [{"x": 26.0, "y": 20.0}]},
+        "relay": [{"name": "r", "x": 19.7, "y": 20.87, "theta_deg": 102.0}],
+        "walls": [{"points": [[18.5, 10.0], [18.5, 21.5], [30.0, 21.5]], "material": "brick"},
+                  {"points": [[21.5, 10.0], [21.5, 18.5], [30.0, 18.5]], "material": "brick"}],
+        "radio": {"shadow_sigma_db": 0.0, "fading": False},
+    })
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_relay_that_overran_a_corner_turns_round_it_toward_its_leader(seed: int) -> None:
+    # Closed loop over the same corner: the leader at -119 deg, beyond the servo's range.
+    # It used to drive 9 m back down corridor B (the escape round the end wall, on its
+    # freer side); it must turn toward the leader, go round the corner and never get
+    # further from the leader than where it stood.
+    sc = corner_world()
+    leader, start = (26.0, 20.0), (19.7, 20.87)
+    d0 = math.dist(leader, start)
+    further = [0.0]
+
+    def watch(step: Step) -> None:
+        check_step(step, ControlParams().stop_distance_m)
+        assert step.inputs.odom is not None
+        x, y, _ = step.inputs.odom
+        further[0] = max(further[0], math.dist(leader, (x / 1000.0, y / 1000.0)) - d0)
+
+    out = run_model(sc, seed=seed, past_m=3.0, seconds=90.0, on_step=watch)
+    assert out.passed_at_s is not None and out.collisions == 0 and out.min_clearance_m >= 0.1, out
+    assert further[0] < 0.3
+
+
+def test_an_escape_never_takes_the_robot_beyond_max_stray_m_of_where_it_took_over() -> None:
+    # Boundary following along a long wall on the right, the leader beyond it (its
+    # direction not open: the Bug's leave condition does not end the escape).
+    wall = ring(s6=600, s7=550, **{f"s{i}": 1500 for i in range(8, 16)})
+    st = AvoidState(mode=AvoidMode.WALL, side=1, escape_t=0.0, hit_at=(0.0, 0.0), had_wall=True)
+    x = 5800.0
+    st, cmd = avoid_step(st, sense(10.0, wall, -60.0, (x, 0.0, 0.0)), P, ACT)
+    assert st.mode is AvoidMode.WALL and cmd.vel_mm_s > 0  # within the bound: on it goes
+    st, cmd = avoid_step(st, sense(10.1, wall, -60.0, (P.max_stray_m * 1000.0 + 10.0, 0.0, 0.0)), P, ACT)
+    assert st.mode is AvoidMode.BLOCKED and (cmd.vel_mm_s, cmd.rvel_deg_s, cmd.reason) == (0, 0, "blocked")
+
+
+modes_st = st.sampled_from([m for m in AvoidMode if m not in (AvoidMode.FOLLOW, AvoidMode.BLOCKED)])
+
+
+@given(mode=modes_st, side=st.sampled_from([-1, 1]), bearing=st.floats(-180.0, 180.0),
+       heading=st.floats(-180.0, 180.0), angle=st.floats(-math.pi, math.pi),
+       beyond_m=st.floats(0.001, 50.0), ranges=st.lists(st.integers(100, 5000), min_size=16, max_size=16))
+def test_beyond_max_stray_m_an_escape_holds_whatever_it_sees(
+        mode: AvoidMode, side: int, bearing: float, heading: float, angle: float, beyond_m: float,
+        ranges: list[int]) -> None:
+    hit = (1000.0, -2000.0)
+    r_mm = (P.max_stray_m + beyond_m) * 1000.0
+    pose = (hit[0] + r_mm * math.cos(angle), hit[1] + r_mm * math.sin(angle), heading)
+    st0 = AvoidState(mode=mode, side=side, escape_t=0.0, hit_at=hit, last_pose=pose,
+                     backoff_from=pose[:2], lane_ref=pose, corner_heading_deg=heading)
+    new, cmd = avoid_step(st0, sense(1.0, list(ranges), bearing, pose), P, ACT)
+    assert new.mode is AvoidMode.BLOCKED
+    assert (cmd.follow, cmd.vel_mm_s, cmd.rvel_deg_s, cmd.reason) == (False, 0, 0, "blocked")
+
+
 def test_the_state_machine_is_pure() -> None:
     s = sense(3.0, ring(s3=320, s4=320), -2.0)
     a = avoid_step(AvoidState(anchor=(0.0, 0.0), anchor_t=-5.0), s, P, ACT)

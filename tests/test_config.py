@@ -128,10 +128,11 @@ def test_avoidance_keys_reach_the_escape_and_default_to_its_own() -> None:
     assert c.avoid == AvoidParams() and c.actuator == Actuator()
     alone = {"rear_link": "ignore"}
     tuned = control_params(parse_settings({"control": alone, "avoidance": {
-        "max_escape_s": 120, "max_escape_m": 15.5, "max_turn_deg": 720,
+        "max_escape_s": 120, "max_escape_m": 15.5, "max_turn_deg": 720, "max_stray_m": 4.5,
         "turn_rate_deg_s": 25, "min_turn_deg_s": 12}}))
     a = tuned.avoid
     assert (a.max_escape_s, a.max_escape_m, a.max_turn_deg, a.turn_rate_deg_s) == (120, 15.5, 720, 25)
+    assert a.max_stray_m == 4.5
     assert tuned.actuator.min_turn_deg_s == 12 and tuned.actuator.turn(3.0) == 12
     with pytest.raises(ConfigError, match=r"avoidance\.turn_rate_deg_s.*min_turn_deg_s"):
         parse_settings({"control": alone, "avoidance": {"turn_rate_deg_s": 6}})
