@@ -27,6 +27,7 @@ import structlog
 #: worker while the other idles. A stale list costs only wall time; every file not named
 #: runs after these, in their usual order.
 LONGEST_FILES_FIRST = (
+    "test_types.py",                # ~20 s cold (a fresh checkout), CPU: mypy, strict
     "test_api_flood.py",            # ~25 s, waits: a 16 s flood
     "test_sweep.py",                # ~25 s, Dask clusters and child processes
     "test_foxglove_live.py",        # ~25 s, a 12 s stalled-client window, a virtual-time flood
