@@ -28,9 +28,9 @@ import structlog
 #: runs after these, in their usual order.
 LONGEST_FILES_FIRST = (
     "test_types.py",                # ~20 s cold (a fresh checkout), CPU: mypy, strict
-    "test_api_flood.py",            # ~25 s, waits: a 16 s flood
+    "test_api_flood.py",            # ~22 s, waits: a 13 s flood
     "test_sweep.py",                # ~25 s, Dask clusters and child processes
-    "test_foxglove_live.py",        # ~25 s, a 12 s stalled-client window, a virtual-time flood
+    "test_foxglove_live.py",        # ~19 s, a 6 s stalled-client window, a virtual-time flood
     "test_offline_install.py",      # ~20 s, pip against the index
     "test_live_page_ops.py",        # ~18 s, waits: the page's stale timers
     "test_sim_convoy_corridor.py",  # ~16 s, CPU: four paper scenarios
