@@ -16,6 +16,9 @@ Point = tuple[float, float]
 Polygon = tuple[Point, ...]
 
 _EPS = 1e-12
+#: Slack of a bounding-box pre-test: far above the exact tests' 1e-12 tolerance and their
+#: rounding, far below anything a world is drawn to (so it never decides a result).
+_BOX_SLACK = 1e-9
 
 
 @dataclass(frozen=True, slots=True)
@@ -141,9 +144,17 @@ def segments_intersect(p1: Point, p2: Point, q1: Point, q2: Point) -> bool:
 
 def crossings(p: Point, q: Point, segments: Iterable[Segment]) -> list[Segment]:
     """The walls the straight path p -> q crosses (each counted once)."""
+    # Walls whose bounding box misses the path's (by more than any rounding of the exact
+    # test, which touches within 1e-12) cannot share a point with it: skipped unexamined.
+    x0, x1 = min(p[0], q[0]) - _BOX_SLACK, max(p[0], q[0]) + _BOX_SLACK
+    y0, y1 = min(p[1], q[1]) - _BOX_SLACK, max(p[1], q[1]) + _BOX_SLACK
     out = []
     for s in segments:
-        if segments_intersect(p, q, (s.x1, s.y1), (s.x2, s.y2)):
+        sx1, sy1, sx2, sy2 = s.x1, s.y1, s.x2, s.y2
+        if ((sx1 < x0 and sx2 < x0) or (sx1 > x1 and sx2 > x1)
+                or (sy1 < y0 and sy2 < y0) or (sy1 > y1 and sy2 > y1)):
+            continue
+        if segments_intersect(p, q, (sx1, sy1), (sx2, sy2)):
             out.append(s)
     return out
 
