@@ -1,0 +1,187 @@
+"""The simulator's shortcuts give exactly, bit for bit, what they stand in for.
+
+The world computes some things faster than the plain definition (relayd/sim/geometry.py's
+written-out cone and bounding-box pre-test, the radio's memo, sonar ranges computed when
+read): a run must not change by a single bit for it (bench/simspeed.py compares whole
+runs against another checkout). Each shortcut is checked here against its definition.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from relayd import vtime
+from relayd.sim.geometry import (
+    Segment,
+    _clip_to_half_plane,
+    cone_range,
+    crossings,
+    point_segment_distance,
+    ray_circle_distance,
+    segments_intersect,
+)
+from relayd.sim.radio import MEMO_MAX_ENTRIES, Radio, RadioParams, ShadowField
+from relayd.sim.scenario import load_scenario
+from relayd.sim.world import World
+from relayd.sim.zones import RadioZone, path_environment
+
+
+def cone_range_by_definition(ox: float, oy: float, heading_deg: float, half_width_deg: float,
+                             max_range_m: float, segments: list[Segment],
+                             circles: list[tuple[float, float, float]]) -> float | None:
+    """cone_range as the helpers define it (the code before it was written out)."""
+    h, w = math.radians(heading_deg), math.radians(half_width_deg)
+    nlx, nly = math.sin(h + w), -math.cos(h + w)
+    nrx, nry = -math.sin(h - w), math.cos(h - w)
+    best, hit = max_range_m, False
+    for s in segments:
+        part = _clip_to_half_plane((s.x1 - ox, s.y1 - oy), (s.x2 - ox, s.y2 - oy), nlx, nly)
+        if part is not None:
+            part = _clip_to_half_plane(part[0], part[1], nrx, nry)
+        if part is None:
+            continue
+        d = point_segment_distance((0.0, 0.0), part[0], part[1])
+        if d <= best:
+            best, hit = d, True
+    cos_w = math.cos(w)
+    dx, dy = math.cos(h), math.sin(h)
+    for cx, cy, r in circles:
+        rx, ry = cx - ox, cy - oy
+        dist = math.hypot(rx, ry)
+        if dist <= r:
+            return 0.0
+        candidates = [dist - r] if (rx * dx + ry * dy) >= dist * cos_w else []
+        for edge in (h + w, h - w):
+            t = ray_circle_distance(0.0, 0.0, math.cos(edge), math.sin(edge), rx, ry, r)
+            if t is not None:
+                candidates.append(t)
+        for d in candidates:
+            if d <= best:
+                best, hit = d, True
+    return best if hit else None
+
+
+# Coordinates on a coarse grid as often as not: shared end points, collinear and
+# axis-parallel walls, zero-length pieces, the cases where rounding could decide.
+coord = st.one_of(st.integers(-6, 6).map(float), st.floats(-6.0, 6.0, allow_nan=False))
+segment = st.builds(Segment, coord, coord, coord, coord)
+
+
+@settings(max_examples=150, deadline=None)
+@given(ox=coord, oy=coord, heading=st.floats(-360.0, 360.0), half=st.sampled_from([15.0, 7.5, 30.0, 0.0]),
+       segs=st.lists(segment, max_size=8),
+       circles=st.lists(st.tuples(coord, coord, st.floats(0.05, 1.0)), max_size=2))
+def test_cone_range_is_its_definition_bit_for_bit(ox: float, oy: float, heading: float, half: float,
+                                                  segs: list[Segment],
+                                                  circles: list[tuple[float, float, float]]) -> None:
+    got = cone_range(ox, oy, heading, half, 5.0, segs, circles)
+    want = cone_range_by_definition(ox, oy, heading, half, 5.0, segs, circles)
+    assert got == want
+
+
+@settings(max_examples=150, deadline=None)
+@given(p=st.tuples(coord, coord), q=st.tuples(coord, coord), segs=st.lists(segment, max_size=10))
+def test_crossings_pretest_skips_only_walls_that_miss(p: tuple[float, float], q: tuple[float, float],
+                                                      segs: list[Segment]) -> None:
+    want = [s for s in segs if segments_intersect(p, q, (s.x1, s.y1), (s.x2, s.y2))]
+    assert crossings(p, q, segs) == want
+
+
+def test_crossings_counts_a_wall_the_path_only_touches() -> None:
+    wall = Segment(2.0, 0.0, 2.0, 3.0)
+    assert crossings((0.0, 0.0), (2.0, 0.0), [wall]) == [wall]          # ends on its end
+    assert crossings((0.0, -1.0), (4.0, -1.0), [wall]) == []            # passes below it
+
+
+def mean_power_by_definition(radio: Radio, a: tuple[float, float], b: tuple[float, float],
+                             gain_db: float) -> float:
+    """P = L0 - 10 n log10(d) - walls + shadowing + gain, from the primitives, in that order."""
+    p = radio.params
+    env = path_environment(a, b, p.zones, l0_dbm=p.l0_dbm, exponent=p.exponent,
+                           shadow_sigma_db=p.shadow_sigma_db, rician_k_db=p.rician_k_db)
+    d = max(p.min_distance_m, math.hypot(b[0] - a[0], b[1] - a[1]))
+    loss = sum(p.wall_loss_db[w.material] for w in crossings(a, b, radio.walls))
+    field = ShadowField(4, p.shadow_corr_m)
+    shadow = env.shadow_sigma_db * ((field.value(*a) + field.value(*b)) / math.sqrt(2.0))
+    return env.l0_dbm - 10.0 * env.exponent * math.log10(d) - loss + shadow + gain_db
+
+
+def _budget(radio: Radio, a: tuple[float, float], b: tuple[float, float]) -> tuple[object, ...]:
+    return (radio.mean_power_dbm(a, b, 1.5), radio.wall_loss_db(a, b), radio.environment(a, b),
+            radio.shadowing_db(a, b), radio.rate_penalty_db(a, b))
+
+
+@pytest.mark.parametrize("zones", [(), (RadioZone("hall", ((0.0, -5.0), (6.0, -5.0), (6.0, 5.0), (0.0, 5.0)),
+                                                  exponent=3.5, multipath_db=4.0),)])
+def test_radio_memo_answers_what_a_fresh_radio_computes(zones: tuple[RadioZone, ...]) -> None:
+    walls = [Segment(3.0, -2.0, 3.0, 2.0, "brick"), Segment(5.0, -1.0, 6.0, 1.0, "light")]
+    door = Segment(1.0, -1.0, 1.0, 1.0, "concrete")
+    params = RadioParams(zones=zones)
+    memo = Radio(params, [*walls, door], seed=4)
+    memo.walls = tuple(walls)
+    rng = random.Random(9)
+    points = [(rng.uniform(-2, 8), rng.uniform(-3, 3)) for _ in range(12)]
+    for step in range(300):
+        if step == 150:
+            memo.walls = (*walls, door)  # a timed door shuts: every cached path is stale
+        a, b = rng.choice(points), rng.choice(points)
+        fresh = Radio(params, [*walls, door], seed=4)
+        fresh.walls = memo.walls
+        assert _budget(memo, a, b) == _budget(fresh, a, b), (step, a, b)
+        assert memo.mean_power_dbm(a, b, 1.5)[0] == mean_power_by_definition(memo, a, b, 1.5)
+
+
+def test_radio_memo_is_bounded() -> None:
+    radio = Radio(RadioParams(), [], seed=1)
+    for k in range(3 * MEMO_MAX_ENTRIES):
+        radio.mean_power_dbm((0.0, 0.0), (1.0 + k * 0.01, 0.0))
+    assert len(radio._paths) <= MEMO_MAX_ENTRIES
+    assert len(radio._shadow_at) <= MEMO_MAX_ENTRIES
+
+
+def _world(noise_mm: float = 0.0) -> World:
+    sc = load_scenario("person-in-corridor")
+    if noise_mm:
+        sc = sc.model_copy(update={"sonar": sc.sonar.model_copy(update={"noise_mm": noise_mm})})
+    return World(sc, seed=3)
+
+
+@settings(max_examples=50, deadline=None)
+@given(order=st.permutations(range(16)), dx=st.floats(-500.0, 500.0), th=st.floats(-180.0, 180.0))
+def test_sonar_ranges_read_in_any_order_are_the_whole_ring(order: list[int], dx: float, th: float) -> None:
+    world = _world()
+    r = world.relays[0]
+    x, y = r.x_m * 1000.0 + dx, r.y_m * 1000.0
+    ring = world.sonar_ranges(0, x, y, th)
+    lazy = {k: ring[k] for k in order[:8]}
+    full = world.sonar_mm(0, x, y, th)
+    assert all(full[k] == v for k, v in lazy.items())
+    assert list(ring) == full and len(ring) == 16 and ring[2:5] == full[2:5]
+
+
+def test_sonar_noise_draws_stay_in_sonar_order() -> None:
+    # With noise every range is drawn at once, in sonar order, whichever the robot reads.
+    a, b = _world(noise_mm=20.0), _world(noise_mm=20.0)
+    r = a.relays[0]
+    pose = (r.x_m * 1000.0, r.y_m * 1000.0, r.theta_deg)
+    for _ in range(5):
+        ring = a.sonar_ranges(0, *pose)
+        assert isinstance(ring, list)
+        assert ring == b.sonar_mm(0, *pose)
+
+
+def test_vtime_run_returns_the_result_and_raises_the_error() -> None:
+    async def ok() -> list[int]:
+        return list(range(5))
+
+    async def bad() -> None:
+        raise KeyError("x")
+
+    assert vtime.run(ok()) == [0, 1, 2, 3, 4]
+    with pytest.raises(KeyError):
+        vtime.run(bad())
