@@ -1,7 +1,7 @@
 """The simulator's shortcuts give exactly, bit for bit, what they stand in for.
 
 The world computes some things faster than the plain definition (relayd/sim/geometry.py's
-written-out cone and bounding-box pre-test, the radio's memo, sonar ranges computed when
+written-out cone and bounding-box pre-tests, the radio's memo, sonar ranges computed when
 read): a run must not change by a single bit for it (bench/simspeed.py compares whole
 runs against another checkout). Each shortcut is checked here against its definition.
 """
@@ -21,13 +21,17 @@ from relayd.sim.geometry import (
     _clip_to_half_plane,
     cone_range,
     crossings,
+    footprint,
     point_segment_distance,
+    polygon_hits_circle,
+    polygon_hits_segment,
+    polygons_overlap,
     ray_circle_distance,
     segments_intersect,
 )
 from relayd.sim.radio import MEMO_MAX_ENTRIES, Radio, RadioParams, ShadowField
 from relayd.sim.scenario import load_scenario
-from relayd.sim.world import World
+from relayd.sim.world import CONTACT_CLEAR_M, ROBOT_LENGTH_M, ROBOT_WIDTH_M, World
 from relayd.sim.zones import RadioZone, path_environment
 
 
@@ -185,3 +189,36 @@ def test_vtime_run_returns_the_result_and_raises_the_error() -> None:
     assert vtime.run(ok()) == [0, 1, 2, 3, 4]
     with pytest.raises(KeyError):
         vtime.run(bad())
+
+
+def collides_by_definition(world: World, i: int, poly: tuple[tuple[float, float], ...]) -> bool:
+    """World._collides without its bounding-box pre-test for the leader and the relays."""
+    xs, ys = [p[0] for p in poly], [p[1] for p in poly]
+    x0, x1, y0, y1 = min(xs), max(xs), min(ys), max(ys)
+    for s in world.obstacles:
+        if (max(s.x1, s.x2) < x0 or min(s.x1, s.x2) > x1
+                or max(s.y1, s.y2) < y0 or min(s.y1, s.y2) > y1):
+            continue
+        if polygon_hits_segment(poly, s):
+            return True
+    lp = world.leader_polygon()
+    if lp is not None:
+        if polygons_overlap(poly, lp):
+            return True
+    elif polygon_hits_circle(poly, world.leader.x_m, world.leader.y_m, world.leader_radius_m):
+        return True
+    return any(j != i and polygons_overlap(poly, other.polygon()) for j, other in enumerate(world.relays))
+
+
+@pytest.mark.parametrize("name", ["convoy", "corridor"])  # a robot leader, a person
+@settings(max_examples=150, deadline=None)
+@given(dx=st.floats(-1.5, 1.5), dy=st.floats(-1.5, 1.5), th=st.floats(-180.0, 180.0),
+       grow=st.sampled_from([0.0, 2 * CONTACT_CLEAR_M]), near=st.integers(0, 2))
+def test_collision_pretest_skips_only_bodies_that_cannot_touch(name: str, dx: float, dy: float, th: float,
+                                                               grow: float, near: int) -> None:
+    world = World(load_scenario(name).with_relays(2), seed=1)
+    world.relays[1].x_m, world.relays[1].y_m = world.relays[0].x_m - 0.9, world.relays[0].y_m + 0.1
+    cx, cy = world.node_pos(near)  # around the leader or either relay
+    poly = footprint(cx + dx, cy + dy, th, ROBOT_LENGTH_M + grow, ROBOT_WIDTH_M + grow)
+    for i in (0, 1):
+        assert world._collides(i, poly) == collides_by_definition(world, i, poly)

@@ -48,6 +48,10 @@ from relayd.sim.sonar import SonarReadings
 #: P3-AT body (docs/PROTOCOLS.md 1.11, from ARIA's p3at.p: RobotLength 626 mm, RobotWidth 505 mm).
 ROBOT_LENGTH_M = 0.626
 ROBOT_WIDTH_M = 0.505
+#: The P3-AT footprint's circumradius: no part of the body is farther from its centre.
+ROBOT_RADIUS_M = math.hypot(ROBOT_LENGTH_M, ROBOT_WIDTH_M) / 2.0
+#: Slack of the collision check's bounding-box pre-test (far above float rounding).
+BODY_SLACK_M = 1e-6
 #: How close to a doorway a robot holds a timed door open (see World._blocked).
 DOOR_CLEAR_M = 0.6
 #: A contact episode ends once the footprint is this far from everything again.
@@ -226,14 +230,24 @@ class World:
                 continue
             if polygon_hits_segment(poly, s):
                 return True
-        lp = self.leader_polygon()
-        if lp is not None:
-            if polygons_overlap(poly, lp):
+        # A body whose bounding disc's box misses this footprint's box cannot touch it:
+        # skipped before its footprint is even made (BODY_SLACK_M: far above rounding).
+        x0, x1, y0, y1 = x0 - BODY_SLACK_M, x1 + BODY_SLACK_M, y0 - BODY_SLACK_M, y1 + BODY_SLACK_M
+        lx, ly = self.leader.x_m, self.leader.y_m
+        lr = ROBOT_RADIUS_M if self.leader_kind == "robot" else self.leader_radius_m
+        if not (lx + lr < x0 or lx - lr > x1 or ly + lr < y0 or ly - lr > y1):
+            lp = self.leader_polygon()
+            if lp is not None:
+                if polygons_overlap(poly, lp):
+                    return True
+            elif polygon_hits_circle(poly, lx, ly, self.leader_radius_m):
                 return True
-        elif polygon_hits_circle(poly, self.leader.x_m, self.leader.y_m, self.leader_radius_m):
-            return True
         for j, other in enumerate(self.relays):
-            if j != i and polygons_overlap(poly, other.polygon()):
+            ox, oy = other.x_m, other.y_m
+            if (j == i or ox + ROBOT_RADIUS_M < x0 or ox - ROBOT_RADIUS_M > x1
+                    or oy + ROBOT_RADIUS_M < y0 or oy - ROBOT_RADIUS_M > y1):
+                continue
+            if polygons_overlap(poly, other.polygon()):
                 return True
         return False
 
