@@ -1,9 +1,10 @@
 """The simulator's shortcuts give exactly, bit for bit, what they stand in for.
 
-The world computes some things faster than the plain definition (relayd/sim/geometry.py's
-written-out cone and bounding-box pre-tests, the radio's memo, sonar ranges computed when
-read): a run must not change by a single bit for it (bench/simspeed.py compares whole
-runs against another checkout). Each shortcut is checked here against its definition.
+The world computes some things faster than their plain definition: relayd/sim/geometry.py's
+written-out cone and bounding-box pre-tests, the radio's memo, each zone's box worked out
+once, the collision check's pre-test, sonar ranges computed when read. A run must not
+change by a single bit for it (bench/simspeed.py compares whole runs against another
+checkout); each shortcut is checked here against its definition.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from relayd.sim.geometry import (
     cone_range,
     crossings,
     footprint,
+    point_in_polygon,
     point_segment_distance,
     polygon_hits_circle,
     polygon_hits_segment,
@@ -32,7 +34,7 @@ from relayd.sim.geometry import (
 from relayd.sim.radio import MEMO_MAX_ENTRIES, Radio, RadioParams, ShadowField
 from relayd.sim.scenario import load_scenario
 from relayd.sim.world import CONTACT_CLEAR_M, ROBOT_LENGTH_M, ROBOT_WIDTH_M, World
-from relayd.sim.zones import RadioZone, path_environment
+from relayd.sim.zones import PATH_SAMPLES, RadioZone, path_environment
 
 
 def cone_range_by_definition(ox: float, oy: float, heading_deg: float, half_width_deg: float,
@@ -222,3 +224,42 @@ def test_collision_pretest_skips_only_bodies_that_cannot_touch(name: str, dx: fl
     poly = footprint(cx + dx, cy + dy, th, ROBOT_LENGTH_M + grow, ROBOT_WIDTH_M + grow)
     for i in (0, 1):
         assert world._collides(i, poly) == collides_by_definition(world, i, poly)
+
+
+def path_environment_by_definition(a: tuple[float, float], b: tuple[float, float],
+                                   zones: tuple[RadioZone, ...]) -> tuple[float, ...]:
+    """zones.path_environment as first written: every zone's box worked out at each point."""
+    defaults = (-15.0, 3.0, 4.0, 6.0, 0.0)
+    sums = [0.0] * 5
+    for i in range(PATH_SAMPLES):
+        f = (i + 0.5) / PATH_SAMPLES
+        pt = (a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1]))
+        values = defaults
+        for z in zones:
+            xs, ys = [p[0] for p in z.polygon], [p[1] for p in z.polygon]
+            if min(xs) <= pt[0] <= max(xs) and min(ys) <= pt[1] <= max(ys) and point_in_polygon(pt, z.polygon):
+                values = (defaults[0] if z.l0_dbm is None else z.l0_dbm,
+                          defaults[1] if z.exponent is None else z.exponent,
+                          defaults[2] if z.shadow_sigma_db is None else z.shadow_sigma_db,
+                          defaults[3] if z.rician_k_db is None else z.rician_k_db, z.multipath_db)
+                break
+        for k, v in enumerate(values):
+            sums[k] += v
+    return tuple(s / float(PATH_SAMPLES) for s in sums)
+
+
+maybe_db = st.one_of(st.none(), st.floats(-40.0, 10.0))
+zone = st.builds(RadioZone, st.just("z"), st.lists(st.tuples(coord, coord), min_size=3, max_size=5).map(tuple),
+                 maybe_db, st.one_of(st.none(), st.floats(1.5, 5.0)), maybe_db, maybe_db, st.floats(0.0, 8.0))
+
+
+@settings(max_examples=150, deadline=None)
+@given(a=st.tuples(coord, coord), b=st.tuples(coord, coord), zones=st.lists(zone, max_size=3).map(tuple))
+def test_path_environment_is_its_definition_bit_for_bit(a: tuple[float, float], b: tuple[float, float],
+                                                        zones: tuple[RadioZone, ...]) -> None:
+    env = path_environment(a, b, zones, l0_dbm=-15.0, exponent=3.0, shadow_sigma_db=4.0, rician_k_db=6.0)
+    got = (env.l0_dbm, env.exponent, env.shadow_sigma_db, env.rician_k_db, env.multipath_db)
+    if not zones:
+        assert got == (-15.0, 3.0, 4.0, 6.0, 0.0)
+    else:
+        assert got == path_environment_by_definition(a, b, zones)
