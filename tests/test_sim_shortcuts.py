@@ -9,6 +9,7 @@ checkout); each shortcut is checked here against its definition.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import random
 
@@ -27,12 +28,14 @@ from relayd.sim.geometry import (
     point_segment_distance,
     polygon_hits_circle,
     polygon_hits_segment,
+    polygon_segments,
     polygons_overlap,
     ray_circle_distance,
     segments_intersect,
 )
 from relayd.sim.radio import MEMO_MAX_ENTRIES, Radio, RadioParams, ShadowField
 from relayd.sim.scenario import load_scenario
+from relayd.sim.sonar import SONAR_POSES
 from relayd.sim.world import CONTACT_CLEAR_M, ROBOT_LENGTH_M, ROBOT_WIDTH_M, World
 from relayd.sim.zones import PATH_SAMPLES, RadioZone, path_environment
 
@@ -263,3 +266,46 @@ def test_path_environment_is_its_definition_bit_for_bit(a: tuple[float, float], 
         assert got == (-15.0, 3.0, 4.0, 6.0, 0.0)
     else:
         assert got == path_environment_by_definition(a, b, zones)
+
+
+def sonar_by_definition(world: World, i: int, x_mm: float, y_mm: float, theta_deg: float) -> list[int]:
+    """World.sonar_mm as first written: every range at once, the leader always a candidate."""
+    cfg = world.scenario.sonar
+    x, y = x_mm / 1000.0, y_mm / 1000.0
+    reach = cfg.max_range_m + 0.5
+    segs = [s for s in world.obstacles
+            if not (max(s.x1, s.x2) < x - reach or min(s.x1, s.x2) > x + reach
+                    or max(s.y1, s.y2) < y - reach or min(s.y1, s.y2) > y + reach)]
+    circles: list[tuple[float, float, float]] = []
+    lp = world.leader_polygon()
+    if lp is not None:
+        segs.extend(polygon_segments(lp))
+    else:
+        circles.append((world.leader.x_m, world.leader.y_m, world.leader_radius_m))
+    for j, other in enumerate(world.relays):
+        if j != i and math.hypot(other.x_m - x, other.y_m - y) < reach + 1.0:
+            segs.extend(polygon_segments(other.polygon()))
+    c, s = math.cos(math.radians(theta_deg)), math.sin(math.radians(theta_deg))
+    out = []
+    for sx, sy, sh in SONAR_POSES:
+        best = cone_range(x + (c * sx - s * sy) / 1000.0, y + (s * sx + c * sy) / 1000.0, theta_deg + sh,
+                          cfg.beam_deg / 2.0, cfg.max_range_m, segs, circles)
+        max_mm = round(cfg.max_range_m * 1000)
+        out.append(max_mm if best is None else
+                   round(min(max_mm, max(round(cfg.min_range_m * 1000), best * 1000.0))))
+    return out
+
+
+@pytest.mark.parametrize("name", ["convoy", "corridor"])  # a robot leader, a person
+@settings(max_examples=100, deadline=None)
+@given(dist=st.floats(0.3, 9.0), bearing=st.floats(-180.0, 180.0), th=st.floats(-180.0, 180.0),
+       lead_th=st.floats(-180.0, 180.0))
+def test_sonar_is_its_definition_with_the_leader_near_or_far(name: str, dist: float, bearing: float,
+                                                             th: float, lead_th: float) -> None:
+    world = World(load_scenario(name).with_relays(1), seed=1)
+    r = world.relays[0]
+    b = math.radians(bearing)
+    world.leader = dataclasses.replace(world.leader, x_m=r.x_m + dist * math.cos(b),
+                                       y_m=r.y_m + dist * math.sin(b), heading_deg=lead_th)
+    pose = (r.x_m * 1000.0, r.y_m * 1000.0, th)
+    assert world.sonar_mm(0, *pose) == sonar_by_definition(world, 0, *pose)

@@ -46,11 +46,17 @@ class SonarReadings(Sequence[int]):
                 if not (max(s.x1, s.x2) < x - reach or min(s.x1, s.x2) > x + reach
                         or max(s.y1, s.y2) < y - reach or min(s.y1, s.y2) > y + reach)]
         circles: list[tuple[float, float, float]] = []
-        lp = world.leader_polygon()
-        if lp is not None:
-            segs.extend(polygon_segments(lp))
-        else:
-            circles.append((world.leader.x_m, world.leader.y_m, world.leader_radius_m))
+        # Bodies (the leader, the other relays) count only when near: a centre `reach` + 1 m
+        # away leaves even a robot's far corner (0.4 m) beyond every transducer's range
+        # (each within 0.25 m of this robot's centre), so no cone could report it.
+        lx, ly = world.leader.x_m, world.leader.y_m
+        person = world.leader_kind != "robot"
+        if math.hypot(lx - x, ly - y) < reach + 1.0 + (world.leader_radius_m if person else 0.0):
+            lp = world.leader_polygon()
+            if lp is not None:
+                segs.extend(polygon_segments(lp))
+            else:
+                circles.append((lx, ly, world.leader_radius_m))
         for j, other in enumerate(world.relays):
             if j != i and math.hypot(other.x_m - x, other.y_m - y) < reach + 1.0:
                 segs.extend(polygon_segments(other.polygon()))
