@@ -129,6 +129,8 @@ class TrackingModel:
         self.track: Track | None = None
         self.last_fit: LobeFit | None = None
         self._beamwidths: deque[float] = deque(maxlen=max(1, params.beamwidth_memory))
+        #: ... and of every fit, one-sided ones too (the window's fallback only).
+        self._any_beamwidths: deque[float] = deque(maxlen=max(1, params.beamwidth_memory))
         #: The residual noise (dB) of recent fits: a fit whose few residuals happen to be
         #: small is not trusted beyond what the channel's noise allows.
         self._noise: deque[float] = deque(maxlen=max(1, params.beamwidth_memory))
@@ -147,6 +149,8 @@ class TrackingModel:
         # Only a lobe seen well on both sides says how wide it is.
         lo, hi = min(angles), max(angles)
         half = fit.beamwidth_deg / 2.0
+        if 5.0 <= fit.beamwidth_deg <= 180.0:
+            self._any_beamwidths.append(fit.beamwidth_deg)
         if (not fit.extrapolated and fit.bearing_deg - half >= lo and fit.bearing_deg + half <= hi
                 and fit.sd_deg <= self.params.tracker.confident_sd_deg and 5.0 <= fit.beamwidth_deg <= 180.0):
             self._beamwidths.append(fit.beamwidth_deg)
@@ -214,7 +218,13 @@ class TrackingModel:
         """Update the filter with the pooled fit where the scans may be pooled, else with this scan's."""
         tp = self.params.tracker
         fit = scan.fit
-        pooled = self._pool.fit(self.track, scan, self.params.lobe, self.beamwidth_deg)
+        pooled = None
+        surprise = self.track is not None and tracker.surprising(self.track, scan.t, scan.heading_deg,
+                                                                 fit.bearing_deg, fit.sd_deg, tp)
+        if not surprise:
+            # A scan the quiet filter did not expect may be a leader starting to move:
+            # fitted together with the scans of it standing, the start would be averaged away.
+            pooled = self._pool.fit(self.track, scan, self.params.lobe, self.beamwidth_deg)
         if pooled is not None:
             fit, base = pooled
             self.last_fit = fit
@@ -261,6 +271,11 @@ class TrackingModel:
         if not tracker.is_confident(now, p.tracker):
             return full
         bw = self.beamwidth_deg
+        if bw is None and self._any_beamwidths:
+            # A leader standing where the servo limit cuts its lobe never shows both sides:
+            # the one-sided fits' widths (less sure, hence the median) size the window
+            # rather than the full range's slow sweep.
+            bw = _median(self._any_beamwidths)
         if bw is None:
             return None
         wp = p.adaptive

@@ -162,6 +162,16 @@ def update(track: Track, t: float, heading_deg: float, bearing_deg: float, sd_de
                    misses=0, rejects=0, updates=prior.updates + 1), True
 
 
+def surprising(track: Track, t: float, heading_deg: float, bearing_deg: float, sd_deg: float,
+               params: TrackerParams) -> bool:
+    """Whether this measurement is beyond `manoeuvre_sigma` of the quiet prediction."""
+    if is_lost(track, params):
+        return False
+    prior = predict(track, t, heading_deg, params)
+    innovation = _wrap(bearing_deg - prior.bearing_deg)
+    return innovation * innovation > params.manoeuvre_sigma ** 2 * (prior.p_bb + max(sd_deg, params.min_meas_sd_deg) ** 2)
+
+
 def miss(track: Track, t: float, heading_deg: float, params: TrackerParams) -> Track:
     """A scan that showed no usable lobe: time passes, nothing is learnt."""
     prior = predict(track, t, heading_deg, params)
