@@ -25,7 +25,9 @@ Trust:
 - Gate: a measurement whose innovation is more than `gate_sigma` standard deviations
   off is rejected (a reflection, a fading dip on the true lobe); `reacquire_after`
   rejections in a row mean the leader really is elsewhere, and the filter restarts on
-  the newest measurement.
+  the newest measurement. 5 sigma, not 4: a filter lagging a leader that just sped up
+  sees it 4-5 sigma off, and rejecting those scans (which also forgets the rate) lost
+  crossing leaders (docs/CONTROL.md section 10.3).
 - Lost: after `lost_after_misses` scans in a row with no usable lobe, or once the
   bearing's standard deviation exceeds `lost_sd_deg` (no update for too long: the
   variance grows with time), the track is lost. A lost track gives no bearing; the
@@ -58,7 +60,7 @@ class TrackerParams:
     init_rate_sd_deg_s: float = 0.5
     #: A measurement is never trusted beyond this (deg): model mismatch, quantisation.
     min_meas_sd_deg: float = 1.0
-    gate_sigma: float = 4.0
+    gate_sigma: float = 5.0
     reacquire_after: int = 2
     lost_after_misses: int = 3
     lost_sd_deg: float = 30.0
@@ -160,16 +162,6 @@ def update(track: Track, t: float, heading_deg: float, bearing_deg: float, sd_de
     p_ww = prior.p_ww - k_w * prior.p_bw
     return replace(prior, bearing_deg=b, rate_deg_s=w, p_bb=p_bb, p_bw=p_bw, p_ww=max(p_ww, 1e-9),
                    misses=0, rejects=0, updates=prior.updates + 1), True
-
-
-def surprising(track: Track, t: float, heading_deg: float, bearing_deg: float, sd_deg: float,
-               params: TrackerParams) -> bool:
-    """Whether this measurement is beyond `manoeuvre_sigma` of the quiet prediction."""
-    if is_lost(track, params):
-        return False
-    prior = predict(track, t, heading_deg, params)
-    innovation = _wrap(bearing_deg - prior.bearing_deg)
-    return innovation * innovation > params.manoeuvre_sigma ** 2 * (prior.p_bb + max(sd_deg, params.min_meas_sd_deg) ** 2)
 
 
 def miss(track: Track, t: float, heading_deg: float, params: TrackerParams) -> Track:

@@ -268,3 +268,18 @@ def test_the_steered_bearing_stays_where_a_scan_could_have_put_it() -> None:
     model.window(0.0, 0.0, Window(0.0, 180.0, 25))  # the brain plans with the servo's range
     now = model.bearing_now(3.0, 0.0)  # 80 + 3 s x 20 deg/s = 140 predicted
     assert now == pytest.approx(90.0 + model.params.lobe.max_extrapolation_deg)
+
+
+def test_a_leader_at_the_servo_limit_gets_a_narrow_window_without_a_two_sided_fit() -> None:
+    # At -80 deg the 90 deg lobe is cut by the -90 deg limit on every scan: no beamwidth is
+    # ever learnt from a two-sided fit, and the window used to stay the full range (2.45 s
+    # a sweep: a leader that starts walking from there moved 35 deg before the next fit).
+    r = BrainRig(scan={"estimator": "lobe", "window": "adaptive"}, leader=still(*leader_at(-80.0)))
+    r.start()
+    r.run_scans(6)
+    model = r.brain._model
+    assert isinstance(model, TrackingModel) and model.beamwidth_deg is None
+    last = r.results[-1][1].record
+    assert len(last.angles_deg) < 25 and min(last.angles_deg) == pytest.approx(-90.0)
+    assert abs(r.results[-1][1].estimate.bearing_deg + 80.0) <= 5.0  # 8.9 deg with the full-range sweeps
+
