@@ -283,3 +283,40 @@ def test_a_leader_at_the_servo_limit_gets_a_narrow_window_without_a_two_sided_fi
     assert len(last.angles_deg) < 25 and min(last.angles_deg) == pytest.approx(-90.0)
     assert abs(r.results[-1][1].estimate.bearing_deg + 80.0) <= 5.0  # 8.9 deg with the full-range sweeps
 
+
+
+@settings(max_examples=300, deadline=None)
+@given(step=st.floats(1.0, 40.0), slew=st.floats(30.0, 600.0), settle=st.floats(0.0, 0.2), hz=st.floats(2.0, 100.0))
+def test_a_clocked_step_never_sweeps_slower_and_stays_near_the_step_asked(step, slew, settle, hz) -> None:
+    from relayd.leader import WindowParams, clocked_step_deg
+
+    wp = WindowParams(servo_deg_s=slew, settle_s=settle, sample_period_s=1.0 / hz)
+
+    def speed(s: float) -> float:  # the scanner's step mode: travel + settle, then the next reading
+        return s / (max(1, math.ceil((s / slew + settle) * hz - 1e-9)) / hz)
+
+    got = clocked_step_deg(step, wp)
+    assert wp.min_fraction * step - 1e-9 <= got <= wp.max_stretch * step + 1e-9
+    assert speed(got) >= speed(step) - 1e-9
+    assert clocked_step_deg(step, WindowParams()) == step  # timing unknown: as planned
+
+
+def test_relayds_default_clock_sweeps_9_deg_steps_and_continuous_mode_is_left_alone() -> None:
+    from relayd.leader import clocked_step_deg
+    from relayd.params import brain_params
+
+    wp = brain_params(Settings.model_validate({})).leader.adaptive
+    # 180 deg/s, 50 ms settle, 20 Hz: 7.5 and 11.25 deg steps take 2 and 3 readings
+    # (75 deg/s); 9 deg ones take 2 (90 deg/s).
+    assert clocked_step_deg(7.5, wp) == pytest.approx(9.0) and clocked_step_deg(11.25, wp) == pytest.approx(9.0)
+    continuous = brain_params(Settings.model_validate({"scan": {"mode": "continuous"}})).leader.adaptive
+    assert continuous.sample_period_s is None and clocked_step_deg(7.5, continuous) == 7.5
+
+
+def test_the_adaptive_sweep_runs_on_the_scanners_clock() -> None:
+    r = rig("lobe", "adaptive", 20.0)
+    r.run_scans(6)
+    last = r.results[-1][1].record
+    steps = sorted(last.angles_deg)
+    assert steps[1] - steps[0] == pytest.approx(9.0)
+    assert last.period_s is not None and last.period_s / len(last.angles_deg) <= 0.11  # 2 readings a sample
