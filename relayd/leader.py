@@ -78,6 +78,8 @@ class LeaderParams:
     #: Two-sided fits the beamwidth is learnt from (median of the last ones).
     beamwidth_memory: int = 9
     pool: PoolParams = field(default_factory=PoolParams)
+    #: Fit a moving leader's scan in its own frame (`TrackingModel._leader_frame`).
+    compensate_motion: bool = True
 
     def __post_init__(self) -> None:
         if self.estimator not in ESTIMATORS:
@@ -174,25 +176,29 @@ class TrackingModel:
                   sample_t: Sequence[float]) -> ScanEstimate:
         p = self.params
         values = est.nrssi_dbm
-        fit = fit_main_lobe(est.angles_deg, values, p.lobe, beamwidth_prior_deg=self.beamwidth_deg)
+        angles, t_ref = self._leader_frame(t, heading_deg, est.angles_deg, sample_t)
+        fit = fit_main_lobe(angles, values, p.lobe, beamwidth_prior_deg=self.beamwidth_deg)
         if fit is None and est.situation == 2:
             # The PRSSI penalty carved up the lobe itself: the "obstacle" is the leader, or
             # right beside it (a relay close behind its leader robot). The raw scan still
             # says where the leader is; losing the track over it would stop the relay.
             values = est.rssi_dbm
-            fit = fit_main_lobe(est.angles_deg, values, p.lobe, beamwidth_prior_deg=self.beamwidth_deg)
+            fit = fit_main_lobe(angles, values, p.lobe, beamwidth_prior_deg=self.beamwidth_deg)
         self.last_fit = fit
         if len(sample_t) >= 2:
             self._sweep_s = max(0.0, sample_t[-1] - sample_t[0])
         if fit is not None:
-            self._learn(fit, est.angles_deg)
-            # The beam crossed the leader when the sample nearest the fitted bearing was taken.
+            self._learn(fit, angles)
+            # The beam crossed the leader when the sample nearest the fitted bearing was taken
+            # (a moving leader's: the moment its samples were carried to).
             t_meas, centre = t, fit.bearing_deg
-            if len(sample_t) == len(est.angles_deg) and sample_t:
-                nearest = min(range(len(sample_t)), key=lambda i: abs(est.angles_deg[i] - centre))
+            if t_ref is not None:
+                t_meas = min(t_ref, t)
+            elif len(sample_t) == len(angles) and sample_t:
+                nearest = min(range(len(sample_t)), key=lambda i: abs(angles[i] - centre))
                 t_meas = min(sample_t[nearest], t)
             fit = self.last_fit = self._trusted(fit)
-            self._update(PooledScan(tuple(est.angles_deg), tuple(values), t_meas, heading_deg, self.track, fit))
+            self._update(PooledScan(angles, tuple(values), t_meas, heading_deg, self.track, fit))
         else:
             self._pool.clear()
             if self.track is not None:
@@ -203,6 +209,28 @@ class TrackingModel:
             bearing = fit.bearing_deg if fit is not None else est.bearing_deg
             return replace(est, bearing_deg=bearing, bearing_sd_deg=None)
         return replace(est, bearing_deg=self._seen(now.bearing_deg), bearing_sd_deg=now.sd_deg)
+
+    def _leader_frame(self, t: float, heading_deg: float, angles_deg: Sequence[float],
+                      sample_t: Sequence[float]) -> tuple[tuple[float, ...], float | None]:
+        """The scan's angles as seen from a leader that moves during the sweep, and the time
+        they refer to (None: as sampled).
+
+        At 14 deg/s a 1.5 s sweep sees the leader move 20 deg: the beam meets it sooner or
+        later than a still one, and the lobe looks wider or narrower than the antenna's,
+        which the beamwidth prior then pulls on. While the filter says the bearing moves,
+        each sample is carried by the filter's rate to the moment the beam is predicted to
+        cross the leader, and the fit's centre is the bearing at that moment.
+        """
+        angles = tuple(angles_deg)
+        now = self._now(t, heading_deg)
+        if (not self.params.compensate_motion or now is None or tracker.is_lost(now, self.params.tracker)
+                or abs(now.rate_deg_s) <= self.params.adaptive.moving_rate_deg_s
+                or len(sample_t) != len(angles) or not angles):
+            return angles, None
+        w = now.rate_deg_s
+        ref = min(range(len(angles)), key=lambda i: abs(angles[i] - (now.bearing_deg + w * (sample_t[i] - t))))
+        t_ref = sample_t[ref]
+        return tuple(a - w * (ti - t_ref) for a, ti in zip(angles, sample_t, strict=True)), t_ref
 
     def _seen(self, bearing_deg: float) -> float:
         """A prediction kept where a scan could have put it: the servo's range, plus the lobe

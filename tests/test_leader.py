@@ -320,3 +320,34 @@ def test_the_adaptive_sweep_runs_on_the_scanners_clock() -> None:
     steps = sorted(last.angles_deg)
     assert steps[1] - steps[0] == pytest.approx(9.0)
     assert last.period_s is not None and last.period_s / len(last.angles_deg) <= 0.11  # 2 readings a sample
+
+
+@pytest.mark.parametrize(("start", "ascending"), [(50.0, True), (70.0, True), (-20.0, False)])
+def test_a_leader_moving_during_the_sweep_is_fitted_in_its_own_frame(start: float, ascending: bool) -> None:
+    # 12 deg/s against a 1.2 s sweep: the beam meets the leader 14 deg before or after
+    # where it was, and the lobe looks 15 % wider or narrower than the antenna's. Where
+    # the window cuts the lobe, the curvature the beamwidth prior then asks for moves the
+    # centre; fitted in the leader's frame the lobe has the antenna's width again.
+    rate, pattern = 12.0, cos_n_pattern(60.0, 20.0)
+    angles = [-30.0 + 9.0 * i for i in range(13)]
+    if not ascending:
+        angles.reverse()
+    times = [10.0 + 0.1 * i for i in range(13)]
+
+    def truth(t: float) -> float:
+        return start + rate * (t - 10.0)
+
+    rssi = tuple(-50.0 + pattern(a - truth(ti)) for a, ti in zip(angles, times, strict=True))
+    still = tuple(-50.0 + pattern(a - 20.0) for a in angles)
+    errors = {}
+    for compensate in (True, False):
+        model = TrackingModel(LeaderParams(estimator="lobe", compensate_motion=compensate))
+        for k in range(6):  # the beamwidth, learnt from a still leader
+            model.scan_done(1.5 * k, 0.0, ScanEstimate(0.0, -50.0, 0, tuple(angles), still, still), [])
+        model.track = replace(tracker.start(9.9, 0.0, truth(9.9) + 2.0, 2.0, model.params.tracker),
+                              rate_deg_s=rate - 1.0)  # a filter that knows the rate roughly
+        model.scan_done(times[-1], 0.0, ScanEstimate(0.0, max(rssi), 0, tuple(angles), rssi, rssi), times)
+        assert model.last_fit is not None and model.track is not None
+        errors[compensate] = abs(model.last_fit.bearing_deg - truth(model.track.t))
+    assert errors[True] < 2.5
+    assert errors[True] < 0.6 * errors[False]
