@@ -21,7 +21,9 @@ runs the real `relayd.brain.Brain`:
    is printed with the measured sweep rate.
 4. The simulated convoy (outdoor, LOS) and corridor (indoor, brick corners: NLOS) with
    `relayd.sim.SimRunner` (real daemons, virtual time), several seeds: the share of
-   trace records in which each relay is within 5 m of its own leader.
+   trace records in which each relay is within 5 m of its own leader, under the paper's
+   stop policy and under two that ask for a following distance (bench/followshare.py).
+   Just this item: `python -m bench.tracking --sim-only [--seeds N] [--scenario NAME] [--quick]`.
 5. CPU per brain event (SIP steps and scan ends): the decision core's share of the
    control latency and of the steady CPU; then a real relayd on the fakes (bench/steady.py,
    bench/latency.py) with each estimator, one after the other: steady CPU and the SIP ->
@@ -30,11 +32,12 @@ runs the real `relayd.brain.Brain`:
 
 from __future__ import annotations
 
+import argparse
 import asyncio
 import math
+import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
 from bench.brainrig import BrainRig, cos_n_pattern, crossing, sim_yagi, still
@@ -127,64 +130,6 @@ def median(xs: list[float]) -> float:
     return s[n // 2] if n % 2 else 0.5 * (s[n // 2 - 1] + s[n // 2])
 
 
-#: Why a relay beyond 5 m of its leader was there, as its trace records say.
-HELD_REAR, HELD_NEAR, DRIVING = "rear_weak", "leader_near", "driving"
-
-
-@dataclass(frozen=True)
-class Share:
-    """One relay in one run: the share of time within 5 m, and what it was doing beyond."""
-
-    within: float
-    #: The same share over the time it was free to follow: not held by "rear_weak" (its
-    #: duty: it stands so the link behind it holds, wherever its leader goes).
-    within_free: float
-    #: Share of all time spent beyond 5 m, by the relay's reason then.
-    beyond: dict[str, float]
-
-
-def relay_shares(records: list[dict[str, Any]]) -> list[Share]:
-    """Per relay, its `Share` of one simulator run's trace records."""
-    out = []
-    for i in range(len(records[0]["relays"]) if records else 0):
-        rows = [r["relays"][i] for r in records]
-        free = [r for r in rows if r["reason"] != HELD_REAR]
-        beyond: dict[str, float] = {}
-        for r in rows:
-            if r["gap_m"] > 5.0:
-                beyond[r["reason"]] = beyond.get(r["reason"], 0.0) + 1.0 / len(rows)
-        out.append(Share(sum(r["gap_m"] <= 5.0 for r in rows) / len(rows),
-                         sum(r["gap_m"] <= 5.0 for r in free) / len(free) if free else math.nan, beyond))
-    return out
-
-
-async def _sim(scenario: str, cfg: tuple[str, str], seed: int, seconds: float | None) -> list[Share]:
-    from relayd.sim.runner import SimRunner
-    from relayd.sim.scenario import load_scenario
-
-    sc = load_scenario(scenario)
-    sc = sc.model_copy(update={"scan": {**sc.scan, **_scan(cfg)}})
-    result = await SimRunner(sc, speed=None, seed=seed, seconds=seconds).run()
-    return relay_shares(result.records)
-
-
-def sim_share(scenario: str, cfg: tuple[str, str], seeds: int, seconds: float | None = None) -> list[Share]:
-    """Per relay and seed, the share of time within 5 m of its own leader."""
-    from relayd import vtime
-    from relayd.logsetup import StdStream, setup_logging
-
-    setup_logging("error", "console", StdStream("stderr"))  # the daemons' info lines cost time
-    shares: list[Share] = []
-    for seed in range(1, seeds + 1):
-        shares += vtime.run(_sim(scenario, cfg, seed, seconds))
-    return shares
-
-
-def _mean(xs: list[float]) -> float:
-    xs = [x for x in xs if math.isfinite(x)]
-    return sum(xs) / len(xs) if xs else math.nan
-
-
 def event_cpu_us(cfg: tuple[str, str]) -> tuple[float, float]:
     """Mean CPU (us) the brain spends on a SIP step and on a scan end, over a 60 s crossing."""
     rig = BrainRig(scan=_scan(cfg), leader=crossing(3.0, 0.1, -3.0))
@@ -207,9 +152,23 @@ def event_cpu_us(cfg: tuple[str, str]) -> tuple[float, float]:
             1e6 * sum(times["ScanDone"]) / max(1, len(times["ScanDone"])))
 
 
+def sim_items(quick: bool, sim_seeds: int | None = None, scenarios: list[str] | None = None) -> list[Result]:
+    """Item 4 (bench/followshare.py): the share of time within 5 m, per scenario, policy and estimator."""
+    from bench.followshare import sim_rows
+
+    def progress(line: str) -> None:
+        print(line, file=sys.stderr, flush=True)
+
+    return sim_rows(CONFIGS, quick=quick, seeds=sim_seeds if sim_seeds is not None else (1 if quick else 10),
+                    scenarios=scenarios, progress=progress)
+
+
 def run(quick: bool = False, *, sim_seeds: int | None = None, noisy_seeds: int | None = None,
-        cross_seeds: int | None = None) -> BenchOutput:
+        cross_seeds: int | None = None, sim_only: bool = False, scenarios: list[str] | None = None) -> BenchOutput:
     out = BenchOutput(NAME)
+    if sim_only:
+        out.results += sim_items(quick, sim_seeds, scenarios)
+        return out
     step = 20.0 if quick else 5.0
     bearings = [-85.0 + step * i for i in range(int(170 / step) + 1)]
     # 1. static, noise-free
@@ -249,23 +208,8 @@ def run(quick: bool = False, *, sim_seeds: int | None = None, noisy_seeds: int |
             None if cfg[0] == "wca" else v >= 2.0 * speeds[CONFIGS[0]],
             f"{n_cross} seeds, worst {per_seed[0]:.2f} m/s; sweep rate {rate:.0f} deg/s; "
             f"theorem 1 bound theta_dot*d = {bound:.2f} m/s"))
-    # 4. simulated convoy (LOS) and corridor (NLOS)
-    n_sim = sim_seeds if sim_seeds is not None else (1 if quick else 10)
-    for scenario, target in (("convoy", 0.99), ("corridor", 0.95)):
-        for cfg in CONFIGS:
-            shares = sim_share(scenario, cfg, n_sim, seconds=20.0 if quick else None)
-            mean = _mean([x.within for x in shares])
-            worst = min((x.within for x in shares), default=math.nan)
-            free = _mean([x.within_free for x in shares])
-            reasons = sorted({k for x in shares for k in x.beyond})
-            beyond = ", ".join(f"{k} {100 * _mean([x.beyond.get(k, 0.0) for x in shares]):.1f} %" for k in reasons)
-            out.results.append(Result(
-                NAME, f"{scenario}: share of time within 5 m of its leader (mean over relays and seeds), {_label(cfg)}",
-                100.0 * mean, "%", f">= {100 * target:g} %", mean >= target,
-                f"{n_sim} seeds; worst relay-run {100 * worst:.1f} %; beyond 5 m: {beyond or 'never'}"))
-            out.results.append(Result(
-                NAME, f"{scenario}: the same while free to follow (not held by rear_weak), {_label(cfg)}",
-                100.0 * free, "%", "", None, "share of the time the relay was not standing for the link behind it"))
+    # 4. simulated convoy (LOS) and corridor (NLOS), under each stop policy
+    out.results += sim_items(quick, sim_seeds)
     # 5. CPU of the decision core, and of the whole daemon on the fakes
     for cfg in CONFIGS:
         sip_us, scan_us = event_cpu_us(cfg)
@@ -293,3 +237,25 @@ def daemon_figures(quick: bool) -> list[Result]:
                            percentile(first, 50), "ms", "", None,
                            f"p99 {percentile(first, 99):.1f} ms over {len(first)} SIPs"))
     return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`python -m bench.tracking [--sim-only] [--seeds N] [--quick]`: print the table."""
+    from bench.run import table
+
+    p = argparse.ArgumentParser(prog="python -m bench.tracking", description=__doc__.splitlines()[0])
+    p.add_argument("--quick", action="store_true", help="shorter runs (1 seed, 20 s of simulation)")
+    p.add_argument("--sim-only", action="store_true", help="item 4 alone: the share of time within 5 m")
+    p.add_argument("--seeds", type=int, default=None, help="simulator seeds per row (default 10; --quick 1)")
+    p.add_argument("--scenario", action="append", choices=("convoy", "corridor"),
+                   help="with --sim-only: this scenario only (repeatable; default both)")
+    args = p.parse_args(argv)
+    t0 = time.perf_counter()
+    out = run(args.quick, sim_seeds=args.seeds, sim_only=args.sim_only, scenarios=args.scenario)
+    print(table(out.results))
+    print(f"\n{time.perf_counter() - t0:.0f} s", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import inspect
 import os
 import subprocess
 import sys
@@ -22,7 +23,7 @@ import tempfile
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, NoReturn, Protocol
+from typing import TYPE_CHECKING, Any, NoReturn, Protocol
 
 import pytest
 
@@ -33,7 +34,7 @@ if TYPE_CHECKING:
     from relayd.sim.runner import SimResult, SimRunner
 
 __all__ = ["LoopClock", "ManualClock", "VirtualTimeLoop", "clock_for", "piped_into_head", "run_scenario",
-           "running", "until"]
+           "running", "until", "until_sync"]
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -69,19 +70,36 @@ class Runs(Protocol):
 
 
 async def until(pred: Callable[[], object], what: str = "the condition", timeout_s: float = 30.0,
-                poll_s: float = 0.005) -> float:
-    """Poll `pred` until it is truthy; return the monotonic time it became so.
+                poll_s: float = 0.005) -> Any:
+    """Poll `pred` until it returns something truthy, and return that.
 
-    Raises AssertionError naming `what` after `timeout_s` of loop time (wall time, or
-    virtual time in a `virtual_time` test).
+    `pred` may be a coroutine function (an HTTP probe, a request to a driver): each poll
+    awaits it. Raises AssertionError naming `what` after `timeout_s` of loop time (wall
+    time, or virtual time in a `virtual_time` test): the timeout only bounds a failure,
+    so make it generous. Probes that cost something (an HTTP request) pass a longer `poll_s`.
     """
     try:
         async with asyncio.timeout(timeout_s):
-            while not pred():
-                await asyncio.sleep(poll_s)
+            while True:
+                value = pred()
+                if inspect.isawaitable(value):
+                    value = await value
+                if value:
+                    return value
+                await asyncio.sleep(poll_s)  # the poll interval: this is the waiting helper
     except TimeoutError:
         raise AssertionError(f"timed out after {timeout_s} s waiting for {what}") from None
-    return time.monotonic()
+
+
+def until_sync(pred: Callable[[], object], what: str = "the condition", timeout_s: float = 30.0,
+               poll_s: float = 0.05) -> Any:
+    """`until` for synchronous tests (a child process, a file it writes): blocks the thread."""
+    deadline = time.monotonic() + timeout_s
+    while not (value := pred()):
+        if time.monotonic() >= deadline:
+            raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
+        time.sleep(poll_s)  # the poll interval: this is the waiting helper
+    return value
 
 
 @contextlib.asynccontextmanager

@@ -7,7 +7,7 @@ from typing import Any
 
 import pytest
 from aiohttp.test_utils import TestClient, TestServer
-from support import ManualClock
+from support import ManualClock, until
 
 from relayd.api import make_app
 from relayd.api.demo import DemoControls, populate
@@ -95,10 +95,7 @@ async def test_a_broken_snapshot_costs_a_sample_not_the_sampler() -> None:
     hist = History(flaky, clock, period_s=0.01)
     task = asyncio.create_task(hist.run())
     try:
-        for _ in range(500):
-            if hist.next_seq >= 3:
-                break
-            await asyncio.sleep(0.01)
+        await until(lambda: hist.next_seq >= 3, "three samples, one after the failure")
     finally:
         task.cancel()
     assert hist.next_seq >= 3 and calls["n"] >= 4
@@ -116,11 +113,12 @@ async def test_history_endpoint_samples_while_the_app_runs() -> None:
         first = doc["samples"]["seq"]
         assert first == [0]  # the sampler's first sample is taken at start-up
         clock.t += 1.0
-        for _ in range(300):  # wait for the next real 0.5 s tick
+
+        async def after_first() -> dict[str, Any] | None:
             doc = await (await client.get("/history", params={"after": "0"})).json()
-            if doc["samples"]["seq"]:
-                break
-            await asyncio.sleep(0.05)
+            return doc if doc["samples"]["seq"] else None
+
+        doc = await until(after_first, "the sampler's next real 0.5 s tick", poll_s=0.05)
         assert doc["samples"]["seq"][0] == 1
         bad = await client.get("/history", params={"after": "soon"})
         assert bad.status == 400

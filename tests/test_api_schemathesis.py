@@ -25,6 +25,7 @@ import pytest
 import schemathesis
 from hypothesis import HealthCheck, given, settings
 from schemathesis import GenerationMode
+from support import until
 
 from drivers.arcos.codec import Command
 from relayd.config_load import parse_settings
@@ -60,12 +61,14 @@ def served() -> Iterator[Served]:
                         env=rig.env)
         task = asyncio.create_task(daemon.run(), name="daemon")
         box["task"] = task
-        async with asyncio.timeout(READY_TIMEOUT_S):
-            while daemon.api_port is None or daemon.state.last_scan is None \
-                    or not daemon.state.health_now()["robot"].connected:
-                if task.done():
-                    task.result()
-                await asyncio.sleep(0.1)
+
+        def ready() -> bool:
+            if task.done():
+                task.result()  # a start-up failure, with its own error
+            return (daemon.api_port is not None and daemon.state.last_scan is not None
+                    and daemon.state.health_now()["robot"].connected)
+
+        await until(ready, "the daemon serving, scanned, the robot connected", READY_TIMEOUT_S, poll_s=0.1)
         return Served(f"http://127.0.0.1:{daemon.api_port}", rig.api_token, rig, daemon)
 
     async def stop() -> None:

@@ -5,21 +5,23 @@ rule on its own: idle and slow-header connections are closed at the deadline, bu
 (an event stream) are not; at the cap a new connection evicts the one idle longest, or
 waits in the backlog when none is idle; a descriptor inside the devices' reserve is
 refused; refusals and asyncio's accept errors are logged once, with a count.
+
+On virtual time (the guard's deadlines are loop time; the sockets are real and polled on
+every turn): a deadline is passed by letting the loop's clock run past it, which takes no
+wall time and cannot come late on a loaded machine.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import time
 from collections.abc import AsyncIterator
 from typing import Any
 
 import pytest
 import structlog
-from support import until
+from support import LoopClock, until
 
-from drivers.clock import Clock
 from relayd.api import make_app, start_api
 from relayd.api.guard import GuardedServer
 from relayd.api.server import install_accept_error_limit
@@ -27,6 +29,12 @@ from relayd.state import RelayState
 
 IDLE_S = 0.6
 EVICT_S = 0.2
+
+pytestmark = pytest.mark.virtual_time
+
+
+def now() -> float:
+    return asyncio.get_running_loop().time()
 
 
 class _Controls:
@@ -37,7 +45,7 @@ class _Controls:
 
 @contextlib.asynccontextmanager
 async def serving(guard: GuardedServer) -> AsyncIterator[int]:
-    app = make_app(RelayState(), _Controls(), clock=Clock(), token=None, sse_heartbeat_s=0.1)
+    app = make_app(RelayState(), _Controls(), clock=LoopClock(), token=None, sse_heartbeat_s=0.1)
     server, port = await start_api(app, "127.0.0.1", 0, guard=guard)
     try:
         yield port
@@ -60,10 +68,10 @@ async def get(port: int, path: str = "/status", timeout_s: float = 5.0) -> bytes
 
 async def closed_by_server(reader: asyncio.StreamReader, timeout_s: float) -> float:
     """Seconds until the server closed the connection (EOF or reset)."""
-    t0 = time.monotonic()
+    t0 = now()
     with contextlib.suppress(ConnectionError):
         assert await asyncio.wait_for(reader.read(), timeout_s) == b""
-    return time.monotonic() - t0
+    return now() - t0
 
 
 async def test_idle_and_slow_header_connections_are_closed_at_the_deadline() -> None:
@@ -92,8 +100,8 @@ async def test_an_event_stream_is_busy_and_stays_open() -> None:
     async with serving(guard) as port:
         reader, writer = await connect(port)
         writer.write(b"GET /events HTTP/1.1\r\nHost: relay\r\n\r\n")
-        t0 = time.monotonic()
-        while time.monotonic() - t0 < IDLE_S * 3:
+        t0 = now()
+        while now() - t0 < IDLE_S * 3:
             assert await asyncio.wait_for(reader.readline(), 5.0)  # heartbeats keep coming
         writer.close()
 
@@ -101,12 +109,15 @@ async def test_an_event_stream_is_busy_and_stays_open() -> None:
 async def test_at_the_cap_a_new_connection_evicts_the_one_idle_longest() -> None:
     guard = GuardedServer(max_connections=3, idle_timeout_s=30.0, evict_idle_s=EVICT_S)
     async with serving(guard) as port:
-        held = [await connect(port) for _ in range(3)]
-        await until(lambda: len(guard.conns) == 3, "three connections accepted")
-        await asyncio.sleep(EVICT_S * 1.5)
-        t0 = time.monotonic()
+        held = []
+        for n in range(1, 4):
+            held.append(await connect(port))
+            await until(lambda n=n: len(guard.conns) == n, f"connection {n} accepted")
+            await asyncio.sleep(0.01)  # virtual: each accepted at its own time, one is the oldest
+        await asyncio.sleep(EVICT_S * 1.5)  # virtual: past the eviction age
+        t0 = now()
         assert b"200 OK" in await get(port)
-        assert time.monotonic() - t0 < 2.0
+        assert now() - t0 < 2.0
         assert guard.counters["evicted"] >= 1
         assert await closed_by_server(held[0][0], 5.0) < 5.0  # the oldest went
         assert len(guard.conns) <= 3

@@ -9,12 +9,11 @@ import signal
 import subprocess
 import sys
 import threading
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from support import piped_into_head
+from support import piped_into_head, until_sync
 
 from drivers.arcos import ArcosRobot
 from drivers.arcos.codec import CLOSE, Command
@@ -103,10 +102,8 @@ def test_probe_piped_into_head_stops_quietly(fake_robot: ThreadedFake) -> None:
         assert noise not in err, err[:2000]
     # It left through the usual safe stop.
     assert fake_robot.fake is not None
-    deadline = time.monotonic() + 10
-    while fake_robot.fake.commands[-1][0] != CLOSE and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert fake_robot.fake.commands[-1][0] == CLOSE
+    fake = fake_robot.fake
+    until_sync(lambda: fake.commands[-1][0] == CLOSE, "CLOSE as the last command", 10.0)
     assert (Command.ENABLE, 1) not in fake_robot.fake.commands
 
 

@@ -77,7 +77,8 @@ async def _handshake_identity_sonar_and_pose(kind: str, clock: Clock) -> None:
             # is the fake's 2 s watchdog, which zeroes the target until the next refresh.
             await until(lambda: fake.target_vel_mm_s == 150 and fake.target_rvel_deg_s == 10,
                         "VEL 150 and RVEL 10 at the fake")
-            await asyncio.sleep(clock.to_real(4.0))
+            # Far enough along the arc (about 3 s of it) for both wheels to hold speed.
+            await until(lambda: math.hypot(*fake.odometry_mm_deg[:2]) >= 400, "400 mm along the arc")
             sip = robot.last_sip
             assert sip is not None and sip.moving and sip.motors_enabled
             assert sip.left_mm_s == pytest.approx(100, abs=8)
@@ -201,8 +202,10 @@ async def _reconnect_after_hang_up(kind: str, clock: Clock, tmp_path: Path) -> N
             fake.hang_up()
             await until(lambda: not robot.connected)
             assert robot.stale and robot.last_error is not None
-            await asyncio.sleep(clock.to_real(1.0))
-            assert not robot.connected  # nothing to connect to while hung up
+            # Nothing to connect to while hung up: three tries (0.1, 0.2, 0.4 s apart) fail.
+            tries = robot.backoff.attempts
+            await until(lambda: robot.backoff.attempts >= tries + 3, "three reconnect tries")
+            assert not robot.connected
             fake.reappear()
             await until(lambda: robot.connected and not robot.stale, timeout_s=5)
             assert robot.counters["reconnects"] == 1

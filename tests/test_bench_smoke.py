@@ -172,13 +172,20 @@ def test_tracking_bench_runs_and_the_lobe_estimator_beats_the_centroid_at_the_ed
     assert lobe < 2.0 < 5.0 < wca
     worst, sweep_deg_s = tracking.crossing_error(("lobe", "adaptive"), 0.2)
     assert math.isfinite(worst) and 10.0 < sweep_deg_s < 400.0
-    shares = tracking.sim_share("convoy", ("lobe", "adaptive"), 1, seconds=15.0)
-    assert len(shares) == 2 and all(0.0 <= s.within <= 1.0 for s in shares)
+
+
+def test_tracking_share_runs_the_simulator_under_a_follow_policy_with_a_relay_more() -> None:
+    from bench import followshare
+
+    sc = followshare.policy_scenario("corridor", followshare.CORRIDOR_PLUS_ONE, {"estimator": "lobe"})
+    assert sc.relays == 3 and sc.control["threshold_l_dbm"] > sc.control["threshold_b_dbm"]
+    shares = followshare.sim_share(sc, 1, seconds=15.0)
+    assert len(shares) == 3 and all(0.0 <= s.within <= 1.0 for s in shares)
     assert all(s.within + sum(s.beyond.values()) == pytest.approx(1.0) for s in shares)
 
 
 def test_tracking_share_counts_time_beyond_5_m_by_reason_and_while_free() -> None:
-    from bench import tracking
+    from bench import followshare as tracking
 
     def rec(gap: float, reason: str) -> dict[str, object]:
         return {"relays": [{"gap_m": gap, "reason": reason}]}
@@ -187,3 +194,4 @@ def test_tracking_share_counts_time_beyond_5_m_by_reason_and_while_free() -> Non
     assert share.within == pytest.approx(0.25)
     assert share.within_free == pytest.approx(0.5)  # 1 of the 2 records not held by rear_weak
     assert share.beyond == pytest.approx({"rear_weak": 0.5, "leader_near": 0.25})
+    assert share.held_rear == pytest.approx(0.5)

@@ -21,13 +21,12 @@ import shutil
 import signal
 import subprocess
 import sys
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 from prometheus_client.parser import text_string_to_metric_families
-from support import skip_or_fail
+from support import skip_or_fail, until_sync
 
 pytestmark = pytest.mark.netns
 
@@ -148,15 +147,17 @@ def _stop(proc: subprocess.Popen[bytes]) -> None:
 
 def _config_path(rig: subprocess.Popen[bytes], out: Path, timeout_s: float = 30.0) -> Path:
     """The config path `relayd fake rig` prints as its first stdout line."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
+
+    def config_or_exit() -> Path | bool | None:
         for line in out.read_text(errors="replace").splitlines():
             if line.endswith(".toml") and Path(line).is_file():
                 return Path(line)
-        if rig.poll() is not None:
-            break
-        time.sleep(0.05)
-    raise AssertionError(f"relayd fake rig wrote no config (exit {rig.poll()}):\n{out.read_text()}")
+        return rig.poll() is not None
+
+    found = until_sync(config_or_exit, "relayd fake rig's config path", timeout_s)
+    if not isinstance(found, Path):
+        raise AssertionError(f"relayd fake rig wrote no config (exit {rig.poll()}):\n{out.read_text()}")
+    return found
 
 
 def test_status_and_metrics_across_the_bridge(bridged: tuple[str, str], tmp_path: Path) -> None:

@@ -6,6 +6,7 @@ import asyncio
 from collections.abc import Sequence
 
 import pytest
+from support import until
 
 from relayd.bus import Bus
 
@@ -62,19 +63,22 @@ async def test_a_slow_subscriber_never_delays_the_control_path() -> None:
     got_fast: list[int] = []
     got_slow: list[int] = []
 
-    async def reader(sub: object, out: list[int], pause_s: float) -> None:
+    stuck = asyncio.Event()  # never set: the slow reader hangs after its first event
+
+    async def reader(sub: object, out: list[int], hang: bool) -> None:
         while True:
             out.append(await sub.get())  # type: ignore[attr-defined]
-            await asyncio.sleep(pause_s)
+            if hang:
+                await stuck.wait()
 
-    tasks = [asyncio.create_task(reader(fast, got_fast, 0)),
-             asyncio.create_task(reader(slow, got_slow, 10.0))]  # stuck for the whole test
+    tasks = [asyncio.create_task(reader(fast, got_fast, False)),
+             asyncio.create_task(reader(slow, got_slow, True))]
     try:
         for i in range(100):
             bus.publish(i)  # synchronous: returns without waiting for any reader
             assert controlled[-1] == i
             await asyncio.sleep(0)
-        await asyncio.sleep(0.01)
+        await until(lambda: len(got_fast) >= 100, "the fast reader to catch up")
         assert got_fast == list(range(100))
         assert slow.dropped > 0
         assert len(slow) <= 4

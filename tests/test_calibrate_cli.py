@@ -180,3 +180,24 @@ def test_synthetic_guided_drive_is_slow_through_the_first_metres() -> None:
     far = sum(1 for r in readings if 6.0 <= r.distance_m < 8.0)
     assert near == pytest.approx(3 * far, rel=0.1)
     assert readings[-1].distance_m == pytest.approx(12.0, abs=0.1)
+
+
+def test_the_leader_link_prints_the_median_gap_and_the_bound_on_it() -> None:
+    """threshold_l for a gap: the median level there (the snippet's choice) and, beside it, the
+    level that keeps the robot within the gap but with the outage probability."""
+    from relayd.calibrate.fit import PathLossFit
+    from relayd.calibrate.report import Wanted, config_snippet, text_report, thresholds
+
+    fit = PathLossFit.known(-20.0, 2.5, 4.0)
+    wanted = Wanted(link="leader", hop_m=5.0, outage=0.01)
+    thr = thresholds(fit, [], wanted)
+    assert thr.key == "threshold_l_dbm"
+    assert thr.by_length == pytest.approx(fit.rssi_at(5.0))
+    assert thr.bound == pytest.approx(fit.rssi_at(5.0) + 2.3263 * 4.0, abs=0.01)
+    assert thr.chosen == thr.by_length  # the snippet keeps the median gap, as before
+    text = text_report(fit, thr, wanted, "test")
+    assert "following gap 5 m:  threshold_l_dbm = -37.5 dBm" in text
+    assert "gap at most 5 m (outage 0.01):  threshold_l_dbm = -28.2 dBm  (a median gap of 2.1 m)" in text
+    assert "threshold_l_dbm = -37" in config_snippet(fit, thr, wanted, "test")
+    # The rear link has no bound: its hop-length threshold already carries the margin.
+    assert thresholds(fit, [], Wanted(link="rear", hop_m=5.0)).bound is None

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import random
+from statistics import NormalDist
 
 import pytest
 from hypothesis import given, settings
@@ -11,6 +12,7 @@ from hypothesis import strategies as st
 
 from relayd.calibrate.fit import (
     FitError,
+    PathLossFit,
     fit_path_loss,
     huber_line,
     required_rssi_dbm,
@@ -96,3 +98,27 @@ def test_thresholds() -> None:
     with pytest.raises(ValueError, match="more than"):
         required_rssi_dbm(40.0)
     assert fit.distance_at(fit.rssi_at(7.0)) == pytest.approx(7.0)
+
+
+@given(l0=st.floats(-40.0, 0.0), n=st.floats(1.0, 5.0), sigma=st.floats(0.0, 10.0),
+       hop=st.floats(0.5, 100.0), outage=st.floats(0.001, 0.4))
+@settings(max_examples=100, deadline=None)
+def test_a_known_model_gives_the_fits_thresholds(l0: float, n: float, sigma: float, hop: float,
+                                                 outage: float) -> None:
+    """A model given (a simulator's radio) answers the threshold questions with the same
+    arithmetic as a fitted one: the median at the hop raised by z sigma, and back again."""
+    fit = PathLossFit.known(l0, n, sigma)
+    assert fit.rssi_at(1.0) == pytest.approx(l0)
+    assert fit.distance_at(fit.rssi_at(hop)) == pytest.approx(hop, rel=1e-9)
+    thr = threshold_for_hop_length(fit, hop, outage)
+    assert thr == pytest.approx(l0 - 10.0 * n * math.log10(hop) + NormalDist().inv_cdf(1.0 - outage) * sigma)
+    # A stricter outage never lowers the threshold (the robot stops sooner, not later).
+    assert threshold_for_hop_length(fit, hop, outage / 2.0) >= thr
+    assert l0 in fit.l0_ci and n in fit.n_ci
+
+
+@pytest.mark.parametrize(("l0", "n", "sigma"), [(math.nan, 2.0, 3.0), (-20.0, 0.0, 3.0), (-20.0, 2.0, -1.0),
+                                                (-20.0, math.inf, 3.0)])
+def test_a_known_model_refuses_nonsense(l0: float, n: float, sigma: float) -> None:
+    with pytest.raises(ValueError):
+        PathLossFit.known(l0, n, sigma)

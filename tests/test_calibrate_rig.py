@@ -25,6 +25,7 @@ from pathlib import Path
 
 import pytest
 from support import running as run_daemon
+from support import until
 
 from relayd.calibrate.sources import NEAR_SPEED_SHARE, LiveOptions, sample_live
 from relayd.config_load import parse_settings
@@ -60,13 +61,14 @@ async def relay(tmp: Path) -> AsyncIterator[tuple[FakeRig, Daemon, str]]:
         w = asyncio.create_task(world())
         try:
             async with run_daemon(daemon) as task:
-                async with asyncio.timeout(30.0):
-                    while daemon.api_port is None:
-                        if task.done():
-                            task.result()
-                        await asyncio.sleep(0.05)
-                    while daemon.state.reason != "hold":
-                        await asyncio.sleep(0.05)
+
+                def serving() -> bool:
+                    if task.done():
+                        task.result()  # a start-up failure, with its own error
+                    return daemon.api_port is not None
+
+                await until(serving, "the API to bind", poll_s=0.05)
+                await until(lambda: daemon.state.reason == "hold", "the daemon in hold", poll_s=0.05)
                 yield rig, daemon, f"http://127.0.0.1:{daemon.api_port}"
         finally:
             w.cancel()
@@ -93,9 +95,8 @@ async def drive(rig: FakeRig, url: str, **kw: float) -> tuple[list[tuple[float, 
 
 async def settled(rig: FakeRig, daemon: Daemon) -> None:
     """Wheels at zero and the daemon in hold mode (where every --drive run must leave it)."""
-    async with asyncio.timeout(10.0):
-        while not (rig.robot.vel_mm_s == 0.0 and str(daemon.state.mode) == "hold"):
-            await asyncio.sleep(0.1)
+    await until(lambda: rig.robot.vel_mm_s == 0.0 and str(daemon.state.mode) == "hold",
+                "wheels at zero in hold mode", 10.0, poll_s=0.1)
 
 
 async def test_drive_a_real_relayd_then_calibrate_from_its_own_recording(tmp_path: Path) -> None:
@@ -119,22 +120,20 @@ async def test_drive_a_real_relayd_then_calibrate_from_its_own_recording(tmp_pat
         await settled(rig, daemon)
         assert rig.robot.x_mm < wall_mm - 150.0
         rig.robot.sonar_fn = None
-        async with asyncio.timeout(10.0):  # the whole sonar ring fired again: the way is clear
-            while any(r is not None and r < 4000 for r in daemon.state.sonar_mm):
-                await asyncio.sleep(0.1)
+        await until(lambda: not any(r is not None and r < 4000 for r in daemon.state.sonar_mm),
+                    "the whole sonar ring fired again: the way is clear", 10.0, poll_s=0.1)
 
         # 3. The base goes silent mid-drive: no SIP, wheels at zero, the run ends in hold.
         async def go_silent() -> None:
-            await asyncio.sleep(3.0)
+            await asyncio.sleep(3.0)  # virtual: the fault comes 3 s into the drive
             rig.robot.silent = True
 
         silent = asyncio.create_task(go_silent())
         _seen, why = await drive(rig, url, distance_m=5.0, seconds=60.0)
         await silent
         assert why == "the daemon stopped the robot: no_sip"
-        async with asyncio.timeout(10.0):
-            while str(daemon.state.mode) != "hold":
-                await asyncio.sleep(0.1)
+        await until(lambda: str(daemon.state.mode) == "hold", "hold mode after the silent base", 10.0,
+                    poll_s=0.1)
         assert daemon.state.wheels_left_mm_s == 0.0 and daemon.state.wheels_right_mm_s == 0.0
     # The daemon has stopped: its recording is complete.
 

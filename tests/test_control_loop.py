@@ -14,7 +14,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import pytest
-from support import ManualClock
+from support import LoopClock, ManualClock, until
 
 import relayd.brain
 from drivers.airos.model import LinkQuality
@@ -362,19 +362,16 @@ def test_bearing_is_corrected_for_the_turn_since_the_scan() -> None:
     assert right1 == pytest.approx(left1)
 
 
+@pytest.mark.virtual_time
 async def test_run_ticks_without_sips_and_unregisters_its_listener() -> None:
     robot = StandInRobot()
     latencies: list[float] = []
-    loop = Loop(Clock(), robot, Mode.FOLLOW, scanner=False, tick_s=0.01, on_step=latencies.append)
+    loop = Loop(LoopClock(), robot, Mode.FOLLOW, scanner=False, tick_s=0.01, on_step=latencies.append)
     state = loop.state
     task = asyncio.create_task(loop.run())
-    async with asyncio.timeout(10):
-        while state.loop_tick_t is None or not robot.listeners:
-            await asyncio.sleep(0.005)
+    await until(lambda: state.loop_tick_t is not None and robot.listeners, "the first tick")
     first_tick = state.loop_tick_t
-    async with asyncio.timeout(10):
-        while state.loop_tick_t == first_tick:
-            await asyncio.sleep(0.005)  # ticks keep coming with no SIP at all
+    await until(lambda: state.loop_tick_t != first_tick, "a second tick with no SIP at all")
     assert state.reason == "no_sip"
     assert robot.stops == 1
     robot.listeners[0](Sip(0.0))  # a SIP runs a step and reports its duration
@@ -385,13 +382,13 @@ async def test_run_ticks_without_sips_and_unregisters_its_listener() -> None:
     assert robot.listeners == []
 
 
+@pytest.mark.virtual_time
 async def test_halt_stops_commanding_the_robot_at_once() -> None:
     """Shutdown: after halt() no SIP or tick may command the wheels (the safe stop follows)."""
     w = make_world()
+    ticks = w.loop.bus.subscribe("ticks", maxlen=1000)
     task = asyncio.create_task(w.loop.run())
-    async with asyncio.timeout(10):
-        while not w.robot.listeners or not w.robot.wheels:
-            await asyncio.sleep(0.005)
+    await until(lambda: w.robot.listeners and w.robot.wheels, "the loop commanding the wheels")
     w.loop.halt()
     assert w.robot.listeners == []  # synchronously: no SIP callback can run a step any more
     calls = (w.robot.stops, len(w.robot.wheels))
@@ -399,7 +396,18 @@ async def test_halt_stops_commanding_the_robot_at_once() -> None:
     out = w.loop.step()
     assert (out.state, out.reason) == (DriveState.STOPPED, "shutdown")
     assert (w.state.wheels_left_mm_s, w.state.wheels_right_mm_s) == (0.0, 0.0)
-    await asyncio.sleep(0.3)  # several ticks of the still-running task
+    # An absence is seen only by letting ticks pass: wait for three more of the
+    # still-running task's ticks (virtual time: no wall time, none skipped).
+    while ticks.get_nowait() is not None:  # what the bus carried before the halt
+        pass
+    after: list[object] = []
+
+    def three_ticks_after() -> bool:
+        while (e := ticks.get_nowait()) is not None:
+            after.append(e)
+        return sum(isinstance(e, Tick) for e in after) >= 3
+
+    await until(three_ticks_after, "three ticks after the halt")
     assert (w.robot.stops, len(w.robot.wheels)) == calls
     task.cancel()
     with pytest.raises(asyncio.CancelledError):

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import asyncio
 
+from support import until
+
 from drivers.fakeio import PtyPort, TcpPort
 from drivers.link import open_link
 
@@ -29,9 +31,7 @@ async def test_pty_round_trip_and_hang_up(tmp_path) -> None:
     transport, proto = await open_link(path, 9600, Collect)
     transport.write(b"\xfa\xfb\x00")
     port.write(bytes(range(256)))
-    async with asyncio.timeout(2):
-        while len(proto.data) < 256 or len(received) < 3:
-            await asyncio.sleep(0.01)
+    await until(lambda: len(proto.data) >= 256 and len(received) >= 3, "both directions delivered")
     assert bytes(proto.data) == bytes(range(256))  # raw: no CR/LF or 0x11/0x13 mangling
     assert bytes(received) == b"\xfa\xfb\x00"
     port.hang_up()
@@ -58,9 +58,7 @@ async def test_tcp_round_trip() -> None:
     url = await port.open()
     transport, proto = await open_link(url, 9600, Collect)
     transport.write(b"hello")
-    async with asyncio.timeout(2):
-        while len(received) < 5:
-            await asyncio.sleep(0.01)
+    await until(lambda: len(received) >= 5, "the driver's bytes at the device")
     port.write(b"world")
     async with asyncio.timeout(2):
         await proto.got.wait()

@@ -27,8 +27,7 @@ import pytest
 from support import running as run_daemon
 from support import until
 
-from drivers.clock import REAL_CLOCK
-from drivers.link import port_missing, wait_before_retry
+from drivers.link import REPLUG_POLL_S, port_missing, wait_before_retry
 from relayd.config_load import load_settings, parse_settings
 from relayd.daemon import Daemon, control_params
 from relayd.events import Action, Decision, Event
@@ -138,8 +137,9 @@ async def running(work: Path, *, wrong_ap_password: bool = False, drive: bool = 
 
 # ---------------------------------------------------------------- the robot's port vanishes
 
-#: Long enough for the reconnect backoff to have grown past a second (0.2, 0.4, 0.8, 1.6 s).
-AWAY_S = 2.0
+#: Away until the reconnect backoff has grown past a second: its delays are 0.2, 0.4, 0.8,
+#: then 1.6 s, so the fourth delay is being waited out.
+AWAY_BACKOFF_ATTEMPTS = 4
 RECONNECT_WITHIN_S = 1.0
 
 
@@ -165,19 +165,21 @@ async def test_robot_port_vanishes_and_returns(tmp_path: Path) -> None:
             return (not h["connected"] and h["last_error"] is not None and doc["state"] == "fault"
                     and doc["wheels_mm_s"] == {"left": 0.0, "right": 0.0})
 
-        assert await _poll(fault_shown, "/status showing the robot fault")
+        await until(fault_shown, "/status showing the robot fault", 5.0, poll_s=0.05)
         doc = await run.status()
         assert port_missing(str(rig.robot_port))
         assert str(rig.robot_port) in doc["health"]["robot"]["last_error"]
 
-        await asyncio.sleep(AWAY_S)
+        await until(lambda: robot.backoff.attempts >= AWAY_BACKOFF_ATTEMPTS,
+                    "the reconnect backoff grown past a second", 10.0)
         assert not robot.connected
         # Nothing moved while away: zero was the last wheel command, and stays.
         assert all(zero(s) for s in run.steps if s.t >= stop.t)
 
         t_back = time.monotonic()
         rig.robot.reappear()
-        t_conn = await until(lambda: robot.connected, "the robot reconnecting", 10.0)
+        await until(lambda: robot.connected, "the robot reconnecting", 10.0)
+        t_conn = time.monotonic()
         assert t_conn - t_back < RECONNECT_WITHIN_S + 0.2, f"reconnected {t_conn - t_back:.2f} s after return"
         await until(lambda: daemon.state.reason == "driving", "driving again", 10.0)
 
@@ -186,51 +188,51 @@ async def test_robot_port_vanishes_and_returns(tmp_path: Path) -> None:
             h = doc["health"]["robot"]
             return h["connected"] and h["reconnects"] >= 1 and doc["state"] == "driving"
 
-        assert await _poll(recovery_shown, "/status showing the recovery")
+        await until(recovery_shown, "/status showing the recovery", 5.0, poll_s=0.05)
         run.assert_alive()
 
 
 async def status_until(run: Run, pred: Callable[[dict[str, Any]], bool], what: str,
                        timeout_s: float = 5.0) -> dict[str, Any]:
     """GET /status until `pred` holds (a driver notices a failure a moment after it happens)."""
-    try:
-        async with asyncio.timeout(timeout_s):
-            while not pred(doc := await run.status()):
-                await asyncio.sleep(0.05)
-    except TimeoutError:
-        raise AssertionError(f"timed out after {timeout_s} s waiting for {what}") from None
+
+    async def holds() -> dict[str, Any] | None:
+        doc = await run.status()
+        return doc if pred(doc) else None
+
+    doc: dict[str, Any] = await until(holds, what, timeout_s, poll_s=0.05)
     return doc
 
 
-async def _poll(probe: Callable[[], Any], what: str, timeout_s: float = 5.0) -> bool:
-    try:
-        async with asyncio.timeout(timeout_s):
-            while not await probe():
-                await asyncio.sleep(0.05)
-    except TimeoutError:
-        raise AssertionError(f"timed out after {timeout_s} s waiting for {what}") from None
-    return True
-
-
+@pytest.mark.virtual_time
 async def test_replugged_port_is_retried_at_once_not_after_the_backoff(tmp_path: Path) -> None:
-    """The fix under the reconnect bound: the wait ends when the path reappears."""
+    """The fix under the reconnect bound: the wait ends when the path reappears.
+
+    On virtual time: the 30 s backoff is waited out for real (in no wall time), so what
+    does not end early is seen not to, to the end of the backoff.
+    """
+    clock = LoopClock()
     path = tmp_path / "ttyUSB9"
     stop = asyncio.Event()
-    waiter = asyncio.create_task(wait_before_retry(str(path), 30.0, REAL_CLOCK, stop))
-    await asyncio.sleep(0.3)
+    waiter = asyncio.create_task(wait_before_retry(str(path), 30.0, clock, stop))
+    await asyncio.sleep(20.0)  # virtual: two thirds of the backoff, the port still missing
     assert not waiter.done()
     path.touch()
-    t0 = time.monotonic()
-    async with asyncio.timeout(5.0):
-        await waiter
-    assert time.monotonic() - t0 < 0.5
-    # A port that is there but failing waits the whole backoff (unless told to stop).
-    waiter = asyncio.create_task(wait_before_retry(str(path), 30.0, REAL_CLOCK, stop))
-    await asyncio.sleep(0.3)
+    t0 = clock.now()
+    await waiter
+    assert clock.now() - t0 <= REPLUG_POLL_S + 1e-9  # at the next look for the path
+    # A port that is there but failing waits the whole backoff...
+    t0 = clock.now()
+    await wait_before_retry(str(path), 30.0, clock, stop)
+    assert clock.now() - t0 == pytest.approx(30.0)
+    # ...unless told to stop.
+    waiter = asyncio.create_task(wait_before_retry(str(path), 30.0, clock, stop))
+    await asyncio.sleep(20.0)  # virtual
     assert not waiter.done()
+    t0 = clock.now()
     stop.set()
-    async with asyncio.timeout(5.0):
-        await waiter
+    await waiter
+    assert clock.now() == t0
     assert not port_missing("socket://127.0.0.1:1")
 
 
@@ -432,8 +434,11 @@ async def test_shutdown_with_a_slow_ap_leaves_no_task_behind(tmp_path: Path) -> 
     async with running(tmp_path, drive=False) as run:
         poller = run.daemon.pollers["rear"]
         await until(lambda: poller.state == "ok", "the rear AP polled", 10.0)
-        run.rig.rear.slow_s = 2.0
-        await asyncio.sleep(0.3)  # a status request (and later the logout) now hangs
+        rear = run.rig.rear
+        requests = rear.counters["requests"]
+        rear.slow_s = 2.0
+        # The next request (a status poll, and later the logout) hangs in the fake radio.
+        await until(lambda: rear.counters["requests"] > requests, "a request hanging in the radio", 10.0)
         t0 = time.monotonic()
         run.task.cancel()
         with contextlib.suppress(asyncio.CancelledError):

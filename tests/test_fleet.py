@@ -16,6 +16,7 @@ from typing import Any
 
 import aiohttp
 import pytest
+from support import until
 
 from drivers.clock import REAL_CLOCK
 from relayd.api import make_app, start_api
@@ -211,8 +212,8 @@ async def test_a_silent_relay_never_delays_the_others() -> None:
         try:
             t0 = time.monotonic()
             good, silent, gone = fleet.views()
-            while time.monotonic() - t0 < 10 and (silent.error_kind is None or good.polls < 10):
-                await asyncio.sleep(0.05)
+            await until(lambda: silent.error_kind is not None and good.polls >= 10,
+                        "the silent relay's timeout and ten polls of the good one", 10.0)
             elapsed = time.monotonic() - t0
             assert gone.error_kind == "unreachable"
             assert silent.error_kind == "no_answer" and "within 1 s" in (silent.error or "")
@@ -262,12 +263,12 @@ async def test_hold_all_endpoint_needs_json() -> None:
             assert state.mode is Mode.HOLD
             page = await client.get("/")
             assert "default-src 'self'" in page.headers["Content-Security-Policy"]
-            for _ in range(100):
+
+            async def held() -> bool:
                 doc = await (await client.get("/fleet.json")).json()
-                if doc["relays"][0]["link"] == "live" and doc["relays"][0]["mode"] == "hold":
-                    break
-                await asyncio.sleep(0.05)
-            assert doc["relays"][0]["mode"] == "hold"
+                return bool(doc["relays"][0]["link"] == "live" and doc["relays"][0]["mode"] == "hold")
+
+            await until(held, "the fleet page showing the relay live and held", poll_s=0.05)
             assert TOKEN not in await (await client.get("/fleet.json")).text()
 
 
@@ -284,12 +285,13 @@ async def test_relayd_fleet_command_serves_the_page() -> None:
             assert "1 relay(s), page at http://127.0.0.1:" in line, line
             page = line.rsplit(" ", 1)[1].strip()
             async with aiohttp.ClientSession() as s:
-                for _ in range(100):
+
+                async def live() -> dict[str, Any] | None:
                     async with s.get(page + "fleet.json") as resp:
-                        doc = await resp.json()
-                    if doc["relays"][0]["link"] == "live":
-                        break
-                    await asyncio.sleep(0.05)
+                        doc: dict[str, Any] = await resp.json()
+                    return doc if doc["relays"][0]["link"] == "live" else None
+
+                doc = await until(live, "the relay live on the fleet page", poll_s=0.05)
             assert doc["relays"][0]["robot"] == "cli-relay"
         finally:
             proc.terminate()

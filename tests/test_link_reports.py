@@ -15,6 +15,7 @@ import tty
 from typing import Any
 
 from structlog.testing import capture_logs
+from support import until
 
 from drivers.link import close_link, open_link
 
@@ -45,12 +46,15 @@ async def test_a_hung_up_port_is_one_warning_and_other_reports_pass_through() ->
         os.close(master)  # the device goes away: the slave side now fails with EIO
         master = -1
         with capture_logs() as logs:
-            for _ in range(50):  # the failed write is reported at once or on a later try
+
+            def written_until_closed() -> bool:
+                # The failed write is reported at once or on a later try.
                 if proto.closed.is_set():
-                    break
+                    return True
                 transport.write(b"\x84\x00\x70\x2e")
-                await asyncio.sleep(0.01)
-            await asyncio.wait_for(proto.closed.wait(), 5.0)
+                return False
+
+            await until(written_until_closed, "the port closed after a failed write", 10.0, poll_s=0.01)
         failed = [e for e in logs if e["event"] == "serial_transport_failed"]
         assert failed and failed[0]["log_level"] == "warning", logs
         assert failed[0]["port"] == name and "exc_info" not in failed[0]

@@ -112,7 +112,7 @@ async def prometheus(work: Path, config: dict[str, Any]) -> AsyncIterator[Promet
                         return resp.status == 200
                 return False
 
-            await until_async(ready, "prometheus to be ready", START_TIMEOUT_S)
+            await until(ready, "prometheus to be ready", START_TIMEOUT_S, poll_s=0.25)
             yield server
     finally:
         if proc.returncode is None:
@@ -122,17 +122,6 @@ async def prometheus(work: Path, config: dict[str, Any]) -> AsyncIterator[Promet
             except TimeoutError:
                 proc.kill()
                 await proc.wait()
-
-
-async def until_async(probe: Any, what: str, timeout_s: float, every_s: float = 0.25) -> Any:
-    """Await `probe()` until it returns something truthy; fail naming `what` after timeout_s."""
-    try:
-        async with asyncio.timeout(timeout_s):
-            while not (value := await probe()):
-                await asyncio.sleep(every_s)
-            return value
-    except TimeoutError:
-        raise AssertionError(f"timed out after {timeout_s} s waiting for {what}") from None
 
 
 async def test_prometheus_scrapes_relayd_and_evaluates_the_shipped_rules(tmp_path: Path) -> None:
@@ -153,7 +142,7 @@ async def _check(prom: Prometheus, daemon: Daemon) -> None:
         assert prom.died() is None, prom.died()
         return await prom.query('relayd_uptime_seconds{job="relayd", relay="relay1"}') or None
 
-    (series,) = await until_async(uptime, "a scraped relayd_uptime_seconds", SCRAPE_TIMEOUT_S)
+    (series,) = await until(uptime, "a scraped relayd_uptime_seconds", SCRAPE_TIMEOUT_S, poll_s=0.25)
     assert series["metric"]["instance"] == f"127.0.0.1:{daemon.api_port}"
     assert float(series["value"][1]) > 0
     (up,) = await prom.query('up{job="relayd"}')
@@ -162,7 +151,7 @@ async def _check(prom: Prometheus, daemon: Daemon) -> None:
     assert info["metric"]["state"] == str(daemon.state.state) == "stopped"
     assert info["metric"]["reason"] == daemon.state.reason == "hold"
     # The fake base reports its battery and the fake rear radio RSSI^b: both reach Prometheus.
-    battery = await until_async(lambda: prom.query("relayd_battery_volts"), "the battery voltage", 20.0)
+    battery = await until(lambda: prom.query("relayd_battery_volts"), "the battery voltage", 20.0, poll_s=0.25)
     assert float(battery[0]["value"][1]) == pytest.approx(daemon.state.battery_v or 0, abs=0.2)
 
     # 2. The shipped rules load and evaluate against real data without errors.
@@ -172,7 +161,7 @@ async def _check(prom: Prometheus, daemon: Daemon) -> None:
         done = rules and all(not r["lastEvaluation"].startswith("0001") for r in rules)
         return rules if done else None
 
-    rules = await until_async(evaluated, "every rule to be evaluated once", 20.0)
+    rules = await until(evaluated, "every rule to be evaluated once", 20.0, poll_s=0.25)
     assert {r["name"] for r in rules} == {r["alert"] for r in yaml.safe_load(RULES.read_text())["groups"][0]["rules"]}
     for rule in rules:
         assert rule["health"] == "ok", rule

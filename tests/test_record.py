@@ -12,6 +12,7 @@ import errno
 import json
 import math
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -383,9 +384,13 @@ class StalledDisk(FullDisk):
         super().__init__(path, 1 << 30)
         self.release = release
         self.stuck = threading.Event()
+        #: time.monotonic() when the first write hung.
+        self.stuck_t = 0.0
 
     def write(self, data: bytes) -> int:
-        self.stuck.set()
+        if not self.stuck.is_set():
+            self.stuck_t = time.monotonic()
+            self.stuck.set()
         self.release.wait(30)
         return super().write(data)
 
@@ -398,7 +403,8 @@ async def test_a_stalled_disk_ends_the_recording_instead_of_growing_memory(tmp_p
         disks.append(StalledDisk(p, release))
         return disks[-1]
 
-    route = Route(settings_for(tmp_path / "r.mcap"), ManualClock(), opener=opener, stall_s=0.2)
+    stall_s = 0.2
+    route = Route(settings_for(tmp_path / "r.mcap"), ManualClock(), opener=opener, stall_s=stall_s)
     route.recorder.start()
     task = asyncio.create_task(route.recorder.run())
     try:
@@ -406,7 +412,9 @@ async def test_a_stalled_disk_ends_the_recording_instead_of_growing_memory(tmp_p
         # The writer thread is inside a hung write (on a busy machine it may start late),
         # and stays there past stall_s of wall time.
         await until(lambda: bool(disks) and disks[0].stuck.is_set(), "the writer to hang", 10)
-        await asyncio.sleep(0.3)
+        # The recorder judges a stall by wall time (a real disk hangs in real time): the
+        # hung write must have lasted past stall_s before more data arrives.
+        await until(lambda: time.monotonic() - disks[0].stuck_t > stall_s, "the write hung past stall_s", 10)
         await route.drive(2.0)
         await until(lambda: route.recorder.state == "failed", "the recorder to give up", 10)
         assert "not keeping up" in (route.recorder.error or "")

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import ctypes
 import json
 import os
 import re
@@ -126,11 +127,10 @@ async def test_run_drives_and_sigterm_zeroes_wheels_disables_and_closes(tmp_path
             relayd.proc.send_signal(signal.SIGTERM)
             t_close: float | None = None
             try:
-                async with asyncio.timeout(10):
-                    while (seq := find_stop_sequence(rig.robot.commands[mark:])) is None:
-                        await asyncio.sleep(0.002)
+                seq = await until(lambda: find_stop_sequence(rig.robot.commands[mark:]),
+                                  "VEL 0, ENABLE 0, CLOSE after SIGTERM", 10.0, poll_s=0.002)
                 t_close = time.monotonic()
-            except TimeoutError:
+            except AssertionError:
                 pytest.fail(f"no VEL 0, ENABLE 0, CLOSE after SIGTERM: {rig.robot.commands[mark:]}\n"
                             + relayd.output())
             code = await relayd.wait(10)
@@ -159,15 +159,50 @@ async def test_run_drives_and_sigterm_zeroes_wheels_disables_and_closes(tmp_path
         assert complaints == [], complaints
 
 
+class OpenWatch:
+    """Notes every open(2) of the given device files from now on (inotify IN_OPEN).
+
+    "Not touched" is proven by "never opened" at once, with no wait: a byte written to a
+    pty reaches the other end a moment later (the kernel pushes it from a work queue), so
+    an empty command list right after the process exits proves nothing by itself.
+    """
+
+    IN_OPEN = 0x20
+    IN_NONBLOCK = os.O_NONBLOCK
+
+    def __init__(self, *paths: str) -> None:
+        self._libc = ctypes.CDLL(None, use_errno=True)
+        self._fd = self._libc.inotify_init1(self.IN_NONBLOCK)
+        if self._fd < 0:
+            raise OSError(ctypes.get_errno(), "inotify_init1")
+        for path in paths:
+            if self._libc.inotify_add_watch(self._fd, os.path.realpath(path).encode(), self.IN_OPEN) < 0:
+                raise OSError(ctypes.get_errno(), f"inotify_add_watch {path}")
+
+    def opened(self) -> bool:
+        try:
+            return bool(os.read(self._fd, 4096))
+        except BlockingIOError:
+            return False
+
+    def close(self) -> None:
+        os.close(self._fd)
+
+
 async def refused(rig: FakeRig, config: Path, env: dict[str, str] | None = None) -> str:
     """Run `relayd run -c config`; assert it exits 2 without touching a device; its output."""
-    relayd = await Relayd.start("run", "-c", str(config), env=env)
+    assert rig.robot_port is not None and rig.servo_port is not None
+    watch = OpenWatch(rig.robot_port, rig.servo_port)
     try:
-        code = await relayd.wait(30)
+        relayd = await Relayd.start("run", "-c", str(config), env=env)
+        try:
+            code = await relayd.wait(30)
+        finally:
+            await relayd.kill()
+        assert code == 2, relayd.output()
+        assert not watch.opened(), "a device port was opened"
     finally:
-        await relayd.kill()
-    assert code == 2, relayd.output()
-    await asyncio.sleep(0.2)  # anything written to the ptys has been read by now
+        watch.close()
     assert rig.robot.commands == [], "the robot was touched"
     assert not rig.maestro.received, "the servo controller was touched"
     return relayd.output()

@@ -17,6 +17,7 @@ import asyncio
 import contextlib
 import fcntl
 import os
+import threading
 import time
 from collections.abc import AsyncIterator, Callable
 from pathlib import Path
@@ -127,13 +128,15 @@ async def _connected_and_alone(fake: FakeMaestro, pt: PanTilt, what: str,
                                reports: list[asyncio.Future[Any]]) -> None:
     # Connected to the port that is there now: a request is answered (right after a
     # quick pull and replug the driver may still hold the port that just went away).
-    async with asyncio.timeout(20.0):
-        while True:
-            if pt.connected:
-                with contextlib.suppress(PanTiltError):
-                    await pt.is_moving()
-                    break
-            await asyncio.sleep(0.02)
+    async def answered() -> bool:
+        if not pt.connected:
+            return False
+        with contextlib.suppress(PanTiltError):
+            await pt.is_moving()
+            return True
+        return False
+
+    await until(answered, f"{what}: a request answered on the new port", 20.0, poll_s=0.02)
     # Every late report has come in (and been ignored) before we look.
     await until(lambda: all(r.done() for r in reports), f"{what}: the late close reports", timeout_s=20.0)
     for _ in range(SETTLE_TURNS):
@@ -182,6 +185,8 @@ async def test_hang_ups_idle_under_a_write_and_during_a_connect(
                 await until(lambda e=errors: pt.counters["errors"] > e or pt.connected
                             or fds_on(fake.path) > 1, f"cycle {cycle}: a connect under way")
                 fake.hang_up()
+                # The fault injected, not a wait for an outcome: the cable stays out this
+                # long mid-connect; whatever the driver makes of it, it must then recover.
                 await asyncio.sleep(0.05)
             fake.reappear()
             await _connected_and_alone(fake, pt, f"cycle {cycle} ({kind})", late_close)
@@ -218,6 +223,7 @@ async def test_an_open_cancelled_in_the_executor_leaves_no_port_open(
     loop = asyncio.get_running_loop()
     orig = loop.run_in_executor
     started = asyncio.Event()
+    given_up = threading.Event()  # set once the caller has cancelled the open
 
     def slow_open(executor: Any, fn: Callable[..., Any], *args: Any) -> asyncio.Future[Any]:
         # Ours opens with _open_serial; pyserial-asyncio's own path with serial_for_url.
@@ -227,7 +233,7 @@ async def test_an_open_cancelled_in_the_executor_leaves_no_port_open(
         def opened_late() -> Any:
             port = fn(*args)  # the port is open (and flocked) here...
             loop.call_soon_threadsafe(started.set)
-            time.sleep(0.3)  # ...and the executor is still busy when the caller gives up
+            given_up.wait(30)  # ...and the executor is still busy when the caller gives up
             return port
 
         return orig(executor, opened_late)
@@ -240,6 +246,7 @@ async def test_an_open_cancelled_in_the_executor_leaves_no_port_open(
         opening.cancel()
         with pytest.raises(asyncio.CancelledError):
             await opening
+        given_up.set()
         await until(lambda: fds_on(path) == 1, "the cancelled open's port closed", timeout_s=5.0)
         assert lockable(path)
         monkeypatch.undo()
@@ -252,6 +259,7 @@ async def test_an_open_cancelled_in_the_executor_leaves_no_port_open(
         with pytest.raises(LinkError):
             await open_link(str(tmp_path / "no-such-tty"), 115200, asyncio.Protocol)
     finally:
+        given_up.set()
         fake.close()
 
 

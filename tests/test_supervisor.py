@@ -4,14 +4,19 @@ from __future__ import annotations
 
 import asyncio
 
-from drivers.clock import Clock
+import pytest
+from support import LoopClock, until
+
 from relayd.state import RelayState
 from relayd.supervisor import Supervisor
 
 
+# Virtual time: the restart backoff (0.2, 0.4 s, ...) and the tasks' own pauses take no
+# wall time, and a loaded machine cannot reorder them.
+@pytest.mark.virtual_time
 async def test_failing_task_restarts_without_touching_others() -> None:
     state = RelayState()
-    sup = Supervisor(state, Clock(speed=50))
+    sup = Supervisor(state, LoopClock())
     ticks = {"steady": 0, "flaky": 0}
 
     async def steady() -> None:
@@ -27,12 +32,9 @@ async def test_failing_task_restarts_without_touching_others() -> None:
     sup.add("steady", steady)
     sup.add("flaky", flaky, device="pantilt")
     sup.start()
-    async with asyncio.timeout(5):
-        while ticks["flaky"] < 3:
-            await asyncio.sleep(0.005)
+    await until(lambda: ticks["flaky"] >= 3, "the flaky task's third run")
     steady_before = ticks["steady"]
-    await asyncio.sleep(0.02)
-    assert ticks["steady"] > steady_before  # still running
+    await until(lambda: ticks["steady"] > steady_before, "the steady task ticking on", timeout_s=1.0)
     assert sup.restarts("flaky") >= 2
     assert state.health["pantilt"].errors >= 2
     assert "servo adapter unplugged" in (state.health["pantilt"].last_error or "")
@@ -60,8 +62,9 @@ async def test_stop_order_is_reverse_of_start() -> None:
     assert order == ["control", "scanner", "robot"]
 
 
+@pytest.mark.virtual_time
 async def test_returning_task_is_restarted() -> None:
-    sup = Supervisor(RelayState(), Clock(speed=100))
+    sup = Supervisor(RelayState(), LoopClock())
     runs = 0
 
     async def short() -> None:
@@ -70,7 +73,5 @@ async def test_returning_task_is_restarted() -> None:
 
     sup.add("short", short)
     sup.start()
-    async with asyncio.timeout(5):
-        while runs < 3:
-            await asyncio.sleep(0.005)
+    await until(lambda: runs >= 3, "the third run of the returning task")
     await sup.stop()

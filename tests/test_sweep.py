@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import IO
 
 import pytest
+from support import until_sync
 
 from relayd.cli import main
 from relayd.sweep.child import series_1hz, start_mean_mbps
@@ -248,10 +249,12 @@ def test_external_scheduler_two_workers_one_killed(tmp_path: Path) -> None:
                                   "--seeds", "2", "--scheduler", addr, "--out", str(out)],
                                  stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
         procs.append(sweep)
-        deadline = time.monotonic() + 120
-        while not list(out.glob("runs/**/run.json")) and time.monotonic() < deadline:
+
+        def a_run_done() -> bool:
             assert sweep.poll() is None, sweep.stdout.read() if sweep.stdout else ""
-            time.sleep(0.2)
+            return bool(list(out.glob("runs/**/run.json")))
+
+        until_sync(a_run_done, "the first finished run", 120.0, poll_s=0.2)
         _kill_group(procs[2])
         text, _ = sweep.communicate(timeout=200)
         assert sweep.returncode == 0, text.decode()

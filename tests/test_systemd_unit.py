@@ -30,13 +30,13 @@ import subprocess
 import sys
 import tomllib
 import uuid
-from collections.abc import AsyncIterator, Awaitable, Callable, Coroutine
+from collections.abc import AsyncIterator, Callable, Coroutine
 from pathlib import Path
 from typing import Any
 
 import pytest
 from aiohttp import ClientSession
-from support import parse_unit, skip_or_fail
+from support import parse_unit, skip_or_fail, until
 
 from relayd.cli import build_parser
 from relayd.config_load import parse_settings
@@ -313,15 +313,6 @@ class RecordingNotifier:
         return self.calls.count("watchdog")
 
 
-async def _until(probe: Callable[[], Awaitable[bool]], what: str, timeout_s: float = 10.0) -> None:
-    try:
-        async with asyncio.timeout(timeout_s):
-            while not await probe():
-                await asyncio.sleep(0.05)
-    except TimeoutError:
-        raise AssertionError(f"timed out waiting for {what}") from None
-
-
 @pytest.mark.virtual_time
 async def test_watchdog_pets_only_while_the_control_loop_ticks(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -362,15 +353,15 @@ async def test_watchdog_pets_only_while_the_control_loop_ticks(
                 async def ready() -> bool:
                     return "ready" in notifier.calls and daemon.api_port is not None
 
-                await _until(ready, "READY")
+                await until(ready, "READY", 10.0, poll_s=0.05)
                 # Devices are up, but the control loop has not ticked: no pet, /healthz 503.
-                await _until(lambda: _device_up(daemon, "robot"), "the robot connected")
+                await until(lambda: daemon.state.health_now()["robot"].connected, "the robot connected", 10.0)
                 await _pet_periods(daemon)
                 assert notifier.pets == 0
                 assert await healthz() == 503
 
                 release.set()
-                await _until(lambda: _const(notifier.pets >= 2), "watchdog pets once ticking")
+                await until(lambda: notifier.pets >= 2, "watchdog pets once ticking", 10.0)
                 assert await healthz() == 200
 
                 wedge.set()
@@ -378,7 +369,7 @@ async def test_watchdog_pets_only_while_the_control_loop_ticks(
                 async def unhealthy() -> bool:
                     return await healthz() == 503
 
-                await _until(unhealthy, "/healthz 503 after the loop wedged")
+                await until(unhealthy, "/healthz 503 after the loop wedged", 10.0, poll_s=0.05)
                 pets = notifier.pets
                 # Nothing else pets: a few pet periods later, still none.
                 await _pet_periods(daemon)
@@ -390,20 +381,13 @@ async def test_watchdog_pets_only_while_the_control_loop_ticks(
     assert notifier.calls[-1] == "stopping"
 
 
-async def _const(value: bool) -> bool:
-    return value
-
-
-async def _device_up(daemon: Daemon, name: str) -> bool:
-    return daemon.state.health_now()[name].connected
-
-
 async def _pet_periods(daemon: Daemon, periods: int = 3) -> None:
     """Let `periods` watchdog-pet periods pass (to show that no pet came in them).
 
-    Waiting out a span is the only way to see an absence; it is a few tenths of a second.
+    Waiting out a span is the only way to see an absence; the one caller runs on virtual
+    time, so the span costs no wall time.
     """
-    await asyncio.sleep(daemon.clock.to_real(periods * WATCHDOG_PET_S))
+    await asyncio.sleep(daemon.clock.to_real(periods * WATCHDOG_PET_S))  # virtual: see above
 
 
 # --- resources and scheduling ----------------------------------------------------------

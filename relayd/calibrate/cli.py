@@ -129,7 +129,8 @@ def write_outputs(out: Path, fit: PathLossFit, thr: Thresholds, wanted: Wanted, 
     (out / "path-loss.toml").write_text(config_snippet(fit, thr, wanted, source), encoding="utf-8")
     doc = {"source": source, "link": wanted.link, "fit": fit.to_json(),
            "thresholds": {"key": thr.key, "by_hop_length": thr.by_length, "by_throughput": thr.by_throughput,
-                          "by_measured_rate": thr.by_measured_rate, "chosen": thr.chosen},
+                          "by_measured_rate": thr.by_measured_rate, "bound": thr.bound,
+                          "chosen": thr.chosen},
            "wanted": {"hop_m": wanted.hop_m, "target_mbps": wanted.target_mbps, "outage": wanted.outage,
                       "phy": wanted.phy, "mac_efficiency": wanted.mac_efficiency},
            "readings": len(readings)}

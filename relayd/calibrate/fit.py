@@ -87,6 +87,19 @@ class PathLossFit:
     distance_range_m: tuple[float, float]
     confidence: float
 
+    @classmethod
+    def known(cls, l0_dbm: float, n: float, sigma_db: float) -> PathLossFit:
+        """A model given rather than fitted (a simulator's radio, a site survey's figures):
+        exact intervals, no readings. The thresholds are then computed exactly as for a fit."""
+        for name, value in (("l0_dbm", l0_dbm), ("n", n), ("sigma_db", sigma_db)):
+            if not math.isfinite(value):
+                raise ValueError(f"{name} must be finite, got {value}")
+        if n <= 0 or sigma_db < 0:
+            raise ValueError(f"need n > 0 and sigma_db >= 0, got n {n}, sigma_db {sigma_db}")
+        return cls(l0_dbm, n, sigma_db, Interval(l0_dbm, l0_dbm), Interval(n, n), Interval(sigma_db, sigma_db),
+                   sigma_fast_db=0.0, sigma_slow_db=sigma_db, points=0, dropped=0,
+                   distance_range_m=(math.nan, math.nan), confidence=1.0)
+
     def rssi_at(self, distance_m: float) -> float:
         """The model's median RSSI at a distance."""
         return self.l0_dbm - 10.0 * self.n * math.log10(max(distance_m, 1e-3))

@@ -39,6 +39,11 @@ class Thresholds:
     by_throughput: float | None
     #: From the measured airOS rates (the adaptive model over the drive), when the data had rates.
     by_measured_rate: float | None
+    #: Leader link only: the threshold_l that keeps the robot within the gap but with the
+    #: outage probability (the median there raised by z sigma, as for a hop length), where
+    #: `by_length` is the median gap. Shadowing spreads the stopping points of a median
+    #: threshold about the gap both ways; this one bounds them.
+    bound: float | None = None
 
     @property
     def chosen(self) -> float | None:
@@ -75,10 +80,12 @@ def thresholds(fit: PathLossFit, readings: Sequence[Reading], wanted: Wanted) ->
         by_tp = threshold_for_throughput(fit, wanted.target_mbps, wanted.outage, phy=wanted.phy,
                                          mac_efficiency=wanted.mac_efficiency)
         by_rate = measured_rate_threshold(readings, wanted)
+    bound = None
     if key == "threshold_l_dbm" and by_len is not None:
         # The following gap: the robot stops on reaching it, so the median level there, no margin.
+        bound = by_len
         by_len = fit.rssi_at(wanted.hop_m or 1.0)
-    return Thresholds(key, by_len, by_tp, by_rate)
+    return Thresholds(key, by_len, by_tp, by_rate, bound)
 
 
 def _ci(value: float, low: float, high: float, digits: int) -> str:
@@ -104,6 +111,9 @@ def text_report(fit: PathLossFit, thr: Thresholds, wanted: Wanted, source: str) 
     if thr.by_length is not None:
         what = "following gap" if thr.key == "threshold_l_dbm" else "hop length"
         lines.append(f"  {what} {wanted.hop_m:g} m:  {thr.key} = {thr.by_length:.1f} dBm")
+    if thr.bound is not None:
+        lines.append(f"  gap at most {wanted.hop_m:g} m (outage {wanted.outage:g}):  {thr.key} = {thr.bound:.1f} dBm"
+                     f"  (a median gap of {fit.distance_at(thr.bound):.1f} m)")
     if thr.by_throughput is not None and wanted.target_mbps is not None:
         need = required_rssi_dbm(wanted.target_mbps, wanted.phy, wanted.mac_efficiency)
         lines.append(f"  hop throughput {wanted.target_mbps:g} Mbit/s ({wanted.phy} needs {need:g} dBm, "
