@@ -14,10 +14,13 @@ scan says (`scan_done`: the estimate it publishes), where the leader is now
   steady, the last few scans are fitted together (`relayd.scanpool`). A fit's sd is
   never below what the recent scans' residual noise allows. It learns the antenna's
   beamwidth from its own two-sided scans (the curvature prior of one-sided ones at a
-  servo limit). With `window = "adaptive"` a confident filter narrows the sweep around
-  its prediction: at the full window's spacing while the bearing is steady, coarser
-  (a few samples per beamwidth) and narrower while it moves, so a sweep takes less
-  time; an unsure or lost one sweeps the servo's whole range.
+  servo limit). While the bearing moves, a scan is fitted in the leader's frame (each
+  sample carried by the filter's rate to the beam's predicted crossing). With
+  `window = "adaptive"` a confident filter narrows the sweep around its prediction: at
+  the full window's spacing while the bearing is steady, coarser (a few samples per
+  beamwidth) and narrower while it moves, so a sweep takes less time, in steps fitted
+  to the scanner's clock (`clocked_step_deg`); an unsure or lost one sweeps the servo's
+  whole range.
 
 Pure: times and headings come in as arguments; no clock, no I/O.
 """
@@ -288,9 +291,10 @@ class TrackingModel:
     def window(self, t: float, heading_deg: float | None, full: Window) -> Window | None:
         """The next sweep. "full": the configured window, centred on the prediction.
 
-        "adaptive": narrow around the prediction while the filter is confident (once the
-        beamwidth is learnt), at the configured window's sample spacing, so a sweep
-        takes fewer samples; the servo's whole range while it is not.
+        "adaptive": narrow around the prediction while the filter is confident (once a
+        beamwidth is known: learnt, else the one-sided fits' median), at the configured
+        window's sample spacing, so a sweep takes fewer samples; the servo's whole range
+        while it is not.
         """
         p = self.params
         self._span = (full.centre_deg - full.width_deg / 2.0, full.centre_deg + full.width_deg / 2.0)
