@@ -12,17 +12,29 @@ the last spot where its hop met the target, and hold there.
   `target_hop_mbps`?) and RSSI^b. A poll at the spot of the newest poll replaces its
   verdict (a relay standing still re-measures one spot; the newest word counts). The
   trail keeps the newest KEEP spots (at least 5 m).
-- **When.** Only with `link_policy = "adaptive"`, in follow mode, and only after
-  `BELOW_POLLS` rear polls in a row missed the target while the controller held the
-  relay standing at its rear limit (reason "rear_weak"): one deep fade does not do it.
-  The controller must still say "rear_weak" on the step that starts the move.
-- **Where to.** Back along its own trail (ground it has driven over) to the newest spot
-  more than REACH_M away where a poll met the target, if that is within what is left of
-  `MAX_RETREAT_M` of path. None within reach: it stays (the controller's stop stands).
+- **When.** Only with `link_policy = "adaptive"`, in follow mode, with the controller
+  holding the relay at its rear limit (reason "rear_weak", wheels at zero) on the step
+  that starts the move, and either
+  - *an edge:* the newest poll missed the target EDGE_DROP_DB or more below the poll
+    before it, which met it, after EDGE_M or less of the relay's own travel (at least
+    STANDING_M): far more than a 4-frame RSSI reading fades between two polls, and far
+    more than path loss changes over a metre, so the relay drove into a shadow. It
+    steps back at once instead of standing there for the polls below; or
+  - *a run:* `BELOW_POLLS` rear polls in a row missed the target while it stood there
+    (a gradual edge, or a shadow that came to it): one deep fade does not do it.
+- **Where to.** Back along its own trail (ground it has driven over) to the poll before
+  the newest one more than REACH_M away that met the target, when that one met it too;
+  else to that newest one. A poll's value may be up to a poll period old when it
+  arrives (the AP's own averaging, the poll), so its spot, marked where the relay was
+  when it arrived, may lie past where it was measured; the measurement lies between
+  the spots of that poll and the one before, and both met the target. Within what is
+  left of `MAX_RETREAT_M` of path; none within reach: it stays (the controller's stop
+  stands).
 - **How.** In reverse, so the Yagi keeps facing the leader, with the breadcrumb
   geometry of the recovery (relayd/breadcrumbs.py): the rear sonars slow and steer it
-  and stop it short of any echo closer than stop_distance. The speed is tapered to the
-  distance left, so one control period cannot carry it past its bound.
+  and stop it short of any echo closer than stop_distance; a rear sonar not read yet
+  stops it too (it never backs blind). The speed is tapered to the distance left, so
+  one control period cannot carry it past its bound.
 - **Hold.** At the spot it stops, and the rear limit in force becomes at least what the
   poll there measured plus HOLD_MARGIN_DB (a 2 dB upward fade, the hysteresis, would
   otherwise send it straight back over the edge). The hold ends once the relay is
@@ -40,12 +52,17 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-from relayd.breadcrumbs import Crumb, reverse_toward
+from relayd.breadcrumbs import REAR_SONARS, Crumb, reverse_toward
 from relayd.controller import ControlInputs, ControlOutput, ControlParams
 from relayd.state import DriveState, Mode
 
 #: Rear polls in a row below the target, standing at the rear limit, before it steps back.
 BELOW_POLLS = 3
+#: A miss this far (dB) below the previous poll, which met the target, is a shadow edge ...
+EDGE_DROP_DB = 8.0
+#: ... when the relay drove between STANDING_M and EDGE_M (m) from that poll's spot.
+EDGE_M = 1.0
+STANDING_M = 0.02
 #: The most path (m) it may reverse before it has driven CLEAR_M away from where it held.
 MAX_RETREAT_M = 3.0
 #: A retreat that has not arrived after this long ends where it is (an echo blocks the way).
@@ -84,6 +101,8 @@ class RetreatMemory:
     rear_stopped: bool = False
     #: Polls in a row that missed the target while standing at the rear limit.
     below: int = 0
+    #: The newest poll found a shadow edge (see EDGE_DROP_DB); cleared by the next poll or a move.
+    edge: bool = False
     #: Index into trail of the spot a running move heads for; None: no move.
     target: int | None = None
     started_t: float | None = None
@@ -103,20 +122,32 @@ def _pose_ok(pose: tuple[float, float, float] | None) -> bool:
 
 def record_poll(m: RetreatMemory, pose: tuple[float, float, float] | None, rssi_b_dbm: float,
                 met: bool) -> RetreatMemory:
-    """One rear poll the link model accepted: its spot and verdict, and the run below target."""
+    """One rear poll the link model accepted: its spot and verdict, the run below target, an edge."""
     below = m.below + 1 if (m.rear_stopped and not met) else 0
     if m.target is not None:
-        return replace(m, below=0)  # a move runs: its trail's indices must hold still
+        return replace(m, below=0, edge=False)  # a move runs: its trail's indices must hold still
     if not _pose_ok(pose) or not math.isfinite(rssi_b_dbm) or pose is None:
-        return replace(m, below=below)
+        return replace(m, below=below, edge=False)
     spot = Spot(pose[0], pose[1], rssi_b_dbm, met)
     trail = m.trail
+    edge = not met and is_edge(trail, spot)
     last = trail[-1] if trail else None
     if last is not None and last.met is not None and m.target is None and \
             math.hypot(last.x_mm - spot.x_mm, last.y_mm - spot.y_mm) < SPACING_M * 500.0:
         trail = trail[:-1]
     trail = (*trail, spot)[-KEEP:]
-    return replace(m, trail=trail, below=below)
+    return replace(m, trail=trail, below=below, edge=edge)
+
+
+def is_edge(trail: tuple[Spot, ...], spot: Spot) -> bool:
+    """The poll at `spot` fell EDGE_DROP_DB below the previous poll, which met the target,
+    within EDGE_M of travel (and not standing: a drop that comes to a standing relay is
+    the node behind or something between, which stepping back need not cure)."""
+    prev = next((s for s in reversed(trail) if s.met is not None), None)
+    if prev is None or not prev.met or prev.rssi_b_dbm is None or spot.rssi_b_dbm is None:
+        return False
+    moved_m = math.hypot(spot.x_mm - prev.x_mm, spot.y_mm - prev.y_mm) / 1000.0
+    return STANDING_M <= moved_m <= EDGE_M and prev.rssi_b_dbm - spot.rssi_b_dbm >= EDGE_DROP_DB
 
 
 def _lay(m: RetreatMemory, x: float, y: float) -> RetreatMemory:
@@ -127,17 +158,22 @@ def _lay(m: RetreatMemory, x: float, y: float) -> RetreatMemory:
 
 
 def retreat_target(trail: tuple[Spot, ...], x: float, y: float, budget_m: float) -> int | None:
-    """The newest spot more than REACH_M away where the hop met the target, within budget_m of path."""
+    """Where a step back goes, within budget_m of path: the poll before the newest spot more
+    than REACH_M away whose poll met the target, if that poll met it too; else that newest spot."""
     path_m, px, py = 0.0, x, y
+    newest: int | None = None
     for i in range(len(trail) - 1, -1, -1):
         s = trail[i]
         path_m += math.hypot(s.x_mm - px, s.y_mm - py) / 1000.0
         px, py = s.x_mm, s.y_mm
         if path_m > budget_m:
-            return None
-        if s.met and math.hypot(s.x_mm - x, s.y_mm - y) > REACH_M * 1000.0:
-            return i
-    return None
+            return newest
+        if newest is None:
+            if s.met and math.hypot(s.x_mm - x, s.y_mm - y) > REACH_M * 1000.0:
+                newest = i
+        elif s.met is not None:
+            return i if s.met else newest
+    return newest
 
 
 def held_limit(params: ControlParams, m: RetreatMemory, upper_dbm: float) -> ControlParams:
@@ -157,8 +193,17 @@ def _doubt(ci: ControlInputs, p: ControlParams) -> bool:
             or ci.rssi_behind_dbm is None or not math.isfinite(ci.rssi_behind_dbm))
 
 
+def _rear_blind(sonar_mm: tuple[int | None, ...]) -> bool:
+    """A rear sonar never read (or reading nonsense) cannot guard the way back."""
+    for k in REAR_SONARS:
+        r = sonar_mm[k] if k < len(sonar_mm) else None
+        if r is None or not r > 0:
+            return True
+    return False
+
+
 def _end(m: RetreatMemory, outcome: str) -> RetreatMemory:
-    return replace(m, target=None, started_t=None, last_pose=None, last_outcome=outcome, below=0)
+    return replace(m, target=None, started_t=None, last_pose=None, last_outcome=outcome, below=0, edge=False)
 
 
 def _zero(out: ControlOutput, state: DriveState, reason: str) -> ControlOutput:
@@ -176,7 +221,7 @@ def retreat_step(ci: ControlInputs, sonar_mm: tuple[int | None, ...], out: Contr
     if not following or ci.odom is None or not _pose_ok(ci.odom):
         if m.target is not None:
             return _zero(out, out.state, out.reason), _end(m, "aborted")
-        return out, replace(m, below=0) if not following else m
+        return out, replace(m, below=0, edge=False) if not following else m
     x, y, _ = ci.odom
     now = ci.t_s if ci.t_s is not None else 0.0
     if m.anchor is not None and math.hypot(x - m.anchor[0], y - m.anchor[1]) > CLEAR_M * 1000.0:
@@ -184,12 +229,12 @@ def retreat_step(ci: ControlInputs, sonar_mm: tuple[int | None, ...], out: Contr
 
     if m.target is None:
         m = _lay(m, x, y)
-        if not (stopped and m.below >= BELOW_POLLS) or _doubt(ci, p):
+        if not (stopped and (m.below >= BELOW_POLLS or m.edge)) or _doubt(ci, p):
             return out, m
         target = retreat_target(m.trail, x, y, MAX_RETREAT_M - m.spent_m)
         if target is None:
-            return out, replace(m, below=0, last_outcome="no_spot")
-        m = replace(m, target=target, started_t=now, last_pose=(x, y), retreats=m.retreats + 1)
+            return out, replace(m, below=0, edge=False, last_outcome="no_spot")
+        m = replace(m, target=target, started_t=now, last_pose=(x, y), retreats=m.retreats + 1, edge=False)
 
     # A move runs.
     if _doubt(ci, p):
@@ -213,6 +258,8 @@ def retreat_step(ci: ControlInputs, sonar_mm: tuple[int | None, ...], out: Contr
         floor = None if goal.rssi_b_dbm is None else goal.rssi_b_dbm + HOLD_MARGIN_DB
         return (_zero(out, DriveState.STOPPED, "retreat_hold"),
                 replace(_end(m, "arrived"), floor_dbm=floor, anchor=(goal.x_mm, goal.y_mm)))
+    if _rear_blind(sonar_mm):
+        return _zero(out, DriveState.STOPPED, "rear_blocked"), m  # never back blind; the time limit runs
     nxt = trail[-1]
     speed = min(SPEED_MM_S, remaining_m * 1000.0 / TAPER_S)
     left, right, why = reverse_toward(ci.odom, Crumb(nxt.x_mm, nxt.y_mm, None, None), speed, sonar_mm,

@@ -27,14 +27,16 @@ import structlog
 #: worker while the other idles. A stale list costs only wall time; every file not named
 #: runs after these, in their usual order.
 LONGEST_FILES_FIRST = (
-    "test_api_flood.py",            # ~25 s, waits: a 16 s flood
+    "test_types.py",                # ~15 s cold (a fresh checkout), CPU: mypy, strict
+    "test_api_flood.py",            # ~22 s, waits: a 13 s flood
     "test_sweep.py",                # ~25 s, Dask clusters and child processes
-    "test_foxglove_live.py",        # ~25 s, a 12 s stalled-client window, a virtual-time flood
+    "test_foxglove_live.py",        # ~19 s, a 6 s stalled-client window, a virtual-time flood
     "test_offline_install.py",      # ~20 s, pip against the index
     "test_live_page_ops.py",        # ~18 s, waits: the page's stale timers
     "test_sim_convoy_corridor.py",  # ~16 s, CPU: four paper scenarios
-    "test_bench_smoke.py",          # ~12 s
+    "test_bench_smoke.py",          # ~10 s, its four live benchmarks side by side
     "test_fuzz_decoders.py",        # ~12 s, CPU: hypothesis
+    "test_linkmodel.py",            # ~12 s of CPU, hypothesis (third longest file on a loaded machine)
     "test_sim_recovery.py",         # ~11 s, CPU: drift and door, recovery off and on
     "test_sim_scenarios.py",        # ~10 s, CPU: the obstacle scenarios
     "test_serial_leaks.py",         # ~10 s, waits: pty hang-ups
@@ -43,7 +45,6 @@ LONGEST_FILES_FIRST = (
     "test_live_page_browser.py",
     "test_api_schemathesis.py",
     "test_avoidance.py",
-    "test_linkmodel.py",
     "test_airos_model.py",
     "test_record.py",
     "test_recovery.py",

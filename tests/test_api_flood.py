@@ -12,7 +12,7 @@ the failed accept tens of thousands of times. Now:
 
 - the robot keeps driving: the fake robot's wheel target never drops to zero and the
   daemon never reports a stop, during the flood or after it;
-- /healthz answers (200) within 15 s of the flood being in place, on a new connection;
+- /healthz answers (200) within 10 s of the flood being in place, on a new connection;
 - the whole log stays under 1 MB.
 """
 
@@ -39,10 +39,12 @@ HERE = Path(__file__).resolve().parent
 SCAN = {"samples": 9, "width_deg": 120, "settle_s": 0.02}
 PANTILT = {"speed_deg_s": 1000}
 IDLE, SLOW = 1100, 100
-#: Past the server's 10 s idle timeout (idle and slow-header clients are cut once, by it)
-#: and past the /healthz window below: a longer hold only repeats the same.
-HOLD_S = 16.0
-HEALTHZ_WITHIN_S = 15.0
+#: Past the server's 10 s idle timeout (idle and slow-header clients are cut once, by it:
+#: the figures must show the cut) and past the /healthz window below: a longer hold only
+#: repeats the same. (16 s until the hold had to be past the cut to count.)
+HOLD_S = 13.0
+#: /healthz answered 1.3 s into the flood on a loaded machine (load average 8 on 2 cores).
+HEALTHZ_WITHIN_S = 10.0
 MAX_LOG_BYTES = 1_000_000
 _PRIORITY = re.compile(r"^<\d>")
 
@@ -189,6 +191,8 @@ async def test_connection_flood_does_not_stop_the_robot(tmp_path: Path) -> None:
     print(f"flood {figures}; /healthz 200 after {None if t_ok is None else round(t_ok - t_flood, 2)} s; "
           f"log {log_bytes} bytes")
     assert figures["idle_connected"] + figures["slow_connected"] > 200, figures  # a real flood
+    # The hold lasted past the server's idle timeout: it cut the slow-header clients.
+    assert figures["slow_cut_by_server"] > 0, figures
     assert t_ok is not None and t_ok - t_flood <= HEALTHZ_WITHIN_S, \
         f"/healthz not answering within {HEALTHZ_WITHIN_S} s of the flood\n{tail}"
     assert stops == [], f"the wheels stopped {len(stops)} times during the flood\n{tail}"

@@ -15,6 +15,7 @@ from relayd.brain import PANTILT, Brain
 from relayd.config import Settings
 from relayd.events import (
     Action,
+    Decision,
     DeviceEvent,
     DeviceStatus,
     LinkEvent,
@@ -26,7 +27,7 @@ from relayd.events import (
     SipEvent,
 )
 from relayd.params import brain_params
-from relayd.retreat import HOLD_MARGIN_DB
+from relayd.retreat import BELOW_POLLS, HOLD_MARGIN_DB
 
 EDGE_MM = 3000.0
 CLEAR = (-60.0, 54.0)  # RSSI^b, PHY rate: 27 Mbit/s delivered, the target met
@@ -41,8 +42,11 @@ class Relay:
     t: float = 0.0
     x_mm: float = 0.0
     fresh: bool = True
+    shadow: tuple[float, float] = SHADOW
     log: list[Action] = field(default_factory=list)
     xs: list[float] = field(default_factory=list)
+    #: (time, x, RSSI^b) of every rear poll in the shadow, and (time, reason) of every decision.
+    shadow_polls: list[tuple[float, float, float]] = field(default_factory=list)
 
     def feed(self, ev: object) -> None:
         self.log.extend(self.brain.handle(ev))  # type: ignore[arg-type]
@@ -57,7 +61,9 @@ class Relay:
             if self.fresh:
                 self.feed(RssiEvent(self.t, RssiSample(self.t, -50.0, True)))
             if round(self.t * 10) % 10 == 0:
-                dbm, rate = SHADOW if self.x_mm > EDGE_MM else CLEAR
+                dbm, rate = self.shadow if self.x_mm > EDGE_MM else CLEAR
+                if self.x_mm > EDGE_MM:
+                    self.shadow_polls.append((self.t, self.x_mm, dbm))
                 sta = Station(mac="00:11:22:33:44:55", signal_dbm=dbm, ccq_pct=100.0, tx_mbps=rate, rx_mbps=rate)
                 q = LinkQuality(t=self.t, signal_dbm=None, rssi=None, noise_dbm=-95.0, ccq_pct=None,
                                 tx_mbps=None, rx_mbps=None, stations=(sta,), mode="ap")
@@ -79,13 +85,13 @@ class Relay:
             self.step(1.0)
 
 
-def relay(policy: str) -> Relay:
+def relay(policy: str, shadow: tuple[float, float] = SHADOW) -> Relay:
     cfg = Settings.model_validate({
         "scan": {"samples": 5, "width_deg": 120},
         "control": {"link_policy": policy, "threshold_b_dbm": -70.0, "threshold_b_min_dbm": -80.0,
                     "threshold_b_max_dbm": -50.0, "threshold_l_dbm": -30.0},
     })
-    r = Relay(Brain(brain_params(cfg)))
+    r = Relay(Brain(brain_params(cfg)), shadow=shadow)
     r.feed(DeviceEvent(0.0, PANTILT, DeviceStatus.UP))
     return r
 
@@ -106,6 +112,27 @@ def test_adaptive_relay_steps_back_out_of_the_shadow_and_holds() -> None:
     assert views[-1].threshold_b_dbm == pytest.approx(CLEAR[0] + HOLD_MARGIN_DB)  # /status shows the hold
     reasons = {a.reason for a in r.log if hasattr(a, "reason")}
     assert "retreat" in reasons
+
+
+def first_retreat_t(r: Relay) -> float:
+    return next(a.t for a in r.log if isinstance(a, Decision) and a.reason == "retreat")
+
+
+def test_a_sudden_drop_steps_back_on_the_first_poll_past_the_edge() -> None:
+    """19 dB within one poll: a shadow edge; the move starts on the step after that poll."""
+    r = relay("adaptive")
+    r.run(40)
+    first_poll_t = r.shadow_polls[0][0]
+    assert first_retreat_t(r) - first_poll_t <= 0.2
+
+
+def test_a_gradual_drop_waits_for_polls_below_standing() -> None:
+    """4 dB below the polls before (within fading) and under the target: the relay stands for
+    its polls below before it steps back, as without the edge rule."""
+    r = relay("adaptive", shadow=(-64.0, 18.0))  # 8.55 Mbit/s delivered at CCQ 95 %, 9 at 100 %
+    r.run(40)
+    assert r.brain.retreat.retreats >= 1
+    assert first_retreat_t(r) - r.shadow_polls[0][0] >= BELOW_POLLS - 1e-6
 
 
 def test_fixed_relay_never_backs_up() -> None:

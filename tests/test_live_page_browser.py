@@ -105,9 +105,18 @@ async def test_live_page_shows_the_daemon_and_redraws_on_a_new_scan(
                 arg=full_sweep, timeout=2 * SCAN_TIMEOUT_MS)
             new_points = await page.get_attribute("#scan-trace", "points")
             assert new_points != old_points
+            # The adaptive window is still centred on the old side for the sweeps right
+            # after the move: where they see the leader only at their edge, the lobe fit
+            # may land past it (-60 deg was seen, on a loaded machine). Re-centred, the
+            # estimate is within 10 deg of the truth (-45 deg) in a sweep or two.
+            await until(lambda: state.bearing_deg is not None
+                        and abs(state.bearing_deg - rig.true_bearing_deg()) <= 10,
+                        "the bearing estimate on the leader's new side", 2 * SCAN_TIMEOUT_MS / 1000)
+            await page.wait_for_function(
+                "(n) => parseInt(document.getElementById('scan-count').textContent) >= n",
+                arg=state.scan_count, timeout=SCAN_TIMEOUT_MS)
             assert float(await page.get_attribute("#bearing-line", "x2") or "nan") > 50  # leans right
             assert state.bearing_deg is not None
-            assert state.bearing_deg == pytest.approx(rig.true_bearing_deg(), abs=10)  # -45 deg
             shown = float((await page.text_content("#bearing") or "nan").rstrip("°"))
             assert shown == pytest.approx(state.bearing_deg, abs=2)  # a later sweep may differ a bit
             await page.screenshot(path=str(tmp_path / "live.png"), full_page=True)

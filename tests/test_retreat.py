@@ -6,19 +6,24 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from relayd.api.reasons import phrasebook
+from relayd.breadcrumbs import REAR_SONARS
 from relayd.controller import ControlInputs, ControlMemory, ControlOutput, ControlParams
 from relayd.retreat import (
     BELOW_POLLS,
+    EDGE_DROP_DB,
+    EDGE_M,
     HOLD_MARGIN_DB,
     MAX_RETREAT_M,
     REACH_M,
     RetreatMemory,
     Spot,
     held_limit,
+    is_edge,
     record_poll,
     retreat_step,
     retreat_target,
@@ -51,9 +56,15 @@ def drive(pose: tuple[float, float, float], left: float, right: float, dt: float
     return x + v * dt * math.cos(mid), y + v * dt * math.sin(mid), th + w * dt
 
 
-def walked_into_shadow(edge_mm: float = 2000.0, past_mm: float = 100.0) -> tuple[RetreatMemory, float]:
-    """A relay that drove along +x meeting the target at every poll up to edge_mm, then one
-    poll past_mm beyond it that missed: standing there, at its rear limit. Returns (memory, x)."""
+#: A miss 6 dB below the polls that met the target: a gradual edge, no sudden shadow.
+GRADUAL_DBM = -72.0
+
+
+def walked_into_shadow(edge_mm: float = 2000.0, past_mm: float = 100.0,
+                       miss_dbm: float = GRADUAL_DBM) -> tuple[RetreatMemory, float]:
+    """A relay that drove along +x meeting the target at -66 dBm at every poll (one each
+    200 mm) up to edge_mm, then one poll past_mm beyond it that missed at miss_dbm: the
+    controller stops it there, at its rear limit. Returns (memory, x)."""
     m = RetreatMemory()
     x = 0.0
     while x <= edge_mm:
@@ -63,8 +74,20 @@ def walked_into_shadow(edge_mm: float = 2000.0, past_mm: float = 100.0) -> tuple
         x += 50.0
     x = edge_mm + past_mm
     _, m = retreat_step(ci((x, 0.0, 0.0)), OPEN, DRIVING, P, m, enabled=True)
-    m = record_poll(m, (x, 0.0, 0.0), -80.0, False)
+    m = record_poll(m, (x, 0.0, 0.0), miss_dbm, False)
     return m, x
+
+
+def run_move(m: RetreatMemory, x: float, dt: float = 0.1) -> tuple[ControlOutput, RetreatMemory, float]:
+    """Let a started move run to its end (exact kinematics); returns the last output and where it stopped."""
+    pose = (x, 0.0, 0.0)
+    out = STOP_REAR
+    for _ in range(400):
+        out, m = retreat_step(ci(pose), OPEN, STOP_REAR, P, m, enabled=True)
+        if m.target is None:
+            break
+        pose = drive(pose, out.left_mm_s, out.right_mm_s, dt)
+    return out, m, pose[0]
 
 
 def stand_below(m: RetreatMemory, x: float, polls: int) -> tuple[ControlOutput, RetreatMemory]:
@@ -88,14 +111,11 @@ def test_it_steps_back_after_enough_polls_below_target_standing_and_holds_with_a
     out, m = stand_below(m, x, 1)
     assert out.left_mm_s < 0 and out.right_mm_s < 0 and out.reason == "retreat"
     assert out.state is DriveState.RECOVERING and m.target is not None
-    pose = (x, 0.0, 0.0)
-    for _ in range(200):
-        out, m = retreat_step(ci(pose), OPEN, STOP_REAR, P, m, enabled=True)
-        if m.target is None:
-            break
-        pose = drive(pose, out.left_mm_s, out.right_mm_s, 0.1)
+    out, m, stop_x = run_move(m, x)
+    pose = (stop_x, 0.0, 0.0)
     assert out.reason == "retreat_hold" and out.left_mm_s == out.right_mm_s == 0.0
-    assert abs(pose[0] - 2000.0) < REACH_M * 1000.0 + 20.0  # at the last spot that met the target
+    # At the poll before the newest one that met the target (its value may be a poll period old).
+    assert abs(stop_x - 1800.0) < REACH_M * 1000.0 + 20.0
     assert m.floor_dbm == -66.0 + HOLD_MARGIN_DB
     assert held_limit(P, m, -55.0).threshold_b_dbm == -66.0 + HOLD_MARGIN_DB
     assert held_limit(P, m, -70.0).threshold_b_dbm == -70.0  # never above the tightest bound
@@ -133,6 +153,58 @@ def test_disabled_or_other_stop_reasons_never_move() -> None:
     assert out is near
 
 
+def test_a_shadow_edge_steps_back_at_once() -> None:
+    """A poll 14 dB below the one before it, 0.1 m further on: no standing through polls below."""
+    m, x = walked_into_shadow(miss_dbm=-80.0)
+    assert m.edge and m.below == 0
+    out, m = retreat_step(ci((x, 0.0, 0.0)), OPEN, STOP_REAR, P, m, enabled=True)
+    assert out.left_mm_s < 0 and out.right_mm_s < 0 and out.reason == "retreat"
+    assert not m.edge  # a move consumes it
+    out, m, stop_x = run_move(m, x)
+    assert out.reason == "retreat_hold" and abs(stop_x - 1800.0) < REACH_M * 1000.0 + 20.0
+    assert m.floor_dbm == -66.0 + HOLD_MARGIN_DB
+
+
+def test_an_edge_waits_for_the_controller_to_stop_it() -> None:
+    """The edge poll still above the limit (the controller drives on): the edge does not move it,
+    and the next poll clears it."""
+    m, x = walked_into_shadow(miss_dbm=-80.0)
+    out, m = retreat_step(ci((x, 0.0, 0.0)), OPEN, DRIVING, P, m, enabled=True)
+    assert out is DRIVING and m.target is None
+    m = record_poll(m, (x + 200.0, 0.0, 0.0), -66.0, True)
+    assert not m.edge
+    near = ControlOutput(0.0, 0.0, DriveState.STOPPED, "leader_near", 1, ControlMemory())
+    m2, _ = walked_into_shadow(miss_dbm=-80.0)
+    out, m2 = retreat_step(ci((x, 0.0, 0.0)), OPEN, near, P, m2, enabled=True)
+    assert out is near and m2.target is None  # standing for another reason: never back
+
+
+@pytest.mark.parametrize(("drop_db", "moved_mm", "edge"), [
+    (EDGE_DROP_DB, 100.0, True),
+    (EDGE_DROP_DB - 0.5, 100.0, False),       # within what two fading readings differ by
+    (EDGE_DROP_DB + 6.0, 5.0, False),         # standing: the drop came to it (something between)
+    (EDGE_DROP_DB + 6.0, EDGE_M * 1000.0 + 50.0, False),  # too far driven to be one edge
+])
+def test_what_counts_as_an_edge(drop_db: float, moved_mm: float, edge: bool) -> None:
+    trail = (Spot(0.0, 0.0, -66.0, True), Spot(50.0, 0.0))
+    assert is_edge(trail, Spot(moved_mm, 0.0, -66.0 - drop_db, False)) is edge
+    # The poll before must have met the target.
+    missed = (Spot(0.0, 0.0, -66.0, False),)
+    assert not is_edge(missed, Spot(moved_mm, 0.0, -66.0 - drop_db, False))
+
+
+def test_retreat_target_prefers_the_poll_before_the_newest_that_met() -> None:
+    trail = (Spot(0.0, 0.0, -65.0, True), Spot(100.0, 0.0), Spot(200.0, 0.0, -66.0, True),
+             Spot(300.0, 0.0), Spot(400.0, 0.0, -80.0, False))
+    assert retreat_target(trail, 400.0, 0.0, MAX_RETREAT_M) == 0
+    # The poll before the newest that met missed: the newest that met it is the goal.
+    trail2 = (Spot(0.0, 0.0, -80.0, False), *trail[1:])
+    assert retreat_target(trail2, 400.0, 0.0, MAX_RETREAT_M) == 2
+    # The older one beyond the budget: the newest that met it.
+    assert retreat_target(trail, 400.0, 0.0, 0.3) == 2
+    assert retreat_target(trail, 400.0, 0.0, 0.1) is None
+
+
 def test_no_spot_within_the_bound_means_it_stays() -> None:
     m, x = walked_into_shadow(edge_mm=2000.0, past_mm=MAX_RETREAT_M * 1000.0 + 300.0)
     out, m = stand_below(m, x, BELOW_POLLS)
@@ -144,6 +216,36 @@ def test_retreat_target_counts_path_not_straight_line() -> None:
     trail = (Spot(0.0, 500.0, -60.0, True), Spot(2000.0, 500.0), Spot(2000.0, 0.0), Spot(0.0, 0.0, -80.0, False))
     assert retreat_target(trail, 0.0, 0.0, MAX_RETREAT_M) is None
     assert retreat_target(trail, 0.0, 0.0, 5.0) == 0
+
+
+@settings(max_examples=80, deadline=None)
+@given(which=st.sampled_from(REAR_SONARS), range_mm=st.integers(1, int(P.stop_distance_m * 1000)),
+       others=st.lists(st.integers(1, 5000), min_size=16, max_size=16), edge=st.booleans(),
+       steps=st.integers(0, 6))
+def test_never_reverses_toward_an_echo_inside_stop_distance(which: int, range_mm: int, others: list[int],
+                                                            edge: bool, steps: int) -> None:
+    """Whatever started the move and wherever it is, an echo behind within stop_distance means
+    no backward wheel speed on that step."""
+    m, x = walked_into_shadow(miss_dbm=-80.0 if edge else GRADUAL_DBM)
+    if not edge:
+        _, m = stand_below(m, x, BELOW_POLLS - 1)
+        m = record_poll(m, (x, 0.0, 0.0), -80.0, False)
+    pose = (x, 0.0, 0.0)
+    for _ in range(steps):
+        out, m = retreat_step(ci(pose), OPEN, STOP_REAR, P, m, enabled=True)
+        pose = drive(pose, out.left_mm_s, out.right_mm_s, 0.1)
+    sonar = list(others)
+    sonar[which] = range_mm
+    out, m = retreat_step(ci(pose), tuple(sonar), STOP_REAR, P, m, enabled=True)
+    assert out.left_mm_s == 0.0 and out.right_mm_s == 0.0
+
+
+def test_a_rear_sonar_never_read_stops_a_move() -> None:
+    m, x = walked_into_shadow(miss_dbm=-80.0)
+    blind: list[int | None] = list(OPEN)
+    blind[REAR_SONARS[0]] = None
+    out, m = retreat_step(ci((x, 0.0, 0.0)), tuple(blind), STOP_REAR, P, m, enabled=True)
+    assert out.left_mm_s == out.right_mm_s == 0.0 and out.reason == "rear_blocked"
 
 
 def test_an_echo_right_behind_stops_it() -> None:
@@ -188,12 +290,30 @@ def test_any_doubt_during_a_move_means_zero_wheels(which: str, steps: int) -> No
 
 
 @settings(max_examples=60, deadline=None)
+@given(which=STALE, edge=st.booleans())
+def test_stale_input_never_starts_a_move(which: str, edge: bool) -> None:
+    m, x = walked_into_shadow(miss_dbm=-80.0 if edge else GRADUAL_DBM)
+    if not edge:
+        _, m = stand_below(m, x, BELOW_POLLS - 1)
+        m = record_poll(m, (x, 0.0, 0.0), -80.0, False)
+    table: dict[str, dict[str, object]] = {
+        "sip": {"sip_age_s": 5.0}, "rssi": {"rssi_age_s": 5.0}, "rear": {"rear_age_s": 10.0},
+        "rear_none": {"rssi_behind_dbm": None}, "pose": {"odom": None}, "nan_age": {"sip_age_s": math.nan},
+    }
+    args = dict(table[which])
+    odom = args.pop("odom", (x, 0.0, 0.0))
+    out, m = retreat_step(ci(odom, **args), OPEN, STOP_REAR, P, m, enabled=True)  # type: ignore[arg-type]
+    assert out is STOP_REAR and m.target is None
+
+
+@settings(max_examples=60, deadline=None)
 @given(edge_m=st.floats(0.5, 6.0), past_m=st.floats(0.05, 4.0), dt=st.floats(0.05, 1.0),
-       rounds=st.integers(1, 10), spacing_mm=st.floats(50.0, 1500.0))
+       rounds=st.integers(1, 10), spacing_mm=st.floats(50.0, 1500.0), drop_db=st.floats(0.0, 30.0))
 def test_reverse_travel_never_exceeds_the_bound(edge_m: float, past_m: float, dt: float, rounds: int,
-                                                spacing_mm: float) -> None:
-    """Over repeated triggers in one place, with any control period, the path reversed
-    stays within MAX_RETREAT_M (the speed is tapered to what is left)."""
+                                                spacing_mm: float, drop_db: float) -> None:
+    """Over repeated triggers in one place (an edge or polls below, drops of any size), with
+    any control period, the path reversed stays within MAX_RETREAT_M (the speed is tapered
+    to what is left)."""
     m = RetreatMemory()
     x = 0.0
     while x <= edge_m * 1000.0:
@@ -206,7 +326,7 @@ def test_reverse_travel_never_exceeds_the_bound(edge_m: float, past_m: float, dt
         # Each round: it stands where it is, the hop below target; then any move runs out.
         for _ in range(BELOW_POLLS):
             _, m = retreat_step(ci(pose), OPEN, STOP_REAR, P, m, enabled=True)
-            m = record_poll(m, pose, -80.0, False)
+            m = record_poll(m, pose, -66.0 - drop_db, False)
         for _ in range(400):
             out, m = retreat_step(ci(pose), OPEN, STOP_REAR, P, m, enabled=True)
             assert out.left_mm_s <= 0.0 and out.right_mm_s <= 0.0  # only ever backwards

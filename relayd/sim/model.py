@@ -126,7 +126,7 @@ def run_model(scenario: Scenario, *, seed: int = 0, past_m: float, seconds: floa
     while t < seconds:
         world.advance(t)
         world.set_pose(0, x, y, th)
-        sonar = world.sonar_mm(0, x, y, th)
+        sonar = world.sonar_ranges(0, x, y, th)
         for _ in range(SONARS_PER_SIP):
             i = FIRING_ORDER[fire % 16]
             fire += 1

@@ -149,46 +149,100 @@ class ShadowField:
                             for _ in range(waves))
 
     def value(self, x_m: float, y_m: float) -> float:
-        return sum(a * math.cos(kx * x_m + ky * y_m + ph) for kx, ky, ph, a in self._waves)
+        cos = math.cos
+        # A list, not a generator, for sum(): the same terms added in the same order, faster.
+        return sum([a * cos(kx * x_m + ky * y_m + ph) for kx, ky, ph, a in self._waves])
+
+
+#: Entries a Radio memo holds before it is emptied (a few seconds of a moving chain).
+MEMO_MAX_ENTRIES = 512
 
 
 class Radio:
-    """Link budgets in one world: deterministic for a given seed and geometry."""
+    """Link budgets in one world: deterministic for a given seed and geometry.
+
+    Memoised. Within one world tick the simulator asks about the same few links several
+    times (the Yagi's sample, each hop's rate and reported level, the trace record) and
+    nodes that stand still (the command center, a pausing leader, a stopped relay) give
+    the same links tick after tick. Everything but the fading draw is a pure function of
+    the two end points, the walls and the parameters, so it is kept per exact pair of
+    points (and the shadowing per exact point): the same floats in, the same floats out,
+    computed once. The memos are emptied when the walls change (a timed door) or the
+    parameters are replaced, and when they reach MEMO_MAX_ENTRIES.
+    """
 
     def __init__(self, params: RadioParams, walls: Iterable[Segment], seed: int = 0) -> None:
         self.params = params
-        self.walls = tuple(walls)
+        self._walls: tuple[Segment, ...] = tuple(walls)
         self._shadow = ShadowField(seed, params.shadow_corr_m)
         self._rng = random.Random(seed ^ 0x5EED)
-        for w in self.walls:
+        for w in self._walls:
             if w.material not in params.wall_loss_db:
                 raise ValueError(f"wall material {w.material!r} has no loss in radio.wall_loss_db")
+        #: (ax, ay, bx, by) -> (mean power without antenna gain, wall loss, walls crossed, environment)
+        self._paths: dict[tuple[float, float, float, float], tuple[float, float, int, PathEnvironment]] = {}
+        self._shadow_at: dict[tuple[float, float], float] = {}
+        self._memo_params = params
+
+    @property
+    def walls(self) -> tuple[Segment, ...]:
+        """What the radio paths cross now (the world swaps them when a timed door moves)."""
+        return self._walls
+
+    @walls.setter
+    def walls(self, walls: Iterable[Segment]) -> None:
+        self._walls = tuple(walls)
+        self._paths.clear()
+
+    def _path(self, a: Point, b: Point) -> tuple[float, float, int, PathEnvironment]:
+        """The link a-b's gain-free local-mean power, wall loss, walls crossed, environment."""
+        key = (a[0], a[1], b[0], b[1])
+        if self.params is not self._memo_params:
+            self._paths.clear()
+            self._shadow_at.clear()
+            self._memo_params = self.params
+        hit = self._paths.get(key)
+        if hit is not None:
+            return hit
+        p = self.params
+        env = path_environment(a, b, p.zones, l0_dbm=p.l0_dbm, exponent=p.exponent,
+                               shadow_sigma_db=p.shadow_sigma_db, rician_k_db=p.rician_k_db)
+        hit_walls = crossings(a, b, self._walls)
+        loss, n_walls = sum(p.wall_loss_db[w.material] for w in hit_walls), len(hit_walls)
+        d = max(p.min_distance_m, math.hypot(b[0] - a[0], b[1] - a[1]))
+        # Summed in the order of the budget P = L0 - 10 n log10(d) - walls + shadowing (+ gain).
+        base = env.l0_dbm - 10.0 * env.exponent * math.log10(d) - loss + self.shadowing_db(a, b, env.shadow_sigma_db)
+        if len(self._paths) >= MEMO_MAX_ENTRIES:
+            self._paths.clear()
+        out = self._paths[key] = (base, loss, n_walls, env)
+        return out
+
+    def _shadow_value(self, pt: Point) -> float:
+        v = self._shadow_at.get(pt)
+        if v is None:
+            if len(self._shadow_at) >= MEMO_MAX_ENTRIES:
+                self._shadow_at.clear()
+            v = self._shadow_at[pt] = self._shadow.value(pt[0], pt[1])
+        return v
 
     def wall_loss_db(self, a: Point, b: Point) -> tuple[float, int]:
         """Total loss of the walls the direct path crosses, and how many it crosses."""
-        hit = crossings(a, b, self.walls)
-        return sum(self.params.wall_loss_db[w.material] for w in hit), len(hit)
+        _, loss, n_walls, _ = self._path(a, b)
+        return loss, n_walls
 
     def environment(self, a: Point, b: Point) -> PathEnvironment:
         """L0, n, sigma, K and the multipath penalty of the link a-b (per zone, else [radio]'s)."""
-        p = self.params
-        return path_environment(a, b, p.zones, l0_dbm=p.l0_dbm, exponent=p.exponent,
-                                shadow_sigma_db=p.shadow_sigma_db, rician_k_db=p.rician_k_db)
+        return self._path(a, b)[3]
 
     def shadowing_db(self, a: Point, b: Point, sigma_db: float | None = None) -> float:
         """Slow shadowing of the link a-b: symmetric, smooth as either end moves."""
-        s = (self._shadow.value(*a) + self._shadow.value(*b)) / math.sqrt(2.0)
+        s = (self._shadow_value((a[0], a[1])) + self._shadow_value((b[0], b[1]))) / math.sqrt(2.0)
         return (self.params.shadow_sigma_db if sigma_db is None else sigma_db) * s
 
     def mean_power_dbm(self, a: Point, b: Point, gain_db: float = 0.0) -> tuple[float, bool]:
         """Local-mean received power (no fast fading) and whether the path is line of sight."""
-        p = self.params
-        env = self.environment(a, b)
-        d = max(p.min_distance_m, math.hypot(b[0] - a[0], b[1] - a[1]))
-        loss, n_walls = self.wall_loss_db(a, b)
-        power = (env.l0_dbm - 10.0 * env.exponent * math.log10(d) - loss
-                 + self.shadowing_db(a, b, env.shadow_sigma_db) + gain_db)
-        return power, n_walls == 0
+        base, _, n_walls, _ = self._path(a, b)
+        return base + gain_db, n_walls == 0
 
     def rate_penalty_db(self, a: Point, b: Point) -> float:
         """SNR margin the link's multipath costs its rate (0 outside zones that set it)."""

@@ -101,8 +101,8 @@ async def start_relay(scenario: Scenario, world: World, i: int, *, clock: Clock,
 
     body = world.relays[i]
 
-    def sonar_fn(x_mm: float, y_mm: float, theta_deg: float) -> list[int]:
-        return world.sonar_mm(i, x_mm, y_mm, theta_deg)
+    def sonar_fn(x_mm: float, y_mm: float, theta_deg: float) -> Sequence[int]:
+        return world.sonar_ranges(i, x_mm, y_mm, theta_deg)
 
     def motion_guard(old: Any, new: Any) -> bool:
         return world.motion_ok(i, *_pose3(new), old=_pose3(old))

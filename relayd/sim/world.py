@@ -18,17 +18,16 @@ from __future__ import annotations
 
 import math
 import random
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from relayd.sim.geometry import (
     Point,
     Polygon,
     Segment,
-    cone_range,
     footprint,
     polygon_hits_circle,
     polygon_hits_segment,
-    polygon_segments,
     polygons_overlap,
     wrap_deg,
 )
@@ -44,23 +43,19 @@ from relayd.sim.radio import (
     yagi_gain_db,
 )
 from relayd.sim.scenario import Scenario
+from relayd.sim.sonar import SonarReadings
 
 #: P3-AT body (docs/PROTOCOLS.md 1.11, from ARIA's p3at.p: RobotLength 626 mm, RobotWidth 505 mm).
 ROBOT_LENGTH_M = 0.626
 ROBOT_WIDTH_M = 0.505
+#: The P3-AT footprint's circumradius: no part of the body is farther from its centre.
+ROBOT_RADIUS_M = math.hypot(ROBOT_LENGTH_M, ROBOT_WIDTH_M) / 2.0
+#: Slack of the collision check's bounding-box pre-test (far above float rounding).
+BODY_SLACK_M = 1e-6
 #: How close to a doorway a robot holds a timed door open (see World._blocked).
 DOOR_CLEAR_M = 0.6
 #: A contact episode ends once the footprint is this far from everything again.
 CONTACT_CLEAR_M = 0.02
-#: P3-AT sonar ring (docs/PROTOCOLS.md 1.11): x forward, y left (mm), heading (deg, ccw).
-SONAR_POSES: tuple[tuple[float, float, float], ...] = (
-    (147, 136, 90), (193, 119, 50), (227, 79, 30), (245, 27, 10),
-    (245, -27, -10), (227, -79, -30), (193, -119, -50), (147, -136, -90),
-    (-144, -136, -90), (-189, -119, -130), (-223, -79, -150), (-241, -27, -170),
-    (-241, 27, 170), (-223, 79, 150), (-189, 119, 130), (-144, 136, 90),
-)
-
-
 def _point_segment_m(px: float, py: float, s: Segment) -> float:
     ex, ey = s.x2 - s.x1, s.y2 - s.y1
     n2 = ex * ex + ey * ey
@@ -235,14 +230,24 @@ class World:
                 continue
             if polygon_hits_segment(poly, s):
                 return True
-        lp = self.leader_polygon()
-        if lp is not None:
-            if polygons_overlap(poly, lp):
+        # A body whose bounding disc's box misses this footprint's box cannot touch it:
+        # skipped before its footprint is even made (BODY_SLACK_M: far above rounding).
+        x0, x1, y0, y1 = x0 - BODY_SLACK_M, x1 + BODY_SLACK_M, y0 - BODY_SLACK_M, y1 + BODY_SLACK_M
+        lx, ly = self.leader.x_m, self.leader.y_m
+        lr = ROBOT_RADIUS_M if self.leader_kind == "robot" else self.leader_radius_m
+        if not (lx + lr < x0 or lx - lr > x1 or ly + lr < y0 or ly - lr > y1):
+            lp = self.leader_polygon()
+            if lp is not None:
+                if polygons_overlap(poly, lp):
+                    return True
+            elif polygon_hits_circle(poly, lx, ly, self.leader_radius_m):
                 return True
-        elif polygon_hits_circle(poly, self.leader.x_m, self.leader.y_m, self.leader_radius_m):
-            return True
         for j, other in enumerate(self.relays):
-            if j != i and polygons_overlap(poly, other.polygon()):
+            ox, oy = other.x_m, other.y_m
+            if (j == i or ox + ROBOT_RADIUS_M < x0 or ox - ROBOT_RADIUS_M > x1
+                    or oy + ROBOT_RADIUS_M < y0 or oy - ROBOT_RADIUS_M > y1):
+                continue
+            if polygons_overlap(poly, other.polygon()):
                 return True
         return False
 
@@ -286,38 +291,15 @@ class World:
         would break the exact mirror symmetry that a real sonar ring shows, and which
         the controller must cope with.
         """
-        cfg = self._sonar_cfg
-        x, y = x_mm / 1000.0, y_mm / 1000.0
-        reach = cfg.max_range_m + 0.5
-        segs = [s for s in self.obstacles
-                if not (max(s.x1, s.x2) < x - reach or min(s.x1, s.x2) > x + reach
-                        or max(s.y1, s.y2) < y - reach or min(s.y1, s.y2) > y + reach)]
-        circles: list[tuple[float, float, float]] = []
-        lp = self.leader_polygon()
-        if lp is not None:
-            segs.extend(polygon_segments(lp))
-        else:
-            circles.append((self.leader.x_m, self.leader.y_m, self.leader_radius_m))
-        for j, other in enumerate(self.relays):
-            if j != i and math.hypot(other.x_m - x, other.y_m - y) < reach + 1.0:
-                segs.extend(polygon_segments(other.polygon()))
-        a = math.radians(theta_deg)
-        c, s = math.cos(a), math.sin(a)
-        max_mm = round(cfg.max_range_m * 1000)
-        min_mm = round(cfg.min_range_m * 1000)
-        out: list[int] = []
-        for sx, sy, sh in SONAR_POSES:
-            ox = x + (c * sx - s * sy) / 1000.0
-            oy = y + (s * sx + c * sy) / 1000.0
-            best = cone_range(ox, oy, theta_deg + sh, cfg.beam_deg / 2.0, cfg.max_range_m, segs, circles)
-            if best is None:
-                out.append(max_mm)
-                continue
-            mm = best * 1000.0
-            if cfg.noise_mm > 0:
-                mm += self._sonar_rng.gauss(0.0, cfg.noise_mm)
-            out.append(round(min(max_mm, max(min_mm, mm))))
-        return out
+        ring = SonarReadings(self, i, x_mm, y_mm, theta_deg, cfg=self._sonar_cfg, rng=self._sonar_rng)
+        return [ring[k] for k in range(len(ring))]
+
+    def sonar_ranges(self, i: int, x_mm: float, y_mm: float, theta_deg: float) -> Sequence[int]:
+        """`sonar_mm`, each range computed when it is first read: a P3-AT SIP carries 8 of
+        the 16, so the FakeRobot reads half. With sonar noise all 16 are computed at once,
+        so the noise draws come in sonar order whichever are read (the same run)."""
+        ring = SonarReadings(self, i, x_mm, y_mm, theta_deg, cfg=self._sonar_cfg, rng=self._sonar_rng)
+        return ring if self._sonar_cfg.noise_mm <= 0 else [ring[k] for k in range(len(ring))]
 
     def yagi_rssi_dbm(self, i: int, scan_deg: float | None = None) -> float:
         """What relay i's Yagi hears from its leader's transmitter with the scan servo at

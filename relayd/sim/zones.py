@@ -24,7 +24,7 @@ Decisions:
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from relayd.sim.geometry import Point, point_in_polygon
 
@@ -43,6 +43,13 @@ class RadioZone:
     shadow_sigma_db: float | None = None
     rician_k_db: float | None = None
     multipath_db: float = 0.0
+    #: The polygon's bounding box (x_min, y_min, x_max, y_max): the cheap test before the exact one.
+    bbox: tuple[float, float, float, float] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        xs = [p[0] for p in self.polygon]
+        ys = [p[1] for p in self.polygon]
+        object.__setattr__(self, "bbox", (min(xs), min(ys), max(xs), max(ys)))
 
 
 @dataclass(frozen=True, slots=True)
@@ -58,10 +65,10 @@ class PathEnvironment:
 
 def zone_at(point: Point, zones: Sequence[RadioZone]) -> RadioZone | None:
     """The first zone containing the point (scenario order decides overlaps), or None."""
+    x, y = point
     for z in zones:
-        xs = [p[0] for p in z.polygon]
-        ys = [p[1] for p in z.polygon]
-        if min(xs) <= point[0] <= max(xs) and min(ys) <= point[1] <= max(ys) and point_in_polygon(point, z.polygon):
+        x0, y0, x1, y1 = z.bbox
+        if x0 <= x <= x1 and y0 <= y <= y1 and point_in_polygon(point, z.polygon):
             return z
     return None
 
@@ -71,21 +78,25 @@ def path_environment(a: Point, b: Point, zones: Sequence[RadioZone], *, l0_dbm: 
     """The defaults, or the share-weighted average of the zones along the path a-b."""
     if not zones:
         return PathEnvironment(l0_dbm, exponent, shadow_sigma_db, rician_k_db, 0.0)
-    sums = [0.0, 0.0, 0.0, 0.0, 0.0]
+    outside = (l0_dbm, exponent, shadow_sigma_db, rician_k_db, 0.0)
+    # Each zone's five values worked out once per call, not per sample point.
+    inside = {id(z): (
+        l0_dbm if z.l0_dbm is None else z.l0_dbm,
+        exponent if z.exponent is None else z.exponent,
+        shadow_sigma_db if z.shadow_sigma_db is None else z.shadow_sigma_db,
+        rician_k_db if z.rician_k_db is None else z.rician_k_db,
+        z.multipath_db,
+    ) for z in zones}
+    s0 = s1 = s2 = s3 = s4 = 0.0
     for i in range(PATH_SAMPLES):
         f = (i + 0.5) / PATH_SAMPLES
         z = zone_at((a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1])), zones)
-        if z is None:
-            values = (l0_dbm, exponent, shadow_sigma_db, rician_k_db, 0.0)
-        else:
-            values = (
-                l0_dbm if z.l0_dbm is None else z.l0_dbm,
-                exponent if z.exponent is None else z.exponent,
-                shadow_sigma_db if z.shadow_sigma_db is None else z.shadow_sigma_db,
-                rician_k_db if z.rician_k_db is None else z.rician_k_db,
-                z.multipath_db,
-            )
-        for k, v in enumerate(values):
-            sums[k] += v
+        v0, v1, v2, v3, v4 = outside if z is None else inside[id(z)]
+        # Summed sample by sample, in path order, as a running total per value.
+        s0 += v0
+        s1 += v1
+        s2 += v2
+        s3 += v3
+        s4 += v4
     n = float(PATH_SAMPLES)
-    return PathEnvironment(sums[0] / n, sums[1] / n, sums[2] / n, sums[3] / n, sums[4] / n)
+    return PathEnvironment(s0 / n, s1 / n, s2 / n, s3 / n, s4 / n)

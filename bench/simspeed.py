@@ -1,0 +1,167 @@
+"""Simulator speed: simulated seconds per CPU second of `relayd sim`, and the identity check.
+
+Each case is one `relayd sim --speed max --no-plots` run (virtual time, real daemons,
+in-process devices) in a child process of its own: its wall and CPU time (the child's
+user + system, from getrusage; it includes the ~1 s of imports and bring-up), the
+simulated seconds (summary.json's `sim_seconds`) and a digest of its `summary.json`
+and `trace.jsonl`.
+
+With `--against TREE` every case also runs on another checkout of the project (e.g.
+`git archive main | tar -x -C /tmp/base`), the two trees alternating case by case so
+the machine's load hits both alike, and the table shows both side by side plus whether
+the two runs gave byte-identical summary.json and trace.jsonl. A speed-up of the
+simulator must not change a run: the exit status is 1 when any case differs.
+
+    python bench/simspeed.py                          # this tree, the default cases
+    python bench/simspeed.py --against /tmp/base      # side by side + identity check
+    python bench/simspeed.py --cases convoy:2:2 drift:1:1:on --repeat 3
+
+A case is `scenario[:relays[:seed[:recovery]]]` (recovery on | off; default the
+scenario's). The default cases are the scenarios the test suite runs (seed 1) and
+convoy with seed 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+DEFAULT_CASES = (
+    "convoy:2:1", "convoy:2:2", "corridor:0:1", "corridor:1:1", "corridor:2:1",
+    "obstacle:1:1", "box-dead-ahead:1:1", "doorway:1:1", "person-in-corridor:1:1",
+    "drift:1:1:off", "drift:1:1:on", "door:1:1:off", "door:1:1:on", "parking:1:1", "mixed",
+)
+
+
+@dataclass(frozen=True, slots=True)
+class Case:
+    scenario: str
+    relays: int | None = None
+    seed: int = 1
+    recovery: str | None = None
+
+    @classmethod
+    def parse(cls, text: str) -> Case:
+        parts = text.split(":")
+        if not 1 <= len(parts) <= 4 or not parts[0]:
+            raise argparse.ArgumentTypeError(f"not scenario[:relays[:seed[:on|off]]]: {text!r}")
+        relays = int(parts[1]) if len(parts) > 1 and parts[1] else None
+        seed = int(parts[2]) if len(parts) > 2 and parts[2] else 1
+        rec = parts[3] if len(parts) > 3 and parts[3] else None
+        if rec not in (None, "on", "off"):
+            raise argparse.ArgumentTypeError(f"recovery must be on or off: {text!r}")
+        return cls(parts[0], relays, seed, rec)
+
+    def label(self) -> str:
+        out = f"{self.scenario} r{'-' if self.relays is None else self.relays} s{self.seed}"
+        return out if self.recovery is None else f"{out} rec {self.recovery}"
+
+    def argv(self, out: Path) -> list[str]:
+        args = ["sim", "--scenario", self.scenario, "--seed", str(self.seed), "--speed", "max",
+                "--no-plots", "--out", str(out)]
+        if self.relays is not None:
+            args += ["--relays", str(self.relays)]
+        if self.recovery is not None:
+            args += ["--recovery", self.recovery]
+        return args
+
+
+@dataclass(slots=True)
+class Run:
+    wall_s: float
+    cpu_s: float
+    sim_s: float
+    digest: str
+
+
+def run_case(case: Case, tree: Path) -> Run:
+    """One `relayd sim` of `case` with the code of `tree`, in a child process."""
+    env = dict(os.environ, PYTHONPATH=str(tree), PYTHONDONTWRITEBYTECODE="1")
+    with tempfile.TemporaryDirectory(prefix="simspeed-") as tmp:
+        out = Path(tmp) / "out"
+        # The tree's own code, not whatever the venv has installed (checked, not assumed).
+        code = ("import sys, relayd; from relayd.cli import main; "
+                f"assert relayd.__file__.startswith({str(tree) + os.sep!r}), relayd.__file__; "
+                "sys.exit(main(sys.argv[1:]))")
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        t0 = time.perf_counter()
+        proc = subprocess.run([sys.executable, "-c", code, *case.argv(out)], cwd=tmp, env=env,
+                              capture_output=True, text=True, check=False)
+        wall = time.perf_counter() - t0
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        if proc.returncode != 0:
+            raise RuntimeError(f"{case.label()} on {tree}: exit {proc.returncode}\n{proc.stderr[-2000:]}")
+        digest = hashlib.sha256()
+        for name in ("summary.json", "trace.jsonl"):
+            digest.update((out / name).read_bytes())
+        summary = json.loads((out / "summary.json").read_text())
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return Run(wall, cpu, float(summary["sim_seconds"]), digest.hexdigest()[:12])
+
+
+def _best(runs: Sequence[Run]) -> Run:
+    """The median run by CPU time (the digests of repeats must agree)."""
+    if len({r.digest for r in runs}) != 1:
+        raise RuntimeError(f"repeats of one case differ: {[r.digest for r in runs]}")
+    cpu = statistics.median(r.cpu_s for r in runs)
+    wall = statistics.median(r.wall_s for r in runs)
+    return Run(wall, cpu, runs[0].sim_s, runs[0].digest)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--cases", nargs="+", type=Case.parse, default=[Case.parse(c) for c in DEFAULT_CASES],
+                   metavar="CASE", help="scenario[:relays[:seed[:on|off]]] (default: the test suite's)")
+    p.add_argument("--against", type=Path, help="another checkout to compare with (e.g. main's)")
+    p.add_argument("--repeat", type=int, default=1, help="runs per case and tree; the median is shown")
+    args = p.parse_args(argv)
+    trees = [ROOT] + ([args.against.resolve()] if args.against else [])
+    print(f"load average {os.getloadavg()[0]:.2f}, {os.cpu_count()} CPUs; trees: "
+          + ", ".join(str(t) for t in trees), flush=True)
+    cols = ["case", "sim s"]
+    for t in trees:
+        tag = "this" if t == ROOT else "other"
+        cols += [f"{tag} wall s", f"{tag} CPU s", f"{tag} sim s/CPU s"]
+    if args.against:
+        cols += ["CPU ratio", "identical"]
+    print("| " + " | ".join(cols) + " |")
+    print("|" + "---|" * len(cols))
+    differ = 0
+    totals = [0.0] * len(trees)
+    for case in args.cases:
+        per_tree: list[list[Run]] = [[] for _ in trees]
+        for _ in range(args.repeat):
+            for k, tree in enumerate(trees):
+                per_tree[k].append(run_case(case, tree))
+        runs = [_best(r) for r in per_tree]
+        row = [case.label(), f"{runs[0].sim_s:.1f}"]
+        for k, r in enumerate(runs):
+            totals[k] += r.cpu_s
+            row += [f"{r.wall_s:.1f}", f"{r.cpu_s:.1f}", f"{r.sim_s / r.cpu_s:.1f}"]
+        if args.against:
+            same = runs[0].digest == runs[1].digest
+            differ += not same
+            row += [f"{runs[0].cpu_s / runs[1].cpu_s:.2f}", "yes" if same else f"**NO** {runs[0].digest} vs {runs[1].digest}"]
+        print("| " + " | ".join(row) + " |", flush=True)
+    print("total CPU s: " + ", ".join(f"{t:.1f}" for t in totals)
+          + (f"; ratio {totals[0] / totals[1]:.2f}" if args.against else ""))
+    if args.against:
+        print("all cases byte-identical" if not differ else f"{differ} case(s) DIFFER")
+    return 1 if differ else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

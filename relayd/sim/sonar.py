@@ -1,0 +1,99 @@
+"""The simulated P3-AT sonar ring: what each of a relay's 16 transducers hears (World.sonar_mm).
+
+Each sonar reports the nearest surface inside its beam (relayd.sim.geometry.cone_range,
+exact, not sampled by rays) among the walls and boxes within reach, the leader and the
+other relays. A range is computed when it is first read: a P3-AT's SIP carries 8 of the
+16, so the FakeRobot asks for half of them each time.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, overload
+
+from relayd.sim.geometry import cone_range, polygon_segments
+
+if TYPE_CHECKING:
+    from relayd.sim.scenario import SonarSpec
+    from relayd.sim.world import World
+
+#: P3-AT sonar ring (docs/PROTOCOLS.md 1.11): x forward, y left (mm), heading (deg, ccw).
+SONAR_POSES: tuple[tuple[float, float, float], ...] = (
+    (147, 136, 90), (193, 119, 50), (227, 79, 30), (245, 27, 10),
+    (245, -27, -10), (227, -79, -30), (193, -119, -50), (147, -136, -90),
+    (-144, -136, -90), (-189, -119, -130), (-223, -79, -150), (-241, -27, -170),
+    (-241, 27, 170), (-223, 79, 150), (-189, 119, 130), (-144, 136, 90),
+)
+
+
+class SonarReadings(Sequence[int]):
+    """Relay i's 16 sonar ranges at one pose (World.sonar_mm), each computed when read.
+
+    What could echo (walls and boxes within reach, the leader, the other relays) is
+    gathered when it is made, so every range is of the world at that instant.
+    """
+
+    __slots__ = ("_c", "_cfg", "_circles", "_got", "_rng", "_s", "_segs", "_theta_deg", "_x", "_y")
+
+    def __init__(self, world: World, i: int, x_mm: float, y_mm: float, theta_deg: float, *,
+                 cfg: SonarSpec, rng: random.Random) -> None:
+        self._cfg = cfg
+        x, y = self._x, self._y = x_mm / 1000.0, y_mm / 1000.0
+        reach = cfg.max_range_m + 0.5
+        segs = [s for s in world.obstacles
+                if not (max(s.x1, s.x2) < x - reach or min(s.x1, s.x2) > x + reach
+                        or max(s.y1, s.y2) < y - reach or min(s.y1, s.y2) > y + reach)]
+        circles: list[tuple[float, float, float]] = []
+        # Bodies (the leader, the other relays) count only when near: a centre `reach` + 1 m
+        # away leaves even a robot's far corner (0.4 m) beyond every transducer's range
+        # (each within 0.25 m of this robot's centre), so no cone could report it.
+        lx, ly = world.leader.x_m, world.leader.y_m
+        person = world.leader_kind != "robot"
+        if math.hypot(lx - x, ly - y) < reach + 1.0 + (world.leader_radius_m if person else 0.0):
+            lp = world.leader_polygon()
+            if lp is not None:
+                segs.extend(polygon_segments(lp))
+            else:
+                circles.append((lx, ly, world.leader_radius_m))
+        for j, other in enumerate(world.relays):
+            if j != i and math.hypot(other.x_m - x, other.y_m - y) < reach + 1.0:
+                segs.extend(polygon_segments(other.polygon()))
+        self._segs, self._circles = segs, circles
+        self._theta_deg = theta_deg
+        a = math.radians(theta_deg)
+        self._c, self._s = math.cos(a), math.sin(a)
+        self._rng = rng
+        self._got: list[int | None] = [None] * len(SONAR_POSES)
+
+    def __len__(self) -> int:
+        return len(SONAR_POSES)
+
+    @overload
+    def __getitem__(self, k: int) -> int: ...
+    @overload
+    def __getitem__(self, k: slice) -> list[int]: ...
+
+    def __getitem__(self, k: int | slice) -> int | list[int]:
+        if isinstance(k, slice):
+            return [self[j] for j in range(len(SONAR_POSES))[k]]
+        got = self._got[k]
+        if got is None:
+            got = self._got[k] = self._range_mm(k)
+        return got
+
+    def _range_mm(self, k: int) -> int:
+        cfg, c, s = self._cfg, self._c, self._s
+        sx, sy, sh = SONAR_POSES[k]
+        ox = self._x + (c * sx - s * sy) / 1000.0
+        oy = self._y + (s * sx + c * sy) / 1000.0
+        best = cone_range(ox, oy, self._theta_deg + sh, cfg.beam_deg / 2.0, cfg.max_range_m,
+                          self._segs, self._circles)
+        max_mm = round(cfg.max_range_m * 1000)
+        if best is None:
+            return max_mm
+        mm = best * 1000.0
+        if cfg.noise_mm > 0:
+            mm += self._rng.gauss(0.0, cfg.noise_mm)
+        return round(min(max_mm, max(round(cfg.min_range_m * 1000), mm)))
