@@ -39,7 +39,8 @@ scan, the lobe's shape does not), and the shape is fitted on all of them. That i
 `relayd.scanpool` averages a still leader's scans before the nonlinear -b/2c rather than
 after it.
 
-No I/O, no clock, no NumPy: a 3x3 solve in plain Python is a few microseconds.
+No I/O, no clock, no NumPy: the 3x3 normal equations are inverted in closed form, and
+the pooled sums are gathered in one pass (a scan end fits a dozen times).
 """
 
 from __future__ import annotations
@@ -47,6 +48,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from operator import itemgetter
 
 #: dB below the peak where the parabola is 3 dB down: 12 (u / bw)^2 = 3 at u = bw / 2.
 _DB_AT_HALF_BEAMWIDTH = 3.0
@@ -93,31 +95,6 @@ class LobeFit:
     noise_db: float = 0.0
 
 
-def _solve3(m: list[list[float]], v: list[float]) -> list[float] | None:
-    """Solve a 3x3 system by Gaussian elimination with partial pivoting; None if singular."""
-    a = [[*row, rhs] for row, rhs in zip(m, v, strict=True)]
-    for col in range(3):
-        piv = max(range(col, 3), key=lambda r: abs(a[r][col]))
-        if abs(a[piv][col]) < 1e-12:
-            return None
-        a[col], a[piv] = a[piv], a[col]
-        for r in range(col + 1, 3):
-            f = a[r][col] / a[col][col]
-            for k in range(col, 4):
-                a[r][k] -= f * a[col][k]
-    x = [0.0, 0.0, 0.0]
-    for r in (2, 1, 0):
-        x[r] = (a[r][3] - sum(a[r][k] * x[k] for k in range(r + 1, 3))) / a[r][r]
-    return x
-
-
-def _inverse3(m: list[list[float]]) -> list[list[float]] | None:
-    cols = [_solve3(m, [1.0 if i == j else 0.0 for i in range(3)]) for j in range(3)]
-    if any(c is None for c in cols):
-        return None
-    return [[cols[j][i] for j in range(3)] for i in range(3)]  # type: ignore[index]
-
-
 Fit = tuple[list[float], list[list[float]], dict[int, float]]
 
 
@@ -141,38 +118,74 @@ def _wls(us: Sequence[float], ys: Sequence[float], ws: Sequence[float],
             if k < 3:
                 t[k] += p * y
             p *= u
-    normal = [[s[0], s[1], s[2]], [s[1], s[2], s[3]], [s[2], s[3], s[4] + (prior[1] if prior else 0.0)]]
     if prior is not None:
         t[2] += prior[1] * prior[0]
-    coef = _solve3(normal, t)
-    inv = _inverse3(normal)
-    if coef is None or inv is None:
+    inv = _inverse_sym3(s[0], s[1], s[2], s[3], s[4] + (prior[1] if prior else 0.0))
+    if inv is None:
         return None
+    coef = [inv[i][0] * t[0] + inv[i][1] * t[1] + inv[i][2] * t[2] for i in range(3)]
     return coef, inv, {}
+
+
+def _inverse_sym3(s0: float, s1: float, s2: float, s3: float, s4: float) -> list[list[float]] | None:
+    """The inverse of the normal matrix [[s0, s1, s2], [s1, s2, s3], [s2, s3, s4]] by its
+    adjugate: one closed form instead of four eliminations (a scan end fits this a dozen
+    times). None when it is singular to working precision."""
+    c00 = s2 * s4 - s3 * s3
+    c01 = s2 * s3 - s1 * s4
+    c02 = s1 * s3 - s2 * s2
+    det = s0 * c00 + s1 * c01 + s2 * c02
+    if not abs(det) > 1e-12 * max(1.0, abs(s0 * s2 * s4)):
+        return None
+    c11 = s0 * s4 - s2 * s2
+    c12 = s1 * s2 - s0 * s3
+    c22 = s0 * s2 - s1 * s1
+    return [[c00 / det, c01 / det, c02 / det], [c01 / det, c11 / det, c12 / det], [c02 / det, c12 / det, c22 / det]]
 
 
 def _wls_pooled(us: Sequence[float], ys: Sequence[float], ws: Sequence[float],
                 prior: tuple[float, float] | None, gs: Sequence[int]) -> Fit | None:
-    """`_wls` with one level per scan: (b, c) from the data centred within each scan."""
-    sums: dict[int, list[float]] = {}
-    for u, y, w, g in zip(us, ys, ws, gs, strict=True):
-        acc = sums.setdefault(g, [0.0, 0.0, 0.0, 0.0])
-        acc[0] += w
-        acc[1] += w * u
-        acc[2] += w * u * u
-        acc[3] += w * y
-    means = {g: (a[1] / a[0], a[2] / a[0], a[3] / a[0]) for g, a in sums.items() if a[0] > 0}
+    """`_wls` with one level per scan: (b, c) from the data centred within each scan.
+
+    One pass accumulates each scan's weighted sums of 1, u, u^2, y and their products;
+    the centred (within-scan) normal equations follow from those sums.
+    """
+    if not (len(us) == len(ys) == len(ws) == len(gs)):
+        raise ValueError("samples, weights and scan ids must be as many")
+    by_scan: dict[int, list[int]] = {}
+    for i, g in enumerate(gs):
+        by_scan.setdefault(g, []).append(i)
+    sums: dict[int, tuple[float, ...]] = {}
+    for g, members in by_scan.items():
+        # Plain locals in the loop: this is the scan end's innermost loop.
+        sw = su = sv = sy = suu = suv = svv = suy = svy = 0.0
+        for i in members:
+            u, y, w = us[i], ys[i], ws[i]
+            v = u * u
+            wu, wv = w * u, w * v
+            sw += w
+            su += wu
+            sv += wv
+            sy += w * y
+            suu += wu * u
+            suv += wu * v
+            svv += wv * v
+            suy += wu * y
+            svy += wv * y
+        sums[g] = (sw, su, sv, sy, suu, suv, svv, suy, svy)
+    means: dict[int, tuple[float, float, float]] = {}
     m00 = m01 = m11 = r0 = r1 = 0.0
-    for u, y, w, g in zip(us, ys, ws, gs, strict=True):
-        if g not in means:
+    for g, (sw, su, sv, sy, suu, suv, svv, suy, svy) in sums.items():
+        if sw <= 0:
             continue
-        mu, mv, my = means[g]
-        du, dv, dy = u - mu, u * u - mv, y - my
-        m00 += w * du * du
-        m01 += w * du * dv
-        m11 += w * dv * dv
-        r0 += w * du * dy
-        r1 += w * dv * dy
+        mu, mv, my = su / sw, sv / sw, sy / sw
+        means[g] = (mu, mv, my)
+        # sum w (u - mu)(v - mv) = sum w u v - sw mu mv, and alike.
+        m00 += suu - sw * mu * mu
+        m01 += suv - sw * mu * mv
+        m11 += svv - sw * mv * mv
+        r0 += suy - sw * mu * my
+        r1 += svy - sw * mv * my
     if prior is not None:
         m11 += prior[1]
         r1 += prior[1] * prior[0]
@@ -233,19 +246,19 @@ def fit_main_lobe(angles_deg: Sequence[float], rssi_dbm: Sequence[float],
     # then chosen on the lobe's shape, not on which scan was loudest.
     # Sorted by angle, then scan (not by value): the same samples give the same order
     # whatever each scan's level was, to the last bit.
+    if not (all(map(math.isfinite, angles_deg)) and all(map(math.isfinite, rssi_dbm))):
+        a, r = next((a, r) for a, r in zip(angles_deg, rssi_dbm, strict=True)
+                    if not (math.isfinite(a) and math.isfinite(r)))
+        raise ValueError(f"samples must be finite, got angle {a!r}, rssi {r!r}")
     triples = sorted(((a, r - offsets[g], g) for a, r, g in zip(angles_deg, rssi_dbm, ids, strict=True)),
-                     key=lambda x: (x[0], x[2]))
-    pairs = [(a, r) for a, r, _ in triples]
-    groups = [g for _, _, g in triples] if scan_ids is not None else None
-    for a, r in pairs:
-        if not (math.isfinite(a) and math.isfinite(r)):
-            raise ValueError(f"samples must be finite, got angle {a!r}, rssi {r!r}")
-    if len(pairs) < 3:
+                     key=itemgetter(0, 2))
+    if len(triples) < 3:
         return None
-    angles = [a for a, _ in pairs]
-    rssi = [r for _, r in pairs]
+    angles = [a for a, _, _ in triples]
+    rssi = [r for _, r, _ in triples]
+    groups = [g for _, _, g in triples] if scan_ids is not None else None
     n = len(rssi)
-    smooth = [sum(rssi[max(0, i - 1): i + 2]) / len(rssi[max(0, i - 1): i + 2]) for i in range(n)]
+    smooth = _running_mean3(rssi)
     peak = max(range(n), key=lambda i: (smooth[i], rssi[i]))
     ranked = sorted(smooth)
     dynamic_db = ranked[-1] - ranked[max(0, n // 10)]
@@ -324,9 +337,19 @@ def _scan_levels(angles: Sequence[float], rssi: Sequence[float], ids: Sequence[i
         by_scan.setdefault(g, []).append((a, r))
     levels = {}
     for g, pairs in by_scan.items():
-        v = [r for _, r in sorted(pairs)]
-        levels[g] = max(sum(v[max(0, i - 1): i + 2]) / len(v[max(0, i - 1): i + 2]) for i in range(len(v)))
+        levels[g] = max(_running_mean3([r for _, r in sorted(pairs)]))
     return levels
+
+
+def _running_mean3(v: Sequence[float]) -> list[float]:
+    """The mean of each value and its neighbours (the ends: of the two there are)."""
+    n = len(v)
+    if n < 2:
+        return [float(x) for x in v]
+    out = [(v[0] + v[1]) / 2.0]
+    out += [(v[i - 1] + v[i] + v[i + 1]) / 3.0 for i in range(1, n - 1)]
+    out.append((v[n - 2] + v[n - 1]) / 2.0)
+    return out
 
 
 def _widen(lo: int, hi: int, n: int, centre: float, angles: Sequence[float]) -> tuple[int, int]:

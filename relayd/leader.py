@@ -14,10 +14,13 @@ scan says (`scan_done`: the estimate it publishes), where the leader is now
   steady, the last few scans are fitted together (`relayd.scanpool`). A fit's sd is
   never below what the recent scans' residual noise allows. It learns the antenna's
   beamwidth from its own two-sided scans (the curvature prior of one-sided ones at a
-  servo limit). With `window = "adaptive"` a confident filter narrows the sweep around
-  its prediction: at the full window's spacing while the bearing is steady, coarser
-  (a few samples per beamwidth) and narrower while it moves, so a sweep takes less
-  time; an unsure or lost one sweeps the servo's whole range.
+  servo limit). While the bearing moves, a scan is fitted in the leader's frame (each
+  sample carried by the filter's rate to the beam's predicted crossing). With
+  `window = "adaptive"` a confident filter narrows the sweep around its prediction: at
+  the full window's spacing while the bearing is steady, coarser (a few samples per
+  beamwidth) and narrower while it moves, so a sweep takes less time, in steps fitted
+  to the scanner's clock (`clocked_step_deg`); an unsure or lost one sweeps the servo's
+  whole range.
 
 Pure: times and headings come in as arguments; no clock, no I/O.
 """
@@ -57,6 +60,15 @@ class WindowParams:
     moving_rate_deg_s: float = 2.0
     moving_beams: float = 1.2
     per_beamwidth: float = 8.0
+    #: The scanner's step-mode clock (`clocked_step_deg`): servo slew (deg/s), settle (s),
+    #: the RSSI reading's period (s); None: unknown (continuous mode), steps as planned.
+    servo_deg_s: float | None = None
+    settle_s: float = 0.0
+    sample_period_s: float | None = None
+    #: A step is stretched to at most this times, or shrunk to no less than this
+    #: fraction of, the one planned when that sweeps faster.
+    max_stretch: float = 1.25
+    min_fraction: float = 0.75
 
 
 @dataclass(frozen=True, slots=True)
@@ -69,6 +81,8 @@ class LeaderParams:
     #: Two-sided fits the beamwidth is learnt from (median of the last ones).
     beamwidth_memory: int = 9
     pool: PoolParams = field(default_factory=PoolParams)
+    #: Fit a moving leader's scan in its own frame (`TrackingModel._leader_frame`).
+    compensate_motion: bool = True
 
     def __post_init__(self) -> None:
         if self.estimator not in ESTIMATORS:
@@ -129,6 +143,8 @@ class TrackingModel:
         self.track: Track | None = None
         self.last_fit: LobeFit | None = None
         self._beamwidths: deque[float] = deque(maxlen=max(1, params.beamwidth_memory))
+        #: ... and of every fit, one-sided ones too (the window's fallback only).
+        self._any_beamwidths: deque[float] = deque(maxlen=max(1, params.beamwidth_memory))
         #: The residual noise (dB) of recent fits: a fit whose few residuals happen to be
         #: small is not trusted beyond what the channel's noise allows.
         self._noise: deque[float] = deque(maxlen=max(1, params.beamwidth_memory))
@@ -147,6 +163,8 @@ class TrackingModel:
         # Only a lobe seen well on both sides says how wide it is.
         lo, hi = min(angles), max(angles)
         half = fit.beamwidth_deg / 2.0
+        if 5.0 <= fit.beamwidth_deg <= 180.0:
+            self._any_beamwidths.append(fit.beamwidth_deg)
         if (not fit.extrapolated and fit.bearing_deg - half >= lo and fit.bearing_deg + half <= hi
                 and fit.sd_deg <= self.params.tracker.confident_sd_deg and 5.0 <= fit.beamwidth_deg <= 180.0):
             self._beamwidths.append(fit.beamwidth_deg)
@@ -161,25 +179,29 @@ class TrackingModel:
                   sample_t: Sequence[float]) -> ScanEstimate:
         p = self.params
         values = est.nrssi_dbm
-        fit = fit_main_lobe(est.angles_deg, values, p.lobe, beamwidth_prior_deg=self.beamwidth_deg)
+        angles, t_ref = self._leader_frame(t, heading_deg, est.angles_deg, sample_t)
+        fit = fit_main_lobe(angles, values, p.lobe, beamwidth_prior_deg=self.beamwidth_deg)
         if fit is None and est.situation == 2:
             # The PRSSI penalty carved up the lobe itself: the "obstacle" is the leader, or
             # right beside it (a relay close behind its leader robot). The raw scan still
             # says where the leader is; losing the track over it would stop the relay.
             values = est.rssi_dbm
-            fit = fit_main_lobe(est.angles_deg, values, p.lobe, beamwidth_prior_deg=self.beamwidth_deg)
+            fit = fit_main_lobe(angles, values, p.lobe, beamwidth_prior_deg=self.beamwidth_deg)
         self.last_fit = fit
         if len(sample_t) >= 2:
             self._sweep_s = max(0.0, sample_t[-1] - sample_t[0])
         if fit is not None:
-            self._learn(fit, est.angles_deg)
-            # The beam crossed the leader when the sample nearest the fitted bearing was taken.
+            self._learn(fit, angles)
+            # The beam crossed the leader when the sample nearest the fitted bearing was taken
+            # (a moving leader's: the moment its samples were carried to).
             t_meas, centre = t, fit.bearing_deg
-            if len(sample_t) == len(est.angles_deg) and sample_t:
-                nearest = min(range(len(sample_t)), key=lambda i: abs(est.angles_deg[i] - centre))
+            if t_ref is not None:
+                t_meas = min(t_ref, t)
+            elif len(sample_t) == len(angles) and sample_t:
+                nearest = min(range(len(sample_t)), key=lambda i: abs(angles[i] - centre))
                 t_meas = min(sample_t[nearest], t)
             fit = self.last_fit = self._trusted(fit)
-            self._update(PooledScan(tuple(est.angles_deg), tuple(values), t_meas, heading_deg, self.track, fit))
+            self._update(PooledScan(angles, tuple(values), t_meas, heading_deg, self.track, fit))
         else:
             self._pool.clear()
             if self.track is not None:
@@ -190,6 +212,28 @@ class TrackingModel:
             bearing = fit.bearing_deg if fit is not None else est.bearing_deg
             return replace(est, bearing_deg=bearing, bearing_sd_deg=None)
         return replace(est, bearing_deg=self._seen(now.bearing_deg), bearing_sd_deg=now.sd_deg)
+
+    def _leader_frame(self, t: float, heading_deg: float, angles_deg: Sequence[float],
+                      sample_t: Sequence[float]) -> tuple[tuple[float, ...], float | None]:
+        """The scan's angles as seen from a leader that moves during the sweep, and the time
+        they refer to (None: as sampled).
+
+        At 14 deg/s a 1.5 s sweep sees the leader move 20 deg: the beam meets it sooner or
+        later than a still one, and the lobe looks wider or narrower than the antenna's,
+        which the beamwidth prior then pulls on. While the filter says the bearing moves,
+        each sample is carried by the filter's rate to the moment the beam is predicted to
+        cross the leader, and the fit's centre is the bearing at that moment.
+        """
+        angles = tuple(angles_deg)
+        now = self._now(t, heading_deg)
+        if (not self.params.compensate_motion or now is None or tracker.is_lost(now, self.params.tracker)
+                or abs(now.rate_deg_s) <= self.params.adaptive.moving_rate_deg_s
+                or len(sample_t) != len(angles) or not angles):
+            return angles, None
+        w = now.rate_deg_s
+        ref = min(range(len(angles)), key=lambda i: abs(angles[i] - (now.bearing_deg + w * (sample_t[i] - t))))
+        t_ref = sample_t[ref]
+        return tuple(a - w * (ti - t_ref) for a, ti in zip(angles, sample_t, strict=True)), t_ref
 
     def _seen(self, bearing_deg: float) -> float:
         """A prediction kept where a scan could have put it: the servo's range, plus the lobe
@@ -247,9 +291,10 @@ class TrackingModel:
     def window(self, t: float, heading_deg: float | None, full: Window) -> Window | None:
         """The next sweep. "full": the configured window, centred on the prediction.
 
-        "adaptive": narrow around the prediction while the filter is confident (once the
-        beamwidth is learnt), at the configured window's sample spacing, so a sweep
-        takes fewer samples; the servo's whole range while it is not.
+        "adaptive": narrow around the prediction while the filter is confident (once a
+        beamwidth is known: learnt, else the one-sided fits' median), at the configured
+        window's sample spacing, so a sweep takes fewer samples; the servo's whole range
+        while it is not.
         """
         p = self.params
         self._span = (full.centre_deg - full.width_deg / 2.0, full.centre_deg + full.width_deg / 2.0)
@@ -261,6 +306,11 @@ class TrackingModel:
         if not tracker.is_confident(now, p.tracker):
             return full
         bw = self.beamwidth_deg
+        if bw is None and self._any_beamwidths:
+            # A leader standing where the servo limit cuts its lobe never shows both sides:
+            # the one-sided fits' widths (less sure, hence the median) size the window
+            # rather than the full range's slow sweep.
+            bw = _median(self._any_beamwidths)
         if bw is None:
             return None
         wp = p.adaptive
@@ -268,6 +318,7 @@ class TrackingModel:
         beams = wp.beams
         if abs(now.rate_deg_s) > wp.moving_rate_deg_s:
             spacing, beams = max(spacing, bw / wp.per_beamwidth), wp.moving_beams
+        spacing = clocked_step_deg(spacing, wp)
         # Half a sweep from now the leader will have moved on by the rate.
         centre = now.bearing_deg + now.rate_deg_s * self._sweep_s / 2.0
         half = (beams * bw + 2.0 * wp.sigmas * now.sd_deg) / 2.0
@@ -281,6 +332,34 @@ class TrackingModel:
         width = (samples - 1) * spacing
         mid = min(max((lo + hi) / 2.0, lo_lim + width / 2.0), hi_lim - width / 2.0)
         return Window(mid, width, samples)
+
+
+def clocked_step_deg(step_deg: float, wp: WindowParams) -> float:
+    """The servo step near `step_deg` that sweeps fastest on the scanner's clock.
+
+    In step mode a sample costs the servo's travel plus the settle time, rounded up to
+    the next RSSI reading: with k readings per sample the step can be up to
+    (k T - settle) x slew, and any finer step takes as long. So among those steps, from
+    `min_fraction` to `max_stretch` times the one asked for, the fastest (deg/s) is
+    taken; the step asked for when none is faster or the timing is unknown. With
+    relayd's defaults (180 deg/s, 50 ms settle, 20 Hz): 7.5 and 11.25 deg steps both
+    sweep at 75 deg/s, 9 deg ones at 90.
+    """
+    if wp.sample_period_s is None or wp.servo_deg_s is None or step_deg <= 0.0:
+        return step_deg
+    period, slew = wp.sample_period_s, wp.servo_deg_s
+
+    def speed(step: float) -> float:
+        readings = max(1, math.ceil((step / slew + wp.settle_s) / period - 1e-9))
+        return step / (readings * period)
+
+    best, best_speed = step_deg, speed(step_deg)
+    k = 1
+    while (step := (k * period - wp.settle_s) * slew) <= wp.max_stretch * step_deg:
+        if step >= wp.min_fraction * step_deg and speed(step) > best_speed + 1e-9:
+            best, best_speed = step, speed(step)
+        k += 1
+    return best
 
 
 def make_model(params: LeaderParams) -> BearingModel:

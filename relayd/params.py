@@ -20,7 +20,7 @@ from relayd.brain import BrainParams
 from relayd.config import Settings
 from relayd.controller import ControlParams
 from relayd.estimator import EstimatorParams
-from relayd.leader import LeaderParams
+from relayd.leader import LeaderParams, WindowParams
 from relayd.linkmodel import LinkPolicyParams
 from relayd.recovery import RecoveryParams
 from relayd.scanplan import ScanParams
@@ -134,7 +134,11 @@ def brain_params(settings: Settings) -> BrainParams:
             # The second stale rule: no completed scan for two nominal scan periods.
             scan_timeout_s=scan_timeout_s,
         ),
-        leader=LeaderParams(estimator=s.estimator, window=s.window),
+        leader=LeaderParams(estimator=s.estimator, window=s.window, adaptive=WindowParams(
+            # The adaptive window's steps fit the step-mode scanner's clock; a continuous
+            # sweep samples at the RSSI rate wherever the servo is.
+            servo_deg_s=pt.speed_deg_s if s.mode == "step" else None, settle_s=s.settle_s,
+            sample_period_s=1.0 / settings.wifi.sample_hz if s.mode == "step" else None)),
         recovery=recovery_params(settings, control, scan_timeout_s),
         has_scanner=scanning,
         rear_station_mac=rear.station_mac if rear is not None else None,

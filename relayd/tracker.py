@@ -25,7 +25,9 @@ Trust:
 - Gate: a measurement whose innovation is more than `gate_sigma` standard deviations
   off is rejected (a reflection, a fading dip on the true lobe); `reacquire_after`
   rejections in a row mean the leader really is elsewhere, and the filter restarts on
-  the newest measurement.
+  the newest measurement. 5 sigma, not 4: a filter lagging a leader that just sped up
+  sees it 4-5 sigma off, and rejecting those scans (which also forgets the rate) lost
+  crossing leaders (docs/CONTROL.md section 10.3).
 - Lost: after `lost_after_misses` scans in a row with no usable lobe, or once the
   bearing's standard deviation exceeds `lost_sd_deg` (no update for too long: the
   variance grows with time), the track is lost. A lost track gives no bearing; the
@@ -58,7 +60,7 @@ class TrackerParams:
     init_rate_sd_deg_s: float = 0.5
     #: A measurement is never trusted beyond this (deg): model mismatch, quantisation.
     min_meas_sd_deg: float = 1.0
-    gate_sigma: float = 4.0
+    gate_sigma: float = 5.0
     reacquire_after: int = 2
     lost_after_misses: int = 3
     lost_sd_deg: float = 30.0

@@ -144,3 +144,44 @@ def test_five_faded_scans_fitted_together_beat_five_fits_averaged_at_a_servo_lim
 def test_scan_ids_must_match_the_samples() -> None:
     with pytest.raises(ValueError):
         fit_main_lobe(FULL, scan(cos_n_pattern(45.0, 20.0), 0.0), scan_ids=[0, 1])
+
+
+@settings(max_examples=200, deadline=None)
+@given(rows=st.lists(st.tuples(st.floats(-90.0, 90.0), st.floats(-90.0, -20.0), st.floats(0.1, 1.0),
+                               st.integers(0, 3)), min_size=6, max_size=60),
+       prior=st.one_of(st.none(), st.tuples(st.floats(-0.01, -0.0001), st.floats(0.0, 1e4))))
+def test_the_closed_forms_solve_the_normal_equations(rows, prior) -> None:
+    # The scan end's fits use a closed-form 3x3 inverse and one-pass pooled sums; both
+    # against the equations written out plainly.
+    from relayd.bearing import _inverse_sym3, _wls_pooled
+
+    us, ys, ws, gs = (list(x) for x in zip(*rows, strict=True))
+    s = [sum(w * u ** k for u, w in zip(us, ws, strict=True)) for k in range(5)]
+    m = [[s[0], s[1], s[2]], [s[1], s[2], s[3]], [s[2], s[3], s[4]]]
+    inv = _inverse_sym3(*s)
+    if inv is not None:
+        for i in range(3):
+            for j in range(3):
+                got = sum(inv[i][k] * m[k][j] for k in range(3))
+                assert got == pytest.approx(1.0 if i == j else 0.0, abs=1e-6)
+    # Pooled: (b, c) minimise the weighted squares with one free level per scan.
+    fit = _wls_pooled(us, ys, ws, prior, gs)
+    groups = sorted(set(gs))
+    cent = {g: [sum(w * u for u, w, h in zip(us, ws, gs, strict=True) if h == g),
+                sum(w * u * u for u, w, h in zip(us, ws, gs, strict=True) if h == g),
+                sum(w * y for y, w, h in zip(ys, ws, gs, strict=True) if h == g),
+                sum(w for w, h in zip(ws, gs, strict=True) if h == g)] for g in groups}
+    m00 = m01 = m11 = r0 = r1 = 0.0
+    for u, y, w, g in zip(us, ys, ws, gs, strict=True):
+        su, sv, sy, sw = cent[g]
+        du, dv, dy = u - su / sw, u * u - sv / sw, y - sy / sw
+        m00, m01, m11 = m00 + w * du * du, m01 + w * du * dv, m11 + w * dv * dv
+        r0, r1 = r0 + w * du * dy, r1 + w * dv * dy
+    if prior is not None:
+        m11, r1 = m11 + prior[1], r1 + prior[1] * prior[0]
+    det = m00 * m11 - m01 * m01
+    if fit is None or abs(det) < 1e-6 * max(1.0, m00 * m11):
+        return  # (near) singular: nothing to compare
+    _, b, c = fit[0]
+    assert b == pytest.approx((m11 * r0 - m01 * r1) / det, rel=1e-6, abs=1e-9)
+    assert c == pytest.approx((m00 * r1 - m01 * r0) / det, rel=1e-6, abs=1e-9)

@@ -268,3 +268,86 @@ def test_the_steered_bearing_stays_where_a_scan_could_have_put_it() -> None:
     model.window(0.0, 0.0, Window(0.0, 180.0, 25))  # the brain plans with the servo's range
     now = model.bearing_now(3.0, 0.0)  # 80 + 3 s x 20 deg/s = 140 predicted
     assert now == pytest.approx(90.0 + model.params.lobe.max_extrapolation_deg)
+
+
+def test_a_leader_at_the_servo_limit_gets_a_narrow_window_without_a_two_sided_fit() -> None:
+    # At -80 deg the 90 deg lobe is cut by the -90 deg limit on every scan: no beamwidth is
+    # ever learnt from a two-sided fit, and the window used to stay the full range (2.45 s
+    # a sweep: a leader that starts walking from there moved 35 deg before the next fit).
+    r = BrainRig(scan={"estimator": "lobe", "window": "adaptive"}, leader=still(*leader_at(-80.0)))
+    r.start()
+    r.run_scans(6)
+    model = r.brain._model
+    assert isinstance(model, TrackingModel) and model.beamwidth_deg is None
+    last = r.results[-1][1].record
+    assert len(last.angles_deg) < 25 and min(last.angles_deg) == pytest.approx(-90.0)
+    assert abs(r.results[-1][1].estimate.bearing_deg + 80.0) <= 5.0  # 8.9 deg with the full-range sweeps
+
+
+
+@settings(max_examples=300, deadline=None)
+@given(step=st.floats(1.0, 40.0), slew=st.floats(30.0, 600.0), settle=st.floats(0.0, 0.2), hz=st.floats(2.0, 100.0))
+def test_a_clocked_step_never_sweeps_slower_and_stays_near_the_step_asked(step, slew, settle, hz) -> None:
+    from relayd.leader import WindowParams, clocked_step_deg
+
+    wp = WindowParams(servo_deg_s=slew, settle_s=settle, sample_period_s=1.0 / hz)
+
+    def speed(s: float) -> float:  # the scanner's step mode: travel + settle, then the next reading
+        return s / (max(1, math.ceil((s / slew + settle) * hz - 1e-9)) / hz)
+
+    got = clocked_step_deg(step, wp)
+    assert wp.min_fraction * step - 1e-9 <= got <= wp.max_stretch * step + 1e-9
+    assert speed(got) >= speed(step) - 1e-9
+    assert clocked_step_deg(step, WindowParams()) == step  # timing unknown: as planned
+
+
+def test_relayds_default_clock_sweeps_9_deg_steps_and_continuous_mode_is_left_alone() -> None:
+    from relayd.leader import clocked_step_deg
+    from relayd.params import brain_params
+
+    wp = brain_params(Settings.model_validate({})).leader.adaptive
+    # 180 deg/s, 50 ms settle, 20 Hz: 7.5 and 11.25 deg steps take 2 and 3 readings
+    # (75 deg/s); 9 deg ones take 2 (90 deg/s).
+    assert clocked_step_deg(7.5, wp) == pytest.approx(9.0) and clocked_step_deg(11.25, wp) == pytest.approx(9.0)
+    continuous = brain_params(Settings.model_validate({"scan": {"mode": "continuous"}})).leader.adaptive
+    assert continuous.sample_period_s is None and clocked_step_deg(7.5, continuous) == 7.5
+
+
+def test_the_adaptive_sweep_runs_on_the_scanners_clock() -> None:
+    r = rig("lobe", "adaptive", 20.0)
+    r.run_scans(6)
+    last = r.results[-1][1].record
+    steps = sorted(last.angles_deg)
+    assert steps[1] - steps[0] == pytest.approx(9.0)
+    assert last.period_s is not None and last.period_s / len(last.angles_deg) <= 0.11  # 2 readings a sample
+
+
+@pytest.mark.parametrize(("start", "ascending"), [(50.0, True), (70.0, True), (-20.0, False)])
+def test_a_leader_moving_during_the_sweep_is_fitted_in_its_own_frame(start: float, ascending: bool) -> None:
+    # 12 deg/s against a 1.2 s sweep: the beam meets the leader 14 deg before or after
+    # where it was, and the lobe looks 15 % wider or narrower than the antenna's. Where
+    # the window cuts the lobe, the curvature the beamwidth prior then asks for moves the
+    # centre; fitted in the leader's frame the lobe has the antenna's width again.
+    rate, pattern = 12.0, cos_n_pattern(60.0, 20.0)
+    angles = [-30.0 + 9.0 * i for i in range(13)]
+    if not ascending:
+        angles.reverse()
+    times = [10.0 + 0.1 * i for i in range(13)]
+
+    def truth(t: float) -> float:
+        return start + rate * (t - 10.0)
+
+    rssi = tuple(-50.0 + pattern(a - truth(ti)) for a, ti in zip(angles, times, strict=True))
+    still = tuple(-50.0 + pattern(a - 20.0) for a in angles)
+    errors = {}
+    for compensate in (True, False):
+        model = TrackingModel(LeaderParams(estimator="lobe", compensate_motion=compensate))
+        for k in range(6):  # the beamwidth, learnt from a still leader
+            model.scan_done(1.5 * k, 0.0, ScanEstimate(0.0, -50.0, 0, tuple(angles), still, still), [])
+        model.track = replace(tracker.start(9.9, 0.0, truth(9.9) + 2.0, 2.0, model.params.tracker),
+                              rate_deg_s=rate - 1.0)  # a filter that knows the rate roughly
+        model.scan_done(times[-1], 0.0, ScanEstimate(0.0, max(rssi), 0, tuple(angles), rssi, rssi), times)
+        assert model.last_fit is not None and model.track is not None
+        errors[compensate] = abs(model.last_fit.bearing_deg - truth(model.track.t))
+    assert errors[True] < 2.5
+    assert errors[True] < 0.6 * errors[False]
