@@ -9,6 +9,7 @@ and prints `{"config": PATH}`. It then samples the fake robot's wheel target eve
     stops   {"stops": [T, ...]}, the monotonic times of samples whose target was <= 0
             since the previous `stops` (or since `watch`)
     watch   {"watching": true}, from now on samples at or below zero are recorded
+    count   {"commands": N, "sips_sent": M}, what the fake robot has received and sent so far
 
 End of stdin stops the rig and exits. Its own process, so the fake devices keep their
 timing however busy the test's own process (and its event loop) is.
@@ -49,6 +50,8 @@ async def main(work: Path, leader_xy_m: tuple[float, float], config: dict[str, A
                 elif line == "watch":
                     watching = True
                     answer = {"watching": True}
+                elif line == "count":
+                    answer = {"commands": len(rig.robot.commands), "sips_sent": rig.robot.sips_sent}
                 elif line == "stops":
                     answer = {"stops": stops[:]}
                     stops.clear()

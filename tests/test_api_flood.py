@@ -32,6 +32,7 @@ from typing import Any
 
 import aiohttp
 import pytest
+from support import until
 
 pytestmark = pytest.mark.slow
 
@@ -130,13 +131,9 @@ async def test_connection_flood_does_not_stop_the_robot(tmp_path: Path) -> None:
             return (doc is not None and doc["state"] == "driving"
                     and (await ask("vel"))["target_vel_mm_s"] > 0)
 
-        async def driving_now() -> None:
-            while not await driving():
-                await asyncio.sleep(0.2)
-
         try:
-            await asyncio.wait_for(driving_now(), 60.0)
-        except TimeoutError:
+            await until(driving, "the robot to drive", timeout_s=60.0, poll_s=0.2)
+        except AssertionError:
             pytest.fail("the robot never started driving:\n" + log_path.read_text()[-3000:])
 
         # Watch the wheels from here on: the fake robot's target speed, every 20 ms (in
@@ -153,16 +150,27 @@ async def test_connection_flood_does_not_stop_the_robot(tmp_path: Path) -> None:
 
         # /healthz answers again on a fresh connection, while the flood holds.
         t_ok: float | None = None
-        while time.monotonic() - t_flood < HEALTHZ_WITHIN_S + 5:
-            if await _healthz(port) == 200:
-                t_ok = time.monotonic()
-                break
-            await asyncio.sleep(0.2)
+
+        async def healthy() -> bool:
+            return await _healthz(port) == 200
+
+        with contextlib.suppress(AssertionError):  # t_ok stays None: asserted below, with the log
+            await until(healthy, "/healthz", timeout_s=HEALTHZ_WITHIN_S + 5, poll_s=0.2)
+            t_ok = time.monotonic()
         figures_line = await asyncio.wait_for(flood.stdout.readline(), HOLD_S + 60)
         await flood.wait()
         figures = json.loads(figures_line)
-        # And after the flood: still driving, still answering.
-        await asyncio.sleep(1.0)
+        # And after the flood: still driving, still answering, for ten more SIP cycles of
+        # the robot's own (its commands keep coming: the control loop runs on).
+        before = await ask("count")
+
+        async def ten_more_cycles() -> bool:
+            now = await ask("count")
+            return (now["sips_sent"] >= before["sips_sent"] + 10
+                    and now["commands"] >= before["commands"] + 10)
+
+        await until(ten_more_cycles, "ten more SIP cycles with commands after the flood", timeout_s=30.0,
+                    poll_s=0.1)
         stops = (await ask("stops"))["stops"]
         after = await _status(port)
     finally:

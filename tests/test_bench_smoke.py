@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from support import until
 
 from bench import estimator as bench_estimator
 from bench import latency as bench_latency
@@ -173,9 +174,7 @@ async def test_fake_robot_sip_period_is_settable(tmp_path) -> None:  # type: ign
     robot.serve_pty(str(tmp_path / "base"))
     try:
         # 20 SIPs at the default 100 ms would take 2 s; at 10 ms they come in ~0.2 s.
-        async with asyncio.timeout(1.5):
-            while robot.sips_sent < 20:
-                await asyncio.sleep(0.01)
+        await until(lambda: robot.sips_sent >= 20, "20 SIPs", timeout_s=1.5, poll_s=0.01)
     finally:
         await robot.stop()
 

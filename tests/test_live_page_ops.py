@@ -48,9 +48,10 @@ def free_port() -> int:
 
 
 async def wait_http(url: str, timeout_s: float = 30.0) -> dict[str, Any]:
+    """The JSON document at `url` once it answers 200 (a daemon that is still starting)."""
     async with aiohttp.ClientSession(timeout=aiohttp.ClientTimeout(total=2)) as session:
-        deadline = time.monotonic() + timeout_s
-        while True:
+
+        async def answer() -> dict[str, Any] | None:
             try:
                 async with session.get(url) as resp:
                     if resp.status == 200:
@@ -58,9 +59,10 @@ async def wait_http(url: str, timeout_s: float = 30.0) -> dict[str, Any]:
                         return doc
             except (aiohttp.ClientError, TimeoutError, OSError):
                 pass
-            if time.monotonic() > deadline:
-                raise AssertionError(f"{url} did not answer within {timeout_s} s")
-            await asyncio.sleep(0.1)
+            return None
+
+        doc: dict[str, Any] = await until(answer, f"{url} to answer", timeout_s=timeout_s, poll_s=0.1)
+        return doc
 
 
 async def _browser(pw: Any) -> Any:
@@ -193,6 +195,8 @@ async def served(tmp_path: Path) -> AsyncIterator[tuple[str, FakeRig, Daemon]]:
             yield f"http://127.0.0.1:{daemon.api_port}", rig, daemon
 
 
+#: Resolves once the browser has drawn two frames: any layout a change asked for is done.
+NEXT_FRAME = "() => new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))"
 LAYOUT_CHECK = """() => {
   const main = document.querySelector('main');
   const cs = getComputedStyle(main);
@@ -251,7 +255,11 @@ async def test_controls_reasons_history_and_layout(served: tuple[str, FakeRig, D
             await page.click("#token-form button[type=submit]")
             assert await page.evaluate("() => sessionStorage.getItem('relayd-api-token')") == rig.api_token
 
-            # follow asks first; cancelling sends nothing.
+            # follow asks first; cancelling sends nothing: of the mode requests the page
+            # makes, the one after the confirmation below is the first.
+            mode_posts: list[str] = []
+            page.on("request", lambda r: mode_posts.append(r.post_data or "")
+                    if r.method == "POST" and r.url.endswith("/api/mode") else None)
             rig.set_rear_signal(-70.0)  # so that follow stops on the weak link behind
             await page.click("#btn-follow")
             assert await page.is_visible("#confirm")
@@ -260,7 +268,6 @@ async def test_controls_reasons_history_and_layout(served: tuple[str, FakeRig, D
             await page.wait_for_function(
                 "() => /cancelled, nothing sent/.test(document.getElementById('control-result').textContent)",
                 timeout=5_000)
-            await asyncio.sleep(0.5)
             assert str(state.mode) == "hold"
             await page.click("#btn-follow")
             await page.click("#confirm-yes")
@@ -268,6 +275,7 @@ async def test_controls_reasons_history_and_layout(served: tuple[str, FakeRig, D
                 "() => /follow: accepted by the robot \\(HTTP 200/.test("
                 "document.getElementById('control-result').textContent)", timeout=10_000)
             await until(lambda: str(state.mode) == "follow", "follow mode")
+            assert len(mode_posts) == 1 and "follow" in mode_posts[0], mode_posts
 
             # The weak link behind, in words and numbers, as the Python side writes it.
             await page.wait_for_function(
@@ -333,7 +341,7 @@ async def test_controls_reasons_history_and_layout(served: tuple[str, FakeRig, D
 
             for width in (1400, 1000, 700):
                 await page.set_viewport_size({"width": width, "height": 1000})
-                await asyncio.sleep(0.3)
+                await page.evaluate(NEXT_FRAME)  # the page laid out again at the new width
                 assert await page.evaluate(LAYOUT_CHECK) == [], f"layout at {width} px"
                 await page.screenshot(path=str(tmp_path / f"layout-{width}.png"), full_page=True)
         finally:

@@ -32,24 +32,12 @@ ALLOWED: dict[tuple[str, str], str] = {
         "the injected fault: how long the cable stays pulled mid-connect; any outcome is then checked",
     ("test_systemd_unit.py", "_pet_periods"):
         "waits out watchdog periods to see that no pet came; its one caller runs on virtual time",
-    # The files below are being reworked for speed separately; their sleeps are listed
-    # here as they are, the fixed waits among them named as such.
     ("flood.py", "_slow_header"): "the slow-header attacker's pace: one byte a second",
     ("flood.py", "flood"): "how long the flood is held (its length is the load being applied)",
-    ("test_api_flood.py", "test_connection_flood_does_not_stop_the_robot.driving_now"):
-        "a hand-written condition poll (to move to support.until)",
-    ("test_api_flood.py", "test_connection_flood_does_not_stop_the_robot"):
-        "a hand-written /healthz poll, and a FIXED 1 s wait after the flood still to replace",
-    ("test_bench_smoke.py", "test_fake_robot_sip_period_is_settable"):
-        "a hand-written condition poll (to move to support.until)",
-    ("test_fleet_browser.py", "test_fleet_page_three_relays_one_stopped_mid_run"):
-        "a hand-written condition poll with a deadline (to move to support.until)",
-    ("test_live_page_ops.py", "wait_http"): "a hand-written condition poll (to move to support.until)",
     ("test_live_page_ops.py", "test_stale_when_the_daemon_is_paused_or_killed"):
         "watches a live page for 3 s of wall time to see it never goes stale (a span: the page's timers are wall time)",
     ("test_live_page_ops.py", "test_controls_reasons_history_and_layout"):
-        "the operator's drive refresh pace; and FIXED waits still to replace (0.5 s after a "
-        "cancelled confirm, 0.3 s after a viewport change)",
+        "the operator's drive refresh pace (a manual drive is re-sent every 0.15 s for 4 s)",
 }
 
 
