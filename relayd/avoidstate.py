@@ -75,8 +75,9 @@ class AvoidParams:
     max_escape_s: float = 300.0
     max_escape_m: float = 40.0
     max_turn_deg: float = 1080.0
-    #: The escape never takes the robot further than this from where it left the paper's
-    #: law (a room's diagonal): what needs more is not an obstacle to go round.
+    #: The escape never takes the robot further than this from where it last took over
+    #: from the paper's law (the doorway room's far corner is 5.2 m from its door wall):
+    #: what needs more is not an obstacle to go round.
     max_stray_m: float = 6.0
     #: A leader this far off the nose is not beyond what blocks the way ahead: the escape
     #: turns onto it first (ALIGN) instead of going round the obstacle.

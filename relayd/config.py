@@ -237,8 +237,9 @@ class AvoidanceSettings(_Section):
     max_escape_s: Annotated[float, Field(gt=0, le=3600)] = 300.0
     max_escape_m: Annotated[float, Field(gt=0, le=500)] = 40.0
     max_turn_deg: Annotated[float, Field(gt=0, le=36000)] = 1080.0
-    #: ... or that has taken the robot this far from where it began (a room's diagonal):
-    #: what needs more is going round a building, away from the leader, not an obstacle.
+    #: ... or that has taken the robot this far from where it last took over from the
+    #: paper's law (the doorway room's far corner is 5.2 m from its door wall): what needs
+    #: more is going round a building, away from the leader, not an obstacle.
     max_stray_m: Annotated[float, Field(gt=0, le=100)] = 6.0
     #: Turns in place during the escape.
     turn_rate_deg_s: Annotated[float, Field(gt=0, le=100)] = 20.0

@@ -198,6 +198,9 @@ def test_the_leader_link_prints_the_median_gap_and_the_bound_on_it() -> None:
     text = text_report(fit, thr, wanted, "test")
     assert "following gap 5 m:  threshold_l_dbm = -37.5 dBm" in text
     assert "gap at most 5 m (outage 0.01):  threshold_l_dbm = -28.2 dBm  (a median gap of 2.1 m)" in text
-    assert "threshold_l_dbm = -37" in config_snippet(fit, thr, wanted, "test")
+    # The snippet's comment says what its value is: the median gap, not an outage level.
+    assert "threshold_l_dbm = -37   # hop 5 m, the median gap" in config_snippet(fit, thr, wanted, "test")
+    rear = Wanted(link="rear", hop_m=5.0, outage=0.001)
+    assert "# hop 5 m, at 0.1 % outage" in config_snippet(fit, thresholds(fit, [], rear), rear, "test")
     # The rear link has no bound: its hop-length threshold already carries the margin.
     assert thresholds(fit, [], Wanted(link="rear", hop_m=5.0)).bound is None

@@ -147,7 +147,11 @@ def config_snippet(fit: PathLossFit, thr: Thresholds, wanted: Wanted, source: st
             asked.append(f"hop {wanted.hop_m:g} m")
         if wanted.target_mbps is not None:
             asked.append(f"{wanted.target_mbps:g} Mbit/s")
-        lines.append(f"{thr.key} = {round(chosen)}   # {', '.join(asked)} at {wanted.outage:.0%} outage")
+        # The leader link's threshold is the median at the gap (the robot stops on reaching
+        # it); the outage applies to its "gap at most" line in the report, not to this one.
+        how = ("the median gap" if thr.bound is not None and chosen == thr.by_length
+               else f"at {100 * wanted.outage:g} % outage")
+        lines.append(f"{thr.key} = {round(chosen)}   # {', '.join(asked)}, {how}")
     if thr.key == "threshold_b_dbm" and wanted.target_mbps is not None:
         lines += [
             f"target_hop_mbps = {wanted.target_mbps:g}",

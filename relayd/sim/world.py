@@ -56,6 +56,8 @@ BODY_SLACK_M = 1e-6
 DOOR_CLEAR_M = 0.6
 #: A contact episode ends once the footprint is this far from everything again.
 CONTACT_CLEAR_M = 0.02
+
+
 def _point_segment_m(px: float, py: float, s: Segment) -> float:
     ex, ey = s.x2 - s.x1, s.y2 - s.y1
     n2 = ex * ex + ey * ey
