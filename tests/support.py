@@ -16,6 +16,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import inspect
+import math
 import os
 import subprocess
 import sys
@@ -186,3 +187,13 @@ def run_scenario(name: str, relays: int, pace: float | None = None) -> tuple[Sim
         runner = SimRunner(load_scenario(name).with_relays(relays), speed=pace, seed=1)
         _scenario_runs[key] = (vtime.run(runner.run(), speed=pace), runner)
     return _scenario_runs[key]
+
+
+def diff_drive(pose: tuple[float, float, float], left_mm_s: float, right_mm_s: float, dt_s: float,
+               track_mm: float = 400.0) -> tuple[float, float, float]:
+    """Exact differential-drive kinematics: the pose (mm, mm, deg) after `dt_s` at these wheel speeds."""
+    x, y, th = pose
+    v = (left_mm_s + right_mm_s) / 2.0
+    w = math.degrees((right_mm_s - left_mm_s) / track_mm)
+    mid = math.radians(th + w * dt_s / 2.0)
+    return x + v * dt_s * math.cos(mid), y + v * dt_s * math.sin(mid), th + w * dt_s

@@ -8,6 +8,7 @@ from dataclasses import replace
 
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from support import diff_drive
 
 from relayd.api.reasons import phrasebook
 from relayd.breadcrumbs import Crumb, add_crumb, leader_target
@@ -27,7 +28,6 @@ from relayd.state import DriveState
 
 P = RecoveryParams(enabled=True, rssi_timeout_s=0.5, rear_timeout_s=3.0, scan_timeout_s=7.0)
 OPEN = (5000,) * 16
-TRACK_MM = 400.0
 
 
 def inputs(**kw: object) -> RecoveryInputs:
@@ -43,15 +43,6 @@ def inputs(**kw: object) -> RecoveryInputs:
 def straight_trail(n: int, step_mm: float = 250.0) -> tuple[Crumb, ...]:
     """Crumbs along +x from 0, the newest last; the leader fainter at each (a relay falling behind)."""
     return tuple(Crumb(i * step_mm, 0.0, -35.0 - i, -55.0) for i in range(n))
-
-
-def drive(pose: tuple[float, float, float], left: float, right: float, dt: float) -> tuple[float, float, float]:
-    """Exact differential-drive kinematics (mm, deg)."""
-    x, y, th = pose
-    v = (left + right) / 2.0
-    w = math.degrees((right - left) / TRACK_MM)
-    mid = math.radians(th + w * dt / 2.0)
-    return x + v * dt * math.cos(mid), y + v * dt * math.sin(mid), th + w * dt
 
 
 def test_every_recovery_reason_has_a_phrase() -> None:
@@ -130,7 +121,7 @@ def test_retrace_stops_at_the_crumb_where_the_leader_was_strong() -> None:
         out = recovery_step(inputs(pose=pose, leader_lost=True, now_s=t, scan_count=9), P, m)
         m = out.memory
         assert out.command is not None
-        pose = drive(pose, out.command.left_mm_s, out.command.right_mm_s, 0.1)
+        pose = diff_drive(pose, out.command.left_mm_s, out.command.right_mm_s, 0.1)
         t += 0.1
     assert abs(pose[0] - 1000.0) < P.reach_m * 1000.0
     assert out.command is not None and out.command.reason == "retrace_wait"
@@ -336,7 +327,7 @@ def test_property_never_exceeds_its_distance_or_time_limit(n: int, heading: floa
         if moving:
             assert start_t is not None and t - start_t < max_t
             assert out.command is not None
-            new = drive(pose, out.command.left_mm_s, out.command.right_mm_s, dt)
+            new = diff_drive(pose, out.command.left_mm_s, out.command.right_mm_s, dt)
             travelled_m += math.dist(new[:2], pose[:2]) / 1000.0
             pose = new
         t += dt
@@ -356,7 +347,7 @@ def test_reverse_pursuit_follows_a_turning_trail_back_around_the_corner() -> Non
         out = recovery_step(inputs(pose=pose, leader_lost=True, now_s=k * 0.1, scan_count=3), P, m)
         m = out.memory
         assert out.command is not None
-        pose = drive(pose, out.command.left_mm_s, out.command.right_mm_s, 0.1)
+        pose = diff_drive(pose, out.command.left_mm_s, out.command.right_mm_s, 0.1)
         # Distance from the L-shaped path the relay came along.
         off = min(abs(pose[1]) if pose[0] <= 2000 else math.hypot(pose[0] - 2000, pose[1]),
                   abs(pose[0] - 2000) if 0 <= pose[1] <= 2000 else math.inf)

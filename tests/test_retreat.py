@@ -9,6 +9,7 @@ from dataclasses import replace
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from support import diff_drive
 
 from relayd.api.reasons import phrasebook
 from relayd.breadcrumbs import REAR_SONARS
@@ -32,7 +33,6 @@ from relayd.state import DriveState, Mode
 
 P = ControlParams(threshold_b_dbm=-72.0)
 OPEN: tuple[int | None, ...] = (5000,) * 16
-TRACK_MM = 400.0
 STOP_REAR = ControlOutput(0.0, 0.0, DriveState.STOPPED, "rear_weak", 1, ControlMemory())
 DRIVING = ControlOutput(200.0, 200.0, DriveState.DRIVING, "driving", 1, ControlMemory())
 
@@ -45,15 +45,6 @@ def ci(pose: tuple[float, float, float] | None = (0.0, 0.0, 0.0), t: float = 0.0
     )
     base.update(kw)
     return ControlInputs(**base)  # type: ignore[arg-type]
-
-
-def drive(pose: tuple[float, float, float], left: float, right: float, dt: float) -> tuple[float, float, float]:
-    """Exact differential-drive kinematics (mm, deg)."""
-    x, y, th = pose
-    v = (left + right) / 2.0
-    w = math.degrees((right - left) / TRACK_MM)
-    mid = math.radians(th + w * dt / 2.0)
-    return x + v * dt * math.cos(mid), y + v * dt * math.sin(mid), th + w * dt
 
 
 #: A miss 6 dB below the polls that met the target: a gradual edge, no sudden shadow.
@@ -86,7 +77,7 @@ def run_move(m: RetreatMemory, x: float, dt: float = 0.1) -> tuple[ControlOutput
         out, m = retreat_step(ci(pose), OPEN, STOP_REAR, P, m, enabled=True)
         if m.target is None:
             break
-        pose = drive(pose, out.left_mm_s, out.right_mm_s, dt)
+        pose = diff_drive(pose, out.left_mm_s, out.right_mm_s, dt)
     return out, m, pose[0]
 
 
@@ -233,7 +224,7 @@ def test_never_reverses_toward_an_echo_inside_stop_distance(which: int, range_mm
     pose = (x, 0.0, 0.0)
     for _ in range(steps):
         out, m = retreat_step(ci(pose), OPEN, STOP_REAR, P, m, enabled=True)
-        pose = drive(pose, out.left_mm_s, out.right_mm_s, 0.1)
+        pose = diff_drive(pose, out.left_mm_s, out.right_mm_s, 0.1)
     sonar = list(others)
     sonar[which] = range_mm
     out, m = retreat_step(ci(pose), tuple(sonar), STOP_REAR, P, m, enabled=True)
@@ -277,7 +268,7 @@ def test_any_doubt_during_a_move_means_zero_wheels(which: str, steps: int) -> No
     pose = (x, 0.0, 0.0)
     for _ in range(steps):
         out, m = retreat_step(ci(pose), OPEN, STOP_REAR, P, m, enabled=True)
-        pose = drive(pose, out.left_mm_s, out.right_mm_s, 0.1)
+        pose = diff_drive(pose, out.left_mm_s, out.right_mm_s, 0.1)
     table: dict[str, dict[str, object]] = {
         "sip": {"sip_age_s": 5.0}, "rssi": {"rssi_age_s": 5.0}, "rear": {"rear_age_s": 10.0},
         "rear_none": {"rssi_behind_dbm": None}, "pose": {"odom": None}, "nan_age": {"sip_age_s": math.nan},
@@ -330,7 +321,7 @@ def test_reverse_travel_never_exceeds_the_bound(edge_m: float, past_m: float, dt
         for _ in range(400):
             out, m = retreat_step(ci(pose), OPEN, STOP_REAR, P, m, enabled=True)
             assert out.left_mm_s <= 0.0 and out.right_mm_s <= 0.0  # only ever backwards
-            new = drive(pose, out.left_mm_s, out.right_mm_s, dt)
+            new = diff_drive(pose, out.left_mm_s, out.right_mm_s, dt)
             reversed_m += math.dist(new[:2], pose[:2]) / 1000.0
             pose = new
             if m.target is None:
@@ -367,7 +358,7 @@ def test_a_move_that_runs_longer_than_planned_stops_at_the_bound(left_m: float, 
     moved_m = 0.0
     for k in range(1000):
         out, m = retreat_step(ci(pose, t=k * dt), OPEN, STOP_REAR, P, m, enabled=True)
-        new = drive(pose, out.left_mm_s, out.right_mm_s, dt)
+        new = diff_drive(pose, out.left_mm_s, out.right_mm_s, dt)
         moved_m += math.dist(new[:2], pose[:2]) / 1000.0
         pose = new
         if m.target is None:
