@@ -221,6 +221,10 @@ class ControlSettings(_Section):
     #: The escape when forward motion is blocked (docs/AVOIDANCE.md); false leaves the
     #: paper's obstacle rule alone (for experiments and benchmarks, not for a robot).
     escape: bool = True
+    #: Keep following past "leader_near" while the front sonars covering the leader's
+    #: bearing see nothing nearer than this (m) that way (docs/CONTROL.md section 5.3);
+    #: 0 = off, the paper's rule alone. When on: above threshold_o_m, at most 5 m.
+    leader_gap_max_m: NonNegFloat = 0.0
 
     @model_validator(mode="after")
     def _cross_key_rules(self) -> ControlSettings:

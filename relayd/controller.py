@@ -18,7 +18,8 @@ Order of decisions, first match wins:
    part of the command is dropped (turning and backing off stay) with reason
    "obstacle". Otherwise reason "manual"; state DRIVING when a wheel moves.
 4. follow: leader_lost -> LEADER_LOST; no bearing or RSSI^l yet -> STOPPED
-   "no_scan_yet"; the link rule says stop -> STOPPED "leader_near"/"rear_weak";
+   "no_scan_yet"; the link rule says stop -> STOPPED "leader_near"/"rear_weak", unless
+   the sonar floor overrules "leader_near" (below) -> DRIVING "leader_far_sonar";
    situation 1 -> AVOIDING "obstacle"; else DRIVING "driving". Then, given the time
    and odometry, the escape (relayd/avoidance.py, docs/AVOIDANCE.md) may take over:
    AVOIDING "avoiding"/"rejoining", or STOPPED "blocked" past its limits. Every
@@ -31,6 +32,13 @@ when RSSI^l < threshold_l - hysteresis AND RSSI^b > threshold_b + hysteresis. RS
 is ignored when rear_link_required is False (rear_link = "ignore"). The latch starts
 False, so a robot starts only from inside the band's safe side. The latch in
 `ControlMemory` changes only through the link rule: faults, hold and manual leave it.
+
+Sonar release (docs/CONTROL.md section 5.3; off unless leader_gap_max_m > 0): when the
+rule says "leader_near" but the front sonars covering the leader's bearing put it at
+least leader_gap_max_m away (`ControlInputs.leader_floor_m`, relayd/rangecue.py), and
+the rear half of the rule alone allows driving, the robot keeps following at the speed
+law's speed at threshold_l, reason "leader_far_sonar", until the floor falls 0.3 m below
+the limit. "rear_weak" always wins; everything after the link rule applies as usual.
 
 Situation 1 (d_min < threshold_o): the steering angle is the sonar avoidance
 centroid; forward speed is the background speed scaled linearly from 1 at
@@ -60,6 +68,7 @@ from relayd.estimator import (
     classify_situation,
     nearest_front_m,
 )
+from relayd.rangecue import far_by_sonar, release_speed_mm_s
 from relayd.ring import guard
 from relayd.state import DriveState, Mode
 
@@ -89,6 +98,9 @@ class ControlParams:
     manual_deadman_s: float = 0.5
     #: False: the paper's obstacle rule alone, no escape (config `control.escape`).
     escape: bool = True
+    #: "leader_near" is overruled while the sonar floor says the leader is at least this
+    #: far (m); 0 = off, the paper's rule alone (relayd/rangecue.py, docs/CONTROL.md 5.3).
+    leader_gap_max_m: float = 0.0
     #: The escape when forward motion is blocked (relayd/avoidance.py); its stop
     #: distance and threshold_o are taken from the two fields above.
     avoid: AvoidParams = field(default_factory=AvoidParams)
@@ -122,6 +134,9 @@ class ControlInputs:
     #: The backward-looking rear sonars (`ring.rear_readings`): the escape backs off
     #: only when they show room behind.
     rear_sonar: tuple[SonarReading, ...] = ()
+    #: The least distance (m) the front sonars allow the leader (`rangecue.leader_floor_m`);
+    #: None: no floor (bearing off the nose, unsure, ring not read).
+    leader_floor_m: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -134,6 +149,8 @@ class ControlMemory:
     prev_steer_deg: float | None = None
     #: The escape state machine (relayd/avoidance.py); reset whenever the robot may not drive.
     avoid: AvoidState = field(default_factory=AvoidState)
+    #: True while the sonar floor overrules "leader_near" (its hysteresis).
+    sonar_release: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -209,7 +226,8 @@ def _stopped(
     state: DriveState, reason: str, situation: int, memory: ControlMemory
 ) -> ControlOutput:
     return ControlOutput(
-        0.0, 0.0, state, reason, situation, replace(memory, prev_steer_deg=None, avoid=AvoidState())
+        0.0, 0.0, state, reason, situation,
+        replace(memory, prev_steer_deg=None, avoid=AvoidState(), sonar_release=False),
     )
 
 
@@ -278,11 +296,18 @@ def control_step(
     drive, reason = link_rule(
         rssi_l, inputs.rssi_behind_dbm, params, memory.link_drive, params.rear_link_required
     )
-    memory = replace(memory, link_drive=drive)
-    if not drive:
+    # "leader_near" with the sonars seeing nothing that near in the leader's direction: keep
+    # following at the law's speed at threshold_l, if the rear half of the rule (run alone) allows.
+    released = (not drive and reason == "leader_near"
+                and far_by_sonar(inputs.leader_floor_m, params.leader_gap_max_m, memory.sonar_release)
+                and link_rule(-math.inf, inputs.rssi_behind_dbm, params, memory.link_drive,
+                              params.rear_link_required)[0])
+    memory = replace(memory, link_drive=drive or released, sonar_release=released)
+    if not (drive or released):
         return _stopped(DriveState.STOPPED, reason, situation, memory)
 
-    v = background_speed(rssi_l, params.w1, params.w2, params.v_max_mm_s)
+    v = (release_speed_mm_s(params.threshold_l_dbm, params.w1, params.w2, params.v_max_mm_s) if released
+         else background_speed(rssi_l, params.w1, params.w2, params.v_max_mm_s))
     # Situation 1 means a forward sonar echoed inside the detection range: d_min is set.
     d_min = nearest_front_m(inputs.front_sonar) if situation == 1 else None
     if d_min is not None:
@@ -294,7 +319,8 @@ def control_step(
         state, reason, memory = DriveState.AVOIDING, "obstacle", replace(memory, prev_steer_deg=steer)
     else:
         left, right = wheel_law(v, bearing, prev, params.kp, params.kd, params.v_max_mm_s)
-        state, reason, memory = DriveState.DRIVING, "driving", replace(memory, prev_steer_deg=None)
+        state, memory = DriveState.DRIVING, replace(memory, prev_steer_deg=None)
+        reason = "leader_far_sonar" if released else "driving"
 
     act = params.actuator
     if (params.escape and inputs.t_s is not None and inputs.odom is not None
