@@ -2,38 +2,48 @@
 
 RSSI^l cannot tell distance under shadowing: a relay standing in a spot 8-10 dB above the
 path-loss median hears its leader "near" at 5-6 m and stands still on "leader_near" while
-the leader walks away. The sonar ring in front of it tells better, in one direction:
-every echo is the nearest surface inside its beam, so a leader whose centre lies inside a
-beam is at least as far as that beam's echo. `leader_floor_m` turns the front ring and the
-bearing filter's estimate (bearing, sd) into that bound; the controller's link rule
-(docs/CONTROL.md section 5.3) uses it to keep following when the floor says "far".
+the leader walks away. The sonar ring tells better: every echo is the nearest surface in
+its beam, so whatever lies inside a beam is at least as far as that beam's echo.
+`leader_floor_m` turns the front ring and the bearing filter's estimate into such a
+bound; the controller's link rule (docs/CONTROL.md section 5.3) keeps following past
+"leader_near" while it says "far".
 
-What the floor means: if the leader's centre lies within `sigmas` standard deviations of
-the bearing and no nearer than `near_m` to the robot's centre, then the distance between
-the two centres is at least the floor. Why:
+What the floor means: the distance from the robot's centre to the centre of anything
+(the leader above all) that lies inside the front fan, at least `near_m` out, is at
+least the floor. The fan is the bearings the front ring sees whole (`cover_deg`): -54.7
+to +54.7 degrees and 75 to 90.3 degrees either side. The floor is offered only when the
+bearing estimate +- max(2 sd, 20 degrees) lies inside the fan, i.e. when the leader is
+believed well inside it. Why it holds:
 
 - Coverage. Seen from its transducer (offset from the robot's centre, drivers/arcos/
   sonar.py), a point moving out along a ray from the robot's centre turns monotonically,
   from where it is at `near_m` to the ray's own direction at infinity. So the ray is
   inside a beam from `near_m` on exactly when both ends are: `cover_deg` gives, per
-  sonar, the interval of bearings it sees whole. The bearing interval must lie in the
-  union of those intervals, else there is no floor (None).
-- Bound. The leader's centre then lies in the beam of some sonar k whose cover interval
-  overlaps the bearing interval. The segment from that transducer to the centre is inside
-  the beam (a cone from its apex), so it crosses the leader's surface, which is at least
-  `core_m` before the centre (a person is ~0.25 m deep, a P3-AT 0.5 m wide): the echo r_k
-  is at most the transducer-to-centre distance less `core_m`. The front transducers look
-  away from the robot's centre (t.u > 0 over every beam), so the distance from the robot's
-  centre is at least min |t + (r_k + core_m) u| over the beam's directions u, which is at
-  least r_k + core_m. The floor is the smallest of these over the overlapping sonars.
+  sonar, the bearings it sees whole; the fan is their union.
+- Bound. A centre in the fan lies in the beam of some sonar k. The segment from that
+  transducer to the centre is inside the beam (a cone from its apex), so it crosses the
+  body's surface, which is at least `core_m` before the centre (a person is ~0.25 m deep,
+  a P3-AT 0.5 m wide): the echo r_k is at most the transducer-to-centre distance less
+  `core_m`. The front transducers look away from the robot's centre (t.u > 0 over every
+  beam), so the centre is at least min |t + (r_k + core_m) u| over the beam's directions
+  u from the robot's centre (`centre_bound_m`), itself at least r_k + core_m. The floor is
+  the least of these over the whole front ring, so it needs no trust in which beam the
+  leader is in: only that it is in the fan.
 - No echo counts as the sonar's maximum range: nothing in that beam within 5 m.
 
-What it does not cover: a leader nearer than `near_m` (the beams of the +-10 degree
-sonars cross only 0.55 m ahead: nearer, straight ahead, is between them), a sonar that
-misses the leader (a soft target at several metres, an echo lost to specular reflection):
-the floor is then the range of whatever lies behind, or the maximum. The controller's
-use of it says why that adds no new hazard (docs/CONTROL.md section 5.3). A sonar never
-read is left out, so an unread ring gives no floor rather than "nothing there".
+Why the whole ring and the 20 degree margin: the filter's sd is its own opinion. In the
+simulated convoy its error reached 5-20 sd (an estimate 54 degrees off, sd 4.5, while the
+leader turned 1.4 m away), so a bound from only the beams around the estimate put a
+leader at 1-1.5 m beyond 5 m in 1-5 % of the records of every seed; over the whole ring,
+never, but for a leader the estimate had placed in front while it was behind (bench
+figures in the commit that made this choice).
+
+What it does not cover: a leader nearer than `near_m`, a leader outside the fan though
+the estimate says otherwise, and a sonar that misses the leader (a soft target at
+several metres, an echo lost to specular reflection): the floor is then the range of
+whatever lies behind it, or the maximum. Why the release adds no new hazard for that is
+the controller's part (docs/CONTROL.md section 5.3). The floor needs every front-ring
+sonar read at least once: a sonar never read is not "nothing there".
 Pure: no I/O, no clock; angles in degrees in the robot frame, ccw positive; metres.
 """
 
@@ -41,6 +51,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from functools import cache
 
 from drivers.arcos.sonar import SONAR_POSES
 from relayd.estimator import (
@@ -53,8 +64,10 @@ from relayd.estimator import (
 
 #: Half the beam of a P3-AT sonar (30 degrees wide): as the estimator's PRSSI uses it.
 HALF_BEAM_DEG = 15.0
-#: The bearing interval is the estimate +- this many of the filter's standard deviations.
+#: The leader is believed within the estimate +- this many of the filter's standard deviations ...
 SIGMAS = 2.0
+#: ... but never narrower than +- this (see the module docstring).
+MIN_HALF_DEG = 20.0
 #: The floor speaks for a leader whose centre is at least this far from the robot's centre.
 #: Nearer, its near surface would be within 0.36 m of the front transducers (0.245 m out),
 #: inside threshold_o, where the obstacle rule and the guard govern. From 0.7 m on the
@@ -128,48 +141,43 @@ def centre_bound_m(index: int, range_m: float, core_m: float = CORE_M,
                for a in (math.radians(heading - half_beam_deg), math.radians(heading + half_beam_deg)))
 
 
-def _covered(low: float, high: float, spans: list[tuple[float, float]]) -> bool:
-    """[low, high] lies inside the union of the spans."""
-    reach = low
-    for lo, hi in sorted(spans):
-        if lo > reach:
-            break
-        reach = max(reach, hi)
-        if reach >= high:
-            return True
-    return reach >= high
+@cache
+def fan_deg(near_m: float = NEAR_M, half_beam_deg: float = HALF_BEAM_DEG) -> tuple[tuple[float, float], ...]:
+    """The front fan: the bearings some front-ring sonar sees whole from `near_m` out, as
+    sorted, merged intervals."""
+    spans = sorted(span for span in (cover_deg(i, near_m, half_beam_deg) for i in FRONT_RING)
+                   if span[0] <= span[1])
+    merged: list[tuple[float, float]] = []  # cached: the ring's geometry does not change
+    for lo, hi in spans:
+        if merged and lo <= merged[-1][1]:
+            merged[-1] = (merged[-1][0], max(merged[-1][1], hi))
+        else:
+            merged.append((lo, hi))
+    return tuple(merged)
 
 
 def leader_floor_m(front: Sequence[SonarReading], bearing_deg: float | None, sd_deg: float | None, *,
-                   sigmas: float = SIGMAS, near_m: float = NEAR_M, core_m: float = CORE_M,
-                   half_beam_deg: float = HALF_BEAM_DEG) -> float | None:
-    """A lower bound (m) on the distance from the robot's centre to the leader's centre, from
-    the front sonars whose beams cover the bearing +- sigmas * sd; None when the bearing or
-    its sd is unknown or not finite, or the interval is not wholly covered (see the module
-    docstring for what the bound assumes). `front` holds only sonars that have been read
-    (`known_front`); a reading with no index, or of the rear ring, is ignored."""
+                   sigmas: float = SIGMAS, min_half_deg: float = MIN_HALF_DEG, near_m: float = NEAR_M,
+                   core_m: float = CORE_M, half_beam_deg: float = HALF_BEAM_DEG) -> float | None:
+    """A lower bound (m) on the distance from the robot's centre to the leader's centre,
+    `centre_bound_m` over the whole front ring; None when the bearing or its sd is unknown
+    or not finite, when bearing +- max(sigmas * sd, min_half_deg) is not inside the front
+    fan, or when a front-ring sonar is missing from `front` (never read: `known_front`).
+    See the module docstring for what the bound assumes."""
     if bearing_deg is None or sd_deg is None or not (math.isfinite(bearing_deg) and math.isfinite(sd_deg)):
         return None
-    half = sigmas * max(sd_deg, 0.0)
-    if half >= 180.0:
+    by_index = {r.index: r.range_m for r in front if r.index is not None}
+    if any(i not in by_index for i in FRONT_RING):
         return None
+    half = max(sigmas * sd_deg, min_half_deg, 0.0)
     b = wrap_deg(bearing_deg)
-    low, high = b - half, b + half
-    spans: list[tuple[float, float]] = []
-    floor = math.inf
-    for reading in front:
-        if reading.index is None or reading.index not in FRONT_RING:
-            continue
-        lo, hi = cover_deg(reading.index, near_m, half_beam_deg)
-        if lo > hi:
-            continue
-        spans.append((lo, hi))
-        if lo <= high and hi >= low:
-            r = reading.range_m
-            r = SONAR_MAX_RANGE_M if r is None or not math.isfinite(r) or r >= SONAR_MAX_RANGE_M else max(r, 0.0)
-            floor = min(floor, centre_bound_m(reading.index, r, core_m, half_beam_deg))
-    if not _covered(low, high, spans) or not math.isfinite(floor):
+    if not any(lo <= b - half and b + half <= hi for lo, hi in fan_deg(near_m, half_beam_deg)):
         return None
+    floor = math.inf
+    for i in FRONT_RING:
+        r = by_index[i]
+        r = SONAR_MAX_RANGE_M if r is None or not math.isfinite(r) or r >= SONAR_MAX_RANGE_M else max(r, 0.0)
+        floor = min(floor, centre_bound_m(i, r, core_m, half_beam_deg))
     return floor
 
 
@@ -193,3 +201,12 @@ def release_speed_mm_s(threshold_l_dbm: float, w1: float, w2: float, v_max_mm_s:
     leader's pace when the law is matched to it), kept within [CREEP_MM_S, v_max]."""
     v = -w1 * threshold_l_dbm - w2
     return min(max(v, CREEP_MM_S), v_max_mm_s)
+
+
+def catch_up_mm_s(floor_m: float | None, gap_max_m: float, v_release_mm_s: float, v_max_mm_s: float) -> float:
+    """experimental"""
+    if gap_max_m <= 0.0 or floor_m is None or not math.isfinite(floor_m) or floor_m < gap_max_m:
+        return 0.0
+    span = SONAR_MAX_RANGE_M - gap_max_m
+    share = 1.0 if span <= 0.0 else min((floor_m - gap_max_m) / span, 1.0)
+    return min(v_release_mm_s + (v_max_mm_s - v_release_mm_s) * share, v_max_mm_s)
