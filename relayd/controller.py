@@ -296,12 +296,13 @@ def control_step(
     drive, reason = link_rule(
         rssi_l, inputs.rssi_behind_dbm, params, memory.link_drive, params.rear_link_required
     )
-    # "leader_near" with the sonars seeing nothing that near in the leader's direction: keep
-    # following at the law's speed at threshold_l, if the rear half of the rule (run alone) allows.
-    released = (not drive and reason == "leader_near"
-                and far_by_sonar(inputs.leader_floor_m, params.leader_gap_max_m, memory.sonar_release)
-                and link_rule(-math.inf, inputs.rssi_behind_dbm, params, memory.link_drive,
-                              params.rear_link_required)[0])
+    released = False
+    if reason == "leader_near" and far_by_sonar(inputs.leader_floor_m, params.leader_gap_max_m,
+                                                memory.sonar_release):
+        # The sonars put the leader beyond the gap limit: only the rear half of the rule
+        # (the rule run without the leader's term) may still hold the robot.
+        released, reason = link_rule(-math.inf, inputs.rssi_behind_dbm, params, memory.link_drive,
+                                     params.rear_link_required)
     memory = replace(memory, link_drive=drive or released, sonar_release=released)
     if not (drive or released):
         return _stopped(DriveState.STOPPED, reason, situation, memory)
