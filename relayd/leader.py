@@ -107,6 +107,7 @@ class BearingModel(Protocol):
     def window(self, t: float, heading_deg: float | None, full: Window) -> Window | None: ...
     def lost(self, t: float, heading_deg: float | None) -> bool: ...
     def sd_deg(self, t: float, heading_deg: float | None) -> float | None: ...
+    def search_bearing(self, t: float, heading_deg: float | None) -> float | None: ...
 
 
 class CentroidModel:
@@ -127,6 +128,9 @@ class CentroidModel:
 
     def sd_deg(self, t: float, heading_deg: float | None) -> float | None:
         return None
+
+    def search_bearing(self, t: float, heading_deg: float | None) -> float | None:
+        return None  # never lost by its own word: the paper's relay stands and rescans
 
 
 def _median(xs: Sequence[float]) -> float:
@@ -153,6 +157,9 @@ class TrackingModel:
         self._pool = ScanPool(params.pool)
         #: The servo's range (from the full window the brain plans with), once known.
         self._span: tuple[float, float] | None = None
+        #: Where the scans last put the leader, sure or not (bearing at the scan's end, the
+        #: heading then): a lost relay turns toward it (`relayd.search`).
+        self._evidence: tuple[float, float] | None = None
 
     @property
     def beamwidth_deg(self) -> float | None:
@@ -188,6 +195,7 @@ class TrackingModel:
             values = est.rssi_dbm
             fit = fit_main_lobe(angles, values, p.lobe, beamwidth_prior_deg=self.beamwidth_deg)
         self.last_fit = fit
+        self._remember(fit, angles, est.rssi_dbm, heading_deg)
         if len(sample_t) >= 2:
             self._sweep_s = max(0.0, sample_t[-1] - sample_t[0])
         if fit is not None:
@@ -212,6 +220,27 @@ class TrackingModel:
             bearing = fit.bearing_deg if fit is not None else est.bearing_deg
             return replace(est, bearing_deg=bearing, bearing_sd_deg=None)
         return replace(est, bearing_deg=self._seen(now.bearing_deg), bearing_sd_deg=now.sd_deg)
+
+    def _remember(self, fit: LobeFit | None, angles: Sequence[float], rssi_dbm: Sequence[float],
+                  heading_deg: float) -> None:
+        """The scan's word on the leader's side: its fit, however unsure; with no fit, the
+        strongest sample when it lies at a servo limit (the lobe beyond, out of reach)."""
+        if fit is not None:
+            self._evidence = (fit.bearing_deg, heading_deg)
+            return
+        if self._span is None or not angles or len(angles) != len(rssi_dbm):
+            return
+        peak = angles[max(range(len(angles)), key=lambda i: rssi_dbm[i])]
+        edge = self.params.lobe.max_extrapolation_deg / 2.0
+        if peak <= self._span[0] + edge or peak >= self._span[1] - edge:
+            self._evidence = (peak, heading_deg)
+
+    def search_bearing(self, t: float, heading_deg: float | None) -> float | None:
+        """While the track is lost, where the scans last put the leader, in today's frame."""
+        if self._evidence is None or not self.lost(t, heading_deg):
+            return None
+        b, h = self._evidence
+        return b if heading_deg is None else math.remainder(b - (heading_deg - h), 360.0)
 
     def _leader_frame(self, t: float, heading_deg: float, angles_deg: Sequence[float],
                       sample_t: Sequence[float]) -> tuple[tuple[float, ...], float | None]:
