@@ -157,8 +157,9 @@ class TrackingModel:
         self._pool = ScanPool(params.pool)
         #: The servo's range (from the full window the brain plans with), once known.
         self._span: tuple[float, float] | None = None
-        #: Where the scans last put the leader, sure or not (bearing at the scan's end, the
-        #: heading then): a lost relay turns toward it (`relayd.search`).
+        #: Where the scans last put the leader, sure or not, when that was at or beyond a servo
+        #: limit (bearing at the scan's end, the heading then): a lost relay turns toward it
+        #: (`relayd.search`).
         self._evidence: tuple[float, float] | None = None
 
     @property
@@ -223,20 +224,27 @@ class TrackingModel:
 
     def _remember(self, fit: LobeFit | None, angles: Sequence[float], rssi_dbm: Sequence[float],
                   heading_deg: float) -> None:
-        """The scan's word on the leader's side: its fit, however unsure; with no fit, the
-        strongest sample when it lies at a servo limit (the lobe beyond, out of reach)."""
-        if fit is not None:
-            self._evidence = (fit.bearing_deg, heading_deg)
+        """The scan's word on where the leader is, when that is at or beyond a servo limit
+        (out of the sweep's reach): its fit there, however unsure; with no fit, the strongest
+        sample when it lies at a limit (the lobe beyond). A word from within the sweep clears it:
+        the next full sweeps see the leader there without a turn."""
+        if self._span is None:
             return
-        if self._span is None or not angles or len(angles) != len(rssi_dbm):
-            return
-        peak = angles[max(range(len(angles)), key=lambda i: rssi_dbm[i])]
         edge = self.params.lobe.max_extrapolation_deg / 2.0
-        if peak <= self._span[0] + edge or peak >= self._span[1] - edge:
-            self._evidence = (peak, heading_deg)
+        lo, hi = self._span[0] + edge, self._span[1] - edge
+        if fit is not None:
+            b = fit.bearing_deg
+        elif angles and len(angles) == len(rssi_dbm):
+            b = angles[max(range(len(angles)), key=lambda i: rssi_dbm[i])]
+            if lo < b < hi:
+                return  # no lobe, nothing at a limit: the scan says nothing new
+        else:
+            return
+        self._evidence = (b, heading_deg) if not lo < b < hi else None
 
     def search_bearing(self, t: float, heading_deg: float | None) -> float | None:
-        """While the track is lost, where the scans last put the leader, in today's frame."""
+        """While the track is lost, where the scans last put the leader, in today's frame,
+        if that was beyond the servo's reach (None: nowhere, or within the sweep)."""
         if self._evidence is None or not self.lost(t, heading_deg):
             return None
         b, h = self._evidence
