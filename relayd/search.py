@@ -4,20 +4,22 @@ The pan servo reaches +-90 deg; a leader the relay has passed (two robots meetin
 a corner, the truth sweeping from ahead to behind in a few seconds) is beyond it, where
 no scan can see a lobe. Standing still and widening, as a lost relay otherwise does,
 then waits for a leader that may never walk back into view (30 % of a convoy run in
-one case). So while the leader is lost and the last evidence of it (the tracking
-filter's `search_bearing`: the last lobe fit, however unsure, or the strongest sample
-at a servo limit, carried into today's frame) is at least `min_bearing_deg` off the
-nose, the relay turns in place toward that side at `rate_deg_s`, the full-range scans
-running meanwhile, until the evidence is ahead (then it stands, and the sweeps look
-there without a turn smearing them), until the leader is found (no longer lost). New
-evidence beyond `min_bearing_deg` (a later scan's fit, however unsure) turns it that
-way. An episode lasts at most `max_turn_deg` of odometry heading or the time that
-takes at `rate_deg_s` plus half (so a turn the guard keeps refusing ends too); then
-wheels zero, as before, until the leader is found again.
+one case). So while the leader is lost and the last evidence of it put it at or
+beyond a servo limit (the tracking filter's `search_bearing`: the last lobe fit there,
+however unsure, or the strongest sample at a limit, carried into today's frame) and is
+still at least `min_bearing_deg` off the nose, the relay turns in place toward that
+side at `rate_deg_s`, the full-range scans running meanwhile, until the evidence is
+ahead (then it stands, and the sweeps look there without a turn smearing them), until
+the leader is found (no longer lost). New evidence beyond `min_bearing_deg` (a later
+scan's fit, however unsure) turns it that way. An episode lasts at most
+`max_turn_deg` of odometry heading or the time that takes at `rate_deg_s` plus half
+(so a turn the guard keeps refusing ends too); then wheels zero, as before, until the
+leader is found again.
 
-Evidence within `min_bearing_deg` gets no turn: the servo's full sweep covers it, and
-a turn would only smear those scans. Every command passes `relayd.ring.guard` (no turn
-in place without room, as the obstacle escape's turns).
+Evidence within the sweep gets no turn (the model gives none): the servo's full sweep
+covers it, and a turn would only smear those scans and take the relay off its line.
+Every command passes `relayd.ring.guard` (no turn in place without room, as the
+obstacle escape's turns). docs/CONTROL.md section 6.1.
 
 Pure: time and heading come in as arguments.
 """
