@@ -398,6 +398,7 @@ class Brain:
             t_s=now,
             odom=self._pose,
             rear_sonar=rear_readings(self._sonar),
+            search_bearing_deg=self._model.search_bearing(now, heading),
         )
 
     def _bearing_now(self, now: float) -> float | None:

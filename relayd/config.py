@@ -221,6 +221,11 @@ class ControlSettings(_Section):
     #: The escape when forward motion is blocked (docs/AVOIDANCE.md); false leaves the
     #: paper's obstacle rule alone (for experiments and benchmarks, not for a robot).
     escape: bool = True
+    #: A lost leader last seen beyond the scan servo's reach (behind the relay) is turned
+    #: toward in place, at most one full turn (docs/CONTROL.md section 6.1); false: stand.
+    search_turn: bool = True
+    #: ... at this rate (deg/s): a full-range sweep while turning must still fit a lobe.
+    search_turn_deg_s: Annotated[float, Field(ge=5, le=90, allow_inf_nan=False)] = 25.0
 
     @model_validator(mode="after")
     def _cross_key_rules(self) -> ControlSettings:
