@@ -403,6 +403,7 @@ class Brain:
             odom=self._pose,
             rear_sonar=rear_readings(self._sonar),
             leader_floor_m=floor,
+            search_bearing_deg=self._model.search_bearing(now, heading),
         )
 
     def _bearing_now(self, now: float) -> float | None:

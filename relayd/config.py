@@ -221,10 +221,15 @@ class ControlSettings(_Section):
     #: The escape when forward motion is blocked (docs/AVOIDANCE.md); false leaves the
     #: paper's obstacle rule alone (for experiments and benchmarks, not for a robot).
     escape: bool = True
-    #: Keep following past "leader_near" while the front sonars covering the leader's
-    #: bearing see nothing nearer than this (m) that way (docs/CONTROL.md section 5.3);
-    #: 0 = off, the paper's rule alone. When on: above threshold_o_m, at most 5 m.
+    #: Keep following past "leader_near" while the leader is well inside the front sonars'
+    #: fan and they put everything in it at least this far (m) (docs/CONTROL.md section
+    #: 5.3); 0 = off, the paper's rule alone. When on: above threshold_o_m, at most 5 m.
     leader_gap_max_m: NonNegFloat = 0.0
+    #: A lost leader last seen beyond the scan servo's reach (behind the relay) is turned
+    #: toward in place, at most one full turn (docs/CONTROL.md section 6.1); false: stand.
+    search_turn: bool = True
+    #: ... at this rate (deg/s): a full-range sweep while turning must still fit a lobe.
+    search_turn_deg_s: Annotated[float, Field(ge=5, le=90, allow_inf_nan=False)] = 25.0
 
     @model_validator(mode="after")
     def _cross_key_rules(self) -> ControlSettings:

@@ -17,7 +17,9 @@ Order of decisions, first match wins:
    is: when a forward sonar sees something closer than stop_distance, the forward
    part of the command is dropped (turning and backing off stay) with reason
    "obstacle". Otherwise reason "manual"; state DRIVING when a wheel moves.
-4. follow: leader_lost -> LEADER_LOST; no bearing or RSSI^l yet -> STOPPED
+4. follow: leader_lost -> LEADER_LOST, wheels zero, or turning in place toward where
+   the leader was last seen when that is beyond the scan servo's reach, reason
+   "leader_search" (relayd/search.py); no bearing or RSSI^l yet -> STOPPED
    "no_scan_yet"; the link rule says stop -> STOPPED "leader_near"/"rear_weak", unless
    the sonar floor overrules "leader_near" (below) -> DRIVING "leader_far_sonar";
    situation 1 -> AVOIDING "obstacle"; else DRIVING "driving". Then, given the time
@@ -70,6 +72,7 @@ from relayd.estimator import (
 )
 from relayd.rangecue import far_by_sonar, release_speed_mm_s
 from relayd.ring import guard
+from relayd.search import SearchParams, SearchState, search_step, search_wheels
 from relayd.state import DriveState, Mode
 
 
@@ -106,6 +109,8 @@ class ControlParams:
     avoid: AvoidParams = field(default_factory=AvoidParams)
     #: What VEL/RVEL can express; every follow-mode command is rounded to it here.
     actuator: Actuator = field(default_factory=Actuator)
+    #: The turn toward a lost leader beyond the servo's reach (relayd/search.py).
+    search: SearchParams = field(default_factory=SearchParams)
 
 
 @dataclass(frozen=True, slots=True)
@@ -137,6 +142,8 @@ class ControlInputs:
     #: The least distance (m) the front sonars allow the leader (`rangecue.leader_floor_m`);
     #: None: no floor (bearing off the nose, unsure, ring not read).
     leader_floor_m: float | None = None
+    #: While the leader is lost: where the scans last put it, in this frame (None: nowhere).
+    search_bearing_deg: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -151,6 +158,8 @@ class ControlMemory:
     avoid: AvoidState = field(default_factory=AvoidState)
     #: True while the sonar floor overrules "leader_near" (its hysteresis).
     sonar_release: bool = False
+    #: The lost leader's search (relayd/search.py); reset once the leader is found.
+    search: SearchState = field(default_factory=SearchState)
 
 
 @dataclass(frozen=True, slots=True)
@@ -231,6 +240,21 @@ def _stopped(
     )
 
 
+def _lost(
+    inputs: ControlInputs, params: ControlParams, situation: int, memory: ControlMemory
+) -> ControlOutput:
+    """Leader lost: stand, or turn toward where it was last seen beyond the servo's reach."""
+    heading = inputs.odom[2] if inputs.odom is not None else None
+    search, rvel = search_step(memory.search, inputs.search_bearing_deg, heading, inputs.t_s, params.search)
+    memory = replace(memory, search=search)
+    left, right = search_wheels(rvel, params.actuator, inputs.front_sonar, inputs.rear_sonar,
+                                params.stop_distance_m)
+    if left == 0.0 and right == 0.0:
+        return _stopped(DriveState.LEADER_LOST, "leader_lost", situation, memory)
+    return ControlOutput(left, right, DriveState.LEADER_LOST, "leader_search", situation,
+                         replace(memory, prev_steer_deg=None, avoid=AvoidState(), sonar_release=False))
+
+
 def _stale(age_s: float | None, timeout_s: float) -> bool:
     return age_s is None or math.isnan(age_s) or age_s > timeout_s
 
@@ -285,7 +309,9 @@ def control_step(
         return _manual(inputs, params, situation, memory)
 
     if inputs.leader_lost:
-        return _stopped(DriveState.LEADER_LOST, "leader_lost", situation, memory)
+        return _lost(inputs, params, situation, memory)
+    if memory.search != SearchState():
+        memory = replace(memory, search=SearchState())  # found: the next loss searches afresh
     bearing, rssi_l = inputs.bearing_deg, inputs.rssi_leader_dbm
     if bearing is None or rssi_l is None or not (math.isfinite(bearing) and math.isfinite(rssi_l)):
         return _stopped(DriveState.STOPPED, "no_scan_yet", situation, memory)

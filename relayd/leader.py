@@ -107,6 +107,7 @@ class BearingModel(Protocol):
     def window(self, t: float, heading_deg: float | None, full: Window) -> Window | None: ...
     def lost(self, t: float, heading_deg: float | None) -> bool: ...
     def sd_deg(self, t: float, heading_deg: float | None) -> float | None: ...
+    def search_bearing(self, t: float, heading_deg: float | None) -> float | None: ...
 
 
 class CentroidModel:
@@ -127,6 +128,9 @@ class CentroidModel:
 
     def sd_deg(self, t: float, heading_deg: float | None) -> float | None:
         return None
+
+    def search_bearing(self, t: float, heading_deg: float | None) -> float | None:
+        return None  # never lost by its own word: the paper's relay stands and rescans
 
 
 def _median(xs: Sequence[float]) -> float:
@@ -153,6 +157,10 @@ class TrackingModel:
         self._pool = ScanPool(params.pool)
         #: The servo's range (from the full window the brain plans with), once known.
         self._span: tuple[float, float] | None = None
+        #: Where the scans last put the leader, sure or not, when that was at or beyond a servo
+        #: limit (bearing at the scan's end, the heading then): a lost relay turns toward it
+        #: (`relayd.search`).
+        self._evidence: tuple[float, float] | None = None
 
     @property
     def beamwidth_deg(self) -> float | None:
@@ -188,6 +196,7 @@ class TrackingModel:
             values = est.rssi_dbm
             fit = fit_main_lobe(angles, values, p.lobe, beamwidth_prior_deg=self.beamwidth_deg)
         self.last_fit = fit
+        self._remember(fit, angles, est.rssi_dbm, heading_deg)
         if len(sample_t) >= 2:
             self._sweep_s = max(0.0, sample_t[-1] - sample_t[0])
         if fit is not None:
@@ -212,6 +221,34 @@ class TrackingModel:
             bearing = fit.bearing_deg if fit is not None else est.bearing_deg
             return replace(est, bearing_deg=bearing, bearing_sd_deg=None)
         return replace(est, bearing_deg=self._seen(now.bearing_deg), bearing_sd_deg=now.sd_deg)
+
+    def _remember(self, fit: LobeFit | None, angles: Sequence[float], rssi_dbm: Sequence[float],
+                  heading_deg: float) -> None:
+        """The scan's word on where the leader is, when that is at or beyond a servo limit
+        (out of the sweep's reach): its fit there, however unsure; with no fit, the strongest
+        sample when it lies at a limit (the lobe beyond). A word from within the sweep clears it:
+        the next full sweeps see the leader there without a turn."""
+        if self._span is None:
+            return
+        edge = self.params.lobe.max_extrapolation_deg / 2.0
+        lo, hi = self._span[0] + edge, self._span[1] - edge
+        if fit is not None:
+            b = fit.bearing_deg
+        elif angles and len(angles) == len(rssi_dbm):
+            b = angles[max(range(len(angles)), key=lambda i: rssi_dbm[i])]
+            if lo < b < hi:
+                return  # no lobe, nothing at a limit: the scan says nothing new
+        else:
+            return
+        self._evidence = (b, heading_deg) if not lo < b < hi else None
+
+    def search_bearing(self, t: float, heading_deg: float | None) -> float | None:
+        """While the track is lost, where the scans last put the leader, in today's frame,
+        if that was beyond the servo's reach (None: nowhere, or within the sweep)."""
+        if self._evidence is None or not self.lost(t, heading_deg):
+            return None
+        b, h = self._evidence
+        return b if heading_deg is None else math.remainder(b - (heading_deg - h), 360.0)
 
     def _leader_frame(self, t: float, heading_deg: float, angles_deg: Sequence[float],
                       sample_t: Sequence[float]) -> tuple[tuple[float, ...], float | None]:

@@ -24,6 +24,7 @@ from relayd.leader import LeaderParams, WindowParams
 from relayd.linkmodel import LinkPolicyParams
 from relayd.recovery import RecoveryParams
 from relayd.scanplan import ScanParams
+from relayd.search import SearchParams
 
 P = TypeVar("P")
 
@@ -84,6 +85,7 @@ def control_params(settings: Settings) -> ControlParams:
         # threshold_o are [control]'s, set by the controller.
         avoid=_from_sections(AvoidParams, settings.avoidance),
         actuator=_from_sections(Actuator, settings.avoidance),
+        search=SearchParams(enabled=c.search_turn, rate_deg_s=c.search_turn_deg_s),
     )
 
 

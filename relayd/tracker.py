@@ -34,6 +34,18 @@ Trust:
   next good scan starts a new one.
 - Confident: sd <= `confident_sd_deg`; the scan window may then narrow around the
   predicted bearing (`relayd.brain`).
+- Unusable: a measurement less sure than `lost_sd_deg` is a miss, not an update. It
+  could not start a track (one that sure is already lost), so it cannot hold one
+  either: each such fit gets a tiny gain and passes the gate (s includes its own huge
+  r), and a run of them reset `misses` while the truth swung away behind the relay.
+- Disagreeing: each scan's normalized innovation z = innovation / sqrt(s) (against the
+  steady prediction, clipped at +-`bias_clip`) is kept for the last `bias_scans` scans
+  that fitted a lobe, usable or not. When their sum over sqrt(n) exceeds `bias_sigma`,
+  the scans agree with each other that the prediction is off to one side, however
+  unsure each one is: the prediction is not trusted (rate forgotten, bearing variance
+  raised so the newest innovation is one sigma) and the newest usable fit pulls the
+  track over; an unusable one leaves it lost. Gating cannot see this (every z is small
+  when r is large), and a single reflection cannot trigger it (the clip).
 
 Pure: every call gets the time and the heading; `Track` is immutable.
 """
@@ -67,6 +79,11 @@ class TrackerParams:
     confident_sd_deg: float = 8.0
     #: The rate is kept within this (deg/s): a pursuit never turns faster.
     max_rate_deg_s: float = 90.0
+    #: The disagreement test: this many scans' normalized innovations, each clipped at
+    #: `bias_clip`, summed over sqrt(n) beyond `bias_sigma` (docs/CONTROL.md section 10).
+    bias_scans: int = 3
+    bias_clip: float = 2.0
+    bias_sigma: float = 2.5
 
 
 @dataclass(frozen=True, slots=True)
@@ -83,6 +100,8 @@ class Track:
     misses: int = 0
     rejects: int = 0
     updates: int = 0
+    #: The last scans' normalized innovations (clipped), oldest first: the disagreement test.
+    recent_z: tuple[float, ...] = ()
 
     @property
     def sd_deg(self) -> float:
@@ -137,7 +156,23 @@ def update(track: Track, t: float, heading_deg: float, bearing_deg: float, sd_de
     r = max(sd_deg, params.min_meas_sd_deg) ** 2
     innovation = _wrap(bearing_deg - prior.bearing_deg)
     s = prior.p_bb + r
-    if innovation * innovation > params.manoeuvre_sigma ** 2 * s:
+    recent = _recent(prior, innovation / math.sqrt(s), params)
+    biased = disagrees(recent, params)
+    if biased:
+        recent = ()  # one alarm per run of disagreeing scans
+    if sd_deg > params.lost_sd_deg:
+        # Unusable: time passes, nothing is learnt; but its side counts in the test above.
+        lost = params.lost_after_misses if biased else prior.misses + 1
+        return replace(prior, misses=max(prior.misses + 1, lost), recent_z=recent), False
+    if biased:
+        # The prediction is off to one side: predict as for a manoeuvre, and raise the bearing's
+        # variance until the newest innovation is one sigma, so the newest fit pulls it over.
+        # The rate is kept: a lagging filter (a leader crossing ever faster) needs more of it.
+        prior = predict(track, t, heading_deg, params, accel_q=params.manoeuvre_q)
+        innovation = _wrap(bearing_deg - prior.bearing_deg)
+        prior = replace(prior, p_bb=max(prior.p_bb, innovation * innovation - r))
+        s = prior.p_bb + r
+    elif innovation * innovation > params.manoeuvre_sigma ** 2 * s:
         # The leader turned or sped up: predict again with the manoeuvring process noise,
         # so the filter follows within a scan or two instead of averaging the turn away.
         prior = predict(track, t, heading_deg, params, accel_q=params.manoeuvre_q)
@@ -151,7 +186,7 @@ def update(track: Track, t: float, heading_deg: float, bearing_deg: float, sd_de
         # jumped, a reflection that set it). Hold the last bearing, forget the rate.
         held = predict(replace(track, rate_deg_s=0.0, p_bw=0.0, p_ww=params.init_rate_sd_deg_s ** 2),
                        t, heading_deg, params)
-        return replace(held, rejects=rejects), False
+        return replace(held, rejects=rejects, recent_z=recent), False
     k_b, k_w = prior.p_bb / s, prior.p_bw / s
     b = _wrap(prior.bearing_deg + k_b * innovation)
     w = prior.rate_deg_s + k_w * innovation
@@ -161,7 +196,19 @@ def update(track: Track, t: float, heading_deg: float, bearing_deg: float, sd_de
     p_bw = (1.0 - k_b) * prior.p_bw
     p_ww = prior.p_ww - k_w * prior.p_bw
     return replace(prior, bearing_deg=b, rate_deg_s=w, p_bb=p_bb, p_bw=p_bw, p_ww=max(p_ww, 1e-9),
-                   misses=0, rejects=0, updates=prior.updates + 1), True
+                   misses=0, rejects=0, updates=prior.updates + 1, recent_z=recent), True
+
+
+def _recent(track: Track, z: float, params: TrackerParams) -> tuple[float, ...]:
+    z = min(max(z, -params.bias_clip), params.bias_clip)
+    n = max(1, params.bias_scans)
+    return (*track.recent_z, z)[-n:]
+
+
+def disagrees(recent_z: tuple[float, ...], params: TrackerParams) -> bool:
+    """The last `bias_scans` normalized innovations say, together, that the prediction is off."""
+    n = params.bias_scans
+    return n >= 1 and len(recent_z) >= n and abs(sum(recent_z[-n:])) > params.bias_sigma * math.sqrt(n)
 
 
 def miss(track: Track, t: float, heading_deg: float, params: TrackerParams) -> Track:

@@ -140,3 +140,18 @@ def test_avoidance_keys_reach_the_escape_and_default_to_its_own() -> None:
         parse_settings({"control": alone, "avoidance": {"max_escape_s": 0}})
     with pytest.raises(ConfigError, match=r"did you mean 'max_turn_deg'"):
         parse_settings({"control": alone, "avoidance": {"max_turns_deg": 720}})
+
+
+def test_search_keys_reach_the_lost_leaders_turn() -> None:
+    from relayd.params import control_params
+    from relayd.search import SearchParams
+
+    alone = {"rear_link": "ignore"}
+    assert control_params(Settings()).search == SearchParams()  # one set of defaults
+    tuned = control_params(parse_settings({"control": {**alone, "search_turn": False, "search_turn_deg_s": 15}}))
+    assert tuned.search == SearchParams(enabled=False, rate_deg_s=15.0)
+    for bad in (0, 4, 91, "fast"):
+        with pytest.raises(ConfigError, match=r"control\.search_turn_deg_s"):
+            parse_settings({"control": {**alone, "search_turn_deg_s": bad}})
+    with pytest.raises(ConfigError, match=r"did you mean 'search_turn'"):
+        parse_settings({"control": {**alone, "search_turns": True}})

@@ -20,7 +20,7 @@ from relayd import tracker
 from relayd.bearing import LobeFit, fit_main_lobe
 from relayd.config import Settings
 from relayd.estimator import ScanEstimate
-from relayd.leader import LeaderParams, TrackingModel, Window
+from relayd.leader import LeaderParams, TrackingModel, Window, make_model
 from relayd.scanpool import PooledScan, PoolParams, ScanPool
 from relayd.state import DriveState, Mode, RelayState
 
@@ -376,3 +376,27 @@ def test_a_leader_moving_during_the_sweep_is_fitted_in_its_own_frame(start: floa
         errors[compensate] = abs(model.last_fit.bearing_deg - truth(model.track.t))
     assert errors[True] < 2.5
     assert errors[True] < 0.6 * errors[False]
+
+
+def test_a_lost_track_says_where_the_scans_last_put_the_leader_in_todays_frame() -> None:
+    # The search turn's evidence (relayd/search.py): the last fit however unsure, or with
+    # no fit the strongest sample at a servo limit; only while the track is lost.
+    model = TrackingModel(LeaderParams(estimator="lobe", window="adaptive"))
+    model.window(0.0, 0.0, Window(0.0, 180.0, 25))  # the servo's range
+    angles = tuple(-90.0 + 7.5 * i for i in range(25))
+    flat = tuple(-60.0 for _ in angles)
+    model.track = tracker.start(0.0, 0.0, 80.0, 2.0, model.params.tracker)
+    assert model.search_bearing(0.0, 0.0) is None  # not lost: nothing to search for
+    # No lobe, the strongest sample at the +90 limit (the lobe's flank), three times: lost.
+    edge = (*flat[:-1], -50.0)
+    for k in range(1, 4):
+        model.scan_done(2.0 * k, 10.0, ScanEstimate(0.0, -50.0, 0, angles, edge, edge), [])
+    assert model.last_fit is None and model.lost(6.0, 10.0)
+    assert model.search_bearing(6.0, 10.0) == pytest.approx(90.0)
+    assert model.search_bearing(6.0, 40.0) == pytest.approx(60.0)  # turned 30 deg toward it
+    # A scan with its strongest sample in the middle and no lobe says nothing new.
+    middle = tuple(-50.0 if i == 12 else -60.0 for i in range(25))
+    model.scan_done(8.0, 40.0, ScanEstimate(0.0, -50.0, 0, angles, middle, middle), [])
+    assert model.search_bearing(8.0, 40.0) == pytest.approx(60.0)
+    # The centroid model never searches: the paper's relay stands and rescans.
+    assert make_model(LeaderParams()).search_bearing(8.0, 40.0) is None
