@@ -12,8 +12,9 @@ What the floor means: the distance from the robot's centre to the centre of anyt
 (the leader above all) that lies inside the front fan, at least `near_m` out, is at
 least the floor. The fan is the bearings the front ring sees whole (`cover_deg`): -54.7
 to +54.7 degrees and 75 to 90.3 degrees either side. The floor is offered only when the
-bearing estimate +- max(2 sd, 20 degrees) lies inside the fan, i.e. when the leader is
-believed well inside it. Why it holds:
+tracking filter is sure (sd at most 10 degrees) and the bearing estimate +- max(2 sd, 20
+degrees) lies inside the fan, i.e. when the leader is believed well inside it. Why it
+holds:
 
 - Coverage. Seen from its transducer (offset from the robot's centre, drivers/arcos/
   sonar.py), a point moving out along a ray from the robot's centre turns monotonically,
@@ -31,12 +32,13 @@ believed well inside it. Why it holds:
   leader is in: only that it is in the fan.
 - No echo counts as the sonar's maximum range: nothing in that beam within 5 m.
 
-Why the whole ring and the 20 degree margin: the filter's sd is its own opinion. In the
-simulated convoy its error reached 5-20 sd (an estimate 54 degrees off, sd 4.5, while the
-leader turned 1.4 m away), so a bound from only the beams around the estimate put a
-leader at 1-1.5 m beyond 5 m in 1-5 % of the records of every seed; over the whole ring,
-never, but for a leader the estimate had placed in front while it was behind (bench
-figures in the commit that made this choice).
+Why the whole ring, the 20 degree margin and the sd limit: the filter's sd is its own
+opinion. In the simulated convoy its error reached 5-20 sd (an estimate 54 degrees off,
+sd 4.5, while the leader turned 1.4 m away), so a bound from only the beams around the
+estimate put a leader at 1-1.5 m beyond 5 m in 1-5 % of the records of every seed. Over
+the whole ring it failed only while the estimate had a leader in front that was behind
+(-114 degrees, estimate -21, sd 15 and growing); with the sd limit, never (10 seeds,
+22 186 relay-records with a floor, docs/CONTROL.md 5.3).
 
 What it does not cover: a leader nearer than `near_m`, a leader outside the fan though
 the estimate says otherwise, and a sonar that misses the leader (a soft target at
@@ -68,6 +70,9 @@ HALF_BEAM_DEG = 15.0
 SIGMAS = 2.0
 #: ... but never narrower than +- this (see the module docstring).
 MIN_HALF_DEG = 20.0
+#: ... and only while the filter is sure of itself: its sd at most this (the tracker calls
+#: a track confident at 8 degrees).
+MAX_SD_DEG = 10.0
 #: The floor speaks for a leader whose centre is at least this far from the robot's centre.
 #: Nearer, its near surface would be within 0.36 m of the front transducers (0.245 m out),
 #: inside threshold_o, where the obstacle rule and the guard govern. From 0.7 m on the
@@ -157,14 +162,17 @@ def fan_deg(near_m: float = NEAR_M, half_beam_deg: float = HALF_BEAM_DEG) -> tup
 
 
 def leader_floor_m(front: Sequence[SonarReading], bearing_deg: float | None, sd_deg: float | None, *,
-                   sigmas: float = SIGMAS, min_half_deg: float = MIN_HALF_DEG, near_m: float = NEAR_M,
-                   core_m: float = CORE_M, half_beam_deg: float = HALF_BEAM_DEG) -> float | None:
+                   sigmas: float = SIGMAS, min_half_deg: float = MIN_HALF_DEG, max_sd_deg: float = MAX_SD_DEG,
+                   near_m: float = NEAR_M, core_m: float = CORE_M,
+                   half_beam_deg: float = HALF_BEAM_DEG) -> float | None:
     """A lower bound (m) on the distance from the robot's centre to the leader's centre,
     `centre_bound_m` over the whole front ring; None when the bearing or its sd is unknown
-    or not finite, when bearing +- max(sigmas * sd, min_half_deg) is not inside the front
-    fan, or when a front-ring sonar is missing from `front` (never read: `known_front`).
+    or not finite, when sd > max_sd_deg, when bearing +- max(sigmas * sd, min_half_deg)
+    is not inside the front fan, or when a front-ring sonar is missing from `front` (never read: `known_front`).
     See the module docstring for what the bound assumes."""
     if bearing_deg is None or sd_deg is None or not (math.isfinite(bearing_deg) and math.isfinite(sd_deg)):
+        return None
+    if sd_deg > max_sd_deg:
         return None
     by_index = {r.index: r.range_m for r in front if r.index is not None}
     if any(i not in by_index for i in FRONT_RING):

@@ -147,6 +147,7 @@ def test_the_floor_in_numbers() -> None:
     (None, 2.0), (0.0, None), (math.nan, 2.0), (0.0, math.inf),
     (35.0, 1.0),   # 35 + 20 reaches past the fan's 54.7 degrees
     (0.0, 28.0),   # 2 sd = 56 degrees
+    (0.0, 10.5),   # the filter is not sure enough
     (-60.0, 1.0), (82.0, 1.0), (180.0, 1.0),  # off the nose, in the 90 degree sonar's cover or behind
 ])
 def test_no_floor_when_the_leader_may_be_outside_the_fan(bearing: float | None, sd: float | None) -> None:
