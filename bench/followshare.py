@@ -17,6 +17,10 @@ same run:
   0.001` prints as "gap at most 5 m" (the median at 5 m raised by z sigma, as for a hop
   length), i.e. a median gap of 1.3-1.6 m; the same speed law.
 
+Both asked-for policies also release a "leader_near" stop while the front sonars put the
+leader at least `GAP_MAX_M` away (`control.leader_gap_max_m`, docs/CONTROL.md 5.3): the
+stops a bright spot causes with the leader far. "paper" leaves it off.
+
 The radio is the scenario's own L0, n and sigma (`PathLossFit.known`): a perfect
 calibration, so what is left is the shadowing the thresholds must cover. threshold_b
 stays the scenario's in every policy: holding the link behind is the relay's duty.
@@ -49,6 +53,10 @@ EXTRA_RELAY = RelaySpec(name="relay3", x=-0.5, y=0.0)
 #: The "within 5 m" policy's accepted probability of a stop beyond 5 m.
 WITHIN_OUTAGE = 0.001
 FOLLOW_GAP_M = 3.0
+#: `control.leader_gap_max_m` of the asked-for policies: 1.5 m short of 5 m, as a relay
+#: released at its leader's designed pace needs against a leader relay catching up
+#: (docs/CONTROL.md 5.3 has the measurements).
+GAP_MAX_M = 3.5
 
 #: Why a relay beyond 5 m of its leader was there, as its trace records say.
 HELD_REAR, HELD_NEAR, DRIVING = "rear_weak", "leader_near", "driving"
@@ -105,11 +113,13 @@ def speed_law(fit: PathLossFit, threshold_l_dbm: float, leader_mm_s: float,
 
 
 def follow_control(sc: Scenario, threshold_l_dbm: float) -> dict[str, Any]:
-    """[control] overrides for a policy with this threshold_l: the matching speed law."""
+    """[control] overrides for a policy with this threshold_l: the matching speed law, and
+    the sonar release of "leader_near" beyond GAP_MAX_M."""
     fit = scenario_fit(sc)
     v_max = float(sc.control.get("v_max_mm_s", ControlSettings().v_max_mm_s))
     w1, w2 = speed_law(fit, threshold_l_dbm, 1000.0 * sc.leader.speed_m_s, v_max)
-    return {"threshold_l_dbm": round(threshold_l_dbm, 1), "w1": round(w1, 1), "w2": round(w2, 1)}
+    return {"threshold_l_dbm": round(threshold_l_dbm, 1), "w1": round(w1, 1), "w2": round(w2, 1),
+            "leader_gap_max_m": GAP_MAX_M}
 
 
 def gap_threshold(sc: Scenario, gap_m: float = FOLLOW_GAP_M) -> float:
@@ -193,7 +203,7 @@ def rows(scenario: str, target: float, policy: Policy, cfg: tuple[str, str], see
     beyond = ", ".join(f"{k} {100 * _mean([x.beyond.get(k, 0.0) for x in shares]):.1f} %" for k in reasons)
     c = sc.control
     law = (f"threshold_l {c['threshold_l_dbm']:g} dBm (median gap {scenario_fit(sc).distance_at(c['threshold_l_dbm']):.1f} m)"
-           f", w1 {c['w1']:g}, w2 {c['w2']:g}" if "w1" in c else "the scenario's thresholds, w1 10, w2 150")
+           f", w1 {c['w1']:g}, w2 {c['w2']:g}, sonar release at {c['leader_gap_max_m']:g} m" if "w1" in c else "the scenario's thresholds, w1 10, w2 150")
     where = f"{scenario} ({policy.name})"
     return [
         Result(NAME, f"{where}: share of time within 5 m of its leader (mean over relays and seeds), {label}",

@@ -78,6 +78,7 @@ from relayd.events import (
 )
 from relayd.leader import LeaderParams, make_model
 from relayd.linkmodel import LinkModel, LinkPolicyParams, LinkSample
+from relayd.rangecue import known_front, leader_floor_m
 from relayd.recovery import (
     RecoveryInputs,
     RecoveryMemory,
@@ -380,12 +381,15 @@ class Brain:
         if self._manual is not None:
             manual_l, manual_r, t = self._manual
             manual_age = now - t
+        bearing = self._bearing_now(now)
+        floor = (leader_floor_m(known_front(self._sonar), bearing, self._model.sd_deg(now, heading))
+                 if p.leader_gap_max_m > 0 else None)
         return ControlInputs(
             mode=self._mode,
             sip_age_s=sip_age,
             rssi_age_s=None if self._rssi_fresh_t is None else now - self._rssi_fresh_t,
             scan_servo_ok=self._servo_ok,
-            bearing_deg=self._bearing_now(now),
+            bearing_deg=bearing,
             prev_bearing_deg=in_current_frame(self.prev_bearing_deg, self.prev_heading_deg, heading),
             rssi_leader_dbm=self.rssi_leader_dbm,
             rssi_behind_dbm=self._rear_dbm,
@@ -398,6 +402,7 @@ class Brain:
             t_s=now,
             odom=self._pose,
             rear_sonar=rear_readings(self._sonar),
+            leader_floor_m=floor,
             search_bearing_deg=self._model.search_bearing(now, heading),
         )
 

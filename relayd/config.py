@@ -221,6 +221,10 @@ class ControlSettings(_Section):
     #: The escape when forward motion is blocked (docs/AVOIDANCE.md); false leaves the
     #: paper's obstacle rule alone (for experiments and benchmarks, not for a robot).
     escape: bool = True
+    #: Keep following past "leader_near" while the leader is well inside the front sonars'
+    #: fan and they put everything in it at least this far (m) (docs/CONTROL.md section
+    #: 5.3); 0 = off, the paper's rule alone. When on: above threshold_o_m, at most 5 m.
+    leader_gap_max_m: NonNegFloat = 0.0
     #: A lost leader last seen beyond the scan servo's reach (behind the relay) is turned
     #: toward in place, at most one full turn (docs/CONTROL.md section 6.1); false: stand.
     search_turn: bool = True

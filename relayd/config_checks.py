@@ -28,6 +28,9 @@ class ConfigError(Exception):
         self.errors = errors
 
 
+#: The P3-AT sonar's reach (m, relayd/estimator.py SONAR_MAX_RANGE_M): no sonar floor says more.
+SONAR_REACH_M = 5.0
+
 #: (key, message): the key is dotted from the top of the config ("control.kp").
 Problem = tuple[str, str]
 
@@ -44,6 +47,11 @@ def control_rules(c: Mapping[str, Any]) -> list[Problem]:
     if stop is not None and obst is not None and detect is not None and not stop < obst < detect:
         out.append(("control.threshold_o_m", "need stop_distance_m < threshold_o_m < detect_range_m "
                                              f"(got {stop:g} < {obst:g} < {detect:g})"))
+    gap = _num(c.get("leader_gap_max_m"))
+    if gap is not None and gap > 0 and obst is not None and not obst < gap <= SONAR_REACH_M:
+        out.append(("control.leader_gap_max_m", f"must be 0 (off) or above threshold_o_m ({obst:g}) and at most "
+                                                f"{SONAR_REACH_M:g} m, the sonars' reach: the sonar floor it is "
+                                                "compared with says how far the leader is at least"))
     thr_l, thr_b, lost = (_num(c.get(k)) for k in ("threshold_l_dbm", "threshold_b_dbm", "lost_rssi_dbm"))
     if thr_l is not None and thr_b is not None and not thr_l > thr_b:
         out.append(("control.threshold_l_dbm", f"must be above threshold_b_dbm ({thr_b:g}): the robot stops "

@@ -20,7 +20,8 @@ Order of decisions, first match wins:
 4. follow: leader_lost -> LEADER_LOST, wheels zero, or turning in place toward where
    the leader was last seen when that is beyond the scan servo's reach, reason
    "leader_search" (relayd/search.py); no bearing or RSSI^l yet -> STOPPED
-   "no_scan_yet"; the link rule says stop -> STOPPED "leader_near"/"rear_weak";
+   "no_scan_yet"; the link rule says stop -> STOPPED "leader_near"/"rear_weak", unless
+   the sonar floor overrules "leader_near" (below) -> DRIVING "leader_far_sonar";
    situation 1 -> AVOIDING "obstacle"; else DRIVING "driving". Then, given the time
    and odometry, the escape (relayd/avoidance.py, docs/AVOIDANCE.md) may take over:
    AVOIDING "avoiding"/"rejoining", or STOPPED "blocked" past its limits. Every
@@ -33,6 +34,13 @@ when RSSI^l < threshold_l - hysteresis AND RSSI^b > threshold_b + hysteresis. RS
 is ignored when rear_link_required is False (rear_link = "ignore"). The latch starts
 False, so a robot starts only from inside the band's safe side. The latch in
 `ControlMemory` changes only through the link rule: faults, hold and manual leave it.
+
+Sonar release (docs/CONTROL.md section 5.3; off unless leader_gap_max_m > 0): when the
+rule says "leader_near" but the front sonars covering the leader's bearing put it at
+least leader_gap_max_m away (`ControlInputs.leader_floor_m`, relayd/rangecue.py), and
+the rear half of the rule alone allows driving, the robot keeps following at the speed
+law's speed at threshold_l, reason "leader_far_sonar", until the floor falls 0.3 m below
+the limit. "rear_weak" always wins; everything after the link rule applies as usual.
 
 Situation 1 (d_min < threshold_o): the steering angle is the sonar avoidance
 centroid; forward speed is the background speed scaled linearly from 1 at
@@ -62,6 +70,7 @@ from relayd.estimator import (
     classify_situation,
     nearest_front_m,
 )
+from relayd.rangecue import far_by_sonar, release_speed_mm_s
 from relayd.ring import guard
 from relayd.search import SearchParams, SearchState, search_step, search_wheels
 from relayd.state import DriveState, Mode
@@ -92,6 +101,9 @@ class ControlParams:
     manual_deadman_s: float = 0.5
     #: False: the paper's obstacle rule alone, no escape (config `control.escape`).
     escape: bool = True
+    #: "leader_near" is overruled while the sonar floor says the leader is at least this
+    #: far (m); 0 = off, the paper's rule alone (relayd/rangecue.py, docs/CONTROL.md 5.3).
+    leader_gap_max_m: float = 0.0
     #: The escape when forward motion is blocked (relayd/avoidance.py); its stop
     #: distance and threshold_o are taken from the two fields above.
     avoid: AvoidParams = field(default_factory=AvoidParams)
@@ -127,6 +139,9 @@ class ControlInputs:
     #: The backward-looking rear sonars (`ring.rear_readings`): the escape backs off
     #: only when they show room behind.
     rear_sonar: tuple[SonarReading, ...] = ()
+    #: The least distance (m) the front sonars allow the leader (`rangecue.leader_floor_m`);
+    #: None: no floor (bearing off the nose, unsure, ring not read).
+    leader_floor_m: float | None = None
     #: While the leader is lost: where the scans last put it, in this frame (None: nowhere).
     search_bearing_deg: float | None = None
 
@@ -141,6 +156,8 @@ class ControlMemory:
     prev_steer_deg: float | None = None
     #: The escape state machine (relayd/avoidance.py); reset whenever the robot may not drive.
     avoid: AvoidState = field(default_factory=AvoidState)
+    #: True while the sonar floor overrules "leader_near" (its hysteresis).
+    sonar_release: bool = False
     #: The lost leader's search (relayd/search.py); reset once the leader is found.
     search: SearchState = field(default_factory=SearchState)
 
@@ -218,7 +235,8 @@ def _stopped(
     state: DriveState, reason: str, situation: int, memory: ControlMemory
 ) -> ControlOutput:
     return ControlOutput(
-        0.0, 0.0, state, reason, situation, replace(memory, prev_steer_deg=None, avoid=AvoidState())
+        0.0, 0.0, state, reason, situation,
+        replace(memory, prev_steer_deg=None, avoid=AvoidState(), sonar_release=False),
     )
 
 
@@ -234,7 +252,7 @@ def _lost(
     if left == 0.0 and right == 0.0:
         return _stopped(DriveState.LEADER_LOST, "leader_lost", situation, memory)
     return ControlOutput(left, right, DriveState.LEADER_LOST, "leader_search", situation,
-                         replace(memory, prev_steer_deg=None, avoid=AvoidState()))
+                         replace(memory, prev_steer_deg=None, avoid=AvoidState(), sonar_release=False))
 
 
 def _stale(age_s: float | None, timeout_s: float) -> bool:
@@ -304,11 +322,19 @@ def control_step(
     drive, reason = link_rule(
         rssi_l, inputs.rssi_behind_dbm, params, memory.link_drive, params.rear_link_required
     )
-    memory = replace(memory, link_drive=drive)
-    if not drive:
+    released = False
+    if reason == "leader_near" and far_by_sonar(inputs.leader_floor_m, params.leader_gap_max_m,
+                                                memory.sonar_release):
+        # The sonars put the leader beyond the gap limit: only the rear half of the rule
+        # (the rule run without the leader's term) may still hold the robot.
+        released, reason = link_rule(-math.inf, inputs.rssi_behind_dbm, params, memory.link_drive,
+                                     params.rear_link_required)
+    memory = replace(memory, link_drive=drive or released, sonar_release=released)
+    if not (drive or released):
         return _stopped(DriveState.STOPPED, reason, situation, memory)
 
-    v = background_speed(rssi_l, params.w1, params.w2, params.v_max_mm_s)
+    v = (release_speed_mm_s(params.threshold_l_dbm, params.w1, params.w2, params.v_max_mm_s) if released
+         else background_speed(rssi_l, params.w1, params.w2, params.v_max_mm_s))
     # Situation 1 means a forward sonar echoed inside the detection range: d_min is set.
     d_min = nearest_front_m(inputs.front_sonar) if situation == 1 else None
     if d_min is not None:
@@ -320,7 +346,8 @@ def control_step(
         state, reason, memory = DriveState.AVOIDING, "obstacle", replace(memory, prev_steer_deg=steer)
     else:
         left, right = wheel_law(v, bearing, prev, params.kp, params.kd, params.v_max_mm_s)
-        state, reason, memory = DriveState.DRIVING, "driving", replace(memory, prev_steer_deg=None)
+        state, memory = DriveState.DRIVING, replace(memory, prev_steer_deg=None)
+        reason = "leader_far_sonar" if released else "driving"
 
     act = params.actuator
     if (params.escape and inputs.t_s is not None and inputs.odom is not None

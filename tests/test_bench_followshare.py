@@ -54,6 +54,8 @@ def test_the_policies_are_calibrates_thresholds_for_the_scenarios_radio(name: st
         control = {**sc.control, **policy.control(sc)}
         ControlSettings.model_validate(control)  # a config the daemon accepts
         assert control["w1"] > 0
+        assert control["leader_gap_max_m"] == fs.GAP_MAX_M  # the sonar release (docs/CONTROL.md 5.3)
+    assert "leader_gap_max_m" not in fs.POLICIES[0].control(sc)  # the paper's rule alone
 
 
 def test_the_paper_policy_leaves_the_scenario_alone_and_the_extra_relay_starts_behind() -> None:
