@@ -248,7 +248,7 @@ def _lost(
     search, rvel = search_step(memory.search, inputs.search_bearing_deg, heading, inputs.t_s, params.search)
     memory = replace(memory, search=search)
     left, right = search_wheels(rvel, params.actuator, inputs.front_sonar, inputs.rear_sonar,
-                                params.stop_distance_m)
+                                params.stop_distance_m, params.v_max_mm_s)
     if left == 0.0 and right == 0.0:
         return _stopped(DriveState.LEADER_LOST, "leader_lost", situation, memory)
     return ControlOutput(left, right, DriveState.LEADER_LOST, "leader_search", situation,
