@@ -6,7 +6,8 @@ no scan can see a lobe. Standing still and widening, as a lost relay otherwise d
 then waits for a leader that may never walk back into view (30 % of a convoy run in
 one case). So while the leader is lost and the last evidence of it put it at or
 beyond a servo limit (the tracking filter's `search_bearing`: the last lobe fit there,
-however unsure, or the strongest sample at a limit, carried into today's frame) and is
+however unsure, or the strongest sample at a limit when it is at least lost_rssi; at
+most a few scan periods old; carried into today's frame) and is
 still at least `min_bearing_deg` off the nose, the relay turns in place toward that
 side at `rate_deg_s`, the full-range scans running meanwhile, until the evidence is
 ahead (then it stands, and the sweeps look there without a turn smearing them), until
