@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from drivers.arcos.sonar import SONAR_POSES
+from relayd.cli import main
 from relayd.config import ConfigError, ControlSettings
 from relayd.controller import (
     ControlInputs,
@@ -284,12 +286,29 @@ def test_off_is_the_paper_rule_and_on_never_drives_with_a_weak_rear(
 
 # --- the setting --------------------------------------------------------------------------
 
-@pytest.mark.parametrize("gap", [0.0, 3.5, 5.0, 0.81])
+@pytest.mark.parametrize("gap", [0.0, 3.5, 5.0, 1.11])
 def test_leader_gap_max_accepted(gap: float) -> None:
     assert ControlSettings(leader_gap_max_m=gap).leader_gap_max_m == gap
 
 
-@pytest.mark.parametrize("gap", [-1.0, 0.5, 0.8, 5.01])
+@pytest.mark.parametrize("gap", [-1.0, 0.5, 0.8, 0.81, 1.0, 1.1, 5.01])
 def test_leader_gap_max_refused_below_threshold_o_or_beyond_the_sonars(gap: float) -> None:
+    # 0.81 .. 1.1: the release would hold down to gap - 0.3, within threshold_o (0.8 m) or
+    # nearer than the 0.7 m from which the floor holds.
     with pytest.raises((ConfigError, ValueError), match="leader_gap_max_m"):
         ControlSettings(leader_gap_max_m=gap)
+
+
+def test_the_release_may_never_hold_within_where_the_floor_holds() -> None:
+    # threshold_o below NEAR_M: the floor's own limit (0.7 m) is the one that counts.
+    base = {"stop_distance_m": 0.2, "threshold_o_m": 0.3}
+    assert ControlSettings(**base, leader_gap_max_m=1.01).leader_gap_max_m == 1.01
+    with pytest.raises((ConfigError, ValueError), match="leader_gap_max_m"):
+        ControlSettings(**base, leader_gap_max_m=0.95)
+
+
+def test_check_config_exits_2_naming_the_key(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "relayd.toml"
+    bad.write_text("[control]\nrear_link = \"ignore\"\nleader_gap_max_m = 0.81\n")
+    assert main(["check-config", str(bad)]) == 2
+    assert "  control.leader_gap_max_m:" in capsys.readouterr().err
