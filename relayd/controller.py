@@ -37,8 +37,9 @@ False, so a robot starts only from inside the band's safe side. The latch in
 
 Sonar release (docs/CONTROL.md section 5.3; off unless leader_gap_max_m > 0): when the
 rule says "leader_near" but the front sonars covering the leader's bearing put it at
-least leader_gap_max_m away (`ControlInputs.leader_floor_m`, relayd/rangecue.py), and
-the rear half of the rule alone allows driving, the robot keeps following at the speed
+least leader_gap_max_m away (`ControlInputs.leader_floor_m`, relayd/rangecue.py),
+RSSI^l is less than 10 dB above threshold_l, and the rear half of the rule alone
+allows driving, the robot keeps following at the speed
 law's speed at threshold_l, reason "leader_far_sonar", until the floor falls 0.3 m below
 the limit. "rear_weak" always wins; everything after the link rule applies as usual.
 
@@ -324,7 +325,7 @@ def control_step(
     )
     released = False
     if reason == "leader_near" and far_by_sonar(inputs.leader_floor_m, params.leader_gap_max_m,
-                                                memory.sonar_release):
+                                                memory.sonar_release, rssi_l, params.threshold_l_dbm):
         # The sonars put the leader beyond the gap limit: only the rear half of the rule
         # (the rule run without the leader's term) may still hold the robot.
         released, reason = link_rule(-math.inf, inputs.rssi_behind_dbm, params, memory.link_drive,

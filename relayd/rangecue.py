@@ -194,12 +194,23 @@ def leader_floor_m(front: Sequence[SonarReading], bearing_deg: float | None, sd_
 RELEASE_HYSTERESIS_M = 0.3
 #: The release never drives slower than this (mm/s): a command the P3-AT executes.
 CREEP_MM_S = 50.0
+#: No release while RSSI^l is this far (dB) or more above threshold_l: the bright spots the
+#: release is for were 8-10 dB above the path-loss median (2-2.5 sigma of 4 dB shadowing),
+#: and threshold_l is about the median at the stop distance, so a leader beyond the gap
+#: limit heard louder than this is rarer than those spots; what it mostly means is a leader
+#: really close that the sonars miss, which the release must not drive into
+#: (docs/CONTROL.md 5.3).
+RELEASE_MAX_ABOVE_DB = 10.0
 
 
-def far_by_sonar(floor_m: float | None, gap_max_m: float, was_released: bool) -> bool:
+def far_by_sonar(floor_m: float | None, gap_max_m: float, was_released: bool,
+                 rssi_leader_dbm: float, threshold_l_dbm: float) -> bool:
     """The sonar floor says the leader is beyond `gap_max_m` (0: the release is off); once
-    released, until it falls `RELEASE_HYSTERESIS_M` below. No floor: not far."""
+    released, until it falls `RELEASE_HYSTERESIS_M` below. No floor, or RSSI^l at least
+    `RELEASE_MAX_ABOVE_DB` above threshold_l (too loud for a far leader): not far."""
     if gap_max_m <= 0.0 or floor_m is None or not math.isfinite(floor_m):
+        return False
+    if not rssi_leader_dbm < threshold_l_dbm + RELEASE_MAX_ABOVE_DB:
         return False
     return floor_m >= gap_max_m - (RELEASE_HYSTERESIS_M if was_released else 0.0)
 

@@ -173,12 +173,14 @@ def test_no_floor_until_every_front_sonar_has_been_read() -> None:
 # --- the release --------------------------------------------------------------------------
 
 def test_far_by_sonar_with_its_hysteresis() -> None:
-    assert not far_by_sonar(9.0, 0.0, False)  # off
-    assert not far_by_sonar(None, 3.5, True)
-    assert not far_by_sonar(math.nan, 3.5, True)
-    assert far_by_sonar(3.5, 3.5, False) and not far_by_sonar(3.49, 3.5, False)
-    assert far_by_sonar(3.5 - RELEASE_HYSTERESIS_M, 3.5, True)
-    assert not far_by_sonar(3.49 - RELEASE_HYSTERESIS_M, 3.5, True)
+    assert not far_by_sonar(9.0, 0.0, False, -28.0, -30.0)  # off
+    assert not far_by_sonar(None, 3.5, True, -28.0, -30.0)
+    assert not far_by_sonar(math.nan, 3.5, True, -28.0, -30.0)
+    assert far_by_sonar(3.5, 3.5, False, -28.0, -30.0) and not far_by_sonar(3.49, 3.5, False, -28.0, -30.0)
+    assert far_by_sonar(3.5 - RELEASE_HYSTERESIS_M, 3.5, True, -28.0, -30.0)
+    assert not far_by_sonar(3.49 - RELEASE_HYSTERESIS_M, 3.5, True, -28.0, -30.0)
+    # Too loud for a far leader (10 dB or more above threshold_l): never released.
+    assert far_by_sonar(4.0, 3.5, True, -20.01, -30.0) and not far_by_sonar(4.0, 3.5, True, -20.0, -30.0)
 
 
 @pytest.mark.parametrize(("w1", "w2", "v_max", "speed"), [
@@ -228,6 +230,18 @@ def test_released_with_hysteresis_and_the_rssi_rule_takes_over_below_threshold_l
     # Released, then the leader fades below threshold_l: the paper's rule drives, no band needed.
     out = step(memory=memory, rssi_leader_dbm=-31.0, leader_floor_m=None)
     assert out.reason == "driving" and not out.memory.sonar_release
+
+
+def test_a_leader_heard_far_above_threshold_l_is_never_released() -> None:
+    """20 dB above threshold_l is a leader really close that the sonars miss, not a bright spot."""
+    assert step(rssi_leader_dbm=-28.0, leader_floor_m=4.0).reason == "leader_far_sonar"  # 2 dB above
+    out = step(rssi_leader_dbm=-10.0, leader_floor_m=4.0)  # 20 dB above
+    assert (out.state, out.reason, out.left_mm_s) == (DriveState.STOPPED, "leader_near", 0.0)
+    assert not out.memory.sonar_release
+    # Released, then the leader gets that loud: the release ends.
+    released = step(rssi_leader_dbm=-28.0, leader_floor_m=4.0).memory
+    out = step(memory=released, rssi_leader_dbm=-15.0, leader_floor_m=4.0)
+    assert out.reason == "leader_near" and not out.memory.sonar_release
 
 
 @pytest.mark.parametrize("rear", [-60.0, -65.0])
