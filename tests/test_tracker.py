@@ -177,10 +177,14 @@ def test_a_run_of_unsure_scans_on_one_side_ends_the_track_within_four(side, off,
     meas = side * off
     for k, sd in enumerate(sds, 1):
         tr, _ = tracker.update(tr, dt * k, 0.0, meas, sd, P)
-        # Ended, or gone over to the scans: nearer them than the old bearing (the rate the
-        # jump teaches may overshoot them a little for a scan or two, as a leader that
-        # really moved would be followed).
-        if tracker.is_lost(tr, P) or abs(math.remainder(tr.bearing_deg - meas, 360.0)) <= max(sd, off / 2.0):
+        if tracker.is_lost(tr, P):
+            return  # ended
+        # Or gone over to the scans: nearer them than half the old bearing's distance (the
+        # rate the jump teaches may overshoot them a little for a scan or two, as a leader
+        # that really moved would be followed). The old bearing never passes, whatever the
+        # scans' sd; unusable scans alone move nothing, so a run of them passes only by
+        # ending the track.
+        if abs(math.remainder(tr.bearing_deg - meas, 360.0)) < off / 2.0:
             return
     pytest.fail(f"still confident at {tr.bearing_deg:.1f} deg (sd {tr.sd_deg:.1f}) with the scans at {meas:.0f}")
 
