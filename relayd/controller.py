@@ -363,9 +363,10 @@ def control_step(
             left, right = act.wheels(cmd.vel_mm_s, cmd.rvel_deg_s)
             moving = cmd.vel_mm_s != 0 or cmd.rvel_deg_s != 0
             state = DriveState.AVOIDING if moving else DriveState.STOPPED
-            return ControlOutput(
-                left, right, state, cmd.reason, situation, replace(memory, prev_steer_deg=None)
-            )
+            # The escape's command (its "blocked" stop too) ends a sonar release: it must be
+            # earned again at the full limit once the paper's law drives again.
+            return ControlOutput(left, right, state, cmd.reason, situation,
+                                 replace(memory, prev_steer_deg=None, sonar_release=False))
     # The paper's command, as the wire will carry it, never into a near echo.
     vel, rvel = act.within(*act.express(*act.vel_rvel(left, right)), params.v_max_mm_s)
     vel, rvel = guard(vel, rvel, inputs.front_sonar, params.stop_distance_m)

@@ -17,6 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from drivers.arcos.sonar import SONAR_POSES
+from relayd.avoidstate import AvoidMode, AvoidState
 from relayd.cli import main
 from relayd.config import ConfigError, ControlSettings
 from relayd.controller import (
@@ -263,6 +264,17 @@ def test_the_obstacle_rule_and_the_fail_safes_still_apply_when_released() -> Non
     # A stop for any cause ends the release: it must be earned again at the full limit.
     stopped = step(memory=ControlMemory(link_drive=True, sonar_release=True), mode=Mode.HOLD)
     assert not stopped.memory.sonar_release
+
+
+def test_the_escape_taking_over_ends_the_release() -> None:
+    # Released, then the escape holds the robot ("blocked", the leader 60 deg off): the release
+    # is over, as for any stop (docs/CONTROL.md 5.3).
+    blocked = AvoidState(mode=AvoidMode.BLOCKED, escape_t=0.0, mode_t=0.0)
+    memory = ControlMemory(link_drive=True, sonar_release=True, avoid=blocked)
+    out = step(memory=memory, bearing_deg=60.0, prev_bearing_deg=60.0, leader_floor_m=4.0, t_s=1.0,
+               odom=(0.0, 0.0, 0.0))
+    assert (out.state, out.reason, out.left_mm_s) == (DriveState.STOPPED, "blocked", 0.0)
+    assert not out.memory.sonar_release
 
 
 finite = st.floats(-100.0, 10.0, allow_nan=False)
