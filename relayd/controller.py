@@ -19,7 +19,7 @@ Order of decisions, first match wins:
    "obstacle". Otherwise reason "manual"; state DRIVING when a wheel moves.
 4. follow: leader_lost -> LEADER_LOST, wheels zero, or turning in place toward where
    the leader was last seen when that is beyond the scan servo's reach, reason
-   "leader_search" (relayd/search.py); no bearing or RSSI^l yet -> STOPPED
+   "leader_search" (relayd/search.py; hold, manual and the fail-safes end a search); no bearing or RSSI^l yet -> STOPPED
    "no_scan_yet"; the link rule says stop -> STOPPED "leader_near"/"rear_weak", unless
    the sonar floor overrules "leader_near" (below) -> DRIVING "leader_far_sonar";
    situation 1 -> AVOIDING "obstacle"; else DRIVING "driving". Then, given the time
@@ -159,7 +159,8 @@ class ControlMemory:
     avoid: AvoidState = field(default_factory=AvoidState)
     #: True while the sonar floor overrules "leader_near" (its hysteresis).
     sonar_release: bool = False
-    #: The lost leader's search (relayd/search.py); reset once the leader is found.
+    #: The lost leader's search (relayd/search.py); reset once the leader is found, and by
+    #: hold, manual and every fault.
     search: SearchState = field(default_factory=SearchState)
 
 
@@ -292,22 +293,26 @@ def control_step(
     """One control decision; see the module docstring for the order of rules."""
     situation = classify_situation(inputs.front_sonar, params.threshold_o_m, params.detect_range_m)
 
+    # Hold, manual and the fail-safes end a search episode: its heading and time bookkeeping
+    # mean nothing after them (the operator may have moved the robot); a relay still lost
+    # afterwards searches afresh, on evidence still recent (docs/CONTROL.md 6.1).
+    halted = replace(memory, search=SearchState())
     if _stale(inputs.sip_age_s, params.sip_timeout_s):
-        return _stopped(DriveState.FAULT, "no_sip", situation, memory)
+        return _stopped(DriveState.FAULT, "no_sip", situation, halted)
     if inputs.mode is Mode.FOLLOW:
         if _stale(inputs.rssi_age_s, params.rssi_timeout_s):
-            return _stopped(DriveState.FAULT, "rssi_stale", situation, memory)
+            return _stopped(DriveState.FAULT, "rssi_stale", situation, halted)
         if not inputs.scan_servo_ok:
-            return _stopped(DriveState.FAULT, "scan_servo", situation, memory)
+            return _stopped(DriveState.FAULT, "scan_servo", situation, halted)
         if params.rear_link_required and (
             _stale(inputs.rear_age_s, params.rear_timeout_s) or inputs.rssi_behind_dbm is None
         ):
-            return _stopped(DriveState.FAULT, "rear_link_stale", situation, memory)
+            return _stopped(DriveState.FAULT, "rear_link_stale", situation, halted)
 
     if inputs.mode is Mode.HOLD:
-        return _stopped(DriveState.STOPPED, "hold", situation, memory)
+        return _stopped(DriveState.STOPPED, "hold", situation, halted)
     if inputs.mode is Mode.MANUAL:
-        return _manual(inputs, params, situation, memory)
+        return _manual(inputs, params, situation, halted)
 
     if inputs.leader_lost:
         return _lost(inputs, params, situation, memory)

@@ -162,6 +162,18 @@ def test_the_turn_keeps_each_wheel_within_v_max(rate: float, v_max: float, side:
         assert out.left_mm_s == -out.right_mm_s and (out.right_mm_s > 0) == (side > 0)
 
 
+@pytest.mark.parametrize("changes", [
+    {"mode": Mode.HOLD}, {"mode": Mode.MANUAL}, {"sip_age_s": None}, {"rssi_age_s": None},
+    {"scan_servo_ok": False}, {"rear_age_s": None},
+])
+def test_hold_manual_and_the_fail_safes_end_the_search(changes: dict) -> None:
+    p = ControlParams()
+    turning = control_step(lost_inputs(), p, ControlMemory(link_drive=True)).memory
+    assert turning.search.side == -1
+    out = control_step(lost_inputs(**changes), p, turning)
+    assert (out.left_mm_s, out.right_mm_s) == (0.0, 0.0) and out.memory.search == SearchState()
+
+
 def test_with_search_off_a_lost_relay_stands() -> None:
     p = ControlParams(search=SearchParams(enabled=False))
     out = control_step(lost_inputs(), p, ControlMemory())
