@@ -13,8 +13,9 @@ What the floor means: the distance from the robot's centre to the centre of anyt
 least the floor. The fan is the bearings the front ring sees whole (`cover_deg`): -54.7
 to +54.7 degrees and 75 to 90.3 degrees either side. The floor is offered only when the
 tracking filter is sure (sd at most 10 degrees) and the bearing estimate +- max(2 sd, 20
-degrees) lies inside the fan, i.e. when the leader is believed well inside it. Why it
-holds:
+degrees) lies inside the fan, i.e. when the leader is believed well inside it. The 75-90
+degree parts are only 15 degrees wide, less than the 40 the margin needs, so they never
+qualify: a floor exists only for bearings within about +-34.7 degrees. Why it holds:
 
 - Coverage. Seen from its transducer (offset from the robot's centre, drivers/arcos/
   sonar.py), a point moving out along a ray from the robot's centre turns monotonically,
@@ -221,11 +222,3 @@ def release_speed_mm_s(threshold_l_dbm: float, w1: float, w2: float, v_max_mm_s:
     v = -w1 * threshold_l_dbm - w2
     return min(max(v, CREEP_MM_S), v_max_mm_s)
 
-
-def catch_up_mm_s(floor_m: float | None, gap_max_m: float, v_release_mm_s: float, v_max_mm_s: float) -> float:
-    """experimental"""
-    if gap_max_m <= 0.0 or floor_m is None or not math.isfinite(floor_m) or floor_m < gap_max_m:
-        return 0.0
-    span = SONAR_MAX_RANGE_M - gap_max_m
-    share = 1.0 if span <= 0.0 else min((floor_m - gap_max_m) / span, 1.0)
-    return min(v_release_mm_s + (v_max_mm_s - v_release_mm_s) * share, v_max_mm_s)

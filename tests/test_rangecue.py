@@ -32,6 +32,7 @@ from relayd.rangecue import (
     CORE_M,
     CREEP_MM_S,
     HALF_BEAM_DEG,
+    MIN_HALF_DEG,
     NEAR_M,
     RELEASE_HYSTERESIS_M,
     centre_bound_m,
@@ -155,6 +156,18 @@ def test_the_floor_in_numbers() -> None:
 ])
 def test_no_floor_when_the_leader_may_be_outside_the_fan(bearing: float | None, sd: float | None) -> None:
     assert leader_floor_m(NO_ECHO, bearing, sd) is None
+
+
+@settings(max_examples=200, deadline=None)
+@given(bearing=st.floats(-180.0, 180.0), sd=st.floats(0.0, 10.0))
+def test_a_floor_only_for_bearings_within_about_35_degrees(bearing: float, sd: float) -> None:
+    # The fan's 75-90 degree parts are narrower than the 40 degrees the margin needs.
+    edge = fan_deg()[1][1] - MIN_HALF_DEG  # ~34.7
+    if abs(bearing) > edge + 1e-9:
+        assert leader_floor_m(NO_ECHO, bearing, sd) is None
+    elif abs(bearing) < edge - 1e-9:  # sd <= 10: the margin is the 20 degrees
+        assert leader_floor_m(NO_ECHO, bearing, sd) is not None
+    assert 34.0 < edge < 35.0
 
 
 def test_no_floor_until_every_front_sonar_has_been_read() -> None:
