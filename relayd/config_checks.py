@@ -19,6 +19,8 @@ from typing import Any, get_args
 
 from pydantic import BaseModel, ValidationError
 
+from relayd.rangecue import NEAR_M, RELEASE_HYSTERESIS_M
+
 
 class ConfigError(Exception):
     """A config that cannot be used; `errors` lists every problem as 'key.path: message'."""
@@ -48,10 +50,17 @@ def control_rules(c: Mapping[str, Any]) -> list[Problem]:
         out.append(("control.threshold_o_m", "need stop_distance_m < threshold_o_m < detect_range_m "
                                              f"(got {stop:g} < {obst:g} < {detect:g})"))
     gap = _num(c.get("leader_gap_max_m"))
-    if gap is not None and gap > 0 and obst is not None and not obst < gap <= SONAR_REACH_M:
-        out.append(("control.leader_gap_max_m", f"must be 0 (off) or above threshold_o_m ({obst:g}) and at most "
-                                                f"{SONAR_REACH_M:g} m, the sonars' reach: the sonar floor it is "
-                                                "compared with says how far the leader is at least"))
+    if gap is not None and gap > 0 and obst is not None \
+            and not max(obst, NEAR_M) < gap - RELEASE_HYSTERESIS_M and gap <= SONAR_REACH_M:
+        # Once released, the release holds down to gap - hysteresis: all of that must lie
+        # beyond threshold_o (the obstacle rule's) and where the floor holds (NEAR_M).
+        out.append(("control.leader_gap_max_m", f"must be 0 (off) or more than {RELEASE_HYSTERESIS_M:g} m (the "
+                                                "release's hysteresis) above both threshold_o_m "
+                                                f"({obst:g}) and {NEAR_M:g} m, the nearest a sonar floor holds"))
+    elif gap is not None and gap > 0 and not gap <= SONAR_REACH_M:
+        out.append(("control.leader_gap_max_m", f"must be 0 (off) or at most {SONAR_REACH_M:g} m, the sonars' "
+                                                "reach: the sonar floor it is compared with says how far the "
+                                                "leader is at least"))
     thr_l, thr_b, lost = (_num(c.get(k)) for k in ("threshold_l_dbm", "threshold_b_dbm", "lost_rssi_dbm"))
     if thr_l is not None and thr_b is not None and not thr_l > thr_b:
         out.append(("control.threshold_l_dbm", f"must be above threshold_b_dbm ({thr_b:g}): the robot stops "

@@ -19,7 +19,7 @@ Order of decisions, first match wins:
    "obstacle". Otherwise reason "manual"; state DRIVING when a wheel moves.
 4. follow: leader_lost -> LEADER_LOST, wheels zero, or turning in place toward where
    the leader was last seen when that is beyond the scan servo's reach, reason
-   "leader_search" (relayd/search.py); no bearing or RSSI^l yet -> STOPPED
+   "leader_search" (relayd/search.py; hold, manual and the fail-safes end a search); no bearing or RSSI^l yet -> STOPPED
    "no_scan_yet"; the link rule says stop -> STOPPED "leader_near"/"rear_weak", unless
    the sonar floor overrules "leader_near" (below) -> DRIVING "leader_far_sonar";
    situation 1 -> AVOIDING "obstacle"; else DRIVING "driving". Then, given the time
@@ -37,8 +37,9 @@ False, so a robot starts only from inside the band's safe side. The latch in
 
 Sonar release (docs/CONTROL.md section 5.3; off unless leader_gap_max_m > 0): when the
 rule says "leader_near" but the front sonars covering the leader's bearing put it at
-least leader_gap_max_m away (`ControlInputs.leader_floor_m`, relayd/rangecue.py), and
-the rear half of the rule alone allows driving, the robot keeps following at the speed
+least leader_gap_max_m away (`ControlInputs.leader_floor_m`, relayd/rangecue.py),
+RSSI^l is less than 10 dB above threshold_l, and the rear half of the rule alone
+allows driving, the robot keeps following at the speed
 law's speed at threshold_l, reason "leader_far_sonar", until the floor falls 0.3 m below
 the limit. "rear_weak" always wins; everything after the link rule applies as usual.
 
@@ -158,7 +159,8 @@ class ControlMemory:
     avoid: AvoidState = field(default_factory=AvoidState)
     #: True while the sonar floor overrules "leader_near" (its hysteresis).
     sonar_release: bool = False
-    #: The lost leader's search (relayd/search.py); reset once the leader is found.
+    #: The lost leader's search (relayd/search.py); reset once the leader is found, and by
+    #: hold, manual and every fault.
     search: SearchState = field(default_factory=SearchState)
 
 
@@ -248,7 +250,7 @@ def _lost(
     search, rvel = search_step(memory.search, inputs.search_bearing_deg, heading, inputs.t_s, params.search)
     memory = replace(memory, search=search)
     left, right = search_wheels(rvel, params.actuator, inputs.front_sonar, inputs.rear_sonar,
-                                params.stop_distance_m)
+                                params.stop_distance_m, params.v_max_mm_s)
     if left == 0.0 and right == 0.0:
         return _stopped(DriveState.LEADER_LOST, "leader_lost", situation, memory)
     return ControlOutput(left, right, DriveState.LEADER_LOST, "leader_search", situation,
@@ -291,22 +293,26 @@ def control_step(
     """One control decision; see the module docstring for the order of rules."""
     situation = classify_situation(inputs.front_sonar, params.threshold_o_m, params.detect_range_m)
 
+    # Hold, manual and the fail-safes end a search episode: its heading and time bookkeeping
+    # mean nothing after them (the operator may have moved the robot); a relay still lost
+    # afterwards searches afresh, on evidence still recent (docs/CONTROL.md 6.1).
+    halted = replace(memory, search=SearchState())
     if _stale(inputs.sip_age_s, params.sip_timeout_s):
-        return _stopped(DriveState.FAULT, "no_sip", situation, memory)
+        return _stopped(DriveState.FAULT, "no_sip", situation, halted)
     if inputs.mode is Mode.FOLLOW:
         if _stale(inputs.rssi_age_s, params.rssi_timeout_s):
-            return _stopped(DriveState.FAULT, "rssi_stale", situation, memory)
+            return _stopped(DriveState.FAULT, "rssi_stale", situation, halted)
         if not inputs.scan_servo_ok:
-            return _stopped(DriveState.FAULT, "scan_servo", situation, memory)
+            return _stopped(DriveState.FAULT, "scan_servo", situation, halted)
         if params.rear_link_required and (
             _stale(inputs.rear_age_s, params.rear_timeout_s) or inputs.rssi_behind_dbm is None
         ):
-            return _stopped(DriveState.FAULT, "rear_link_stale", situation, memory)
+            return _stopped(DriveState.FAULT, "rear_link_stale", situation, halted)
 
     if inputs.mode is Mode.HOLD:
-        return _stopped(DriveState.STOPPED, "hold", situation, memory)
+        return _stopped(DriveState.STOPPED, "hold", situation, halted)
     if inputs.mode is Mode.MANUAL:
-        return _manual(inputs, params, situation, memory)
+        return _manual(inputs, params, situation, halted)
 
     if inputs.leader_lost:
         return _lost(inputs, params, situation, memory)
@@ -324,7 +330,7 @@ def control_step(
     )
     released = False
     if reason == "leader_near" and far_by_sonar(inputs.leader_floor_m, params.leader_gap_max_m,
-                                                memory.sonar_release):
+                                                memory.sonar_release, rssi_l, params.threshold_l_dbm):
         # The sonars put the leader beyond the gap limit: only the rear half of the rule
         # (the rule run without the leader's term) may still hold the robot.
         released, reason = link_rule(-math.inf, inputs.rssi_behind_dbm, params, memory.link_drive,
@@ -362,9 +368,10 @@ def control_step(
             left, right = act.wheels(cmd.vel_mm_s, cmd.rvel_deg_s)
             moving = cmd.vel_mm_s != 0 or cmd.rvel_deg_s != 0
             state = DriveState.AVOIDING if moving else DriveState.STOPPED
-            return ControlOutput(
-                left, right, state, cmd.reason, situation, replace(memory, prev_steer_deg=None)
-            )
+            # The escape's command (its "blocked" stop too) ends a sonar release: it must be
+            # earned again at the full limit once the paper's law drives again.
+            return ControlOutput(left, right, state, cmd.reason, situation,
+                                 replace(memory, prev_steer_deg=None, sonar_release=False))
     # The paper's command, as the wire will carry it, never into a near echo.
     vel, rvel = act.within(*act.express(*act.vel_rvel(left, right)), params.v_max_mm_s)
     vel, rvel = guard(vel, rvel, inputs.front_sonar, params.stop_distance_m)

@@ -83,6 +83,13 @@ class LeaderParams:
     pool: PoolParams = field(default_factory=PoolParams)
     #: Fit a moving leader's scan in its own frame (`TrackingModel._leader_frame`).
     compensate_motion: bool = True
+    #: With no lobe fit, the strongest sample at a servo limit is evidence of a leader out
+    #: of reach only when at least this loud (dBm): below it is what the lost rule calls no
+    #: leader (`control.lost_rssi_dbm`; the daemon sets it from that key).
+    evidence_min_rssi_dbm: float = -85.0
+    #: Evidence older than this (s) starts no search turn: a few nominal scan periods (the
+    #: daemon sets 4; the loss itself takes 3 scans without a usable lobe, docs/CONTROL.md 6.1).
+    evidence_max_age_s: float = 14.0
 
     def __post_init__(self) -> None:
         if self.estimator not in ESTIMATORS:
@@ -158,9 +165,9 @@ class TrackingModel:
         #: The servo's range (from the full window the brain plans with), once known.
         self._span: tuple[float, float] | None = None
         #: Where the scans last put the leader, sure or not, when that was at or beyond a servo
-        #: limit (bearing at the scan's end, the heading then): a lost relay turns toward it
-        #: (`relayd.search`).
-        self._evidence: tuple[float, float] | None = None
+        #: limit (bearing at the scan's end, the heading then, the scan's time): a lost relay
+        #: turns toward it (`relayd.search`) while it is recent.
+        self._evidence: tuple[float, float, float] | None = None
 
     @property
     def beamwidth_deg(self) -> float | None:
@@ -196,7 +203,7 @@ class TrackingModel:
             values = est.rssi_dbm
             fit = fit_main_lobe(angles, values, p.lobe, beamwidth_prior_deg=self.beamwidth_deg)
         self.last_fit = fit
-        self._remember(fit, angles, est.rssi_dbm, heading_deg)
+        self._remember(fit, angles, est.rssi_dbm, t, heading_deg)
         if len(sample_t) >= 2:
             self._sweep_s = max(0.0, sample_t[-1] - sample_t[0])
         if fit is not None:
@@ -223,11 +230,13 @@ class TrackingModel:
         return replace(est, bearing_deg=self._seen(now.bearing_deg), bearing_sd_deg=now.sd_deg)
 
     def _remember(self, fit: LobeFit | None, angles: Sequence[float], rssi_dbm: Sequence[float],
-                  heading_deg: float) -> None:
+                  t: float, heading_deg: float) -> None:
         """The scan's word on where the leader is, when that is at or beyond a servo limit
         (out of the sweep's reach): its fit there, however unsure; with no fit, the strongest
-        sample when it lies at a limit (the lobe beyond). A word from within the sweep clears it:
-        the next full sweeps see the leader there without a turn."""
+        sample when it lies at a limit (the lobe beyond) and is louder than the lost rule's
+        "no leader" (`evidence_min_rssi_dbm`: a leader that faded out leaves only noise, whose
+        strongest sample lies at a limit as often as anywhere). A word from within the sweep
+        clears it: the next full sweeps see the leader there without a turn."""
         if self._span is None:
             return
         edge = self.params.lobe.max_extrapolation_deg / 2.0
@@ -235,19 +244,23 @@ class TrackingModel:
         if fit is not None:
             b = fit.bearing_deg
         elif angles and len(angles) == len(rssi_dbm):
-            b = angles[max(range(len(angles)), key=lambda i: rssi_dbm[i])]
-            if lo < b < hi:
-                return  # no lobe, nothing at a limit: the scan says nothing new
+            i = max(range(len(angles)), key=lambda k: rssi_dbm[k])
+            b = angles[i]
+            if lo < b < hi or not rssi_dbm[i] >= self.params.evidence_min_rssi_dbm:
+                return  # no lobe, nothing heard at a limit: the scan says nothing new
         else:
             return
-        self._evidence = (b, heading_deg) if not lo < b < hi else None
+        self._evidence = (b, heading_deg, t) if not lo < b < hi else None
 
     def search_bearing(self, t: float, heading_deg: float | None) -> float | None:
         """While the track is lost, where the scans last put the leader, in today's frame,
-        if that was beyond the servo's reach (None: nowhere, or within the sweep)."""
+        if that was beyond the servo's reach and is at most `evidence_max_age_s` old (None:
+        nowhere, within the sweep, or too old to say where the leader is now)."""
         if self._evidence is None or not self.lost(t, heading_deg):
             return None
-        b, h = self._evidence
+        b, h, seen_t = self._evidence
+        if t - seen_t > self.params.evidence_max_age_s:
+            return None
         return b if heading_deg is None else math.remainder(b - (heading_deg - h), 360.0)
 
     def _leader_frame(self, t: float, heading_deg: float, angles_deg: Sequence[float],

@@ -37,6 +37,11 @@ RSSI_STALE_SAMPLES = 5
 #: out, and a servo that stops answering must be reported as itself ("scan_servo",
 #: after the driver's reply timeout), not as a scan that did not finish.
 SCAN_STALE_MIN_S = 2.0
+#: The search turn's evidence of a leader out of the servo's reach counts for this many
+#: nominal scan periods: the loss itself takes 3 scans without a usable lobe, so evidence
+#: from before the loss is at most that old when the search starts; one period more lets
+#: the turn's own sweeps renew it (docs/CONTROL.md 6.1).
+EVIDENCE_SCANS = 4
 
 
 def _from_sections(cls: type[P], *sections: BaseModel, **derived: Any) -> P:
@@ -140,7 +145,9 @@ def brain_params(settings: Settings) -> BrainParams:
             # The adaptive window's steps fit the step-mode scanner's clock; a continuous
             # sweep samples at the RSSI rate wherever the servo is.
             servo_deg_s=pt.speed_deg_s if s.mode == "step" else None, settle_s=s.settle_s,
-            sample_period_s=1.0 / settings.wifi.sample_hz if s.mode == "step" else None)),
+            sample_period_s=1.0 / settings.wifi.sample_hz if s.mode == "step" else None),
+            evidence_min_rssi_dbm=settings.control.lost_rssi_dbm,
+            evidence_max_age_s=EVIDENCE_SCANS * nominal_scan_period_s(settings)),
         recovery=recovery_params(settings, control, scan_timeout_s),
         has_scanner=scanning,
         rear_station_mac=rear.station_mac if rear is not None else None,

@@ -13,8 +13,9 @@ What the floor means: the distance from the robot's centre to the centre of anyt
 least the floor. The fan is the bearings the front ring sees whole (`cover_deg`): -54.7
 to +54.7 degrees and 75 to 90.3 degrees either side. The floor is offered only when the
 tracking filter is sure (sd at most 10 degrees) and the bearing estimate +- max(2 sd, 20
-degrees) lies inside the fan, i.e. when the leader is believed well inside it. Why it
-holds:
+degrees) lies inside the fan, i.e. when the leader is believed well inside it. The 75-90
+degree parts are only 15 degrees wide, less than the 40 the margin needs, so they never
+qualify: a floor exists only for bearings within about +-34.7 degrees. Why it holds:
 
 - Coverage. Seen from its transducer (offset from the robot's centre, drivers/arcos/
   sonar.py), a point moving out along a ray from the robot's centre turns monotonically,
@@ -194,12 +195,23 @@ def leader_floor_m(front: Sequence[SonarReading], bearing_deg: float | None, sd_
 RELEASE_HYSTERESIS_M = 0.3
 #: The release never drives slower than this (mm/s): a command the P3-AT executes.
 CREEP_MM_S = 50.0
+#: No release while RSSI^l is this far (dB) or more above threshold_l: the bright spots the
+#: release is for were 8-10 dB above the path-loss median (2-2.5 sigma of 4 dB shadowing),
+#: and threshold_l is about the median at the stop distance, so a leader beyond the gap
+#: limit heard louder than this is rarer than those spots; what it mostly means is a leader
+#: really close that the sonars miss, which the release must not drive into
+#: (docs/CONTROL.md 5.3).
+RELEASE_MAX_ABOVE_DB = 10.0
 
 
-def far_by_sonar(floor_m: float | None, gap_max_m: float, was_released: bool) -> bool:
+def far_by_sonar(floor_m: float | None, gap_max_m: float, was_released: bool,
+                 rssi_leader_dbm: float, threshold_l_dbm: float) -> bool:
     """The sonar floor says the leader is beyond `gap_max_m` (0: the release is off); once
-    released, until it falls `RELEASE_HYSTERESIS_M` below. No floor: not far."""
+    released, until it falls `RELEASE_HYSTERESIS_M` below. No floor, or RSSI^l at least
+    `RELEASE_MAX_ABOVE_DB` above threshold_l (too loud for a far leader): not far."""
     if gap_max_m <= 0.0 or floor_m is None or not math.isfinite(floor_m):
+        return False
+    if not rssi_leader_dbm < threshold_l_dbm + RELEASE_MAX_ABOVE_DB:
         return False
     return floor_m >= gap_max_m - (RELEASE_HYSTERESIS_M if was_released else 0.0)
 
@@ -210,11 +222,3 @@ def release_speed_mm_s(threshold_l_dbm: float, w1: float, w2: float, v_max_mm_s:
     v = -w1 * threshold_l_dbm - w2
     return min(max(v, CREEP_MM_S), v_max_mm_s)
 
-
-def catch_up_mm_s(floor_m: float | None, gap_max_m: float, v_release_mm_s: float, v_max_mm_s: float) -> float:
-    """experimental"""
-    if gap_max_m <= 0.0 or floor_m is None or not math.isfinite(floor_m) or floor_m < gap_max_m:
-        return 0.0
-    span = SONAR_MAX_RANGE_M - gap_max_m
-    share = 1.0 if span <= 0.0 else min((floor_m - gap_max_m) / span, 1.0)
-    return min(v_release_mm_s + (v_max_mm_s - v_release_mm_s) * share, v_max_mm_s)

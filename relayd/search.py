@@ -6,7 +6,8 @@ no scan can see a lobe. Standing still and widening, as a lost relay otherwise d
 then waits for a leader that may never walk back into view (30 % of a convoy run in
 one case). So while the leader is lost and the last evidence of it put it at or
 beyond a servo limit (the tracking filter's `search_bearing`: the last lobe fit there,
-however unsure, or the strongest sample at a limit, carried into today's frame) and is
+however unsure, or the strongest sample at a limit when it is at least lost_rssi; at
+most a few scan periods old; carried into today's frame) and is
 still at least `min_bearing_deg` off the nose, the relay turns in place toward that
 side at `rate_deg_s`, the full-range scans running meanwhile, until the evidence is
 ahead (then it stands, and the sweeps look there without a turn smearing them), until
@@ -18,8 +19,9 @@ leader is found again.
 
 Evidence within the sweep gets no turn (the model gives none): the servo's full sweep
 covers it, and a turn would only smear those scans and take the relay off its line.
-Every command passes `relayd.ring.guard` (no turn in place without room, as the
-obstacle escape's turns). docs/CONTROL.md section 6.1.
+Every command keeps each wheel within v_max, as the follow law's do, and passes
+`relayd.ring.guard` (no turn in place without room, as the obstacle escape's turns).
+docs/CONTROL.md section 6.1.
 
 Pure: time and heading come in as arguments.
 """
@@ -36,7 +38,7 @@ from relayd.ring import guard
 
 @dataclass(frozen=True, slots=True)
 class SearchParams:
-    """The turn toward a lost leader (config `control.search_*`, docs/CONTROL.md section 6)."""
+    """The turn toward a lost leader (config `control.search_*`, docs/CONTROL.md section 6.1)."""
 
     #: False: a lost relay stands, as the paper's does.
     enabled: bool = True
@@ -95,9 +97,12 @@ def search_step(state: SearchState, bearing_deg: float | None, heading_deg: floa
 
 
 def search_wheels(rvel_deg_s: float, act: Actuator, front: tuple[SonarReading, ...],
-                  rear: tuple[SonarReading, ...], stop_distance_m: float) -> tuple[float, float]:
-    """(left, right) mm/s of the turn in place, as the actuator and the guard allow it."""
+                  rear: tuple[SonarReading, ...], stop_distance_m: float,
+                  v_max_mm_s: float) -> tuple[float, float]:
+    """(left, right) mm/s of the turn in place, as the actuator, the per-wheel limit
+    `v_max_mm_s` (as every follow-mode command) and the guard allow it."""
     if rvel_deg_s == 0.0:
         return 0.0, 0.0
-    _, rvel = guard(0, act.turn(rvel_deg_s), front, stop_distance_m, rear)
+    _, rvel = act.within(0, act.turn(rvel_deg_s), v_max_mm_s)
+    _, rvel = guard(0, rvel, front, stop_distance_m, rear)
     return act.wheels(0.0, float(rvel))

@@ -45,7 +45,11 @@ Trust:
   unsure each one is: the prediction is not trusted (rate forgotten, bearing variance
   raised so the newest innovation is one sigma) and the newest usable fit pulls the
   track over; an unusable one leaves it lost. Gating cannot see this (every z is small
-  when r is large), and a single reflection cannot trigger it (the clip).
+  when r is large), and a single reflection cannot trigger it (the clip). An unusable
+  fit's z is taken with r at the usable limit (`lost_sd_deg`): with its own r it would
+  be ~0.7 however far off it is, and two such scans with a usable, disagreeing one
+  between them (its accepted tiny gain resetting the misses) held a wrong track for
+  four scans and more.
 
 Pure: every call gets the time and the heading; `Track` is immutable.
 """
@@ -156,7 +160,11 @@ def update(track: Track, t: float, heading_deg: float, bearing_deg: float, sd_de
     r = max(sd_deg, params.min_meas_sd_deg) ** 2
     innovation = _wrap(bearing_deg - prior.bearing_deg)
     s = prior.p_bb + r
-    recent = _recent(prior, innovation / math.sqrt(s), params)
+    # An unusable fit counts in the test as the least sure usable one would: with its own
+    # r, a fit 100 deg off with an sd of 120 says z ~0.8, however many agree on its side.
+    z = innovation / math.sqrt(prior.p_bb + min(sd_deg, params.lost_sd_deg) ** 2) \
+        if sd_deg > params.lost_sd_deg else innovation / math.sqrt(s)
+    recent = _recent(prior, z, params)
     biased = disagrees(recent, params)
     if biased:
         recent = ()  # one alarm per run of disagreeing scans

@@ -400,3 +400,34 @@ def test_a_lost_track_says_where_the_scans_last_put_the_leader_in_todays_frame()
     assert model.search_bearing(8.0, 40.0) == pytest.approx(60.0)
     # The centroid model never searches: the paper's relay stands and rescans.
     assert make_model(LeaderParams()).search_bearing(8.0, 40.0) is None
+    # Evidence ages: a few scan periods after the scan that gave it, it says nothing.
+    age = model.params.evidence_max_age_s
+    assert model.search_bearing(6.0 + age, 40.0) == pytest.approx(60.0)
+    assert model.lost(6.1 + age, 40.0) and model.search_bearing(6.1 + age, 40.0) is None
+
+
+@settings(max_examples=60, deadline=None)
+@given(noise=st.lists(st.floats(-1.5, 1.5), min_size=75, max_size=75),
+       limit=st.sampled_from([0, 24]))
+def test_a_leader_that_faded_into_noise_leaves_no_evidence_to_turn_toward(noise: list[float],
+                                                                          limit: int) -> None:
+    """Three scans of noise at -88 dBm (below lost_rssi, -85) whose strongest sample lies at a
+    servo limit: a faint, far leader, not one behind; the relay stands (docs/CONTROL.md 6.1)."""
+    model = TrackingModel(LeaderParams(estimator="lobe", window="adaptive"))
+    model.window(0.0, 0.0, Window(0.0, 180.0, 25))
+    angles = tuple(-90.0 + 7.5 * i for i in range(25))
+    model.track = tracker.start(0.0, 0.0, 80.0, 2.0, model.params.tracker)
+    for k in range(3):
+        scan = [-88.0 + n for n in noise[25 * k:25 * (k + 1)]]
+        scan[limit] = max(scan) + 0.5  # the strongest at the limit (as in ~40 % of such scans)
+        model.scan_done(2.0 * (k + 1), 0.0, ScanEstimate(0.0, max(scan), 0, angles, tuple(scan), tuple(scan)), [])
+    assert model.last_fit is None and model.lost(6.0, 0.0)
+    assert model.search_bearing(6.0, 0.0) is None
+
+
+def test_the_daemon_takes_the_evidence_limits_from_lost_rssi_and_the_scan_period() -> None:
+    from relayd.params import EVIDENCE_SCANS, brain_params, nominal_scan_period_s
+    s = Settings.model_validate({"control": {"lost_rssi_dbm": -80}})
+    p = brain_params(s).leader
+    assert p.evidence_min_rssi_dbm == -80.0
+    assert p.evidence_max_age_s == pytest.approx(EVIDENCE_SCANS * nominal_scan_period_s(s))

@@ -10,12 +10,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from drivers.arcos.sonar import SONAR_POSES
+from relayd.avoidstate import AvoidMode, AvoidState
+from relayd.cli import main
 from relayd.config import ConfigError, ControlSettings
 from relayd.controller import (
     ControlInputs,
@@ -29,6 +32,7 @@ from relayd.rangecue import (
     CORE_M,
     CREEP_MM_S,
     HALF_BEAM_DEG,
+    MIN_HALF_DEG,
     NEAR_M,
     RELEASE_HYSTERESIS_M,
     centre_bound_m,
@@ -154,6 +158,18 @@ def test_no_floor_when_the_leader_may_be_outside_the_fan(bearing: float | None, 
     assert leader_floor_m(NO_ECHO, bearing, sd) is None
 
 
+@settings(max_examples=200, deadline=None)
+@given(bearing=st.floats(-180.0, 180.0), sd=st.floats(0.0, 10.0))
+def test_a_floor_only_for_bearings_within_about_35_degrees(bearing: float, sd: float) -> None:
+    # The fan's 75-90 degree parts are narrower than the 40 degrees the margin needs.
+    edge = fan_deg()[1][1] - MIN_HALF_DEG  # ~34.7
+    if abs(bearing) > edge + 1e-9:
+        assert leader_floor_m(NO_ECHO, bearing, sd) is None
+    elif abs(bearing) < edge - 1e-9:  # sd <= 10: the margin is the 20 degrees
+        assert leader_floor_m(NO_ECHO, bearing, sd) is not None
+    assert 34.0 < edge < 35.0
+
+
 def test_no_floor_until_every_front_sonar_has_been_read() -> None:
     ranges: list[int | None] = [None] * 16
     for i in range(7):
@@ -171,12 +187,14 @@ def test_no_floor_until_every_front_sonar_has_been_read() -> None:
 # --- the release --------------------------------------------------------------------------
 
 def test_far_by_sonar_with_its_hysteresis() -> None:
-    assert not far_by_sonar(9.0, 0.0, False)  # off
-    assert not far_by_sonar(None, 3.5, True)
-    assert not far_by_sonar(math.nan, 3.5, True)
-    assert far_by_sonar(3.5, 3.5, False) and not far_by_sonar(3.49, 3.5, False)
-    assert far_by_sonar(3.5 - RELEASE_HYSTERESIS_M, 3.5, True)
-    assert not far_by_sonar(3.49 - RELEASE_HYSTERESIS_M, 3.5, True)
+    assert not far_by_sonar(9.0, 0.0, False, -28.0, -30.0)  # off
+    assert not far_by_sonar(None, 3.5, True, -28.0, -30.0)
+    assert not far_by_sonar(math.nan, 3.5, True, -28.0, -30.0)
+    assert far_by_sonar(3.5, 3.5, False, -28.0, -30.0) and not far_by_sonar(3.49, 3.5, False, -28.0, -30.0)
+    assert far_by_sonar(3.5 - RELEASE_HYSTERESIS_M, 3.5, True, -28.0, -30.0)
+    assert not far_by_sonar(3.49 - RELEASE_HYSTERESIS_M, 3.5, True, -28.0, -30.0)
+    # Too loud for a far leader (10 dB or more above threshold_l): never released.
+    assert far_by_sonar(4.0, 3.5, True, -20.01, -30.0) and not far_by_sonar(4.0, 3.5, True, -20.0, -30.0)
 
 
 @pytest.mark.parametrize(("w1", "w2", "v_max", "speed"), [
@@ -228,6 +246,18 @@ def test_released_with_hysteresis_and_the_rssi_rule_takes_over_below_threshold_l
     assert out.reason == "driving" and not out.memory.sonar_release
 
 
+def test_a_leader_heard_far_above_threshold_l_is_never_released() -> None:
+    """20 dB above threshold_l is a leader really close that the sonars miss, not a bright spot."""
+    assert step(rssi_leader_dbm=-28.0, leader_floor_m=4.0).reason == "leader_far_sonar"  # 2 dB above
+    out = step(rssi_leader_dbm=-10.0, leader_floor_m=4.0)  # 20 dB above
+    assert (out.state, out.reason, out.left_mm_s) == (DriveState.STOPPED, "leader_near", 0.0)
+    assert not out.memory.sonar_release
+    # Released, then the leader gets that loud: the release ends.
+    released = step(rssi_leader_dbm=-28.0, leader_floor_m=4.0).memory
+    out = step(memory=released, rssi_leader_dbm=-15.0, leader_floor_m=4.0)
+    assert out.reason == "leader_near" and not out.memory.sonar_release
+
+
 @pytest.mark.parametrize("rear", [-60.0, -65.0])
 def test_never_released_while_the_link_behind_is_weak(rear: float) -> None:
     out = step(rssi_behind_dbm=rear, leader_floor_m=5.0)
@@ -247,6 +277,17 @@ def test_the_obstacle_rule_and_the_fail_safes_still_apply_when_released() -> Non
     # A stop for any cause ends the release: it must be earned again at the full limit.
     stopped = step(memory=ControlMemory(link_drive=True, sonar_release=True), mode=Mode.HOLD)
     assert not stopped.memory.sonar_release
+
+
+def test_the_escape_taking_over_ends_the_release() -> None:
+    # Released, then the escape holds the robot ("blocked", the leader 60 deg off): the release
+    # is over, as for any stop (docs/CONTROL.md 5.3).
+    blocked = AvoidState(mode=AvoidMode.BLOCKED, escape_t=0.0, mode_t=0.0)
+    memory = ControlMemory(link_drive=True, sonar_release=True, avoid=blocked)
+    out = step(memory=memory, bearing_deg=60.0, prev_bearing_deg=60.0, leader_floor_m=4.0, t_s=1.0,
+               odom=(0.0, 0.0, 0.0))
+    assert (out.state, out.reason, out.left_mm_s) == (DriveState.STOPPED, "blocked", 0.0)
+    assert not out.memory.sonar_release
 
 
 finite = st.floats(-100.0, 10.0, allow_nan=False)
@@ -284,12 +325,29 @@ def test_off_is_the_paper_rule_and_on_never_drives_with_a_weak_rear(
 
 # --- the setting --------------------------------------------------------------------------
 
-@pytest.mark.parametrize("gap", [0.0, 3.5, 5.0, 0.81])
+@pytest.mark.parametrize("gap", [0.0, 3.5, 5.0, 1.11])
 def test_leader_gap_max_accepted(gap: float) -> None:
     assert ControlSettings(leader_gap_max_m=gap).leader_gap_max_m == gap
 
 
-@pytest.mark.parametrize("gap", [-1.0, 0.5, 0.8, 5.01])
+@pytest.mark.parametrize("gap", [-1.0, 0.5, 0.8, 0.81, 1.0, 1.1, 5.01])
 def test_leader_gap_max_refused_below_threshold_o_or_beyond_the_sonars(gap: float) -> None:
+    # 0.81 .. 1.1: the release would hold down to gap - 0.3, within threshold_o (0.8 m) or
+    # nearer than the 0.7 m from which the floor holds.
     with pytest.raises((ConfigError, ValueError), match="leader_gap_max_m"):
         ControlSettings(leader_gap_max_m=gap)
+
+
+def test_the_release_may_never_hold_within_where_the_floor_holds() -> None:
+    # threshold_o below NEAR_M: the floor's own limit (0.7 m) is the one that counts.
+    base = {"stop_distance_m": 0.2, "threshold_o_m": 0.3}
+    assert ControlSettings(**base, leader_gap_max_m=1.01).leader_gap_max_m == 1.01
+    with pytest.raises((ConfigError, ValueError), match="leader_gap_max_m"):
+        ControlSettings(**base, leader_gap_max_m=0.95)
+
+
+def test_check_config_exits_2_naming_the_key(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "relayd.toml"
+    bad.write_text("[control]\nrear_link = \"ignore\"\nleader_gap_max_m = 0.81\n")
+    assert main(["check-config", str(bad)]) == 2
+    assert "  control.leader_gap_max_m:" in capsys.readouterr().err

@@ -105,12 +105,12 @@ def test_disabled_or_without_odometry_it_stands() -> None:
 def test_the_guard_refuses_a_turn_without_room() -> None:
     act = Actuator()
     free = front_readings([None] * 16)
-    left, right = search_wheels(25.0, act, free, rear_readings([None] * 16), 0.3)
+    left, right = search_wheels(25.0, act, free, rear_readings([None] * 16), 0.3, 400.0)
     assert right > 0 > left and act.vel_rvel(left, right)[1] == pytest.approx(25.0, abs=0.6)
     # Something inside the circle the corners sweep: no turn in place at all.
     near = [None] * 16
     near[0] = 350  # the left sonar, 0.35 m
-    assert search_wheels(25.0, act, front_readings(near), rear_readings(near), 0.3) == (0.0, 0.0)
+    assert search_wheels(25.0, act, front_readings(near), rear_readings(near), 0.3, 400.0) == (0.0, 0.0)
 
 
 # -- through the controller ------------------------------------------------------------
@@ -148,6 +148,30 @@ def test_the_controller_keeps_the_wheels_at_zero_otherwise(changes: dict) -> Non
     out = control_step(lost_inputs(**changes), ControlParams(), ControlMemory())
     assert (out.left_mm_s, out.right_mm_s) == (0.0, 0.0) and out.reason == "leader_lost"
     assert out.state is DriveState.LEADER_LOST
+
+
+@settings(max_examples=100, deadline=None)
+@given(rate=st.floats(5.0, 90.0), v_max=st.floats(20.0, 1000.0), side=st.sampled_from([-130.0, 130.0]))
+def test_the_turn_keeps_each_wheel_within_v_max(rate: float, v_max: float, side: float) -> None:
+    """As every follow-mode command: 90 deg/s is +-462 mm/s a wheel, 25 deg/s +-128."""
+    p = ControlParams(v_max_mm_s=v_max, search=SearchParams(rate_deg_s=rate))
+    out = control_step(lost_inputs(search_bearing_deg=side), p, ControlMemory())
+    assert out.reason == "leader_search" or (out.left_mm_s, out.right_mm_s) == (0.0, 0.0)
+    assert max(abs(out.left_mm_s), abs(out.right_mm_s)) <= v_max + 1e-9
+    if out.reason == "leader_search":
+        assert out.left_mm_s == -out.right_mm_s and (out.right_mm_s > 0) == (side > 0)
+
+
+@pytest.mark.parametrize("changes", [
+    {"mode": Mode.HOLD}, {"mode": Mode.MANUAL}, {"sip_age_s": None}, {"rssi_age_s": None},
+    {"scan_servo_ok": False}, {"rear_age_s": None},
+])
+def test_hold_manual_and_the_fail_safes_end_the_search(changes: dict) -> None:
+    p = ControlParams()
+    turning = control_step(lost_inputs(), p, ControlMemory(link_drive=True)).memory
+    assert turning.search.side == -1
+    out = control_step(lost_inputs(**changes), p, turning)
+    assert (out.left_mm_s, out.right_mm_s) == (0.0, 0.0) and out.memory.search == SearchState()
 
 
 def test_with_search_off_a_lost_relay_stands() -> None:

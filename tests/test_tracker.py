@@ -177,10 +177,14 @@ def test_a_run_of_unsure_scans_on_one_side_ends_the_track_within_four(side, off,
     meas = side * off
     for k, sd in enumerate(sds, 1):
         tr, _ = tracker.update(tr, dt * k, 0.0, meas, sd, P)
-        # Ended, or gone over to the scans: nearer them than the old bearing (the rate the
-        # jump teaches may overshoot them a little for a scan or two, as a leader that
-        # really moved would be followed).
-        if tracker.is_lost(tr, P) or abs(math.remainder(tr.bearing_deg - meas, 360.0)) <= max(sd, off / 2.0):
+        if tracker.is_lost(tr, P):
+            return  # ended
+        # Or gone over to the scans: nearer them than half the old bearing's distance (the
+        # rate the jump teaches may overshoot them a little for a scan or two, as a leader
+        # that really moved would be followed). The old bearing never passes, whatever the
+        # scans' sd; unusable scans alone move nothing, so a run of them passes only by
+        # ending the track.
+        if abs(math.remainder(tr.bearing_deg - meas, 360.0)) < off / 2.0:
             return
     pytest.fail(f"still confident at {tr.bearing_deg:.1f} deg (sd {tr.sd_deg:.1f}) with the scans at {meas:.0f}")
 
@@ -202,15 +206,22 @@ def test_a_consistent_leader_is_never_dropped(b0, rate, sd, dt, seed) -> None:
         assert abs(math.remainder(tr.bearing_deg - (b0 + rate * t), 360.0)) < 5.0 * max(tr.sd_deg, sd)
 
 
-@given(zs=st.lists(st.floats(-2.0, 2.0), min_size=0, max_size=6))
-def test_the_disagreement_test_needs_the_whole_window_and_one_side(zs) -> None:
-    z = tuple(zs)
-    fired = tracker.disagrees(z, P)
-    if len(z) < P.bias_scans:
-        assert not fired
-    else:
-        last = z[-P.bias_scans:]
-        assert fired == (abs(sum(last)) > P.bias_sigma * math.sqrt(P.bias_scans))
+@given(zs=st.lists(st.floats(-2.0, 2.0), min_size=0, max_size=P.bias_scans - 1))
+def test_the_disagreement_test_never_fires_on_fewer_than_its_window(zs) -> None:
+    assert not tracker.disagrees(tuple(zs), P)
+
+
+def test_the_disagreement_test_needs_the_whole_window_on_one_side() -> None:
+    assert tracker.disagrees((2.0, 2.0, 2.0), P) and tracker.disagrees((-2.0, -2.0, -2.0), P)
+    assert not tracker.disagrees((2.0, -2.0, 2.0), P)  # no side
+    assert tracker.disagrees((-2.0, 2.0, 2.0, 2.0), P)  # the older ones have left the window
+    assert not tracker.disagrees((2.0, 2.0, 2.0, 0.0), P)
+    # One huge outlier among small ones: clipped on the way in, it cannot fire the test.
+    tr = _confident(0.0)
+    for k, b in enumerate((0.3, 0.2, 500.0 - 360.0, 0.1), 1):
+        tr, _ = tracker.update(tr, 2.0 * k, 0.0, b, 3.0, P)
+        assert not tracker.disagrees(tr.recent_z, P)
+        assert max(abs(z) for z in tr.recent_z) <= P.bias_clip
 
 
 def test_one_reflection_cannot_raise_the_alarm() -> None:
