@@ -66,3 +66,14 @@ def test_the_paper_policy_leaves_the_scenario_alone_and_the_extra_relay_starts_b
     plus = fs.policy_scenario("corridor", fs.CORRIDOR_PLUS_ONE, {})
     assert plus.relays == len(plus.relay) == 3
     assert plus.relay[-1].x < plus.relay[-2].x and plus.relay[-1].x > sc.command_center.x
+
+
+def test_the_rear_free_corridor_policy_is_within_5_m_without_the_rear_duty() -> None:
+    sc = load_scenario("corridor")
+    free = fs.policy_scenario("corridor", fs.CORRIDOR_REAR_FREE, {})
+    within = fs.policy_scenario("corridor", fs.POLICIES[2], {})
+    assert sc.control.get("rear_link", "require") == "require"
+    assert free.control == {**within.control, "rear_link": "ignore"}
+    ControlSettings.model_validate(free.control)
+    assert free.relays == sc.relays
+
