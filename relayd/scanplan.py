@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 from relayd.estimator import plan_scan
 from relayd.events import ScanPlan
-from relayd.leader import Window
+from relayd.scanwindow import Window
 
 
 @dataclass(frozen=True, slots=True)
