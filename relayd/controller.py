@@ -236,10 +236,12 @@ def speed_scale(d_min_m: float, threshold_o_m: float, stop_distance_m: float) ->
 def _stopped(
     state: DriveState, reason: str, situation: int, memory: ControlMemory
 ) -> ControlOutput:
-    return ControlOutput(
-        0.0, 0.0, state, reason, situation,
-        replace(memory, prev_steer_deg=None, avoid=AvoidState(), sonar_release=False),
-    )
+    return ControlOutput(0.0, 0.0, state, reason, situation, _not_driving(memory))
+
+
+def _not_driving(memory: ControlMemory) -> ControlMemory:
+    """The memory of a step that did not follow: no D-term angle, no escape, no release."""
+    return replace(memory, prev_steer_deg=None, avoid=AvoidState(), sonar_release=False)
 
 
 def _lost(
@@ -253,8 +255,7 @@ def _lost(
                                 params.stop_distance_m, params.v_max_mm_s)
     if left == 0.0 and right == 0.0:
         return _stopped(DriveState.LEADER_LOST, "leader_lost", situation, memory)
-    return ControlOutput(left, right, DriveState.LEADER_LOST, "leader_search", situation,
-                         replace(memory, prev_steer_deg=None, avoid=AvoidState(), sonar_release=False))
+    return ControlOutput(left, right, DriveState.LEADER_LOST, "leader_search", situation, _not_driving(memory))
 
 
 def _stale(age_s: float | None, timeout_s: float) -> bool:
