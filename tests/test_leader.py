@@ -76,7 +76,7 @@ def test_a_leader_that_goes_silent_is_lost_wheels_zero_and_the_window_goes_full(
     # knocked off): RSSI^l stays high, so only the filter can tell the bearing is gone.
     r.pattern = lambda off: 0.0
     r.run_scans(4)
-    assert r.brain.lost_count == 0  # not the RSSI rule
+    assert r.brain.scans.lost_count == 0  # not the RSSI rule
     out = r.brain.last_output
     assert out is not None and out.state is DriveState.LEADER_LOST and (out.left_mm_s, out.right_mm_s) == (0, 0)
     assert r.brain.inputs(r.t).bearing_deg is None or r.brain.inputs(r.t).leader_lost
@@ -303,7 +303,7 @@ def test_a_leader_at_the_servo_limit_gets_a_narrow_window_without_a_two_sided_fi
     r = BrainRig(scan={"estimator": "lobe", "window": "adaptive"}, leader=still(*leader_at(-80.0)))
     r.start()
     r.run_scans(6)
-    model = r.brain._model
+    model = r.brain.scans.model
     assert isinstance(model, TrackingModel) and model.beamwidth_deg is None
     last = r.results[-1][1].record
     assert len(last.angles_deg) < 25 and min(last.angles_deg) == pytest.approx(-90.0)
