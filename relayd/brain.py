@@ -225,7 +225,7 @@ class Brain:
         if ev.device == PANTILT:
             was_ok, self._servo_ok = self._servo_ok, up
             actions = self._step(ev.t, None)
-            if up and not was_ok:
+            if up and not was_ok:  # the scanner may have been waiting for the servo
                 actions.extend(self.scans.servo_up(ev.t, self._heading, self._mode is Mode.FOLLOW))
             return actions
         return []
