@@ -1,19 +1,18 @@
 """The relay brain: one pure state machine from events to actions (sans-IO, like h11).
 
 `Brain.handle(event) -> list[Action]` is the whole decision core of a relay: it keeps
-what the robot knows (last SIP, sonar ring, RSSI freshness, the bearing memory of the
-scans, RSSI^b, the mode and the operator's command), runs the fail-safes and the pure
-controller (`relayd.controller.control_step`) on every SIP and every timer tick, turns
-each finished scan into an estimate (`relayd.estimator`), counts toward leader-lost,
-and plans the next sweep. It does no I/O and reads no clock: the time is in each
-event, so the same events give the same actions, on a robot, in the simulator and in
-a test.
+what the robot knows (last SIP, sonar ring, RSSI freshness, RSSI^b, the mode and the
+operator's command), runs the fail-safes and the pure controller
+(`relayd.controller.control_step`) on every SIP and every timer tick, and hands the
+scans to its scan memory (`relayd.scanmemory`: each finished scan's estimate, the
+bearing memory, leader-lost, the next sweep). It does no I/O and reads no clock: the
+time is in each event, so the same events give the same actions, on a robot, in the
+simulator and in a test.
 
-Why this room is over 400 lines: it is the routing and the memory of one state machine,
-and every concern with logic of its own already lives in its own pure module (the
-controller, the estimator, the tracking filter and its scan windows, recovery, the
-rear-link model, the step back out of a shadow); what is left here are the handlers that read and write the one shared
-memory, and cutting them apart would put the brain's single writer in several files.
+What is left here is the routing and the memory of one state machine: every concern
+with logic of its own lives in its own pure module (the scans, the controller, the
+estimator, the tracking filter and its scan windows, recovery, the rear-link model, the
+step back out of a shadow), each the only writer of its own memory.
 
 Decisions:
 - Stale RSSI is judged on the sample stream: no fresh sample for `rssi_timeout_s`
@@ -42,14 +41,7 @@ from relayd.controller import (
     ControlParams,
     control_step,
 )
-from relayd.estimator import (
-    LOST_AFTER_SCANS,
-    EstimatorParams,
-    ScanSample,
-    estimate_scan,
-    front_readings,
-    update_lost_count,
-)
+from relayd.estimator import EstimatorParams, front_readings
 from relayd.events import (
     Action,
     Decision,
@@ -65,18 +57,15 @@ from relayd.events import (
     RecoveryReport,
     RssiEvent,
     ScanDone,
-    ScanPlan,
     ScanReady,
-    ScanResult,
     ScanSampleEvent,
     ServoPosition,
-    ServoTarget,
     Shutdown,
     SipEvent,
     Tick,
     WheelCommand,
 )
-from relayd.leader import LeaderParams, make_model
+from relayd.leader import LeaderParams
 from relayd.linkmodel import LinkModel, LinkPolicyParams, LinkSample
 from relayd.rangecue import known_front, leader_floor_m
 from relayd.recovery import (
@@ -90,8 +79,9 @@ from relayd.recovery import (
 )
 from relayd.retreat import RetreatMemory, held_limit, record_poll, retreat_step
 from relayd.ring import rear_readings
-from relayd.scanplan import ScanParams, full_window, in_current_frame, next_window, sweep_plan
-from relayd.state import DriveState, Mode, ScanRecord
+from relayd.scanmemory import ScanMemory
+from relayd.scanplan import ScanParams
+from relayd.state import DriveState, Mode
 
 SONAR_COUNT = 16
 #: Device names the brain listens to in `DeviceEvent`s.
@@ -139,20 +129,8 @@ class Brain:
         # RSSI and scans.
         self._rssi_fresh_t: float | None = None
         self._servo_ok = not params.has_scanner
-        self._ascending = True
-        self._scan: list[ScanSample] = []
-        self._scan_t: list[float] = []
-        #: The bearing estimator behind the bearing memory below (`relayd.leader`).
-        self._model = make_model(params.leader)
-        #: The scanner asked for a plan while the servo was not answering: plan when it is.
-        self._scan_wanted = False
-        self._last_scan_t: float | None = None
-        self.lost_count = 0
-        self.bearing_deg: float | None = None
-        self.bearing_heading_deg: float | None = None
-        self.prev_bearing_deg: float | None = None
-        self.prev_heading_deg: float | None = None
-        self.rssi_leader_dbm: float | None = None
+        #: The sweep in progress, the bearing memory of the scans, leader-lost (relayd/scanmemory.py).
+        self.scans = ScanMemory(params.scan, params.estimator, params.leader)
         # The link behind.
         self._rear_dbm: float | None = None
         self._rear_t: float | None = None
@@ -164,7 +142,6 @@ class Brain:
         self._memory = ControlMemory()
         self.last_output: ControlOutput | None = None
         # Breadcrumbs and the recovery episode (relayd.recovery).
-        self._scan_count = 0
         self._rear_polls = 0
         self.recovery = RecoveryMemory()
         self.retreat = RetreatMemory()  # stepping back out of a shadow (relayd.retreat, adaptive only)
@@ -178,7 +155,7 @@ class Brain:
 
     @property
     def leader_lost(self) -> bool:
-        return self.lost_count >= LOST_AFTER_SCANS
+        return self.scans.leader_lost
 
     @property
     def servo_ok(self) -> bool:
@@ -198,17 +175,12 @@ class Brain:
                     self._rssi_fresh_t = s.t
                 return []
             case ScanReady():
-                self._scan, self._scan_t = [], []
-                if not self._servo_ok:
-                    self._scan_wanted = True
-                    return []
-                return [self._plan(event.t)]
+                return self.scans.ready(event.t, self._heading, self._mode is Mode.FOLLOW, self._servo_ok)
             case ScanSampleEvent():
-                self._scan.append(ScanSample(event.angle_deg, event.rssi_dbm, self._sample_heading()))
-                self._scan_t.append(event.t)
+                self.scans.sample(event, self._heading)
                 return []
             case ScanDone():
-                return self._on_scan_done(event)
+                return self.scans.done(event, self._heading, self._sonar)
             case LinkEvent():
                 return self._on_link(event)
             case DeviceEvent():
@@ -245,11 +217,6 @@ class Brain:
                     self._sonar[index] = range_mm
         return self._step(ev.t, ev.t)
 
-    def _sample_heading(self) -> float:
-        if self._heading is not None:
-            return self._heading
-        return self._scan[-1].heading_deg if self._scan else 0.0
-
     def _on_device(self, ev: DeviceEvent) -> list[Action]:
         up = ev.status is DeviceStatus.UP
         if ev.device == ROBOT:
@@ -258,9 +225,8 @@ class Brain:
         if ev.device == PANTILT:
             was_ok, self._servo_ok = self._servo_ok, up
             actions = self._step(ev.t, None)
-            if up and not was_ok and self._scan_wanted:
-                self._scan_wanted = False
-                actions.append(self._plan(ev.t))  # the scanner was waiting for the servo
+            if up and not was_ok:  # the scanner may have been waiting for the servo
+                actions.extend(self.scans.servo_up(ev.t, self._heading, self._mode is Mode.FOLLOW))
             return actions
         return []
 
@@ -320,55 +286,6 @@ class Brain:
         self._rear_shown = value
         return [RearLink(value)]
 
-    # -- scans ----------------------------------------------------------------------------
-
-    def _lost(self, now: float) -> bool:
-        """Leader lost: RSSI^l too low for 3 scans, or the tracking filter lost it."""
-        # A filter that lost its leader because no scan completes says so as "scan_stale".
-        return self.leader_lost or (self._model.lost(now, self._heading) and not self._scan_stale(now))
-
-    def _plan(self, now: float) -> ScanPlan:
-        """The next sweep (relayd/scanplan.py), each in the other direction than the last."""
-        sp, lost = self.params.scan, self._lost(now)
-        planned = None if lost else self._model.window(now, self._heading, full_window(sp))
-        window = next_window(sp, lost, planned, self._bearing_now(now))
-        plan, self._ascending = sweep_plan(sp, window, self._ascending), not self._ascending
-        return plan
-
-    def _on_scan_done(self, ev: ScanDone) -> list[Action]:
-        samples, self._scan = self._scan, []
-        times, self._scan_t = self._scan_t, []
-        actions: list[Action] = []
-        if len(samples) >= 3:
-            heading_end = self._heading
-            try:
-                est = estimate_scan(samples, heading_end if heading_end is not None else samples[-1].heading_deg,
-                                    front_readings(self._sonar), self.params.estimator)
-            except ValueError:
-                est = None  # bad sonar data: this scan is lost, the next one is planned
-            if est is not None:
-                est = self._model.scan_done(ev.t, heading_end if heading_end is not None
-                                            else samples[-1].heading_deg, est, times)
-            if est is not None:
-                period_s = ev.t - ev.started_t
-                self.prev_bearing_deg, self.prev_heading_deg = self.bearing_deg, self.bearing_heading_deg
-                self.bearing_deg, self.bearing_heading_deg = est.bearing_deg, heading_end
-                self.rssi_leader_dbm = est.rssi_leader_dbm
-                self.lost_count = update_lost_count(self.lost_count, est.rssi_leader_dbm,
-                                                    self.params.scan.lost_rssi_dbm)
-                self._last_scan_t = ev.t
-                self._scan_count += 1
-                record = ScanRecord(
-                    t=ev.t, angles_deg=tuple(round(a, 2) for a in est.angles_deg),
-                    rssi_dbm=tuple(round(r, 2) for r in est.rssi_dbm),
-                    bearing_deg=round(est.bearing_deg, 3), rssi_leader_dbm=est.rssi_leader_dbm,
-                    situation=est.situation, period_s=period_s,
-                )
-                actions.append(ScanResult(record, est))
-                # Point the data-link antenna at the leader.
-                actions.append(ServoTarget(self.params.scan.link_channel, est.bearing_deg))
-        return actions
-
     # -- the control step -----------------------------------------------------------------
 
     def inputs(self, now: float) -> ControlInputs:
@@ -381,8 +298,8 @@ class Brain:
         if self._manual is not None:
             manual_l, manual_r, t = self._manual
             manual_age = now - t
-        bearing = self._bearing_now(now)
-        floor = (leader_floor_m(known_front(self._sonar), bearing, self._model.sd_deg(now, heading))
+        bearing = self.scans.bearing_now(now, heading)
+        floor = (leader_floor_m(known_front(self._sonar), bearing, self.scans.model.sd_deg(now, heading))
                  if p.leader_gap_max_m > 0 else None)
         return ControlInputs(
             mode=self._mode,
@@ -390,12 +307,12 @@ class Brain:
             rssi_age_s=None if self._rssi_fresh_t is None else now - self._rssi_fresh_t,
             scan_servo_ok=self._servo_ok,
             bearing_deg=bearing,
-            prev_bearing_deg=in_current_frame(self.prev_bearing_deg, self.prev_heading_deg, heading),
-            rssi_leader_dbm=self.rssi_leader_dbm,
+            prev_bearing_deg=self.scans.prev_bearing_now(heading),
+            rssi_leader_dbm=self.scans.rssi_leader_dbm,
             rssi_behind_dbm=self._rear_dbm,
             rear_age_s=None if self._rear_t is None else now - self._rear_t,
             front_sonar=front_readings(self._sonar),
-            leader_lost=self._lost(now),
+            leader_lost=self.scans.lost(now, heading, self._mode is Mode.FOLLOW),
             manual_left_mm_s=manual_l,
             manual_right_mm_s=manual_r,
             manual_age_s=manual_age,
@@ -403,20 +320,8 @@ class Brain:
             odom=self._pose,
             rear_sonar=rear_readings(self._sonar),
             leader_floor_m=floor,
-            search_bearing_deg=self._model.search_bearing(now, heading),
+            search_bearing_deg=self.scans.model.search_bearing(now, heading),
         )
-
-    def _bearing_now(self, now: float) -> float | None:
-        """The bearing to steer by: the filter's prediction, else the last scan's in the current frame."""
-        predicted = self._model.bearing_now(now, self._heading)
-        if predicted is not None:
-            return predicted
-        return in_current_frame(self.bearing_deg, self.bearing_heading_deg, self._heading)
-
-    def _scan_stale(self, now: float) -> bool:
-        limit = self.params.scan.scan_timeout_s
-        return (limit is not None and self._mode is Mode.FOLLOW and self._last_scan_t is not None
-                and now - self._last_scan_t > limit)
 
     def _decide(self, now: float) -> ControlOutput:
         situation = self.last_output.situation if self.last_output is not None else 0
@@ -431,7 +336,7 @@ class Brain:
             return ControlOutput(0.0, 0.0, DriveState.FAULT, f"controller_error: {type(exc).__name__}",
                                  situation, self._memory)
         out = self._recover(now, out)
-        if (out.left_mm_s or out.right_mm_s) and self._scan_stale(now):
+        if (out.left_mm_s or out.right_mm_s) and self.scans.stale(now, self._mode is Mode.FOLLOW):
             return ControlOutput(0.0, 0.0, DriveState.FAULT, "scan_stale", out.situation, out.memory)
         return out
 
@@ -456,10 +361,10 @@ class Brain:
             following=self._mode is Mode.FOLLOW and not self._halted, pose=self._pose,
             sip_age_s=None if self._sip_t is None or self._robot_down else now - self._sip_t,
             rssi_age_s=None if self._rssi_fresh_t is None else now - self._rssi_fresh_t,
-            scan_age_s=None if self._last_scan_t is None else now - self._last_scan_t,
+            scan_age_s=None if self.scans.last_scan_t is None else now - self.scans.last_scan_t,
             rear_age_s=None if self._rear_t is None else now - self._rear_t,
-            leader_lost=self.leader_lost, rssi_leader_dbm=self.rssi_leader_dbm,
-            rssi_behind_dbm=self._rear_dbm, scan_count=self._scan_count,
+            leader_lost=self.leader_lost, rssi_leader_dbm=self.scans.rssi_leader_dbm,
+            rssi_behind_dbm=self._rear_dbm, scan_count=self.scans.count,
             sonar_mm=tuple(self._sonar), now_s=now, rear_polls=self._rear_polls, forward_mm_s=forward_mm_s,
         ), rp, self.recovery)
 

@@ -19,8 +19,8 @@ scan says (`scan_done`: the estimate it publishes), where the leader is now
   `window = "adaptive"` a confident filter narrows the sweep around its prediction: at
   the full window's spacing while the bearing is steady, coarser (a few samples per
   beamwidth) and narrower while it moves, so a sweep takes less time, in steps fitted
-  to the scanner's clock (`clocked_step_deg`); an unsure or lost one sweeps the servo's
-  whole range.
+  to the scanner's clock (the sizing is `relayd.scanwindow`'s); an unsure or lost one
+  sweeps the servo's whole range.
 
 Pure: times and headings come in as arguments; no clock, no I/O.
 """
@@ -37,38 +37,11 @@ from relayd import tracker
 from relayd.bearing import LobeFit, LobeParams, fit_main_lobe
 from relayd.estimator import ScanEstimate
 from relayd.scanpool import PooledScan, PoolParams, ScanPool
+from relayd.scanwindow import Window, WindowParams, sized_window
 from relayd.tracker import Track, TrackerParams
 
 ESTIMATORS = ("wca", "lobe")
 WINDOWS = ("full", "adaptive")
-
-
-@dataclass(frozen=True, slots=True)
-class WindowParams:
-    """How the adaptive window sizes itself."""
-
-    #: The window spans this many (learned) 3 dB beamwidths: the fit needs both flanks ...
-    beams: float = 1.5
-    #: ... plus this many standard deviations of the predicted bearing on each side.
-    sigmas: float = 3.0
-    min_samples: int = 9
-    #: While the bearing moves faster than this (deg/s), the sweep is for speed: this many
-    #: beamwidths at this many samples per beamwidth (never finer than the full window's
-    #: spacing), so a wide antenna too sweeps in well under half the full window's time.
-    #: While it is steadier, the sweep is for accuracy: the full window's spacing, every
-    #: sample of the lobe, which the scan pool averages.
-    moving_rate_deg_s: float = 2.0
-    moving_beams: float = 1.2
-    per_beamwidth: float = 8.0
-    #: The scanner's step-mode clock (`clocked_step_deg`): servo slew (deg/s), settle (s),
-    #: the RSSI reading's period (s); None: unknown (continuous mode), steps as planned.
-    servo_deg_s: float | None = None
-    settle_s: float = 0.0
-    sample_period_s: float | None = None
-    #: A step is stretched to at most this times, or shrunk to no less than this
-    #: fraction of, the one planned when that sweeps faster.
-    max_stretch: float = 1.25
-    min_fraction: float = 0.75
 
 
 @dataclass(frozen=True, slots=True)
@@ -98,13 +71,6 @@ class LeaderParams:
             raise ValueError(f"window must be one of {WINDOWS}, got {self.window!r}")
         if self.window == "adaptive" and self.estimator != "lobe":
             raise ValueError("an adaptive window needs the tracking estimator ('lobe')")
-
-
-@dataclass(frozen=True, slots=True)
-class Window:
-    centre_deg: float
-    width_deg: float
-    samples: int
 
 
 class BearingModel(Protocol):
@@ -363,53 +329,7 @@ class TrackingModel:
             bw = _median(self._any_beamwidths)
         if bw is None:
             return None
-        wp = p.adaptive
-        spacing = full.width_deg / max(1, full.samples - 1)
-        beams = wp.beams
-        if abs(now.rate_deg_s) > wp.moving_rate_deg_s:
-            spacing, beams = max(spacing, bw / wp.per_beamwidth), wp.moving_beams
-        spacing = clocked_step_deg(spacing, wp)
-        # Half a sweep from now the leader will have moved on by the rate.
-        centre = now.bearing_deg + now.rate_deg_s * self._sweep_s / 2.0
-        half = (beams * bw + 2.0 * wp.sigmas * now.sd_deg) / 2.0
-        # Clipped at the servo limits, not shifted inside them: beyond a limit there is no
-        # lobe to see, and samples on the far side of the window would only cost time.
-        lo_lim, hi_lim = full.centre_deg - full.width_deg / 2.0, full.centre_deg + full.width_deg / 2.0
-        lo, hi = max(lo_lim, centre - half), min(hi_lim, centre + half)
-        samples = max(wp.min_samples, math.ceil((hi - lo) / spacing) + 1)
-        if samples >= full.samples:
-            return Window(full.centre_deg, full.width_deg, full.samples)
-        width = (samples - 1) * spacing
-        mid = min(max((lo + hi) / 2.0, lo_lim + width / 2.0), hi_lim - width / 2.0)
-        return Window(mid, width, samples)
-
-
-def clocked_step_deg(step_deg: float, wp: WindowParams) -> float:
-    """The servo step near `step_deg` that sweeps fastest on the scanner's clock.
-
-    In step mode a sample costs the servo's travel plus the settle time, rounded up to
-    the next RSSI reading: with k readings per sample the step can be up to
-    (k T - settle) x slew, and any finer step takes as long. So among those steps, from
-    `min_fraction` to `max_stretch` times the one asked for, the fastest (deg/s) is
-    taken; the step asked for when none is faster or the timing is unknown. With
-    relayd's defaults (180 deg/s, 50 ms settle, 20 Hz): 7.5 and 11.25 deg steps both
-    sweep at 75 deg/s, 9 deg ones at 90.
-    """
-    if wp.sample_period_s is None or wp.servo_deg_s is None or step_deg <= 0.0:
-        return step_deg
-    period, slew = wp.sample_period_s, wp.servo_deg_s
-
-    def speed(step: float) -> float:
-        readings = max(1, math.ceil((step / slew + wp.settle_s) / period - 1e-9))
-        return step / (readings * period)
-
-    best, best_speed = step_deg, speed(step_deg)
-    k = 1
-    while (step := (k * period - wp.settle_s) * slew) <= wp.max_stretch * step_deg:
-        if step >= wp.min_fraction * step_deg and speed(step) > best_speed + 1e-9:
-            best, best_speed = step, speed(step)
-        k += 1
-    return best
+        return sized_window(now, bw, self._sweep_s, full, p.adaptive)
 
 
 def make_model(params: LeaderParams) -> BearingModel:

@@ -20,10 +20,11 @@ from relayd.brain import BrainParams
 from relayd.config import Settings
 from relayd.controller import ControlParams
 from relayd.estimator import EstimatorParams
-from relayd.leader import LeaderParams, WindowParams
+from relayd.leader import LeaderParams
 from relayd.linkmodel import LinkPolicyParams
 from relayd.recovery import RecoveryParams
 from relayd.scanplan import ScanParams
+from relayd.scanwindow import WindowParams
 from relayd.search import SearchParams
 
 P = TypeVar("P")

@@ -1,7 +1,7 @@
 """The scan shell: sweep the Yagi on servo 1 as the brain plans, pair angles with RSSI.
 
-This is the I/O around the brain's scan logic (`relayd.brain`: bearing memory, plan,
-estimate, leader-lost). `RssiMonitor` samples the Wi-Fi source at `sample_hz`,
+This is the I/O around the brain's scan logic (`relayd.scanmemory`: bearing memory,
+plan, estimate, leader-lost). `RssiMonitor` samples the Wi-Fi source at `sample_hz`,
 publishes every read as an `RssiEvent` (the brain judges freshness on that stream)
 and keeps a short history, so a sweep can pair samples with servo angles.
 `Scanner` executes the brain's `ScanPlan`s:

@@ -1,9 +1,9 @@
 """Where the next sweep looks: the sweep's geometry (`ScanParams`), the window rule, and
 bearings carried from the robot frame they were measured in to today's.
 
-Pure: no I/O, no clock, no memory. The brain (relayd/brain.py) calls it with what it
-knows: whether the leader is lost, what the bearing model (relayd/leader.py) plans, and
-the bearing it steers by.
+Pure: no I/O, no clock, no memory. The brain's scan memory (relayd/scanmemory.py) calls
+it with what it knows: whether the leader is lost, what the bearing model
+(relayd/leader.py) plans, and the bearing it steers by.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 from relayd.estimator import plan_scan
 from relayd.events import ScanPlan
-from relayd.leader import Window
+from relayd.scanwindow import Window
 
 
 @dataclass(frozen=True, slots=True)

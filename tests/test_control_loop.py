@@ -175,10 +175,10 @@ def make_world(mode: Mode = Mode.FOLLOW, *, sip: bool = True) -> World:
     world = World(clock, robot, loop.state, loop)
     # Bearing +20 deg, the scan before +15, both taken at heading 0; a far leader
     # (background speed 350 mm/s).
-    brain = loop.brain
-    brain.bearing_deg, brain.bearing_heading_deg = 20.0, 0.0
-    brain.prev_bearing_deg, brain.prev_heading_deg = 15.0, 0.0
-    brain.rssi_leader_dbm = -50.0
+    scans = loop.brain.scans
+    scans.bearing_deg, scans.bearing_heading_deg = 20.0, 0.0
+    scans.prev_bearing_deg, scans.prev_heading_deg = 15.0, 0.0
+    scans.rssi_leader_dbm = -50.0
     if sip:
         world.fresh()
     else:
@@ -350,7 +350,7 @@ def test_mode_change_forgets_the_manual_command() -> None:
 
 def test_bearing_is_corrected_for_the_turn_since_the_scan() -> None:
     w = make_world()
-    w.brain.prev_bearing_deg = w.brain.bearing_deg  # no D term
+    w.brain.scans.prev_bearing_deg = w.brain.scans.bearing_deg  # no D term
     w.loop.step()
     left0, right0 = w.robot.wheels[-1]
     # The robot has since turned 20 degrees left: the leader is now straight ahead.

@@ -20,8 +20,9 @@ from relayd import tracker
 from relayd.bearing import LobeFit, fit_main_lobe
 from relayd.config import Settings
 from relayd.estimator import ScanEstimate
-from relayd.leader import LeaderParams, TrackingModel, Window, make_model
+from relayd.leader import LeaderParams, TrackingModel, make_model
 from relayd.scanpool import PooledScan, PoolParams, ScanPool
+from relayd.scanwindow import Window
 from relayd.state import DriveState, Mode, RelayState
 
 
@@ -75,7 +76,7 @@ def test_a_leader_that_goes_silent_is_lost_wheels_zero_and_the_window_goes_full(
     # knocked off): RSSI^l stays high, so only the filter can tell the bearing is gone.
     r.pattern = lambda off: 0.0
     r.run_scans(4)
-    assert r.brain.lost_count == 0  # not the RSSI rule
+    assert r.brain.scans.lost_count == 0  # not the RSSI rule
     out = r.brain.last_output
     assert out is not None and out.state is DriveState.LEADER_LOST and (out.left_mm_s, out.right_mm_s) == (0, 0)
     assert r.brain.inputs(r.t).bearing_deg is None or r.brain.inputs(r.t).leader_lost
@@ -302,7 +303,7 @@ def test_a_leader_at_the_servo_limit_gets_a_narrow_window_without_a_two_sided_fi
     r = BrainRig(scan={"estimator": "lobe", "window": "adaptive"}, leader=still(*leader_at(-80.0)))
     r.start()
     r.run_scans(6)
-    model = r.brain._model
+    model = r.brain.scans.model
     assert isinstance(model, TrackingModel) and model.beamwidth_deg is None
     last = r.results[-1][1].record
     assert len(last.angles_deg) < 25 and min(last.angles_deg) == pytest.approx(-90.0)
@@ -313,7 +314,7 @@ def test_a_leader_at_the_servo_limit_gets_a_narrow_window_without_a_two_sided_fi
 @settings(max_examples=300, deadline=None)
 @given(step=st.floats(1.0, 40.0), slew=st.floats(30.0, 600.0), settle=st.floats(0.0, 0.2), hz=st.floats(2.0, 100.0))
 def test_a_clocked_step_never_sweeps_slower_and_stays_near_the_step_asked(step, slew, settle, hz) -> None:
-    from relayd.leader import WindowParams, clocked_step_deg
+    from relayd.scanwindow import WindowParams, clocked_step_deg
 
     wp = WindowParams(servo_deg_s=slew, settle_s=settle, sample_period_s=1.0 / hz)
 
@@ -327,8 +328,8 @@ def test_a_clocked_step_never_sweeps_slower_and_stays_near_the_step_asked(step, 
 
 
 def test_relayds_default_clock_sweeps_9_deg_steps_and_continuous_mode_is_left_alone() -> None:
-    from relayd.leader import clocked_step_deg
     from relayd.params import brain_params
+    from relayd.scanwindow import clocked_step_deg
 
     wp = brain_params(Settings.model_validate({})).leader.adaptive
     # 180 deg/s, 50 ms settle, 20 Hz: 7.5 and 11.25 deg steps take 2 and 3 readings

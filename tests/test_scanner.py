@@ -383,7 +383,7 @@ async def test_heading_per_sample_and_bearing_in_the_frame_at_scan_end(tmp_path:
         assert est is not None
         cmds = [a for _, a in b.servo.scan_commands(mark)]
         end = 3.0 * SAMPLES
-        assert b.brain.bearing_heading_deg == end
+        assert b.brain.scans.bearing_heading_deg == end
         # Sample j was taken at heading 3(j+1); seen from the end heading it lies further right.
         expected = [a + 3.0 * (j + 1) - end for j, a in enumerate(cmds)]
         assert list(est.angles_deg) == pytest.approx(expected)

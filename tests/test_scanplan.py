@@ -5,8 +5,8 @@ from __future__ import annotations
 from hypothesis import given
 from hypothesis import strategies as st
 
-from relayd.leader import Window
 from relayd.scanplan import ScanParams, full_window, in_current_frame, next_window, sweep_plan
+from relayd.scanwindow import Window
 
 SP = ScanParams(samples=13, width_deg=60.0, limits_deg=(-90.0, 90.0))
 
