@@ -27,7 +27,6 @@ Pure: times and headings come in as arguments; no clock, no I/O.
 
 from __future__ import annotations
 
-import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -36,6 +35,7 @@ from typing import Protocol
 from relayd import tracker
 from relayd.bearing import LobeFit, LobeParams, fit_main_lobe
 from relayd.estimator import ScanEstimate
+from relayd.scanplan import in_current_frame
 from relayd.scanpool import PooledScan, PoolParams, ScanPool
 from relayd.scanwindow import Window, WindowParams, sized_window
 from relayd.tracker import Track, TrackerParams
@@ -227,7 +227,7 @@ class TrackingModel:
         b, h, seen_t = self._evidence
         if t - seen_t > self.params.evidence_max_age_s:
             return None
-        return b if heading_deg is None else math.remainder(b - (heading_deg - h), 360.0)
+        return in_current_frame(b, h, heading_deg)
 
     def _leader_frame(self, t: float, heading_deg: float, angles_deg: Sequence[float],
                       sample_t: Sequence[float]) -> tuple[tuple[float, ...], float | None]:

@@ -32,7 +32,7 @@ import math
 from dataclasses import dataclass
 
 from relayd.actuator import Actuator
-from relayd.estimator import SonarReading
+from relayd.estimator import SonarReading, wrap_deg
 from relayd.ring import guard
 
 
@@ -70,10 +70,6 @@ class SearchState:
     done: bool = False
 
 
-def _wrap(angle_deg: float) -> float:
-    return (angle_deg + 180.0) % 360.0 - 180.0
-
-
 def search_step(state: SearchState, bearing_deg: float | None, heading_deg: float | None,
                 t_s: float | None, params: SearchParams) -> tuple[SearchState, float]:
     """(the new state, the turn rate to ask for in deg/s, 0: stand) for one step while lost."""
@@ -87,7 +83,7 @@ def search_step(state: SearchState, bearing_deg: float | None, heading_deg: floa
     if side == 0:
         return state, 0.0
     last = state.heading_deg if state.heading_deg is not None else heading_deg
-    turned = state.turned_deg + abs(_wrap(heading_deg - last))
+    turned = state.turned_deg + abs(wrap_deg(heading_deg - last))
     started = state.started_t if state.started_t is not None else t_s
     if turned >= params.max_turn_deg or t_s - started >= 1.5 * params.max_turn_deg / params.rate_deg_s:
         return SearchState(done=True), 0.0
