@@ -69,12 +69,16 @@ def scenario_with(name: str, control: dict[str, Any]) -> Any:
         b = float(ctl.get("threshold_b_dbm", -60.0))
         ctl.setdefault("threshold_b_min_dbm", min(-78.0, b))
         ctl.setdefault("threshold_b_max_dbm", max(-55.0, b))
-        ctl["threshold_b_max_dbm"] = min(ctl["threshold_b_max_dbm"], float(ctl.get("threshold_l_dbm", -30.0)) - 1)
+        ctl["threshold_b_max_dbm"] = min(
+            ctl["threshold_b_max_dbm"], float(ctl.get("threshold_l_dbm", -30.0)) - 1
+        )
     doc["control"] = ctl
     return parse_scenario(doc)
 
 
-def metrics(records: Sequence[dict[str, Any]], summary: dict[str, Any], target: float) -> dict[str, Any]:
+def metrics(
+    records: Sequence[dict[str, Any]], summary: dict[str, Any], target: float
+) -> dict[str, Any]:
     """The bench's figures from a trace: only while the leader walks (start to goal or end)."""
     walking = [r for r in records if r["leader"]["moving"]]
     if not walking:
@@ -118,11 +122,18 @@ def run_sim(scenario_name: str, variant: str, control: dict[str, Any], seed: int
     result = vtime.run(SimRunner(sc, speed=None, seed=seed).run())
     target = float(sc.control.get("target_hop_mbps", TARGET_MBPS))
     out = metrics(result.records, result.summary, target)
-    out.update(scenario=scenario_name, variant=variant, seed=seed, wall_s=round(time.perf_counter() - t0, 1))
+    out.update(
+        scenario=scenario_name,
+        variant=variant,
+        seed=seed,
+        wall_s=round(time.perf_counter() - t0, 1),
+    )
     return out
 
 
-def _cached_run(cache: Path, scenario_name: str, variant: str, control: dict[str, Any], seed: int) -> dict[str, Any]:
+def _cached_run(
+    cache: Path, scenario_name: str, variant: str, control: dict[str, Any], seed: int
+) -> dict[str, Any]:
     key = cache / f"{scenario_name}--{variant.replace(' ', '_')}--{seed}.json"
     if key.exists():
         return dict(json.loads(key.read_text()))
@@ -132,8 +143,12 @@ def _cached_run(cache: Path, scenario_name: str, variant: str, control: dict[str
     return out
 
 
-def run_grid(jobs: list[tuple[str, str, dict[str, Any], int]], cache: Path, workers: int,
-             cached_only: bool = False) -> list[dict[str, Any]]:
+def run_grid(
+    jobs: list[tuple[str, str, dict[str, Any], int]],
+    cache: Path,
+    workers: int,
+    cached_only: bool = False,
+) -> list[dict[str, Any]]:
     if cached_only:  # what an interrupted bench finished
         found = [cache / f"{n}--{v.replace(' ', '_')}--{s}.json" for n, v, _c, s in jobs]
         return [dict(json.loads(f.read_text())) for f in found if f.exists()]
@@ -165,14 +180,38 @@ def calibration_rows(seeds: int, tmp: Path) -> tuple[list[dict[str, Any]], list[
             path = tmp / f"cal-{corr}-{seed}.mcap"
             # The guided drive from 1 m: a third of 0.15 m/s to 4 m, then 0.15 m/s to 40 m, a poll
             # every 0.5 s: ~600 readings, as `--drive` gives.
-            write_recording(path, drive_messages(l0_dbm=l0, n=n, sigma_db=sigma, seed=seed, far_m=40.0,
-                                                 corr_m=corr, poll_s=0.5, near_m=NEAR_M))
+            write_recording(
+                path,
+                drive_messages(
+                    l0_dbm=l0,
+                    n=n,
+                    sigma_db=sigma,
+                    seed=seed,
+                    far_m=40.0,
+                    corr_m=corr,
+                    poll_s=0.5,
+                    near_m=NEAR_M,
+                ),
+            )
             readings = readings_from_recording(path)
-            fit = fit_path_loss([r.distance_m for r in readings], [r.rssi_dbm for r in readings], seed=seed,
-                                resamples=200)
-            rows.append({"corr_m": corr, "seed": seed, "n_err": fit.n - n, "l0_err": fit.l0_dbm - l0,
-                         "sigma_err": fit.sigma_db - sigma, "n_in_ci": fit.n_ci.low <= n <= fit.n_ci.high,
-                         "l0_in_ci": fit.l0_ci.low <= l0 <= fit.l0_ci.high, "points": fit.points})
+            fit = fit_path_loss(
+                [r.distance_m for r in readings],
+                [r.rssi_dbm for r in readings],
+                seed=seed,
+                resamples=200,
+            )
+            rows.append(
+                {
+                    "corr_m": corr,
+                    "seed": seed,
+                    "n_err": fit.n - n,
+                    "l0_err": fit.l0_dbm - l0,
+                    "sigma_err": fit.sigma_db - sigma,
+                    "n_in_ci": fit.n_ci.low <= n <= fit.n_ci.high,
+                    "l0_in_ci": fit.l0_ci.low <= l0 <= fit.l0_ci.high,
+                    "points": fit.points,
+                }
+            )
     done.write_text(json.dumps(rows))
     return rows, []
 
@@ -198,38 +237,67 @@ def summarize_variant(rows: list[dict[str, Any]]) -> dict[str, float]:
 
 def parking_table(results: list[dict[str, Any]], seeds: int) -> str:
     """Parking per seed: where the minimum comes from (a spell in a shadow, or the hops at the target)."""
-    lines = ["parking per seed (min e2e / min e2e with every hop at the target, Mbit/s / share >= target / "
-             "time below target, longest spell, s / link-down s):", "",
-             "| seed | fixed | adaptive |", "|---|---|---|"]
+    lines = [
+        "parking per seed (min e2e / min e2e with every hop at the target, Mbit/s / share >= target / "
+        "time below target, longest spell, s / link-down s):",
+        "",
+        "| seed | fixed | adaptive |",
+        "|---|---|---|",
+    ]
 
     def cell(r: dict[str, Any] | None) -> str:
         if r is None:
             return "not run"
         if "below_target_s" not in r:
             return f"{r['min_e2e_mbps']:.1f} / - / {r['share_above_target']:.1%} / - / {r['down_s']:.0f}"
-        return (f"{r['min_e2e_mbps']:.1f} / {r['min_e2e_at_target_mbps']:.1f} / {r['share_above_target']:.1%} / "
-                f"{r['below_target_s']:.1f}, {r['longest_below_s']:.1f} / {r['down_s']:.0f}")
+        return (
+            f"{r['min_e2e_mbps']:.1f} / {r['min_e2e_at_target_mbps']:.1f} / {r['share_above_target']:.1%} / "
+            f"{r['below_target_s']:.1f}, {r['longest_below_s']:.1f} / {r['down_s']:.0f}"
+        )
 
     for s in range(1, seeds + 1):
-        found = {v: next((r for r in results if r["scenario"] == "parking" and r["variant"] == v and r["seed"] == s),
-                         None) for v in ("fixed", "adaptive")}
+        found = {
+            v: next(
+                (
+                    r
+                    for r in results
+                    if r["scenario"] == "parking" and r["variant"] == v and r["seed"] == s
+                ),
+                None,
+            )
+            for v in ("fixed", "adaptive")
+        }
         lines.append(f"| {s} | {cell(found['fixed'])} | {cell(found['adaptive'])} |")
     means = []
     for v in ("fixed", "adaptive"):
-        rows = [r for r in results if r["scenario"] == "parking" and r["variant"] == v and "below_target_s" in r]
-        means.append("not run" if not rows else
-                     f"{_mean([r['min_e2e_mbps'] for r in rows]):.1f} / "
-                     f"{_mean([r['min_e2e_at_target_mbps'] for r in rows]):.1f} / "
-                     f"{_mean([r['share_above_target'] for r in rows]):.1%} / "
-                     f"{_mean([r['below_target_s'] for r in rows]):.1f}, {_mean([r['longest_below_s'] for r in rows]):.1f}"
-                     f" / {_mean([r['down_s'] for r in rows]):.1f}")
+        rows = [
+            r
+            for r in results
+            if r["scenario"] == "parking" and r["variant"] == v and "below_target_s" in r
+        ]
+        means.append(
+            "not run"
+            if not rows
+            else f"{_mean([r['min_e2e_mbps'] for r in rows]):.1f} / "
+            f"{_mean([r['min_e2e_at_target_mbps'] for r in rows]):.1f} / "
+            f"{_mean([r['share_above_target'] for r in rows]):.1%} / "
+            f"{_mean([r['below_target_s'] for r in rows]):.1f}, {_mean([r['longest_below_s'] for r in rows]):.1f}"
+            f" / {_mean([r['down_s'] for r in rows]):.1f}"
+        )
     lines.append(f"| mean | {means[0]} | {means[1]} |")
     return "\n".join(lines)
 
 
-def run(quick: bool = False, *, seeds: int | None = None, jobs: int = 1, cache: Path = DEFAULT_CACHE,
-        others: Sequence[str] = OTHER_SCENARIOS, other_seeds: int | None = None,
-        cached_only: bool = False) -> BenchOutput:
+def run(
+    quick: bool = False,
+    *,
+    seeds: int | None = None,
+    jobs: int = 1,
+    cache: Path = DEFAULT_CACHE,
+    others: Sequence[str] = OTHER_SCENARIOS,
+    other_seeds: int | None = None,
+    cached_only: bool = False,
+) -> BenchOutput:
     t0 = time.perf_counter()
     n_seeds = seeds if seeds is not None else (2 if quick else 10)
     n_other = other_seeds if other_seeds is not None else (1 if quick else 10)
@@ -242,15 +310,41 @@ def run(quick: bool = False, *, seeds: int | None = None, jobs: int = 1, cache: 
         n_max = max(abs(r["n_err"]) for r in rows)
         l0_max = max(abs(r["l0_err"]) for r in rows)
         judged = corr is None
-        out.results.append(Result("adaptive", f"calibrate: worst |n error|, {label}, {len(rows)} seeds", n_max, "",
-                                  "<= 0.2" if judged else "", (n_max <= 0.2) if judged else None))
-        out.results.append(Result("adaptive", f"calibrate: worst |L0 error|, {label}", l0_max, "dB",
-                                  "<= 2 dB" if judged else "", (l0_max <= 2.0) if judged else None))
+        out.results.append(
+            Result(
+                "adaptive",
+                f"calibrate: worst |n error|, {label}, {len(rows)} seeds",
+                n_max,
+                "",
+                "<= 0.2" if judged else "",
+                (n_max <= 0.2) if judged else None,
+            )
+        )
+        out.results.append(
+            Result(
+                "adaptive",
+                f"calibrate: worst |L0 error|, {label}",
+                l0_max,
+                "dB",
+                "<= 2 dB" if judged else "",
+                (l0_max <= 2.0) if judged else None,
+            )
+        )
         cover = _mean([1.0 if r["n_in_ci"] else 0.0 for r in rows])
-        out.results.append(Result("adaptive", f"calibrate: share of seeds whose 95 % CI holds the true n, {label}",
-                                  cover * 100, "%"))
-        out.details.append(f"calibration, {label}: n errors " + ", ".join(f"{r['n_err']:+.2f}" for r in rows)
-                           + "; L0 errors " + ", ".join(f"{r['l0_err']:+.1f}" for r in rows))
+        out.results.append(
+            Result(
+                "adaptive",
+                f"calibrate: share of seeds whose 95 % CI holds the true n, {label}",
+                cover * 100,
+                "%",
+            )
+        )
+        out.details.append(
+            f"calibration, {label}: n errors "
+            + ", ".join(f"{r['n_err']:+.2f}" for r in rows)
+            + "; L0 errors "
+            + ", ".join(f"{r['l0_err']:+.1f}" for r in rows)
+        )
 
     grid = [("mixed", v, c, s) for v, c in variants().items() for s in range(1, n_seeds + 1)]
     for name in others:
@@ -258,8 +352,11 @@ def run(quick: bool = False, *, seeds: int | None = None, jobs: int = 1, cache: 
             grid += [(name, v, {"link_policy": v}, s) for s in range(1, n_other + 1)]
     results = run_grid(grid, cache, jobs, cached_only)
 
-    mixed = {v: summarize_variant(rows) for v in variants()
-             if (rows := [r for r in results if r["scenario"] == "mixed" and r["variant"] == v])}
+    mixed = {
+        v: summarize_variant(rows)
+        for v in variants()
+        if (rows := [r for r in results if r["scenario"] == "mixed" and r["variant"] == v])
+    }
     if "adaptive" not in mixed or len(mixed) < 2:
         out.details.append("mixed: no finished runs to compare")
         out.wall_s = time.perf_counter() - t0
@@ -267,37 +364,74 @@ def run(quick: bool = False, *, seeds: int | None = None, jobs: int = 1, cache: 
     fixed_names = [v for v in mixed if v != "adaptive"]
     best = max(fixed_names, key=lambda v: (mixed[v]["share_mean"], mixed[v]["min_e2e_mean"]))
     a = mixed["adaptive"]
-    lines = [f"| mixed, up to {n_seeds} seeds | worst min e2e (Mbit/s) | mean min e2e | mean share of walk >= "
-             f"{TARGET_MBPS:g} Mbit/s on every hop | mean link-down (s) | goal reached | collisions |",
-             "|---|---|---|---|---|---|---|"]
+    lines = [
+        f"| mixed, up to {n_seeds} seeds | worst min e2e (Mbit/s) | mean min e2e | mean share of walk >= "
+        f"{TARGET_MBPS:g} Mbit/s on every hop | mean link-down (s) | goal reached | collisions |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for v, m in mixed.items():
-        lines.append(f"| {v} | {m['min_e2e_worst']:.1f} | {m['min_e2e_mean']:.1f} | {m['share_mean']:.1%} | "
-                     f"{m['down_mean']:.1f} | {m['goal']}/{m['runs']} | {m['collisions']} |")
+        lines.append(
+            f"| {v} | {m['min_e2e_worst']:.1f} | {m['min_e2e_mean']:.1f} | {m['share_mean']:.1%} | "
+            f"{m['down_mean']:.1f} | {m['goal']}/{m['runs']} | {m['collisions']} |"
+        )
     out.details.append("\n".join(lines))
-    out.results.append(Result("adaptive", f"mixed: share of walk >= target, adaptive vs best fixed ({best})",
-                              a["share_mean"] * 100, "%", f"> {mixed[best]['share_mean']:.1%}",
-                              a["share_mean"] > mixed[best]["share_mean"]))
-    out.results.append(Result("adaptive", f"mixed: mean min e2e, adaptive vs best fixed ({best})",
-                              a["min_e2e_mean"], "Mbit/s", f">= {mixed[best]['min_e2e_mean']:.1f}",
-                              a["min_e2e_mean"] >= mixed[best]["min_e2e_mean"]))
-    out.results.append(Result("adaptive", f"mixed: mean link-down, adaptive vs best fixed ({best})",
-                              a["down_mean"], "s", f"<= {mixed[best]['down_mean']:.1f}",
-                              a["down_mean"] <= mixed[best]["down_mean"]))
+    out.results.append(
+        Result(
+            "adaptive",
+            f"mixed: share of walk >= target, adaptive vs best fixed ({best})",
+            a["share_mean"] * 100,
+            "%",
+            f"> {mixed[best]['share_mean']:.1%}",
+            a["share_mean"] > mixed[best]["share_mean"],
+        )
+    )
+    out.results.append(
+        Result(
+            "adaptive",
+            f"mixed: mean min e2e, adaptive vs best fixed ({best})",
+            a["min_e2e_mean"],
+            "Mbit/s",
+            f">= {mixed[best]['min_e2e_mean']:.1f}",
+            a["min_e2e_mean"] >= mixed[best]["min_e2e_mean"],
+        )
+    )
+    out.results.append(
+        Result(
+            "adaptive",
+            f"mixed: mean link-down, adaptive vs best fixed ({best})",
+            a["down_mean"],
+            "s",
+            f"<= {mixed[best]['down_mean']:.1f}",
+            a["down_mean"] <= mixed[best]["down_mean"],
+        )
+    )
     per_seed = ["| seed | " + " | ".join(mixed) + " |", "|---|" + "---|" * len(mixed)]
     for s in range(1, n_seeds + 1):
         cells = []
         for v in mixed:
-            found = [r for r in results if r["scenario"] == "mixed" and r["variant"] == v and r["seed"] == s]
-            cells.append(f"{found[0]['min_e2e_mbps']:.1f} / {found[0]['share_above_target']:.0%} / "
-                         f"{found[0]['down_s']:.0f}" if found else "not run")
+            found = [
+                r
+                for r in results
+                if r["scenario"] == "mixed" and r["variant"] == v and r["seed"] == s
+            ]
+            cells.append(
+                f"{found[0]['min_e2e_mbps']:.1f} / {found[0]['share_above_target']:.0%} / "
+                f"{found[0]['down_s']:.0f}"
+                if found
+                else "not run"
+            )
         per_seed.append(f"| {s} | " + " | ".join(cells) + " |")
-    out.details.append("mixed per seed (min e2e Mbit/s / share >= target / link-down s):\n\n" + "\n".join(per_seed))
+    out.details.append(
+        "mixed per seed (min e2e Mbit/s / share >= target / link-down s):\n\n" + "\n".join(per_seed)
+    )
     if "parking" in others:
         out.details.append(parking_table(results, n_other))
 
-    other_lines = ["| scenario | policy | goal reached | runs with a break | mean link-down (s) | worst min e2e | "
-                   "mean min e2e | mean share >= target | collisions |",
-                   "|---|---|---|---|---|---|---|---|---|"]
+    other_lines = [
+        "| scenario | policy | goal reached | runs with a break | mean link-down (s) | worst min e2e | "
+        "mean min e2e | mean share >= target | collisions |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for name in others:
         for v in ("fixed", "adaptive"):
             rows = [r for r in results if r["scenario"] == name and r["variant"] == v]
@@ -305,9 +439,11 @@ def run(quick: bool = False, *, seeds: int | None = None, jobs: int = 1, cache: 
                 continue
             m = summarize_variant(rows)
             breaks = sum(1 for r in rows if r["down_s"] > 0)
-            other_lines.append(f"| {name} | {v} | {m['goal']}/{m['runs']} | {breaks} | {m['down_mean']:.1f} | "
-                               f"{m['min_e2e_worst']:.1f} | {m['min_e2e_mean']:.1f} | {m['share_mean']:.1%} | "
-                               f"{m['collisions']} |")
+            other_lines.append(
+                f"| {name} | {v} | {m['goal']}/{m['runs']} | {breaks} | {m['down_mean']:.1f} | "
+                f"{m['min_e2e_worst']:.1f} | {m['min_e2e_mean']:.1f} | {m['share_mean']:.1%} | "
+                f"{m['collisions']} |"
+            )
         fx = [r for r in results if r["scenario"] == name and r["variant"] == "fixed"]
         ad = [r for r in results if r["scenario"] == name and r["variant"] == "adaptive"]
         if fx and ad:
@@ -315,13 +451,23 @@ def run(quick: bool = False, *, seeds: int | None = None, jobs: int = 1, cache: 
             # the share of the walk at the target no more than 2 points below fixed's.
             share_ad = _mean([r["share_above_target"] for r in ad])
             share_fx = _mean([r["share_above_target"] for r in fx])
-            held = sum(r["goal_reached"] for r in ad) >= sum(r["goal_reached"] for r in fx) and \
-                sum(r["collisions"] for r in ad) <= sum(r["collisions"] for r in fx) and \
-                sum(r["down_s"] > 0 for r in ad) <= sum(r["down_s"] > 0 for r in fx) and \
-                share_ad >= share_fx - 0.02
-            out.results.append(Result("adaptive", f"{name}: adaptive holds (goal, collisions, breaks, share >= "
-                                                  f"target), {len(ad)} seeds", share_ad * 100, "%",
-                                      f"holds, share >= {(share_fx - 0.02):.1%}", held))
+            held = (
+                sum(r["goal_reached"] for r in ad) >= sum(r["goal_reached"] for r in fx)
+                and sum(r["collisions"] for r in ad) <= sum(r["collisions"] for r in fx)
+                and sum(r["down_s"] > 0 for r in ad) <= sum(r["down_s"] > 0 for r in fx)
+                and share_ad >= share_fx - 0.02
+            )
+            out.results.append(
+                Result(
+                    "adaptive",
+                    f"{name}: adaptive holds (goal, collisions, breaks, share >= "
+                    f"target), {len(ad)} seeds",
+                    share_ad * 100,
+                    "%",
+                    f"holds, share >= {(share_fx - 0.02):.1%}",
+                    held,
+                )
+            )
     out.details.append("\n".join(other_lines))
     out.wall_s = time.perf_counter() - t0
     return out
@@ -333,13 +479,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--other-seeds", type=int, default=10)
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
-    ap.add_argument("--others", default=",".join(OTHER_SCENARIOS), help="comma-separated; empty for none")
+    ap.add_argument(
+        "--others", default=",".join(OTHER_SCENARIOS), help="comma-separated; empty for none"
+    )
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--report-only", action="store_true", help="summarize the cached runs, run nothing new")
+    ap.add_argument(
+        "--report-only", action="store_true", help="summarize the cached runs, run nothing new"
+    )
     args = ap.parse_args(argv)
     others = [o for o in args.others.split(",") if o]
-    out = run(args.quick, seeds=args.seeds, jobs=args.jobs, cache=args.cache, others=others,
-              other_seeds=args.other_seeds, cached_only=args.report_only)
+    out = run(
+        args.quick,
+        seeds=args.seeds,
+        jobs=args.jobs,
+        cache=args.cache,
+        others=others,
+        other_seeds=args.other_seeds,
+        cached_only=args.report_only,
+    )
     for r in out.results:
         print(f"| {r.figure} | {r.value_text()} | {r.target} | {r.verdict()} |")
     for d in out.details:

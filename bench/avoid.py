@@ -81,9 +81,17 @@ def bench(name: str, past_m: float, seeds: int, seconds: float, escape: bool) ->
         blocked += out.final_reason == "blocked"
         if out.passed_at_s is not None and out.collisions == 0:
             times.append(out.passed_at_s)
-    return Row(name, "escape" if escape else "paper only", seeds, len(times),
-               statistics.median(times) if times else None, max(times) if times else None,
-               clearance, collisions, blocked)
+    return Row(
+        name,
+        "escape" if escape else "paper only",
+        seeds,
+        len(times),
+        statistics.median(times) if times else None,
+        max(times) if times else None,
+        clearance,
+        collisions,
+        blocked,
+    )
 
 
 def _real_run(name: str, seed: int) -> tuple[SimResult, float]:
@@ -115,7 +123,9 @@ def bench_real(name: str, past_m: float, seeds: int) -> Row:
         passed = None
         for rec in result.records:
             r = rec["relays"][0]
-            if (r["x"] - sx) * math.cos(line) + (r["y"] - sy) * math.sin(line) >= past_m + ROBOT_LENGTH_M / 2.0:
+            if (r["x"] - sx) * math.cos(line) + (r["y"] - sy) * math.sin(
+                line
+            ) >= past_m + ROBOT_LENGTH_M / 2.0:
                 passed = rec["t"]
                 break
         follower = result.summary["followers"][0]
@@ -124,19 +134,31 @@ def bench_real(name: str, past_m: float, seeds: int) -> Row:
         blocked += follower["stopped_reason"] == "blocked"
         if passed is not None and result.summary["collisions"] == 0:
             times.append(passed)
-    return Row(name, "real daemons", seeds, len(times),
-               statistics.median(times) if times else None, max(times) if times else None,
-               clearance, collisions, blocked)
+    return Row(
+        name,
+        "real daemons",
+        seeds,
+        len(times),
+        statistics.median(times) if times else None,
+        max(times) if times else None,
+        clearance,
+        collisions,
+        blocked,
+    )
 
 
 def table(rows: Sequence[Row]) -> str:
-    head = ("| scenario | controller | passed | time to get past, median / worst | "
-            "min clearance | collisions | ended `blocked` |\n|---|---|---|---|---|---|---|")
+    head = (
+        "| scenario | controller | passed | time to get past, median / worst | "
+        "min clearance | collisions | ended `blocked` |\n|---|---|---|---|---|---|---|"
+    )
     lines = [head]
     for r in rows:
         t = "-" if r.t_median_s is None else f"{r.t_median_s:.1f} s / {r.t_max_s:.1f} s"
-        lines.append(f"| {r.scenario} | {r.variant} | {r.passed}/{r.runs} ({100 * r.passed / r.runs:.0f} %) "
-                     f"| {t} | {r.min_clearance_m:.3f} m | {r.collisions} | {r.blocked} |")
+        lines.append(
+            f"| {r.scenario} | {r.variant} | {r.passed}/{r.runs} ({100 * r.passed / r.runs:.0f} %) "
+            f"| {t} | {r.min_clearance_m:.3f} m | {r.collisions} | {r.blocked} |"
+        )
     return "\n".join(lines)
 
 
@@ -144,9 +166,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=10, help="seeds per scenario (default 10)")
     ap.add_argument("--seconds", type=float, default=300.0, help="time limit per run, clock s")
-    ap.add_argument("--only", action="append", choices=list(SCENARIOS), help="one scenario (repeatable)")
-    ap.add_argument("--real", action="store_true",
-                    help="real daemons (relayd sim, the scenario's duration) instead of the model")
+    ap.add_argument(
+        "--only", action="append", choices=list(SCENARIOS), help="one scenario (repeatable)"
+    )
+    ap.add_argument(
+        "--real",
+        action="store_true",
+        help="real daemons (relayd sim, the scenario's duration) instead of the model",
+    )
     args = ap.parse_args(argv)
     started = time.perf_counter()
     rows = []
@@ -164,10 +191,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             rows.append(bench(name, SCENARIOS[name], args.seeds, args.seconds, escape))
     print(table(rows))
     limit = "the scenario's duration" if args.real else f"{args.seconds:.0f} clock s"
-    print(f"\n{len(rows) * args.seeds} runs of up to {limit} in "
-          f"{time.perf_counter() - started:.0f} s wall")
-    ok = all(r.passed == r.runs and r.collisions == 0 and r.min_clearance_m >= 0.1
-             for r in rows if r.variant != "paper only")
+    print(
+        f"\n{len(rows) * args.seeds} runs of up to {limit} in "
+        f"{time.perf_counter() - started:.0f} s wall"
+    )
+    ok = all(
+        r.passed == r.runs and r.collisions == 0 and r.min_clearance_m >= 0.1
+        for r in rows
+        if r.variant != "paper only"
+    )
     return 0 if ok else 1
 
 

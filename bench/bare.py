@@ -20,7 +20,9 @@ from aiohttp import web
 
 def make_app(payload: Any) -> web.Application:
     async def status(_request: web.Request) -> web.Response:
-        return web.Response(text=json.dumps(payload, separators=(",", ":")), content_type="application/json")
+        return web.Response(
+            text=json.dumps(payload, separators=(",", ":")), content_type="application/json"
+        )
 
     app = web.Application()
     app.router.add_get("/status", status)

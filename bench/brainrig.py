@@ -49,12 +49,15 @@ def cos_n_pattern(beamwidth_deg: float, front_to_back_db: float) -> Pattern:
         a = abs(math.remainder(off_deg, 360.0))
         c = math.cos(math.radians(a)) if a < 90.0 else 0.0
         return -front_to_back_db if c <= 0.0 else max(-front_to_back_db, 10.0 * n * math.log10(c))
+
     return gain
 
 
 def gaussian_pattern(beamwidth_deg: float, front_to_back_db: float) -> Pattern:
     """A Gaussian beam: -12 (off / beamwidth)^2 dB, floored (the 3GPP sector model)."""
-    return lambda off: max(-front_to_back_db, -12.0 * (math.remainder(off, 360.0) / beamwidth_deg) ** 2)
+    return lambda off: max(
+        -front_to_back_db, -12.0 * (math.remainder(off, 360.0) / beamwidth_deg) ** 2
+    )
 
 
 def sim_yagi(off_deg: float) -> float:
@@ -66,7 +69,9 @@ def still(x_m: float, y_m: float) -> LeaderPath:
     return lambda t: (x_m, y_m)
 
 
-def crossing(distance_m: float, speed_m_s: float, start_y_m: float, wait_s: float = 0.0) -> LeaderPath:
+def crossing(
+    distance_m: float, speed_m_s: float, start_y_m: float, wait_s: float = 0.0
+) -> LeaderPath:
     """A straight run across the relay's front, `distance_m` ahead, from y = start_y upward
     (after standing there for `wait_s`)."""
     return lambda t: (distance_m, start_y_m + speed_m_s * max(0.0, t - wait_s))
@@ -79,7 +84,9 @@ class BrainRig:
     scan: dict[str, object]
     leader: LeaderPath
     pattern: Pattern = sim_yagi
-    radio: Radio = field(default_factory=lambda: Radio(RadioParams.outdoor(fading=False, shadow_sigma_db=0.0), []))
+    radio: Radio = field(
+        default_factory=lambda: Radio(RadioParams.outdoor(fading=False, shadow_sigma_db=0.0), [])
+    )
     mode: Mode = Mode.HOLD
     control: dict[str, object] = field(default_factory=dict)
     sample_hz: float = 20.0
@@ -93,9 +100,14 @@ class BrainRig:
 
     def __post_init__(self) -> None:
         control = {"rear_link": "ignore", "mode": str(self.mode), **self.control}
-        self.settings = Settings.model_validate({"scan": self.scan, "control": control,
-                                                 "wifi": {"sample_hz": self.sample_hz},
-                                                 "pantilt": {"speed_deg_s": self.servo_deg_s}})
+        self.settings = Settings.model_validate(
+            {
+                "scan": self.scan,
+                "control": control,
+                "wifi": {"sample_hz": self.sample_hz},
+                "pantilt": {"speed_deg_s": self.servo_deg_s},
+            }
+        )
         self.brain = Brain(brain_params(self.settings), mode=self.mode)
         self._plan: list[float] = []
         self._next_sample_t = math.inf
@@ -106,7 +118,9 @@ class BrainRig:
 
     def true_bearing_deg(self) -> float:
         lx, ly = self.leader(self.t)
-        return math.remainder(math.degrees(math.atan2(ly - self.y_m, lx - self.x_m)) - self.theta_deg, 360.0)
+        return math.remainder(
+            math.degrees(math.atan2(ly - self.y_m, lx - self.x_m)) - self.theta_deg, 360.0
+        )
 
     def gap_m(self) -> float:
         lx, ly = self.leader(self.t)
@@ -148,9 +162,21 @@ class BrainRig:
         self.y_m += v * dt * math.sin(math.radians(self.theta_deg))
 
     def _sip(self) -> None:
-        s = Sip(t=self.t, x_mm=self.x_m * 1000.0, y_mm=self.y_m * 1000.0, theta_deg=self.theta_deg,
-                left_mm_s=self.wheels[0], right_mm_s=self.wheels[1], battery_v=13.0, motors_enabled=True,
-                estop=False, stall_left=False, stall_right=False, moving=False, sonar=())
+        s = Sip(
+            t=self.t,
+            x_mm=self.x_m * 1000.0,
+            y_mm=self.y_m * 1000.0,
+            theta_deg=self.theta_deg,
+            left_mm_s=self.wheels[0],
+            right_mm_s=self.wheels[1],
+            battery_v=13.0,
+            motors_enabled=True,
+            estop=False,
+            stall_left=False,
+            stall_right=False,
+            moving=False,
+            sonar=(),
+        )
         self._feed(SipEvent(self.t, s, (5000,) * 16))
 
     # -- running -----------------------------------------------------------------------

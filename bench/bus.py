@@ -29,8 +29,21 @@ TARGET_US = 200.0
 
 
 def _sip(t: float) -> SipEvent:
-    s = Sip(t=t, x_mm=0.0, y_mm=0.0, theta_deg=0.0, left_mm_s=0.0, right_mm_s=0.0, battery_v=13.0,
-            motors_enabled=True, estop=False, stall_left=False, stall_right=False, moving=False, sonar=())
+    s = Sip(
+        t=t,
+        x_mm=0.0,
+        y_mm=0.0,
+        theta_deg=0.0,
+        left_mm_s=0.0,
+        right_mm_s=0.0,
+        battery_v=13.0,
+        motors_enabled=True,
+        estop=False,
+        stall_left=False,
+        stall_right=False,
+        moving=False,
+        sonar=(),
+    )
     return SipEvent(t, s, (None,) * 16)
 
 
@@ -50,7 +63,10 @@ async def measure(subscribers: int, slow: bool, publishes: int) -> tuple[list[fl
 
     bus.connect(brain.handle, on_actions)
     subs = [bus.subscribe(f"r{i}", maxlen=256) for i in range(subscribers)]
-    tasks = [asyncio.create_task(_reader(s, stuck=slow and i == len(subs) - 1)) for i, s in enumerate(subs)]
+    tasks = [
+        asyncio.create_task(_reader(s, stuck=slow and i == len(subs) - 1))
+        for i, s in enumerate(subs)
+    ]
     samples: list[float] = []
     t = 0.0
     try:
@@ -85,23 +101,44 @@ def run(quick: bool = False) -> BenchOutput:
     n = 2000 if quick else 20000
     out = BenchOutput(NAME)
     base = brain_only(n)
-    out.results.append(Result(NAME, "brain.handle(SIP) alone, median (no bus)", percentile(base, 50), "us", "",
-                              None, f"p99 {percentile(base, 99):.1f} us"))
-    rows: list[tuple[str, int, bool]] = [("0 subscribers", 0, False), ("1 subscriber", 1, False),
-                                         ("3 subscribers, 1 never reads", 3, True)]
+    out.results.append(
+        Result(
+            NAME,
+            "brain.handle(SIP) alone, median (no bus)",
+            percentile(base, 50),
+            "us",
+            "",
+            None,
+            f"p99 {percentile(base, 99):.1f} us",
+        )
+    )
+    rows: list[tuple[str, int, bool]] = [
+        ("0 subscribers", 0, False),
+        ("1 subscriber", 1, False),
+        ("3 subscribers, 1 never reads", 3, True),
+    ]
     medians: dict[str, float] = {}
     for label, count, slow in rows:
         samples, dropped = asyncio.run(measure(count, slow, n))
         p50, p99 = percentile(samples, 50), percentile(samples, 99)
         medians[label] = p50
-        out.results.append(Result(
-            NAME, f"publish(SIP) incl. brain step, {label}: p99", p99, "us", f"< {TARGET_US:g} us",
-            p99 < TARGET_US, f"median {p50:.1f} us; {dropped} events dropped by full queues"))
+        out.results.append(
+            Result(
+                NAME,
+                f"publish(SIP) incl. brain step, {label}: p99",
+                p99,
+                "us",
+                f"< {TARGET_US:g} us",
+                p99 < TARGET_US,
+                f"median {p50:.1f} us; {dropped} events dropped by full queues",
+            )
+        )
     extra = medians["3 subscribers, 1 never reads"] - medians["0 subscribers"]
     out.details.append(
         f"Bus overhead over the bare brain step (median): {medians['0 subscribers'] - percentile(base, 50):.1f} us "
         f"with no subscriber; 3 subscribers (one stuck) add {extra:.1f} us more. A reader that never reads "
-        "costs the publisher the same as one that keeps up: its queue drops the oldest event instead of growing.")
+        "costs the publisher the same as one that keeps up: its queue drops the oldest event instead of growing."
+    )
     return out
 
 

@@ -131,7 +131,7 @@ def proc_cpu_s(pid: int) -> float:
     """User + system CPU seconds the process has used (/proc/<pid>/stat fields 14, 15)."""
     raw = Path(f"/proc/{pid}/stat").read_text(encoding="ascii")
     # The command name (field 2) may contain spaces; everything after its ')' is fixed.
-    fields = raw[raw.rindex(")") + 2:].split()
+    fields = raw[raw.rindex(")") + 2 :].split()
     utime, stime = int(fields[11]), int(fields[12])
     return (utime + stime) / CLK_TCK
 

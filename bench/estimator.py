@@ -42,25 +42,49 @@ SCANS = 5
 DISTANCE_M = 5.0
 
 
-def error_after(radio: Radio, true_deg: float, start_deg: float, *, scans: int = SCANS, width_deg: float = 180.0,
-                samples: int = 25, gamma: float = 10.0, limits: tuple[float, float] = (-90.0, 90.0)) -> float:
+def error_after(
+    radio: Radio,
+    true_deg: float,
+    start_deg: float,
+    *,
+    scans: int = SCANS,
+    width_deg: float = 180.0,
+    samples: int = 25,
+    gamma: float = 10.0,
+    limits: tuple[float, float] = (-90.0, 90.0),
+) -> float:
     """Bearing error (deg) of the `scans`-th scan to a static leader at `true_deg`."""
     params = EstimatorParams(gamma=gamma)
     no_sonar = front_readings([None] * 16)
-    leader = (DISTANCE_M * math.cos(math.radians(true_deg)), DISTANCE_M * math.sin(math.radians(true_deg)))
+    leader = (
+        DISTANCE_M * math.cos(math.radians(true_deg)),
+        DISTANCE_M * math.sin(math.radians(true_deg)),
+    )
     center, ascending = start_deg, True
     for _ in range(scans):
         angles = plan_scan(center, width_deg, samples, limits, ascending)
         ascending = not ascending
-        batch = [ScanSample(a, radio.sample_dbm((0.0, 0.0), leader, yagi_gain_db(a - true_deg)), 0.0)
-                 for a in angles]
+        batch = [
+            ScanSample(a, radio.sample_dbm((0.0, 0.0), leader, yagi_gain_db(a - true_deg)), 0.0)
+            for a in angles
+        ]
         center = estimate_scan(batch, 0.0, no_sonar, params).bearing_deg
     return center - true_deg
 
 
-def closed_loop_error(radio: Radio, true_deg: float, start_deg: float, *, scans: int = SCANS,
-                      samples: int = 25, step_s: float = 0.1, kp: float = 1.0, kd: float = 0.3,
-                      v_max_mm_s: float = 400.0, limits: tuple[float, float] = (-90.0, 90.0)) -> float:
+def closed_loop_error(
+    radio: Radio,
+    true_deg: float,
+    start_deg: float,
+    *,
+    scans: int = SCANS,
+    samples: int = 25,
+    step_s: float = 0.1,
+    kp: float = 1.0,
+    kd: float = 0.3,
+    v_max_mm_s: float = 400.0,
+    limits: tuple[float, float] = (-90.0, 90.0),
+) -> float:
     """Error (deg) of the `scans`-th bearing while the robot turns in place toward its estimate.
 
     The leader stands still at `true_deg` of the robot's initial heading. Between and
@@ -69,7 +93,10 @@ def closed_loop_error(radio: Radio, true_deg: float, start_deg: float, *, scans:
     """
     params = EstimatorParams()
     no_sonar = front_readings([None] * 16)
-    leader = (DISTANCE_M * math.cos(math.radians(true_deg)), DISTANCE_M * math.sin(math.radians(true_deg)))
+    leader = (
+        DISTANCE_M * math.cos(math.radians(true_deg)),
+        DISTANCE_M * math.sin(math.radians(true_deg)),
+    )
     heading, center, ascending = 0.0, start_deg, True
     bearing: float | None = None
     prev: float | None = None
@@ -85,9 +112,13 @@ def closed_loop_error(radio: Radio, true_deg: float, start_deg: float, *, scans:
                     now = bearing - (heading - heading_then)
                     now_prev = None if prev is None else prev - (heading - heading_then)
                     left, right = wheel_law(0.0, now, now_prev, kp, kd, v_max_mm_s)
-                    heading += math.degrees((right - left) / 2.0 * DIFF_CONV_FACTOR) * step_s / substeps
+                    heading += (
+                        math.degrees((right - left) / 2.0 * DIFF_CONV_FACTOR) * step_s / substeps
+                    )
             off_axis = a + heading - true_deg
-            batch.append(ScanSample(a, radio.sample_dbm((0.0, 0.0), leader, yagi_gain_db(off_axis)), heading))
+            batch.append(
+                ScanSample(a, radio.sample_dbm((0.0, 0.0), leader, yagi_gain_db(off_axis)), heading)
+            )
         est = estimate_scan(batch, heading, no_sonar, params)
         prev = None if bearing is None else bearing - (heading - heading_then)
         bearing, heading_then = est.bearing_deg, heading
@@ -96,7 +127,9 @@ def closed_loop_error(radio: Radio, true_deg: float, start_deg: float, *, scans:
     return math.remainder(bearing - (true_deg - heading), 360.0)
 
 
-def noise_free(bearings: Iterable[float], starts: Iterable[float], **kw: Any) -> dict[tuple[float, float], float]:
+def noise_free(
+    bearings: Iterable[float], starts: Iterable[float], **kw: Any
+) -> dict[tuple[float, float], float]:
     radio = Radio(RadioParams.outdoor(fading=False, shadow_sigma_db=0.0), [], seed=0)
     starts = list(starts)
     return {(b, s): error_after(radio, b, s, **kw) for b in bearings for s in starts}
@@ -113,7 +146,9 @@ def noisy(bearings: Iterable[float], seeds: int, *, nlos: bool = False, **kw: An
     return errors
 
 
-def run(quick: bool = False, *, seeds: int | None = None, step_deg: float | None = None) -> BenchOutput:
+def run(
+    quick: bool = False, *, seeds: int | None = None, step_deg: float | None = None
+) -> BenchOutput:
     n_seeds = seeds if seeds is not None else (20 if quick else 200)
     step = step_deg if step_deg is not None else 5.0
     out = BenchOutput(NAME)
@@ -125,28 +160,74 @@ def run(quick: bool = False, *, seeds: int | None = None, step_deg: float | None
         return max(abs(e) for (b, _s), e in errs.items() if abs(b) <= limit + 1e-9)
 
     radio = Radio(RadioParams.outdoor(fading=False, shadow_sigma_db=0.0), [], seed=0)
-    closed = {(b, s0): closed_loop_error(radio, b, s0) for b in bearings for s0 in [-90.0 + 15.0 * i for i in range(13)]}
+    closed = {
+        (b, s0): closed_loop_error(radio, b, s0)
+        for b in bearings
+        for s0 in [-90.0 + 15.0 * i for i in range(13)]
+    }
     cworst = max(closed.items(), key=lambda kv: abs(kv[1]))
-    out.results.append(Result(
-        NAME, "noise-free |error| after 5 scans, any bearing and start in -90..90, robot turning (closed loop)",
-        abs(cworst[1]), "deg", f"<= {TARGET_DEG:g} deg", abs(cworst[1]) <= TARGET_DEG,
-        f"{len(closed)} cases; worst at bearing {cworst[0][0]:g}, start {cworst[0][1]:g}"))
-    out.results.append(Result(
-        NAME, "noise-free |error| after 5 scans, any bearing and start in -90..90, robot still (open loop)",
-        abs(worst[1]), "deg", "", None,
-        f"worst at bearing {worst[0][0]:g}, start {worst[0][1]:g}; max over |bearing| <= 30: {band(30):.1f}, "
-        f"<= 45: {band(45):.1f}, <= 60: {band(60):.1f}, <= 75: {band(75):.1f}"))
-    out.results.append(Result(
-        NAME, "noise-free |error| after 5 scans, |bearing| <= 45, robot still (open loop)", band(45), "deg", "",
-        None, "shows where the WCA's pull toward the window's middle starts"))
+    out.results.append(
+        Result(
+            NAME,
+            "noise-free |error| after 5 scans, any bearing and start in -90..90, robot turning (closed loop)",
+            abs(cworst[1]),
+            "deg",
+            f"<= {TARGET_DEG:g} deg",
+            abs(cworst[1]) <= TARGET_DEG,
+            f"{len(closed)} cases; worst at bearing {cworst[0][0]:g}, start {cworst[0][1]:g}",
+        )
+    )
+    out.results.append(
+        Result(
+            NAME,
+            "noise-free |error| after 5 scans, any bearing and start in -90..90, robot still (open loop)",
+            abs(worst[1]),
+            "deg",
+            "",
+            None,
+            f"worst at bearing {worst[0][0]:g}, start {worst[0][1]:g}; max over |bearing| <= 30: {band(30):.1f}, "
+            f"<= 45: {band(45):.1f}, <= 60: {band(60):.1f}, <= 75: {band(75):.1f}",
+        )
+    )
+    out.results.append(
+        Result(
+            NAME,
+            "noise-free |error| after 5 scans, |bearing| <= 45, robot still (open loop)",
+            band(45),
+            "deg",
+            "",
+            None,
+            "shows where the WCA's pull toward the window's middle starts",
+        )
+    )
     noisy_b = [-60.0 + 10.0 * i for i in range(13)]
     los = noisy(noisy_b, n_seeds)
     nlos = noisy(noisy_b, max(1, n_seeds // 2), nlos=True)
-    out.results.append(Result(NAME, "RMS error after 5 scans, shadowing + Rician fading (LOS)", rms(los), "deg",
-                              "", None, f"{len(los)} runs: {n_seeds} seeds x bearings -60..60"))
-    out.results.append(Result(NAME, "RMS error after 5 scans, shadowing + Rayleigh fading (NLOS)", rms(nlos),
-                              "deg", "", None, f"{len(nlos)} runs"))
+    out.results.append(
+        Result(
+            NAME,
+            "RMS error after 5 scans, shadowing + Rician fading (LOS)",
+            rms(los),
+            "deg",
+            "",
+            None,
+            f"{len(los)} runs: {n_seeds} seeds x bearings -60..60",
+        )
+    )
+    out.results.append(
+        Result(
+            NAME,
+            "RMS error after 5 scans, shadowing + Rayleigh fading (NLOS)",
+            rms(nlos),
+            "deg",
+            "",
+            None,
+            f"{len(nlos)} runs",
+        )
+    )
     bias = noise_free([b for b in (0.0, 30.0, 45.0, 60.0, 75.0, 90.0)], [0.0])
-    out.details.append("Noise-free error after 5 scans by true bearing (start 0): " + ", ".join(
-        f"{b:g} deg: {e:+.1f}" for (b, _s), e in bias.items()))
+    out.details.append(
+        "Noise-free error after 5 scans by true bearing (start 0): "
+        + ", ".join(f"{b:g} deg: {e:+.1f}" for (b, _s), e in bias.items())
+    )
     return out

@@ -87,13 +87,19 @@ def relay_shares(records: list[dict[str, Any]]) -> list[Share]:
         for r in rows:
             if r["gap_m"] > WITHIN_M:
                 beyond[r["reason"]] = beyond.get(r["reason"], 0.0) + 1.0 / len(rows)
-        out.append(Share(sum(r["gap_m"] <= WITHIN_M for r in rows) / len(rows),
-                         sum(r["gap_m"] <= WITHIN_M for r in free) / len(free) if free else math.nan, beyond,
-                         1.0 - len(free) / len(rows)))
+        out.append(
+            Share(
+                sum(r["gap_m"] <= WITHIN_M for r in rows) / len(rows),
+                sum(r["gap_m"] <= WITHIN_M for r in free) / len(free) if free else math.nan,
+                beyond,
+                1.0 - len(free) / len(rows),
+            )
+        )
     return out
 
 
 # -- policies ------------------------------------------------------------------------------
+
 
 def scenario_fit(sc: Scenario) -> PathLossFit:
     """The scenario's radio as a calibration would find it, with no fitting error."""
@@ -101,14 +107,21 @@ def scenario_fit(sc: Scenario) -> PathLossFit:
     return PathLossFit.known(r.l0_dbm, r.exponent, r.shadow_sigma_db)
 
 
-def speed_law(fit: PathLossFit, threshold_l_dbm: float, leader_mm_s: float,
-              v_max_mm_s: float, full_at_m: float = WITHIN_M) -> tuple[float, float]:
+def speed_law(
+    fit: PathLossFit,
+    threshold_l_dbm: float,
+    leader_mm_s: float,
+    v_max_mm_s: float,
+    full_at_m: float = WITHIN_M,
+) -> tuple[float, float]:
     """(w1, w2) of v = -w1 RSSI^l - w2 through two points: the leader's speed at the
     stopping level (so a relay that may drive keeps up), v_max where the median RSSI^l is
     that of `full_at_m` (so a relay that fell back catches up at full speed)."""
     span_db = threshold_l_dbm - fit.rssi_at(full_at_m)
     if span_db <= 0:
-        raise ValueError(f"threshold_l {threshold_l_dbm:.1f} dBm is not above the median at {full_at_m:g} m")
+        raise ValueError(
+            f"threshold_l {threshold_l_dbm:.1f} dBm is not above the median at {full_at_m:g} m"
+        )
     w1 = (v_max_mm_s - leader_mm_s) / span_db
     return w1, -w1 * threshold_l_dbm - leader_mm_s
 
@@ -119,8 +132,12 @@ def follow_control(sc: Scenario, threshold_l_dbm: float) -> dict[str, Any]:
     fit = scenario_fit(sc)
     v_max = float(sc.control.get("v_max_mm_s", ControlSettings().v_max_mm_s))
     w1, w2 = speed_law(fit, threshold_l_dbm, 1000.0 * sc.leader.speed_m_s, v_max)
-    return {"threshold_l_dbm": round(threshold_l_dbm, 1), "w1": round(w1, 1), "w2": round(w2, 1),
-            "leader_gap_max_m": GAP_MAX_M}
+    return {
+        "threshold_l_dbm": round(threshold_l_dbm, 1),
+        "w1": round(w1, 1),
+        "w2": round(w2, 1),
+        "leader_gap_max_m": GAP_MAX_M,
+    }
 
 
 def gap_threshold(sc: Scenario, gap_m: float = FOLLOW_GAP_M) -> float:
@@ -130,10 +147,14 @@ def gap_threshold(sc: Scenario, gap_m: float = FOLLOW_GAP_M) -> float:
     return thr
 
 
-def within_threshold(sc: Scenario, within_m: float = WITHIN_M, outage: float = WITHIN_OUTAGE) -> float:
+def within_threshold(
+    sc: Scenario, within_m: float = WITHIN_M, outage: float = WITHIN_OUTAGE
+) -> float:
     """What `relayd calibrate path-loss --link leader --hop-m 5 --outage 0.001` prints as "gap at
     most 5 m": no stop beyond `within_m` but with probability `outage`."""
-    thr = thresholds(scenario_fit(sc), [], Wanted(link="leader", hop_m=within_m, outage=outage)).bound
+    thr = thresholds(
+        scenario_fit(sc), [], Wanted(link="leader", hop_m=within_m, outage=outage)
+    ).bound
     assert thr is not None  # a leader link and a hop length were asked
     return thr
 
@@ -151,27 +172,35 @@ POLICIES: tuple[Policy, ...] = (
     Policy(f"gap {FOLLOW_GAP_M:g} m", lambda sc: follow_control(sc, gap_threshold(sc))),
     Policy(f"within {WITHIN_M:g} m", lambda sc: follow_control(sc, within_threshold(sc))),
 )
-CORRIDOR_PLUS_ONE = Policy(f"within {WITHIN_M:g} m, 3 relays", POLICIES[2].control, extra_relay=True)
+CORRIDOR_PLUS_ONE = Policy(
+    f"within {WITHIN_M:g} m, 3 relays", POLICIES[2].control, extra_relay=True
+)
 #: The corridor's relays hold on "rear_weak" for half of the walk: the chain cannot span it
 #: with every relay within 5 m of the next. This policy asks what the tracking alone does
 #: round the brick corners (non-line-of-sight) with that duty lifted (`rear_link =
 #: "ignore"`), as the paper lifted it for its convoy (threshold_b -60 "to be free from the
 #: distance constraint"): the relays then follow the person the whole way.
-CORRIDOR_REAR_FREE = Policy(f"within {WITHIN_M:g} m, rear link not required",
-                            lambda sc: {**POLICIES[2].control(sc), "rear_link": "ignore"})
+CORRIDOR_REAR_FREE = Policy(
+    f"within {WITHIN_M:g} m, rear link not required",
+    lambda sc: {**POLICIES[2].control(sc), "rear_link": "ignore"},
+)
 
 
 def policy_scenario(scenario: str, policy: Policy, scan: dict[str, object]) -> Scenario:
     from relayd.sim.scenario import load_scenario
 
     sc = load_scenario(scenario)
-    update: dict[str, Any] = {"scan": {**sc.scan, **scan}, "control": {**sc.control, **policy.control(sc)}}
+    update: dict[str, Any] = {
+        "scan": {**sc.scan, **scan},
+        "control": {**sc.control, **policy.control(sc)},
+    }
     if policy.extra_relay:
         update |= {"relay": [*sc.relay, EXTRA_RELAY], "relays": len(sc.relay) + 1}
     return sc.model_copy(update=update)
 
 
 # -- runs ------------------------------------------------------------------------------------
+
 
 async def _sim(sc: Scenario, seed: int, seconds: float | None) -> list[Share]:
     from relayd.sim.runner import SimRunner
@@ -197,8 +226,14 @@ def _mean(xs: Sequence[float]) -> float:
     return sum(xs) / len(xs) if xs else math.nan
 
 
-def rows(scenario: str, target: float, policy: Policy, cfg: tuple[str, str], seeds: int,
-         seconds: float | None) -> list[Result]:
+def rows(
+    scenario: str,
+    target: float,
+    policy: Policy,
+    cfg: tuple[str, str],
+    seeds: int,
+    seconds: float | None,
+) -> list[Result]:
     """The two table rows of one (scenario, policy, estimator): within 5 m, and within while free."""
     label = f"{cfg[0]}/{cfg[1]}"
     sc = policy_scenario(scenario, policy, {"estimator": cfg[0], "window": cfg[1]})
@@ -207,25 +242,52 @@ def rows(scenario: str, target: float, policy: Policy, cfg: tuple[str, str], see
     worst = min((x.within for x in shares), default=math.nan)
     free = _mean([x.within_free for x in shares])
     held = _mean([x.held_rear for x in shares])
-    reasons = sorted({k for x in shares for k in x.beyond}, key=lambda k: -sum(x.beyond.get(k, 0.0) for x in shares))
-    beyond = ", ".join(f"{k} {100 * _mean([x.beyond.get(k, 0.0) for x in shares]):.1f} %" for k in reasons)
+    reasons = sorted(
+        {k for x in shares for k in x.beyond},
+        key=lambda k: -sum(x.beyond.get(k, 0.0) for x in shares),
+    )
+    beyond = ", ".join(
+        f"{k} {100 * _mean([x.beyond.get(k, 0.0) for x in shares]):.1f} %" for k in reasons
+    )
     c = sc.control
-    law = (f"threshold_l {c['threshold_l_dbm']:g} dBm (median gap {scenario_fit(sc).distance_at(c['threshold_l_dbm']):.1f} m)"
-           f", w1 {c['w1']:g}, w2 {c['w2']:g}, sonar release at {c['leader_gap_max_m']:g} m" if "w1" in c else "the scenario's thresholds, w1 10, w2 150")
+    law = (
+        f"threshold_l {c['threshold_l_dbm']:g} dBm (median gap {scenario_fit(sc).distance_at(c['threshold_l_dbm']):.1f} m)"
+        f", w1 {c['w1']:g}, w2 {c['w2']:g}, sonar release at {c['leader_gap_max_m']:g} m"
+        if "w1" in c
+        else "the scenario's thresholds, w1 10, w2 150"
+    )
     where = f"{scenario} ({policy.name})"
     return [
-        Result(NAME, f"{where}: share of time within 5 m of its leader (mean over relays and seeds), {label}",
-               100.0 * mean, "%", f">= {100 * target:g} %", mean >= target,
-               f"{seeds} seeds x {sc.relays} relays; worst relay-run {100 * worst:.1f} %; "
-               f"beyond 5 m: {beyond or 'never'}; {law}"),
-        Result(NAME, f"{where}: the same while free to follow (not held by rear_weak), {label}",
-               100.0 * free, "%", "", None, f"held on rear_weak {100 * held:.1f} % of the time"),
+        Result(
+            NAME,
+            f"{where}: share of time within 5 m of its leader (mean over relays and seeds), {label}",
+            100.0 * mean,
+            "%",
+            f">= {100 * target:g} %",
+            mean >= target,
+            f"{seeds} seeds x {sc.relays} relays; worst relay-run {100 * worst:.1f} %; "
+            f"beyond 5 m: {beyond or 'never'}; {law}",
+        ),
+        Result(
+            NAME,
+            f"{where}: the same while free to follow (not held by rear_weak), {label}",
+            100.0 * free,
+            "%",
+            "",
+            None,
+            f"held on rear_weak {100 * held:.1f} % of the time",
+        ),
     ]
 
 
-def sim_rows(configs: Sequence[tuple[str, str]], *, quick: bool, seeds: int,
-             scenarios: Sequence[str] | None = None,
-             progress: Callable[[str], None] = lambda s: None) -> list[Result]:
+def sim_rows(
+    configs: Sequence[tuple[str, str]],
+    *,
+    quick: bool,
+    seeds: int,
+    scenarios: Sequence[str] | None = None,
+    progress: Callable[[str], None] = lambda s: None,
+) -> list[Result]:
     """Item 4: every scenario x policy x estimator, then the corridor with one relay more
     and with the rear link not required.
 
@@ -239,7 +301,10 @@ def sim_rows(configs: Sequence[tuple[str, str]], *, quick: bool, seeds: int,
     for scenario, target in SCENARIOS:
         if scenarios is not None and scenario not in scenarios:
             continue
-        for policy in (*POLICIES, *((CORRIDOR_PLUS_ONE, CORRIDOR_REAR_FREE) if scenario == "corridor" else ())):
+        for policy in (
+            *POLICIES,
+            *((CORRIDOR_PLUS_ONE, CORRIDOR_REAR_FREE) if scenario == "corridor" else ()),
+        ):
             for cfg in pair:
                 progress(f"   item 4: {scenario}, {policy.name}, {cfg[0]}/{cfg[1]}")
                 out += rows(scenario, target, policy, cfg, seeds, seconds)

@@ -31,7 +31,9 @@ async def _latency_rounds(rounds: int, cycles: int) -> list[tuple[bool, dict[str
     out = []
     for _k in range(rounds):
         for viewer in (False, True):
-            data = await measure(cycles=cycles, load_rps=0.0, foxglove_port=free_port(), viewer=viewer)
+            data = await measure(
+                cycles=cycles, load_rps=0.0, foxglove_port=free_port(), viewer=viewer
+            )
             out.append((viewer, {**data["alone"], "viewer": data["viewer"]}))
     return out
 
@@ -43,27 +45,69 @@ def _latency_rows(rounds: list[tuple[bool, dict[str, Any]]]) -> list[Result]:
         first = [x for f in figs for x in f["first_ms"]]
         inside = [f["in_relayd"] for f in figs]
         count = sum(i["count"] for i in inside)
-        within = sum((i["within_target"] or 0.0) * i["count"] for i in inside) / count if count else None
+        within = (
+            sum((i["within_target"] or 0.0) * i["count"] for i in inside) / count if count else None
+        )
         label = "one Foxglove client" if viewer else "no client"
-        rows.append(Result(NAME, f"in relayd: SIP -> wheel command p99, {label}",
-                           max(i["p99_le_ms"] or 0.0 for i in inside), "ms (<= bucket)", "", None,
-                           f"{count} commands over {len(figs)} round(s), "
-                           + (f"{within * 100:.2f} % within 2 ms; per round p99 <= "
-                              + ", ".join(f"{i['p99_le_ms']:g}" for i in inside) + " ms"
-                              if within is not None else "no samples")))
-        rows.append(Result(NAME, f"SIP -> first wheel cmd p99 end to end, {label}", percentile(first, 99), "ms",
-                           "", None, f"p50 {percentile(first, 50):.2f} ms, {len(first)} cycles; per round p50 "
-                           + ", ".join(f"{percentile(f['first_ms'], 50):.2f}" for f in figs) + " ms"))
+        rows.append(
+            Result(
+                NAME,
+                f"in relayd: SIP -> wheel command p99, {label}",
+                max(i["p99_le_ms"] or 0.0 for i in inside),
+                "ms (<= bucket)",
+                "",
+                None,
+                f"{count} commands over {len(figs)} round(s), "
+                + (
+                    f"{within * 100:.2f} % within 2 ms; per round p99 <= "
+                    + ", ".join(f"{i['p99_le_ms']:g}" for i in inside)
+                    + " ms"
+                    if within is not None
+                    else "no samples"
+                ),
+            )
+        )
+        rows.append(
+            Result(
+                NAME,
+                f"SIP -> first wheel cmd p99 end to end, {label}",
+                percentile(first, 99),
+                "ms",
+                "",
+                None,
+                f"p50 {percentile(first, 50):.2f} ms, {len(first)} cycles; per round p50 "
+                + ", ".join(f"{percentile(f['first_ms'], 50):.2f}" for f in figs)
+                + " ms",
+            )
+        )
         cpu = [f["cpu_pct"] for f in figs]
-        rows.append(Result(NAME, f"relayd CPU (its whole process), {label}", sum(cpu) / len(cpu), "% of a core",
-                           "", None, "per round " + ", ".join(f"{c:.1f}" for c in cpu) + " %"))
+        rows.append(
+            Result(
+                NAME,
+                f"relayd CPU (its whole process), {label}",
+                sum(cpu) / len(cpu),
+                "% of a core",
+                "",
+                None,
+                "per round " + ", ".join(f"{c:.1f}" for c in cpu) + " %",
+            )
+        )
     views = [f["viewer"] for v, f in rounds if v and f.get("viewer")]
     if views:
         rate = sum(v["messages"] for v in views) / max(1e-9, sum(v["seconds"] for v in views))
         kbps = sum(v["bytes"] for v in views) / max(1e-9, sum(v["seconds"] for v in views)) / 1e3
-        rows.append(Result(NAME, "what the client received", rate, "messages/s", "", None,
-                           f"{kbps:.0f} kB/s on {views[0]['channels']} channels; worst lag "
-                           f"{max(v['lag_max_ms'] for v in views):.0f} ms (log time to arrival)"))
+        rows.append(
+            Result(
+                NAME,
+                "what the client received",
+                rate,
+                "messages/s",
+                "",
+                None,
+                f"{kbps:.0f} kB/s on {views[0]['channels']} channels; worst lag "
+                f"{max(v['lag_max_ms'] for v in views):.0f} ms (log time to arrival)",
+            )
+        )
     return rows
 
 
@@ -87,8 +131,9 @@ async def _loop_cost(events: int, with_client: bool) -> tuple[float, float, int]
 
     samples: list[float] = []
     if True:
-        settings = parse_settings({"control": {"rear_link": "ignore"},
-                                   "foxglove": {"enabled": True, "port": 0}})
+        settings = parse_settings(
+            {"control": {"rear_link": "ignore"}, "foxglove": {"enabled": True, "port": 0}}
+        )
         bus: Bus[Event, Action] = Bus()
         brain = make_brain(settings)
         bus.connect(brain.handle, lambda _e, _a: None)
@@ -110,11 +155,18 @@ async def _loop_cost(events: int, with_client: bool) -> tuple[float, float, int]
         reader = None
         try:
             if with_client:
-                ws = await session.ws_connect(f"ws://127.0.0.1:{live.port}/", protocols=[SUBPROTOCOL],
-                                              max_msg_size=0)
+                ws = await session.ws_connect(
+                    f"ws://127.0.0.1:{live.port}/", protocols=[SUBPROTOCOL], max_msg_size=0
+                )
                 ids = list(live.channel_ids().values())
-                await ws.send_str(json.dumps({"op": "subscribe", "subscriptions": [
-                    {"id": cid, "channelId": cid} for cid in ids]}))
+                await ws.send_str(
+                    json.dumps(
+                        {
+                            "op": "subscribe",
+                            "subscriptions": [{"id": cid, "channelId": cid} for cid in ids],
+                        }
+                    )
+                )
                 while not all(ch.has_sinks() for ch in live._by_topic.values()):
                     await asyncio.sleep(0.01)
 
@@ -129,9 +181,21 @@ async def _loop_cost(events: int, with_client: bool) -> tuple[float, float, int]
                 clock.t += 0.05
                 k += 1
                 if k % 2 == 0:
-                    s = Sip(t=clock.t, x_mm=float(k), y_mm=0.0, theta_deg=0.0, left_mm_s=200.0,
-                            right_mm_s=200.0, battery_v=12.8, motors_enabled=True, estop=False,
-                            stall_left=False, stall_right=False, moving=True, sonar=((k % 16, 2000),))
+                    s = Sip(
+                        t=clock.t,
+                        x_mm=float(k),
+                        y_mm=0.0,
+                        theta_deg=0.0,
+                        left_mm_s=200.0,
+                        right_mm_s=200.0,
+                        battery_v=12.8,
+                        motors_enabled=True,
+                        estop=False,
+                        stall_left=False,
+                        stall_right=False,
+                        moving=True,
+                        sonar=((k % 16, 2000),),
+                    )
                     bus.publish(SipEvent(clock.t, s, (2000,) * 16))
                     bus.publish(Tick(clock.t))
                 bus.publish(RssiEvent(clock.t, RssiSample(clock.t, -55.0, True)))
@@ -154,14 +218,24 @@ def run(quick: bool = False) -> BenchOutput:
     for with_client in (False, True):
         med, p99, sent = asyncio.run(_loop_cost(n, with_client))
         label = "one client subscribed to every channel" if with_client else "no client"
-        out.results.append(Result(NAME, f"event-loop time the live server takes per event, {label}, median",
-                                  med, "us", "", None, f"p99 {p99:.0f} us; {sent} messages sent for {n} events "
-                                  "(off the SIP path: after publish() returns)"))
+        out.results.append(
+            Result(
+                NAME,
+                f"event-loop time the live server takes per event, {label}, median",
+                med,
+                "us",
+                "",
+                None,
+                f"p99 {p99:.0f} us; {sent} messages sent for {n} events "
+                "(off the SIP path: after publish() returns)",
+            )
+        )
     rounds = asyncio.run(_latency_rounds(1 if quick else 4, 300 if quick else 800))
     out.results += _latency_rows(rounds)
     out.details.append(
         "Latency rounds alternate no client and one client (800 cycles each, a SIP every 25 ms, no /status "
         "load), the live server on in both, so both see the same machine; the share of commands within 2 ms "
         "is pooled over the rounds. The client is bench/viewer.py in its own process, subscribed to every "
-        "channel.")
+        "channel."
+    )
     return out

@@ -98,7 +98,9 @@ class CycleProbe:
     measuring: bool = False
     sips: list[tuple[float, int]] = field(default_factory=list)  # (write time, expected VEL)
     first: dict[int, float] = field(default_factory=dict)  # SIP index -> VEL arrival
-    pair: dict[int, float] = field(default_factory=dict)  # SIP index -> the following RVEL's arrival
+    pair: dict[int, float] = field(
+        default_factory=dict
+    )  # SIP index -> the following RVEL's arrival
     unmatched: int = 0
     _last_vel_sip: int | None = None
 
@@ -158,8 +160,11 @@ class CycleProbe:
             "first_ms": first,
             "pair_ms": pair,
             # Per cycle: the RVEL after its VEL (the driver's command spacing, as received).
-            "spacing_ms": [(self.pair[i] - self.first[i]) * 1000.0 for i in range(n)
-                           if i in self.pair and i in self.first],
+            "spacing_ms": [
+                (self.pair[i] - self.first[i]) * 1000.0
+                for i in range(n)
+                if i in self.pair and i in self.first
+            ],
         }
 
 
@@ -171,7 +176,7 @@ async def latency_buckets(url: str) -> dict[float, float]:
     prefix = 'relayd_control_latency_seconds_bucket{le="'
     for line in text.splitlines():
         if line.startswith(prefix):
-            le, _, value = line[len(prefix):].partition('"} ')
+            le, _, value = line[len(prefix) :].partition('"} ')
             buckets[float(le)] = float(value)
     return buckets
 
@@ -187,12 +192,17 @@ def in_relayd(before: dict[float, float], after: dict[float, float]) -> dict[str
     def bound(q: float) -> float:
         return next(le for le, n in delta.items() if n >= q * total) * 1000.0
 
-    return {"count": int(total), "within_target": delta.get(target_le, 0.0) / total,
-            "p99_le_ms": bound(0.99), "p50_le_ms": bound(0.50)}
+    return {
+        "count": int(total),
+        "within_target": delta.get(target_le, 0.0) / total,
+        "p99_le_ms": bound(0.99),
+        "p50_le_ms": bound(0.50),
+    }
 
 
-async def _measure(probe: CycleProbe, cycles: int, url: str, warmup: int = 10,
-                   timeout_s: float = 600.0) -> dict[str, Any]:
+async def _measure(
+    probe: CycleProbe, cycles: int, url: str, warmup: int = 10, timeout_s: float = 600.0
+) -> dict[str, Any]:
     probe.reset()
     probe.measuring = True
     async with asyncio.timeout(timeout_s):
@@ -225,11 +235,18 @@ def scheduling_prefix(kind: str) -> tuple[str, ...] | None:
     return prefix
 
 
-async def measure(*, cycles: int = 2000, sip_period_s: float = 0.025, load_rps: float = 1000.0,
-                  work: Path | None = None, scan: dict[str, Any] | None = None,
-                  command_prefix: Sequence[str] = (),
-                  record: dict[str, Any] | None = None, foxglove_port: int | None = None,
-                  viewer: bool = False) -> dict[str, Any]:
+async def measure(
+    *,
+    cycles: int = 2000,
+    sip_period_s: float = 0.025,
+    load_rps: float = 1000.0,
+    work: Path | None = None,
+    scan: dict[str, Any] | None = None,
+    command_prefix: Sequence[str] = (),
+    record: dict[str, Any] | None = None,
+    foxglove_port: int | None = None,
+    viewer: bool = False,
+) -> dict[str, Any]:
     """Both runs (alone, then under /status load); raw latencies in ms and the load's report.
 
     `foxglove_port`: the live Foxglove server on; `viewer`: one Foxglove client
@@ -247,10 +264,17 @@ async def measure(*, cycles: int = 2000, sip_period_s: float = 0.025, load_rps: 
             extra: dict[str, Any] = {"record": record} if record is not None else {}
             if foxglove_port is not None:
                 extra["foxglove"] = {"enabled": True, "port": foxglove_port}
-            async with RelaydProcess(rig, control={"w1": 0.0, "w2": -300.0, "kd": 0.0, "escape": False},
-                                     scan=scan or {}, log={"level": "warning"},
-                                     command_prefix=command_prefix, **extra) as relayd:
-                await relayd.wait_for(lambda d: d.get("state") == "avoiding", 60.0, "state avoiding")
+            async with RelaydProcess(
+                rig,
+                control={"w1": 0.0, "w2": -300.0, "kd": 0.0, "escape": False},
+                scan=scan or {},
+                log={"level": "warning"},
+                command_prefix=command_prefix,
+                **extra,
+            ) as relayd:
+                await relayd.wait_for(
+                    lambda d: d.get("state") == "avoiding", 60.0, "state avoiding"
+                )
                 probe = CycleProbe(rig.robot, sonar)
                 probe.install()
                 view = None
@@ -261,11 +285,15 @@ async def measure(*, cycles: int = 2000, sip_period_s: float = 0.025, load_rps: 
                 wall0, cpu0 = time.perf_counter(), proc_cpu_s(relayd.pid)
                 alone = await _measure(probe, cycles, relayd.url)
                 # relayd's own CPU share over the run (its whole process: the SDK's threads too).
-                alone["cpu_pct"] = 100.0 * (proc_cpu_s(relayd.pid) - cpu0) / (time.perf_counter() - wall0)
+                alone["cpu_pct"] = (
+                    100.0 * (proc_cpu_s(relayd.pid) - cpu0) / (time.perf_counter() - wall0)
+                )
                 loaded: dict[str, Any] | None = None
                 load_report: dict[str, Any] | None = None
                 if load_rps > 0:
-                    load = await LoadProcess(relayd.url + "/status", rps=load_rps, concurrency=8).start()
+                    load = await LoadProcess(
+                        relayd.url + "/status", rps=load_rps, concurrency=8
+                    ).start()
                     try:
                         await asyncio.sleep(0.5)  # let the load settle
                         loaded = await _measure(probe, cycles, relayd.url)
@@ -275,31 +303,61 @@ async def measure(*, cycles: int = 2000, sip_period_s: float = 0.025, load_rps: 
                 final = await relayd.wait_for(lambda d: True, 10.0, "status")
         finally:
             await rig.stop()
-    return {"alone": alone, "loaded": loaded, "load": load_report, "final_state": final.get("state"),
-            "viewer": viewed,
-            "sip_period_s": sip_period_s, "pid_note": None}
+    return {
+        "alone": alone,
+        "loaded": loaded,
+        "load": load_report,
+        "final_state": final.get("state"),
+        "viewer": viewed,
+        "sip_period_s": sip_period_s,
+        "pid_note": None,
+    }
 
 
 def _rows(label: str, fig: dict[str, Any], judge: bool) -> list[Result]:
     first, pair = fig["first_ms"], fig["pair_ms"]
     p99 = percentile(first, 99)
-    note = (f"{fig['cycles']} cycles; {fig['superseded']} SIPs superseded by the next one, "
-            f"{fig['unmatched']} commands matching no SIP")
+    note = (
+        f"{fig['cycles']} cycles; {fig['superseded']} SIPs superseded by the next one, "
+        f"{fig['unmatched']} commands matching no SIP"
+    )
     inside = fig["in_relayd"]
     share = inside["within_target"]
     return [
-        Result(NAME, f"in relayd: SIP received -> wheel command written, p99, {label}", inside["p99_le_ms"],
-               "ms (<= bucket)", f">= {TARGET_SHARE * 100:g} % within {TARGET_P99_MS:g} ms",
-               (share >= TARGET_SHARE) if judge and share is not None else None,
-               f"relayd's own histogram; {inside['count']} commands, "
-               + (f"{share * 100:.2f} % within {TARGET_P99_MS:g} ms; p50 <= {inside['p50_le_ms']:g} ms"
-                  if share is not None else "no samples")),
+        Result(
+            NAME,
+            f"in relayd: SIP received -> wheel command written, p99, {label}",
+            inside["p99_le_ms"],
+            "ms (<= bucket)",
+            f">= {TARGET_SHARE * 100:g} % within {TARGET_P99_MS:g} ms",
+            (share >= TARGET_SHARE) if judge and share is not None else None,
+            f"relayd's own histogram; {inside['count']} commands, "
+            + (
+                f"{share * 100:.2f} % within {TARGET_P99_MS:g} ms; p50 <= {inside['p50_le_ms']:g} ms"
+                if share is not None
+                else "no samples"
+            ),
+        ),
         Result(NAME, f"SIP -> first wheel cmd p50, {label}", percentile(first, 50), "ms"),
-        Result(NAME, f"SIP -> first wheel cmd p99, {label}", p99, "ms", "",
-               None, "end to end across both ptys and the fake's process; " + note),
+        Result(
+            NAME,
+            f"SIP -> first wheel cmd p99, {label}",
+            p99,
+            "ms",
+            "",
+            None,
+            "end to end across both ptys and the fake's process; " + note,
+        ),
         Result(NAME, f"SIP -> first wheel cmd max, {label}", max(first) if first else None, "ms"),
-        Result(NAME, f"SIP -> VEL+RVEL pair p99, {label}", percentile(pair, 99), "ms", "",
-               None, "includes the 5 ms command spacing the AROS manual asks for"),
+        Result(
+            NAME,
+            f"SIP -> VEL+RVEL pair p99, {label}",
+            percentile(pair, 99),
+            "ms",
+            "",
+            None,
+            "includes the 5 ms command spacing the AROS manual asks for",
+        ),
     ]
 
 
@@ -321,9 +379,19 @@ def run(quick: bool = False, *, cycles: int | None = None, rt: bool = True) -> B
         if data["loaded"] is not None:
             out.results += _rows("/status at ~1000 req/s" + suffix, data["loaded"], judge=True)
             load = data["load"] or {}
-            out.results.append(Result(NAME, "/status load achieved" + suffix, load.get("rps"), "req/s", "~1000",
-                                      None, f"p99 {load.get('p99_ms')} ms, {load.get('errors')} errors"))
+            out.results.append(
+                Result(
+                    NAME,
+                    "/status load achieved" + suffix,
+                    load.get("rps"),
+                    "req/s",
+                    "~1000",
+                    None,
+                    f"p99 {load.get('p99_ms')} ms, {load.get('errors')} errors",
+                )
+            )
     out.details.append(
         f"SIP period {data['sip_period_s'] * 1000:g} ms (real clock, speed 1); daemon `relayd run` in its "
-        f"own process on a FakeRig in the benchmark process; state at the end: {data['final_state']}.")
+        f"own process on a FakeRig in the benchmark process; state at the end: {data['final_state']}."
+    )
     return out

@@ -29,7 +29,9 @@ REPO = Path(__file__).resolve().parent.parent
 
 def _child_env() -> dict[str, str]:
     env = dict(os.environ)
-    env["PYTHONPATH"] = str(REPO) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    env["PYTHONPATH"] = str(REPO) + (
+        os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else ""
+    )
     env.pop("NOTIFY_SOCKET", None)  # never talk to a real systemd from a benchmark
     return env
 
@@ -37,8 +39,14 @@ def _child_env() -> dict[str, str]:
 class RelaydProcess:
     """`python -m relayd run -c <rig config>`; `async with` starts it and waits for /status."""
 
-    def __init__(self, rig: FakeRig, *, start_timeout_s: float = 30.0,
-                 command_prefix: Sequence[str] = (), **config: Any) -> None:
+    def __init__(
+        self,
+        rig: FakeRig,
+        *,
+        start_timeout_s: float = 30.0,
+        command_prefix: Sequence[str] = (),
+        **config: Any,
+    ) -> None:
         self.rig = rig
         #: e.g. ("chrt", "-f", "10"): how the daemon is started (scheduling comparisons).
         self.command_prefix = tuple(command_prefix)
@@ -77,26 +85,39 @@ class RelaydProcess:
                             return last
                     await asyncio.sleep(0.1)
         except TimeoutError:
-            raise RuntimeError(f"relayd never reached '{what}' within {timeout_s:g} s; last /status "
-                               f"{json.dumps(last)[:400] if last else None}; log {self.log_path}") from None
+            raise RuntimeError(
+                f"relayd never reached '{what}' within {timeout_s:g} s; last /status "
+                f"{json.dumps(last)[:400] if last else None}; log {self.log_path}"
+            ) from None
 
     def _check_alive(self) -> None:
         if self.proc is not None and self.proc.poll() is not None:
-            tail = self.log_path.read_text(errors="replace")[-2000:] if self.log_path.exists() else ""
+            tail = (
+                self.log_path.read_text(errors="replace")[-2000:] if self.log_path.exists() else ""
+            )
             raise RuntimeError(f"relayd exited with {self.proc.returncode}:\n{tail}")
 
     async def __aenter__(self) -> RelaydProcess:
-        cfg = self.rig.write_config(self.rig.work / f"{self.rig.name}-bench.toml", secrets_in_files=True,
-                                    api_port=self.port, **self.config_kw)
+        cfg = self.rig.write_config(
+            self.rig.work / f"{self.rig.name}-bench.toml",
+            secrets_in_files=True,
+            api_port=self.port,
+            **self.config_kw,
+        )
         self._log = self.log_path.open("wb")
-        self.proc = subprocess.Popen([*self.command_prefix, sys.executable, "-m", "relayd", "run", "-c", str(cfg)],
-                                     stdout=self._log, stderr=subprocess.STDOUT, env=_child_env(),
-                                     cwd=str(REPO))
+        self.proc = subprocess.Popen(
+            [*self.command_prefix, sys.executable, "-m", "relayd", "run", "-c", str(cfg)],
+            stdout=self._log,
+            stderr=subprocess.STDOUT,
+            env=_child_env(),
+            cwd=str(REPO),
+        )
         await self.wait_for(lambda doc: True, self.start_timeout_s, "answering /status")
         return self
 
-    async def __aexit__(self, et: type[BaseException] | None, e: BaseException | None,
-                        tb: TracebackType | None) -> None:
+    async def __aexit__(
+        self, et: type[BaseException] | None, e: BaseException | None, tb: TracebackType | None
+    ) -> None:
         await self.stop()
 
     async def stop(self) -> None:
@@ -116,22 +137,40 @@ class RelaydProcess:
 class LoadProcess:
     """bench/load.py hammering one URL from its own process; `stop()` returns its figures."""
 
-    def __init__(self, url: str, *, rps: float, seconds: float = 3600.0, concurrency: int = 8) -> None:
-        self.args = [sys.executable, "-m", "bench.load", url, "--rps", str(rps),
-                     "--seconds", str(seconds), "--concurrency", str(concurrency)]
+    def __init__(
+        self, url: str, *, rps: float, seconds: float = 3600.0, concurrency: int = 8
+    ) -> None:
+        self.args = [
+            sys.executable,
+            "-m",
+            "bench.load",
+            url,
+            "--rps",
+            str(rps),
+            "--seconds",
+            str(seconds),
+            "--concurrency",
+            str(concurrency),
+        ]
         self.proc: asyncio.subprocess.Process | None = None
 
     async def start(self) -> LoadProcess:
         self.proc = await asyncio.create_subprocess_exec(
-            *self.args, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
-            env=_child_env(), cwd=str(REPO))
+            *self.args,
+            stdout=asyncio.subprocess.PIPE,
+            stderr=asyncio.subprocess.PIPE,
+            env=_child_env(),
+            cwd=str(REPO),
+        )
         assert self.proc.stdout is not None
         # The load process says "ready" once its session is up and the first request answered.
         async with asyncio.timeout(30.0):
             line = await self.proc.stdout.readline()
         if line.strip() != b"ready":
             err = await self.proc.stderr.read() if self.proc.stderr else b""
-            raise RuntimeError(f"load process failed to start: {line!r} {err.decode(errors='replace')[-800:]}")
+            raise RuntimeError(
+                f"load process failed to start: {line!r} {err.decode(errors='replace')[-800:]}"
+            )
         return self
 
     async def stop(self) -> Mapping[str, Any]:
@@ -146,8 +185,9 @@ class LoadProcess:
         try:
             report: dict[str, Any] = json.loads(out.decode().strip().splitlines()[-1])
         except (IndexError, ValueError):
-            raise RuntimeError(f"load process gave no report: {out!r} {err.decode(errors='replace')[-800:]}") \
-                from None
+            raise RuntimeError(
+                f"load process gave no report: {out!r} {err.decode(errors='replace')[-800:]}"
+            ) from None
         return report
 
     async def wait(self) -> Mapping[str, Any]:

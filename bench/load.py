@@ -81,7 +81,9 @@ async def _until(stop: asyncio.Event, workers: list[asyncio.Task[None]], seconds
     """Wait until every worker is done (time is up) or a signal arrived; then end them."""
     all_done = asyncio.ensure_future(asyncio.wait(workers))
     stop_wait = asyncio.ensure_future(stop.wait())
-    await asyncio.wait([all_done, stop_wait], timeout=seconds + 10.0, return_when=asyncio.FIRST_COMPLETED)
+    await asyncio.wait(
+        [all_done, stop_wait], timeout=seconds + 10.0, return_when=asyncio.FIRST_COMPLETED
+    )
     stop.set()
     for w in workers:
         if not w.done():
@@ -95,7 +97,9 @@ async def _until(stop: asyncio.Event, workers: list[asyncio.Task[None]], seconds
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m bench.load", description=__doc__.splitlines()[0])
     p.add_argument("url")
-    p.add_argument("--rps", type=float, default=1000.0, help="requests per second overall; 0 = flat out")
+    p.add_argument(
+        "--rps", type=float, default=1000.0, help="requests per second overall; 0 = flat out"
+    )
     p.add_argument("--seconds", type=float, default=10.0)
     p.add_argument("--concurrency", type=int, default=8)
     args = p.parse_args(argv)

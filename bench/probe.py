@@ -40,9 +40,21 @@ async def measure_once(tree: Path, seconds: float, warmup_s: float = 1.0) -> flo
     path = fake.serve_pty()
     env = {**os.environ, "PYTHONPATH": str(tree)}
     proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-c", "import sys; from relayd.cli import main; sys.exit(main())",
-        "probe", "robot", "--port", path, "--json", "--seconds", str(seconds + warmup_s + 30),
-        cwd=str(tree), env=env, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+        sys.executable,
+        "-c",
+        "import sys; from relayd.cli import main; sys.exit(main())",
+        "probe",
+        "robot",
+        "--port",
+        path,
+        "--json",
+        "--seconds",
+        str(seconds + warmup_s + 30),
+        cwd=str(tree),
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+    )
     lines = 0
     connected = asyncio.Event()
 
@@ -62,7 +74,9 @@ async def measure_once(tree: Path, seconds: float, warmup_s: float = 1.0) -> flo
         await asyncio.sleep(seconds)
         cpu1, t1, n1 = proc_cpu_s(proc.pid), time.monotonic(), lines
         if n1 - n0 < 0.8 * 10 * seconds:
-            raise RuntimeError(f"the probe printed {n1 - n0} SIPs in {seconds:g} s, expected ~{10 * seconds:g}")
+            raise RuntimeError(
+                f"the probe printed {n1 - n0} SIPs in {seconds:g} s, expected ~{10 * seconds:g}"
+            )
         return 100.0 * (cpu1 - cpu0) / (t1 - t0)
     finally:
         with contextlib.suppress(ProcessLookupError):
@@ -78,8 +92,9 @@ async def measure_once(tree: Path, seconds: float, warmup_s: float = 1.0) -> flo
 
 def export_tree(rev: str, into: Path) -> Path:
     """The files of `rev` under `into` (no .git): an importable relayd/drivers of that time."""
-    archive = subprocess.run(["git", "-C", str(REPO), "archive", rev], check=True,
-                             capture_output=True).stdout
+    archive = subprocess.run(
+        ["git", "-C", str(REPO), "archive", rev], check=True, capture_output=True
+    ).stdout
     subprocess.run(["tar", "-x", "-C", str(into)], input=archive, check=True)
     return into
 
@@ -96,8 +111,13 @@ async def measure(seconds: float, rounds: int, baseline: str | None) -> dict[str
     return got
 
 
-def run(quick: bool = False, *, seconds: float | None = None, rounds: int | None = None,
-        baseline: str | None = BASELINE_REV) -> BenchOutput:
+def run(
+    quick: bool = False,
+    *,
+    seconds: float | None = None,
+    rounds: int | None = None,
+    baseline: str | None = BASELINE_REV,
+) -> BenchOutput:
     secs = seconds if seconds is not None else (10.0 if quick else 30.0)
     n = rounds if rounds is not None else (1 if quick else 3)
     got = asyncio.run(measure(secs, n, baseline))
@@ -105,15 +125,22 @@ def run(quick: bool = False, *, seconds: float | None = None, rounds: int | None
     for name, values in got.items():
         median = statistics.median(values)
         judged = name == "this tree"
-        out.results.append(Result(
-            NAME, f"`relayd probe robot` CPU at 10 Hz SIPs ({name})", median, "%",
-            f"<= {TARGET_CPU_PCT:g} %" if judged else "",
-            (median <= TARGET_CPU_PCT) if judged else None,
-            f"median of {len(values)} x {secs:g} s: " + ", ".join(f"{v:.2f}" for v in values)))
+        out.results.append(
+            Result(
+                NAME,
+                f"`relayd probe robot` CPU at 10 Hz SIPs ({name})",
+                median,
+                "%",
+                f"<= {TARGET_CPU_PCT:g} %" if judged else "",
+                (median <= TARGET_CPU_PCT) if judged else None,
+                f"median of {len(values)} x {secs:g} s: " + ", ".join(f"{v:.2f}" for v in values),
+            )
+        )
     out.details.append(
         f"`relayd probe robot --json` on a pty to a FakeRobot at 10 Hz, {n} interleaved rounds "
         f"of {secs:g} s per tree; CPU is utime+stime of the probe process. Target: ARIA's C++ "
-        f"client, {TARGET_CPU_PCT:g} % of a core on the reference machine.")
+        f"client, {TARGET_CPU_PCT:g} % of a core on the reference machine."
+    )
     return out
 
 

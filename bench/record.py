@@ -36,7 +36,9 @@ async def _latency_rounds(rounds: int, cycles: int) -> list[tuple[bool, dict[str
     with tempfile.TemporaryDirectory(prefix="relayd-bench-rec-") as tmp:
         for k in range(rounds):
             for on in (False, True):
-                record = {"enabled": True, "path": str(Path(tmp) / f"round{k}.mcap")} if on else None
+                record = (
+                    {"enabled": True, "path": str(Path(tmp) / f"round{k}.mcap")} if on else None
+                )
                 data = await measure(cycles=cycles, load_rps=0.0, record=record)
                 out.append((on, data["alone"]))
     return out
@@ -79,7 +81,11 @@ def _sim_size(seconds: float | None) -> tuple[float, float, int]:
         runner = SimRunner(sc, speed=None, seconds=seconds, record_dir=Path(tmp))
         result = vtime.run(runner.run())
         files = list(Path(tmp).glob("*.mcap"))
-        return float(sum(f.stat().st_size for f in files)), float(result.summary["sim_seconds"]), len(files)
+        return (
+            float(sum(f.stat().st_size for f in files)),
+            float(result.summary["sim_seconds"]),
+            len(files),
+        )
 
 
 def _latency_rows(rounds: list[tuple[bool, dict[str, Any]]]) -> list[Result]:
@@ -89,16 +95,39 @@ def _latency_rows(rounds: list[tuple[bool, dict[str, Any]]]) -> list[Result]:
         first = [x for f in figs for x in f["first_ms"]]
         inside = [f["in_relayd"] for f in figs]
         count = sum(i["count"] for i in inside)
-        within = sum((i["within_target"] or 0.0) * i["count"] for i in inside) / count if count else None
+        within = (
+            sum((i["within_target"] or 0.0) * i["count"] for i in inside) / count if count else None
+        )
         label = "recording on" if on else "recording off"
-        rows.append(Result(NAME, f"in relayd: SIP -> wheel command p99, {label}",
-                           max(i["p99_le_ms"] or 0.0 for i in inside), "ms (<= bucket)", "", None,
-                           f"{count} commands over {len(figs)} round(s), "
-                           + (f"{within * 100:.2f} % within 2 ms; per round p99 <= "
-                              + ", ".join(f"{i['p99_le_ms']:g}" for i in inside) + " ms"
-                              if within is not None else "no samples")))
-        rows.append(Result(NAME, f"SIP -> first wheel cmd p99 end to end, {label}", percentile(first, 99), "ms",
-                           "", None, f"p50 {percentile(first, 50):.2f} ms, {len(first)} cycles"))
+        rows.append(
+            Result(
+                NAME,
+                f"in relayd: SIP -> wheel command p99, {label}",
+                max(i["p99_le_ms"] or 0.0 for i in inside),
+                "ms (<= bucket)",
+                "",
+                None,
+                f"{count} commands over {len(figs)} round(s), "
+                + (
+                    f"{within * 100:.2f} % within 2 ms; per round p99 <= "
+                    + ", ".join(f"{i['p99_le_ms']:g}" for i in inside)
+                    + " ms"
+                    if within is not None
+                    else "no samples"
+                ),
+            )
+        )
+        rows.append(
+            Result(
+                NAME,
+                f"SIP -> first wheel cmd p99 end to end, {label}",
+                percentile(first, 99),
+                "ms",
+                "",
+                None,
+                f"p50 {percentile(first, 50):.2f} ms, {len(first)} cycles",
+            )
+        )
     return rows
 
 
@@ -125,8 +154,12 @@ async def _loop_cost(events: int) -> tuple[float, float]:
 
     samples: list[float] = []
     with tempfile.TemporaryDirectory(prefix="relayd-bench-cost-") as tmp:
-        settings = parse_settings({"record": {"enabled": True, "path": str(Path(tmp) / "c.mcap")},
-                                   "control": {"rear_link": "ignore"}})
+        settings = parse_settings(
+            {
+                "record": {"enabled": True, "path": str(Path(tmp) / "c.mcap")},
+                "control": {"rear_link": "ignore"},
+            }
+        )
         bus: Bus[Event, Action] = Bus()
         brain = make_brain(settings)
         bus.connect(brain.handle, lambda _e, _a: None)
@@ -147,9 +180,21 @@ async def _loop_cost(events: int) -> tuple[float, float]:
             clock.t += 0.05
             k += 1
             if k % 2 == 0:
-                s = Sip(t=clock.t, x_mm=float(k), y_mm=0.0, theta_deg=0.0, left_mm_s=200.0, right_mm_s=200.0,
-                        battery_v=12.8, motors_enabled=True, estop=False, stall_left=False, stall_right=False,
-                        moving=True, sonar=((k % 16, 2000),))
+                s = Sip(
+                    t=clock.t,
+                    x_mm=float(k),
+                    y_mm=0.0,
+                    theta_deg=0.0,
+                    left_mm_s=200.0,
+                    right_mm_s=200.0,
+                    battery_v=12.8,
+                    motors_enabled=True,
+                    estop=False,
+                    stall_left=False,
+                    stall_right=False,
+                    moving=True,
+                    sonar=((k % 16, 2000),),
+                )
                 bus.publish(SipEvent(clock.t, s, (2000,) * 16))
                 bus.publish(Tick(clock.t))
             bus.publish(RssiEvent(clock.t, RssiSample(clock.t, -55.0, True)))
@@ -163,25 +208,51 @@ async def _loop_cost(events: int) -> tuple[float, float]:
 def run(quick: bool = False) -> BenchOutput:
     out = BenchOutput(NAME)
     med, p99 = asyncio.run(_loop_cost(2000 if quick else 20000))
-    out.results.append(Result(NAME, "event-loop time the recorder takes per event, median", med, "us", "", None,
-                              f"p99 {p99:.0f} us; encode the event and its actions, Foxglove views, batching "
-                              "(off the SIP path: after publish() returns)"))
+    out.results.append(
+        Result(
+            NAME,
+            "event-loop time the recorder takes per event, median",
+            med,
+            "us",
+            "",
+            None,
+            f"p99 {p99:.0f} us; encode the event and its actions, Foxglove views, batching "
+            "(off the SIP path: after publish() returns)",
+        )
+    )
     rounds = asyncio.run(_latency_rounds(1 if quick else 4, 300 if quick else 800))
     out.results += _latency_rows(rounds)
     rig_s = 20.0 if quick else 120.0
     size, span = asyncio.run(_rig_size(rig_s))
     mb_h = size / span * 3600.0 / 1e6
-    out.results.append(Result(NAME, "recording size per hour of robot time, one relay, default settings",
-                              mb_h, "MB/h", f"< {TARGET_MB_H:g} MB/h", mb_h < TARGET_MB_H,
-                              f"{size / 1e3:.0f} kB over {span:.0f} s on the FakeRig (real clock), lz4 chunks of 1 s"))
+    out.results.append(
+        Result(
+            NAME,
+            "recording size per hour of robot time, one relay, default settings",
+            mb_h,
+            "MB/h",
+            f"< {TARGET_MB_H:g} MB/h",
+            mb_h < TARGET_MB_H,
+            f"{size / 1e3:.0f} kB over {span:.0f} s on the FakeRig (real clock), lz4 chunks of 1 s",
+        )
+    )
     started = time.monotonic()
     sim_bytes, sim_s, relays = _sim_size(60.0 if quick else None)
     sim_mb_h = sim_bytes / max(1, relays) / sim_s * 3600.0 / 1e6
-    out.results.append(Result(NAME, "recording size per hour of robot time, simulated convoy, per relay",
-                              sim_mb_h, "MB/h", f"< {TARGET_MB_H:g} MB/h", sim_mb_h < TARGET_MB_H,
-                              f"{relays} relays, {sim_s:.0f} s simulated in {time.monotonic() - started:.0f} s wall"))
+    out.results.append(
+        Result(
+            NAME,
+            "recording size per hour of robot time, simulated convoy, per relay",
+            sim_mb_h,
+            "MB/h",
+            f"< {TARGET_MB_H:g} MB/h",
+            sim_mb_h < TARGET_MB_H,
+            f"{relays} relays, {sim_s:.0f} s simulated in {time.monotonic() - started:.0f} s wall",
+        )
+    )
     out.details.append(
         "Latency rounds alternate recording off and on (800 cycles each, a SIP every 25 ms, no /status "
         "load), so both see the same machine; the share of commands within 2 ms is pooled over the rounds. "
-        "Size rows: the finished file (summary included) over the clock time it covers.")
+        "Size rows: the finished file (summary included) over the clock time it covers."
+    )
     return out

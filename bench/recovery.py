@@ -44,7 +44,9 @@ HEALING_SCENARIOS = ("blind-corner", "door", "drift")
 CHECK_SCENARIOS = ("corridor", "convoy", "obstacle", "parking")
 
 
-def run_sim(scenario: str, seed: int, recovery: bool, scan: dict[str, Any] | None = None) -> dict[str, Any]:
+def run_sim(
+    scenario: str, seed: int, recovery: bool, scan: dict[str, Any] | None = None
+) -> dict[str, Any]:
     """One flat-out virtual-time run; its summary. `scan`: settings laid over the scenario's
     `[scan]` (e.g. the bearing estimator)."""
     from relayd import vtime
@@ -95,25 +97,35 @@ def aggregate(runs: Sequence[dict[str, Any]]) -> dict[str, Any]:
         key = str(e["outcome"] or "open")
         outcomes[key] = outcomes.get(key, 0) + 1
     return {
-        "runs": len(runs), "breaks": n_breaks, "healed": n_ok, "censored": n_censored,
+        "runs": len(runs),
+        "breaks": n_breaks,
+        "healed": n_ok,
+        "censored": n_censored,
         "rate": None if n_breaks == 0 else n_ok / n_breaks,
         "down_median_s": statistics.median(down) if down else None,
         "down_worst_s": max(down) if down else None,
         "collisions": sum(int(s["collisions"]) for s in runs),
         "goal": sum(1 for s in runs if s["goal_reached"]),
-        "episodes": len(eps), "outcomes": outcomes,
+        "episodes": len(eps),
+        "outcomes": outcomes,
         "episode_m_max": max((float(e["distance_m"]) for e in eps), default=0.0),
     }
 
 
 def _rate(a: dict[str, Any]) -> str:
-    return "no breaks" if a["rate"] is None else f"{100 * a['rate']:.0f} % ({a['healed']}/{a['breaks']})"
+    return (
+        "no breaks"
+        if a["rate"] is None
+        else f"{100 * a['rate']:.0f} % ({a['healed']}/{a['breaks']})"
+    )
 
 
 def table(rows: dict[str, dict[str, dict[str, Any]]]) -> str:
-    head = ("| scenario | recovery | runs | breaks (censored) | healed <= 60 s | downtime median | downtime worst "
-            "| goal reached | collisions | episodes (outcomes) | longest episode |\n"
-            "|---|---|---|---|---|---|---|---|---|---|---|")
+    head = (
+        "| scenario | recovery | runs | breaks (censored) | healed <= 60 s | downtime median | downtime worst "
+        "| goal reached | collisions | episodes (outcomes) | longest episode |\n"
+        "|---|---|---|---|---|---|---|---|---|---|---|"
+    )
     lines = [head]
     for sc, by in rows.items():
         for mode in ("off", "on"):
@@ -124,13 +136,19 @@ def table(rows: dict[str, dict[str, dict[str, Any]]]) -> str:
             lines.append(
                 f"| {sc} | {mode} | {a['runs']} | {a['breaks']} ({a['censored']}) | {_rate(a)} | {a['down_median_s']:.1f} s "
                 f"| {a['down_worst_s']:.1f} s | {a['goal']}/{a['runs']} | {a['collisions']} "
-                f"| {a['episodes']} ({outs}) | {a['episode_m_max']:.1f} m |")
+                f"| {a['episodes']} ({outs}) | {a['episode_m_max']:.1f} m |"
+            )
     return "\n".join(lines)
 
 
-def measure(scenarios: Sequence[str], seeds: int, *, log: Any = None,
-            keep: dict[str, Any] | None = None,
-            scan: dict[str, Any] | None = None) -> dict[str, dict[str, dict[str, Any]]]:
+def measure(
+    scenarios: Sequence[str],
+    seeds: int,
+    *,
+    log: Any = None,
+    keep: dict[str, Any] | None = None,
+    scan: dict[str, Any] | None = None,
+) -> dict[str, dict[str, dict[str, Any]]]:
     """Run every scenario and seed with recovery off and on; `keep` collects the summaries."""
     rows: dict[str, dict[str, dict[str, Any]]] = {}
     for sc in scenarios:
@@ -144,10 +162,14 @@ def measure(scenarios: Sequence[str], seeds: int, *, log: Any = None,
                     keep.setdefault(sc, {}).setdefault(mode, []).append(s)
                 if log is not None:
                     b, ok, cen = healed(s)
-                    print(f"{sc} seed {seed} recovery {mode}: breaks {b} healed {ok} censored {cen} "
-                          f"down {s['downtime_s']} s "
-                          f"collisions {s['collisions']} goal {s['goal_reached']} "
-                          f"({time.perf_counter() - t0:.0f} s wall)", file=log, flush=True)
+                    print(
+                        f"{sc} seed {seed} recovery {mode}: breaks {b} healed {ok} censored {cen} "
+                        f"down {s['downtime_s']} s "
+                        f"collisions {s['collisions']} goal {s['goal_reached']} "
+                        f"({time.perf_counter() - t0:.0f} s wall)",
+                        file=log,
+                        flush=True,
+                    )
         rows[sc] = {m: aggregate(r) for m, r in runs.items()}
     return rows
 
@@ -158,20 +180,58 @@ def results(rows: dict[str, dict[str, dict[str, Any]]], healing: Sequence[str]) 
         on, off = by["on"], by["off"]
         if sc in healing:
             rate = on["rate"]
-            out.append(Result(NAME, f"{sc}: breaks healed within 60 s, recovery on", None if rate is None
-                              else 100 * rate, "%", ">= 95 %", None if rate is None else rate >= TARGET_RATE,
-                              f"off: {_rate(off)}; on: {_rate(on)}"))
-            out.append(Result(NAME, f"{sc}: downtime median / worst, recovery on", on["down_median_s"], "s", "", None,
-                              f"worst {on['down_worst_s']:.1f} s; off: median {off['down_median_s']:.1f} s, "
-                              f"worst {off['down_worst_s']:.1f} s"))
+            out.append(
+                Result(
+                    NAME,
+                    f"{sc}: breaks healed within 60 s, recovery on",
+                    None if rate is None else 100 * rate,
+                    "%",
+                    ">= 95 %",
+                    None if rate is None else rate >= TARGET_RATE,
+                    f"off: {_rate(off)}; on: {_rate(on)}",
+                )
+            )
+            out.append(
+                Result(
+                    NAME,
+                    f"{sc}: downtime median / worst, recovery on",
+                    on["down_median_s"],
+                    "s",
+                    "",
+                    None,
+                    f"worst {on['down_worst_s']:.1f} s; off: median {off['down_median_s']:.1f} s, "
+                    f"worst {off['down_worst_s']:.1f} s",
+                )
+            )
         else:
-            same = (on["goal"] >= off["goal"] and on["collisions"] <= off["collisions"]
-                    and (on["down_median_s"] or 0.0) <= (off["down_median_s"] or 0.0) + 1.0)
-            out.append(Result(NAME, f"{sc}: unchanged with recovery on", None, "", "as before", same,
-                              f"goal {on['goal']}/{on['runs']} vs {off['goal']}/{off['runs']}, collisions "
-                              f"{on['collisions']} vs {off['collisions']}, downtime median "
-                              f"{on['down_median_s']:.1f} vs {off['down_median_s']:.1f} s"))
-        out.append(Result(NAME, f"{sc}: collisions, recovery on", on["collisions"], "", "0", on["collisions"] == 0))
+            same = (
+                on["goal"] >= off["goal"]
+                and on["collisions"] <= off["collisions"]
+                and (on["down_median_s"] or 0.0) <= (off["down_median_s"] or 0.0) + 1.0
+            )
+            out.append(
+                Result(
+                    NAME,
+                    f"{sc}: unchanged with recovery on",
+                    None,
+                    "",
+                    "as before",
+                    same,
+                    f"goal {on['goal']}/{on['runs']} vs {off['goal']}/{off['runs']}, collisions "
+                    f"{on['collisions']} vs {off['collisions']}, downtime median "
+                    f"{on['down_median_s']:.1f} vs {off['down_median_s']:.1f} s",
+                )
+            )
+        out.append(
+            Result(
+                NAME,
+                f"{sc}: collisions, recovery on",
+                on["collisions"],
+                "",
+                "0",
+                on["collisions"] == 0,
+            )
+        )
     return out
 
 
@@ -197,18 +257,36 @@ def _quiet_daemons() -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     _quiet_daemons()
-    p = argparse.ArgumentParser(prog="python bench/recovery.py", description=__doc__.splitlines()[0])
-    p.add_argument("--seeds", type=int, default=20, help="seeds per self-healing scenario (default 20)")
-    p.add_argument("--check-seeds", type=int, default=3, help="seeds per paper scenario (default 3)")
+    p = argparse.ArgumentParser(
+        prog="python bench/recovery.py", description=__doc__.splitlines()[0]
+    )
+    p.add_argument(
+        "--seeds", type=int, default=20, help="seeds per self-healing scenario (default 20)"
+    )
+    p.add_argument(
+        "--check-seeds", type=int, default=3, help="seeds per paper scenario (default 3)"
+    )
     p.add_argument("--scenarios", default=",".join(HEALING_SCENARIOS))
-    p.add_argument("--checks", default=",".join(CHECK_SCENARIOS), help="paper scenarios ('' for none)")
+    p.add_argument(
+        "--checks", default=",".join(CHECK_SCENARIOS), help="paper scenarios ('' for none)"
+    )
     p.add_argument("--results", type=Path, default=None, help="also write the table to this file")
-    p.add_argument("--summaries", type=Path, default=None, help="write every run's summary.json here (JSON)")
-    p.add_argument("--estimator", choices=("wca", "lobe"), default=None,
-                   help="scan.estimator for every relay (default: the scenario's, else relayd's default)")
-    p.add_argument("--window", choices=("full", "adaptive"), default=None, help="scan.window, likewise")
+    p.add_argument(
+        "--summaries", type=Path, default=None, help="write every run's summary.json here (JSON)"
+    )
+    p.add_argument(
+        "--estimator",
+        choices=("wca", "lobe"),
+        default=None,
+        help="scan.estimator for every relay (default: the scenario's, else relayd's default)",
+    )
+    p.add_argument(
+        "--window", choices=("full", "adaptive"), default=None, help="scan.window, likewise"
+    )
     args = p.parse_args(argv)
-    scan = {k: v for k, v in (("estimator", args.estimator), ("window", args.window)) if v is not None}
+    scan = {
+        k: v for k, v in (("estimator", args.estimator), ("window", args.window)) if v is not None
+    }
     healing = [s for s in args.scenarios.split(",") if s]
     checks = [s for s in args.checks.split(",") if s]
     t0 = time.perf_counter()
@@ -220,10 +298,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.summaries is not None:
         args.summaries.write_text(json.dumps(keep) + "\n", encoding="utf-8")
     res = results(rows, healing)
-    text = [table(rows), "", "| benchmark | figure | value | target | result | notes |", "|---|---|---|---|---|---|"]
-    text += [f"| {r.bench} | {r.figure} | {r.value_text()} | {r.target} | {r.verdict()} | {r.note} |" for r in res]
-    text.append(f"\n{args.seeds} seeds per self-healing scenario, {args.check_seeds} per paper scenario, "
-                f"scan {scan or 'as configured'}, {time.perf_counter() - t0:.0f} s wall")
+    text = [
+        table(rows),
+        "",
+        "| benchmark | figure | value | target | result | notes |",
+        "|---|---|---|---|---|---|",
+    ]
+    text += [
+        f"| {r.bench} | {r.figure} | {r.value_text()} | {r.target} | {r.verdict()} | {r.note} |"
+        for r in res
+    ]
+    text.append(
+        f"\n{args.seeds} seeds per self-healing scenario, {args.check_seeds} per paper scenario, "
+        f"scan {scan or 'as configured'}, {time.perf_counter() - t0:.0f} s wall"
+    )
     doc = "\n".join(text)
     print(doc)
     if args.results is not None:

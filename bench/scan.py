@@ -44,14 +44,18 @@ TARGET_RATIO = 1.1
 CONVOY_SPACING_M = 1.6
 
 
-def physical_min_s(mode: str, width_deg: float, speed_deg_s: float, samples: int, sample_hz: float) -> float:
+def physical_min_s(
+    mode: str, width_deg: float, speed_deg_s: float, samples: int, sample_hz: float
+) -> float:
     slew = width_deg / speed_deg_s
     if mode == "continuous":
         return slew + 1.0 / sample_hz
     return slew + samples / sample_hz
 
 
-def grid_min_s(width_deg: float, speed_deg_s: float, samples: int, sample_hz: float, settle_s: float) -> float:
+def grid_min_s(
+    width_deg: float, speed_deg_s: float, samples: int, sample_hz: float, settle_s: float
+) -> float:
     """Step mode's real lower bound: each step's travel + settle, rounded up to the RSSI sample grid.
 
     Sweeps alternate direction, so the first step has no travel. The target's formula adds a
@@ -74,8 +78,15 @@ def theorem1(period_s: float, width_deg: float, d_m: float) -> tuple[float, floa
     return theta_dot * d_m / theta_max, theta_dot * d_m
 
 
-async def measure_mode(mode: str, *, scans: int, settle_s: float | None = None,
-                       samples: int = 25, width_deg: float = 180.0, work: Path | None = None) -> dict[str, Any]:
+async def measure_mode(
+    mode: str,
+    *,
+    scans: int,
+    settle_s: float | None = None,
+    samples: int = 25,
+    width_deg: float = 180.0,
+    work: Path | None = None,
+) -> dict[str, Any]:
     scan_cfg: dict[str, Any] = {"mode": mode, "samples": samples, "width_deg": width_deg}
     if settle_s is not None:
         scan_cfg["settle_s"] = settle_s
@@ -83,8 +94,9 @@ async def measure_mode(mode: str, *, scans: int, settle_s: float | None = None,
         rig = FakeRig(work or Path(tmp))
         await rig.start()
         try:
-            async with RelaydProcess(rig, scan=scan_cfg, control={"mode": "hold"},
-                                     log={"level": "warning"}) as relayd:
+            async with RelaydProcess(
+                rig, scan=scan_cfg, control={"mode": "hold"}, log={"level": "warning"}
+            ) as relayd:
                 times: list[float] = []
                 periods: list[float] = []
                 counts: list[int] = []
@@ -103,7 +115,12 @@ async def measure_mode(mode: str, *, scans: int, settle_s: float | None = None,
             await rig.stop()
     intervals = [b - a for a, b in itertools.pairwise(times[2:])]
     # Polling every 20 ms can miss no scan (a scan takes > 1 s), so consecutive = consecutive.
-    return {"mode": mode, "intervals": intervals, "scanner_periods": periods[2:], "samples": counts[2:]}
+    return {
+        "mode": mode,
+        "intervals": intervals,
+        "scanner_periods": periods[2:],
+        "samples": counts[2:],
+    }
 
 
 def run(quick: bool = False, *, scans: int | None = None, samples: int = 25) -> BenchOutput:
@@ -111,8 +128,11 @@ def run(quick: bool = False, *, scans: int | None = None, samples: int = 25) -> 
     out = BenchOutput(NAME)
     # Config defaults the minimum is computed from.
     width, speed, hz, default_settle = 180.0, 180.0, 20.0, 0.05
-    cases = [("step", None, "step, settle_s 0.05 (default)"), ("step", 0.0, "step, settle_s 0"),
-             ("continuous", None, "continuous")]
+    cases = [
+        ("step", None, "step, settle_s 0.05 (default)"),
+        ("step", 0.0, "step, settle_s 0"),
+        ("continuous", None, "continuous"),
+    ]
     for mode, settle, label in cases:
         data = asyncio.run(measure_mode(mode, scans=n, settle_s=settle, samples=samples))
         iv = data["intervals"]
@@ -120,21 +140,48 @@ def run(quick: bool = False, *, scans: int | None = None, samples: int = 25) -> 
         pmin = physical_min_s(mode, width, speed, samples, hz)
         ratio = period / pmin
         settle_used = default_settle if settle is None else settle
-        note = (f"{len(iv)} scans, period {period:.3f} s (min {min(iv):.3f}, max {max(iv):.3f}), "
+        note = (
+            (
+                f"{len(iv)} scans, period {period:.3f} s (min {min(iv):.3f}, max {max(iv):.3f}), "
                 f"physical min {pmin:.3f} s, {sum(data['samples']) / max(1, len(data['samples'])):.1f} "
-                f"samples/scan") if iv else "no scans"
+                f"samples/scan"
+            )
+            if iv
+            else "no scans"
+        )
         if mode == "step" and iv:
             grid = grid_min_s(width, speed, samples, hz, settle_used)
-            note += (f"; against the sample-grid minimum incl. settle ({grid:.3f} s) the ratio is "
-                     f"{period / grid:.3f}")
-        out.results.append(Result(NAME, f"scan period / physical min, {label}", ratio, "",
-                                  f"<= {TARGET_RATIO:g}", ratio <= TARGET_RATIO if iv else None, note))
+            note += (
+                f"; against the sample-grid minimum incl. settle ({grid:.3f} s) the ratio is "
+                f"{period / grid:.3f}"
+            )
+        out.results.append(
+            Result(
+                NAME,
+                f"scan period / physical min, {label}",
+                ratio,
+                "",
+                f"<= {TARGET_RATIO:g}",
+                ratio <= TARGET_RATIO if iv else None,
+                note,
+            )
+        )
         if mode == "continuous" or (mode == "step" and settle is None):
             v_rel, v_perp = theorem1(period, width, CONVOY_SPACING_M)
-            out.results.append(Result(
-                NAME, f"theorem 1 max V_relative at d={CONVOY_SPACING_M:g} m, {mode}", v_rel, "m/s", "", None,
-                f"= d/period; {v_rel / CONVOY_SPACING_M:.3f} m/s per metre of separation; "
-                f"V_perp <= {v_perp:.2f} m/s at V_rel = 0"))
-    out.details.append("Scan settings: width 180 deg, 25 samples, servo 180 deg/s, RSSI 20 Hz "
-                       "(config defaults); real clock.")
+            out.results.append(
+                Result(
+                    NAME,
+                    f"theorem 1 max V_relative at d={CONVOY_SPACING_M:g} m, {mode}",
+                    v_rel,
+                    "m/s",
+                    "",
+                    None,
+                    f"= d/period; {v_rel / CONVOY_SPACING_M:.3f} m/s per metre of separation; "
+                    f"V_perp <= {v_perp:.2f} m/s at V_rel = 0",
+                )
+            )
+    out.details.append(
+        "Scan settings: width 180 deg, 25 samples, servo 180 deg/s, RSSI 20 Hz "
+        "(config defaults); real clock."
+    )
     return out

@@ -37,8 +37,9 @@ async def _run(speed: float, seconds: float, seed: int) -> dict[str, Any]:
     return result.summary
 
 
-def measure(*, speed: float, seconds: float = SIM_SECONDS, seed: int = 1,
-            profile: bool = False) -> dict[str, Any]:
+def measure(
+    *, speed: float, seconds: float = SIM_SECONDS, seed: int = 1, profile: bool = False
+) -> dict[str, Any]:
     prof = cProfile.Profile() if profile else None
     cpu0, t0 = time.process_time(), time.perf_counter()
     if prof is not None:
@@ -61,17 +62,21 @@ def measure(*, speed: float, seconds: float = SIM_SECONDS, seed: int = 1,
         "goal_reached": summary.get("goal_reached"),
         "collisions": summary.get("collisions"),
         "max_gap_m": max((f["max_gap_m"] or 0.0) for f in followers) if followers else None,
-        "unapplied_s": max((f["unapplied_command_s"] or 0.0) for f in followers) if followers else None,
+        "unapplied_s": max((f["unapplied_command_s"] or 0.0) for f in followers)
+        if followers
+        else None,
         "link_broken_at_s": summary.get("link_broken_at_s"),
         "profile": top,
     }
 
 
 def _outcome(d: dict[str, Any]) -> str:
-    return (f"{d['sim_seconds']:.0f} s simulated; CPU {d['cpu_s'] / d['wall_s']:.2f} of a core; "
-            f"goal {'reached' if d['goal_reached'] else 'NOT reached'}, {d['collisions']} collisions, "
-            f"max gap {d['max_gap_m']} m, unapplied commands {d['unapplied_s']} s, "
-            f"link broken at {d['link_broken_at_s']}")
+    return (
+        f"{d['sim_seconds']:.0f} s simulated; CPU {d['cpu_s'] / d['wall_s']:.2f} of a core; "
+        f"goal {'reached' if d['goal_reached'] else 'NOT reached'}, {d['collisions']} collisions, "
+        f"max gap {d['max_gap_m']} m, unapplied commands {d['unapplied_s']} s, "
+        f"link broken at {d['link_broken_at_s']}"
+    )
 
 
 def faithful(d: dict[str, Any], ref: dict[str, Any] | None, full_length: bool) -> tuple[bool, str]:
@@ -83,14 +88,24 @@ def faithful(d: dict[str, Any], ref: dict[str, Any] | None, full_length: bool) -
         why.append("collisions")
     if (d["unapplied_s"] or 0.0) >= 1.0:
         why.append("commands not applied")
-    if ref is not None and ref is not d and ref["max_gap_m"] and d["max_gap_m"] is not None \
-            and abs(d["max_gap_m"] - ref["max_gap_m"]) > 0.15 * ref["max_gap_m"]:
+    if (
+        ref is not None
+        and ref is not d
+        and ref["max_gap_m"]
+        and d["max_gap_m"] is not None
+        and abs(d["max_gap_m"] - ref["max_gap_m"]) > 0.15 * ref["max_gap_m"]
+    ):
         why.append(f"max gap differs from speed {ref['speed']:g}'s by > 15 %")
     return not why, ", ".join(why)
 
 
-def run(quick: bool = False, *, speeds: tuple[float, ...] | None = None, seconds: float | None = None,
-        profile: bool = False) -> BenchOutput:
+def run(
+    quick: bool = False,
+    *,
+    speeds: tuple[float, ...] | None = None,
+    seconds: float | None = None,
+    profile: bool = False,
+) -> BenchOutput:
     secs = seconds if seconds is not None else (60.0 if quick else SIM_SECONDS)
     full_length = secs >= SIM_SECONDS
     out = BenchOutput(NAME)
@@ -104,15 +119,31 @@ def run(quick: bool = False, *, speeds: tuple[float, ...] | None = None, seconds
         ok, why = faithful(d, ref, full_length)
         if ok and (best is None or wall_300 < best[1]):
             best = (speed, wall_300)
-        out.results.append(Result(
-            NAME, f"300 s convoy at speed {speed:g}" + ("" if full_length else " (scaled)"),
-            wall_300, "s", "", None, _outcome(d) + ("; faithful" if ok else f"; NOT faithful: {why}")))
+        out.results.append(
+            Result(
+                NAME,
+                f"300 s convoy at speed {speed:g}" + ("" if full_length else " (scaled)"),
+                wall_300,
+                "s",
+                "",
+                None,
+                _outcome(d) + ("; faithful" if ok else f"; NOT faithful: {why}"),
+            )
+        )
         if d["profile"]:
-            out.details.append(f"cProfile of the run at speed {speed:g} (top 20 by own time):\n\n"
-                               f"```\n{d['profile']}```")
-    out.results.append(Result(
-        NAME, "300 s convoy wall time, fastest faithful speed" + ("" if full_length else " (scaled)"),
-        best[1] if best else None, "s", f"< {TARGET_WALL_S:g} s",
-        best is not None and best[1] < TARGET_WALL_S,
-        f"speed {best[0]:g}" if best else "no speed gave a faithful run"))
+            out.details.append(
+                f"cProfile of the run at speed {speed:g} (top 20 by own time):\n\n"
+                f"```\n{d['profile']}```"
+            )
+    out.results.append(
+        Result(
+            NAME,
+            "300 s convoy wall time, fastest faithful speed" + ("" if full_length else " (scaled)"),
+            best[1] if best else None,
+            "s",
+            f"< {TARGET_WALL_S:g} s",
+            best is not None and best[1] < TARGET_WALL_S,
+            f"speed {best[0]:g}" if best else "no speed gave a faithful run",
+        )
+    )
     return out

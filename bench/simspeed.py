@@ -40,9 +40,21 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 
 DEFAULT_CASES = (
-    "convoy:2:1", "convoy:2:2", "corridor:0:1", "corridor:1:1", "corridor:2:1",
-    "obstacle:1:1", "box-dead-ahead:1:1", "doorway:1:1", "person-in-corridor:1:1",
-    "drift:1:1:off", "drift:1:1:on", "door:1:1:off", "door:1:1:on", "parking:1:1", "mixed",
+    "convoy:2:1",
+    "convoy:2:2",
+    "corridor:0:1",
+    "corridor:1:1",
+    "corridor:2:1",
+    "obstacle:1:1",
+    "box-dead-ahead:1:1",
+    "doorway:1:1",
+    "person-in-corridor:1:1",
+    "drift:1:1:off",
+    "drift:1:1:on",
+    "door:1:1:off",
+    "door:1:1:on",
+    "parking:1:1",
+    "mixed",
 )
 
 
@@ -70,8 +82,18 @@ class Case:
         return out if self.recovery is None else f"{out} rec {self.recovery}"
 
     def argv(self, out: Path) -> list[str]:
-        args = ["sim", "--scenario", self.scenario, "--seed", str(self.seed), "--speed", "max",
-                "--no-plots", "--out", str(out)]
+        args = [
+            "sim",
+            "--scenario",
+            self.scenario,
+            "--seed",
+            str(self.seed),
+            "--speed",
+            "max",
+            "--no-plots",
+            "--out",
+            str(out),
+        ]
         if self.relays is not None:
             args += ["--relays", str(self.relays)]
         if self.recovery is not None:
@@ -93,17 +115,27 @@ def run_case(case: Case, tree: Path) -> Run:
     with tempfile.TemporaryDirectory(prefix="simspeed-") as tmp:
         out = Path(tmp) / "out"
         # The tree's own code, not whatever the venv has installed (checked, not assumed).
-        code = ("import sys, relayd; from relayd.cli import main; "
-                f"assert relayd.__file__.startswith({str(tree) + os.sep!r}), relayd.__file__; "
-                "sys.exit(main(sys.argv[1:]))")
+        code = (
+            "import sys, relayd; from relayd.cli import main; "
+            f"assert relayd.__file__.startswith({str(tree) + os.sep!r}), relayd.__file__; "
+            "sys.exit(main(sys.argv[1:]))"
+        )
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
         t0 = time.perf_counter()
-        proc = subprocess.run([sys.executable, "-c", code, *case.argv(out)], cwd=tmp, env=env,
-                              capture_output=True, text=True, check=False)
+        proc = subprocess.run(
+            [sys.executable, "-c", code, *case.argv(out)],
+            cwd=tmp,
+            env=env,
+            capture_output=True,
+            text=True,
+            check=False,
+        )
         wall = time.perf_counter() - t0
         after = resource.getrusage(resource.RUSAGE_CHILDREN)
         if proc.returncode != 0:
-            raise RuntimeError(f"{case.label()} on {tree}: exit {proc.returncode}\n{proc.stderr[-2000:]}")
+            raise RuntimeError(
+                f"{case.label()} on {tree}: exit {proc.returncode}\n{proc.stderr[-2000:]}"
+            )
         digest = hashlib.sha256()
         for name in ("summary.json", "trace.jsonl"):
             digest.update((out / name).read_bytes())
@@ -123,14 +155,25 @@ def _best(runs: Sequence[Run]) -> Run:
 
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--cases", nargs="+", type=Case.parse, default=[Case.parse(c) for c in DEFAULT_CASES],
-                   metavar="CASE", help="scenario[:relays[:seed[:on|off]]] (default: the test suite's)")
+    p.add_argument(
+        "--cases",
+        nargs="+",
+        type=Case.parse,
+        default=[Case.parse(c) for c in DEFAULT_CASES],
+        metavar="CASE",
+        help="scenario[:relays[:seed[:on|off]]] (default: the test suite's)",
+    )
     p.add_argument("--against", type=Path, help="another checkout to compare with (e.g. main's)")
-    p.add_argument("--repeat", type=int, default=1, help="runs per case and tree; the median is shown")
+    p.add_argument(
+        "--repeat", type=int, default=1, help="runs per case and tree; the median is shown"
+    )
     args = p.parse_args(argv)
     trees = [ROOT] + ([args.against.resolve()] if args.against else [])
-    print(f"load average {os.getloadavg()[0]:.2f}, {os.cpu_count()} CPUs; trees: "
-          + ", ".join(str(t) for t in trees), flush=True)
+    print(
+        f"load average {os.getloadavg()[0]:.2f}, {os.cpu_count()} CPUs; trees: "
+        + ", ".join(str(t) for t in trees),
+        flush=True,
+    )
     cols = ["case", "sim s"]
     for t in trees:
         tag = "this" if t == ROOT else "other"
@@ -154,10 +197,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.against:
             same = runs[0].digest == runs[1].digest
             differ += not same
-            row += [f"{runs[0].cpu_s / runs[1].cpu_s:.2f}", "yes" if same else f"**NO** {runs[0].digest} vs {runs[1].digest}"]
+            row += [
+                f"{runs[0].cpu_s / runs[1].cpu_s:.2f}",
+                "yes" if same else f"**NO** {runs[0].digest} vs {runs[1].digest}",
+            ]
         print("| " + " | ".join(row) + " |", flush=True)
-    print("total CPU s: " + ", ".join(f"{t:.1f}" for t in totals)
-          + (f"; ratio {totals[0] / totals[1]:.2f}" if args.against else ""))
+    print(
+        "total CPU s: "
+        + ", ".join(f"{t:.1f}" for t in totals)
+        + (f"; ratio {totals[0] / totals[1]:.2f}" if args.against else "")
+    )
     if args.against:
         print("all cases byte-identical" if not differ else f"{differ} case(s) DIFFER")
     return 1 if differ else 0

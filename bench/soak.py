@@ -155,8 +155,9 @@ async def _sample(report: Report, t0: float) -> Sample:
     return s
 
 
-async def soak(minutes: float, speed: float, fault_every_s: float, warmup_s: float,
-               seed: int) -> Report:
+async def soak(
+    minutes: float, speed: float, fault_every_s: float, warmup_s: float, seed: int
+) -> Report:
     scenario = load_scenario("convoy")
     # Keep the convoy running past the leader's goal for the whole soak.
     scenario = scenario.model_copy(update={"settle_after_goal_s": 1e9})
@@ -174,8 +175,14 @@ async def soak(minutes: float, speed: float, fault_every_s: float, warmup_s: flo
             r.maestro.commands.clear()
             del r.maestro.received[:], r.maestro.sent[:]
 
-    runner = SimRunner(scenario, speed=speed, seed=seed, seconds=1e9, on_progress=trim,
-                       on_ready=lambda _ports: ready.set())
+    runner = SimRunner(
+        scenario,
+        speed=speed,
+        seed=seed,
+        seconds=1e9,
+        on_progress=trim,
+        on_ready=lambda _ports: ready.set(),
+    )
     report = Report()
     t0 = time.monotonic()
     end = t0 + minutes * 60.0
@@ -188,7 +195,10 @@ async def soak(minutes: float, speed: float, fault_every_s: float, warmup_s: flo
         await asyncio.sleep(max(0.0, t0 + warmup_s - time.monotonic()))
         await _until_whole(runner.relays, RECOVER_TIMEOUT_S)
         first = await _sample(report, t0)
-        print(f"[{first.t:6.0f} s] warm: {first.rss_kb / 1024:.1f} MB, {first.tasks} tasks", flush=True)
+        print(
+            f"[{first.t:6.0f} s] warm: {first.rss_kb / 1024:.1f} MB, {first.tasks} tasks",
+            flush=True,
+        )
         i = 0
         next_fault = time.monotonic()
         while next_fault + fault_every_s <= end:
@@ -205,8 +215,11 @@ async def soak(minutes: float, speed: float, fault_every_s: float, warmup_s: flo
             report.faults.append((fault.name, relay.name, recovered))
             s = await _sample(report, t0)
             rec = "NOT recovered" if recovered is None else f"whole again after {recovered:.1f} s"
-            print(f"[{s.t:6.0f} s] {fault.name} on {relay.name} ({during}): {rec}; "
-                  f"{s.rss_kb / 1024:.1f} MB, {s.tasks} tasks", flush=True)
+            print(
+                f"[{s.t:6.0f} s] {fault.name} on {relay.name} ({during}): {rec}; "
+                f"{s.rss_kb / 1024:.1f} MB, {s.tasks} tasks",
+                flush=True,
+            )
             if sim.done():
                 raise RuntimeError(f"the simulation ended early: {sim.exception()!r}")
             i += 1
@@ -228,19 +241,42 @@ def table(report: Report, args: argparse.Namespace) -> tuple[str, bool]:
     recovered = all(r is not None for _, _, r in report.faults)
     worst = max((r for _, _, r in report.faults if r is not None), default=None)
     rows = [
-        ("resident memory (VmRSS)", f"{first.rss_kb / 1024:.1f} MB", f"{last.rss_kb / 1024:.1f} MB",
-         f"{growth_kb / 1024:+.2f} MB", "< 5 MB", growth_kb < RSS_GROWTH_TARGET_KB),
-        ("asyncio tasks", str(first.tasks), str(last.tasks), f"{task_growth:+d}", "no growth",
-         task_growth <= 0),
-        ("faults recovered", "", f"{sum(r is not None for _, _, r in report.faults)}/{len(report.faults)}",
-         "" if worst is None else f"worst {worst:.1f} s", "all", recovered),
+        (
+            "resident memory (VmRSS)",
+            f"{first.rss_kb / 1024:.1f} MB",
+            f"{last.rss_kb / 1024:.1f} MB",
+            f"{growth_kb / 1024:+.2f} MB",
+            "< 5 MB",
+            growth_kb < RSS_GROWTH_TARGET_KB,
+        ),
+        (
+            "asyncio tasks",
+            str(first.tasks),
+            str(last.tasks),
+            f"{task_growth:+d}",
+            "no growth",
+            task_growth <= 0,
+        ),
+        (
+            "faults recovered",
+            "",
+            f"{sum(r is not None for _, _, r in report.faults)}/{len(report.faults)}",
+            "" if worst is None else f"worst {worst:.1f} s",
+            "all",
+            recovered,
+        ),
     ]
-    out = [f"soak: convoy, {args.minutes:g} min wall at speed {args.speed:g}, a fault every "
-           f"{args.fault_every:g} s ({len(report.faults)} injected); samples after {first.t:.0f} s "
-           f"and {last.t:.0f} s", "",
-           "| figure | after warm-up | at the end | growth | target | ok |",
-           "|---|---|---|---|---|---|"]
-    out += [f"| {a} | {b} | {c} | {d} | {e} | {'yes' if ok else 'NO'} |" for a, b, c, d, e, ok in rows]
+    out = [
+        f"soak: convoy, {args.minutes:g} min wall at speed {args.speed:g}, a fault every "
+        f"{args.fault_every:g} s ({len(report.faults)} injected); samples after {first.t:.0f} s "
+        f"and {last.t:.0f} s",
+        "",
+        "| figure | after warm-up | at the end | growth | target | ok |",
+        "|---|---|---|---|---|---|",
+    ]
+    out += [
+        f"| {a} | {b} | {c} | {d} | {e} | {'yes' if ok else 'NO'} |" for a, b, c, d, e, ok in rows
+    ]
     return "\n".join(out), all(ok for *_, ok in rows)
 
 
@@ -248,12 +284,23 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0] if __doc__ else None)
     p.add_argument("--minutes", type=float, default=60.0, help="wall minutes to run (default 60)")
     p.add_argument("--speed", type=float, default=10.0, help="simulation clock speed (default 10)")
-    p.add_argument("--fault-every", type=float, default=60.0, help="wall seconds between faults (default 60)")
-    p.add_argument("--warmup", type=float, default=None,
-                   help="wall seconds before the first sample (default: 60, at most a quarter of the run)")
+    p.add_argument(
+        "--fault-every", type=float, default=60.0, help="wall seconds between faults (default 60)"
+    )
+    p.add_argument(
+        "--warmup",
+        type=float,
+        default=None,
+        help="wall seconds before the first sample (default: 60, at most a quarter of the run)",
+    )
     p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--tracemalloc", type=int, default=0, metavar="N",
-                   help="also print the N source lines whose allocations grew most (slow)")
+    p.add_argument(
+        "--tracemalloc",
+        type=int,
+        default=0,
+        metavar="N",
+        help="also print the N source lines whose allocations grew most (slow)",
+    )
     args = p.parse_args(argv)
     if args.warmup is None:
         args.warmup = min(60.0, args.minutes * 60.0 / 4.0)

@@ -38,8 +38,17 @@ TARGET_CPU_RATIO = 0.7
 
 async def _bare_server(payload_path: Path, port: int) -> asyncio.subprocess.Process:
     proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "bench.bare", str(payload_path), "--port", str(port),
-        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE, env=_child_env(), cwd=str(REPO))
+        sys.executable,
+        "-m",
+        "bench.bare",
+        str(payload_path),
+        "--port",
+        str(port),
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE,
+        env=_child_env(),
+        cwd=str(REPO),
+    )
     assert proc.stdout is not None
     async with asyncio.timeout(30.0):
         line = await proc.stdout.readline()
@@ -48,8 +57,14 @@ async def _bare_server(payload_path: Path, port: int) -> asyncio.subprocess.Proc
     return proc
 
 
-async def measure(*, seconds: float = 5.0, rounds: int = 3, concurrency: int = 8,
-                  work: Path | None = None, scan: dict[str, Any] | None = None) -> dict[str, Any]:
+async def measure(
+    *,
+    seconds: float = 5.0,
+    rounds: int = 3,
+    concurrency: int = 8,
+    work: Path | None = None,
+    scan: dict[str, Any] | None = None,
+) -> dict[str, Any]:
     with tempfile.TemporaryDirectory(prefix="relayd-bench-status-", dir=scratch_root()) as tmp:
         wdir = work or Path(tmp)
         rig = FakeRig(wdir)
@@ -58,8 +73,13 @@ async def measure(*, seconds: float = 5.0, rounds: int = 3, concurrency: int = 8
         runs: dict[str, list[dict[str, Any]]] = {"bare": [], "relayd": []}
         try:
             async with RelaydProcess(rig, scan=scan or {}, log={"level": "warning"}) as relayd:
-                doc = await relayd.wait_for(lambda d: d.get("scan_count", 0) >= 1, 60.0, "first scan")
-                async with aiohttp.ClientSession() as session, session.get(relayd.url + "/status") as resp:
+                doc = await relayd.wait_for(
+                    lambda d: d.get("scan_count", 0) >= 1, 60.0, "first scan"
+                )
+                async with (
+                    aiohttp.ClientSession() as session,
+                    session.get(relayd.url + "/status") as resp,
+                ):
                     body = await resp.read()
                 payload_path = wdir / "status-payload.json"
                 payload_path.write_bytes(body)
@@ -69,8 +89,9 @@ async def measure(*, seconds: float = 5.0, rounds: int = 3, concurrency: int = 8
                 pids = {"bare": bare.pid, "relayd": relayd.pid}
                 for _ in range(rounds):
                     for name in ("bare", "relayd"):
-                        load = await LoadProcess(urls[name], rps=0, seconds=seconds,
-                                                 concurrency=concurrency).start()
+                        load = await LoadProcess(
+                            urls[name], rps=0, seconds=seconds, concurrency=concurrency
+                        ).start()
                         cpu0 = proc_cpu_s(pids[name])
                         report = dict(await load.wait())
                         # CPU the server spent (its whole process) while this slice ran.
@@ -94,38 +115,90 @@ def _summary(runs: list[dict[str, Any]]) -> tuple[float, float, int]:
 def cpu_per_request_us(runs: list[dict[str, Any]]) -> float:
     """Server CPU time per answered request (us), over all slices."""
     requests = sum(int(r["requests"]) for r in runs)
-    return 1e6 * sum(float(r["server_cpu_s"]) for r in runs) / requests if requests else float("nan")
+    return (
+        1e6 * sum(float(r["server_cpu_s"]) for r in runs) / requests if requests else float("nan")
+    )
 
 
-def run(quick: bool = False, *, seconds: float | None = None, rounds: int | None = None) -> BenchOutput:
+def run(
+    quick: bool = False, *, seconds: float | None = None, rounds: int | None = None
+) -> BenchOutput:
     secs = seconds if seconds is not None else (1.0 if quick else 2.0)
     n = rounds if rounds is not None else (3 if quick else 10)
     data = asyncio.run(measure(seconds=secs, rounds=n))
     relayd_rps, relayd_p99, relayd_err = _summary(data["runs"]["relayd"])
     bare_rps, bare_p99, bare_err = _summary(data["runs"]["bare"])
-    ratios = [float(a["rps"]) / float(b["rps"]) for a, b in zip(data["runs"]["relayd"], data["runs"]["bare"],
-                                                              strict=True) if float(b["rps"]) > 0]
+    ratios = [
+        float(a["rps"]) / float(b["rps"])
+        for a, b in zip(data["runs"]["relayd"], data["runs"]["bare"], strict=True)
+        if float(b["rps"]) > 0
+    ]
     ratio = percentile(ratios, 50)
     relayd_cpu = cpu_per_request_us(data["runs"]["relayd"])
     bare_cpu = cpu_per_request_us(data["runs"]["bare"])
     cpu_ratio = bare_cpu / relayd_cpu if relayd_cpu > 0 else float("nan")
     out = BenchOutput(NAME)
-    per_round = ", ".join(f"{a['rps']:.0f}/{b['rps']:.0f}"
-                          for a, b in zip(data["runs"]["relayd"], data["runs"]["bare"], strict=True))
+    per_round = ", ".join(
+        f"{a['rps']:.0f}/{b['rps']:.0f}"
+        for a, b in zip(data["runs"]["relayd"], data["runs"]["bare"], strict=True)
+    )
     out.results += [
-        Result(NAME, "/status throughput, relayd", relayd_rps, "req/s", "", None,
-               f"{relayd_err} errors; payload {data['payload_bytes']} bytes"),
-        Result(NAME, "/status throughput, bare aiohttp", bare_rps, "req/s", "", None, f"{bare_err} errors"),
-        Result(NAME, "/status throughput relayd / bare (median of rounds)", ratio, "", f">= {TARGET_RATIO:g}",
-               ratio >= TARGET_RATIO if ratios else None, f"{n} rounds x {secs:g} s each, relayd/bare per round: {per_round}"),
-        Result(NAME, "server CPU per /status request, relayd", relayd_cpu, "us", "", None,
-               "whole process, including the daemon's own background work (see steady)"),
+        Result(
+            NAME,
+            "/status throughput, relayd",
+            relayd_rps,
+            "req/s",
+            "",
+            None,
+            f"{relayd_err} errors; payload {data['payload_bytes']} bytes",
+        ),
+        Result(
+            NAME,
+            "/status throughput, bare aiohttp",
+            bare_rps,
+            "req/s",
+            "",
+            None,
+            f"{bare_err} errors",
+        ),
+        Result(
+            NAME,
+            "/status throughput relayd / bare (median of rounds)",
+            ratio,
+            "",
+            f">= {TARGET_RATIO:g}",
+            ratio >= TARGET_RATIO if ratios else None,
+            f"{n} rounds x {secs:g} s each, relayd/bare per round: {per_round}",
+        ),
+        Result(
+            NAME,
+            "server CPU per /status request, relayd",
+            relayd_cpu,
+            "us",
+            "",
+            None,
+            "whole process, including the daemon's own background work (see steady)",
+        ),
         Result(NAME, "server CPU per /status request, bare aiohttp", bare_cpu, "us"),
-        Result(NAME, "/status efficiency relayd / bare (CPU per request)", cpu_ratio, "", f">= {TARGET_CPU_RATIO:g}",
-               cpu_ratio >= TARGET_CPU_RATIO,
-               "bare CPU/request over relayd's: the capacity ratio on an otherwise idle core; "
-               "unlike throughput it does not move with other processes' load"),
-        Result(NAME, "/status p99 latency, relayd", relayd_p99, "ms", "", None, "8 connections, back to back"),
+        Result(
+            NAME,
+            "/status efficiency relayd / bare (CPU per request)",
+            cpu_ratio,
+            "",
+            f">= {TARGET_CPU_RATIO:g}",
+            cpu_ratio >= TARGET_CPU_RATIO,
+            "bare CPU/request over relayd's: the capacity ratio on an otherwise idle core; "
+            "unlike throughput it does not move with other processes' load",
+        ),
+        Result(
+            NAME,
+            "/status p99 latency, relayd",
+            relayd_p99,
+            "ms",
+            "",
+            None,
+            "8 connections, back to back",
+        ),
         Result(NAME, "/status p99 latency, bare aiohttp", bare_p99, "ms"),
     ]
     out.details.append("Per slice (load reports): " + json.dumps(data["runs"]))

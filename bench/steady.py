@@ -28,8 +28,9 @@ TARGET_CPU_PCT = 2.7
 TARGET_RSS_MB = 55.0
 
 
-async def measure(*, seconds: float = 60.0, work: Path | None = None,
-                  config: dict[str, Any] | None = None) -> dict[str, Any]:
+async def measure(
+    *, seconds: float = 60.0, work: Path | None = None, config: dict[str, Any] | None = None
+) -> dict[str, Any]:
     with tempfile.TemporaryDirectory(prefix="relayd-bench-steady-", dir=scratch_root()) as tmp:
         rig = FakeRig(work or Path(tmp))
         await rig.start()
@@ -69,10 +70,23 @@ def run(quick: bool = False, *, seconds: float | None = None) -> BenchOutput:
     out = BenchOutput(NAME)
     note = f"over {d['seconds']:.0f} s; relayd state {d['state']} ({d['reason']}), {d['threads']} threads"
     out.results += [
-        Result(NAME, "relayd CPU, percent of one core", d["cpu_pct"], "%", f"<= {TARGET_CPU_PCT:g} %",
-               d["cpu_pct"] <= TARGET_CPU_PCT, note),
-        Result(NAME, "relayd resident memory (max VmRSS)", d["rss_mb_max"], "MB", f"<= {TARGET_RSS_MB:g} MB",
-               d["rss_mb_max"] <= TARGET_RSS_MB,
-               f"mean {d['rss_mb_mean']:.1f} MB, VmHWM {d['hwm_mb']:.1f} MB"),
+        Result(
+            NAME,
+            "relayd CPU, percent of one core",
+            d["cpu_pct"],
+            "%",
+            f"<= {TARGET_CPU_PCT:g} %",
+            d["cpu_pct"] <= TARGET_CPU_PCT,
+            note,
+        ),
+        Result(
+            NAME,
+            "relayd resident memory (max VmRSS)",
+            d["rss_mb_max"],
+            "MB",
+            f"<= {TARGET_RSS_MB:g} MB",
+            d["rss_mb_max"] <= TARGET_RSS_MB,
+            f"mean {d['rss_mb_mean']:.1f} MB, VmHWM {d['hwm_mb']:.1f} MB",
+        ),
     ]
     return out

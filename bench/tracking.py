@@ -61,10 +61,18 @@ def _scan(cfg: tuple[str, str]) -> dict[str, object]:
     return {"estimator": cfg[0], "window": cfg[1]}
 
 
-def static_error(cfg: tuple[str, str], bearing_deg: float, pattern: Callable[[float], float],
-                 radio: Radio | None = None, distance_m: float = 5.0) -> float:
+def static_error(
+    cfg: tuple[str, str],
+    bearing_deg: float,
+    pattern: Callable[[float], float],
+    radio: Radio | None = None,
+    distance_m: float = 5.0,
+) -> float:
     """Error (deg) of the bearing published after the 5th scan; relay still, leader still."""
-    leader = still(distance_m * math.cos(math.radians(bearing_deg)), distance_m * math.sin(math.radians(bearing_deg)))
+    leader = still(
+        distance_m * math.cos(math.radians(bearing_deg)),
+        distance_m * math.sin(math.radians(bearing_deg)),
+    )
     kw: dict[str, Any] = {} if radio is None else {"radio": radio}
     rig = BrainRig(scan=_scan(cfg), leader=leader, pattern=pattern, **kw)
     rig.start()
@@ -72,8 +80,15 @@ def static_error(cfg: tuple[str, str], bearing_deg: float, pattern: Callable[[fl
     return math.remainder(rig.results[-1][1].estimate.bearing_deg - bearing_deg, 360.0)
 
 
-def crossing_error(cfg: tuple[str, str], speed_m_s: float, *, distance_m: float = 2.0, seed: int = 1,
-                   within_deg: float = 60.0, acquire_s: float = 20.0) -> tuple[float, float]:
+def crossing_error(
+    cfg: tuple[str, str],
+    speed_m_s: float,
+    *,
+    distance_m: float = 2.0,
+    seed: int = 1,
+    within_deg: float = 60.0,
+    acquire_s: float = 20.0,
+) -> tuple[float, float]:
     """(worst |error| while the leader walks within +-within_deg, sweep rate deg/s) of one pass.
 
     The leader first stands at -within_deg for `acquire_s` (the relay finds it), then
@@ -82,8 +97,11 @@ def crossing_error(cfg: tuple[str, str], speed_m_s: float, *, distance_m: float 
     """
     y0 = -distance_m * math.tan(math.radians(within_deg))
     y1 = distance_m * math.tan(math.radians(70.0))
-    rig = BrainRig(scan=_scan(cfg), leader=crossing(distance_m, speed_m_s, y0, acquire_s),
-                   radio=Radio(RadioParams.outdoor(), [], seed=seed))
+    rig = BrainRig(
+        scan=_scan(cfg),
+        leader=crossing(distance_m, speed_m_s, y0, acquire_s),
+        radio=Radio(RadioParams.outdoor(), [], seed=seed),
+    )
     rig.start()
     worst = 0.0
 
@@ -95,8 +113,11 @@ def crossing_error(cfg: tuple[str, str], speed_m_s: float, *, distance_m: float 
             worst = max(worst, math.inf if b is None else abs(math.remainder(b - truth, 360.0)))
 
     rig.run_until(acquire_s + (y1 - y0) / speed_m_s, check)
-    sweeps = [(max(r.record.angles_deg) - min(r.record.angles_deg)) / r.record.period_s
-              for _, r in rig.results if r.record.period_s]
+    sweeps = [
+        (max(r.record.angles_deg) - min(r.record.angles_deg)) / r.record.period_s
+        for _, r in rig.results
+        if r.record.period_s
+    ]
     return worst, (sum(sweeps) / len(sweeps) if sweeps else math.nan)
 
 
@@ -148,23 +169,39 @@ def event_cpu_us(cfg: tuple[str, str]) -> tuple[float, float]:
 
     brain.handle = timed  # type: ignore[method-assign]
     rig.run_until(60.0)
-    return (1e6 * sum(times["SipEvent"]) / max(1, len(times["SipEvent"])),
-            1e6 * sum(times["ScanDone"]) / max(1, len(times["ScanDone"])))
+    return (
+        1e6 * sum(times["SipEvent"]) / max(1, len(times["SipEvent"])),
+        1e6 * sum(times["ScanDone"]) / max(1, len(times["ScanDone"])),
+    )
 
 
-def sim_items(quick: bool, sim_seeds: int | None = None, scenarios: list[str] | None = None) -> list[Result]:
+def sim_items(
+    quick: bool, sim_seeds: int | None = None, scenarios: list[str] | None = None
+) -> list[Result]:
     """Item 4 (bench/followshare.py): the share of time within 5 m, per scenario, policy and estimator."""
     from bench.followshare import sim_rows
 
     def progress(line: str) -> None:
         print(line, file=sys.stderr, flush=True)
 
-    return sim_rows(CONFIGS, quick=quick, seeds=sim_seeds if sim_seeds is not None else (1 if quick else 10),
-                    scenarios=scenarios, progress=progress)
+    return sim_rows(
+        CONFIGS,
+        quick=quick,
+        seeds=sim_seeds if sim_seeds is not None else (1 if quick else 10),
+        scenarios=scenarios,
+        progress=progress,
+    )
 
 
-def run(quick: bool = False, *, sim_seeds: int | None = None, noisy_seeds: int | None = None,
-        cross_seeds: int | None = None, sim_only: bool = False, scenarios: list[str] | None = None) -> BenchOutput:
+def run(
+    quick: bool = False,
+    *,
+    sim_seeds: int | None = None,
+    noisy_seeds: int | None = None,
+    cross_seeds: int | None = None,
+    sim_only: bool = False,
+    scenarios: list[str] | None = None,
+) -> BenchOutput:
     out = BenchOutput(NAME)
     if sim_only:
         out.results += sim_items(quick, sim_seeds, scenarios)
@@ -174,26 +211,45 @@ def run(quick: bool = False, *, sim_seeds: int | None = None, noisy_seeds: int |
     # 1. static, noise-free
     for bw in (30.0, 45.0, 60.0):
         for cfg in CONFIGS:
-            worst = max(max(abs(static_error(cfg, b, cos_n_pattern(bw, fb))) for b in bearings)
-                        for fb in ((20.0,) if quick else (12.0, 20.0, 30.0)))
+            worst = max(
+                max(abs(static_error(cfg, b, cos_n_pattern(bw, fb))) for b in bearings)
+                for fb in ((20.0,) if quick else (12.0, 20.0, 30.0))
+            )
             lobe = cfg[0] == "lobe"
-            out.results.append(Result(
-                NAME, f"static |error| after 5 scans, noise-free, bearings -85..85, beamwidth {bw:g} deg, {_label(cfg)}",
-                worst, "deg", f"<= {STATIC_TARGET_DEG:g} deg" if lobe else "",
-                worst <= STATIC_TARGET_DEG if lobe else None, "worst over front-to-back 12/20/30 dB"))
+            out.results.append(
+                Result(
+                    NAME,
+                    f"static |error| after 5 scans, noise-free, bearings -85..85, beamwidth {bw:g} deg, {_label(cfg)}",
+                    worst,
+                    "deg",
+                    f"<= {STATIC_TARGET_DEG:g} deg" if lobe else "",
+                    worst <= STATIC_TARGET_DEG if lobe else None,
+                    "worst over front-to-back 12/20/30 dB",
+                )
+            )
     # 2. noisy
     n_noisy = noisy_seeds if noisy_seeds is not None else (2 if quick else 12)
     for nlos in (False, True):
         params = RadioParams.outdoor(rician_k_db=-60.0) if nlos else RadioParams.outdoor()
         for cfg in CONFIGS:
-            errs = [static_error(cfg, b, sim_yagi, Radio(params, [], seed=seed * 1000 + int(b)))
-                    for seed in range(n_noisy) for b in range(-60, 61, 10)]
+            errs = [
+                static_error(cfg, b, sim_yagi, Radio(params, [], seed=seed * 1000 + int(b)))
+                for seed in range(n_noisy)
+                for b in range(-60, 61, 10)
+            ]
             lobe = cfg[0] == "lobe"
             value = rms(errs)
-            out.results.append(Result(
-                NAME, f"RMS error after 5 scans, shadowing + {'Rayleigh (NLOS)' if nlos else 'Rician (LOS)'}, {_label(cfg)}",
-                value, "deg", f"<= {NOISY_TARGET_DEG:g} deg" if lobe else "",
-                value <= NOISY_TARGET_DEG if lobe else None, f"{len(errs)} runs, bearings -60..60"))
+            out.results.append(
+                Result(
+                    NAME,
+                    f"RMS error after 5 scans, shadowing + {'Rayleigh (NLOS)' if nlos else 'Rician (LOS)'}, {_label(cfg)}",
+                    value,
+                    "deg",
+                    f"<= {NOISY_TARGET_DEG:g} deg" if lobe else "",
+                    value <= NOISY_TARGET_DEG if lobe else None,
+                    f"{len(errs)} runs, bearings -60..60",
+                )
+            )
     # 3. fastest leader at 2 m
     speeds = {}
     n_cross = cross_seeds if cross_seeds is not None else (2 if quick else 10)
@@ -202,19 +258,34 @@ def run(quick: bool = False, *, sim_seeds: int | None = None, noisy_seeds: int |
         v = median(per_seed)
         speeds[cfg] = v
         bound = math.radians(rate) * 2.0 if math.isfinite(rate) else math.nan
-        out.results.append(Result(
-            NAME, f"fastest leader tracked at 2 m (straight pass; median over seeds), {_label(cfg)}", v, "m/s",
-            "" if cfg[0] == "wca" else ">= 2x wca/full",
-            None if cfg[0] == "wca" else v >= 2.0 * speeds[CONFIGS[0]],
-            f"{n_cross} seeds, worst {per_seed[0]:.2f} m/s; sweep rate {rate:.0f} deg/s; "
-            f"theorem 1 bound theta_dot*d = {bound:.2f} m/s"))
+        out.results.append(
+            Result(
+                NAME,
+                f"fastest leader tracked at 2 m (straight pass; median over seeds), {_label(cfg)}",
+                v,
+                "m/s",
+                "" if cfg[0] == "wca" else ">= 2x wca/full",
+                None if cfg[0] == "wca" else v >= 2.0 * speeds[CONFIGS[0]],
+                f"{n_cross} seeds, worst {per_seed[0]:.2f} m/s; sweep rate {rate:.0f} deg/s; "
+                f"theorem 1 bound theta_dot*d = {bound:.2f} m/s",
+            )
+        )
     # 4. simulated convoy (LOS) and corridor (NLOS), under each stop policy
     out.results += sim_items(quick, sim_seeds)
     # 5. CPU of the decision core, and of the whole daemon on the fakes
     for cfg in CONFIGS:
         sip_us, scan_us = event_cpu_us(cfg)
-        out.results.append(Result(NAME, f"brain CPU per SIP step / per scan end, {_label(cfg)}", sip_us, "us",
-                                  "", None, f"scan end {scan_us:.0f} us"))
+        out.results.append(
+            Result(
+                NAME,
+                f"brain CPU per SIP step / per scan end, {_label(cfg)}",
+                sip_us,
+                "us",
+                "",
+                None,
+                f"scan end {scan_us:.0f} us",
+            )
+        )
     out.results += daemon_figures(quick)
     return out
 
@@ -228,14 +299,34 @@ def daemon_figures(quick: bool) -> list[Result]:
     for cfg in (CONFIGS[0], CONFIGS[2]):
         scan = _scan(cfg)
         d = asyncio.run(steady.measure(seconds=5.0 if quick else 30.0, config={"scan": scan}))
-        rows.append(Result(NAME, f"relayd steady CPU on the fakes, {_label(cfg)}", d["cpu_pct"], "%", "", None,
-                           f"over {d['seconds']:.0f} s, state {d['state']}"))
-        lat = asyncio.run(latency.measure(cycles=30 if quick else 300, load_rps=0.0 if quick else 200.0,
-                                          scan=scan))
+        rows.append(
+            Result(
+                NAME,
+                f"relayd steady CPU on the fakes, {_label(cfg)}",
+                d["cpu_pct"],
+                "%",
+                "",
+                None,
+                f"over {d['seconds']:.0f} s, state {d['state']}",
+            )
+        )
+        lat = asyncio.run(
+            latency.measure(
+                cycles=30 if quick else 300, load_rps=0.0 if quick else 200.0, scan=scan
+            )
+        )
         first = lat["alone"]["first_ms"]
-        rows.append(Result(NAME, f"control latency p50 / p99 (SIP -> wheel command), {_label(cfg)}",
-                           percentile(first, 50), "ms", "", None,
-                           f"p99 {percentile(first, 99):.1f} ms over {len(first)} SIPs"))
+        rows.append(
+            Result(
+                NAME,
+                f"control latency p50 / p99 (SIP -> wheel command), {_label(cfg)}",
+                percentile(first, 50),
+                "ms",
+                "",
+                None,
+                f"p99 {percentile(first, 99):.1f} ms over {len(first)} SIPs",
+            )
+        )
     return rows
 
 
@@ -243,12 +334,22 @@ def main(argv: list[str] | None = None) -> int:
     """`python -m bench.tracking [--sim-only] [--seeds N] [--quick]`: print the table."""
     from bench.run import table
 
-    p = argparse.ArgumentParser(prog="python -m bench.tracking", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(
+        prog="python -m bench.tracking", description=__doc__.splitlines()[0]
+    )
     p.add_argument("--quick", action="store_true", help="shorter runs (1 seed, 20 s of simulation)")
-    p.add_argument("--sim-only", action="store_true", help="item 4 alone: the share of time within 5 m")
-    p.add_argument("--seeds", type=int, default=None, help="simulator seeds per row (default 10; --quick 1)")
-    p.add_argument("--scenario", action="append", choices=("convoy", "corridor"),
-                   help="with --sim-only: this scenario only (repeatable; default both)")
+    p.add_argument(
+        "--sim-only", action="store_true", help="item 4 alone: the share of time within 5 m"
+    )
+    p.add_argument(
+        "--seeds", type=int, default=None, help="simulator seeds per row (default 10; --quick 1)"
+    )
+    p.add_argument(
+        "--scenario",
+        action="append",
+        choices=("convoy", "corridor"),
+        help="with --sim-only: this scenario only (repeatable; default both)",
+    )
     args = p.parse_args(argv)
     t0 = time.perf_counter()
     out = run(args.quick, sim_seeds=args.seeds, sim_only=args.sim_only, scenarios=args.scenario)

@@ -33,14 +33,22 @@ async def _view(url: str) -> dict[str, float]:
     channels: dict[int, str] = {}
     messages = nbytes = 0
     lag_max_ms = 0.0
-    async with aiohttp.ClientSession() as session, \
-            session.ws_connect(url, protocols=[SUBPROTOCOL], max_msg_size=0) as ws:
+    async with (
+        aiohttp.ClientSession() as session,
+        session.ws_connect(url, protocols=[SUBPROTOCOL], max_msg_size=0) as ws,
+    ):
         while not channels:
             doc = json.loads((await ws.receive(timeout=30)).data)
             if doc["op"] == "advertise":
                 channels = {ch["id"]: ch["topic"] for ch in doc["channels"]}
-        await ws.send_str(json.dumps({"op": "subscribe", "subscriptions": [
-            {"id": cid, "channelId": cid} for cid in channels]}))
+        await ws.send_str(
+            json.dumps(
+                {
+                    "op": "subscribe",
+                    "subscriptions": [{"id": cid, "channelId": cid} for cid in channels],
+                }
+            )
+        )
         print("ready", flush=True)
         start = time.perf_counter()
 
@@ -57,8 +65,13 @@ async def _view(url: str) -> dict[str, float]:
         await stop.wait()
         reader.cancel()
         seconds = time.perf_counter() - start
-    return {"messages": messages, "bytes": nbytes, "seconds": round(seconds, 2),
-            "channels": len(channels), "lag_max_ms": round(lag_max_ms, 1)}
+    return {
+        "messages": messages,
+        "bytes": nbytes,
+        "seconds": round(seconds, 2),
+        "channels": len(channels),
+        "lag_max_ms": round(lag_max_ms, 1),
+    }
 
 
 class ViewerProcess:
@@ -72,14 +85,23 @@ class ViewerProcess:
         from bench.live import REPO, _child_env
 
         self.proc = await asyncio.create_subprocess_exec(
-            sys.executable, "-m", "bench.viewer", self.url, stdout=asyncio.subprocess.PIPE,
-            stderr=asyncio.subprocess.PIPE, env=_child_env(), cwd=str(REPO))
+            sys.executable,
+            "-m",
+            "bench.viewer",
+            self.url,
+            stdout=asyncio.subprocess.PIPE,
+            stderr=asyncio.subprocess.PIPE,
+            env=_child_env(),
+            cwd=str(REPO),
+        )
         assert self.proc.stdout is not None
         async with asyncio.timeout(30.0):
             line = await self.proc.stdout.readline()
         if line.strip() != b"ready":
             err = await self.proc.stderr.read() if self.proc.stderr else b""
-            raise RuntimeError(f"viewer failed to start: {line!r} {err.decode(errors='replace')[-800:]}")
+            raise RuntimeError(
+                f"viewer failed to start: {line!r} {err.decode(errors='replace')[-800:]}"
+            )
         return self
 
     async def stop(self) -> dict[str, Any]:
@@ -93,7 +115,9 @@ class ViewerProcess:
         try:
             report: dict[str, Any] = json.loads(out.decode().strip().splitlines()[-1])
         except (IndexError, ValueError):
-            raise RuntimeError(f"viewer gave no report: {out!r} {err.decode(errors='replace')[-800:]}") from None
+            raise RuntimeError(
+                f"viewer gave no report: {out!r} {err.decode(errors='replace')[-800:]}"
+            ) from None
         return report
 
 

@@ -130,8 +130,13 @@ class PtyPort:
 class TcpPort:
     """A loopback TCP listener that serves one client at a time (the newest wins)."""
 
-    def __init__(self, on_data: OnData, host: str = "127.0.0.1", port: int = 0,
-                 on_connect: Callable[[], None] | None = None) -> None:
+    def __init__(
+        self,
+        on_data: OnData,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        on_connect: Callable[[], None] | None = None,
+    ) -> None:
         self._on_data = on_data
         self._on_connect = on_connect
         self.host = host

@@ -35,7 +35,9 @@ class LinkError(ConnectionError):
     """The device's port could not be opened; the message names the port."""
 
 
-async def open_link(url: str, baudrate: int, protocol_factory: Callable[[], P]) -> tuple[asyncio.Transport, P]:
+async def open_link(
+    url: str, baudrate: int, protocol_factory: Callable[[], P]
+) -> tuple[asyncio.Transport, P]:
     """Open `url` at `baudrate` and connect `protocol_factory()` to it."""
     if url.startswith(memlink.SCHEME):
         # A fake served in memory (unit tests): the same protocol, no file descriptor.
@@ -50,7 +52,8 @@ async def open_link(url: str, baudrate: int, protocol_factory: Callable[[], P]) 
         # socket://, rfc2217://, loop://: pyserial-asyncio's own path (TCP transport).
         try:
             transport, protocol = await serial_asyncio_fast.create_serial_connection(
-                loop, protocol_factory, url, baudrate=baudrate)
+                loop, protocol_factory, url, baudrate=baudrate
+            )
         except (OSError, ValueError, Exception) as exc:  # serial.SerialException is an IOError
             raise LinkError(f"cannot open {url}: {exc}") from exc
         return transport, protocol  # type: ignore[return-value]
@@ -67,7 +70,8 @@ async def open_link(url: str, baudrate: int, protocol_factory: Callable[[], P]) 
         raise LinkError(f"cannot open {url}: {exc}") from exc
     try:
         stransport, sprotocol = await serial_asyncio_fast.connection_for_serial(
-            loop, protocol_factory, port)
+            loop, protocol_factory, port
+        )
     except BaseException:
         port.close()
         raise
@@ -85,11 +89,17 @@ def _serial_failure_report(loop: asyncio.AbstractEventLoop, context: dict[str, A
     """
     exc = context.get("exception")
     transport = context.get("transport")
-    if not (isinstance(transport, serial_asyncio_fast.SerialTransport) and isinstance(exc, OSError)):
+    if not (
+        isinstance(transport, serial_asyncio_fast.SerialTransport) and isinstance(exc, OSError)
+    ):
         return False
     port = serial_port(transport)
-    log.warning("serial_transport_failed", port=port.port if port is not None else None,
-                what=context.get("message"), error=str(exc))
+    log.warning(
+        "serial_transport_failed",
+        port=port.port if port is not None else None,
+        what=context.get("message"),
+        error=str(exc),
+    )
     return True
 
 
@@ -129,8 +139,13 @@ def serial_port(transport: asyncio.BaseTransport | None) -> serial.Serial | None
     return None
 
 
-async def close_link(transport: asyncio.Transport, closed: asyncio.Event, *,
-                     abort: bool = False, timeout_s: float = CLOSE_WAIT_S) -> bool:
+async def close_link(
+    transport: asyncio.Transport,
+    closed: asyncio.Event,
+    *,
+    abort: bool = False,
+    timeout_s: float = CLOSE_WAIT_S,
+) -> bool:
     """Close `transport`, wait (bounded) for its `closed` event, and always end with the port closed.
 
     `closed` is set by the protocol's connection_lost. pyserial-asyncio reports that

@@ -18,10 +18,14 @@ from typing import Any
 #: A filter: True if it has dealt with the report, False to pass it on.
 ReportFilter = Callable[[asyncio.AbstractEventLoop, dict[str, Any]], bool]
 
-_INSTALLED: weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, set[str]] = weakref.WeakKeyDictionary()
+_INSTALLED: weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, set[str]] = (
+    weakref.WeakKeyDictionary()
+)
 
 
-def add_report_filter(loop: asyncio.AbstractEventLoop, name: str, report_filter: ReportFilter) -> None:
+def add_report_filter(
+    loop: asyncio.AbstractEventLoop, name: str, report_filter: ReportFilter
+) -> None:
     """Put `report_filter` in front of `loop`'s exception handler, unless `name` is there already."""
     names = _INSTALLED.setdefault(loop, set())
     if name in names:

@@ -74,7 +74,7 @@ class LinkFaults:
             return []
         if self.chunk_bytes is not None:
             n = self.chunk_bytes
-            return [data[i:i + n] for i in range(0, len(data), n)]
+            return [data[i : i + n] for i in range(0, len(data), n)]
         if self.random_chunks and len(data) > 1:
             cuts = sorted(rng.sample(range(1, len(data)), rng.randint(1, min(4, len(data) - 1))))
             return [data[a:b] for a, b in zip([0, *cuts], [*cuts, len(data)], strict=True)]
@@ -84,7 +84,9 @@ class LinkFaults:
 class _Pipe:
     """One direction of a link: an ordered queue of deliveries, one timer at a time."""
 
-    def __init__(self, loop: asyncio.AbstractEventLoop, sink: OnData, faults: LinkFaults | None) -> None:
+    def __init__(
+        self, loop: asyncio.AbstractEventLoop, sink: OnData, faults: LinkFaults | None
+    ) -> None:
         self._loop = loop
         self._sink = sink
         self.faults = faults
@@ -146,8 +148,13 @@ class _Pipe:
 class MemoryTransport(asyncio.Transport):
     """The driver's end of a `memory://` link; behaves as a serial transport does."""
 
-    def __init__(self, loop: asyncio.AbstractEventLoop, port: MemoryPort, protocol: asyncio.Protocol,
-                 url: str) -> None:
+    def __init__(
+        self,
+        loop: asyncio.AbstractEventLoop,
+        port: MemoryPort,
+        protocol: asyncio.Protocol,
+        url: str,
+    ) -> None:
         super().__init__(extra={"peername": url})
         self._loop = loop
         self._port = port
@@ -262,10 +269,16 @@ class MemoryPort:
     disappears, so a reconnect fails until `open()` brings it back).
     """
 
-    def __init__(self, on_data: OnData, name: str, *, on_connect: Callable[[], None] | None = None,
-                 on_disconnect: Callable[[], None] | None = None,
-                 faults_to_driver: LinkFaults | None = None,
-                 faults_to_device: LinkFaults | None = None) -> None:
+    def __init__(
+        self,
+        on_data: OnData,
+        name: str,
+        *,
+        on_connect: Callable[[], None] | None = None,
+        on_disconnect: Callable[[], None] | None = None,
+        faults_to_driver: LinkFaults | None = None,
+        faults_to_device: LinkFaults | None = None,
+    ) -> None:
         if not name or "/" in name:
             raise ValueError(f"a memory link name must be non-empty without '/', got {name!r}")
         self._on_data = on_data
@@ -334,7 +347,9 @@ class MemoryPort:
 
     # -- called by the transport and open_link
 
-    def connect(self, loop: asyncio.AbstractEventLoop, protocol: asyncio.Protocol) -> MemoryTransport:
+    def connect(
+        self, loop: asyncio.AbstractEventLoop, protocol: asyncio.Protocol
+    ) -> MemoryTransport:
         if not self._open:
             raise MemoryLinkError(f"nothing is serving {self.url}")
         if self._transport is not None:
@@ -351,8 +366,9 @@ class MemoryPort:
         if self._tx is not None:
             self._tx.push(data)
 
-    def driver_closing(self, transport: MemoryTransport, exc: Exception | None, *,
-                       flush: bool = True) -> None:
+    def driver_closing(
+        self, transport: MemoryTransport, exc: Exception | None, *, flush: bool = True
+    ) -> None:
         loop = transport._loop
         if transport is not self._transport:
             loop.call_soon(transport._deliver_lost, exc)
@@ -374,14 +390,16 @@ class MemoryPort:
 
 def lookup(url: str) -> MemoryPort:
     """The port serving `url` (`memory://NAME`); MemoryLinkError if none is."""
-    name = url[len(SCHEME):] if url.startswith(SCHEME) else url
+    name = url[len(SCHEME) :] if url.startswith(SCHEME) else url
     port = _registry.get(name)
     if port is None or not port.is_open:
         raise MemoryLinkError(f"nothing is serving {SCHEME}{name}")
     return port
 
 
-async def open_memory_link(url: str, protocol_factory: Callable[[], P]) -> tuple[MemoryTransport, P]:
+async def open_memory_link(
+    url: str, protocol_factory: Callable[[], P]
+) -> tuple[MemoryTransport, P]:
     """Connect `protocol_factory()` to the fake serving `url`, as `open_link` does for ports."""
     loop = asyncio.get_running_loop()
     port = lookup(url)

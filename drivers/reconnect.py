@@ -89,13 +89,24 @@ class Reconnect:
     wait begins is polled and retried as soon as it reappears.
     """
 
-    def __init__(self, log: structlog.typing.FilteringBoundLogger, event: str, *, backoff: Backoff,
-                 clock: Clock, url: str = "", remind_s: float | None = None,
-                 recovered_event: str | None = None) -> None:
+    def __init__(
+        self,
+        log: structlog.typing.FilteringBoundLogger,
+        event: str,
+        *,
+        backoff: Backoff,
+        clock: Clock,
+        url: str = "",
+        remind_s: float | None = None,
+        recovered_event: str | None = None,
+    ) -> None:
         self._log = log
         self.event = event
-        self.recovered_event = (event.removesuffix("_failed") + "_recovered"
-                                if recovered_event is None else recovered_event)
+        self.recovered_event = (
+            event.removesuffix("_failed") + "_recovered"
+            if recovered_event is None
+            else recovered_event
+        )
         self.backoff = backoff
         self.clock = clock
         self.url = url
@@ -131,8 +142,15 @@ class Reconnect:
             self.phase = Phase.UP
         return again
 
-    def failed(self, error: BaseException | str, *, unexpected: bool = False, kind: str | None = None,
-               event: str | None = None, **fields: object) -> str:
+    def failed(
+        self,
+        error: BaseException | str,
+        *,
+        unexpected: bool = False,
+        kind: str | None = None,
+        event: str | None = None,
+        **fields: object,
+    ) -> str:
         """Count a failure, log it as the policy says; returns the error text kept.
 
         `kind` tells failures apart within a streak: a failure of another kind than
@@ -156,8 +174,11 @@ class Reconnect:
             # A bug: loud, with its traceback (we are inside the except block).
             self._log.exception(name, error=text, attempt=self.failures, **fields)
             return text
-        remind = (self.remind_s is not None and self._warned_t is not None
-                  and now - self._warned_t >= self.remind_s)
+        remind = (
+            self.remind_s is not None
+            and self._warned_t is not None
+            and now - self._warned_t >= self.remind_s
+        )
         if self.failures == 1 or new_kind or remind:
             self._warned_t = now
             self._log.warning(name, error=text, attempt=self.failures, **fields)
@@ -171,14 +192,23 @@ class Reconnect:
 
     async def wait(self, stop: asyncio.Event, delay_s: float | None = None) -> None:
         """Sleep the next backoff delay, or less: `stop` set, or the port plugged back in."""
-        await wait_before_retry(self.url, self.next_delay() if delay_s is None else delay_s,
-                                self.clock, stop)
+        await wait_before_retry(
+            self.url, self.next_delay() if delay_s is None else delay_s, self.clock, stop
+        )
 
     def close(self) -> None:
         self.phase = Phase.CLOSED
 
-    async def run(self, connect: Step, serve: Step, *, stop: asyncio.Event, describe: Describe,
-                  on_failure: OnFailure | None = None, after_loss: Step | None = None) -> None:
+    async def run(
+        self,
+        connect: Step,
+        serve: Step,
+        *,
+        stop: asyncio.Event,
+        describe: Describe,
+        on_failure: OnFailure | None = None,
+        after_loss: Step | None = None,
+    ) -> None:
         """Connect, serve until the link is lost, back off, again; until `stop` is set.
 
         `connect()` opens and proves one connection (its success resets the backoff);
@@ -202,8 +232,13 @@ class Reconnect:
                 if stop.is_set() and not failure.unexpected:
                     break
                 error: BaseException | str = exc if failure.text is None else failure.text
-                text = self.failed(error, unexpected=failure.unexpected, kind=failure.kind,
-                                   event=failure.event, **failure.fields)
+                text = self.failed(
+                    error,
+                    unexpected=failure.unexpected,
+                    kind=failure.kind,
+                    event=failure.event,
+                    **failure.fields,
+                )
                 if on_failure is not None:
                     on_failure(exc, failure, text)
             if stop.is_set():

@@ -29,7 +29,9 @@ class Actuator:
 
     def vel_rvel(self, left_mm_s: float, right_mm_s: float) -> tuple[float, float]:
         """(VEL, RVEL) before rounding, as the driver computes them."""
-        return (left_mm_s + right_mm_s) / 2.0, math.degrees((right_mm_s - left_mm_s) / 2.0 * self.diff_conv)
+        return (left_mm_s + right_mm_s) / 2.0, math.degrees(
+            (right_mm_s - left_mm_s) / 2.0 * self.diff_conv
+        )
 
     def wheels(self, vel_mm_s: float, rvel_deg_s: float) -> tuple[float, float]:
         d = math.radians(rvel_deg_s) / self.diff_conv
@@ -65,8 +67,9 @@ class Actuator:
             vel = int(math.copysign(mag, vel))
         return vel, rvel
 
-    def express_wheels(self, left_mm_s: float, right_mm_s: float,
-                       wheel_max_mm_s: float | None = None) -> tuple[float, float]:
+    def express_wheels(
+        self, left_mm_s: float, right_mm_s: float, wheel_max_mm_s: float | None = None
+    ) -> tuple[float, float]:
         """Wheel speeds that the driver turns into exactly the intended integer VEL/RVEL."""
         vel, rvel = self.express(*self.vel_rvel(left_mm_s, right_mm_s))
         if wheel_max_mm_s is not None:

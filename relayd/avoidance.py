@@ -76,8 +76,11 @@ def _strayed(st: AvoidState, s: Sense, p: AvoidParams) -> bool:
     """The escape (not the paper's law) has taken the robot beyond max_stray_m of where it
     took over: a relay in a building is then going round the building, away from its
     leader and its link behind, not round an obstacle."""
-    return (st.mode is not AvoidMode.FOLLOW and st.hit_at is not None
-            and math.dist(st.hit_at, s.pose[:2]) > p.max_stray_m * 1000.0)
+    return (
+        st.mode is not AvoidMode.FOLLOW
+        and st.hit_at is not None
+        and math.dist(st.hit_at, s.pose[:2]) > p.max_stray_m * 1000.0
+    )
 
 
 def _bookkeep(st: AvoidState, s: Sense) -> AvoidState:
@@ -92,7 +95,9 @@ def _bookkeep(st: AvoidState, s: Sense) -> AvoidState:
     return replace(st, last_pose=s.pose)
 
 
-def avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tuple[AvoidState, AvoidCommand]:
+def avoid_step(
+    st: AvoidState, s: Sense, p: AvoidParams, act: Actuator
+) -> tuple[AvoidState, AvoidCommand]:
     """One decision while the link rule says drive; see the module docstring."""
     new, cmd = _avoid_step(st, s, p, act)
     if new.mode is not st.mode:
@@ -100,21 +105,35 @@ def avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tuple
     return new, cmd
 
 
-def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tuple[AvoidState, AvoidCommand]:
+def _avoid_step(
+    st: AvoidState, s: Sense, p: AvoidParams, act: Actuator
+) -> tuple[AvoidState, AvoidCommand]:
     st = _bookkeep(st, s)
     r = by_heading(s.sonar)
     d_min = min((d for h, d in r.items() if abs(h) < 90.0), default=SONAR_MAX_RANGE_M)
     t = s.t_s
 
-    if st.escape_t is not None and st.mode is not AvoidMode.BLOCKED and (
-            t - st.escape_t > p.max_escape_s or st.path_m > p.max_escape_m
-            or st.turned_deg > p.max_turn_deg or _strayed(st, s, p)):
+    if (
+        st.escape_t is not None
+        and st.mode is not AvoidMode.BLOCKED
+        and (
+            t - st.escape_t > p.max_escape_s
+            or st.path_m > p.max_escape_m
+            or st.turned_deg > p.max_turn_deg
+            or _strayed(st, s, p)
+        )
+    ):
         return enter(st, AvoidMode.BLOCKED, t), AvoidCommand(False, reason="blocked")
 
     if st.mode is AvoidMode.BLOCKED:
-        if abs(s.bearing_deg) < 30.0 and leader_clear(r, s.bearing_deg, p.leave_clear_m) \
-                and d_min > p.threshold_o_m:
-            st = enter(AvoidState(), AvoidMode.FOLLOW, t, anchor=s.pose[:2], anchor_t=t, last_pose=s.pose)
+        if (
+            abs(s.bearing_deg) < 30.0
+            and leader_clear(r, s.bearing_deg, p.leave_clear_m)
+            and d_min > p.threshold_o_m
+        ):
+            st = enter(
+                AvoidState(), AvoidMode.FOLLOW, t, anchor=s.pose[:2], anchor_t=t, last_pose=s.pose
+            )
             return st, AvoidCommand(True)
         return st, AvoidCommand(False, reason="blocked")
 
@@ -128,15 +147,29 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
                 since = t
             st = replace(st, clear_since_t=since)
             if since is not None and t - since > p.episode_clear_s:
-                st = replace(st, escape_t=None, side=0, path_m=0.0, turned_deg=0.0, clear_since_t=None,
-                             hit_at=None)
+                st = replace(
+                    st,
+                    escape_t=None,
+                    side=0,
+                    path_m=0.0,
+                    turned_deg=0.0,
+                    clear_since_t=None,
+                    hit_at=None,
+                )
         stuck = t - st.anchor_t > p.no_progress_s
         if d_min >= p.stop_distance_m and not stuck:
             return st, AvoidCommand(True)
         st = replace(st, hit_at=s.pose[:2], clear_since_t=None)
         if st.escape_t is None:
-            st = replace(st, escape_t=t, path_m=0.0, turned_deg=0.0, side=0,
-                         goal_deg=s.pose[2] + s.bearing_deg, hit_proj_m=_proj_m(s.pose, s.pose[2] + s.bearing_deg))
+            st = replace(
+                st,
+                escape_t=t,
+                path_m=0.0,
+                turned_deg=0.0,
+                side=0,
+                goal_deg=s.pose[2] + s.bearing_deg,
+                hit_proj_m=_proj_m(s.pose, s.pose[2] + s.bearing_deg),
+            )
             if abs(s.bearing_deg) >= p.align_first_deg:
                 # The leader is off to a side or behind (round a corner the robot overran):
                 # what blocks the way ahead is not between them, and going round it would
@@ -148,8 +181,14 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
                 st = replace(st, side=choose_side(s.sonar, s.bearing_deg, p.tie_m))
             st = enter(st, AvoidMode.TURN, t)
             if d_min < p.backoff_below_m and rear_min_m(s.rear) > p.stop_distance_m + 0.1:
-                st = enter(st, AvoidMode.BACKOFF, t, backoff_from=s.pose[:2], backoff_len_m=p.backoff_max_m,
-                           unjam=False)
+                st = enter(
+                    st,
+                    AvoidMode.BACKOFF,
+                    t,
+                    backoff_from=s.pose[:2],
+                    backoff_len_m=p.backoff_max_m,
+                    unjam=False,
+                )
             else:
                 st = _maybe_lane(st, s, r, p, t)
 
@@ -160,9 +199,14 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
         # A back-off after the hit stops once the obstacle is far enough ahead; one to
         # unjam a turn runs its whole length, because what stops the turn is beside the
         # robot (a door's jambs), and the way ahead may be wide open.
-        if ((st.unjam or d_min < p.backoff_to_m) and backed < st.backoff_len_m
-                and rear_min_m(s.rear) > p.stop_distance_m + 0.1):
-            vel, _ = guard(-act.express(p.backoff_speed_mm_s, 0.0)[0], 0, s.sonar, p.stop_distance_m, s.rear)
+        if (
+            (st.unjam or d_min < p.backoff_to_m)
+            and backed < st.backoff_len_m
+            and rear_min_m(s.rear) > p.stop_distance_m + 0.1
+        ):
+            vel, _ = guard(
+                -act.express(p.backoff_speed_mm_s, 0.0)[0], 0, s.sonar, p.stop_distance_m, s.rear
+            )
             reason = "rejoining" if st.after_backoff is AvoidMode.ALIGN else "avoiding"
             return st, AvoidCommand(False, vel, 0, reason)
         after = st.after_backoff
@@ -186,10 +230,18 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
             return st, cmd
         if rear_min_m(s.rear) > p.stop_distance_m + 0.1:
             # No room to turn here (in a doorway): back off a little and turn there.
-            st = enter(st, AvoidMode.BACKOFF, t, backoff_from=s.pose[:2], backoff_len_m=p.unjam_m, unjam=True,
-                        after_backoff=AvoidMode.ALIGN)
-            vel, _ = guard(-act.express(p.backoff_speed_mm_s, 0.0)[0], 0, s.sonar,
-                           p.stop_distance_m, s.rear)
+            st = enter(
+                st,
+                AvoidMode.BACKOFF,
+                t,
+                backoff_from=s.pose[:2],
+                backoff_len_m=p.unjam_m,
+                unjam=True,
+                after_backoff=AvoidMode.ALIGN,
+            )
+            vel, _ = guard(
+                -act.express(p.backoff_speed_mm_s, 0.0)[0], 0, s.sonar, p.stop_distance_m, s.rear
+            )
             return st, AvoidCommand(False, vel, 0, "rejoining")
         # Too close to turn: keep rounding (on the freer side, if none is latched yet).
         side = st.side or choose_side(s.sonar, s.bearing_deg, p.tie_m)
@@ -198,25 +250,41 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
     if st.mode is AvoidMode.TURN:
         front = min_at(r, (10.0, -10.0, 30.0, -30.0))
         turned = abs(wrap_deg(s.pose[2] - st.mode_heading_deg))
-        if (front > p.front_clear_m and min_at(r, (50.0 * -st.side,)) > p.stop_distance_m
-                and (front > p.turn_clear_m or turned >= p.turn_max_deg)):
+        if (
+            front > p.front_clear_m
+            and min_at(r, (50.0 * -st.side,)) > p.stop_distance_m
+            and (front > p.turn_clear_m or turned >= p.turn_max_deg)
+        ):
             st = enter(st, AvoidMode.WALL, t, lost_at=None)
         else:
             cmd = turn_cmd(act, s, p, st.side * p.turn_rate_deg_s, "avoiding")
             if cmd.rvel_deg_s == 0 and rear_min_m(s.rear) > p.stop_distance_m + 0.1:
                 # No room to turn here (a corner, a passage): back off a little and retry.
-                st = enter(st, AvoidMode.BACKOFF, t, backoff_from=s.pose[:2],
-                            backoff_len_m=p.unjam_m, unjam=True)
-                vel, _ = guard(-act.express(p.backoff_speed_mm_s, 0.0)[0], 0, s.sonar,
-                               p.stop_distance_m, s.rear)
+                st = enter(
+                    st,
+                    AvoidMode.BACKOFF,
+                    t,
+                    backoff_from=s.pose[:2],
+                    backoff_len_m=p.unjam_m,
+                    unjam=True,
+                )
+                vel, _ = guard(
+                    -act.express(p.backoff_speed_mm_s, 0.0)[0],
+                    0,
+                    s.sonar,
+                    p.stop_distance_m,
+                    s.rear,
+                )
                 return st, AvoidCommand(False, vel, 0, "avoiding")
             return st, cmd
 
     if st.mode is AvoidMode.CORNER:
         # A corner without its target heading is over (follow the wall again).
-        if (st.corner_heading_deg is None
-                or abs(wrap_deg(s.pose[2] - st.corner_heading_deg)) < 5.0
-                or d_min < p.stop_distance_m):
+        if (
+            st.corner_heading_deg is None
+            or abs(wrap_deg(s.pose[2] - st.corner_heading_deg)) < 5.0
+            or d_min < p.stop_distance_m
+        ):
             st = enter(st, AvoidMode.WALL, t, lost_at=None, corner_heading_deg=None)
         else:
             return st, turn_cmd(act, s, p, -st.side * p.turn_rate_deg_s, "avoiding")
@@ -233,8 +301,9 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
             return st, drive_cmd(act, s, p, p.wall_speed_mm_s, 0.0)
     else:
         st = replace(st, opening_at=None)
-    if (progress > (p.door_progress_m if door else p.leave_progress_m)
-            and leader_clear(r, s.bearing_deg, p.leave_clear_m, w)):
+    if progress > (p.door_progress_m if door else p.leave_progress_m) and leader_clear(
+        r, s.bearing_deg, p.leave_clear_m, w
+    ):
         st = enter(st, AvoidMode.ALIGN, t)
         if abs(s.bearing_deg) <= p.align_tol_deg:
             st = enter(st, AvoidMode.FOLLOW, t, anchor=s.pose[:2], anchor_t=t)
@@ -243,8 +312,13 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
     if min_at(r, (10.0, -10.0, 30.0 * w)) < p.front_clear_m or d_min < p.stop_distance_m:
         if st.lost_at is not None:
             # Blocked while rounding an outer corner: the way on is round it, toward the wall.
-            st = enter(st, AvoidMode.CORNER, t, lost_at=None,
-                        corner_heading_deg=wrap_deg(s.pose[2] + w * 90.0))
+            st = enter(
+                st,
+                AvoidMode.CORNER,
+                t,
+                lost_at=None,
+                corner_heading_deg=wrap_deg(s.pose[2] + w * 90.0),
+            )
             return st, turn_cmd(act, s, p, w * p.turn_rate_deg_s, "avoiding")
         st = enter(st, AvoidMode.TURN, t)
         return st, turn_cmd(act, s, p, st.side * p.turn_rate_deg_s, "avoiding")
@@ -256,15 +330,25 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
         lost = st.lost_at or s.pose[:2]
         st = replace(st, lost_at=lost)
         if math.dist(lost, s.pose[:2]) >= p.corner_run_m * 1000.0:
-            st = enter(st, AvoidMode.CORNER, t, lost_at=None,
-                        corner_heading_deg=wrap_deg(s.pose[2] + w * 90.0))
+            st = enter(
+                st,
+                AvoidMode.CORNER,
+                t,
+                lost_at=None,
+                corner_heading_deg=wrap_deg(s.pose[2] + w * 90.0),
+            )
             return st, turn_cmd(act, s, p, w * p.turn_rate_deg_s, "avoiding")
         return st, drive_cmd(act, s, p, p.wall_speed_mm_s, 0.0)
     st = replace(st, lost_at=None, had_wall=True)
     lateral, angle = fit
     target = HALF_WIDTH_M + p.wall_gap_m
-    other = min((LATERAL_M[h] + r.get(-w * h, SONAR_MAX_RANGE_M) * math.sin(math.radians(h))
-                 for h in (90.0, 50.0)), default=SONAR_MAX_RANGE_M)
+    other = min(
+        (
+            LATERAL_M[h] + r.get(-w * h, SONAR_MAX_RANGE_M) * math.sin(math.radians(h))
+            for h in (90.0, 50.0)
+        ),
+        default=SONAR_MAX_RANGE_M,
+    )
     if lateral + other < 2.0 * target:
         target = (lateral + other) / 2.0  # a narrow gap: keep to its middle
     rvel = p.wall_angle_gain * angle + w * p.wall_gain_deg_s_per_m * (lateral - target)
@@ -272,7 +356,9 @@ def _avoid_step(st: AvoidState, s: Sense, p: AvoidParams, act: Actuator) -> tupl
     return st, drive_cmd(act, s, p, p.wall_speed_mm_s, rvel)
 
 
-def _maybe_lane(st: AvoidState, s: Sense, r: dict[float, float], p: AvoidParams, t: float) -> AvoidState:
+def _maybe_lane(
+    st: AvoidState, s: Sense, r: dict[float, float], p: AvoidParams, t: float
+) -> AvoidState:
     """In a passage (a boundary abeam on the free side), change lanes instead of turning:
     there is no room to turn in place and follow the obstacle's face."""
     free = r.get(st.side * 90.0, SONAR_MAX_RANGE_M)
@@ -291,26 +377,34 @@ def _maybe_lane(st: AvoidState, s: Sense, r: dict[float, float], p: AvoidParams,
     return enter(st, AvoidMode.LANE, t, lane_ref=s.pose)
 
 
-def _lane(st: AvoidState, s: Sense, r: dict[float, float], p: AvoidParams, act: Actuator,
-          t: float) -> tuple[AvoidState, AvoidCommand | None]:
+def _lane(
+    st: AvoidState, s: Sense, r: dict[float, float], p: AvoidParams, act: Actuator, t: float
+) -> tuple[AvoidState, AvoidCommand | None]:
     """Run beside the free side's boundary at the lane's distance (the middle of a narrow
     gap once the obstacle is abeam) until the obstacle is behind, then drift back and
     hand over to the paper's law; None hands over to TURN (the lane is shut)."""
     if st.lane_ref is None:  # no lane to keep: hand over to TURN, as a shut lane does
         return st, None
     x0, y0, h0 = st.lane_ref
-    along = ((s.pose[0] - x0) * math.cos(math.radians(h0))
-             + (s.pose[1] - y0) * math.sin(math.radians(h0))) / 1000.0
+    along = (
+        (s.pose[0] - x0) * math.cos(math.radians(h0))
+        + (s.pose[1] - y0) * math.sin(math.radians(h0))
+    ) / 1000.0
     w = -st.side  # the obstacle's side
     # Past the obstacle once the sonars on its side, the rear one abeam included (the
     # robot's back half is still beside it when the front ring clears), see open space.
     rear_abeam = [echo_m(x) for x in s.rear if x.index == (15 if w > 0 else 8)]
-    passed = (along > 0.5 and min_at(r, tuple(w * h for h in (90.0, 50.0, 30.0))) > p.leave_clear_m
-              and min(rear_abeam, default=SONAR_MAX_RANGE_M) > p.leave_clear_m)
+    passed = (
+        along > 0.5
+        and min_at(r, tuple(w * h for h in (90.0, 50.0, 30.0))) > p.leave_clear_m
+        and min(rear_abeam, default=SONAR_MAX_RANGE_M) > p.leave_clear_m
+    )
     if passed and forward_min_m(s.sonar) >= p.threshold_o_m:
         # Out of the gap and clear of its sides: the paper's law takes over, turning
         # gently onto the leader as it drives.
-        return enter(st, AvoidMode.FOLLOW, t, lane_ref=None, anchor=s.pose[:2], anchor_t=t), AvoidCommand(True)
+        return enter(
+            st, AvoidMode.FOLLOW, t, lane_ref=None, anchor=s.pose[:2], anchor_t=t
+        ), AvoidCommand(True)
     if max(r.get(10.0, SONAR_MAX_RANGE_M), r.get(-10.0, SONAR_MAX_RANGE_M)) < p.front_clear_m:
         # Both forward sonars close: something across the lane (a diagonal approach to
         # the side boundary shows in one of them only). Go round it instead.
@@ -322,17 +416,23 @@ def _lane(st: AvoidState, s: Sense, r: dict[float, float], p: AvoidParams, act: 
         wall_lat, wall_angle = fit
         want = HALF_WIDTH_M + p.lane_margin_m
         # An echo at the edge of the abeam beam is no nearer than r cos 15 sideways.
-        obstacle_lat = LATERAL_M[90.0] + r.get(w * 90.0, SONAR_MAX_RANGE_M) * math.cos(math.radians(15.0))
+        obstacle_lat = LATERAL_M[90.0] + r.get(w * 90.0, SONAR_MAX_RANGE_M) * math.cos(
+            math.radians(15.0)
+        )
         if passed:
             # Past it: drift back toward the middle of the passage, then hand back.
-            want = min((wall_lat + LATERAL_M[90.0] + r.get(w * 90.0, SONAR_MAX_RANGE_M)) / 2.0,
-                       wall_lat + 0.1)
+            want = min(
+                (wall_lat + LATERAL_M[90.0] + r.get(w * 90.0, SONAR_MAX_RANGE_M)) / 2.0,
+                wall_lat + 0.1,
+            )
         elif obstacle_lat < want:
             # Nearer the obstacle than the lane asks: the gap is narrow, keep to its middle.
             # (Only this way round: an echo off the obstacle's far corner, at the edge of
             # the abeam beam, must not pull the robot toward it.)
             want = (wall_lat + obstacle_lat) / 2.0
-        toward = max(-p.lane_max_deg, min(p.lane_max_deg, p.lane_gain_deg_per_m * (wall_lat - want)))
+        toward = max(
+            -p.lane_max_deg, min(p.lane_max_deg, p.lane_gain_deg_per_m * (wall_lat - want))
+        )
         # Heading away from that boundary swings the tail toward it (the centre is 0.31 m
         # ahead of the rear corners): only as far as keeps the tail corner at the margin.
         spare = wall_lat - HALF_WIDTH_M - (p.lane_margin_m - 0.02)
@@ -349,4 +449,3 @@ def _lane(st: AvoidState, s: Sense, r: dict[float, float], p: AvoidParams, act: 
     if cmd.vel_mm_s == 0 and cmd.rvel_deg_s == 0 and forward_min_m(s.sonar) < p.front_clear_m:
         return enter(st, AvoidMode.TURN, t, lane_ref=None), None  # the lane is shut: go round
     return st, cmd
-

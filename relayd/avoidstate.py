@@ -50,7 +50,9 @@ class AvoidParams:
     backoff_max_m: float = 1.2
     backoff_speed_mm_s: float = 100.0
     unjam_m: float = 0.3  # back-off when a turn in place has no room
-    lane_detect_m: float = 1.5  # a boundary this close abeam on the free side: a passage, not open ground
+    lane_detect_m: float = (
+        1.5  # a boundary this close abeam on the free side: a passage, not open ground
+    )
     lane_margin_m: float = 0.12  # footprint to that boundary while changing lanes
     lane_min_shift_m: float = 0.3
     lane_speed_mm_s: float = 100.0
@@ -153,4 +155,3 @@ def drive_cmd(act: Actuator, s: Sense, p: AvoidParams, vel: float, rvel: float) 
     """Drive at (`vel` mm/s, `rvel` deg/s), as the actuator and the guard allow it."""
     v, rv = guard(*act.express(vel, rvel), s.sonar, p.stop_distance_m, s.rear)
     return AvoidCommand(False, v, rv, "avoiding")
-

@@ -98,8 +98,13 @@ class LobeFit:
 Fit = tuple[list[float], list[list[float]], dict[int, float]]
 
 
-def _wls(us: Sequence[float], ys: Sequence[float], ws: Sequence[float],
-         prior: tuple[float, float] | None, gs: Sequence[int] | None = None) -> Fit | None:
+def _wls(
+    us: Sequence[float],
+    ys: Sequence[float],
+    ws: Sequence[float],
+    prior: tuple[float, float] | None,
+    gs: Sequence[int] | None = None,
+) -> Fit | None:
     """Weighted quadratic fit: coefficients (a, b, c), (X^T W X)^-1 and each scan's level.
 
     `prior` = (c0, weight): a pseudo-observation c = c0 of that weight (in units of one
@@ -127,7 +132,9 @@ def _wls(us: Sequence[float], ys: Sequence[float], ws: Sequence[float],
     return coef, inv, {}
 
 
-def _inverse_sym3(s0: float, s1: float, s2: float, s3: float, s4: float) -> list[list[float]] | None:
+def _inverse_sym3(
+    s0: float, s1: float, s2: float, s3: float, s4: float
+) -> list[list[float]] | None:
     """The inverse of the normal matrix [[s0, s1, s2], [s1, s2, s3], [s2, s3, s4]] by its
     adjugate: one closed form instead of four eliminations (a scan end fits this a dozen
     times). None when it is singular to working precision."""
@@ -140,11 +147,20 @@ def _inverse_sym3(s0: float, s1: float, s2: float, s3: float, s4: float) -> list
     c11 = s0 * s4 - s2 * s2
     c12 = s1 * s2 - s0 * s3
     c22 = s0 * s2 - s1 * s1
-    return [[c00 / det, c01 / det, c02 / det], [c01 / det, c11 / det, c12 / det], [c02 / det, c12 / det, c22 / det]]
+    return [
+        [c00 / det, c01 / det, c02 / det],
+        [c01 / det, c11 / det, c12 / det],
+        [c02 / det, c12 / det, c22 / det],
+    ]
 
 
-def _wls_pooled(us: Sequence[float], ys: Sequence[float], ws: Sequence[float],
-                prior: tuple[float, float] | None, gs: Sequence[int]) -> Fit | None:
+def _wls_pooled(
+    us: Sequence[float],
+    ys: Sequence[float],
+    ws: Sequence[float],
+    prior: tuple[float, float] | None,
+    gs: Sequence[int],
+) -> Fit | None:
     """`_wls` with one level per scan: (b, c) from the data centred within each scan.
 
     One pass accumulates each scan's weighted sums of 1, u, u^2, y and their products;
@@ -221,10 +237,14 @@ def _median(xs: Sequence[float]) -> float:
     return s[n // 2] if n % 2 else 0.5 * (s[n // 2 - 1] + s[n // 2])
 
 
-def fit_main_lobe(angles_deg: Sequence[float], rssi_dbm: Sequence[float],
-                  params: LobeParams = LobeParams(), *,
-                  beamwidth_prior_deg: float | None = None,
-                  scan_ids: Sequence[int] | None = None) -> LobeFit | None:
+def fit_main_lobe(
+    angles_deg: Sequence[float],
+    rssi_dbm: Sequence[float],
+    params: LobeParams = LobeParams(),
+    *,
+    beamwidth_prior_deg: float | None = None,
+    scan_ids: Sequence[int] | None = None,
+) -> LobeFit | None:
     """The leader's bearing from one scan by a parabolic fit of the main lobe in dB.
 
     `beamwidth_prior_deg`: the antenna's 3 dB beamwidth as learned from earlier scans
@@ -247,11 +267,16 @@ def fit_main_lobe(angles_deg: Sequence[float], rssi_dbm: Sequence[float],
     # Sorted by angle, then scan (not by value): the same samples give the same order
     # whatever each scan's level was, to the last bit.
     if not (all(map(math.isfinite, angles_deg)) and all(map(math.isfinite, rssi_dbm))):
-        a, r = next((a, r) for a, r in zip(angles_deg, rssi_dbm, strict=True)
-                    if not (math.isfinite(a) and math.isfinite(r)))
+        a, r = next(
+            (a, r)
+            for a, r in zip(angles_deg, rssi_dbm, strict=True)
+            if not (math.isfinite(a) and math.isfinite(r))
+        )
         raise ValueError(f"samples must be finite, got angle {a!r}, rssi {r!r}")
-    triples = sorted(((a, r - offsets[g], g) for a, r, g in zip(angles_deg, rssi_dbm, ids, strict=True)),
-                     key=itemgetter(0, 2))
+    triples = sorted(
+        ((a, r - offsets[g], g) for a, r, g in zip(angles_deg, rssi_dbm, ids, strict=True)),
+        key=itemgetter(0, 2),
+    )
     if len(triples) < 3:
         return None
     angles = [a for a, _, _ in triples]
@@ -321,16 +346,27 @@ def fit_main_lobe(angles_deg: Sequence[float], rssi_dbm: Sequence[float],
     centre = u0 + centre_u
     span_lo, span_hi = angles[0], angles[-1]
     extrapolated = not (span_lo <= centre <= span_hi)
-    centre = min(max(centre, span_lo - params.max_extrapolation_deg), span_hi + params.max_extrapolation_deg)
+    centre = min(
+        max(centre, span_lo - params.max_extrapolation_deg), span_hi + params.max_extrapolation_deg
+    )
     peak_dbm = a + b * centre_u + c * centre_u * centre_u + offsets[max(offsets)]
     beamwidth = 2.0 * math.sqrt(_DB_AT_HALF_BEAMWIDTH / -c)
     if beamwidth > params.max_beamwidth_deg:
         return None
-    return LobeFit(bearing_deg=centre, sd_deg=sd, beamwidth_deg=beamwidth, peak_dbm=peak_dbm,
-                   used=hi - lo + 1, extrapolated=extrapolated, noise_db=resid_scale)
+    return LobeFit(
+        bearing_deg=centre,
+        sd_deg=sd,
+        beamwidth_deg=beamwidth,
+        peak_dbm=peak_dbm,
+        used=hi - lo + 1,
+        extrapolated=extrapolated,
+        noise_db=resid_scale,
+    )
 
 
-def _scan_levels(angles: Sequence[float], rssi: Sequence[float], ids: Sequence[int]) -> dict[int, float]:
+def _scan_levels(
+    angles: Sequence[float], rssi: Sequence[float], ids: Sequence[int]
+) -> dict[int, float]:
     """Each scan's top: the highest 3-point running mean of its samples in angle order."""
     by_scan: dict[int, list[tuple[float, float]]] = {}
     for a, r, g in zip(angles, rssi, ids, strict=True):

@@ -144,7 +144,9 @@ class Brain:
         # Breadcrumbs and the recovery episode (relayd.recovery).
         self._rear_polls = 0
         self.recovery = RecoveryMemory()
-        self.retreat = RetreatMemory()  # stepping back out of a shadow (relayd.retreat, adaptive only)
+        self.retreat = (
+            RetreatMemory()
+        )  # stepping back out of a shadow (relayd.retreat, adaptive only)
         self._recovery_shown: RecoveryView | None = None
 
     # -- read-only views (the API's shell checks a drive command against the mode) ------
@@ -175,7 +177,9 @@ class Brain:
                     self._rssi_fresh_t = s.t
                 return []
             case ScanReady():
-                return self.scans.ready(event.t, self._heading, self._mode is Mode.FOLLOW, self._servo_ok)
+                return self.scans.ready(
+                    event.t, self._heading, self._mode is Mode.FOLLOW, self._servo_ok
+                )
             case ScanSampleEvent():
                 self.scans.sample(event, self._heading)
                 return []
@@ -191,7 +195,8 @@ class Brain:
                 return self._step(event.t, None)
             case DriveCommand():
                 if self._mode is not Mode.MANUAL or not (
-                        math.isfinite(event.left_mm_s) and math.isfinite(event.right_mm_s)):
+                    math.isfinite(event.left_mm_s) and math.isfinite(event.right_mm_s)
+                ):
                     return []  # the API's shell refuses these before they get here
                 self._manual = (float(event.left_mm_s), float(event.right_mm_s), event.t)
                 return self._step(event.t, None)
@@ -237,8 +242,16 @@ class Brain:
         peer: Station | None
         if mac is not None:
             value = q.station_signal_dbm(mac)
-            peer = next((s for s in q.stations if s.mac is not None and s.signal_dbm == value
-                         and s.mac.lower().replace("-", ":") == mac.lower().replace("-", ":")), None)
+            peer = next(
+                (
+                    s
+                    for s in q.stations
+                    if s.mac is not None
+                    and s.signal_dbm == value
+                    and s.mac.lower().replace("-", ":") == mac.lower().replace("-", ":")
+                ),
+                None,
+            )
         else:
             # A rear radio in station mode has no station list: its own signal is the link's.
             peer = q.best_station
@@ -247,23 +260,35 @@ class Brain:
         self._rear_polls += 1
         return self._rear_view(ev.t) + self._learn_rear(ev, value, peer)
 
-    def _learn_rear(self, ev: LinkEvent, rssi_dbm: float | None, peer: Station | None) -> list[Action]:
+    def _learn_rear(
+        self, ev: LinkEvent, rssi_dbm: float | None, peer: Station | None
+    ) -> list[Action]:
         """Feed the rear-link model one poll; in adaptive mode its limit becomes the controller's."""
         if rssi_dbm is None:
             return []
         q = ev.quality
-        tx, rx, ccq = (peer.tx_mbps, peer.rx_mbps, peer.ccq_pct) if peer is not None \
+        tx, rx, ccq = (
+            (peer.tx_mbps, peer.rx_mbps, peer.ccq_pct)
+            if peer is not None
             else (q.tx_mbps, q.rx_mbps, q.ccq_pct)
+        )
         moved = None
         if self._pose is not None and self._rear_pose is not None:
-            moved = math.hypot(self._pose[0] - self._rear_pose[0], self._pose[1] - self._rear_pose[1]) / 1000.0
+            moved = (
+                math.hypot(self._pose[0] - self._rear_pose[0], self._pose[1] - self._rear_pose[1])
+                / 1000.0
+            )
         sample = LinkSample(q.t if math.isfinite(q.t) else ev.t, rssi_dbm, tx, rx, ccq, moved)
         if not self.link_model.observe(sample, ev.t):
             return []
         self._rear_pose = self._pose
         delivered = self.link_model.last_delivered_mbps
-        self.retreat = record_poll(self.retreat, self._pose, rssi_dbm,
-                                   delivered is not None and delivered >= self.params.link.target_hop_mbps)
+        self.retreat = record_poll(
+            self.retreat,
+            self._pose,
+            rssi_dbm,
+            delivered is not None and delivered >= self.params.link.target_hop_mbps,
+        )
         self._control = self._with_rear_limit()
         return [LinkModelView(self._in_force().threshold_b_dbm, self.link_model.status(ev.t))]
 
@@ -299,8 +324,11 @@ class Brain:
             manual_l, manual_r, t = self._manual
             manual_age = now - t
         bearing = self.scans.bearing_now(now, heading)
-        floor = (leader_floor_m(known_front(self._sonar), bearing, self.scans.model.sd_deg(now, heading))
-                 if p.leader_gap_max_m > 0 else None)
+        floor = (
+            leader_floor_m(known_front(self._sonar), bearing, self.scans.model.sd_deg(now, heading))
+            if p.leader_gap_max_m > 0
+            else None
+        )
         return ControlInputs(
             mode=self._mode,
             sip_age_s=sip_age,
@@ -330,14 +358,28 @@ class Brain:
         try:
             ci = self.inputs(now)
             out = control_step(ci, self._in_force(), self._memory)
-            out, self.retreat = retreat_step(ci, tuple(self._sonar), out, self._control, self.retreat,
-                                             enabled=self.params.link.adaptive)
+            out, self.retreat = retreat_step(
+                ci,
+                tuple(self._sonar),
+                out,
+                self._control,
+                self.retreat,
+                enabled=self.params.link.adaptive,
+            )
         except Exception as exc:  # noqa: BLE001 - a bug or bad data in the brain stops the robot
-            return ControlOutput(0.0, 0.0, DriveState.FAULT, f"controller_error: {type(exc).__name__}",
-                                 situation, self._memory)
+            return ControlOutput(
+                0.0,
+                0.0,
+                DriveState.FAULT,
+                f"controller_error: {type(exc).__name__}",
+                situation,
+                self._memory,
+            )
         out = self._recover(now, out)
         if (out.left_mm_s or out.right_mm_s) and self.scans.stale(now, self._mode is Mode.FOLLOW):
-            return ControlOutput(0.0, 0.0, DriveState.FAULT, "scan_stale", out.situation, out.memory)
+            return ControlOutput(
+                0.0, 0.0, DriveState.FAULT, "scan_stale", out.situation, out.memory
+            )
         return out
 
     def _recover(self, now: float, out: ControlOutput) -> ControlOutput:
@@ -348,25 +390,43 @@ class Brain:
         try:
             res = self._recovery_step(now, rp, (out.left_mm_s + out.right_mm_s) / 2.0)
         except Exception as exc:  # noqa: BLE001 - a bug or bad data in recovery stops the robot
-            return ControlOutput(0.0, 0.0, DriveState.FAULT, f"recovery_error: {type(exc).__name__}",
-                                 out.situation, out.memory)
+            return ControlOutput(
+                0.0,
+                0.0,
+                DriveState.FAULT,
+                f"recovery_error: {type(exc).__name__}",
+                out.situation,
+                out.memory,
+            )
         self.recovery = res.memory
         cmd = res.command
         if cmd is None or out.state is DriveState.FAULT:
             return out
-        return ControlOutput(cmd.left_mm_s, cmd.right_mm_s, cmd.state, cmd.reason, out.situation, out.memory)
+        return ControlOutput(
+            cmd.left_mm_s, cmd.right_mm_s, cmd.state, cmd.reason, out.situation, out.memory
+        )
 
     def _recovery_step(self, now: float, rp: RecoveryParams, forward_mm_s: float) -> RecoveryOutput:
-        return recovery_step(RecoveryInputs(
-            following=self._mode is Mode.FOLLOW and not self._halted, pose=self._pose,
-            sip_age_s=None if self._sip_t is None or self._robot_down else now - self._sip_t,
-            rssi_age_s=None if self._rssi_fresh_t is None else now - self._rssi_fresh_t,
-            scan_age_s=None if self.scans.last_scan_t is None else now - self.scans.last_scan_t,
-            rear_age_s=None if self._rear_t is None else now - self._rear_t,
-            leader_lost=self.leader_lost, rssi_leader_dbm=self.scans.rssi_leader_dbm,
-            rssi_behind_dbm=self._rear_dbm, scan_count=self.scans.count,
-            sonar_mm=tuple(self._sonar), now_s=now, rear_polls=self._rear_polls, forward_mm_s=forward_mm_s,
-        ), rp, self.recovery)
+        return recovery_step(
+            RecoveryInputs(
+                following=self._mode is Mode.FOLLOW and not self._halted,
+                pose=self._pose,
+                sip_age_s=None if self._sip_t is None or self._robot_down else now - self._sip_t,
+                rssi_age_s=None if self._rssi_fresh_t is None else now - self._rssi_fresh_t,
+                scan_age_s=None if self.scans.last_scan_t is None else now - self.scans.last_scan_t,
+                rear_age_s=None if self._rear_t is None else now - self._rear_t,
+                leader_lost=self.leader_lost,
+                rssi_leader_dbm=self.scans.rssi_leader_dbm,
+                rssi_behind_dbm=self._rear_dbm,
+                scan_count=self.scans.count,
+                sonar_mm=tuple(self._sonar),
+                now_s=now,
+                rear_polls=self._rear_polls,
+                forward_mm_s=forward_mm_s,
+            ),
+            rp,
+            self.recovery,
+        )
 
     def _recovery_report(self, now: float) -> list[Action]:
         if not self.params.recovery.enabled:
@@ -391,7 +451,17 @@ class Brain:
             else:
                 actions.append(WheelCommand(out.left_mm_s, out.right_mm_s, False, sip_t))
         changed = prev is None or prev.state is not out.state or prev.reason != out.reason
-        actions.append(Decision(now, out.left_mm_s, out.right_mm_s, out.state, out.reason,
-                                out.situation, self._mode, changed))
+        actions.append(
+            Decision(
+                now,
+                out.left_mm_s,
+                out.right_mm_s,
+                out.state,
+                out.reason,
+                out.situation,
+                self._mode,
+                changed,
+            )
+        )
         actions.extend(self._recovery_report(now))
         return actions

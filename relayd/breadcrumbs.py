@@ -36,9 +36,16 @@ class Crumb:
     rssi_b_dbm: float | None
 
 
-
-def add_crumb(trail: tuple[Crumb, ...], x_mm: float, y_mm: float, rssi_l: float | None,
-              rssi_b: float | None, *, spacing_m: float, keep: int) -> tuple[Crumb, ...]:
+def add_crumb(
+    trail: tuple[Crumb, ...],
+    x_mm: float,
+    y_mm: float,
+    rssi_l: float | None,
+    rssi_b: float | None,
+    *,
+    spacing_m: float,
+    keep: int,
+) -> tuple[Crumb, ...]:
     """The trail with a crumb here if the relay moved crumb_spacing_m from the newest one."""
     if trail:
         last = trail[-1]
@@ -82,9 +89,17 @@ def _wrap(a: float) -> float:
     return (a + 180.0) % 360.0 - 180.0
 
 
-def reverse_toward(pose: tuple[float, float, float], target: Crumb, speed_mm_s: float,
-                   sonar_mm: tuple[int | None, ...], *, threshold_o_m: float, stop_distance_m: float,
-                   gamma_o_m: float, turn_gain_mm_s_deg: float) -> tuple[float, float, str]:
+def reverse_toward(
+    pose: tuple[float, float, float],
+    target: Crumb,
+    speed_mm_s: float,
+    sonar_mm: tuple[int | None, ...],
+    *,
+    threshold_o_m: float,
+    stop_distance_m: float,
+    gamma_o_m: float,
+    turn_gain_mm_s_deg: float,
+) -> tuple[float, float, str]:
     """(left, right, reason) reversing toward a crumb, the rear sonars guarding the way."""
     x, y, th = pose
     want = math.degrees(math.atan2(target.y_mm - y, target.x_mm - x))

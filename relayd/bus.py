@@ -84,8 +84,11 @@ class Subscription(Generic[E]):
 class Bus(Generic[E, A]):
     """Publish events; the control path runs first and synchronously, then the fan-out."""
 
-    def __init__(self, control: Callable[[E], Sequence[A]] | None = None,
-                 on_actions: Callable[[E, Sequence[A]], None] | None = None) -> None:
+    def __init__(
+        self,
+        control: Callable[[E], Sequence[A]] | None = None,
+        on_actions: Callable[[E, Sequence[A]], None] | None = None,
+    ) -> None:
         self._control = control
         self._on_actions = on_actions
         self._subs: list[Subscription[E]] = []
@@ -94,8 +97,9 @@ class Bus(Generic[E, A]):
         self._dispatching = False
         self.published = 0
 
-    def connect(self, control: Callable[[E], Sequence[A]],
-                on_actions: Callable[[E, Sequence[A]], None]) -> None:
+    def connect(
+        self, control: Callable[[E], Sequence[A]], on_actions: Callable[[E, Sequence[A]], None]
+    ) -> None:
         """Set the control path (the brain) and where its actions go."""
         self._control = control
         self._on_actions = on_actions
@@ -105,7 +109,9 @@ class Bus(Generic[E, A]):
         self._subs.append(sub)
         return sub
 
-    def subscribe_with_actions(self, name: str, maxlen: int = 256) -> Subscription[tuple[E, Sequence[A]]]:
+    def subscribe_with_actions(
+        self, name: str, maxlen: int = 256
+    ) -> Subscription[tuple[E, Sequence[A]]]:
         """A subscription to each event together with the actions the brain returned for it."""
         sub: Subscription[tuple[E, Sequence[A]]] = Subscription(name, maxlen)
         self._routed.append(sub)

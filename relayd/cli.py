@@ -21,31 +21,52 @@ from relayd import __version__
 #: subcommand -> module implementing it
 COMMANDS: dict[str, tuple[str, str]] = {
     "run": ("relayd.commands.run", "run the daemon"),
-    "check-config": ("relayd.commands.check_config", "validate a config file and print the effective settings"),
+    "check-config": (
+        "relayd.commands.check_config",
+        "validate a config file and print the effective settings",
+    ),
     "sim": ("relayd.commands.sim", "run a convoy of real relayd instances in the simulated world"),
     "sweep": ("relayd.commands.sweep", "Monte Carlo simulator runs over a grid, on a Dask cluster"),
     "status": ("relayd.commands.status", "fetch and pretty-print a robot's /status"),
-    "fleet": ("relayd.commands.fleet", "serve one page for the whole chain of relays, with a hold-all button"),
-    "replay": ("relayd.commands.replay", "replay a recording through the brain and compare its decisions"),
+    "fleet": (
+        "relayd.commands.fleet",
+        "serve one page for the whole chain of relays, with a hold-all button",
+    ),
+    "replay": (
+        "relayd.commands.replay",
+        "replay a recording through the brain and compare its decisions",
+    ),
 }
 PROBES: dict[str, tuple[str, str]] = {
     "robot": ("relayd.probe.robot", "talk to a P3-AT base (read-only: never enables the motors)"),
     "pantilt": ("relayd.probe.pantilt", "move or read one servo of the pan-tilt controller"),
     "wifi": ("relayd.probe.wifi", "sample the Wi-Fi adapter's RSSI"),
-    "ap": ("relayd.probe.ap", "read an airOS radio's link quality, once or for --seconds"
-                                " (password from RELAYD_AP_PASSWORD)"),
+    "ap": (
+        "relayd.probe.ap",
+        "read an airOS radio's link quality, once or for --seconds"
+        " (password from RELAYD_AP_PASSWORD)",
+    ),
 }
 FAKES: dict[str, tuple[str, str]] = {
     "robot": ("relayd.fakes.robot", "serve a protocol-true fake P3-AT on a pty or TCP port"),
     "pantilt": ("relayd.fakes.pantilt", "serve a fake Maestro or SSC-32 servo controller on a pty"),
-    "ap": ("relayd.fakes.ap", "serve a fake airOS radio over HTTP on loopback"
-                               " (accepted password: RELAYD_AP_PASSWORD, default ubnt)"),
-    "rig": ("relayd.fakes.rig_cmd", "all of one relay's devices faked, with a leader; writes a config for `relayd run`"),
+    "ap": (
+        "relayd.fakes.ap",
+        "serve a fake airOS radio over HTTP on loopback"
+        " (accepted password: RELAYD_AP_PASSWORD, default ubnt)",
+    ),
+    "rig": (
+        "relayd.fakes.rig_cmd",
+        "all of one relay's devices faked, with a leader; writes a config for `relayd run`",
+    ),
 }
 
 
 CALIBRATIONS: dict[str, tuple[str, str]] = {
-    "path-loss": ("relayd.calibrate.cli", "fit L0, n and sigma on a straight drive away from a node; print thresholds"),
+    "path-loss": (
+        "relayd.calibrate.cli",
+        "fit L0, n and sigma on a straight drive away from a node; print thresholds",
+    ),
 }
 
 
@@ -72,8 +93,11 @@ class CommandParser(argparse.ArgumentParser):
     def is_leaf(self) -> bool:
         return self.module is not None
 
-    def parse_known_args(self, args: Sequence[str] | None = None,  # type: ignore[override]
-                         namespace: argparse.Namespace | None = None) -> tuple[argparse.Namespace, list[str]]:
+    def parse_known_args(
+        self,
+        args: Sequence[str] | None = None,  # type: ignore[override]
+        namespace: argparse.Namespace | None = None,
+    ) -> tuple[argparse.Namespace, list[str]]:
         self.configure()
         ns, extras = super().parse_known_args(args, namespace)
         if extras and self.is_leaf():
@@ -81,8 +105,9 @@ class CommandParser(argparse.ArgumentParser):
         return ns, extras
 
 
-def _add_group(sub: argparse._SubParsersAction[CommandParser],
-               table: dict[str, tuple[str, str]]) -> None:
+def _add_group(
+    sub: argparse._SubParsersAction[CommandParser], table: dict[str, tuple[str, str]]
+) -> None:
     for name, (module, help_text) in table.items():
         p = sub.add_parser(name, help=help_text, description=help_text, module=module)
         p.set_defaults(_module=module)
@@ -91,23 +116,37 @@ def _add_group(sub: argparse._SubParsersAction[CommandParser],
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="relayd", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"relayd {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
-                                parser_class=CommandParser)
+    sub = parser.add_subparsers(
+        dest="command", required=True, metavar="COMMAND", parser_class=CommandParser
+    )
     _add_group(sub, COMMANDS)
     probe = sub.add_parser("probe", help="bring-up tools, one device at a time")
-    _add_group(probe.add_subparsers(dest="device", required=True, metavar="DEVICE",
-                                    parser_class=CommandParser), PROBES)
+    _add_group(
+        probe.add_subparsers(
+            dest="device", required=True, metavar="DEVICE", parser_class=CommandParser
+        ),
+        PROBES,
+    )
     calibrate = sub.add_parser("calibrate", help="guided bring-up measurements")
-    _add_group(calibrate.add_subparsers(dest="what", required=True, metavar="WHAT",
-                                        parser_class=CommandParser), CALIBRATIONS)
+    _add_group(
+        calibrate.add_subparsers(
+            dest="what", required=True, metavar="WHAT", parser_class=CommandParser
+        ),
+        CALIBRATIONS,
+    )
     fake = sub.add_parser("fake", help="serve a fake device for trying relayd without hardware")
-    _add_group(fake.add_subparsers(dest="device", required=True, metavar="DEVICE",
-                                   parser_class=CommandParser), FAKES)
+    _add_group(
+        fake.add_subparsers(
+            dest="device", required=True, metavar="DEVICE", parser_class=CommandParser
+        ),
+        FAKES,
+    )
     return parser
 
 
-def command_tree(parser: argparse.ArgumentParser | None = None,
-                 prefix: tuple[str, ...] = ()) -> list[tuple[tuple[str, ...], CommandParser]]:
+def command_tree(
+    parser: argparse.ArgumentParser | None = None, prefix: tuple[str, ...] = ()
+) -> list[tuple[tuple[str, ...], CommandParser]]:
     """Every leaf subcommand (`("probe", "wifi")`, ...) with its parser, found by walking the parser."""
     parser = parser or build_parser()
     out: list[tuple[tuple[str, ...], CommandParser]] = []
@@ -148,7 +187,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     setup_logging("info", "console", stream=StdStream("stderr"))
     try:
-        code = asyncio.run(_until_signal(runner(args))) if inspect.iscoroutinefunction(runner) else runner(args)
+        code = (
+            asyncio.run(_until_signal(runner(args)))
+            if inspect.iscoroutinefunction(runner)
+            else runner(args)
+        )
     except KeyboardInterrupt:
         code = 130
     return int(code or 0)

@@ -72,11 +72,14 @@ class RobotSettings(_Section):
     lost_after_s: PositiveFloat = 0.5
 
 
-PulseTriple = Annotated[tuple[
-    Annotated[int, Field(ge=400, le=2600)],
-    Annotated[int, Field(ge=400, le=2600)],
-    Annotated[int, Field(ge=400, le=2600)],
-], BeforeValidator(_list_to_tuple)]
+PulseTriple = Annotated[
+    tuple[
+        Annotated[int, Field(ge=400, le=2600)],
+        Annotated[int, Field(ge=400, le=2600)],
+        Annotated[int, Field(ge=400, le=2600)],
+    ],
+    BeforeValidator(_list_to_tuple),
+]
 
 
 def _check_pulses(v: PulseTriple) -> PulseTriple:
@@ -96,8 +99,10 @@ class PanTiltSettings(_Section):
     link_channel: Annotated[int, Field(ge=0, le=31)] = 1
     scan_pulse_us: PulseTriple = (1000, 1500, 2000)
     link_pulse_us: PulseTriple = (1000, 1500, 2000)
-    limits_deg: Annotated[tuple[Annotated[float, Field(ge=-180, le=180)], Annotated[float, Field(ge=-180, le=180)]],
-                          BeforeValidator(_list_to_tuple)] = (-90.0, 90.0)
+    limits_deg: Annotated[
+        tuple[Annotated[float, Field(ge=-180, le=180)], Annotated[float, Field(ge=-180, le=180)]],
+        BeforeValidator(_list_to_tuple),
+    ] = (-90.0, 90.0)
     speed_deg_s: Annotated[float, Field(gt=0, le=2000)] = 180.0
 
     _pulses = field_validator("scan_pulse_us", "link_pulse_us")(_check_pulses)
@@ -179,7 +184,9 @@ class ScanSettings(_Section):
     @model_validator(mode="after")
     def _adaptive_needs_tracking(self) -> ScanSettings:
         if self.window == "adaptive" and self.estimator != "lobe":
-            raise ValueError('window "adaptive" needs estimator "lobe" (the WCA has no confidence to narrow on)')
+            raise ValueError(
+                'window "adaptive" needs estimator "lobe" (the WCA has no confidence to narrow on)'
+            )
         return self
 
 
@@ -316,7 +323,9 @@ class ApiSettings(_Section):
         try:
             ipaddress.ip_address(v)
         except ValueError:
-            raise ValueError(f"{v!r} is not an IP address (e.g. 0.0.0.0, 127.0.0.1 or ::)") from None
+            raise ValueError(
+                f"{v!r} is not an IP address (e.g. 0.0.0.0, 127.0.0.1 or ::)"
+            ) from None
         return v
 
 

@@ -45,10 +45,13 @@ DEFAULT_CONFIG_PATH = Path("/etc/relayd/relayd.toml")
 def semantic_problems(data: Mapping[str, Any]) -> list[str]:
     """The cross-key rules on a raw config document, whatever else is wrong with it."""
     control = with_defaults(ControlSettings, data.get("control"))
-    problems = [*control_rules(control),
-                *pantilt_rules(with_defaults(PanTiltSettings, data.get("pantilt"))),
-                *avoidance_rules(with_defaults(AvoidanceSettings, data.get("avoidance"))),
-                *cross_section_rules(data, control), *_port_rules(data)]
+    problems = [
+        *control_rules(control),
+        *pantilt_rules(with_defaults(PanTiltSettings, data.get("pantilt"))),
+        *avoidance_rules(with_defaults(AvoidanceSettings, data.get("avoidance"))),
+        *cross_section_rules(data, control),
+        *_port_rules(data),
+    ]
     ap = data.get("ap")
     for side in ("rear", "front"):
         section = ap.get(side) if isinstance(ap, Mapping) else None
@@ -66,7 +69,12 @@ def _port_rules(data: Mapping[str, Any]) -> list[tuple[str, str]]:
     api_port = api.get("port", ApiSettings().port)
     fox_port = fox.get("port", FoxgloveSettings().port)
     if api.get("enabled", True) is True and fox_port == api_port and fox_port != 0:
-        return [("foxglove.port", f"{fox_port} is also api.port; give the live Foxglove server its own port")]
+        return [
+            (
+                "foxglove.port",
+                f"{fox_port} is also api.port; give the live Foxglove server its own port",
+            )
+        ]
     return []
 
 
@@ -109,6 +117,8 @@ def config_warnings(settings: Settings) -> list[str]:
     out = []
     for key, section in (("robot.port", settings.robot), ("pantilt.port", settings.pantilt)):
         if section.enabled and "XXXX" in section.port:
-            out.append(f"{key}: {section.port!r} looks like a placeholder (XXXX): use your adapter's "
-                       "serial, or the udev name (/dev/relay/base, /dev/relay/servo)")
+            out.append(
+                f"{key}: {section.port!r} looks like a placeholder (XXXX): use your adapter's "
+                "serial, or the udev name (/dev/relay/base, /dev/relay/servo)"
+            )
     return out

@@ -68,7 +68,9 @@ def resolve_secret(ref: SecretRef, environ: Mapping[str, str]) -> str | None:
         try:
             value = Path(ref.file).read_text(encoding="utf-8").strip()
         except OSError as exc:
-            raise ConfigError([f"{ref.key}: cannot read {ref.file}: {exc.strerror or exc}"]) from None
+            raise ConfigError(
+                [f"{ref.key}: cannot read {ref.file}: {exc.strerror or exc}"]
+            ) from None
         if not value:
             raise ConfigError([f"{ref.key}: {ref.file} is empty"])
         return value
@@ -82,8 +84,12 @@ MIN_API_TOKEN_CHARS = 16
 def check_api_token(ref: SecretRef, token: str) -> str:
     """The token, or ConfigError naming its key when it is too short to be a secret."""
     if len(token) < MIN_API_TOKEN_CHARS:
-        raise ConfigError([f"{ref.key}: the API token has {len(token)} characters; "
-                           f"at least {MIN_API_TOKEN_CHARS} are needed (e.g. `openssl rand -hex 16`)"])
+        raise ConfigError(
+            [
+                f"{ref.key}: the API token has {len(token)} characters; "
+                f"at least {MIN_API_TOKEN_CHARS} are needed (e.g. `openssl rand -hex 16`)"
+            ]
+        )
     return token
 
 

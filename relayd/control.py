@@ -60,9 +60,11 @@ class WheelBase(Protocol):
     def stale(self) -> bool: ...
     @property
     def sonar(self) -> SonarView: ...
+
     #: Called by the driver with the seconds from a SIP's bytes arriving to the next
     #: motion command written (it cannot tell what caused that command).
     on_command_latency: Callable[[float], None] | None
+
     def add_listener(self, cb: Callable[[Sip], None]) -> Callable[[], None]: ...
     def stop(self) -> None: ...
     def set_wheels(self, left_mm_s: float, right_mm_s: float) -> None: ...
@@ -75,13 +77,21 @@ class Publisher(Protocol):
 class ControlShell:
     """Owns the SIP subscription, the control tick and the wheel side of the actions."""
 
-    def __init__(self, *, bus: Publisher, brain: Brain, robot: WheelBase | None, clock: Clock = REAL_CLOCK,
-                 tick_s: float = 0.1, on_latency: Callable[[float], None] | None = None,
-                 on_step: Callable[[float], None] | None = None,
-                 servo_up: Callable[[], bool] | None = None,
-                 robot_name: Callable[[], str | None] | None = None,
-                 on_tick: Callable[[float], None] | None = None,
-                 health: Mapping[str, Callable[[], DriverHealth]] | None = None) -> None:
+    def __init__(
+        self,
+        *,
+        bus: Publisher,
+        brain: Brain,
+        robot: WheelBase | None,
+        clock: Clock = REAL_CLOCK,
+        tick_s: float = 0.1,
+        on_latency: Callable[[float], None] | None = None,
+        on_step: Callable[[float], None] | None = None,
+        servo_up: Callable[[], bool] | None = None,
+        robot_name: Callable[[], str | None] | None = None,
+        on_tick: Callable[[float], None] | None = None,
+        health: Mapping[str, Callable[[], DriverHealth]] | None = None,
+    ) -> None:
         self._bus = bus
         self._brain = brain
         self._robot = robot
@@ -162,7 +172,9 @@ class ControlShell:
         self._status[device] = DeviceStatus.FAULT
         self._bus.publish(DeviceEvent(self._clock.now(), device, DeviceStatus.FAULT, detail))
 
-    def _judge(self, device: str, up: bool, h: DriverHealth | None, now: float, detail: str | None) -> None:
+    def _judge(
+        self, device: str, up: bool, h: DriverHealth | None, now: float, detail: str | None
+    ) -> None:
         if up:
             self._change(device, DeviceStatus.UP, now, detail)
         elif h is not None and device_status(h) is DeviceStatus.FAULT:

@@ -219,8 +219,11 @@ def link_rule(
     if rssi_leader_dbm >= params.threshold_l_dbm - margin:
         return False, "leader_near"
     # rear_required with no rear reading returned "rear_link_stale" above.
-    if rear_required and rssi_behind_dbm is not None \
-            and rssi_behind_dbm <= params.threshold_b_dbm + margin:
+    if (
+        rear_required
+        and rssi_behind_dbm is not None
+        and rssi_behind_dbm <= params.threshold_b_dbm + margin
+    ):
         return False, "rear_weak"
     return True, "driving"
 
@@ -249,13 +252,23 @@ def _lost(
 ) -> ControlOutput:
     """Leader lost: stand, or turn toward where it was last seen beyond the servo's reach."""
     heading = inputs.odom[2] if inputs.odom is not None else None
-    search, rvel = search_step(memory.search, inputs.search_bearing_deg, heading, inputs.t_s, params.search)
+    search, rvel = search_step(
+        memory.search, inputs.search_bearing_deg, heading, inputs.t_s, params.search
+    )
     memory = replace(memory, search=search)
-    left, right = search_wheels(rvel, params.actuator, inputs.front_sonar, inputs.rear_sonar,
-                                params.stop_distance_m, params.v_max_mm_s)
+    left, right = search_wheels(
+        rvel,
+        params.actuator,
+        inputs.front_sonar,
+        inputs.rear_sonar,
+        params.stop_distance_m,
+        params.v_max_mm_s,
+    )
     if left == 0.0 and right == 0.0:
         return _stopped(DriveState.LEADER_LOST, "leader_lost", situation, memory)
-    return ControlOutput(left, right, DriveState.LEADER_LOST, "leader_search", situation, _not_driving(memory))
+    return ControlOutput(
+        left, right, DriveState.LEADER_LOST, "leader_search", situation, _not_driving(memory)
+    )
 
 
 def _stale(age_s: float | None, timeout_s: float) -> bool:
@@ -330,18 +343,27 @@ def control_step(
         rssi_l, inputs.rssi_behind_dbm, params, memory.link_drive, params.rear_link_required
     )
     released = False
-    if reason == "leader_near" and far_by_sonar(inputs.leader_floor_m, params.leader_gap_max_m,
-                                                memory.sonar_release, rssi_l, params.threshold_l_dbm):
+    if reason == "leader_near" and far_by_sonar(
+        inputs.leader_floor_m,
+        params.leader_gap_max_m,
+        memory.sonar_release,
+        rssi_l,
+        params.threshold_l_dbm,
+    ):
         # The sonars put the leader beyond the gap limit: only the rear half of the rule
         # (the rule run without the leader's term) may still hold the robot.
-        released, reason = link_rule(-math.inf, inputs.rssi_behind_dbm, params, memory.link_drive,
-                                     params.rear_link_required)
+        released, reason = link_rule(
+            -math.inf, inputs.rssi_behind_dbm, params, memory.link_drive, params.rear_link_required
+        )
     memory = replace(memory, link_drive=drive or released, sonar_release=released)
     if not (drive or released):
         return _stopped(DriveState.STOPPED, reason, situation, memory)
 
-    v = (release_speed_mm_s(params.threshold_l_dbm, params.w1, params.w2, params.v_max_mm_s) if released
-         else background_speed(rssi_l, params.w1, params.w2, params.v_max_mm_s))
+    v = (
+        release_speed_mm_s(params.threshold_l_dbm, params.w1, params.w2, params.v_max_mm_s)
+        if released
+        else background_speed(rssi_l, params.w1, params.w2, params.v_max_mm_s)
+    )
     # Situation 1 means a forward sonar echoed inside the detection range: d_min is set.
     d_min = nearest_front_m(inputs.front_sonar) if situation == 1 else None
     if d_min is not None:
@@ -350,15 +372,23 @@ def control_step(
         left, right = wheel_law(
             v, steer, memory.prev_steer_deg, params.kp, params.kd, params.v_max_mm_s
         )
-        state, reason, memory = DriveState.AVOIDING, "obstacle", replace(memory, prev_steer_deg=steer)
+        state, reason, memory = (
+            DriveState.AVOIDING,
+            "obstacle",
+            replace(memory, prev_steer_deg=steer),
+        )
     else:
         left, right = wheel_law(v, bearing, prev, params.kp, params.kd, params.v_max_mm_s)
         state, memory = DriveState.DRIVING, replace(memory, prev_steer_deg=None)
         reason = "leader_far_sonar" if released else "driving"
 
     act = params.actuator
-    if (params.escape and inputs.t_s is not None and inputs.odom is not None
-            and math.isfinite(inputs.t_s)):
+    if (
+        params.escape
+        and inputs.t_s is not None
+        and inputs.odom is not None
+        and math.isfinite(inputs.t_s)
+    ):
         sense = Sense(inputs.t_s, inputs.odom, inputs.front_sonar, bearing, inputs.rear_sonar)
         aparams = replace(
             params.avoid, stop_distance_m=params.stop_distance_m, threshold_o_m=params.threshold_o_m
@@ -371,8 +401,14 @@ def control_step(
             state = DriveState.AVOIDING if moving else DriveState.STOPPED
             # The escape's command (its "blocked" stop too) ends a sonar release: it must be
             # earned again at the full limit once the paper's law drives again.
-            return ControlOutput(left, right, state, cmd.reason, situation,
-                                 replace(memory, prev_steer_deg=None, sonar_release=False))
+            return ControlOutput(
+                left,
+                right,
+                state,
+                cmd.reason,
+                situation,
+                replace(memory, prev_steer_deg=None, sonar_release=False),
+            )
     # The paper's command, as the wire will carry it, never into a near echo.
     vel, rvel = act.within(*act.express(*act.vel_rvel(left, right)), params.v_max_mm_s)
     vel, rvel = guard(vel, rvel, inputs.front_sonar, params.stop_distance_m)

@@ -94,9 +94,15 @@ class Notifier(Protocol):
 class Daemon:
     """One relay's daemon. `await run()` until cancelled; cancellation is the safe shutdown."""
 
-    def __init__(self, settings: Settings, *, clock: Clock = REAL_CLOCK,
-                 env: Mapping[str, str] | None = None, notifier: Notifier | None = None,
-                 devices: DeviceOverrides | None = None) -> None:
+    def __init__(
+        self,
+        settings: Settings,
+        *,
+        clock: Clock = REAL_CLOCK,
+        env: Mapping[str, str] | None = None,
+        notifier: Notifier | None = None,
+        devices: DeviceOverrides | None = None,
+    ) -> None:
         self.settings = settings
         self.clock = clock
         self._devices = devices or DeviceOverrides()
@@ -111,8 +117,11 @@ class Daemon:
                 if secret is not None:
                     self._ap_passwords[side] = secret
         token_ref = refs.get("api")
-        self._token = resolve_secret(token_ref, env) \
-            if token_ref is not None and _configured(settings.api, env) else None
+        self._token = (
+            resolve_secret(token_ref, env)
+            if token_ref is not None and _configured(settings.api, env)
+            else None
+        )
         if self._token is not None and token_ref is not None:
             check_api_token(token_ref, self._token)
         from relayd.api.server import tls_context
@@ -120,12 +129,16 @@ class Daemon:
         self._tls = tls_context(settings.api)
 
         c = settings.control
-        self.state = RelayState(started_t=clock.now(), mode=Mode(c.mode),
-                                display_name=settings.robot.display_name)
+        self.state = RelayState(
+            started_t=clock.now(), mode=Mode(c.mode), display_name=settings.robot.display_name
+        )
         self.state.thresholds = {
-            "threshold_l_dbm": c.threshold_l_dbm, "threshold_b_dbm": c.threshold_b_dbm,
-            "hysteresis_db": c.hysteresis_db, "lost_rssi_dbm": c.lost_rssi_dbm,
-            "threshold_o_m": c.threshold_o_m, "v_max_mm_s": c.v_max_mm_s,
+            "threshold_l_dbm": c.threshold_l_dbm,
+            "threshold_b_dbm": c.threshold_b_dbm,
+            "hysteresis_db": c.hysteresis_db,
+            "lost_rssi_dbm": c.lost_rssi_dbm,
+            "threshold_o_m": c.threshold_o_m,
+            "v_max_mm_s": c.v_max_mm_s,
         }
         self.api_port: int | None = None
         self.notifier = notifier
@@ -133,7 +146,9 @@ class Daemon:
         self.metrics = Metrics(self.state, clock)
         self.brain = Brain(brain_params(settings), mode=Mode(c.mode))
         self.bus: Bus[Event, Action] = Bus()
-        self.writer = StateWriter(self.state, self.metrics, link_channel=settings.pantilt.link_channel)
+        self.writer = StateWriter(
+            self.state, self.metrics, link_channel=settings.pantilt.link_channel
+        )
         self.robot: ArcosRobot | None = None
         self.pantilt: PanTilt | None = None
         self.source: RssiSource | None = None
@@ -150,9 +165,15 @@ class Daemon:
             from relayd.record.recorder import Recorder
 
             # One bus subscriber (docs/RECORDING.md); never on the control path.
-            self.recorder = Recorder(self.bus, settings, clock, identity=lambda: (
-                None if self.robot is None else self.robot.identity))
-        self.state.recording_source = self.recorder.status if self.recorder is not None else off_status
+            self.recorder = Recorder(
+                self.bus,
+                settings,
+                clock,
+                identity=lambda: None if self.robot is None else self.robot.identity,
+            )
+        self.state.recording_source = (
+            self.recorder.status if self.recorder is not None else off_status
+        )
         self.live: LiveServer | None = None
         self._live_task: asyncio.Task[None] | None = None
         if settings.foxglove.enabled:
@@ -168,9 +189,14 @@ class Daemon:
     def _build(self) -> None:
         s, clock, state = self.settings, self.clock, self.state
         if s.robot.enabled:
-            robot = self.robot = ArcosRobot(s.robot.port, s.robot.baud, clock=clock,
-                                            subclass_override=s.robot.subclass,
-                                            lost_after_s=s.robot.lost_after_s, enable_motors=True)
+            robot = self.robot = ArcosRobot(
+                s.robot.port,
+                s.robot.baud,
+                clock=clock,
+                subclass_override=s.robot.subclass,
+                lost_after_s=s.robot.lost_after_s,
+                enable_motors=True,
+            )
             state.health_sources["robot"] = lambda: device_health(robot)
             self.supervisor.add("robot", robot.run, device="robot")
         if s.pantilt.enabled:
@@ -183,7 +209,9 @@ class Daemon:
                 return ServoCalibration((lo, mid, hi), limits)
 
             self.pantilt = make_pantilt(
-                s.pantilt.protocol, s.pantilt.port, s.pantilt.baud,
+                s.pantilt.protocol,
+                s.pantilt.port,
+                s.pantilt.baud,
                 {
                     s.pantilt.scan_channel: calibration(s.pantilt.scan_pulse_us),
                     s.pantilt.link_channel: calibration(s.pantilt.link_pulse_us),
@@ -195,17 +223,27 @@ class Daemon:
             from drivers.wifi import make_source
 
             source = self.source = self._devices.rssi_source or make_source(
-                s.wifi.source, s.wifi.interface, path=s.wifi.procfs_path, clock=clock)
+                s.wifi.source, s.wifi.interface, path=s.wifi.procfs_path, clock=clock
+            )
             monitor = self.monitor = RssiMonitor(source, s.wifi.sample_hz, self.bus, clock)
-            state.health_sources["wifi"] = lambda: device_health(source, last_data_t=monitor.last_fresh_t)
+            state.health_sources["wifi"] = lambda: device_health(
+                source, last_data_t=monitor.last_fresh_t
+            )
             self.supervisor.add("wifi", monitor.run, device="wifi")
         for side, password in self._ap_passwords.items():
             ap = s.ap.rear if side == "rear" else s.ap.front
             if ap is None:
                 continue
-            poller = AirOsPoller(ap.url, ap.username, password, poll_s=ap.poll_s,
-                                 legacy_tls=ap.legacy_tls, timeout_s=ap.timeout_s, clock=clock,
-                                 on_update=functools.partial(self._on_link, LinkSide(side)))
+            poller = AirOsPoller(
+                ap.url,
+                ap.username,
+                password,
+                poll_s=ap.poll_s,
+                legacy_tls=ap.legacy_tls,
+                timeout_s=ap.timeout_s,
+                clock=clock,
+                on_update=functools.partial(self._on_link, LinkSide(side)),
+            )
             client = self._devices.airos_clients.get(side)
             if client is not None:
                 poller.client = client
@@ -215,18 +253,26 @@ class Daemon:
         pantilt = self.pantilt
         if pantilt is not None and self.monitor is not None:
             scanner = self.scanner = Scanner(
-                pantilt=pantilt, monitor=self.monitor, bus=self.bus, clock=clock,
-                scan_channel=s.pantilt.scan_channel, link_channel=s.pantilt.link_channel,
+                pantilt=pantilt,
+                monitor=self.monitor,
+                bus=self.bus,
+                clock=clock,
+                scan_channel=s.pantilt.scan_channel,
+                link_channel=s.pantilt.link_channel,
                 limits_deg=(float(s.pantilt.limits_deg[0]), float(s.pantilt.limits_deg[1])),
-                speed_deg_s=s.pantilt.speed_deg_s, settle_s=s.scan.settle_s, mode=s.scan.mode,
+                speed_deg_s=s.pantilt.speed_deg_s,
+                settle_s=s.scan.settle_s,
+                mode=s.scan.mode,
                 on_servo_change=lambda: self.control.check_devices(),
             )
             self.supervisor.add("scanner", scanner.run, device="pantilt")
         if pantilt is not None:
             scanner_ = self.scanner
             state.health_sources["pantilt"] = lambda: device_health(
-                pantilt, usable=scanner_ is None or scanner_.servo_ok,
-                extra_errors=0 if scanner_ is None else scanner_.link_errors)
+                pantilt,
+                usable=scanner_ is None or scanner_.servo_ok,
+                extra_errors=0 if scanner_ is None else scanner_.link_errors,
+            )
         robot_ = self.robot
         health: dict[str, Callable[[], DriverHealth]] = {}
         if self.robot is not None:
@@ -238,11 +284,21 @@ class Daemon:
         for side, poller in self.pollers.items():
             health[f"ap.{side}"] = poller.health
         self.control = ControlShell(
-            bus=self.bus, brain=self.brain, robot=robot_, clock=clock, tick_s=TICK_S,
-            on_latency=self.metrics.observe_control_latency, on_step=self.metrics.observe_control_step,
-            servo_up=None if self.scanner is None else (lambda: self.scanner is not None and self.scanner.servo_ok),
-            robot_name=lambda: None if robot_ is None or robot_.identity is None else robot_.identity.name,
-            on_tick=self._on_tick, health=health,
+            bus=self.bus,
+            brain=self.brain,
+            robot=robot_,
+            clock=clock,
+            tick_s=TICK_S,
+            on_latency=self.metrics.observe_control_latency,
+            on_step=self.metrics.observe_control_step,
+            servo_up=None
+            if self.scanner is None
+            else (lambda: self.scanner is not None and self.scanner.servo_ok),
+            robot_name=lambda: (
+                None if robot_ is None or robot_.identity is None else robot_.identity.name
+            ),
+            on_tick=self._on_tick,
+            health=health,
         )
         self.supervisor.add("control", self.control.run)
 
@@ -275,7 +331,9 @@ class Daemon:
 
     def _on_tick(self, now: float) -> None:
         """Pet the watchdog only while the control loop really ticks."""
-        if self.notifier is not None and (self._last_pet is None or now - self._last_pet >= WATCHDOG_PET_S):
+        if self.notifier is not None and (
+            self._last_pet is None or now - self._last_pet >= WATCHDOG_PET_S
+        ):
             self._last_pet = now
             self.notifier.watchdog()
 
@@ -286,17 +344,27 @@ class Daemon:
         if s.api.enabled:
             from relayd.api import make_app, start_api
 
-            app = make_app(self.state, self.control, clock=self.clock, token=self._token,
-                           metrics=self.metrics, healthz_max_age_s=max(1.0, 5 * 0.1))
+            app = make_app(
+                self.state,
+                self.control,
+                clock=self.clock,
+                token=self._token,
+                metrics=self.metrics,
+                healthz_max_age_s=max(1.0, 5 * 0.1),
+            )
             # Bound before any device is touched: a wrong bind or a taken port is a
             # config error (exit 2 naming the key), not a robot that is already enabled.
             try:
-                self._runner, self.api_port = await start_api(app, s.api.bind, s.api.port,
-                                                              ssl_context=self._tls)
+                self._runner, self.api_port = await start_api(
+                    app, s.api.bind, s.api.port, ssl_context=self._tls
+                )
             except OSError as exc:
                 raise ConfigError([api_bind_error(s.api.bind, s.api.port, exc)]) from None
-            log.info("api_control", enabled=self._token is not None,
-                     note=None if self._token else "no token configured: POST endpoints answer 403")
+            log.info(
+                "api_control",
+                enabled=self._token is not None,
+                note=None if self._token else "no token configured: POST endpoints answer 403",
+            )
         if self.live is not None:
             from relayd.record.live import BindError
 
@@ -304,8 +372,9 @@ class Daemon:
             try:
                 self.live.start()
             except BindError as exc:
-                raise ConfigError([f"{exc.key}: cannot listen on {s.foxglove.bind}:{s.foxglove.port}: "
-                                   f"{exc}"]) from None
+                raise ConfigError(
+                    [f"{exc.key}: cannot listen on {s.foxglove.bind}:{s.foxglove.port}: {exc}"]
+                ) from None
             self._live_task = asyncio.create_task(self.live.run(), name="relayd:foxglove")
         if self.recorder is not None:
             # Before any device: the first SIP's event is in the file.

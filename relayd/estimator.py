@@ -343,5 +343,7 @@ def front_readings(ranges_mm: Sequence[int | None]) -> tuple[SonarReading, ...]:
         if mm is not None and mm < 0:
             raise ValueError(f"sonar {index} range must be >= 0 mm, got {mm}")
         range_m = None if mm is None or mm >= SONAR_MAX_RANGE_MM else mm / 1000.0
-        out.append(SonarReading(heading_deg=SONAR_HEADINGS_DEG[index], range_m=range_m, index=index))
+        out.append(
+            SonarReading(heading_deg=SONAR_HEADINGS_DEG[index], range_m=range_m, index=index)
+        )
     return tuple(out)

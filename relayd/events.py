@@ -145,8 +145,20 @@ class Shutdown:
     t: float
 
 
-Event = (SipEvent | RssiEvent | ServoPosition | ScanReady | ScanSampleEvent | ScanDone | LinkEvent
-         | DeviceEvent | ModeCommand | DriveCommand | Tick | Shutdown)
+Event = (
+    SipEvent
+    | RssiEvent
+    | ServoPosition
+    | ScanReady
+    | ScanSampleEvent
+    | ScanDone
+    | LinkEvent
+    | DeviceEvent
+    | ModeCommand
+    | DriveCommand
+    | Tick
+    | Shutdown
+)
 
 # -- actions ---------------------------------------------------------------------------
 
@@ -226,5 +238,13 @@ class RecoveryReport:
     view: RecoveryView
 
 
-Action = (WheelCommand | ServoTarget | ScanPlan | Decision | ScanResult | RearLink | RecoveryReport
-          | LinkModelView)
+Action = (
+    WheelCommand
+    | ServoTarget
+    | ScanPlan
+    | Decision
+    | ScanResult
+    | RearLink
+    | RecoveryReport
+    | LinkModelView
+)

@@ -37,8 +37,13 @@ def device_status(h: DriverHealth) -> DeviceStatus:
     return DeviceStatus.DOWN
 
 
-def device_health(driver: HasHealth, *, usable: bool = True, extra_errors: int = 0,
-                  last_data_t: float | None = None) -> DeviceHealth:
+def device_health(
+    driver: HasHealth,
+    *,
+    usable: bool = True,
+    extra_errors: int = 0,
+    last_data_t: float | None = None,
+) -> DeviceHealth:
     """The driver's health now. `usable=False` marks a connected device the daemon cannot
     use (the scan servo not answering the scanner); `extra_errors` are failures counted
     around the driver (the link servo's); `last_data_t` overrides the driver's last

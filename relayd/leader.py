@@ -74,8 +74,9 @@ class LeaderParams:
 
 
 class BearingModel(Protocol):
-    def scan_done(self, t: float, heading_deg: float, est: ScanEstimate,
-                  sample_t: Sequence[float]) -> ScanEstimate: ...
+    def scan_done(
+        self, t: float, heading_deg: float, est: ScanEstimate, sample_t: Sequence[float]
+    ) -> ScanEstimate: ...
     def bearing_now(self, t: float, heading_deg: float | None) -> float | None: ...
     def window(self, t: float, heading_deg: float | None, full: Window) -> Window | None: ...
     def lost(self, t: float, heading_deg: float | None) -> bool: ...
@@ -86,8 +87,9 @@ class BearingModel(Protocol):
 class CentroidModel:
     """The paper's WCA: the brain's own memory of the last scan is the bearing."""
 
-    def scan_done(self, t: float, heading_deg: float, est: ScanEstimate,
-                  sample_t: Sequence[float]) -> ScanEstimate:
+    def scan_done(
+        self, t: float, heading_deg: float, est: ScanEstimate, sample_t: Sequence[float]
+    ) -> ScanEstimate:
         return est
 
     def bearing_now(self, t: float, heading_deg: float | None) -> float | None:
@@ -146,8 +148,13 @@ class TrackingModel:
         half = fit.beamwidth_deg / 2.0
         if 5.0 <= fit.beamwidth_deg <= 180.0:
             self._any_beamwidths.append(fit.beamwidth_deg)
-        if (not fit.extrapolated and fit.bearing_deg - half >= lo and fit.bearing_deg + half <= hi
-                and fit.sd_deg <= self.params.tracker.confident_sd_deg and 5.0 <= fit.beamwidth_deg <= 180.0):
+        if (
+            not fit.extrapolated
+            and fit.bearing_deg - half >= lo
+            and fit.bearing_deg + half <= hi
+            and fit.sd_deg <= self.params.tracker.confident_sd_deg
+            and 5.0 <= fit.beamwidth_deg <= 180.0
+        ):
             self._beamwidths.append(fit.beamwidth_deg)
 
     def _now(self, t: float, heading_deg: float | None) -> Track | None:
@@ -156,8 +163,9 @@ class TrackingModel:
         h = self.track.heading_deg if heading_deg is None else heading_deg
         return tracker.predict(self.track, t, h, self.params.tracker)
 
-    def scan_done(self, t: float, heading_deg: float, est: ScanEstimate,
-                  sample_t: Sequence[float]) -> ScanEstimate:
+    def scan_done(
+        self, t: float, heading_deg: float, est: ScanEstimate, sample_t: Sequence[float]
+    ) -> ScanEstimate:
         p = self.params
         values = est.nrssi_dbm
         angles, t_ref = self._leader_frame(t, heading_deg, est.angles_deg, sample_t)
@@ -195,8 +203,14 @@ class TrackingModel:
             return replace(est, bearing_deg=bearing, bearing_sd_deg=None)
         return replace(est, bearing_deg=self._seen(now.bearing_deg), bearing_sd_deg=now.sd_deg)
 
-    def _remember(self, fit: LobeFit | None, angles: Sequence[float], rssi_dbm: Sequence[float],
-                  t: float, heading_deg: float) -> None:
+    def _remember(
+        self,
+        fit: LobeFit | None,
+        angles: Sequence[float],
+        rssi_dbm: Sequence[float],
+        t: float,
+        heading_deg: float,
+    ) -> None:
         """The scan's word on where the leader is, when that is at or beyond a servo limit
         (out of the sweep's reach): its fit there, however unsure; with no fit, the strongest
         sample when it lies at a limit (the lobe beyond) and is louder than the lost rule's
@@ -229,8 +243,9 @@ class TrackingModel:
             return None
         return in_current_frame(b, h, heading_deg)
 
-    def _leader_frame(self, t: float, heading_deg: float, angles_deg: Sequence[float],
-                      sample_t: Sequence[float]) -> tuple[tuple[float, ...], float | None]:
+    def _leader_frame(
+        self, t: float, heading_deg: float, angles_deg: Sequence[float], sample_t: Sequence[float]
+    ) -> tuple[tuple[float, ...], float | None]:
         """The scan's angles as seen from a leader that moves during the sweep, and the time
         they refer to (None: as sampled).
 
@@ -242,12 +257,20 @@ class TrackingModel:
         """
         angles = tuple(angles_deg)
         now = self._now(t, heading_deg)
-        if (not self.params.compensate_motion or now is None or tracker.is_lost(now, self.params.tracker)
-                or abs(now.rate_deg_s) <= self.params.adaptive.moving_rate_deg_s
-                or len(sample_t) != len(angles) or not angles):
+        if (
+            not self.params.compensate_motion
+            or now is None
+            or tracker.is_lost(now, self.params.tracker)
+            or abs(now.rate_deg_s) <= self.params.adaptive.moving_rate_deg_s
+            or len(sample_t) != len(angles)
+            or not angles
+        ):
             return angles, None
         w = now.rate_deg_s
-        ref = min(range(len(angles)), key=lambda i: abs(angles[i] - (now.bearing_deg + w * (sample_t[i] - t))))
+        ref = min(
+            range(len(angles)),
+            key=lambda i: abs(angles[i] - (now.bearing_deg + w * (sample_t[i] - t))),
+        )
         t_ref = sample_t[ref]
         return tuple(a - w * (ti - t_ref) for a, ti in zip(angles, sample_t, strict=True)), t_ref
 
@@ -282,9 +305,14 @@ class TrackingModel:
             base = self.track
             self._pool.clear()
         if base is None or tracker.is_lost(base, tp):
-            self.track, accepted = tracker.start(scan.t, scan.heading_deg, fit.bearing_deg, fit.sd_deg, tp), True
+            self.track, accepted = (
+                tracker.start(scan.t, scan.heading_deg, fit.bearing_deg, fit.sd_deg, tp),
+                True,
+            )
         else:
-            self.track, accepted = tracker.update(base, scan.t, scan.heading_deg, fit.bearing_deg, fit.sd_deg, tp)
+            self.track, accepted = tracker.update(
+                base, scan.t, scan.heading_deg, fit.bearing_deg, fit.sd_deg, tp
+            )
         if not accepted or self.track.updates == 1:
             self._pool.clear()  # a gated scan or a new track: what came before is another leader
         if accepted:
@@ -313,7 +341,10 @@ class TrackingModel:
         while it is not.
         """
         p = self.params
-        self._span = (full.centre_deg - full.width_deg / 2.0, full.centre_deg + full.width_deg / 2.0)
+        self._span = (
+            full.centre_deg - full.width_deg / 2.0,
+            full.centre_deg + full.width_deg / 2.0,
+        )
         now = self._now(t, heading_deg)
         if now is None or tracker.is_lost(now, p.tracker):
             return None if p.window == "full" else full

@@ -108,7 +108,9 @@ class LinkPolicyParams:
     def __post_init__(self) -> None:
         lo, hi = self.bounds_dbm
         if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
-            raise ValueError(f"bounds_dbm must be (low, high) with low < high, got {self.bounds_dbm}")
+            raise ValueError(
+                f"bounds_dbm must be (low, high) with low < high, got {self.bounds_dbm}"
+            )
         if not 0.0 < self.outage < 0.5:
             raise ValueError(f"outage must be in (0, 0.5), got {self.outage}")
         if self.target_hop_mbps <= 0 or self.mac_efficiency <= 0 or self.half_life_samples <= 0:
@@ -136,7 +138,9 @@ class LinkSample:
 
     def delivered_mbps(self, mac_efficiency: float) -> float | None:
         """min(tx, rx) x CCQ x MAC efficiency; None when the radio gave no rate."""
-        rates = [r for r in (self.tx_mbps, self.rx_mbps) if r is not None and math.isfinite(r) and r >= 0]
+        rates = [
+            r for r in (self.tx_mbps, self.rx_mbps) if r is not None and math.isfinite(r) and r >= 0
+        ]
         if not rates:
             return None
         ccq = self.ccq_pct
@@ -268,8 +272,11 @@ class LinkModel:
     def observe(self, sample: LinkSample, now: float) -> bool:
         """Learn from one poll at time `now`; False (and no change) if stale or unusable."""
         p = self.params
-        fresh = (math.isfinite(sample.t) and now - sample.t <= p.stale_s
-                 and (self.last_t is None or sample.t > self.last_t))
+        fresh = (
+            math.isfinite(sample.t)
+            and now - sample.t <= p.stale_s
+            and (self.last_t is None or sample.t > self.last_t)
+        )
         if not fresh:
             self.refused_stale += 1
             return False
@@ -291,7 +298,9 @@ class LinkModel:
                     lik = LAPSE / 2.0 + (1.0 - LAPSE) * (q if ok else 1.0 - q)
                 else:
                     lo, hi = band
-                    q = _phi((r - mu - lo) / s) - (_phi((r - mu - hi) / s) if hi < math.inf else 0.0)
+                    q = _phi((r - mu - lo) / s) - (
+                        _phi((r - mu - hi) / s) if hi < math.inf else 0.0
+                    )
                     lik = LAPSE / 2.0 + (1.0 - LAPSE) * q
                 ll[k] = decay * ll[k] + w * math.log(lik)
                 k += 1
@@ -318,7 +327,11 @@ class LinkModel:
         rate that meets the target at this poll's CCQ (the target's own step, where mu is),
         that is [sens_i - sens_t, sens_(i-1) - sens_t): the band RSSI^b - mu fell in.
         """
-        rates = [x for x in (sample.tx_mbps, sample.rx_mbps) if x is not None and math.isfinite(x) and x > 0]
+        rates = [
+            x
+            for x in (sample.tx_mbps, sample.rx_mbps)
+            if x is not None and math.isfinite(x) and x > 0
+        ]
         found = ladder_of(min(rates)) if rates else None
         if found is None:
             return None
@@ -328,7 +341,9 @@ class LinkModel:
         for sens, rate in ladder:
             if rate * per_mbps >= p.target_hop_mbps:
                 target = sens
-        if target is None:  # no rate of this ladder meets the target at this CCQ: the binary verdict says it
+        if (
+            target is None
+        ):  # no rate of this ladder meets the target at this CCQ: the binary verdict says it
             return None
         lo = ladder[i][0] - target
         hi = ladder[i - 1][0] - target if i > 0 else math.inf
@@ -374,7 +389,9 @@ class LinkModel:
             spread_db=round(s, 2),
             p_ok_now=None if last is None else round(self.p_ok(last), 3),
             last_rssi_dbm=last,
-            last_delivered_mbps=None if self.last_delivered_mbps is None else round(self.last_delivered_mbps, 2),
+            last_delivered_mbps=None
+            if self.last_delivered_mbps is None
+            else round(self.last_delivered_mbps, 2),
             stale=self.stale(now),
             refused_stale=self.refused_stale,
         )

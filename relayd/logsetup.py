@@ -98,17 +98,27 @@ def _renderers(fmt: str, stream: Any, journal: bool) -> list[Any]:
         out: list[Any] = [
             # Never the frames' locals: they hold passwords (the airOS login's form).
             structlog.processors.ExceptionRenderer(
-                structlog.tracebacks.ExceptionDictTransformer(show_locals=False)),
+                structlog.tracebacks.ExceptionDictTransformer(show_locals=False)
+            ),
             structlog.processors.JSONRenderer(),
         ]
         return [*out, _journal_priority] if journal else out
     # rich's traceback (ConsoleRenderer's default when rich is installed) shows locals.
-    return [structlog.dev.ConsoleRenderer(colors=stream.isatty(),
-                                          exception_formatter=structlog.dev.plain_traceback)]
+    return [
+        structlog.dev.ConsoleRenderer(
+            colors=stream.isatty(), exception_formatter=structlog.dev.plain_traceback
+        )
+    ]
 
 
-def setup_logging(level: str = "info", fmt: str = "console", stream: Any = None, *,
-                  journal: bool = True, extra: Sequence[Any] = ()) -> None:
+def setup_logging(
+    level: str = "info",
+    fmt: str = "console",
+    stream: Any = None,
+    *,
+    journal: bool = True,
+    extra: Sequence[Any] = (),
+) -> None:
     """Configure structlog and route every stdlib logger (aiohttp, asyncio, warnings) through it.
 
     Logs go to stdout by default (journald reads it); pass `StdStream("stderr")` for
@@ -126,8 +136,11 @@ def setup_logging(level: str = "info", fmt: str = "console", stream: Any = None,
         structlog.processors.TimeStamper(fmt="iso", utc=True),
     ]
     structlog.configure(
-        processors=[*shared, structlog.processors.StackInfoRenderer(),
-                    structlog.stdlib.ProcessorFormatter.wrap_for_formatter],
+        processors=[
+            *shared,
+            structlog.processors.StackInfoRenderer(),
+            structlog.stdlib.ProcessorFormatter.wrap_for_formatter,
+        ],
         # Filtering happens here, before any work, so debug calls cost nothing at info.
         wrapper_class=structlog.make_filtering_bound_logger(numeric),
         logger_factory=structlog.stdlib.LoggerFactory(),
@@ -137,8 +150,10 @@ def setup_logging(level: str = "info", fmt: str = "console", stream: Any = None,
     handler.setFormatter(
         structlog.stdlib.ProcessorFormatter(
             foreign_pre_chain=[*shared, structlog.stdlib.ExtraAdder()],
-            processors=[structlog.stdlib.ProcessorFormatter.remove_processors_meta,
-                        *_renderers(fmt, stream, journal)],
+            processors=[
+                structlog.stdlib.ProcessorFormatter.remove_processors_meta,
+                *_renderers(fmt, stream, journal),
+            ],
         )
     )
     root = logging.getLogger()

@@ -33,8 +33,20 @@ from relayd.state import DriveState, Mode, RelayState
 
 #: SIP received -> wheel command written: sub-millisecond on a healthy loop, 2 ms is the target p99.
 CONTROL_LATENCY_BUCKETS_S = (
-    0.0001, 0.00025, 0.0005, 0.00075, 0.001, 0.0015, 0.002, 0.003, 0.005, 0.01, 0.025, 0.05,
-    0.1, 0.25,
+    0.0001,
+    0.00025,
+    0.0005,
+    0.00075,
+    0.001,
+    0.0015,
+    0.002,
+    0.003,
+    0.005,
+    0.01,
+    0.025,
+    0.05,
+    0.1,
+    0.25,
 )
 #: A 25-step sweep at 180 deg/s with a 20 Hz RSSI source takes a couple of seconds.
 SCAN_PERIOD_BUCKETS_S = (0.25, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 20.0)
@@ -63,8 +75,11 @@ class _StateCollector(Collector):
         info.add_metric([], {"version": __version__})
         yield info
 
-        yield GaugeMetricFamily("relayd_uptime_seconds", "Seconds since the daemon started",
-                                value=max(0.0, now - st.started_t))
+        yield GaugeMetricFamily(
+            "relayd_uptime_seconds",
+            "Seconds since the daemon started",
+            value=max(0.0, now - st.started_t),
+        )
 
         mode = StateSetMetricFamily("relayd_mode", "Operating mode (follow/hold/manual)")
         mode.add_metric([], {m.value: st.mode == m for m in Mode})
@@ -74,11 +89,16 @@ class _StateCollector(Collector):
         yield drive
         # The reason is an open set (e.g. "controller_error: ValueError"), so it is a label of
         # a one-series info metric rather than a state set; alerts and dashboards join on it.
-        why = InfoMetricFamily("relayd_drive", "The drive state with its reason, as /status shows them")
+        why = InfoMetricFamily(
+            "relayd_drive", "The drive state with its reason, as /status shows them"
+        )
         why.add_metric([], {"state": st.state.value, "reason": st.reason})
         yield why
-        yield GaugeMetricFamily("relayd_situation", "Obstacle situation (0 none, 1 avoid, 2 penalty)",
-                                value=st.situation)
+        yield GaugeMetricFamily(
+            "relayd_situation",
+            "Obstacle situation (0 none, 1 avoid, 2 penalty)",
+            value=st.situation,
+        )
 
         if st.loop_tick_t is not None:
             yield GaugeMetricFamily(
@@ -87,44 +107,57 @@ class _StateCollector(Collector):
                 value=max(0.0, now - st.loop_tick_t),
             )
 
-        bearing = GaugeMetricFamily("relayd_bearing_degrees",
-                                    "Leader bearing, robot frame, counter-clockwise positive",
-                                    labels=["antenna"])
+        bearing = GaugeMetricFamily(
+            "relayd_bearing_degrees",
+            "Leader bearing, robot frame, counter-clockwise positive",
+            labels=["antenna"],
+        )
         if _finite(st.bearing_deg):
             bearing.add_metric(["scan"], st.bearing_deg)
         if _finite(st.link_bearing_deg):
             bearing.add_metric(["link"], st.link_bearing_deg)
         yield bearing
 
-        rssi = GaugeMetricFamily("relayd_rssi_dbm", "Best RSSI of the last scan (leader) and RSSI of the node behind",
-                                 labels=["peer"])
+        rssi = GaugeMetricFamily(
+            "relayd_rssi_dbm",
+            "Best RSSI of the last scan (leader) and RSSI of the node behind",
+            labels=["peer"],
+        )
         if _finite(st.rssi_leader_dbm):
             rssi.add_metric(["leader"], st.rssi_leader_dbm)
         if _finite(st.rssi_behind_dbm):
             rssi.add_metric(["behind"], st.rssi_behind_dbm)
         yield rssi
 
-        thresholds = GaugeMetricFamily("relayd_rssi_threshold_dbm", "Configured stop thresholds",
-                                       labels=["peer"])
+        thresholds = GaugeMetricFamily(
+            "relayd_rssi_threshold_dbm", "Configured stop thresholds", labels=["peer"]
+        )
         for key, peer in (("threshold_l_dbm", "leader"), ("threshold_b_dbm", "behind")):
             value = st.thresholds.get(key)
             if _finite(value):
                 thresholds.add_metric([peer], float(value))
         yield thresholds
 
-        wheels = GaugeMetricFamily("relayd_wheel_speed_meters_per_second", "Commanded wheel speed",
-                                   labels=["wheel"])
+        wheels = GaugeMetricFamily(
+            "relayd_wheel_speed_meters_per_second", "Commanded wheel speed", labels=["wheel"]
+        )
         wheels.add_metric(["left"], st.wheels_left_mm_s / 1000.0)
         wheels.add_metric(["right"], st.wheels_right_mm_s / 1000.0)
         yield wheels
 
         if _finite(st.battery_v):
-            yield GaugeMetricFamily("relayd_battery_volts", "Base battery voltage", value=st.battery_v)
-        yield GaugeMetricFamily("relayd_motors_enabled", "1 when the base reports its motors enabled",
-                                value=1.0 if st.motors_enabled else 0.0)
+            yield GaugeMetricFamily(
+                "relayd_battery_volts", "Base battery voltage", value=st.battery_v
+            )
+        yield GaugeMetricFamily(
+            "relayd_motors_enabled",
+            "1 when the base reports its motors enabled",
+            value=1.0 if st.motors_enabled else 0.0,
+        )
 
-        sonar = GaugeMetricFamily("relayd_sonar_range_meters", "Latest range of each sonar",
-                                  labels=["sonar"])
+        sonar = GaugeMetricFamily(
+            "relayd_sonar_range_meters", "Latest range of each sonar", labels=["sonar"]
+        )
         for index, range_mm in enumerate(st.sonar_mm):
             if range_mm is not None:
                 sonar.add_metric([str(index)], range_mm / 1000.0)
@@ -133,9 +166,12 @@ class _StateCollector(Collector):
         yield CounterMetricFamily("relayd_scans", "Scans finished", value=st.scan_count)
 
         signal = GaugeMetricFamily("relayd_link_signal_dbm", "airOS radio signal", labels=["link"])
-        ccq = GaugeMetricFamily("relayd_link_ccq_ratio", "airOS client connection quality", labels=["link"])
-        rate = GaugeMetricFamily("relayd_link_rate_bits_per_second", "airOS PHY rate",
-                                 labels=["link", "direction"])
+        ccq = GaugeMetricFamily(
+            "relayd_link_ccq_ratio", "airOS client connection quality", labels=["link"]
+        )
+        rate = GaugeMetricFamily(
+            "relayd_link_rate_bits_per_second", "airOS PHY rate", labels=["link", "direction"]
+        )
         for name, link in st.links.items():
             if _finite(link.signal_dbm):
                 signal.add_metric([name], link.signal_dbm)
@@ -149,14 +185,20 @@ class _StateCollector(Collector):
         yield ccq
         yield rate
 
-        connected = GaugeMetricFamily("relayd_device_connected", "1 when the device link is up",
-                                      labels=["device"])
-        errors = CounterMetricFamily("relayd_device_errors", "Errors seen on the device link",
-                                     labels=["device"])
-        reconnects = CounterMetricFamily("relayd_device_reconnects", "Times the device link came back",
-                                         labels=["device"])
-        age = GaugeMetricFamily("relayd_device_data_age_seconds", "Seconds since the device last sent data",
-                                labels=["device"])
+        connected = GaugeMetricFamily(
+            "relayd_device_connected", "1 when the device link is up", labels=["device"]
+        )
+        errors = CounterMetricFamily(
+            "relayd_device_errors", "Errors seen on the device link", labels=["device"]
+        )
+        reconnects = CounterMetricFamily(
+            "relayd_device_reconnects", "Times the device link came back", labels=["device"]
+        )
+        age = GaugeMetricFamily(
+            "relayd_device_data_age_seconds",
+            "Seconds since the device last sent data",
+            labels=["device"],
+        )
         for name, health in st.health_now().items():
             connected.add_metric([name], 1.0 if health.connected else 0.0)
             errors.add_metric([name], health.errors)
@@ -196,7 +238,8 @@ class Metrics:
             registry=self.registry,
         )
         self._sips = Counter(
-            "relayd_sips_received", "Server information packets received from the base",
+            "relayd_sips_received",
+            "Server information packets received from the base",
             registry=self.registry,
         )
         self.registry.register(_StateCollector(state, clock))

@@ -58,8 +58,9 @@ def _from_sections(cls: type[P], *sections: BaseModel, **derived: Any) -> P:
     return cls(**values)
 
 
-def scan_period_nominal_s(width_deg: float, speed_deg_s: float, samples: int, settle_s: float,
-                          sample_hz: float, mode: str) -> float:
+def scan_period_nominal_s(
+    width_deg: float, speed_deg_s: float, samples: int, settle_s: float, sample_hz: float, mode: str
+) -> float:
     """A sweep's expected duration: slew time of the window plus the time at each sample."""
     slew = width_deg / speed_deg_s
     if mode == "continuous":
@@ -69,8 +70,14 @@ def scan_period_nominal_s(width_deg: float, speed_deg_s: float, samples: int, se
 
 def nominal_scan_period_s(settings: Settings) -> float:
     s = settings.scan
-    return scan_period_nominal_s(s.width_deg, settings.pantilt.speed_deg_s, s.samples, s.settle_s,
-                                 settings.wifi.sample_hz, s.mode)
+    return scan_period_nominal_s(
+        s.width_deg,
+        settings.pantilt.speed_deg_s,
+        s.samples,
+        s.settle_s,
+        settings.wifi.sample_hz,
+        s.mode,
+    )
 
 
 def rssi_timeout_s(sample_hz: float) -> float:
@@ -82,7 +89,8 @@ def control_params(settings: Settings) -> ControlParams:
     c = settings.control
     rear_poll_s = settings.ap.rear.poll_s if settings.ap.rear is not None else 1.0
     return _from_sections(
-        ControlParams, c,
+        ControlParams,
+        c,
         rear_link_required=c.rear_link == "require",
         sip_timeout_s=settings.robot.lost_after_s,
         rssi_timeout_s=rssi_timeout_s(settings.wifi.sample_hz),
@@ -105,23 +113,33 @@ def link_policy_params(settings: Settings) -> LinkPolicyParams:
     c = settings.control
     rear_poll_s = settings.ap.rear.poll_s if settings.ap.rear is not None else 1.0
     return LinkPolicyParams(
-        adaptive=c.link_policy == "adaptive", target_hop_mbps=c.target_hop_mbps,
-        outage=c.outage_probability, bounds_dbm=(c.threshold_b_min_dbm, c.threshold_b_max_dbm),
-        fallback_dbm=c.threshold_b_dbm, mac_efficiency=c.mac_efficiency,
-        half_life_samples=c.link_half_life_polls, stale_s=c.rear_stale_polls * rear_poll_s,
+        adaptive=c.link_policy == "adaptive",
+        target_hop_mbps=c.target_hop_mbps,
+        outage=c.outage_probability,
+        bounds_dbm=(c.threshold_b_min_dbm, c.threshold_b_max_dbm),
+        fallback_dbm=c.threshold_b_dbm,
+        mac_efficiency=c.mac_efficiency,
+        half_life_samples=c.link_half_life_polls,
+        stale_s=c.rear_stale_polls * rear_poll_s,
     )
 
 
-def recovery_params(settings: Settings, control: ControlParams, scan_timeout_s: float | None) -> RecoveryParams:
+def recovery_params(
+    settings: Settings, control: ControlParams, scan_timeout_s: float | None
+) -> RecoveryParams:
     # [recovery]'s own keys, then the thresholds and staleness limits the controller uses.
     # The reverse speeds never exceed v_max: a first drive with a low v_max stays slow.
     r = settings.recovery
     return _from_sections(
-        RecoveryParams, r, settings.control,
+        RecoveryParams,
+        r,
+        settings.control,
         retrace_speed_mm_s=min(r.retrace_speed_mm_s, control.v_max_mm_s),
         backup_speed_mm_s=min(r.backup_speed_mm_s, control.v_max_mm_s),
-        rear_required=control.rear_link_required, sip_timeout_s=control.sip_timeout_s,
-        rssi_timeout_s=control.rssi_timeout_s, rear_timeout_s=control.rear_timeout_s,
+        rear_required=control.rear_link_required,
+        sip_timeout_s=control.sip_timeout_s,
+        rssi_timeout_s=control.rssi_timeout_s,
+        rear_timeout_s=control.rear_timeout_s,
         scan_timeout_s=scan_timeout_s,
     )
 
@@ -131,24 +149,35 @@ def brain_params(settings: Settings) -> BrainParams:
     scanning = pt.enabled and settings.wifi.enabled
     rear = settings.ap.rear
     control = control_params(settings)
-    scan_timeout_s = max(SCAN_STALE_MIN_S, 2.0 * nominal_scan_period_s(settings)) if scanning else None
+    scan_timeout_s = (
+        max(SCAN_STALE_MIN_S, 2.0 * nominal_scan_period_s(settings)) if scanning else None
+    )
     return BrainParams(
         control=control,
         estimator=estimator_params(settings),
         scan=ScanParams(
-            scan_channel=pt.scan_channel, link_channel=pt.link_channel, samples=s.samples,
-            width_deg=s.width_deg, limits_deg=(float(pt.limits_deg[0]), float(pt.limits_deg[1])),
+            scan_channel=pt.scan_channel,
+            link_channel=pt.link_channel,
+            samples=s.samples,
+            width_deg=s.width_deg,
+            limits_deg=(float(pt.limits_deg[0]), float(pt.limits_deg[1])),
             lost_rssi_dbm=settings.control.lost_rssi_dbm,
             # The second stale rule: no completed scan for two nominal scan periods.
             scan_timeout_s=scan_timeout_s,
         ),
-        leader=LeaderParams(estimator=s.estimator, window=s.window, adaptive=WindowParams(
-            # The adaptive window's steps fit the step-mode scanner's clock; a continuous
-            # sweep samples at the RSSI rate wherever the servo is.
-            servo_deg_s=pt.speed_deg_s if s.mode == "step" else None, settle_s=s.settle_s,
-            sample_period_s=1.0 / settings.wifi.sample_hz if s.mode == "step" else None),
+        leader=LeaderParams(
+            estimator=s.estimator,
+            window=s.window,
+            adaptive=WindowParams(
+                # The adaptive window's steps fit the step-mode scanner's clock; a continuous
+                # sweep samples at the RSSI rate wherever the servo is.
+                servo_deg_s=pt.speed_deg_s if s.mode == "step" else None,
+                settle_s=s.settle_s,
+                sample_period_s=1.0 / settings.wifi.sample_hz if s.mode == "step" else None,
+            ),
             evidence_min_rssi_dbm=settings.control.lost_rssi_dbm,
-            evidence_max_age_s=EVIDENCE_SCANS * nominal_scan_period_s(settings)),
+            evidence_max_age_s=EVIDENCE_SCANS * nominal_scan_period_s(settings),
+        ),
         recovery=recovery_params(settings, control, scan_timeout_s),
         has_scanner=scanning,
         rear_station_mac=rear.station_mac if rear is not None else None,

@@ -93,8 +93,13 @@ def known_front(ranges_mm: Sequence[int | None]) -> tuple[SonarReading, ...]:
         mm = ranges_mm[index] if index < len(ranges_mm) else None
         if mm is None or mm < 0:
             continue
-        out.append(SonarReading(SONAR_HEADINGS_DEG[index], None if mm >= SONAR_MAX_RANGE_M * 1000 else mm / 1000.0,
-                                index=index))
+        out.append(
+            SonarReading(
+                SONAR_HEADINGS_DEG[index],
+                None if mm >= SONAR_MAX_RANGE_M * 1000 else mm / 1000.0,
+                index=index,
+            )
+        )
     return tuple(out)
 
 
@@ -121,7 +126,9 @@ def _bearing_at(tx: float, ty: float, dir_deg: float, dist_m: float) -> float | 
     return math.degrees(math.atan2(ty + s * vy, tx + s * vx))
 
 
-def cover_deg(index: int, near_m: float = NEAR_M, half_beam_deg: float = HALF_BEAM_DEG) -> tuple[float, float]:
+def cover_deg(
+    index: int, near_m: float = NEAR_M, half_beam_deg: float = HALF_BEAM_DEG
+) -> tuple[float, float]:
     """(low, high): the bearings whose whole ray from `near_m` outwards lies inside sonar
     `index`'s beam; low > high when there are none."""
     tx, ty, heading = _transducer_m(index)
@@ -136,23 +143,31 @@ def cover_deg(index: int, near_m: float = NEAR_M, half_beam_deg: float = HALF_BE
     return lo, hi
 
 
-def centre_bound_m(index: int, range_m: float, core_m: float = CORE_M,
-                   half_beam_deg: float = HALF_BEAM_DEG) -> float:
+def centre_bound_m(
+    index: int, range_m: float, core_m: float = CORE_M, half_beam_deg: float = HALF_BEAM_DEG
+) -> float:
     """The least distance from the robot's centre of a leader's centre in sonar `index`'s beam
     when that sonar echoes at `range_m`: min |t + (range_m + core_m) u| over the beam's
     directions u, reached at an edge (t.u > 0 over the beam and varies as a cosine)."""
     tx, ty, heading = _transducer_m(index)
     s = range_m + core_m
-    return min(math.hypot(tx + s * math.cos(a), ty + s * math.sin(a))
-               for a in (math.radians(heading - half_beam_deg), math.radians(heading + half_beam_deg)))
+    return min(
+        math.hypot(tx + s * math.cos(a), ty + s * math.sin(a))
+        for a in (math.radians(heading - half_beam_deg), math.radians(heading + half_beam_deg))
+    )
 
 
 @cache
-def fan_deg(near_m: float = NEAR_M, half_beam_deg: float = HALF_BEAM_DEG) -> tuple[tuple[float, float], ...]:
+def fan_deg(
+    near_m: float = NEAR_M, half_beam_deg: float = HALF_BEAM_DEG
+) -> tuple[tuple[float, float], ...]:
     """The front fan: the bearings some front-ring sonar sees whole from `near_m` out, as
     sorted, merged intervals."""
-    spans = sorted(span for span in (cover_deg(i, near_m, half_beam_deg) for i in FRONT_RING)
-                   if span[0] <= span[1])
+    spans = sorted(
+        span
+        for span in (cover_deg(i, near_m, half_beam_deg) for i in FRONT_RING)
+        if span[0] <= span[1]
+    )
     merged: list[tuple[float, float]] = []  # cached: the ring's geometry does not change
     for lo, hi in spans:
         if merged and lo <= merged[-1][1]:
@@ -162,16 +177,28 @@ def fan_deg(near_m: float = NEAR_M, half_beam_deg: float = HALF_BEAM_DEG) -> tup
     return tuple(merged)
 
 
-def leader_floor_m(front: Sequence[SonarReading], bearing_deg: float | None, sd_deg: float | None, *,
-                   sigmas: float = SIGMAS, min_half_deg: float = MIN_HALF_DEG, max_sd_deg: float = MAX_SD_DEG,
-                   near_m: float = NEAR_M, core_m: float = CORE_M,
-                   half_beam_deg: float = HALF_BEAM_DEG) -> float | None:
+def leader_floor_m(
+    front: Sequence[SonarReading],
+    bearing_deg: float | None,
+    sd_deg: float | None,
+    *,
+    sigmas: float = SIGMAS,
+    min_half_deg: float = MIN_HALF_DEG,
+    max_sd_deg: float = MAX_SD_DEG,
+    near_m: float = NEAR_M,
+    core_m: float = CORE_M,
+    half_beam_deg: float = HALF_BEAM_DEG,
+) -> float | None:
     """A lower bound (m) on the distance from the robot's centre to the leader's centre,
     `centre_bound_m` over the whole front ring; None when the bearing or its sd is unknown
     or not finite, when sd > max_sd_deg, when bearing +- max(sigmas * sd, min_half_deg)
     is not inside the front fan, or when a front-ring sonar is missing from `front` (never read: `known_front`).
     See the module docstring for what the bound assumes."""
-    if bearing_deg is None or sd_deg is None or not (math.isfinite(bearing_deg) and math.isfinite(sd_deg)):
+    if (
+        bearing_deg is None
+        or sd_deg is None
+        or not (math.isfinite(bearing_deg) and math.isfinite(sd_deg))
+    ):
         return None
     if sd_deg > max_sd_deg:
         return None
@@ -185,7 +212,11 @@ def leader_floor_m(front: Sequence[SonarReading], bearing_deg: float | None, sd_
     floor = math.inf
     for i in FRONT_RING:
         r = by_index[i]
-        r = SONAR_MAX_RANGE_M if r is None or not math.isfinite(r) or r >= SONAR_MAX_RANGE_M else max(r, 0.0)
+        r = (
+            SONAR_MAX_RANGE_M
+            if r is None or not math.isfinite(r) or r >= SONAR_MAX_RANGE_M
+            else max(r, 0.0)
+        )
         floor = min(floor, centre_bound_m(i, r, core_m, half_beam_deg))
     return floor
 
@@ -204,8 +235,13 @@ CREEP_MM_S = 50.0
 RELEASE_MAX_ABOVE_DB = 10.0
 
 
-def far_by_sonar(floor_m: float | None, gap_max_m: float, was_released: bool,
-                 rssi_leader_dbm: float, threshold_l_dbm: float) -> bool:
+def far_by_sonar(
+    floor_m: float | None,
+    gap_max_m: float,
+    was_released: bool,
+    rssi_leader_dbm: float,
+    threshold_l_dbm: float,
+) -> bool:
     """The sonar floor says the leader is beyond `gap_max_m` (0: the release is off); once
     released, until it falls `RELEASE_HYSTERESIS_M` below. No floor, or RSSI^l at least
     `RELEASE_MAX_ABOVE_DB` above threshold_l (too loud for a far leader): not far."""
@@ -221,4 +257,3 @@ def release_speed_mm_s(threshold_l_dbm: float, w1: float, w2: float, v_max_mm_s:
     leader's pace when the law is matched to it), kept within [CREEP_MM_S, v_max]."""
     v = -w1 * threshold_l_dbm - w2
     return min(max(v, CREEP_MM_S), v_max_mm_s)
-

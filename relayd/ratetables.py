@@ -18,16 +18,31 @@ Ladder = tuple[tuple[float, float], ...]
 
 #: 802.11g OFDM receiver minimum sensitivity (dBm) -> PHY rate (Mbit/s), fastest first.
 RATE_TABLE_80211G: Ladder = (
-    (-65.0, 54.0), (-66.0, 48.0), (-70.0, 36.0), (-74.0, 24.0),
-    (-77.0, 18.0), (-79.0, 12.0), (-81.0, 9.0), (-82.0, 6.0),
+    (-65.0, 54.0),
+    (-66.0, 48.0),
+    (-70.0, 36.0),
+    (-74.0, 24.0),
+    (-77.0, 18.0),
+    (-79.0, 12.0),
+    (-81.0, 9.0),
+    (-82.0, 6.0),
 )
 #: 802.11n, one spatial stream, 20 MHz, 800 ns guard interval: MCS7..MCS0 with the
 #: standard's minimum sensitivities (IEEE 802.11-2012, table 20-22).
 RATE_TABLE_80211N_1X1: Ladder = (
-    (-64.0, 65.0), (-65.0, 58.5), (-66.0, 52.0), (-70.0, 39.0),
-    (-74.0, 26.0), (-77.0, 19.5), (-79.0, 13.0), (-82.0, 6.5),
+    (-64.0, 65.0),
+    (-65.0, 58.5),
+    (-66.0, 52.0),
+    (-70.0, 39.0),
+    (-74.0, 26.0),
+    (-77.0, 19.5),
+    (-79.0, 13.0),
+    (-82.0, 6.5),
 )
-RATE_TABLES: Mapping[str, Ladder] = {"802.11g": RATE_TABLE_80211G, "802.11n-1x1": RATE_TABLE_80211N_1X1}
+RATE_TABLES: Mapping[str, Ladder] = {
+    "802.11g": RATE_TABLE_80211G,
+    "802.11n-1x1": RATE_TABLE_80211N_1X1,
+}
 
 
 def ladder_of(rate_mbps: float) -> tuple[Ladder, int] | None:

@@ -66,8 +66,21 @@ FENCE_CLEAR_DB = 10.0
 
 
 #: Every reason an episode reports (each has a phrase in relayd/api/static/reasons.json).
-REASONS = frozenset({"widen", "retrace", "retrace_wait", "backup", "rear_obstacle", "rear_blocked",
-                     "rear_trail_end", "rear_lost", "leader_lost", "recovery_stale_input", "rear_fence"})
+REASONS = frozenset(
+    {
+        "widen",
+        "retrace",
+        "retrace_wait",
+        "backup",
+        "rear_obstacle",
+        "rear_blocked",
+        "rear_trail_end",
+        "rear_lost",
+        "leader_lost",
+        "recovery_stale_input",
+        "rear_fence",
+    }
+)
 
 
 class Phase(StrEnum):
@@ -181,24 +194,44 @@ def inputs_stale(inp: RecoveryInputs, p: RecoveryParams, *, need_rear: bool) -> 
     if _stale(inp.sip_age_s, p.sip_timeout_s) or _stale(inp.rssi_age_s, p.rssi_timeout_s):
         return True
     # `not <=` so that a NaN age is stale too (a broken clock is no reason to move).
-    if (p.scan_timeout_s is not None and inp.scan_age_s is not None
-            and not inp.scan_age_s <= p.scan_timeout_s):
+    if (
+        p.scan_timeout_s is not None
+        and inp.scan_age_s is not None
+        and not inp.scan_age_s <= p.scan_timeout_s
+    ):
         return True
     rear_needed = need_rear or p.rear_required
     return rear_needed and (_stale(inp.rear_age_s, p.rear_timeout_s) or inp.rssi_behind_dbm is None)
 
 
 def _close(m: RecoveryMemory, phase: Phase, outcome: str) -> RecoveryMemory:
-    return replace(m, phase=phase, last_outcome=outcome, target=None,
-                   kind=m.kind if phase is Phase.GAVE_UP else None)
+    return replace(
+        m,
+        phase=phase,
+        last_outcome=outcome,
+        target=None,
+        kind=m.kind if phase is Phase.GAVE_UP else None,
+    )
 
 
-def _start(m: RecoveryMemory, kind: Kind, inp: RecoveryInputs, phase: Phase, *, chained: bool) -> RecoveryMemory:
+def _start(
+    m: RecoveryMemory, kind: Kind, inp: RecoveryInputs, phase: Phase, *, chained: bool
+) -> RecoveryMemory:
     pos = None if inp.pose is None else (inp.pose[0], inp.pose[1])
     if not chained or m.incident_t is None:
         m = replace(m, incident_t=inp.now_s, incident_m=0.0)
-    return replace(m, phase=phase, kind=kind, episodes=m.episodes + 1, started_t=inp.now_s,
-                   start_scans=inp.scan_count, distance_m=0.0, last_pose=pos, target=None, episode_from=pos)
+    return replace(
+        m,
+        phase=phase,
+        kind=kind,
+        episodes=m.episodes + 1,
+        started_t=inp.now_s,
+        start_scans=inp.scan_count,
+        distance_m=0.0,
+        last_pose=pos,
+        target=None,
+        episode_from=pos,
+    )
 
 
 def _count_rear(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> RecoveryMemory:
@@ -208,18 +241,30 @@ def _count_rear(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> Re
     v = inp.rssi_behind_dbm
     low = v is not None and v < p.lost_rssi_dbm
     high = v is not None and v > p.threshold_b_dbm + p.hysteresis_db
-    return replace(m, rear_seen=inp.rear_polls, rear_low=m.rear_low + 1 if low else 0,
-                   rear_high=m.rear_high + 1 if high else 0)
+    return replace(
+        m,
+        rear_seen=inp.rear_polls,
+        rear_low=m.rear_low + 1 if low else 0,
+        rear_high=m.rear_high + 1 if high else 0,
+    )
 
 
 def _rear_broken(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> bool:
-    return (p.rear_required and inp.rssi_behind_dbm is not None and not _stale(inp.rear_age_s, p.rear_timeout_s)
-            and inp.rssi_behind_dbm < p.lost_rssi_dbm and m.rear_low >= REAR_LOST_POLLS)
+    return (
+        p.rear_required
+        and inp.rssi_behind_dbm is not None
+        and not _stale(inp.rear_age_s, p.rear_timeout_s)
+        and inp.rssi_behind_dbm < p.lost_rssi_dbm
+        and m.rear_low >= REAR_LOST_POLLS
+    )
 
 
 def _rear_restored(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> bool:
-    return (inp.rssi_behind_dbm is not None and inp.rssi_behind_dbm > p.threshold_b_dbm + p.hysteresis_db
-            and m.rear_high >= REAR_RESTORED_POLLS)
+    return (
+        inp.rssi_behind_dbm is not None
+        and inp.rssi_behind_dbm > p.threshold_b_dbm + p.hysteresis_db
+        and m.rear_high >= REAR_RESTORED_POLLS
+    )
 
 
 def _zero(state: DriveState, reason: str) -> RecoveryCommand:
@@ -240,7 +285,11 @@ def recovery_step(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> 
     m = _count_rear(inp, p, m)
     chained = m.phase in (Phase.WIDEN, Phase.RETRACE, Phase.BACKUP)
     # Odometry travel during an episode (the distance limit's measure).
-    if m.phase is not Phase.IDLE and inp.pose is not None and all(math.isfinite(v) for v in inp.pose):
+    if (
+        m.phase is not Phase.IDLE
+        and inp.pose is not None
+        and all(math.isfinite(v) for v in inp.pose)
+    ):
         here = (inp.pose[0], inp.pose[1])
         if m.last_pose is not None:
             step_m = math.dist(here, m.last_pose) / 1000.0
@@ -274,9 +323,18 @@ def recovery_step(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> 
         else:
             m = replace(m, incident_t=None, incident_m=0.0)
             if inp.pose is not None and all(math.isfinite(v) for v in inp.pose):
-                m = replace(m, trail=add_crumb(m.trail, inp.pose[0], inp.pose[1], inp.rssi_leader_dbm,
-                                               inp.rssi_behind_dbm, spacing_m=p.crumb_spacing_m,
-                                               keep=p.trail_len))
+                m = replace(
+                    m,
+                    trail=add_crumb(
+                        m.trail,
+                        inp.pose[0],
+                        inp.pose[1],
+                        inp.rssi_leader_dbm,
+                        inp.rssi_behind_dbm,
+                        spacing_m=p.crumb_spacing_m,
+                        keep=p.trail_len,
+                    ),
+                )
             return _fenced(inp, p, m)
 
     return _run_episode(inp, p, m)
@@ -289,10 +347,14 @@ def _fenced(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> Recove
         return RecoveryOutput(None, m)
     rb = inp.rssi_behind_dbm
     if inp.now_s - m.fence_t > FENCE_S or (
-            rb is not None and rb > p.threshold_b_dbm + p.hysteresis_db + FENCE_CLEAR_DB):
+        rb is not None and rb > p.threshold_b_dbm + p.hysteresis_db + FENCE_CLEAR_DB
+    ):
         return RecoveryOutput(None, replace(m, fence=None, fence_t=None))
-    if inp.pose is not None and inp.forward_mm_s > 0 and \
-            math.dist((inp.pose[0], inp.pose[1]), m.fence) < FENCE_M * 1000.0:
+    if (
+        inp.pose is not None
+        and inp.forward_mm_s > 0
+        and math.dist((inp.pose[0], inp.pose[1]), m.fence) < FENCE_M * 1000.0
+    ):
         return RecoveryOutput(_zero(DriveState.STOPPED, "rear_fence"), m)
     return RecoveryOutput(None, m)
 
@@ -302,7 +364,11 @@ def _run_episode(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> R
     lost_state = DriveState.STOPPED if rear else DriveState.LEADER_LOST
     lost_reason = "rear_lost" if rear else "leader_lost"
     if m.incident_t is None:  # an episode always starts one; a memory built by hand may not
-        m = replace(m, incident_t=m.started_t if m.started_t is not None else inp.now_s, incident_m=m.distance_m)
+        m = replace(
+            m,
+            incident_t=m.started_t if m.started_t is not None else inp.now_s,
+            incident_m=m.distance_m,
+        )
     elapsed = inp.now_s - (m.incident_t if m.incident_t is not None else inp.now_s)
     if elapsed >= p.max_time_s:
         m = _close(m, Phase.GAVE_UP, "gave_up_time")
@@ -331,17 +397,27 @@ def _run_episode(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> R
     m = replace(m, trail=trail)
     if m.target is not None and m.target >= len(trail):
         m = replace(m, target=len(trail) - 1 if trail else None)
-    at_end = not trail or (m.target is not None and m.target == len(trail) - 1
-                           and math.hypot(trail[-1].x_mm - x, trail[-1].y_mm - y) < p.reach_m * 1000.0)
+    at_end = not trail or (
+        m.target is not None
+        and m.target == len(trail) - 1
+        and math.hypot(trail[-1].x_mm - x, trail[-1].y_mm - y) < p.reach_m * 1000.0
+    )
     if at_end:
         reason = "rear_trail_end" if rear else "retrace_wait"
         return RecoveryOutput(_zero(DriveState.RECOVERING, reason), m)
 
     speed = p.backup_speed_mm_s if rear else p.retrace_speed_mm_s
     speed = min(speed, remaining_m * 1000.0 / TAPER_S)
-    left, right, why = reverse_toward(inp.pose, trail[-1], speed, inp.sonar_mm, threshold_o_m=p.threshold_o_m,
-                                      stop_distance_m=p.stop_distance_m, gamma_o_m=p.gamma_o_m,
-                                      turn_gain_mm_s_deg=p.turn_gain_mm_s_deg)
+    left, right, why = reverse_toward(
+        inp.pose,
+        trail[-1],
+        speed,
+        inp.sonar_mm,
+        threshold_o_m=p.threshold_o_m,
+        stop_distance_m=p.stop_distance_m,
+        gamma_o_m=p.gamma_o_m,
+        turn_gain_mm_s_deg=p.turn_gain_mm_s_deg,
+    )
     reason = ("backup" if rear else "retrace") if why == "retrace" else why
     return RecoveryOutput(RecoveryCommand(left, right, DriveState.RECOVERING, reason), m)
 
@@ -363,16 +439,32 @@ class RecoveryView:
 
     def to_json(self) -> dict[str, object]:
         """/status's `recovery` object (the enums as their strings)."""
-        return {"enabled": self.enabled, "phase": str(self.phase),
-                "kind": None if self.kind is None else str(self.kind), "episodes": self.episodes,
-                "elapsed_s": self.elapsed_s, "distance_m": self.distance_m,
-                "max_distance_m": self.max_distance_m, "max_time_s": self.max_time_s,
-                "trail_crumbs": self.trail_crumbs, "last_outcome": self.last_outcome}
+        return {
+            "enabled": self.enabled,
+            "phase": str(self.phase),
+            "kind": None if self.kind is None else str(self.kind),
+            "episodes": self.episodes,
+            "elapsed_s": self.elapsed_s,
+            "distance_m": self.distance_m,
+            "max_distance_m": self.max_distance_m,
+            "max_time_s": self.max_time_s,
+            "trail_crumbs": self.trail_crumbs,
+            "last_outcome": self.last_outcome,
+        }
 
 
 def recovery_view(m: RecoveryMemory, p: RecoveryParams, now_s: float) -> RecoveryView:
     active = m.phase in (Phase.WIDEN, Phase.RETRACE, Phase.BACKUP) and m.started_t is not None
     elapsed = float(math.floor(now_s - m.started_t)) if active and m.started_t is not None else None
-    return RecoveryView(p.enabled, m.phase, m.kind, m.episodes, elapsed,
-                        round(m.distance_m, 1) if active else None, p.max_distance_m, p.max_time_s,
-                        len(m.trail), m.last_outcome)
+    return RecoveryView(
+        p.enabled,
+        m.phase,
+        m.kind,
+        m.episodes,
+        elapsed,
+        round(m.distance_m, 1) if active else None,
+        p.max_distance_m,
+        p.max_time_s,
+        len(m.trail),
+        m.last_outcome,
+    )

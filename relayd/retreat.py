@@ -120,8 +120,9 @@ def _pose_ok(pose: tuple[float, float, float] | None) -> bool:
     return pose is not None and all(math.isfinite(v) for v in pose)
 
 
-def record_poll(m: RetreatMemory, pose: tuple[float, float, float] | None, rssi_b_dbm: float,
-                met: bool) -> RetreatMemory:
+def record_poll(
+    m: RetreatMemory, pose: tuple[float, float, float] | None, rssi_b_dbm: float, met: bool
+) -> RetreatMemory:
     """One rear poll the link model accepted: its spot and verdict, the run below target, an edge."""
     below = m.below + 1 if (m.rear_stopped and not met) else 0
     if m.target is not None:
@@ -132,8 +133,12 @@ def record_poll(m: RetreatMemory, pose: tuple[float, float, float] | None, rssi_
     trail = m.trail
     edge = not met and is_edge(trail, spot)
     last = trail[-1] if trail else None
-    if last is not None and last.met is not None and m.target is None and \
-            math.hypot(last.x_mm - spot.x_mm, last.y_mm - spot.y_mm) < SPACING_M * 500.0:
+    if (
+        last is not None
+        and last.met is not None
+        and m.target is None
+        and math.hypot(last.x_mm - spot.x_mm, last.y_mm - spot.y_mm) < SPACING_M * 500.0
+    ):
         trail = trail[:-1]
     trail = (*trail, spot)[-KEEP:]
     return replace(m, trail=trail, below=below, edge=edge)
@@ -188,9 +193,14 @@ def _stale(age: float | None, limit: float) -> bool:
 
 
 def _doubt(ci: ControlInputs, p: ControlParams) -> bool:
-    return (not _pose_ok(ci.odom) or _stale(ci.sip_age_s, p.sip_timeout_s)
-            or _stale(ci.rssi_age_s, p.rssi_timeout_s) or _stale(ci.rear_age_s, p.rear_timeout_s)
-            or ci.rssi_behind_dbm is None or not math.isfinite(ci.rssi_behind_dbm))
+    return (
+        not _pose_ok(ci.odom)
+        or _stale(ci.sip_age_s, p.sip_timeout_s)
+        or _stale(ci.rssi_age_s, p.rssi_timeout_s)
+        or _stale(ci.rear_age_s, p.rear_timeout_s)
+        or ci.rssi_behind_dbm is None
+        or not math.isfinite(ci.rssi_behind_dbm)
+    )
 
 
 def _rear_blind(sonar_mm: tuple[int | None, ...]) -> bool:
@@ -203,15 +213,24 @@ def _rear_blind(sonar_mm: tuple[int | None, ...]) -> bool:
 
 
 def _end(m: RetreatMemory, outcome: str) -> RetreatMemory:
-    return replace(m, target=None, started_t=None, last_pose=None, last_outcome=outcome, below=0, edge=False)
+    return replace(
+        m, target=None, started_t=None, last_pose=None, last_outcome=outcome, below=0, edge=False
+    )
 
 
 def _zero(out: ControlOutput, state: DriveState, reason: str) -> ControlOutput:
     return ControlOutput(0.0, 0.0, state, reason, out.situation, out.memory)
 
 
-def retreat_step(ci: ControlInputs, sonar_mm: tuple[int | None, ...], out: ControlOutput, p: ControlParams,
-                 m: RetreatMemory, *, enabled: bool) -> tuple[ControlOutput, RetreatMemory]:
+def retreat_step(
+    ci: ControlInputs,
+    sonar_mm: tuple[int | None, ...],
+    out: ControlOutput,
+    p: ControlParams,
+    m: RetreatMemory,
+    *,
+    enabled: bool,
+) -> tuple[ControlOutput, RetreatMemory]:
     """One control step: the controller's output, or a retreat's command in its place."""
     if not enabled:
         return out, m
@@ -234,38 +253,59 @@ def retreat_step(ci: ControlInputs, sonar_mm: tuple[int | None, ...], out: Contr
         target = retreat_target(m.trail, x, y, MAX_RETREAT_M - m.spent_m)
         if target is None:
             return out, replace(m, below=0, edge=False, last_outcome="no_spot")
-        m = replace(m, target=target, started_t=now, last_pose=(x, y), retreats=m.retreats + 1, edge=False)
+        m = replace(
+            m, target=target, started_t=now, last_pose=(x, y), retreats=m.retreats + 1, edge=False
+        )
 
     # A move runs.
     if _doubt(ci, p):
         return _zero(out, DriveState.FAULT, "retreat_stale_input"), _end(m, "stale_input")
     if m.last_pose is not None:
-        m = replace(m, spent_m=m.spent_m + math.hypot(x - m.last_pose[0], y - m.last_pose[1]) / 1000.0)
+        m = replace(
+            m, spent_m=m.spent_m + math.hypot(x - m.last_pose[0], y - m.last_pose[1]) / 1000.0
+        )
     m = replace(m, last_pose=(x, y))
     remaining_m = MAX_RETREAT_M - m.spent_m
     if remaining_m <= LIMIT_SLACK_M:
-        return _zero(out, DriveState.STOPPED, REAR_WEAK), replace(_end(m, "gave_up_distance"), anchor=(x, y))
+        return _zero(out, DriveState.STOPPED, REAR_WEAK), replace(
+            _end(m, "gave_up_distance"), anchor=(x, y)
+        )
     if m.started_t is not None and now - m.started_t >= MAX_TIME_S:
-        return _zero(out, DriveState.STOPPED, REAR_WEAK), replace(_end(m, "gave_up_time"), anchor=(x, y))
+        return _zero(out, DriveState.STOPPED, REAR_WEAK), replace(
+            _end(m, "gave_up_time"), anchor=(x, y)
+        )
     assert m.target is not None
     trail, target = m.trail, m.target
     # Consume the spots passed (the newest first), never the target.
-    while len(trail) - 1 > target and math.hypot(trail[-1].x_mm - x, trail[-1].y_mm - y) < REACH_M * 1000.0:
+    while (
+        len(trail) - 1 > target
+        and math.hypot(trail[-1].x_mm - x, trail[-1].y_mm - y) < REACH_M * 1000.0
+    ):
         trail = trail[:-1]
     m = replace(m, trail=trail)
     goal = trail[target]
     if len(trail) - 1 == target and math.hypot(goal.x_mm - x, goal.y_mm - y) < REACH_M * 1000.0:
         floor = None if goal.rssi_b_dbm is None else goal.rssi_b_dbm + HOLD_MARGIN_DB
-        return (_zero(out, DriveState.STOPPED, "retreat_hold"),
-                replace(_end(m, "arrived"), floor_dbm=floor, anchor=(goal.x_mm, goal.y_mm)))
+        return (
+            _zero(out, DriveState.STOPPED, "retreat_hold"),
+            replace(_end(m, "arrived"), floor_dbm=floor, anchor=(goal.x_mm, goal.y_mm)),
+        )
     if _rear_blind(sonar_mm):
-        return _zero(out, DriveState.STOPPED, "rear_blocked"), m  # never back blind; the time limit runs
+        return _zero(
+            out, DriveState.STOPPED, "rear_blocked"
+        ), m  # never back blind; the time limit runs
     nxt = trail[-1]
     speed = min(SPEED_MM_S, remaining_m * 1000.0 / TAPER_S)
-    left, right, why = reverse_toward(ci.odom, Crumb(nxt.x_mm, nxt.y_mm, None, None), speed, sonar_mm,
-                                      threshold_o_m=p.threshold_o_m, stop_distance_m=p.stop_distance_m,
-                                      gamma_o_m=p.gamma_o_m, turn_gain_mm_s_deg=3.0)
+    left, right, why = reverse_toward(
+        ci.odom,
+        Crumb(nxt.x_mm, nxt.y_mm, None, None),
+        speed,
+        sonar_mm,
+        threshold_o_m=p.threshold_o_m,
+        stop_distance_m=p.stop_distance_m,
+        gamma_o_m=p.gamma_o_m,
+        turn_gain_mm_s_deg=3.0,
+    )
     reason = "retreat" if why == "retrace" else why
     state = DriveState.STOPPED if left == 0.0 and right == 0.0 else DriveState.RECOVERING
     return ControlOutput(left, right, state, reason, out.situation, out.memory), m
-

@@ -44,8 +44,11 @@ def rear_readings(ranges_mm: Sequence[int | None]) -> tuple[SonarReading, ...]:
         mm = ranges_mm[index] if index < len(ranges_mm) else None
         if mm is None or mm < 0:
             continue
-        out.append(SonarReading(SONAR_HEADINGS_DEG[index], None if mm >= 5000 else mm / 1000.0,
-                                index=index))
+        out.append(
+            SonarReading(
+                SONAR_HEADINGS_DEG[index], None if mm >= 5000 else mm / 1000.0, index=index
+            )
+        )
     return tuple(out)
 
 
@@ -63,8 +66,10 @@ def _echo_centre_m(index: int, range_m: float) -> float:
     corner) rather than on the axis."""
     pose = SONAR_POSES[index]
     x, y = pose.x_mm / 1000.0, pose.y_mm / 1000.0
-    return min(math.hypot(x + range_m * math.cos(a), y + range_m * math.sin(a))
-               for a in (math.radians(pose.heading_deg + d) for d in (-15.0, 0.0, 15.0)))
+    return min(
+        math.hypot(x + range_m * math.cos(a), y + range_m * math.sin(a))
+        for a in (math.radians(pose.heading_deg + d) for d in (-15.0, 0.0, 15.0))
+    )
 
 
 def turn_room(sonar: Sequence[SonarReading], rear: Sequence[SonarReading], margin_m: float) -> bool:
@@ -132,8 +137,13 @@ def path_blocked(sonar: Sequence[SonarReading], stop_m: float) -> bool:
     return any(d < min(stop_m, in_path_below_m(h)) for h, d in by_heading(sonar).items())
 
 
-def guard(vel: int, rvel: int, sonar: Sequence[SonarReading], stop_m: float,
-          rear: Sequence[SonarReading] | None = None) -> tuple[int, int]:
+def guard(
+    vel: int,
+    rvel: int,
+    sonar: Sequence[SonarReading],
+    stop_m: float,
+    rear: Sequence[SonarReading] | None = None,
+) -> tuple[int, int]:
     """The last line. No forward motion toward an echo nearer than stop_m in the forward
     path; no reversing unless the rear sonars show stop_m behind; no turn in place toward
     a side whose 50/90 degree sonars read below stop_m, nor with any echo inside the
@@ -145,12 +155,15 @@ def guard(vel: int, rvel: int, sonar: Sequence[SonarReading], stop_m: float,
     if rvel != 0 and vel == 0:
         side = 1 if rvel > 0 else -1
         if min_at(by_heading(sonar), (side * 90.0, side * 50.0)) < stop_m or not turn_room(
-                sonar, rear or (), TURN_MARGIN_M):
+            sonar, rear or (), TURN_MARGIN_M
+        ):
             rvel = 0
     return vel, rvel
 
 
-def leader_clear(r: dict[float, float], bearing_deg: float, clear_m: float, wall_side: int = 0) -> bool:
+def leader_clear(
+    r: dict[float, float], bearing_deg: float, clear_m: float, wall_side: int = 0
+) -> bool:
     """The sonars looking within 25 degrees of the leader all see beyond clear_m; when the
     leader is on the side of the boundary being followed, that side must be open too
     (the boundary has ended), or the robot would turn back into what it is rounding."""
@@ -167,8 +180,9 @@ def leader_clear(r: dict[float, float], bearing_deg: float, clear_m: float, wall
     return True
 
 
-def wall_fit(r: dict[float, float], w: int, fit_range_m: float,
-             edge: bool = False) -> tuple[float, float] | None:
+def wall_fit(
+    r: dict[float, float], w: int, fit_range_m: float, edge: bool = False
+) -> tuple[float, float] | None:
     """(distance from the robot centre to the boundary on side w, its angle to the heading
     in degrees, ccw +) from the two nearest echoes of that side's 90/50/30 sonars; None
     when that side sees nothing within fit_range_m."""
@@ -199,8 +213,9 @@ def wall_fit(r: dict[float, float], w: int, fit_range_m: float,
     return abs(px * uy - py * ux), math.degrees(math.atan2(uy, ux))
 
 
-def boundary_echo_m(fit: tuple[float, float], side: int, heading_deg: float,
-                    half_beam_deg: float = 15.0) -> float:
+def boundary_echo_m(
+    fit: tuple[float, float], side: int, heading_deg: float, half_beam_deg: float = 15.0
+) -> float:
     """The range a front-ring sonar would read off a fitted boundary (distance from the
     centre, angle to the heading) on `side` and nothing else: its beam direction nearest
     the boundary's normal, from the transducer to the line; the maximum if it cannot."""

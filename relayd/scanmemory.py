@@ -60,7 +60,9 @@ class ScanMemory:
 
     # -- the sweep in progress ------------------------------------------------------------
 
-    def ready(self, now: float, heading_deg: float | None, following: bool, servo_ok: bool) -> list[Action]:
+    def ready(
+        self, now: float, heading_deg: float | None, following: bool, servo_ok: bool
+    ) -> list[Action]:
         """The scanner is ready for a sweep: what the last one left unfinished is dropped, and
         the next one is planned now, or when the servo answers (`servo_up`)."""
         self._scan, self._scan_t = [], []
@@ -85,7 +87,9 @@ class ScanMemory:
             return heading_deg
         return self._scan[-1].heading_deg if self._scan else 0.0
 
-    def done(self, ev: ScanDone, heading_deg: float | None, sonar: Sequence[int | None]) -> list[Action]:
+    def done(
+        self, ev: ScanDone, heading_deg: float | None, sonar: Sequence[int | None]
+    ) -> list[Action]:
         """The sweep is over: its estimate, the bearing memory, and the data antenna's new aim."""
         samples, self._scan = self._scan, []
         times, self._scan_t = self._scan_t, []
@@ -93,27 +97,42 @@ class ScanMemory:
         if len(samples) >= 3:
             heading_end = heading_deg
             try:
-                est = estimate_scan(samples, heading_end if heading_end is not None else samples[-1].heading_deg,
-                                    front_readings(sonar), self._estimator)
+                est = estimate_scan(
+                    samples,
+                    heading_end if heading_end is not None else samples[-1].heading_deg,
+                    front_readings(sonar),
+                    self._estimator,
+                )
             except ValueError:
                 est = None  # bad sonar data: this scan is lost, the next one is planned
             if est is not None:
-                est = self.model.scan_done(ev.t, heading_end if heading_end is not None
-                                           else samples[-1].heading_deg, est, times)
+                est = self.model.scan_done(
+                    ev.t,
+                    heading_end if heading_end is not None else samples[-1].heading_deg,
+                    est,
+                    times,
+                )
             if est is not None:
                 period_s = ev.t - ev.started_t
-                self.prev_bearing_deg, self.prev_heading_deg = self.bearing_deg, self.bearing_heading_deg
+                self.prev_bearing_deg, self.prev_heading_deg = (
+                    self.bearing_deg,
+                    self.bearing_heading_deg,
+                )
                 self.bearing_deg, self.bearing_heading_deg = est.bearing_deg, heading_end
                 self.rssi_leader_dbm = est.rssi_leader_dbm
-                self.lost_count = update_lost_count(self.lost_count, est.rssi_leader_dbm,
-                                                    self._params.lost_rssi_dbm)
+                self.lost_count = update_lost_count(
+                    self.lost_count, est.rssi_leader_dbm, self._params.lost_rssi_dbm
+                )
                 self.last_scan_t = ev.t
                 self.count += 1
                 record = ScanRecord(
-                    t=ev.t, angles_deg=tuple(round(a, 2) for a in est.angles_deg),
+                    t=ev.t,
+                    angles_deg=tuple(round(a, 2) for a in est.angles_deg),
                     rssi_dbm=tuple(round(r, 2) for r in est.rssi_dbm),
-                    bearing_deg=round(est.bearing_deg, 3), rssi_leader_dbm=est.rssi_leader_dbm,
-                    situation=est.situation, period_s=period_s,
+                    bearing_deg=round(est.bearing_deg, 3),
+                    rssi_leader_dbm=est.rssi_leader_dbm,
+                    situation=est.situation,
+                    period_s=period_s,
                 )
                 actions.append(ScanResult(record, est))
                 # Point the data-link antenna at the leader.
@@ -125,13 +144,19 @@ class ScanMemory:
     def lost(self, now: float, heading_deg: float | None, following: bool) -> bool:
         """Leader lost: RSSI^l too low for 3 scans, or the tracking filter lost it."""
         # A filter that lost its leader because no scan completes says so as "scan_stale".
-        return self.leader_lost or (self.model.lost(now, heading_deg) and not self.stale(now, following))
+        return self.leader_lost or (
+            self.model.lost(now, heading_deg) and not self.stale(now, following)
+        )
 
     def stale(self, now: float, following: bool) -> bool:
         """No completed scan for `scan_timeout_s` while following, once a bearing exists."""
         limit = self._params.scan_timeout_s
-        return (limit is not None and following and self.last_scan_t is not None
-                and now - self.last_scan_t > limit)
+        return (
+            limit is not None
+            and following
+            and self.last_scan_t is not None
+            and now - self.last_scan_t > limit
+        )
 
     def bearing_now(self, now: float, heading_deg: float | None) -> float | None:
         """The bearing to steer by: the filter's prediction, else the last scan's in the current frame."""

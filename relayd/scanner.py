@@ -79,8 +79,14 @@ class TimedRssi:
 class RssiMonitor:
     """Samples an RSSI source continuously; keeps the fresh samples of the last few seconds."""
 
-    def __init__(self, source: RssiReader, sample_hz: float, bus: Publisher | None = None,
-                 clock: Clock = REAL_CLOCK, history_s: float = 10.0) -> None:
+    def __init__(
+        self,
+        source: RssiReader,
+        sample_hz: float,
+        bus: Publisher | None = None,
+        clock: Clock = REAL_CLOCK,
+        history_s: float = 10.0,
+    ) -> None:
         self._source = source
         self._period_s = 1.0 / sample_hz
         self._bus = bus

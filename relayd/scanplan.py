@@ -29,8 +29,9 @@ class ScanParams:
     scan_timeout_s: float | None = None
 
 
-def in_current_frame(bearing: float | None, heading_then: float | None,
-                     heading_now: float | None) -> float | None:
+def in_current_frame(
+    bearing: float | None, heading_then: float | None, heading_now: float | None
+) -> float | None:
     """A bearing measured in an earlier robot frame, seen from the robot's heading now."""
     if bearing is None:
         return None
@@ -46,7 +47,9 @@ def full_window(sp: ScanParams) -> Window:
     return Window((lo + hi) / 2.0, hi - lo, sp.samples)
 
 
-def next_window(sp: ScanParams, lost: bool, planned: Window | None, bearing_deg: float | None) -> Window:
+def next_window(
+    sp: ScanParams, lost: bool, planned: Window | None, bearing_deg: float | None
+) -> Window:
     """The full servo range when the leader is lost, else the bearing model's plan, else the
     configured width centred on the bearing (straight ahead before the first scan)."""
     if lost:
@@ -58,4 +61,6 @@ def next_window(sp: ScanParams, lost: bool, planned: Window | None, bearing_deg:
 
 def sweep_plan(sp: ScanParams, window: Window, ascending: bool) -> ScanPlan:
     """The servo angles of one sweep over `window`, clipped to the limits, in this direction."""
-    return ScanPlan(plan_scan(window.centre_deg, window.width_deg, window.samples, sp.limits_deg, ascending))
+    return ScanPlan(
+        plan_scan(window.centre_deg, window.width_deg, window.samples, sp.limits_deg, ascending)
+    )

@@ -70,8 +70,13 @@ class ScanPool:
         if self._scans.maxlen:
             self._scans.append(scan)
 
-    def fit(self, track: Track | None, newest: PooledScan, lobe: LobeParams,
-            beamwidth_prior_deg: float | None) -> tuple[LobeFit, Track | None] | None:
+    def fit(
+        self,
+        track: Track | None,
+        newest: PooledScan,
+        lobe: LobeParams,
+        beamwidth_prior_deg: float | None,
+    ) -> tuple[LobeFit, Track | None] | None:
         """(pooled fit, track to update from), or None when the scans may not be pooled.
 
         Pooled are the newest scan and the run of scans just before it that each, carried
@@ -101,7 +106,9 @@ class ScanPool:
             angles += [a + shift for a in s.angles_deg]
             rssi += s.rssi_dbm
             ids += [k] * len(s.angles_deg)
-        pooled = fit_main_lobe(angles, rssi, lobe, beamwidth_prior_deg=beamwidth_prior_deg, scan_ids=ids)
+        pooled = fit_main_lobe(
+            angles, rssi, lobe, beamwidth_prior_deg=beamwidth_prior_deg, scan_ids=ids
+        )
         if pooled is None:
             return None
         gap = abs(_wrap(pooled.bearing_deg - newest.fit.bearing_deg))
@@ -109,7 +116,7 @@ class ScanPool:
             return None
         # Trusted no more than the scans' own fits averaged: pooling is there to take the
         # bias out of cut lobes, and a few faded scans fitted together must not look certain.
-        averaged_sd = sum(s.fit.sd_deg ** -2 for s, _ in [*used, (newest, 0.0)]) ** -0.5
+        averaged_sd = sum(s.fit.sd_deg**-2 for s, _ in [*used, (newest, 0.0)]) ** -0.5
         return replace(pooled, sd_deg=max(pooled.sd_deg, averaged_sd)), used[0][0].before
 
 

@@ -70,11 +70,21 @@ class SearchState:
     done: bool = False
 
 
-def search_step(state: SearchState, bearing_deg: float | None, heading_deg: float | None,
-                t_s: float | None, params: SearchParams) -> tuple[SearchState, float]:
+def search_step(
+    state: SearchState,
+    bearing_deg: float | None,
+    heading_deg: float | None,
+    t_s: float | None,
+    params: SearchParams,
+) -> tuple[SearchState, float]:
     """(the new state, the turn rate to ask for in deg/s, 0: stand) for one step while lost."""
-    if not params.enabled or state.done or heading_deg is None or t_s is None \
-            or not (math.isfinite(heading_deg) and math.isfinite(t_s)):
+    if (
+        not params.enabled
+        or state.done
+        or heading_deg is None
+        or t_s is None
+        or not (math.isfinite(heading_deg) and math.isfinite(t_s))
+    ):
         return state, 0.0
     b = bearing_deg if bearing_deg is not None and math.isfinite(bearing_deg) else None
     side = state.side
@@ -85,16 +95,26 @@ def search_step(state: SearchState, bearing_deg: float | None, heading_deg: floa
     last = state.heading_deg if state.heading_deg is not None else heading_deg
     turned = state.turned_deg + abs(wrap_deg(heading_deg - last))
     started = state.started_t if state.started_t is not None else t_s
-    if turned >= params.max_turn_deg or t_s - started >= 1.5 * params.max_turn_deg / params.rate_deg_s:
+    if (
+        turned >= params.max_turn_deg
+        or t_s - started >= 1.5 * params.max_turn_deg / params.rate_deg_s
+    ):
         return SearchState(done=True), 0.0
     # Until the last evidence is ahead; then the full sweeps look there, standing still.
     ahead = b is None or side * b <= 0.0
-    return SearchState(side, turned, heading_deg, started), 0.0 if ahead else side * params.rate_deg_s
+    return SearchState(
+        side, turned, heading_deg, started
+    ), 0.0 if ahead else side * params.rate_deg_s
 
 
-def search_wheels(rvel_deg_s: float, act: Actuator, front: tuple[SonarReading, ...],
-                  rear: tuple[SonarReading, ...], stop_distance_m: float,
-                  v_max_mm_s: float) -> tuple[float, float]:
+def search_wheels(
+    rvel_deg_s: float,
+    act: Actuator,
+    front: tuple[SonarReading, ...],
+    rear: tuple[SonarReading, ...],
+    stop_distance_m: float,
+    v_max_mm_s: float,
+) -> tuple[float, float]:
     """(left, right) mm/s of the turn in place, as the actuator, the per-wheel limit
     `v_max_mm_s` (as every follow-mode command) and the guard allow it."""
     if rvel_deg_s == 0.0:

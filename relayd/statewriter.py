@@ -41,8 +41,9 @@ class MetricsSink(Protocol):
 class StateWriter:
     """Applies events and actions to the state, in the order the bus delivers them."""
 
-    def __init__(self, state: RelayState, metrics: MetricsSink | None = None,
-                 link_channel: int | None = None) -> None:
+    def __init__(
+        self, state: RelayState, metrics: MetricsSink | None = None, link_channel: int | None = None
+    ) -> None:
         self.state = state
         self._metrics = metrics
         self._link_channel = link_channel
@@ -64,8 +65,13 @@ class StateWriter:
                     self._metrics.sip_received()
             case LinkEvent(quality=q):
                 st.links[str(event.side)] = LinkInfo(
-                    signal_dbm=q.signal_dbm, rssi=q.rssi, noise_dbm=q.noise_dbm, ccq_pct=q.ccq_pct,
-                    tx_mbps=q.tx_mbps, rx_mbps=q.rx_mbps, t=event.t,
+                    signal_dbm=q.signal_dbm,
+                    rssi=q.rssi,
+                    noise_dbm=q.noise_dbm,
+                    ccq_pct=q.ccq_pct,
+                    tx_mbps=q.tx_mbps,
+                    rx_mbps=q.rx_mbps,
+                    t=event.t,
                 )
             case ServoPosition() if event.channel == self._link_channel:
                 st.link_bearing_deg = event.angle_deg
@@ -90,8 +96,13 @@ class StateWriter:
                     st.mode = action.mode
                     st.touch()
                 if action.changed:
-                    log.info("drive_state", state=str(action.state), reason=action.reason,
-                             left_mm_s=round(action.left_mm_s, 1), right_mm_s=round(action.right_mm_s, 1))
+                    log.info(
+                        "drive_state",
+                        state=str(action.state),
+                        reason=action.reason,
+                        left_mm_s=round(action.left_mm_s, 1),
+                        right_mm_s=round(action.right_mm_s, 1),
+                    )
                     st.state = action.state
                     st.reason = action.reason
                     st.touch()
@@ -113,8 +124,14 @@ class StateWriter:
                 st.link_model = action.model
             case RecoveryReport(view=v):
                 if st.recovery is None or st.recovery.phase != v.phase:
-                    log.info("recovery", phase=str(v.phase), kind=None if v.kind is None else str(v.kind),
-                             episode=v.episodes, outcome=v.last_outcome, distance_m=v.distance_m)
+                    log.info(
+                        "recovery",
+                        phase=str(v.phase),
+                        kind=None if v.kind is None else str(v.kind),
+                        episode=v.episodes,
+                        outcome=v.last_outcome,
+                        distance_m=v.distance_m,
+                    )
                 st.recovery = v
                 st.touch()
             case _:

@@ -41,8 +41,12 @@ class _Entry:
 class Supervisor:
     """Start, keep alive and stop a fixed set of named tasks."""
 
-    def __init__(self, state: RelayState, clock: Clock = REAL_CLOCK,
-                 on_fault: Callable[[str, str], None] | None = None) -> None:
+    def __init__(
+        self,
+        state: RelayState,
+        clock: Clock = REAL_CLOCK,
+        on_fault: Callable[[str, str], None] | None = None,
+    ) -> None:
         self._state = state
         self._clock = clock
         #: Told (device, message) when a device's task fails; the daemon publishes a FAULT.
@@ -50,7 +54,9 @@ class Supervisor:
         self._entries: list[_Entry] = []
         self._stopping = False
 
-    def add(self, name: str, factory: Callable[[], Awaitable[None]], *, device: str | None = None) -> None:
+    def add(
+        self, name: str, factory: Callable[[], Awaitable[None]], *, device: str | None = None
+    ) -> None:
         """Register a task; `device` names the health entry its failures are counted in."""
         self._entries.append(_Entry(name, factory, device))
 

@@ -126,32 +126,61 @@ def _check(**values: float) -> None:
             raise ValueError(f"{name} must be finite, got {v!r}")
 
 
-def start(t: float, heading_deg: float, bearing_deg: float, sd_deg: float, params: TrackerParams) -> Track:
+def start(
+    t: float, heading_deg: float, bearing_deg: float, sd_deg: float, params: TrackerParams
+) -> Track:
     """A new track on one measurement: its bearing, no known rate."""
     _check(t=t, heading_deg=heading_deg, bearing_deg=bearing_deg, sd_deg=sd_deg)
     sd = max(sd_deg, params.min_meas_sd_deg)
-    return Track(t, heading_deg, _wrap(bearing_deg), 0.0, sd * sd, 0.0,
-                 params.init_rate_sd_deg_s ** 2, updates=1)
+    return Track(
+        t,
+        heading_deg,
+        _wrap(bearing_deg),
+        0.0,
+        sd * sd,
+        0.0,
+        params.init_rate_sd_deg_s**2,
+        updates=1,
+    )
 
 
-def predict(track: Track, t: float, heading_deg: float, params: TrackerParams,
-            accel_q: float | None = None) -> Track:
+def predict(
+    track: Track, t: float, heading_deg: float, params: TrackerParams, accel_q: float | None = None
+) -> Track:
     """The track moved to time `t` and the robot frame of `heading_deg` (t before the track's: no time passes)."""
     _check(t=t, heading_deg=heading_deg)
     dt = max(0.0, t - track.t)
     dh = _wrap(heading_deg - track.heading_deg)  # odometry headings wrap at +-180
     q = params.accel_q if accel_q is None else accel_q
     b = _wrap(track.bearing_deg + track.rate_deg_s * dt - dh)
-    p_bb = (track.p_bb + 2.0 * dt * track.p_bw + dt * dt * track.p_ww
-            + q * dt ** 3 / 3.0 + (params.heading_noise * dh) ** 2)
+    p_bb = (
+        track.p_bb
+        + 2.0 * dt * track.p_bw
+        + dt * dt * track.p_ww
+        + q * dt**3 / 3.0
+        + (params.heading_noise * dh) ** 2
+    )
     p_bw = track.p_bw + dt * track.p_ww + q * dt * dt / 2.0
     p_ww = track.p_ww + q * dt
-    return replace(track, t=max(t, track.t), heading_deg=heading_deg, bearing_deg=b,
-                   p_bb=p_bb, p_bw=p_bw, p_ww=p_ww)
+    return replace(
+        track,
+        t=max(t, track.t),
+        heading_deg=heading_deg,
+        bearing_deg=b,
+        p_bb=p_bb,
+        p_bw=p_bw,
+        p_ww=p_ww,
+    )
 
 
-def update(track: Track, t: float, heading_deg: float, bearing_deg: float, sd_deg: float,
-           params: TrackerParams) -> tuple[Track, bool]:
+def update(
+    track: Track,
+    t: float,
+    heading_deg: float,
+    bearing_deg: float,
+    sd_deg: float,
+    params: TrackerParams,
+) -> tuple[Track, bool]:
     """Fuse one measurement (taken at `t` in the frame of `heading_deg`); (new track, accepted)."""
     _check(bearing_deg=bearing_deg, sd_deg=sd_deg)
     if is_lost(track, params):
@@ -162,8 +191,11 @@ def update(track: Track, t: float, heading_deg: float, bearing_deg: float, sd_de
     s = prior.p_bb + r
     # An unusable fit counts in the test as the least sure usable one would: with its own
     # r, a fit 100 deg off with an sd of 120 says z ~0.8, however many agree on its side.
-    z = innovation / math.sqrt(prior.p_bb + min(sd_deg, params.lost_sd_deg) ** 2) \
-        if sd_deg > params.lost_sd_deg else innovation / math.sqrt(s)
+    z = (
+        innovation / math.sqrt(prior.p_bb + min(sd_deg, params.lost_sd_deg) ** 2)
+        if sd_deg > params.lost_sd_deg
+        else innovation / math.sqrt(s)
+    )
     recent = _recent(prior, z, params)
     biased = disagrees(recent, params)
     if biased:
@@ -180,20 +212,24 @@ def update(track: Track, t: float, heading_deg: float, bearing_deg: float, sd_de
         innovation = _wrap(bearing_deg - prior.bearing_deg)
         prior = replace(prior, p_bb=max(prior.p_bb, innovation * innovation - r))
         s = prior.p_bb + r
-    elif innovation * innovation > params.manoeuvre_sigma ** 2 * s:
+    elif innovation * innovation > params.manoeuvre_sigma**2 * s:
         # The leader turned or sped up: predict again with the manoeuvring process noise,
         # so the filter follows within a scan or two instead of averaging the turn away.
         prior = predict(track, t, heading_deg, params, accel_q=params.manoeuvre_q)
         innovation = _wrap(bearing_deg - prior.bearing_deg)
         s = prior.p_bb + r
-    if innovation * innovation > params.gate_sigma ** 2 * s:
+    if innovation * innovation > params.gate_sigma**2 * s:
         rejects = prior.rejects + 1
         if rejects >= params.reacquire_after:
             return start(t, heading_deg, bearing_deg, sd_deg, params), True
         # The prediction is this far off: its rate is not to be run on (a leader that
         # jumped, a reflection that set it). Hold the last bearing, forget the rate.
-        held = predict(replace(track, rate_deg_s=0.0, p_bw=0.0, p_ww=params.init_rate_sd_deg_s ** 2),
-                       t, heading_deg, params)
+        held = predict(
+            replace(track, rate_deg_s=0.0, p_bw=0.0, p_ww=params.init_rate_sd_deg_s**2),
+            t,
+            heading_deg,
+            params,
+        )
         return replace(held, rejects=rejects, recent_z=recent), False
     k_b, k_w = prior.p_bb / s, prior.p_bw / s
     b = _wrap(prior.bearing_deg + k_b * innovation)
@@ -203,8 +239,18 @@ def update(track: Track, t: float, heading_deg: float, bearing_deg: float, sd_de
     p_bb = (1.0 - k_b) * prior.p_bb
     p_bw = (1.0 - k_b) * prior.p_bw
     p_ww = prior.p_ww - k_w * prior.p_bw
-    return replace(prior, bearing_deg=b, rate_deg_s=w, p_bb=p_bb, p_bw=p_bw, p_ww=max(p_ww, 1e-9),
-                   misses=0, rejects=0, updates=prior.updates + 1, recent_z=recent), True
+    return replace(
+        prior,
+        bearing_deg=b,
+        rate_deg_s=w,
+        p_bb=p_bb,
+        p_bw=p_bw,
+        p_ww=max(p_ww, 1e-9),
+        misses=0,
+        rejects=0,
+        updates=prior.updates + 1,
+        recent_z=recent,
+    ), True
 
 
 def _recent(track: Track, z: float, params: TrackerParams) -> tuple[float, ...]:
@@ -216,7 +262,9 @@ def _recent(track: Track, z: float, params: TrackerParams) -> tuple[float, ...]:
 def disagrees(recent_z: tuple[float, ...], params: TrackerParams) -> bool:
     """The last `bias_scans` normalized innovations say, together, that the prediction is off."""
     n = params.bias_scans
-    return n >= 1 and len(recent_z) >= n and abs(sum(recent_z[-n:])) > params.bias_sigma * math.sqrt(n)
+    return (
+        n >= 1 and len(recent_z) >= n and abs(sum(recent_z[-n:])) > params.bias_sigma * math.sqrt(n)
+    )
 
 
 def miss(track: Track, t: float, heading_deg: float, params: TrackerParams) -> Track:

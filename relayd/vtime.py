@@ -88,7 +88,9 @@ class VirtualTimeLoop(asyncio.SelectorEventLoop):
             self._vtime += seconds
 
 
-def run(coro: Coroutine[Any, Any, T], *, speed: float | None = None, start_s: float = VIRTUAL_EPOCH_S) -> T:
+def run(
+    coro: Coroutine[Any, Any, T], *, speed: float | None = None, start_s: float = VIRTUAL_EPOCH_S
+) -> T:
     """`asyncio.run` on a fresh virtual-time loop."""
     # The main task hands its result over here instead of holding it: when asyncio.Runner
     # restores the SIGINT handler it builds (and throws away) the repr of its handler,
@@ -99,7 +101,9 @@ def run(coro: Coroutine[Any, Any, T], *, speed: float | None = None, start_s: fl
     async def main() -> None:
         result.append(await coro)
 
-    with asyncio.Runner(loop_factory=lambda: VirtualTimeLoop(start_s=start_s, speed=speed)) as runner:
+    with asyncio.Runner(
+        loop_factory=lambda: VirtualTimeLoop(start_s=start_s, speed=speed)
+    ) as runner:
         runner.run(main())
     return result[0]
 

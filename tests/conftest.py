@@ -27,19 +27,19 @@ import structlog
 #: worker while the other idles. A stale list costs only wall time; every file not named
 #: runs after these, in their usual order.
 LONGEST_FILES_FIRST = (
-    "test_types.py",                # ~15 s cold (a fresh checkout), CPU: mypy, strict
-    "test_api_flood.py",            # ~22 s, waits: a 13 s flood
-    "test_sweep.py",                # ~25 s, Dask clusters and child processes
-    "test_foxglove_live.py",        # ~19 s, a 6 s stalled-client window, a virtual-time flood
-    "test_offline_install.py",      # ~20 s, pip against the index
-    "test_live_page_ops.py",        # ~18 s, waits: the page's stale timers
+    "test_types.py",  # ~15 s cold (a fresh checkout), CPU: mypy, strict
+    "test_api_flood.py",  # ~22 s, waits: a 13 s flood
+    "test_sweep.py",  # ~25 s, Dask clusters and child processes
+    "test_foxglove_live.py",  # ~19 s, a 6 s stalled-client window, a virtual-time flood
+    "test_offline_install.py",  # ~20 s, pip against the index
+    "test_live_page_ops.py",  # ~18 s, waits: the page's stale timers
     "test_sim_convoy_corridor.py",  # ~16 s, CPU: four paper scenarios
-    "test_bench_smoke.py",          # ~10 s, its four live benchmarks side by side
-    "test_fuzz_decoders.py",        # ~12 s, CPU: hypothesis
-    "test_linkmodel.py",            # ~12 s of CPU, hypothesis (third longest file on a loaded machine)
-    "test_sim_recovery.py",         # ~11 s, CPU: drift and door, recovery off and on
-    "test_sim_scenarios.py",        # ~10 s, CPU: the obstacle scenarios
-    "test_serial_leaks.py",         # ~10 s, waits: pty hang-ups
+    "test_bench_smoke.py",  # ~10 s, its four live benchmarks side by side
+    "test_fuzz_decoders.py",  # ~12 s, CPU: hypothesis
+    "test_linkmodel.py",  # ~12 s of CPU, hypothesis (third longest file on a loaded machine)
+    "test_sim_recovery.py",  # ~11 s, CPU: drift and door, recovery off and on
+    "test_sim_scenarios.py",  # ~10 s, CPU: the obstacle scenarios
+    "test_serial_leaks.py",  # ~10 s, waits: pty hang-ups
     "test_sigterm.py",
     "test_api_tls.py",
     "test_live_page_browser.py",
@@ -76,7 +76,9 @@ async def _settle() -> None:
         await asyncio.sleep(0)
 
 
-def leftovers(loop: asyncio.AbstractEventLoop) -> tuple[list[asyncio.Task[object]], list[asyncio.TimerHandle]]:
+def leftovers(
+    loop: asyncio.AbstractEventLoop,
+) -> tuple[list[asyncio.Task[object]], list[asyncio.TimerHandle]]:
     """Tasks (other than the caller's) still running and timers still pending on `loop`."""
     current = asyncio.current_task(loop)
     tasks = [t for t in asyncio.all_tasks(loop) if t is not current and not t.done()]
@@ -89,8 +91,9 @@ def describe(tasks: list[asyncio.Task[object]], timers: list[asyncio.TimerHandle
     return "; ".join(parts)
 
 
-async def _fail_on(tasks: list[asyncio.Task[object]], timers: list[asyncio.TimerHandle],
-                   where: str = "") -> None:
+async def _fail_on(
+    tasks: list[asyncio.Task[object]], timers: list[asyncio.TimerHandle], where: str = ""
+) -> None:
     """Fail the test naming what it left, after cancelling it so the next test starts clean."""
     if not (tasks or timers):
         return
@@ -99,8 +102,11 @@ async def _fail_on(tasks: list[asyncio.Task[object]], timers: list[asyncio.Timer
     for h in timers:
         h.cancel()
     await asyncio.gather(*tasks, return_exceptions=True)
-    pytest.fail(f"the test leaked {len(tasks)} task(s) and {len(timers)} timer(s){where}: "
-                f"{describe(tasks, timers)}", pytrace=False)
+    pytest.fail(
+        f"the test leaked {len(tasks)} task(s) and {len(timers)} timer(s){where}: "
+        f"{describe(tasks, timers)}",
+        pytrace=False,
+    )
 
 
 @pytest.fixture
@@ -138,8 +144,10 @@ def _no_leaks(request: pytest.FixtureRequest) -> None:
     elif loop_scope == "function":
         request.getfixturevalue("_no_leaks_async")
     else:
-        pytest.fail(f"no leak check for loop_scope={loop_scope!r}: add one to tests/conftest.py",
-                    pytrace=False)
+        pytest.fail(
+            f"no leak check for loop_scope={loop_scope!r}: add one to tests/conftest.py",
+            pytrace=False,
+        )
 
 
 @pytest.fixture(autouse=True)

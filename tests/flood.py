@@ -64,7 +64,9 @@ async def flood(port: int, idle: int, slow: int, hold_s: float) -> dict[str, obj
     until = time.monotonic() + hold_s
     stats = {"slow_cut_by_server": 0}
     print(json.dumps({"flooding": True, "connect_s": round(time.monotonic() - t0, 2)}), flush=True)
-    slow_tasks = [asyncio.create_task(_slow_header(s, until, stats)) for s in slow_socks if s is not None]
+    slow_tasks = [
+        asyncio.create_task(_slow_header(s, until, stats)) for s in slow_socks if s is not None
+    ]
     await asyncio.sleep(max(0.0, until - time.monotonic()))
     for task in slow_tasks:
         task.cancel()
@@ -73,8 +75,11 @@ async def flood(port: int, idle: int, slow: int, hold_s: float) -> dict[str, obj
     for s in (*idle_socks, *slow_socks):
         if s is not None:
             s.close()
-    return {"idle_connected": sum(s is not None for s in idle_socks),
-            "slow_connected": sum(s is not None for s in slow_socks), **stats}
+    return {
+        "idle_connected": sum(s is not None for s in idle_socks),
+        "slow_connected": sum(s is not None for s in slow_socks),
+        **stats,
+    }
 
 
 def main() -> None:

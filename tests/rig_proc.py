@@ -63,4 +63,6 @@ async def main(work: Path, leader_xy_m: tuple[float, float], config: dict[str, A
 
 
 if __name__ == "__main__":
-    asyncio.run(main(Path(sys.argv[1]), (float(sys.argv[2]), float(sys.argv[3])), json.loads(sys.argv[4])))
+    asyncio.run(
+        main(Path(sys.argv[1]), (float(sys.argv[2]), float(sys.argv[3])), json.loads(sys.argv[4]))
+    )

@@ -34,8 +34,17 @@ from relayd.vtime import LoopClock, VirtualTimeLoop
 if TYPE_CHECKING:
     from relayd.sim.runner import SimResult, SimRunner
 
-__all__ = ["LoopClock", "ManualClock", "VirtualTimeLoop", "clock_for", "piped_into_head", "run_scenario",
-           "running", "until", "until_sync"]
+__all__ = [
+    "LoopClock",
+    "ManualClock",
+    "VirtualTimeLoop",
+    "clock_for",
+    "piped_into_head",
+    "run_scenario",
+    "running",
+    "until",
+    "until_sync",
+]
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -70,8 +79,12 @@ class Runs(Protocol):
     def run(self) -> Awaitable[None]: ...
 
 
-async def until(pred: Callable[[], object], what: str = "the condition", timeout_s: float = 30.0,
-                poll_s: float = 0.005) -> Any:
+async def until(
+    pred: Callable[[], object],
+    what: str = "the condition",
+    timeout_s: float = 30.0,
+    poll_s: float = 0.005,
+) -> Any:
     """Poll `pred` until it returns something truthy, and return that.
 
     `pred` may be a coroutine function (an HTTP probe, a request to a driver): each poll
@@ -92,8 +105,12 @@ async def until(pred: Callable[[], object], what: str = "the condition", timeout
         raise AssertionError(f"timed out after {timeout_s} s waiting for {what}") from None
 
 
-def until_sync(pred: Callable[[], object], what: str = "the condition", timeout_s: float = 30.0,
-               poll_s: float = 0.05) -> Any:
+def until_sync(
+    pred: Callable[[], object],
+    what: str = "the condition",
+    timeout_s: float = 30.0,
+    poll_s: float = 0.05,
+) -> Any:
     """`until` for synchronous tests (a child process, a file it writes): blocks the thread."""
     deadline = time.monotonic() + timeout_s
     while not (value := pred()):
@@ -145,8 +162,9 @@ def skip_or_fail(message: str) -> NoReturn:
     pytest.skip(message)
 
 
-def piped_into_head(argv: list[str], lines: int = 1,
-                    timeout_s: float = 30.0) -> tuple[int, list[str], str, float]:
+def piped_into_head(
+    argv: list[str], lines: int = 1, timeout_s: float = 30.0
+) -> tuple[int, list[str], str, float]:
     """`relayd ARGV | head -LINES`: read LINES lines of stdout, close it, wait for the exit.
 
     With `lines=0` the reader closes before the command printed anything. Returns the
@@ -155,8 +173,14 @@ def piped_into_head(argv: list[str], lines: int = 1,
     """
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     with tempfile.TemporaryFile("w+") as err:
-        proc = subprocess.Popen([sys.executable, "-m", "relayd", *argv], stdout=subprocess.PIPE,
-                                stderr=err, text=True, env=env, cwd=ROOT)
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "relayd", *argv],
+            stdout=subprocess.PIPE,
+            stderr=err,
+            text=True,
+            env=env,
+            cwd=ROOT,
+        )
         try:
             assert proc.stdout is not None
             got = [proc.stdout.readline() for _ in range(lines)]
@@ -189,8 +213,13 @@ def run_scenario(name: str, relays: int, pace: float | None = None) -> tuple[Sim
     return _scenario_runs[key]
 
 
-def diff_drive(pose: tuple[float, float, float], left_mm_s: float, right_mm_s: float, dt_s: float,
-               track_mm: float = 400.0) -> tuple[float, float, float]:
+def diff_drive(
+    pose: tuple[float, float, float],
+    left_mm_s: float,
+    right_mm_s: float,
+    dt_s: float,
+    track_mm: float = 400.0,
+) -> tuple[float, float, float]:
     """Exact differential-drive kinematics: the pose (mm, mm, deg) after `dt_s` at these wheel speeds."""
     x, y, th = pose
     v = (left_mm_s + right_mm_s) / 2.0

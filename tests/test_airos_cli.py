@@ -53,25 +53,60 @@ def test_probe_json_v6(monkeypatch, capsys) -> None:
     lines = out.splitlines()
     assert len(lines) == 1
     doc = json.loads(lines[0])
-    assert list(doc)[:7] == ["signal_dbm", "rssi", "noise_dbm", "ccq_pct", "tx_mbps", "rx_mbps", "stations"]
-    assert (doc["signal_dbm"], doc["rssi"], doc["noise_dbm"], doc["ccq_pct"], doc["tx_mbps"],
-            doc["rx_mbps"]) == (-46, 50, -89, 73.8, 243, 180)
+    assert list(doc)[:7] == [
+        "signal_dbm",
+        "rssi",
+        "noise_dbm",
+        "ccq_pct",
+        "tx_mbps",
+        "rx_mbps",
+        "stations",
+    ]
+    assert (
+        doc["signal_dbm"],
+        doc["rssi"],
+        doc["noise_dbm"],
+        doc["ccq_pct"],
+        doc["tx_mbps"],
+        doc["rx_mbps"],
+    ) == (-46, 50, -89, 73.8, 243, 180)
     assert doc["stations"][0]["signal_dbm"] == -46 and doc["mode"] == "sta"
 
 
 def test_probe_ap_station_list_v8(monkeypatch, capsys) -> None:
     monkeypatch.setenv("RELAYD_AP_PASSWORD", SECRET)
     with fake_in_thread("ubnt", SECRET, fixture=LOCO_AP, version=8) as fake:
-        fake.set_stations([Station(mac="00:27:22:AA:BB:07", signal_dbm=-62, ccq_pct=88,
-                                   tx_mbps=104, rx_mbps=78)])
-        code = main(["probe", "ap", "--url", fake.base_url or "", "--username", "ubnt", "--json",
-                     "--firmware", "8"])
+        fake.set_stations(
+            [Station(mac="00:27:22:AA:BB:07", signal_dbm=-62, ccq_pct=88, tx_mbps=104, rx_mbps=78)]
+        )
+        code = main(
+            [
+                "probe",
+                "ap",
+                "--url",
+                fake.base_url or "",
+                "--username",
+                "ubnt",
+                "--json",
+                "--firmware",
+                "8",
+            ]
+        )
     out, err = capsys.readouterr()
     assert code == 0, err
     doc = json.loads(out)
     assert doc["mode"] == "ap" and doc["signal_dbm"] == -45 and doc["ccq_pct"] == 87.0
-    assert doc["stations"] == [{"mac": "00:27:22:AA:BB:07", "name": "station-1", "signal_dbm": -62,
-                                "noise_dbm": None, "ccq_pct": 88, "tx_mbps": 104, "rx_mbps": 78}]
+    assert doc["stations"] == [
+        {
+            "mac": "00:27:22:AA:BB:07",
+            "name": "station-1",
+            "signal_dbm": -62,
+            "noise_dbm": None,
+            "ccq_pct": 88,
+            "tx_mbps": 104,
+            "rx_mbps": 78,
+        }
+    ]
 
 
 def test_probe_human_output(monkeypatch, capsys) -> None:
@@ -118,7 +153,12 @@ def test_fake_ap_command_serves_until_interrupted(monkeypatch, capsys) -> None:
     env = {**os.environ, "RELAYD_AP_PASSWORD": SECRET, "PYTHONPATH": str(REPO)}
     proc = subprocess.Popen(
         [sys.executable, "-m", "relayd", "fake", "ap", "--fixture", str(LOCO_AP), "--version", "8"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=REPO)
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        cwd=REPO,
+    )
     try:
         assert proc.stdout is not None
         url = proc.stdout.readline().strip()
@@ -147,8 +187,21 @@ def test_fake_ap_bad_fixture(tmp_path, capsys) -> None:
 def test_probe_ap_series_for_seconds_at_an_interval(monkeypatch, capsys) -> None:
     monkeypatch.setenv("RELAYD_AP_PASSWORD", SECRET)
     with fake_in_thread("admin", SECRET) as fake:
-        code = main(["probe", "ap", "--url", fake.base_url or "", "--username", "admin", "--json",
-                     "--seconds", "1.0", "--interval", "0.25"])
+        code = main(
+            [
+                "probe",
+                "ap",
+                "--url",
+                fake.base_url or "",
+                "--username",
+                "admin",
+                "--json",
+                "--seconds",
+                "1.0",
+                "--interval",
+                "0.25",
+            ]
+        )
     out, err = capsys.readouterr()
     assert code == 0, err
     docs = [json.loads(line) for line in out.splitlines()]
@@ -162,7 +215,10 @@ def test_probe_ap_series_for_seconds_at_an_interval(monkeypatch, capsys) -> None
 
 def test_probe_ap_rejects_bad_series_options(monkeypatch, capsys) -> None:
     monkeypatch.setenv("RELAYD_AP_PASSWORD", SECRET)
-    assert main(["probe", "ap", "--url", "http://127.0.0.1:9", "--seconds", "5", "--interval", "0"]) == 2
+    assert (
+        main(["probe", "ap", "--url", "http://127.0.0.1:9", "--seconds", "5", "--interval", "0"])
+        == 2
+    )
     assert "--interval" in capsys.readouterr().err
 
 
@@ -171,8 +227,22 @@ def test_probe_ap_series_piped_into_head_stops_quietly(monkeypatch) -> None:
     monkeypatch.setenv("RELAYD_AP_PASSWORD", SECRET)
     with fake_in_thread("admin", SECRET) as fake:
         code, got, err, _ = piped_into_head(
-            ["probe", "ap", "--url", fake.base_url or "", "--username", "admin", "--json",
-             "--seconds", "60", "--interval", "0.1"], lines=1, timeout_s=30)
+            [
+                "probe",
+                "ap",
+                "--url",
+                fake.base_url or "",
+                "--username",
+                "admin",
+                "--json",
+                "--seconds",
+                "60",
+                "--interval",
+                "0.1",
+            ],
+            lines=1,
+            timeout_s=30,
+        )
     assert json.loads(got[0])["signal_dbm"] == -46
     assert code == 0, err
     for noise in ("BrokenPipe", "Traceback", "Exception ignored", "reading(s)"):

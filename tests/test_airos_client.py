@@ -110,7 +110,13 @@ async def test_v6_cookie_login_and_status(fake6: FakeAirOs) -> None:
         q = await client.fetch()
         assert client.firmware == 6 and client.logged_in
         assert (q.signal_dbm, q.rssi, q.noise_dbm, q.ccq_pct, q.tx_mbps, q.rx_mbps) == (
-            -46, 50, -89, 73.8, 243, 180)
+            -46,
+            50,
+            -89,
+            73.8,
+            243,
+            180,
+        )
         assert q.mode == "sta" and q.hostname == "NanoStation loco M5 Client"
         assert fake6.login_content_types == ["multipart/form-data"]
         await client.fetch()
@@ -121,8 +127,10 @@ async def test_v6_cookie_login_and_status(fake6: FakeAirOs) -> None:
 
 
 async def test_v6_not_logged_in_is_redirected_to_login(fake6: FakeAirOs) -> None:
-    async with (aiohttp.ClientSession() as http,
-                http.get(f"{fake6.base_url}/status.cgi", allow_redirects=False) as resp):
+    async with (
+        aiohttp.ClientSession() as http,
+        http.get(f"{fake6.base_url}/status.cgi", allow_redirects=False) as resp,
+    ):
         assert resp.status == 302
         assert resp.headers["Location"] == "/login.cgi?uri=/status.cgi"
         assert any(name.startswith("AIROS_") for name in resp.cookies)
@@ -139,8 +147,9 @@ async def test_v8_api_auth_with_csrf_header(fake8: FakeAirOs) -> None:
         await client.close()
     # The session cookie alone is not enough on airOS 8: X-CSRF-ID must come with it.
     async with aiohttp.ClientSession(cookie_jar=aiohttp.CookieJar(unsafe=True)) as http:
-        async with http.post(f"{fake8.base_url}/api/auth",
-                             json={"username": "ubnt", "password": SECRET}) as resp:
+        async with http.post(
+            f"{fake8.base_url}/api/auth", json={"username": "ubnt", "password": SECRET}
+        ) as resp:
             assert resp.status == 200
             csrf = resp.headers["X-CSRF-ID"]
         async with http.get(f"{fake8.base_url}/status.cgi") as resp:
@@ -196,15 +205,26 @@ async def test_ap_station_list_from_sta_cgi() -> None:
             # Without set_stations the fake mirrors its link as the single station.
             assert [s.signal_dbm for s in q.stations] == [-45]
             assert q.stations[0].ccq_pct == 87.0  # sta.cgi percent, from status.cgi's 870 per-mille
-            fake.set_stations([
-                Station(mac="00:27:22:AA:BB:01", signal_dbm=-71, ccq_pct=64, tx_mbps=52, rx_mbps=39),
-                Station(mac="00:27:22:AA:BB:02", signal_dbm=-58.4, ccq_pct=93.5, tx_mbps=130.0,
-                        rx_mbps=117.0),
-            ])
+            fake.set_stations(
+                [
+                    Station(
+                        mac="00:27:22:AA:BB:01", signal_dbm=-71, ccq_pct=64, tx_mbps=52, rx_mbps=39
+                    ),
+                    Station(
+                        mac="00:27:22:AA:BB:02",
+                        signal_dbm=-58.4,
+                        ccq_pct=93.5,
+                        tx_mbps=130.0,
+                        rx_mbps=117.0,
+                    ),
+                ]
+            )
             q = await client.fetch()
             assert q.mode == "ap" and q.signal_dbm == -45
             assert [(s.mac, s.signal_dbm, s.ccq_pct) for s in q.stations] == [
-                ("00:27:22:AA:BB:01", -71, 64), ("00:27:22:AA:BB:02", -58, 94)]
+                ("00:27:22:AA:BB:01", -71, 64),
+                ("00:27:22:AA:BB:02", -58, 94),
+            ]
             assert q.best_station_signal_dbm == -58
             assert q.station_signal_dbm("00:27:22:aa:bb:01") == -71
             assert fake.counters["sta"] == 2
@@ -216,14 +236,26 @@ async def test_set_link_is_served_in_the_radios_units(fake6: FakeAirOs) -> None:
     fake6.set_link(-63.4, noise_dbm=-97, ccq_pct=81.2, tx_mbps=144.4, rx_mbps=65)
     w = fake6.status_doc["wireless"]
     assert (w["signal"], w["rssi"], w["noisef"], w["ccq"], w["txrate"], w["rxrate"]) == (
-        -63, 33, -97, 812, "144.4", "65")
+        -63,
+        33,
+        -97,
+        812,
+        "144.4",
+        "65",
+    )
     client = AirOsClient(fake6.base_url or "", "ubnt", SECRET)
     try:
         q = await client.fetch()
     finally:
         await client.close()
     assert (q.signal_dbm, q.rssi, q.noise_dbm, q.ccq_pct, q.tx_mbps, q.rx_mbps) == (
-        -63, 33, -97, 81.2, 144.4, 65)
+        -63,
+        33,
+        -97,
+        81.2,
+        144.4,
+        65,
+    )
 
 
 async def test_fixture_file_is_served(tmp_path: Path) -> None:
@@ -255,11 +287,17 @@ def test_legacy_tls_context_settings() -> None:
     assert ctx.minimum_version == ssl.TLSVersion.TLSv1
     assert ctx.verify_mode == ssl.CERT_NONE and not ctx.check_hostname
     assert ctx.options & getattr(ssl, "OP_LEGACY_SERVER_CONNECT", 0) == getattr(
-        ssl, "OP_LEGACY_SERVER_CONNECT", 0)
+        ssl, "OP_LEGACY_SERVER_CONNECT", 0
+    )
     https = AirOsClient("https://10.0.0.1", "ubnt", SECRET, legacy_tls=True)
-    assert https.ssl_context is not None and https.ssl_context.minimum_version == ssl.TLSVersion.TLSv1
+    assert (
+        https.ssl_context is not None and https.ssl_context.minimum_version == ssl.TLSVersion.TLSv1
+    )
     modern = AirOsClient("https://10.0.0.1", "ubnt", SECRET)
-    assert modern.ssl_context is not None and modern.ssl_context.minimum_version != ssl.TLSVersion.TLSv1
+    assert (
+        modern.ssl_context is not None
+        and modern.ssl_context.minimum_version != ssl.TLSVersion.TLSv1
+    )
     assert AirOsClient("http://10.0.0.1", "ubnt", SECRET).ssl_context is None
 
 
@@ -295,11 +333,13 @@ async def test_legacy_tls_talks_to_a_tls10_only_radio(tmp_path: Path) -> None:
 # -- poller ----------------------------------------------------------------------------------
 
 
-def _poller(fake: FakeAirOs, clock: Clock, password: str = SECRET, timeout_s: float = 5.0,
-            **kw) -> AirOsPoller:
+def _poller(
+    fake: FakeAirOs, clock: Clock, password: str = SECRET, timeout_s: float = 5.0, **kw
+) -> AirOsPoller:
     # timeout_s is clock time: 5 s at speed 20 is 250 ms of wall time, ample on loopback.
-    return AirOsPoller(fake.base_url or "", "ubnt", password, poll_s=1.0, timeout_s=timeout_s,
-                       clock=clock, **kw)
+    return AirOsPoller(
+        fake.base_url or "", "ubnt", password, poll_s=1.0, timeout_s=timeout_s, clock=clock, **kw
+    )
 
 
 async def _stop(task: asyncio.Task) -> None:
@@ -496,7 +536,6 @@ async def test_password_never_appears_anywhere() -> None:
     leaks = [t for t in texts if SECRET in t]
     assert not leaks
     assert "**" in repr(SecretStr(SECRET))
-
 
 
 async def test_poller_backs_off_when_a_fresh_session_is_refused_at_once() -> None:

@@ -30,12 +30,32 @@ XW_STA = FIXTURES / "status_cgi_NanoStation_M5_XW_v6.3.16_sta.json"
 #: A wstalist/sta.cgi answer in the firmware's shape (docs/PROTOCOLS.md 4.4), with the
 #: signal/rssi pairs of real wstalist dumps (-48/48, -51/45, -44/52).
 STA_CGI = [
-    {"mac": "00:27:22:AA:BB:01", "name": "relay-1", "lastip": "192.168.1.31", "associd": 1,
-     "tx": 150.0, "rx": 130.0, "signal": -48, "rssi": 48, "chainrssi": [48, 45, 0],
-     "ccq": 91, "noisefloor": -95, "uptime": 812, "distance": 600,
-     "airmax": {"priority": 0, "quality": 88, "beam": 0, "signal": 0, "capacity": 70}},
-    {"mac": "00:27:22:AA:BB:02", "name": "relay-2", "tx": 65, "rx": "58.5", "signal": -51,
-     "rssi": 45, "ccq": 77, "noisefloor": -94},
+    {
+        "mac": "00:27:22:AA:BB:01",
+        "name": "relay-1",
+        "lastip": "192.168.1.31",
+        "associd": 1,
+        "tx": 150.0,
+        "rx": 130.0,
+        "signal": -48,
+        "rssi": 48,
+        "chainrssi": [48, 45, 0],
+        "ccq": 91,
+        "noisefloor": -95,
+        "uptime": 812,
+        "distance": 600,
+        "airmax": {"priority": 0, "quality": 88, "beam": 0, "signal": 0, "capacity": 70},
+    },
+    {
+        "mac": "00:27:22:AA:BB:02",
+        "name": "relay-2",
+        "tx": 65,
+        "rx": "58.5",
+        "signal": -51,
+        "rssi": 45,
+        "ccq": 77,
+        "noisefloor": -94,
+    },
     {"mac": "00:27:22:aa:bb:03", "tx": 300.0, "rx": 270.0, "signal": -44, "rssi": 52, "ccq": 99},
 ]
 
@@ -74,10 +94,21 @@ def test_real_captures(path, signal, rssi, noise, ccq_pct, tx, rx, mode, essid, 
 
 def test_sta_cgi_units() -> None:
     stations = decode_stations(json.dumps(STA_CGI))
-    assert [s.mac for s in stations] == ["00:27:22:AA:BB:01", "00:27:22:AA:BB:02", "00:27:22:aa:bb:03"]
+    assert [s.mac for s in stations] == [
+        "00:27:22:AA:BB:01",
+        "00:27:22:AA:BB:02",
+        "00:27:22:aa:bb:03",
+    ]
     first = stations[0]
-    assert first == Station(mac="00:27:22:AA:BB:01", signal_dbm=-48, ccq_pct=91, tx_mbps=150.0,
-                            rx_mbps=130.0, noise_dbm=-95, name="relay-1")
+    assert first == Station(
+        mac="00:27:22:AA:BB:01",
+        signal_dbm=-48,
+        ccq_pct=91,
+        tx_mbps=150.0,
+        rx_mbps=130.0,
+        noise_dbm=-95,
+        name="relay-1",
+    )
     assert first.rssi == 48
     assert stations[1].ccq_pct == 77  # percent here, NOT per-mille
     assert stations[1].rx_mbps == 58.5  # a string rate is still Mbit/s
@@ -92,15 +123,33 @@ def test_sta_cgi_units() -> None:
 def test_probe_json_keys() -> None:
     q = decode_status(LOCO_STA.read_bytes(), t=0.0)
     out = q.to_json()
-    assert list(out)[:7] == ["signal_dbm", "rssi", "noise_dbm", "ccq_pct", "tx_mbps", "rx_mbps", "stations"]
+    assert list(out)[:7] == [
+        "signal_dbm",
+        "rssi",
+        "noise_dbm",
+        "ccq_pct",
+        "tx_mbps",
+        "rx_mbps",
+        "stations",
+    ]
     assert out["stations"][0]["signal_dbm"] == -46
     json.dumps(out)
 
 
 def test_odd_fields_become_none() -> None:
-    doc = {"wireless": {"signal": "n/a", "rssi": True, "noisef": None, "ccq": 1500,
-                        "txrate": "-", "rxrate": float("nan"), "mode": 3, "essid": ["x"],
-                        "frequency": {"a": 1}}}
+    doc = {
+        "wireless": {
+            "signal": "n/a",
+            "rssi": True,
+            "noisef": None,
+            "ccq": 1500,
+            "txrate": "-",
+            "rxrate": float("nan"),
+            "mode": 3,
+            "essid": ["x"],
+            "frequency": {"a": 1},
+        }
+    }
     q = parse_status(doc, t=1.0)
     assert (q.signal_dbm, q.rssi, q.noise_dbm, q.ccq_pct, q.tx_mbps, q.rx_mbps) == (None,) * 6
     assert (q.mode, q.essid, q.frequency_mhz, q.stations) == (None, None, None, ())
@@ -121,8 +170,21 @@ def test_airos8_embedded_station_list() -> None:
     assert q.best_station_signal_dbm == -48
 
 
-@pytest.mark.parametrize("raw", [b"", b"{", b"<html>login</html>", b"\xff\xfe\x00", b"[" * 100_000,
-                                 b"null", b"[]", b'{"host": {}}', b'{"wireless": []}', b"42"])
+@pytest.mark.parametrize(
+    "raw",
+    [
+        b"",
+        b"{",
+        b"<html>login</html>",
+        b"\xff\xfe\x00",
+        b"[" * 100_000,
+        b"null",
+        b"[]",
+        b'{"host": {}}',
+        b'{"wireless": []}',
+        b"42",
+    ],
+)
 def test_not_a_status_document(raw: bytes) -> None:
     with pytest.raises(AirOsDataError):
         decode_status(raw, t=0)
@@ -140,18 +202,49 @@ def test_station_list_skips_non_objects() -> None:
 
 # -- fuzzing ---------------------------------------------------------------------------------
 
-FIELDS = ["signal", "rssi", "noisef", "noisefloor", "ccq", "txrate", "rxrate", "tx", "rx", "mode",
-          "essid", "frequency", "apmac", "mac", "name", "sta", "chainrssi", "count", "hostname"]
-scalars = (st.none() | st.booleans() | st.integers() | st.integers(min_value=-(10**400), max_value=10**400)
-           | st.floats(allow_nan=True, allow_infinity=True) | st.text(max_size=12)
-           | st.sampled_from(["5700 MHz", "243", "-46", "1e999", "-inf", "NaN", " 12.5 Mbps", "ap-ptp"]))
+FIELDS = [
+    "signal",
+    "rssi",
+    "noisef",
+    "noisefloor",
+    "ccq",
+    "txrate",
+    "rxrate",
+    "tx",
+    "rx",
+    "mode",
+    "essid",
+    "frequency",
+    "apmac",
+    "mac",
+    "name",
+    "sta",
+    "chainrssi",
+    "count",
+    "hostname",
+]
+scalars = (
+    st.none()
+    | st.booleans()
+    | st.integers()
+    | st.integers(min_value=-(10**400), max_value=10**400)
+    | st.floats(allow_nan=True, allow_infinity=True)
+    | st.text(max_size=12)
+    | st.sampled_from(["5700 MHz", "243", "-46", "1e999", "-inf", "NaN", " 12.5 Mbps", "ap-ptp"])
+)
 json_ish = st.recursive(
     scalars,
-    lambda inner: st.lists(inner, max_size=4)
-    | st.dictionaries(st.sampled_from(FIELDS) | st.text(max_size=6), inner, max_size=6),
+    lambda inner: (
+        st.lists(inner, max_size=4)
+        | st.dictionaries(st.sampled_from(FIELDS) | st.text(max_size=6), inner, max_size=6)
+    ),
     max_leaves=8,
 )
-field_values = scalars | st.lists(scalars, max_size=3) | st.lists(st.dictionaries(st.sampled_from(FIELDS), scalars, max_size=5), max_size=3)
+field_values = (
+    scalars
+    | st.lists(scalars, max_size=3)
+    | st.lists(st.dictionaries(st.sampled_from(FIELDS), scalars, max_size=5), max_size=3)
+)
 wireless = st.dictionaries(st.sampled_from(FIELDS), field_values, max_size=10)
 
 
@@ -170,7 +263,11 @@ def _check(q: LinkQuality) -> None:
 
 
 @settings(max_examples=500, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(w=wireless, host=scalars | st.dictionaries(st.sampled_from(FIELDS), scalars, max_size=3), mode=st.sampled_from(["ap", "sta", "ap-ptmp", "x", None]))
+@given(
+    w=wireless,
+    host=scalars | st.dictionaries(st.sampled_from(FIELDS), scalars, max_size=3),
+    mode=st.sampled_from(["ap", "sta", "ap-ptmp", "x", None]),
+)
 def test_fuzz_status_never_raises(w, host, mode) -> None:
     if mode is not None:
         w = {**w, "mode": mode}
@@ -192,8 +289,11 @@ def test_fuzz_any_document(doc) -> None:
 
 
 @settings(max_examples=500, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(raw=st.binary(max_size=200) | st.text(max_size=200).map(str.encode)
-       | json_ish.map(lambda d: json.dumps(d)[: 150].encode()))
+@given(
+    raw=st.binary(max_size=200)
+    | st.text(max_size=200).map(str.encode)
+    | json_ish.map(lambda d: json.dumps(d)[:150].encode())
+)
 def test_fuzz_raw_bytes(raw: bytes) -> None:
     for decode in (lambda r: decode_status(r, t=0.0), decode_stations):
         try:
@@ -202,9 +302,41 @@ def test_fuzz_raw_bytes(raw: bytes) -> None:
             pass
 
 
-ODD_VALUES = [None, True, False, 0, -1, 1, 10**400, -(10**400), 1e308, -1e308, float("nan"),
-              float("inf"), "", " ", "n/a", "243", "-46", "5700 MHz", "1e999", "NaN", "-inf",
-              "\x00", "٣", [], {}, [1, 2], {"a": None}, -46, 738, 1001, -200, 500, 2.5]
+ODD_VALUES = [
+    None,
+    True,
+    False,
+    0,
+    -1,
+    1,
+    10**400,
+    -(10**400),
+    1e308,
+    -1e308,
+    float("nan"),
+    float("inf"),
+    "",
+    " ",
+    "n/a",
+    "243",
+    "-46",
+    "5700 MHz",
+    "1e999",
+    "NaN",
+    "-inf",
+    "\x00",
+    "٣",
+    [],
+    {},
+    [1, 2],
+    {"a": None},
+    -46,
+    738,
+    1001,
+    -200,
+    500,
+    2.5,
+]
 
 
 def _random_doc(rng: random.Random, depth: int = 0) -> object:

@@ -66,17 +66,22 @@ async def _client(app: web.Application) -> TestClient[Any, Any]:
 
 
 @pytest.fixture
-async def client(state: RelayState, controls: FakeControls, clock: ManualClock
-                 ) -> AsyncIterator[TestClient[Any, Any]]:
-    c = await _client(make_app(state, controls, clock=clock, token=TOKEN, sse_heartbeat_s=0.1,
-                               sse_min_interval_s=0.0))
+async def client(
+    state: RelayState, controls: FakeControls, clock: ManualClock
+) -> AsyncIterator[TestClient[Any, Any]]:
+    c = await _client(
+        make_app(
+            state, controls, clock=clock, token=TOKEN, sse_heartbeat_s=0.1, sse_min_interval_s=0.0
+        )
+    )
     yield c
     await c.close()
 
 
 @pytest.fixture
-async def open_client(state: RelayState, controls: FakeControls, clock: ManualClock
-                      ) -> AsyncIterator[TestClient[Any, Any]]:
+async def open_client(
+    state: RelayState, controls: FakeControls, clock: ManualClock
+) -> AsyncIterator[TestClient[Any, Any]]:
     """An app with no token configured."""
     c = await _client(make_app(state, controls, clock=clock, token=None))
     yield c
@@ -85,13 +90,29 @@ async def open_client(state: RelayState, controls: FakeControls, clock: ManualCl
 
 # --- /status -----------------------------------------------------------------------------
 
-SPEC_FIELDS = {"mode", "state", "reason", "bearing_deg", "rssi_leader_dbm", "rssi_behind_dbm",
-               "situation", "wheels_mm_s", "pose", "battery_v", "sonar_mm", "last_scan", "links",
-               "health", "uptime_s", "version"}
+SPEC_FIELDS = {
+    "mode",
+    "state",
+    "reason",
+    "bearing_deg",
+    "rssi_leader_dbm",
+    "rssi_behind_dbm",
+    "situation",
+    "wheels_mm_s",
+    "pose",
+    "battery_v",
+    "sonar_mm",
+    "last_scan",
+    "links",
+    "health",
+    "uptime_s",
+    "version",
+}
 
 
 async def test_status_body_is_reused_only_while_nothing_changed(
-        client: TestClient[Any, Any], state: RelayState, clock: ManualClock) -> None:
+    client: TestClient[Any, Any], state: RelayState, clock: ManualClock
+) -> None:
     """A poll flood renders the snapshot at most once per STATUS_REUSE_S of an unchanged state."""
     from relayd.api.app import STATUS_REUSE_S
 
@@ -131,8 +152,9 @@ async def test_status_has_every_spec_field(client: TestClient[Any, Any], state: 
     assert doc["link_bearing_deg"] == state.link_bearing_deg
 
 
-async def test_status_turns_non_finite_numbers_into_null(client: TestClient[Any, Any],
-                                                         state: RelayState) -> None:
+async def test_status_turns_non_finite_numbers_into_null(
+    client: TestClient[Any, Any], state: RelayState
+) -> None:
     state.rssi_behind_dbm = math.nan
     state.bearing_deg = math.inf
     resp = await client.get("/status")
@@ -143,10 +165,17 @@ async def test_status_turns_non_finite_numbers_into_null(client: TestClient[Any,
 
 async def test_no_response_contains_the_token(client: TestClient[Any, Any]) -> None:
     cases: list[tuple[str, str, dict[str, Any]]] = [
-        ("GET", "/status", {}), ("GET", "/healthz", {}), ("GET", "/metrics", {}),
-        ("GET", "/openapi.json", {}), ("GET", "/", {}),
+        ("GET", "/status", {}),
+        ("GET", "/healthz", {}),
+        ("GET", "/metrics", {}),
+        ("GET", "/openapi.json", {}),
+        ("GET", "/", {}),
         ("POST", "/api/mode", {"json": {"mode": "hold"}, "headers": AUTH}),
-        ("POST", "/api/mode", {"json": {"mode": "hold"}, "headers": {"Authorization": "Bearer nope"}}),
+        (
+            "POST",
+            "/api/mode",
+            {"json": {"mode": "hold"}, "headers": {"Authorization": "Bearer nope"}},
+        ),
         ("POST", "/api/drive", {"json": {"left_mm_s": TOKEN, "right_mm_s": 0}, "headers": AUTH}),
     ]
     for method, path, kwargs in cases:
@@ -158,8 +187,10 @@ async def test_no_response_contains_the_token(client: TestClient[Any, Any]) -> N
 
 # --- /healthz ----------------------------------------------------------------------------
 
-async def test_healthz_ok_when_loop_ticked_recently(client: TestClient[Any, Any], state: RelayState,
-                                                    clock: ManualClock) -> None:
+
+async def test_healthz_ok_when_loop_ticked_recently(
+    client: TestClient[Any, Any], state: RelayState, clock: ManualClock
+) -> None:
     state.loop_tick_t = clock.t - 0.2
     resp = await client.get("/healthz")
     assert resp.status == 200
@@ -167,8 +198,9 @@ async def test_healthz_ok_when_loop_ticked_recently(client: TestClient[Any, Any]
     assert doc["ok"] is True and doc["loop_age_s"] == pytest.approx(0.2)
 
 
-async def test_healthz_503_when_loop_stalled(client: TestClient[Any, Any], state: RelayState,
-                                             clock: ManualClock) -> None:
+async def test_healthz_503_when_loop_stalled(
+    client: TestClient[Any, Any], state: RelayState, clock: ManualClock
+) -> None:
     state.loop_tick_t = clock.t - 1.5
     resp = await client.get("/healthz")
     assert resp.status == 503
@@ -177,7 +209,9 @@ async def test_healthz_503_when_loop_stalled(client: TestClient[Any, Any], state
     assert doc["loop_age_s"] == pytest.approx(1.5)
 
 
-async def test_healthz_503_before_first_tick(client: TestClient[Any, Any], state: RelayState) -> None:
+async def test_healthz_503_before_first_tick(
+    client: TestClient[Any, Any], state: RelayState
+) -> None:
     state.loop_tick_t = None
     resp = await client.get("/healthz")
     assert resp.status == 503
@@ -185,6 +219,7 @@ async def test_healthz_503_before_first_tick(client: TestClient[Any, Any], state
 
 
 # --- /metrics ----------------------------------------------------------------------------
+
 
 async def test_metrics_text(state: RelayState, controls: FakeControls, clock: ManualClock) -> None:
     metrics = Metrics(state, clock)
@@ -201,10 +236,18 @@ async def test_metrics_text(state: RelayState, controls: FakeControls, clock: Ma
     finally:
         await c.close()
     names = {fam.name for fam in text_string_to_metric_families(text)}
-    for name in ("relayd_control_latency_seconds", "relayd_sips_received", "relayd_scan_period_seconds",
-                 "relayd_bearing_degrees", "relayd_rssi_dbm", "relayd_wheel_speed_meters_per_second",
-                 "relayd_device_connected", "relayd_device_errors", "relayd_device_reconnects",
-                 "relayd_build_info"):
+    for name in (
+        "relayd_control_latency_seconds",
+        "relayd_sips_received",
+        "relayd_scan_period_seconds",
+        "relayd_bearing_degrees",
+        "relayd_rssi_dbm",
+        "relayd_wheel_speed_meters_per_second",
+        "relayd_device_connected",
+        "relayd_device_errors",
+        "relayd_device_reconnects",
+        "relayd_build_info",
+    ):
         assert name in names, name
     assert "relayd_sips_received_total 1.0" in text
     assert 'relayd_device_reconnects_total{device="base"} 1.0' in text
@@ -214,6 +257,7 @@ async def test_metrics_text(state: RelayState, controls: FakeControls, clock: Ma
 
 
 # --- /openapi.json -----------------------------------------------------------------------
+
 
 def _resolve_refs(node: Any, doc: dict[str, Any]) -> None:
     if isinstance(node, dict):
@@ -234,9 +278,13 @@ async def test_openapi_lists_every_route(client: TestClient[Any, Any]) -> None:
     assert resp.status == 200
     doc = json.loads(await resp.text())
     assert doc["openapi"].startswith("3.0.")
-    routes = {(r.method.lower(), r.resource.canonical) for r in client.app.router.routes()
-              if r.resource is not None and not r.resource.canonical.startswith("/static")
-              and r.method != "HEAD"}
+    routes = {
+        (r.method.lower(), r.resource.canonical)
+        for r in client.app.router.routes()
+        if r.resource is not None
+        and not r.resource.canonical.startswith("/static")
+        and r.method != "HEAD"
+    }
     documented = {(m, p) for p, ops in doc["paths"].items() for m in ops}
     assert routes == documented
     for ops in doc["paths"].values():
@@ -250,10 +298,14 @@ async def test_openapi_lists_every_route(client: TestClient[Any, Any]) -> None:
 
 # --- control endpoints -------------------------------------------------------------------
 
-@pytest.mark.parametrize("path,body", [("/api/mode", {"mode": "hold"}),
-                                       ("/api/drive", {"left_mm_s": 0, "right_mm_s": 0})])
-async def test_control_disabled_without_token(open_client: TestClient[Any, Any], path: str,
-                                              body: dict[str, Any], controls: FakeControls) -> None:
+
+@pytest.mark.parametrize(
+    "path,body",
+    [("/api/mode", {"mode": "hold"}), ("/api/drive", {"left_mm_s": 0, "right_mm_s": 0})],
+)
+async def test_control_disabled_without_token(
+    open_client: TestClient[Any, Any], path: str, body: dict[str, Any], controls: FakeControls
+) -> None:
     for headers in ({}, {"Authorization": "Bearer anything"}, {"Authorization": "Bearer "}):
         resp = await open_client.post(path, json=body, headers=headers)
         assert resp.status == 403
@@ -261,12 +313,21 @@ async def test_control_disabled_without_token(open_client: TestClient[Any, Any],
     assert controls.modes == [] and controls.drives == []
 
 
-@pytest.mark.parametrize("path,body", [("/api/mode", {"mode": "hold"}),
-                                       ("/api/drive", {"left_mm_s": 0, "right_mm_s": 0})])
-@pytest.mark.parametrize("header", [None, "Bearer wrong", f"Basic {TOKEN}", "Bearer", TOKEN,
-                                    f"Bearer {TOKEN}x", "Bearer ünïcode"])
-async def test_control_needs_the_right_token(client: TestClient[Any, Any], controls: FakeControls,
-                                             path: str, body: dict[str, Any], header: str | None) -> None:
+@pytest.mark.parametrize(
+    "path,body",
+    [("/api/mode", {"mode": "hold"}), ("/api/drive", {"left_mm_s": 0, "right_mm_s": 0})],
+)
+@pytest.mark.parametrize(
+    "header",
+    [None, "Bearer wrong", f"Basic {TOKEN}", "Bearer", TOKEN, f"Bearer {TOKEN}x", "Bearer ünïcode"],
+)
+async def test_control_needs_the_right_token(
+    client: TestClient[Any, Any],
+    controls: FakeControls,
+    path: str,
+    body: dict[str, Any],
+    header: str | None,
+) -> None:
     headers = {} if header is None else {"Authorization": header}
     resp = await client.post(path, json=body, headers=headers)
     assert resp.status == 401
@@ -296,9 +357,12 @@ BAD_MODE_BODIES: list[tuple[str, str | None]] = [
 
 
 @pytest.mark.parametrize("body,field", BAD_MODE_BODIES)
-async def test_mode_bad_input_is_400_naming_the_field(client: TestClient[Any, Any], controls: FakeControls,
-                                                      body: str, field: str | None) -> None:
-    resp = await client.post("/api/mode", data=body, headers={**AUTH, "Content-Type": "application/json"})
+async def test_mode_bad_input_is_400_naming_the_field(
+    client: TestClient[Any, Any], controls: FakeControls, body: str, field: str | None
+) -> None:
+    resp = await client.post(
+        "/api/mode", data=body, headers={**AUTH, "Content-Type": "application/json"}
+    )
     assert resp.status == 400
     doc = await resp.json()
     assert doc["field"] == field and doc["error"]
@@ -325,39 +389,56 @@ BAD_DRIVE_BODIES: list[tuple[str, str | None]] = [
 
 
 @pytest.mark.parametrize("body,field", BAD_DRIVE_BODIES)
-async def test_drive_bad_input_is_400_naming_the_field(client: TestClient[Any, Any], controls: FakeControls,
-                                                       state: RelayState, body: str, field: str | None) -> None:
+async def test_drive_bad_input_is_400_naming_the_field(
+    client: TestClient[Any, Any],
+    controls: FakeControls,
+    state: RelayState,
+    body: str,
+    field: str | None,
+) -> None:
     state.mode = Mode.MANUAL
-    resp = await client.post("/api/drive", data=body, headers={**AUTH, "Content-Type": "application/json"})
+    resp = await client.post(
+        "/api/drive", data=body, headers={**AUTH, "Content-Type": "application/json"}
+    )
     assert resp.status == 400
     doc = await resp.json()
     assert doc["field"] == field and doc["error"]
     assert controls.drives == []
 
 
-async def test_drive_outside_manual_is_409(client: TestClient[Any, Any], controls: FakeControls,
-                                           state: RelayState) -> None:
+async def test_drive_outside_manual_is_409(
+    client: TestClient[Any, Any], controls: FakeControls, state: RelayState
+) -> None:
     for mode in (Mode.FOLLOW, Mode.HOLD):
         state.mode = mode
-        resp = await client.post("/api/drive", json={"left_mm_s": 100, "right_mm_s": 100}, headers=AUTH)
+        resp = await client.post(
+            "/api/drive", json={"left_mm_s": 100, "right_mm_s": 100}, headers=AUTH
+        )
         assert resp.status == 409
         doc = await resp.json()
         assert doc["mode"] == str(mode) and "manual" in doc["error"]
     assert controls.drives == []
 
 
-async def test_drive_in_manual(client: TestClient[Any, Any], controls: FakeControls,
-                               state: RelayState) -> None:
+async def test_drive_in_manual(
+    client: TestClient[Any, Any], controls: FakeControls, state: RelayState
+) -> None:
     state.mode = Mode.MANUAL
-    resp = await client.post("/api/drive", json={"left_mm_s": 150, "right_mm_s": -75.5}, headers=AUTH)
+    resp = await client.post(
+        "/api/drive", json={"left_mm_s": 150, "right_mm_s": -75.5}, headers=AUTH
+    )
     assert resp.status == 200
     assert await resp.json() == {"ok": True, "left_mm_s": 150.0, "right_mm_s": -75.5}
-    resp = await client.post("/api/drive", json={"left_mm_s": 1200, "right_mm_s": -1200}, headers=AUTH)
+    resp = await client.post(
+        "/api/drive", json={"left_mm_s": 1200, "right_mm_s": -1200}, headers=AUTH
+    )
     assert resp.status == 200
     assert controls.drives == [(150.0, -75.5), (1200.0, -1200.0)]
 
 
-async def test_oversized_body_is_refused(client: TestClient[Any, Any], controls: FakeControls) -> None:
+async def test_oversized_body_is_refused(
+    client: TestClient[Any, Any], controls: FakeControls
+) -> None:
     body = json.dumps({"mode": "hold", "pad": "x" * 100_000})
     resp = await client.post("/api/mode", data=body, headers=AUTH)
     assert resp.status == 413
@@ -365,6 +446,7 @@ async def test_oversized_body_is_refused(client: TestClient[Any, Any], controls:
 
 
 # --- /events -----------------------------------------------------------------------------
+
 
 async def _next_event(content: Any, kind: str, timeout_s: float = 3.0) -> dict[str, Any]:
     """Read SSE frames until one of type `kind`; returns its JSON data."""
@@ -384,8 +466,9 @@ async def _next_event(content: Any, kind: str, timeout_s: float = 3.0) -> dict[s
                 event, data = None, None
 
 
-async def test_events_push_a_new_snapshot_after_touch(client: TestClient[Any, Any],
-                                                      state: RelayState) -> None:
+async def test_events_push_a_new_snapshot_after_touch(
+    client: TestClient[Any, Any], state: RelayState
+) -> None:
     resp = await client.get("/events")
     assert resp.status == 200
     assert resp.headers["Content-Type"].startswith("text/event-stream")
@@ -407,8 +490,9 @@ async def test_events_heartbeat_while_idle(client: TestClient[Any, Any]) -> None
     resp.close()
 
 
-async def test_shutdown_ends_open_event_streams(state: RelayState, controls: FakeControls,
-                                                clock: ManualClock) -> None:
+async def test_shutdown_ends_open_event_streams(
+    state: RelayState, controls: FakeControls, clock: ManualClock
+) -> None:
     app = make_app(state, controls, clock=clock, token=TOKEN, sse_heartbeat_s=60.0)
     runner, port = await start_api(app, "127.0.0.1", 0)
     assert port > 0
@@ -422,11 +506,17 @@ async def test_shutdown_ends_open_event_streams(state: RelayState, controls: Fak
         resp.close()
 
 
-async def test_start_api_reports_the_bound_port(state: RelayState, controls: FakeControls,
-                                                clock: ManualClock) -> None:
-    runner, port = await start_api(make_app(state, controls, clock=clock, token=None), "127.0.0.1", 0)
+async def test_start_api_reports_the_bound_port(
+    state: RelayState, controls: FakeControls, clock: ManualClock
+) -> None:
+    runner, port = await start_api(
+        make_app(state, controls, clock=clock, token=None), "127.0.0.1", 0
+    )
     try:
-        async with ClientSession() as session, session.get(f"http://127.0.0.1:{port}/status") as resp:
+        async with (
+            ClientSession() as session,
+            session.get(f"http://127.0.0.1:{port}/status") as resp,
+        ):
             assert resp.status == 200
     finally:
         await runner.cleanup()

@@ -43,9 +43,24 @@ from relayd.vtime import LoopClock
 pytestmark = [pytest.mark.asyncio(loop_scope="module"), pytest.mark.virtual_time]
 
 #: The /status fields every client may rely on.
-SPEC_FIELDS = {"mode", "state", "reason", "bearing_deg", "rssi_leader_dbm", "rssi_behind_dbm",
-               "situation", "wheels_mm_s", "pose", "battery_v", "sonar_mm", "last_scan", "links",
-               "health", "uptime_s", "version"}
+SPEC_FIELDS = {
+    "mode",
+    "state",
+    "reason",
+    "bearing_deg",
+    "rssi_leader_dbm",
+    "rssi_behind_dbm",
+    "situation",
+    "wheels_mm_s",
+    "pose",
+    "battery_v",
+    "sonar_mm",
+    "last_scan",
+    "links",
+    "health",
+    "uptime_s",
+    "version",
+}
 DEVICES = {"robot", "pantilt", "wifi", "ap.rear", "ap.front"}
 #: Virtual seconds: a first scan takes a few.
 FIRST_SCAN_TIMEOUT_S = 30.0
@@ -64,7 +79,9 @@ class Relay:
     async def get(self, path: str) -> tuple[int, Any]:
         async with self.session.get(self.base + path) as resp:
             text = await resp.text()
-            return resp.status, json.loads(text) if resp.content_type == "application/json" else text
+            return resp.status, json.loads(
+                text
+            ) if resp.content_type == "application/json" else text
 
     async def status(self) -> dict[str, Any]:
         code, doc = await self.get("/status")
@@ -78,10 +95,15 @@ class Relay:
             assert resp.status == 200
             assert resp.headers["Content-Type"].startswith("text/plain")
             text = await resp.text()
-        return {(s.name, frozenset(s.labels.items())): s.value
-                for fam in text_string_to_metric_families(text) for s in fam.samples}
+        return {
+            (s.name, frozenset(s.labels.items())): s.value
+            for fam in text_string_to_metric_families(text)
+            for s in fam.samples
+        }
 
-    async def post(self, path: str, body: Any, token: str | None = "") -> tuple[int, dict[str, Any]]:
+    async def post(
+        self, path: str, body: Any, token: str | None = ""
+    ) -> tuple[int, dict[str, Any]]:
         """POST JSON (`body` str = raw text); token "" = the right one, None = no header."""
         headers = {"Content-Type": "application/json"}
         if token is not None:
@@ -93,8 +115,12 @@ class Relay:
             return resp.status, doc
 
 
-async def until(probe: Callable[[], Awaitable[T | None]], what: str, timeout_s: float = 10.0,
-                every_s: float = 0.05) -> T:
+async def until(
+    probe: Callable[[], Awaitable[T | None]],
+    what: str,
+    timeout_s: float = 10.0,
+    every_s: float = 0.05,
+) -> T:
     """Poll `probe` until it returns something other than None/False."""
     try:
         async with asyncio.timeout(timeout_s):
@@ -131,12 +157,17 @@ async def running(work: Path, *, with_token: bool = True, **config: Any) -> Asyn
 
 @pytest_asyncio.fixture(scope="module", loop_scope="module")
 async def relay(tmp_path_factory: pytest.TempPathFactory) -> AsyncIterator[Relay]:
-    async with running(tmp_path_factory.mktemp("rig"), control={"mode": "hold"},
-                       robot={"display_name": DISPLAY_NAME}) as r:
+    async with running(
+        tmp_path_factory.mktemp("rig"),
+        control={"mode": "hold"},
+        robot={"display_name": DISPLAY_NAME},
+    ) as r:
+
         async def scanned() -> bool:
             doc = await r.status()
             return doc["last_scan"] is not None and all(
-                doc["health"].get(d, {}).get("connected") for d in DEVICES)
+                doc["health"].get(d, {}).get("connected") for d in DEVICES
+            )
 
         await until(scanned, "a first scan with every device up", FIRST_SCAN_TIMEOUT_S, 0.2)
         yield r
@@ -162,6 +193,7 @@ def _motion_since(relay: Relay, mark: int) -> list[tuple[int, Any]]:
 
 # --- /status -----------------------------------------------------------------------------
 
+
 async def test_status_carries_the_fakes_values(relay: Relay) -> None:
     rig = relay.rig
     doc = await relay.status()
@@ -176,7 +208,9 @@ async def test_status_carries_the_fakes_values(relay: Relay) -> None:
     # at that servo angle (the procfs file holds whole dBm).
     scan = doc["last_scan"]
     assert len(scan["angles"]) == len(scan["rssi"]) == relay.daemon.settings.scan.samples
-    assert min(scan["angles"]) == pytest.approx(-90, abs=1) and max(scan["angles"]) == pytest.approx(90, abs=1)
+    assert min(scan["angles"]) == pytest.approx(-90, abs=1) and max(
+        scan["angles"]
+    ) == pytest.approx(90, abs=1)
     for angle, rssi in zip(scan["angles"], scan["rssi"], strict=True):
         assert rssi == pytest.approx(rig.rssi_dbm(angle), abs=1.0), angle
     # The bearing points at the leader; RSSI^l is the sweep's best sample.
@@ -189,7 +223,9 @@ async def test_status_carries_the_fakes_values(relay: Relay) -> None:
 
     # RSSI^b and the link figures come from the fake airOS radios.
     assert doc["rssi_behind_dbm"] == -55.0
-    assert doc["links"]["rear"]["signal_dbm"] == -55.0 and doc["links"]["front"]["signal_dbm"] == -50.0
+    assert (
+        doc["links"]["rear"]["signal_dbm"] == -55.0 and doc["links"]["front"]["signal_dbm"] == -50.0
+    )
     assert doc["links"]["front"]["ccq_pct"] == 95.0 and doc["links"]["rear"]["tx_mbps"] == 54.0
 
     # Pose, battery and sonar come from the fake robot's SIPs.
@@ -229,6 +265,7 @@ async def test_status_never_contains_a_secret(relay: Relay) -> None:
 
 # --- /healthz ----------------------------------------------------------------------------
 
+
 async def test_healthz_ok_while_the_loop_ticks(relay: Relay) -> None:
     ticks = set()
     for _ in range(4):
@@ -243,7 +280,10 @@ async def test_healthz_ok_while_the_loop_ticks(relay: Relay) -> None:
 
 # --- /metrics ----------------------------------------------------------------------------
 
-def _one(samples: dict[tuple[str, frozenset[tuple[str, str]]], float], name: str, **labels: str) -> float:
+
+def _one(
+    samples: dict[tuple[str, frozenset[tuple[str, str]]], float], name: str, **labels: str
+) -> float:
     return samples[(name, frozenset(labels.items()))]
 
 
@@ -259,10 +299,14 @@ async def test_metrics_carry_the_run(relay: Relay) -> None:
     assert _one(m, "relayd_build_info", version=__version__) == 1.0
     assert _one(m, "relayd_mode", relayd_mode="hold") == 1.0
     assert _one(m, "relayd_bearing_degrees", antenna="scan") == pytest.approx(doc["bearing_deg"])
-    assert _one(m, "relayd_bearing_degrees", antenna="link") == pytest.approx(doc["link_bearing_deg"])
+    assert _one(m, "relayd_bearing_degrees", antenna="link") == pytest.approx(
+        doc["link_bearing_deg"]
+    )
     assert _one(m, "relayd_rssi_dbm", peer="leader") == doc["rssi_leader_dbm"]
     assert _one(m, "relayd_rssi_dbm", peer="behind") == -55.0
-    assert _one(m, "relayd_rssi_threshold_dbm", peer="leader") == doc["thresholds"]["threshold_l_dbm"]
+    assert (
+        _one(m, "relayd_rssi_threshold_dbm", peer="leader") == doc["thresholds"]["threshold_l_dbm"]
+    )
     assert _one(m, "relayd_wheel_speed_meters_per_second", wheel="left") == 0.0
     assert _one(m, "relayd_battery_volts") == pytest.approx(relay.rig.robot.battery_v, abs=0.1)
     assert _one(m, "relayd_scans_total") == doc["scan_count"] >= 1
@@ -281,11 +325,14 @@ async def test_metrics_carry_the_run(relay: Relay) -> None:
     step0 = _one(m, "relayd_control_step_seconds_count")
     await asyncio.sleep(1.0)
     m2 = await relay.metrics()
-    rate = (_one(m2, "relayd_sips_received_total") - sips0) / (asyncio.get_running_loop().time() - t0)
+    rate = (_one(m2, "relayd_sips_received_total") - sips0) / (
+        asyncio.get_running_loop().time() - t0
+    )
     assert 4.0 < rate < 15.0, rate
     assert _one(m2, "relayd_control_step_seconds_count") - step0 >= rate * 0.5
-    assert _one(m2, "relayd_control_step_seconds_bucket", le="+Inf") == \
-        _one(m2, "relayd_control_step_seconds_count")
+    assert _one(m2, "relayd_control_step_seconds_bucket", le="+Inf") == _one(
+        m2, "relayd_control_step_seconds_count"
+    )
 
 
 async def test_device_errors_and_reconnects_come_from_the_run(relay: Relay) -> None:
@@ -299,16 +346,25 @@ async def test_device_errors_and_reconnects_come_from_the_run(relay: Relay) -> N
     # The front radio answers garbage for a while: errors.
     rig.front.malformed = True
     try:
+
         async def faults_seen() -> dict[Any, float] | None:
             s = await relay.metrics()
-            return s if (_one(s, "relayd_device_reconnects_total", device="ap.rear") > reconnects0
-                         and _one(s, "relayd_device_errors_total", device="ap.front") > errors0) else None
+            return (
+                s
+                if (
+                    _one(s, "relayd_device_reconnects_total", device="ap.rear") > reconnects0
+                    and _one(s, "relayd_device_errors_total", device="ap.front") > errors0
+                )
+                else None
+            )
 
         m = await until(faults_seen, "ap.rear reconnect and ap.front errors in /metrics")
     finally:
         rig.front.malformed = False
     doc = await relay.status()
-    assert doc["health"]["ap.rear"]["reconnects"] >= _one(m, "relayd_device_reconnects_total", device="ap.rear")
+    assert doc["health"]["ap.rear"]["reconnects"] >= _one(
+        m, "relayd_device_reconnects_total", device="ap.rear"
+    )
     assert doc["health"]["ap.front"]["errors"] >= 1
     assert _one(m, "relayd_device_errors_total", device="robot") == 0.0
 
@@ -319,6 +375,7 @@ async def test_device_errors_and_reconnects_come_from_the_run(relay: Relay) -> N
 
 
 # --- /openapi.json -----------------------------------------------------------------------
+
 
 async def test_openapi_describes_the_daemons_routes(relay: Relay) -> None:
     code, doc = await relay.get("/openapi.json")
@@ -332,11 +389,15 @@ async def test_openapi_describes_the_daemons_routes(relay: Relay) -> None:
 
 # --- control endpoints -------------------------------------------------------------------
 
-@pytest.mark.parametrize("path,body", [("/api/mode", {"mode": "manual"}),
-                                       ("/api/drive", {"left_mm_s": 300, "right_mm_s": 300})])
+
+@pytest.mark.parametrize(
+    "path,body",
+    [("/api/mode", {"mode": "manual"}), ("/api/drive", {"left_mm_s": 300, "right_mm_s": 300})],
+)
 @pytest.mark.parametrize("token", [None, "wrong-token"])
-async def test_control_without_the_right_token_is_401(relay: Relay, path: str, body: dict[str, Any],
-                                                      token: str | None) -> None:
+async def test_control_without_the_right_token_is_401(
+    relay: Relay, path: str, body: dict[str, Any], token: str | None
+) -> None:
     mark = len(relay.rig.robot.commands)
     code, doc = await relay.post(path, body, token=token)
     assert code == 401 and doc["error"]
@@ -345,16 +406,20 @@ async def test_control_without_the_right_token_is_401(relay: Relay, path: str, b
     assert all(arg == 0 for _, arg in _motion_since(relay, mark))
 
 
-@pytest.mark.parametrize("path,body,field", [
-    ("/api/mode", {"mode": "sideways"}, "mode"),
-    ("/api/mode", {}, "mode"),
-    ("/api/drive", {"left_mm_s": 100}, "right_mm_s"),
-    ("/api/drive", {"left_mm_s": "fast", "right_mm_s": 0}, "left_mm_s"),
-    ("/api/drive", {"left_mm_s": 0, "right_mm_s": 99999}, "right_mm_s"),
-    ("/api/drive", "{not json", None),
-])
-async def test_bad_input_is_400_naming_the_field(hold: Relay, path: str, body: Any,
-                                                 field: str | None) -> None:
+@pytest.mark.parametrize(
+    "path,body,field",
+    [
+        ("/api/mode", {"mode": "sideways"}, "mode"),
+        ("/api/mode", {}, "mode"),
+        ("/api/drive", {"left_mm_s": 100}, "right_mm_s"),
+        ("/api/drive", {"left_mm_s": "fast", "right_mm_s": 0}, "left_mm_s"),
+        ("/api/drive", {"left_mm_s": 0, "right_mm_s": 99999}, "right_mm_s"),
+        ("/api/drive", "{not json", None),
+    ],
+)
+async def test_bad_input_is_400_naming_the_field(
+    hold: Relay, path: str, body: Any, field: str | None
+) -> None:
     relay = hold
     relay.daemon.control.set_mode(Mode.MANUAL)  # so a valid drive would have been accepted
     mark = len(relay.rig.robot.commands)
@@ -391,6 +456,7 @@ async def test_follow_mode_set_over_the_api_drives_to_the_leader(hold: Relay) ->
     doc = await relay.status()
     assert doc["mode"] == "follow" and doc["state"] == "driving"
     assert doc["wheels_mm_s"]["left"] > 0 and doc["wheels_mm_s"]["right"] > 0
+
     # Driving, SIPs change the wheel command: each change is a control-latency sample,
     # SIP bytes in to VEL/RVEL written, well under a second even on a loaded machine.
     # (The first command after the mode change is the operator's, not a SIP's: wait for
@@ -456,12 +522,15 @@ async def test_manual_drive_moves_the_fake_robot(hold: Relay) -> None:
 
 # --- a second relay: no token configured, then a silent robot ---------------------------------
 
+
 async def test_without_a_token_control_is_403_and_healthz_follows_the_loop(tmp_path: Path) -> None:
     async with running(tmp_path, with_token=False) as relay:
         assert relay.daemon.settings.api.token_env == API_TOKEN_ENV  # configured, but unset
         mark = len(relay.rig.robot.commands)
-        for path, body in (("/api/mode", {"mode": "manual"}),
-                           ("/api/drive", {"left_mm_s": 100, "right_mm_s": 100})):
+        for path, body in (
+            ("/api/mode", {"mode": "manual"}),
+            ("/api/drive", {"left_mm_s": 100, "right_mm_s": 100}),
+        ):
             for token in (None, "", "anything"):
                 code, doc = await relay.post(path, body, token=token)
                 assert code == 403 and "disabled" in doc["error"], (path, token)

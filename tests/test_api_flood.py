@@ -75,8 +75,10 @@ def _events(log: Path) -> list[dict[str, Any]]:
 async def _healthz(port: int) -> int | None:
     """/healthz on a fresh connection: the status code, or None if it did not answer."""
     try:
-        async with aiohttp.ClientSession(timeout=aiohttp.ClientTimeout(total=2.0)) as session, \
-                session.get(f"http://127.0.0.1:{port}/healthz") as resp:
+        async with (
+            aiohttp.ClientSession(timeout=aiohttp.ClientTimeout(total=2.0)) as session,
+            session.get(f"http://127.0.0.1:{port}/healthz") as resp,
+        ):
             await resp.read()
             return resp.status
     except (aiohttp.ClientError, OSError, TimeoutError):
@@ -85,8 +87,10 @@ async def _healthz(port: int) -> int | None:
 
 async def _status(port: int) -> dict[str, Any] | None:
     try:
-        async with aiohttp.ClientSession(timeout=aiohttp.ClientTimeout(total=2.0)) as session, \
-                session.get(f"http://127.0.0.1:{port}/status") as resp:
+        async with (
+            aiohttp.ClientSession(timeout=aiohttp.ClientTimeout(total=2.0)) as session,
+            session.get(f"http://127.0.0.1:{port}/status") as resp,
+        ):
             doc: dict[str, Any] = await resp.json()
             return doc
     except (aiohttp.ClientError, OSError, TimeoutError, ValueError):
@@ -99,11 +103,23 @@ async def test_connection_flood_does_not_stop_the_robot(tmp_path: Path) -> None:
         pytest.skip(f"the flood needs {IDLE + SLOW + 256} descriptors; hard limit {hard}")
     # Far ahead: the robot drives for the whole test, never reaching threshold_l.
     port = _free_port()
-    config_kw = {"secrets_in_files": True, "scan": SCAN, "pantilt": PANTILT, "api_port": port,
-                 "log": {"format": "json"}}
+    config_kw = {
+        "secrets_in_files": True,
+        "scan": SCAN,
+        "pantilt": PANTILT,
+        "api_port": port,
+        "log": {"format": "json"},
+    }
     rig = await asyncio.create_subprocess_exec(
-        sys.executable, str(HERE / "rig_proc.py"), str(tmp_path), "60.0", "0.0", json.dumps(config_kw),
-        stdin=asyncio.subprocess.PIPE, stdout=asyncio.subprocess.PIPE)
+        sys.executable,
+        str(HERE / "rig_proc.py"),
+        str(tmp_path),
+        "60.0",
+        "0.0",
+        json.dumps(config_kw),
+        stdin=asyncio.subprocess.PIPE,
+        stdout=asyncio.subprocess.PIPE,
+    )
     assert rig.stdin is not None and rig.stdout is not None
     rig_in, rig_out = rig.stdin, rig.stdout
 
@@ -119,17 +135,25 @@ async def test_connection_flood_does_not_stop_the_robot(tmp_path: Path) -> None:
     try:
         config = json.loads(await asyncio.wait_for(rig_out.readline(), 60.0))["config"]
         with log_path.open("wb") as log_file:
-            relayd = subprocess.Popen([sys.executable, "-m", "relayd", "run", "-c", config],
-                                      stdout=log_file, stderr=subprocess.STDOUT,
-                                      preexec_fn=_default_nofile)
+            relayd = subprocess.Popen(
+                [sys.executable, "-m", "relayd", "run", "-c", config],
+                stdout=log_file,
+                stderr=subprocess.STDOUT,
+                preexec_fn=_default_nofile,
+            )
 
         async def driving() -> bool:
             assert relayd is not None
             if relayd.poll() is not None:
-                raise AssertionError(f"relayd exited {relayd.returncode}: {log_path.read_text()[-3000:]}")
+                raise AssertionError(
+                    f"relayd exited {relayd.returncode}: {log_path.read_text()[-3000:]}"
+                )
             doc = await _status(port)
-            return (doc is not None and doc["state"] == "driving"
-                    and (await ask("vel"))["target_vel_mm_s"] > 0)
+            return (
+                doc is not None
+                and doc["state"] == "driving"
+                and (await ask("vel"))["target_vel_mm_s"] > 0
+            )
 
         try:
             await until(driving, "the robot to drive", timeout_s=60.0, poll_s=0.2)
@@ -141,8 +165,17 @@ async def test_connection_flood_does_not_stop_the_robot(tmp_path: Path) -> None:
         assert (await ask("watch"))["watching"]
         mark = len(_events(log_path))
         flood = await asyncio.create_subprocess_exec(
-            sys.executable, str(HERE / "flood.py"), str(port), "--idle", str(IDLE),
-            "--slow", str(SLOW), "--hold-s", str(HOLD_S), stdout=asyncio.subprocess.PIPE)
+            sys.executable,
+            str(HERE / "flood.py"),
+            str(port),
+            "--idle",
+            str(IDLE),
+            "--slow",
+            str(SLOW),
+            "--hold-s",
+            str(HOLD_S),
+            stdout=asyncio.subprocess.PIPE,
+        )
         assert flood.stdout is not None
         line = await asyncio.wait_for(flood.stdout.readline(), 90.0)
         assert json.loads(line).get("flooding"), line
@@ -166,11 +199,17 @@ async def test_connection_flood_does_not_stop_the_robot(tmp_path: Path) -> None:
 
         async def ten_more_cycles() -> bool:
             now = await ask("count")
-            return (now["sips_sent"] >= before["sips_sent"] + 10
-                    and now["commands"] >= before["commands"] + 10)
+            return (
+                now["sips_sent"] >= before["sips_sent"] + 10
+                and now["commands"] >= before["commands"] + 10
+            )
 
-        await until(ten_more_cycles, "ten more SIP cycles with commands after the flood", timeout_s=30.0,
-                    poll_s=0.1)
+        await until(
+            ten_more_cycles,
+            "ten more SIP cycles with commands after the flood",
+            timeout_s=30.0,
+            poll_s=0.1,
+        )
         stops = (await ask("stops"))["stops"]
         after = await _status(port)
     finally:
@@ -194,20 +233,27 @@ async def test_connection_flood_does_not_stop_the_robot(tmp_path: Path) -> None:
     log_bytes = log_path.stat().st_size
     events = _events(log_path)
     names = [e.get("event") for e in events]
-    events = events[:names.index("signal")] if "signal" in names else events  # not our SIGTERM
+    events = events[: names.index("signal")] if "signal" in names else events  # not our SIGTERM
     tail = log_path.read_text(errors="replace")[-3000:]
-    print(f"flood {figures}; /healthz 200 after {None if t_ok is None else round(t_ok - t_flood, 2)} s; "
-          f"log {log_bytes} bytes")
+    print(
+        f"flood {figures}; /healthz 200 after {None if t_ok is None else round(t_ok - t_flood, 2)} s; "
+        f"log {log_bytes} bytes"
+    )
     assert figures["idle_connected"] + figures["slow_connected"] > 200, figures  # a real flood
     # The hold lasted past the server's idle timeout: it cut the slow-header clients.
     assert figures["slow_cut_by_server"] > 0, figures
-    assert t_ok is not None and t_ok - t_flood <= HEALTHZ_WITHIN_S, \
+    assert t_ok is not None and t_ok - t_flood <= HEALTHZ_WITHIN_S, (
         f"/healthz not answering within {HEALTHZ_WITHIN_S} s of the flood\n{tail}"
+    )
     assert stops == [], f"the wheels stopped {len(stops)} times during the flood\n{tail}"
-    not_driving = [e for e in events[mark:] if e.get("event") == "drive_state" and e.get("state") != "driving"]
+    not_driving = [
+        e for e in events[mark:] if e.get("event") == "drive_state" and e.get("state") != "driving"
+    ]
     assert not_driving == [], not_driving[:5]
     stale = [e for e in events if "stale" in json.dumps(e)]
     assert stale == [], stale[:5]
     assert after is not None and after["state"] == "driving", after
     assert log_bytes < MAX_LOG_BYTES, f"log grew to {log_bytes} bytes"
-    assert not any("EMFILE" in json.dumps(e) or "Too many open files" in json.dumps(e) for e in events)
+    assert not any(
+        "EMFILE" in json.dumps(e) or "Too many open files" in json.dumps(e) for e in events
+    )

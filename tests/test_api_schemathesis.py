@@ -57,18 +57,24 @@ def served() -> Iterator[Served]:
         rig = FakeRig(work)
         box["rig"] = rig
         await rig.start()
-        daemon = Daemon(parse_settings(rig.config_doc(api_port=0, control={"mode": "manual"})),
-                        env=rig.env)
+        daemon = Daemon(
+            parse_settings(rig.config_doc(api_port=0, control={"mode": "manual"})), env=rig.env
+        )
         task = asyncio.create_task(daemon.run(), name="daemon")
         box["task"] = task
 
         def ready() -> bool:
             if task.done():
                 task.result()  # a start-up failure, with its own error
-            return (daemon.api_port is not None and daemon.state.last_scan is not None
-                    and daemon.state.health_now()["robot"].connected)
+            return (
+                daemon.api_port is not None
+                and daemon.state.last_scan is not None
+                and daemon.state.health_now()["robot"].connected
+            )
 
-        await until(ready, "the daemon serving, scanned, the robot connected", READY_TIMEOUT_S, poll_s=0.1)
+        await until(
+            ready, "the daemon serving, scanned, the robot connected", READY_TIMEOUT_S, poll_s=0.1
+        )
         return Served(f"http://127.0.0.1:{daemon.api_port}", rig.api_token, rig, daemon)
 
     async def stop() -> None:
@@ -83,7 +89,9 @@ def served() -> Iterator[Served]:
 
     with tempfile.TemporaryDirectory(prefix="relayd-st-") as work:
         try:
-            yield asyncio.run_coroutine_threadsafe(start(Path(work)), loop).result(READY_TIMEOUT_S + 10)
+            yield asyncio.run_coroutine_threadsafe(start(Path(work)), loop).result(
+                READY_TIMEOUT_S + 10
+            )
         finally:
             asyncio.run_coroutine_threadsafe(stop(), loop).result(30)
             loop.call_soon_threadsafe(loop.stop)
@@ -96,24 +104,44 @@ def test_every_operation_conforms_to_openapi(served: Served) -> None:
     schema = schemathesis.openapi.from_url(f"{base_url}/openapi.json").exclude(path="/events")
     operations = [result.ok() for result in schema.get_all_operations()]  # type: ignore[union-attr]
     labels = {op.label for op in operations}
-    assert {"GET /status", "GET /healthz", "GET /metrics", "POST /api/mode", "POST /api/drive"} <= labels
+    assert {
+        "GET /status",
+        "GET /healthz",
+        "GET /metrics",
+        "POST /api/mode",
+        "POST /api/drive",
+    } <= labels
     # Mode changes last: until then the daemon stays in manual mode.
     operations.sort(key=lambda op: op.label == "POST /api/mode")
     commands_before = len(served.rig.robot.commands)
 
     for operation in operations:
         # Negative data only exists for operations that take input (the POST bodies).
-        modes = list(GenerationMode) if operation.method.upper() == "POST" else [GenerationMode.POSITIVE]
+        modes = (
+            list(GenerationMode)
+            if operation.method.upper() == "POST"
+            else [GenerationMode.POSITIVE]
+        )
         for mode in modes:
-            @settings(max_examples=MAX_EXAMPLES, deadline=None, database=None,
-                      suppress_health_check=list(HealthCheck))
+
+            @settings(
+                max_examples=MAX_EXAMPLES,
+                deadline=None,
+                database=None,
+                suppress_health_check=list(HealthCheck),
+            )
             @given(case=operation.as_strategy(mode))
             def check(case: schemathesis.Case) -> None:
-                case.call_and_validate(base_url=base_url, headers={"Authorization": f"Bearer {served.token}"})
+                case.call_and_validate(
+                    base_url=base_url, headers={"Authorization": f"Bearer {served.token}"}
+                )
 
             check()
 
     # The accepted drive commands reached the fake robot as motion.
-    moved = [arg for cmd, arg in served.rig.robot.commands[commands_before:]
-             if cmd in (Command.VEL, Command.RVEL) and arg != 0]
+    moved = [
+        arg
+        for cmd, arg in served.rig.robot.commands[commands_before:]
+        if cmd in (Command.VEL, Command.RVEL) and arg != 0
+    ]
     assert moved, "no accepted drive command reached the robot"

@@ -162,8 +162,12 @@ async def test_asyncio_accept_errors_are_rate_limited() -> None:
         install_accept_error_limit(loop)
         with structlog.testing.capture_logs() as logs:
             for _ in range(1000):
-                loop.call_exception_handler({"message": "socket.accept() out of system resource",
-                                             "exception": OSError(24, "Too many open files")})
+                loop.call_exception_handler(
+                    {
+                        "message": "socket.accept() out of system resource",
+                        "exception": OSError(24, "Too many open files"),
+                    }
+                )
             loop.call_exception_handler({"message": "something else"})
     finally:
         loop.set_exception_handler(old)

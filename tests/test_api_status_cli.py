@@ -34,8 +34,9 @@ async def test_status_table_and_json() -> None:
     populate(state, clock)
     state.device("servo").connected = False
     state.device("servo").last_error = "no answer to GET_POSITION"
-    runner, port = await start_api(make_app(state, DemoControls(state), clock=clock, token=None),
-                                   "127.0.0.1", 0)
+    runner, port = await start_api(
+        make_app(state, DemoControls(state), clock=clock, token=None), "127.0.0.1", 0
+    )
     try:
         out, err = io.StringIO(), io.StringIO()
         assert await status_cmd.run(_args(f"127.0.0.1:{port}"), out, err) == 0
@@ -50,7 +51,10 @@ async def test_status_table_and_json() -> None:
         assert "link front" in table
 
         out = io.StringIO()
-        assert await status_cmd.run(_args(f"http://127.0.0.1:{port}/status", as_json=True), out, err) == 0
+        assert (
+            await status_cmd.run(_args(f"http://127.0.0.1:{port}/status", as_json=True), out, err)
+            == 0
+        )
         doc = json.loads(out.getvalue())
         assert doc["robot"] == "relay-demo" and len(doc["sonar_mm"]) == 16
     finally:
@@ -77,14 +81,22 @@ def test_status_url_normalisation() -> None:
 
 
 def test_format_tolerates_a_sparse_document() -> None:
-    text = status_cmd.format_status({"mode": "hold", "state": "stopped", "reason": "starting",
-                                     "situation": 0, "thresholds": {}})
+    text = status_cmd.format_status(
+        {"mode": "hold", "state": "stopped", "reason": "starting", "situation": 0, "thresholds": {}}
+    )
     assert "hold / stopped" in text and "RSSI^l leader" in text
 
 
 def test_format_names_the_robot_as_the_operators_do() -> None:
-    doc = {"mode": "hold", "state": "stopped", "reason": "hold", "situation": 0, "thresholds": {},
-           "display_name": "relay 2 (east)", "robot": "Pioneer"}
+    doc = {
+        "mode": "hold",
+        "state": "stopped",
+        "reason": "hold",
+        "situation": 0,
+        "thresholds": {},
+        "display_name": "relay 2 (east)",
+        "robot": "Pioneer",
+    }
     first = status_cmd.format_status(doc).splitlines()[0]
     assert first.startswith("robot") and "relay 2 (east) / Pioneer" in first
     first = status_cmd.format_status({**doc, "display_name": None}).splitlines()[0]

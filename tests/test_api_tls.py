@@ -36,13 +36,36 @@ def self_signed(tmp: Path) -> tuple[Path, Path]:
     if openssl is None:
         skip_or_fail("the openssl CLI is needed to make a test certificate")
     cert, key = tmp / "api-cert.pem", tmp / "api-key.pem"
-    subprocess.run([openssl, "req", "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1",
-                    "-nodes", "-keyout", str(key), "-out", str(cert), "-days", "1", "-subj", "/CN=relay1",
-                    "-addext", "subjectAltName=IP:127.0.0.1"], check=True, capture_output=True, timeout=60)
+    subprocess.run(
+        [
+            openssl,
+            "req",
+            "-x509",
+            "-newkey",
+            "ec",
+            "-pkeyopt",
+            "ec_paramgen_curve:prime256v1",
+            "-nodes",
+            "-keyout",
+            str(key),
+            "-out",
+            str(cert),
+            "-days",
+            "1",
+            "-subj",
+            "/CN=relay1",
+            "-addext",
+            "subjectAltName=IP:127.0.0.1",
+        ],
+        check=True,
+        capture_output=True,
+        timeout=60,
+    )
     return cert, key
 
 
 # --- token length ----------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("where", ["token_file", "token_env"])
 async def test_a_short_api_token_is_refused_with_exit_2(tmp_path: Path, where: str) -> None:
@@ -62,9 +85,15 @@ async def test_a_short_api_token_is_refused_with_exit_2(tmp_path: Path, where: s
 
 
 def test_a_16_character_token_is_accepted(tmp_path: Path) -> None:
-    settings = parse_settings({"robot": {"enabled": False}, "pantilt": {"enabled": False},
-                               "wifi": {"enabled": False}, "control": {"rear_link": "ignore"},
-                               "api": {"token_env": "T"}})
+    settings = parse_settings(
+        {
+            "robot": {"enabled": False},
+            "pantilt": {"enabled": False},
+            "wifi": {"enabled": False},
+            "control": {"rear_link": "ignore"},
+            "api": {"token_env": "T"},
+        }
+    )
     Daemon(settings, env={"T": "x" * 16})
     with pytest.raises(ConfigError, match=r"api\.token_env"):
         Daemon(settings, env={"T": "x" * 15})
@@ -72,13 +101,16 @@ def test_a_16_character_token_is_accepted(tmp_path: Path) -> None:
 
 # --- TLS -------------------------------------------------------------------------------
 
+
 def test_tls_keys_come_in_pairs() -> None:
     with pytest.raises(ConfigError, match="tls_cert and tls_key"):
         parse_settings({"api": {"tls_cert": "/etc/relayd/api.pem"}})
 
 
 @pytest.mark.parametrize("broken", ["tls_cert", "tls_key"])
-async def test_an_unreadable_certificate_or_key_exits_2_naming_it(tmp_path: Path, broken: str) -> None:
+async def test_an_unreadable_certificate_or_key_exits_2_naming_it(
+    tmp_path: Path, broken: str
+) -> None:
     cert, key = self_signed(tmp_path)
     async with FakeRig(tmp_path) as rig:
         paths = {"tls_cert": str(cert), "tls_key": str(key)}
@@ -91,8 +123,9 @@ async def test_an_unreadable_certificate_or_key_exits_2_naming_it(tmp_path: Path
 async def test_a_certificate_that_is_not_one_exits_2(tmp_path: Path) -> None:
     cert, key = self_signed(tmp_path)
     async with FakeRig(tmp_path) as rig:
-        config = rig.write_config(secrets_in_files=True, scan=SCAN,
-                                  api={"tls_cert": str(key), "tls_key": str(cert)})  # swapped
+        config = rig.write_config(
+            secrets_in_files=True, scan=SCAN, api={"tls_cert": str(key), "tls_key": str(cert)}
+        )  # swapped
         err = await refused(rig, config)
     assert "api.tls_cert" in err and "api.tls_key" in err and "private key" in err, err
 
@@ -100,9 +133,15 @@ async def test_a_certificate_that_is_not_one_exits_2(tmp_path: Path) -> None:
 async def test_the_api_serves_https_with_a_certificate(tmp_path: Path) -> None:
     cert, key = self_signed(tmp_path)
     async with FakeRig(tmp_path) as rig:
-        doc = rig.config_doc(api_port=0, scan=SCAN, control={"mode": "hold"},
-                             api={"tls_cert": str(cert), "tls_key": str(key)})
-        (tmp_path / "tls.toml").write_text(dump_toml(doc), encoding="utf-8")  # as an operator writes it
+        doc = rig.config_doc(
+            api_port=0,
+            scan=SCAN,
+            control={"mode": "hold"},
+            api={"tls_cert": str(cert), "tls_key": str(key)},
+        )
+        (tmp_path / "tls.toml").write_text(
+            dump_toml(doc), encoding="utf-8"
+        )  # as an operator writes it
         daemon = Daemon(parse_settings(doc), env=rig.env)
         async with running(daemon):
             await until(lambda: daemon.api_port is not None, "the API to bind")
@@ -113,8 +152,12 @@ async def test_the_api_serves_https_with_a_certificate(tmp_path: Path) -> None:
                     assert resp.status == 200
                     assert (await resp.json())["mode"] == "hold"
                 headers = {"Authorization": f"Bearer {rig.api_token}"}
-                async with session.post(f"https://127.0.0.1:{port}/api/mode", ssl=trust, headers=headers,
-                                        data=json.dumps({"mode": "hold"})) as resp:
+                async with session.post(
+                    f"https://127.0.0.1:{port}/api/mode",
+                    ssl=trust,
+                    headers=headers,
+                    data=json.dumps({"mode": "hold"}),
+                ) as resp:
                     assert resp.status == 200, await resp.text()
                 # A client that does not trust the certificate is refused by its own TLS...
                 with pytest.raises(aiohttp.ClientConnectorCertificateError):
@@ -122,33 +165,60 @@ async def test_the_api_serves_https_with_a_certificate(tmp_path: Path) -> None:
                         pass
                 # ...and plain HTTP gets no answer at all: the token never travels in clear.
                 with pytest.raises((aiohttp.ClientError, OSError)):
-                    async with session.get(f"http://127.0.0.1:{port}/status",
-                                           timeout=aiohttp.ClientTimeout(total=5)) as resp:
+                    async with session.get(
+                        f"http://127.0.0.1:{port}/status", timeout=aiohttp.ClientTimeout(total=5)
+                    ) as resp:
                         await resp.read()
 
 
 # --- check-config sees the same problems ------------------------------------------------
 
+
 def test_check_config_names_a_short_token_file_and_a_bad_certificate(
-        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     from relayd.cli import main
 
     cert, key = self_signed(tmp_path)
     token = tmp_path / "token"
     token.write_text("short\n", encoding="utf-8")
-    base = {"robot": {"enabled": False}, "pantilt": {"enabled": False}, "wifi": {"enabled": False},
-            "control": {"rear_link": "ignore"}}
+    base = {
+        "robot": {"enabled": False},
+        "pantilt": {"enabled": False},
+        "wifi": {"enabled": False},
+        "control": {"rear_link": "ignore"},
+    }
     good = tmp_path / "good.toml"
     good_token = tmp_path / "good-token"
     good_token.write_text("x" * 32 + "\n", encoding="utf-8")
-    good.write_text(dump_toml({**base, "api": {"token_file": str(good_token), "tls_cert": str(cert),
-                                               "tls_key": str(key)}}), encoding="utf-8")
+    good.write_text(
+        dump_toml(
+            {
+                **base,
+                "api": {"token_file": str(good_token), "tls_cert": str(cert), "tls_key": str(key)},
+            }
+        ),
+        encoding="utf-8",
+    )
     assert main(["check-config", str(good)]) == 0
     bad = tmp_path / "bad.toml"
-    bad.write_text(dump_toml({**base, "api": {"token_file": str(token), "tls_cert": str(cert),
-                                              "tls_key": str(tmp_path / "no-key.pem")}}), encoding="utf-8")
+    bad.write_text(
+        dump_toml(
+            {
+                **base,
+                "api": {
+                    "token_file": str(token),
+                    "tls_cert": str(cert),
+                    "tls_key": str(tmp_path / "no-key.pem"),
+                },
+            }
+        ),
+        encoding="utf-8",
+    )
     capsys.readouterr()
     assert main(["check-config", str(bad)]) == 2
     err = capsys.readouterr().err
-    assert "api.token_file" in err and "16" in err and "api.tls_key" in err and "no-key.pem" in err, err
+    assert (
+        "api.token_file" in err and "16" in err and "api.tls_key" in err and "no-key.pem" in err
+    ), err
     assert "short" not in err.replace("shorter", "")

@@ -56,8 +56,9 @@ class ThreadedFake:
 
 @pytest.fixture
 def fake_robot() -> Iterator[ThreadedFake]:
-    tf = ThreadedFake(name="probe-me", subclass="p3at-sh",
-                      sonar_fn=lambda x, y, th: [700 + i for i in range(16)])
+    tf = ThreadedFake(
+        name="probe-me", subclass="p3at-sh", sonar_fn=lambda x, y, th: [700 + i for i in range(16)]
+    )
     yield tf
     tf.close()
 
@@ -69,8 +70,18 @@ def test_probe_json_lines(fake_robot: ThreadedFake, capsys: pytest.CaptureFixtur
     assert json.loads(out[0]) == {"name": "probe-me", "class": "Pioneer", "subclass": "p3at-sh"}
     sips = [json.loads(line) for line in out[1:]]
     assert len(sips) >= 4
-    keys = {"x_mm", "y_mm", "theta_deg", "left_mm_s", "right_mm_s", "battery_v",
-            "motors_enabled", "stall_left", "stall_right", "sonar_mm"}
+    keys = {
+        "x_mm",
+        "y_mm",
+        "theta_deg",
+        "left_mm_s",
+        "right_mm_s",
+        "battery_v",
+        "motors_enabled",
+        "stall_left",
+        "stall_right",
+        "sonar_mm",
+    }
     for rec in sips:
         assert keys <= rec.keys()
         assert len(rec["sonar_mm"]) == 16
@@ -95,7 +106,8 @@ def test_probe_piped_into_head_stops_quietly(fake_robot: ThreadedFake) -> None:
     traceback on every SIP (10 a second).
     """
     code, got, err, _ = piped_into_head(
-        ["probe", "robot", "--port", fake_robot.path, "--seconds", "60"], lines=1, timeout_s=30)
+        ["probe", "robot", "--port", fake_robot.path, "--seconds", "60"], lines=1, timeout_s=30
+    )
     assert got[0].startswith("robot 'probe-me': class Pioneer")
     assert code == 0, err
     for noise in ("robot_listener_error", "BrokenPipe", "Traceback", "Exception ignored"):
@@ -128,8 +140,24 @@ def test_probe_robot_that_never_answers(capsys: pytest.CaptureFixture[str]) -> N
 def test_fake_robot_command_serves_tcp() -> None:
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.Popen(
-        [sys.executable, "-m", "relayd", "fake", "robot", "--tcp", "0", "--name", "cli-bot",
-         "--subclass", "p3at-sh"], stdout=subprocess.PIPE, text=True, env=env, cwd=ROOT)
+        [
+            sys.executable,
+            "-m",
+            "relayd",
+            "fake",
+            "robot",
+            "--tcp",
+            "0",
+            "--name",
+            "cli-bot",
+            "--subclass",
+            "p3at-sh",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+        env=env,
+        cwd=ROOT,
+    )
     try:
         assert proc.stdout is not None
         url = proc.stdout.readline().strip()

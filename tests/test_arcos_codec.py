@@ -36,7 +36,8 @@ DOC_VECTORS = [
 
 DOC_SIP = bytes.fromhex(
     "FA FB 28 32 E8 03 F4 01 00 04 64 00 64 00 82 00 00 00 00 1F 00 00 02 00 DC 05 03 20 03"
-    " 00 00 00 FF FF 82 00 00 00 00 00 00 82 8B")
+    " 00 00 00 FF FF 82 00 00 00 00 00 00 82 8B"
+)
 
 
 @pytest.mark.parametrize(("encoded", "hexbytes"), DOC_VECTORS)
@@ -118,8 +119,10 @@ def test_byte_at_a_time() -> None:
 
 
 packets = st.builds(Packet, st.integers(0, 255), st.binary(max_size=252))
-commands = st.tuples(st.sampled_from(list(Command)),
-                     st.one_of(st.none(), st.integers(-0xFFFF, 0xFFFF), st.binary(max_size=100)))
+commands = st.tuples(
+    st.sampled_from(list(Command)),
+    st.one_of(st.none(), st.integers(-0xFFFF, 0xFFFF), st.binary(max_size=100)),
+)
 
 
 @given(st.lists(packets, max_size=8), st.data())
@@ -144,14 +147,17 @@ def _no_header(b: bytes) -> bool:
     return b"\xfa\xfb" not in b and not b.endswith(b"\xfa")
 
 
-@given(st.lists(st.tuples(st.binary(max_size=30).filter(_no_header), packets), max_size=8),
-       st.binary(max_size=30))
+@given(
+    st.lists(st.tuples(st.binary(max_size=30).filter(_no_header), packets), max_size=8),
+    st.binary(max_size=30),
+)
 def test_valid_packets_between_garbage_all_recovered_in_order(
-        chunks: list[tuple[bytes, Packet]], tail: bytes) -> None:
+    chunks: list[tuple[bytes, Packet]], tail: bytes
+) -> None:
     stream = b"".join(g + p.encode() for g, p in chunks) + tail
     d = Decoder()
     got = d.feed(stream)
-    assert got[:len(chunks)] == [p for _, p in chunks]
+    assert got[: len(chunks)] == [p for _, p in chunks]
 
 
 def test_full_random_garbage_with_false_headers_loses_nothing() -> None:
@@ -163,7 +169,9 @@ def test_full_random_garbage_with_false_headers_loses_nothing() -> None:
         junk = bytes(rng.randrange(256) for _ in range(rng.randrange(0, 12)))
         if rng.random() < 0.3:
             junk += b"\xfa\xfb" + bytes((rng.randrange(256),))
-        pkt = Packet(rng.randrange(256), bytes(rng.randrange(256) for _ in range(rng.randrange(60))))
+        pkt = Packet(
+            rng.randrange(256), bytes(rng.randrange(256) for _ in range(rng.randrange(60)))
+        )
         sent.append(pkt)
         stream += junk + pkt.encode()
     d2 = Decoder()

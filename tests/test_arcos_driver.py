@@ -53,8 +53,13 @@ async def test_handshake_identity_sonar_and_pose_in_memory(clock: Clock) -> None
 async def _handshake_identity_sonar_and_pose(kind: str, clock: Clock) -> None:
     ranges = [1000 + 100 * i for i in range(16)]
     ranges[5] = None  # type: ignore[call-overload]
-    fake = FakeRobot("relay7", subclass="p3at-sh", clock=clock, pose=(1000, 2000, 90),
-                     sonar_fn=lambda x, y, th: ranges)
+    fake = FakeRobot(
+        "relay7",
+        subclass="p3at-sh",
+        clock=clock,
+        pose=(1000, 2000, 90),
+        sonar_fn=lambda x, y, th: ranges,
+    )
     url = await serve(fake, kind)
     robot = ArcosRobot(url, clock=clock, enable_motors=True)
     seen: list[Sip] = []
@@ -64,7 +69,10 @@ async def _handshake_identity_sonar_and_pose(kind: str, clock: Clock) -> None:
             await until(lambda: robot.connected and robot.last_sip is not None)
             assert robot.identity is not None
             assert (robot.identity.name, robot.identity.robot_class, robot.identity.subclass) == (
-                "relay7", "Pioneer", "p3at-sh")
+                "relay7",
+                "Pioneer",
+                "p3at-sh",
+            )
             assert robot.config is not None and robot.config.watchdog_ms == 2000
             assert not robot.stale
             await until(lambda: None not in robot.sonar.ranges_mm)
@@ -75,10 +83,14 @@ async def _handshake_identity_sonar_and_pose(kind: str, clock: Clock) -> None:
             robot.set_wheels(100, 200)
             # Polled, not slept: on a 10x clock a loaded machine's stall of 0.2 s wall
             # is the fake's 2 s watchdog, which zeroes the target until the next refresh.
-            await until(lambda: fake.target_vel_mm_s == 150 and fake.target_rvel_deg_s == 10,
-                        "VEL 150 and RVEL 10 at the fake")
+            await until(
+                lambda: fake.target_vel_mm_s == 150 and fake.target_rvel_deg_s == 10,
+                "VEL 150 and RVEL 10 at the fake",
+            )
             # Far enough along the arc (about 3 s of it) for both wheels to hold speed.
-            await until(lambda: math.hypot(*fake.odometry_mm_deg[:2]) >= 400, "400 mm along the arc")
+            await until(
+                lambda: math.hypot(*fake.odometry_mm_deg[:2]) >= 400, "400 mm along the arc"
+            )
             sip = robot.last_sip
             assert sip is not None and sip.moving and sip.motors_enabled
             assert sip.left_mm_s == pytest.approx(100, abs=8)
@@ -193,8 +205,12 @@ async def test_reconnect_after_hang_up_in_memory(clock: Clock, tmp_path: Path) -
 async def _reconnect_after_hang_up(kind: str, clock: Clock, tmp_path: Path) -> None:
     fake = FakeRobot(clock=clock)
     url = fake.serve_pty(str(tmp_path / "robot")) if kind == "pty" else await serve(fake, kind)
-    robot = ArcosRobot(url, clock=clock, enable_motors=True,
-                       backoff=Backoff(initial_s=0.1, maximum_s=0.5, jitter=0))
+    robot = ArcosRobot(
+        url,
+        clock=clock,
+        enable_motors=True,
+        backoff=Backoff(initial_s=0.1, maximum_s=0.5, jitter=0),
+    )
     try:
         async with running(robot):
             await until(lambda: robot.connected and robot.last_sip is not None)
@@ -235,12 +251,17 @@ async def test_old_session_is_closed_then_reopened(clock: Clock) -> None:
 
 
 @VT
-@pytest.mark.parametrize(("subclass", "override", "factor"),
-                         [("p3at", None, 1.0), ("p3at-sh", None, 1.0), ("p3at-sh", "p3at", 0.465)])
-async def test_odometry_scale_per_subclass(subclass: str, override: str | None, factor: float,
-                                           clock: Clock) -> None:
+@pytest.mark.parametrize(
+    ("subclass", "override", "factor"),
+    [("p3at", None, 1.0), ("p3at-sh", None, 1.0), ("p3at-sh", "p3at", 0.465)],
+)
+async def test_odometry_scale_per_subclass(
+    subclass: str, override: str | None, factor: float, clock: Clock
+) -> None:
     fake = FakeRobot(clock=clock, subclass=subclass, trans_accel_mm_s2=2000)
-    robot = ArcosRobot(fake.serve_memory("robot"), clock=clock, enable_motors=True, subclass_override=override)
+    robot = ArcosRobot(
+        fake.serve_memory("robot"), clock=clock, enable_motors=True, subclass_override=override
+    )
     try:
         async with running(robot):
             await until(lambda: robot.connected and robot.last_sip is not None)
@@ -260,8 +281,14 @@ async def test_odometry_scale_per_subclass(subclass: str, override: str | None, 
 @VT
 async def test_stale_after_silence_then_session_dropped_and_recovered(clock: Clock) -> None:
     fake = FakeRobot(clock=clock)
-    robot = ArcosRobot(fake.serve_memory("robot"), clock=clock, lost_after_s=0.5, drop_after_s=1.5,
-                       backoff=Backoff(initial_s=0.1, maximum_s=0.3, jitter=0), sync_timeout_s=0.3)
+    robot = ArcosRobot(
+        fake.serve_memory("robot"),
+        clock=clock,
+        lost_after_s=0.5,
+        drop_after_s=1.5,
+        backoff=Backoff(initial_s=0.1, maximum_s=0.3, jitter=0),
+        sync_timeout_s=0.3,
+    )
     try:
         async with running(robot):
             await until(lambda: robot.connected and not robot.stale)
@@ -281,8 +308,11 @@ async def test_stale_after_silence_then_session_dropped_and_recovered(clock: Clo
 @VT
 async def test_controller_reset_packet_ends_session(clock: Clock) -> None:
     fake = FakeRobot(clock=clock)
-    robot = ArcosRobot(fake.serve_memory("robot"), clock=clock,
-                       backoff=Backoff(initial_s=0.1, maximum_s=0.3, jitter=0))
+    robot = ArcosRobot(
+        fake.serve_memory("robot"),
+        clock=clock,
+        backoff=Backoff(initial_s=0.1, maximum_s=0.3, jitter=0),
+    )
     try:
         async with running(robot):
             await until(lambda: robot.connected and robot.last_sip is not None)
@@ -411,15 +441,18 @@ async def test_missing_port_names_the_port(tmp_path) -> None:
 
 @VT
 async def test_motion_guard_rejection_sets_stall_bits(clock: Clock) -> None:
-    fake = FakeRobot(clock=clock, trans_accel_mm_s2=2000,
-                     motion_guard=lambda old, new: new[0] < 300)
+    fake = FakeRobot(
+        clock=clock, trans_accel_mm_s2=2000, motion_guard=lambda old, new: new[0] < 300
+    )
     robot = ArcosRobot(fake.serve_memory("robot"), clock=clock, enable_motors=True)
     try:
         async with running(robot):
             # the driver's origin is its first SIP (as ARIA's): wait for it before moving
             await until(lambda: robot.connected and robot.last_sip is not None)
             robot.set_wheels(400, 400)
-            await until(lambda: robot.last_sip is not None and robot.last_sip.stall_left, timeout_s=3)
+            await until(
+                lambda: robot.last_sip is not None and robot.last_sip.stall_left, timeout_s=3
+            )
             # it creeps up to the wall (within 1/32 of a 40 mm step), stalled all the way
             await until(lambda: robot.last_sip is not None and robot.last_sip.x_mm > 298)
             await asyncio.sleep(clock.to_real(0.3))  # and keeps pushing against it
@@ -460,7 +493,9 @@ async def test_fake_vel2_estop_seto_and_disable() -> None:
 
 
 @VT
-async def test_control_latency_is_measured_from_the_sip_to_the_command_it_caused(clock: Clock) -> None:
+async def test_control_latency_is_measured_from_the_sip_to_the_command_it_caused(
+    clock: Clock,
+) -> None:
     """A wheel command set inside a SIP listener is timed from that SIP's bytes to its write."""
     fake = FakeRobot(clock=clock)
     url = fake.serve_memory("robot")
@@ -500,8 +535,12 @@ async def test_a_fatal_write_error_ends_the_session_at_once(clock: Clock) -> Non
     """The root cause of a flaky fault test: a write that kills the transport must end the
     session there and then (robot state unknown), not on the SIP timeout later."""
     fake = FakeRobot(clock=clock)
-    robot = ArcosRobot(fake.serve_memory("robot"), clock=clock, enable_motors=True,
-                       backoff=Backoff(initial_s=0.1, maximum_s=0.2, jitter=0))
+    robot = ArcosRobot(
+        fake.serve_memory("robot"),
+        clock=clock,
+        enable_motors=True,
+        backoff=Backoff(initial_s=0.1, maximum_s=0.2, jitter=0),
+    )
     try:
         async with running(robot):
             await until(lambda: robot.connected and not robot.stale, "a session")
@@ -510,8 +549,10 @@ async def test_a_fatal_write_error_ends_the_session_at_once(clock: Clock) -> Non
             port.transport.fail_next_write(OSError(5, "Input/output error"))
             robot.set_wheels(100, 100)  # written from this stack: the write fails here
             assert not robot.connected and robot.stale
-            await until(lambda: robot.last_error is not None and "write error" in robot.last_error,
-                        "the write error reported")
+            await until(
+                lambda: robot.last_error is not None and "write error" in robot.last_error,
+                "the write error reported",
+            )
             assert robot.counters["reconnects"] == 0
             # The port is still there: the driver reconnects and the wish is carried out.
             await until(lambda: robot.connected and fake.target_vel_mm_s == 100, "reconnected")
@@ -521,18 +562,23 @@ async def test_a_fatal_write_error_ends_the_session_at_once(clock: Clock) -> Non
 
 
 @VT
-@pytest.mark.parametrize("faults", [
-    LinkFaults(chunk_bytes=1),
-    LinkFaults(random_chunks=True, delay_s=0.02, seed=3),
-    LinkFaults(garbage_rate=0.5, garbage_avoid=frozenset({0xFA}), drop_rate=0.002, seed=5),
-], ids=["one-byte-at-a-time", "random-chunks-delayed", "garbage-and-drops"])
+@pytest.mark.parametrize(
+    "faults",
+    [
+        LinkFaults(chunk_bytes=1),
+        LinkFaults(random_chunks=True, delay_s=0.02, seed=3),
+        LinkFaults(garbage_rate=0.5, garbage_avoid=frozenset({0xFA}), drop_rate=0.002, seed=5),
+    ],
+    ids=["one-byte-at-a-time", "random-chunks-delayed", "garbage-and-drops"],
+)
 async def test_the_driver_holds_on_a_hostile_line(faults: LinkFaults, clock: Clock) -> None:
     """The real driver against the real fake over a line that splits, delays, adds
     garbage and loses bytes (both directions): it still connects, keeps the SIPs
     coming and counts what it had to throw away."""
     fake = FakeRobot(clock=clock, seed=1)
-    url = fake.serve_memory("robot", faults_to_driver=faults,
-                            faults_to_device=LinkFaults(chunk_bytes=1))
+    url = fake.serve_memory(
+        "robot", faults_to_driver=faults, faults_to_device=LinkFaults(chunk_bytes=1)
+    )
     robot = ArcosRobot(url, clock=clock, enable_motors=True)
     try:
         async with running(robot):

@@ -27,13 +27,25 @@ from drivers.arcos.sonar import SONAR_POSES, SonarRing, reading_point
 
 DOC_SIP = bytes.fromhex(
     "FA FB 28 32 E8 03 F4 01 00 04 64 00 64 00 82 00 00 00 00 1F 00 00 02 00 DC 05 03 20 03"
-    " 00 00 00 FF FF 82 00 00 00 00 00 00 82 8B")
+    " 00 00 00 FF FF 82 00 00 00 00 00 00 82 8B"
+)
 
 
 def _raw(x: int = 0, y: int = 0, th: int = 0, **kw: object) -> RawSip:
-    base: dict[str, object] = dict(moving=False, x_raw=x, y_raw=y, th_raw=th, left_raw=0,
-                                   right_raw=0, battery_dv=130, stall_bumpers=0, control=0,
-                                   flags=0, compass=0, sonar=())
+    base: dict[str, object] = dict(
+        moving=False,
+        x_raw=x,
+        y_raw=y,
+        th_raw=th,
+        left_raw=0,
+        right_raw=0,
+        battery_dv=130,
+        stall_bumpers=0,
+        control=0,
+        flags=0,
+        compass=0,
+        sonar=(),
+    )
     base.update(kw)
     return RawSip(**base)  # type: ignore[arg-type]
 
@@ -81,8 +93,11 @@ def test_subclass_factors() -> None:
     assert conv_factors("p3atiw-sh").dist_mm_per_unit == 1.0
 
 
-@given(st.lists(st.integers(-3000, 3000), min_size=1, max_size=60),
-       st.sampled_from(["p3at", "p3at-sh"]), st.integers(0, 0x7FFF))
+@given(
+    st.lists(st.integers(-3000, 3000), min_size=1, max_size=60),
+    st.sampled_from(["p3at", "p3at-sh"]),
+    st.integers(0, 0x7FFF),
+)
 def test_odometry_accumulates_across_15_bit_wraps(steps: list[int], sub: str, start: int) -> None:
     f = conv_factors(sub)
     odo = Odometry()

@@ -33,8 +33,12 @@ def ring(**by_index: int | None) -> list[int | None]:
     return ranges
 
 
-def sense(t: float, ranges: list[int | None], bearing: float = 0.0,
-          pose: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> Sense:
+def sense(
+    t: float,
+    ranges: list[int | None],
+    bearing: float = 0.0,
+    pose: tuple[float, float, float] = (0.0, 0.0, 0.0),
+) -> Sense:
     return Sense(t, pose, front_readings(ranges), bearing, rear_readings(ranges))
 
 
@@ -47,12 +51,17 @@ def test_the_issues_wheels_are_a_deliberate_zero_not_an_accident() -> None:
     assert wheel_to_vel_rvel(*ACT.express_wheels(2.4, -2.4)) == (0, 0)
 
 
-@pytest.mark.parametrize(("rvel", "expected"), [(0.49, 0), (0.51, 1), (-0.51, -1), (1.49, 1), (1.51, 2)])
+@pytest.mark.parametrize(
+    ("rvel", "expected"), [(0.49, 0), (0.51, 1), (-0.51, -1), (1.49, 1), (1.51, 2)]
+)
 def test_express_rounds_at_half_a_step(rvel: float, expected: int) -> None:
     assert ACT.express(0.0, rvel) == (0, expected)
 
 
-@pytest.mark.parametrize(("asked", "sent"), [(0.1, 8), (-0.1, -8), (7.2, 8), (8.0, 8), (12.4, 13), (-20.0, -20), (400.0, 300)])
+@pytest.mark.parametrize(
+    ("asked", "sent"),
+    [(0.1, 8), (-0.1, -8), (7.2, 8), (8.0, 8), (12.4, 13), (-20.0, -20), (400.0, 300)],
+)
 def test_a_turn_is_always_one_the_robot_executes(asked: float, sent: int) -> None:
     assert ACT.turn(asked) == sent
     # ... and the driver puts exactly that on the wire.
@@ -74,9 +83,18 @@ def test_expressed_wheels_are_what_the_driver_sends(left: float, right: float) -
 
 def test_the_controller_only_commands_what_the_wire_can_say() -> None:
     base = ControlInputs(
-        mode=Mode.FOLLOW, sip_age_s=0.1, rssi_age_s=0.5, scan_servo_ok=True, bearing_deg=0.3,
-        prev_bearing_deg=0.3, rssi_leader_dbm=-50.0, rssi_behind_dbm=-40.0, rear_age_s=1.0,
-        front_sonar=front_readings(ring()), leader_lost=False)
+        mode=Mode.FOLLOW,
+        sip_age_s=0.1,
+        rssi_age_s=0.5,
+        scan_servo_ok=True,
+        bearing_deg=0.3,
+        prev_bearing_deg=0.3,
+        rssi_leader_dbm=-50.0,
+        rssi_behind_dbm=-40.0,
+        rear_age_s=1.0,
+        front_sonar=front_readings(ring()),
+        leader_lost=False,
+    )
     out = control_step(base, ControlParams(), ControlMemory(link_drive=True))
     vel, rvel = wheel_to_vel_rvel(out.left_mm_s, out.right_mm_s)
     assert rvel == 0  # kp * 0.3 = 0.3 mm/s per wheel: a deliberate zero
@@ -91,7 +109,9 @@ def test_the_freer_side_wins() -> None:
     assert choose_side(front_readings(ring(s5=600, s6=500)), -30.0, P.tie_m) == 1
 
 
-@pytest.mark.parametrize(("bearing", "side"), [(-2.0, -1), (2.0, 1), (0.0, 1), (-0.0, 1), (-1e-9, -1)])
+@pytest.mark.parametrize(
+    ("bearing", "side"), [(-2.0, -1), (2.0, 1), (0.0, 1), (-0.0, 1), (-1e-9, -1)]
+)
 def test_a_tie_goes_to_the_leaders_side_deterministically(bearing: float, side: int) -> None:
     symmetric = front_readings(ring(s3=300, s4=300))
     assert choose_side(symmetric, bearing, P.tie_m) == side
@@ -121,8 +141,9 @@ def test_rear_unknown_means_no_room_behind() -> None:
 # --- the state machine, step by step --------------------------------------------------------
 
 
-def run_steps(ranges: list[int | None], bearing: float, seconds: float,
-              st: AvoidState | None = None) -> list[tuple[AvoidState, int, int, str]]:
+def run_steps(
+    ranges: list[int | None], bearing: float, seconds: float, st: AvoidState | None = None
+) -> list[tuple[AvoidState, int, int, str]]:
     """The robot stands still (the pose never changes) with these sonars: what happens."""
     st = st or AvoidState()
     out = []
@@ -184,8 +205,9 @@ def test_a_turn_onto_the_leader_jammed_in_a_doorway_backs_out_and_turns_toward_i
     first = ring(s0=1350, s7=350, **{f"s{i}": 1026 for i in range(8, 16)})
     in_door = ring(s0=900, s7=350, **{f"s{i}": 1201 for i in range(8, 16)})
     out_of_it = ring(s0=900, s7=700, **{f"s{i}": 1201 for i in range(8, 16)})
-    st = AvoidState(mode=AvoidMode.ALIGN, side=1, escape_t=0.0, goal_deg=-3.0,
-                    last_pose=(2717.0, 952.0, 6.3))
+    st = AvoidState(
+        mode=AvoidMode.ALIGN, side=1, escape_t=0.0, goal_deg=-3.0, last_pose=(2717.0, 952.0, 6.3)
+    )
     x, heading = 2717.0, 6.3
     modes = []
     for i in range(40):
@@ -209,13 +231,26 @@ def test_a_leader_behind_round_a_corner_is_turned_onto_not_escaped_from() -> Non
     # The freer side by the front sonars is the left, away from the leader; the escape used
     # to latch it and follow the wall 12 m back down the corridor. The leader is not
     # beyond the wall: the escape turns right, onto it, and never drives away.
-    at_wall = ring(s0=1030, s1=640, s2=410, s3=330, s4=310, s5=310, s6=350, s7=710,
-                   **{f"s{i}": 1500 for i in range(8, 16)})
+    at_wall = ring(
+        s0=1030,
+        s1=640,
+        s2=410,
+        s3=330,
+        s4=310,
+        s5=310,
+        s6=350,
+        s7=710,
+        **{f"s{i}": 1500 for i in range(8, 16)},
+    )
     st = AvoidState(anchor=(17699.0, 20952.0), anchor_t=0.0)
     modes = []
     for i in range(10):
-        st, cmd = avoid_step(st, sense(P.no_progress_s + 0.1 * (i + 1), at_wall, -96.4,
-                                       (17699.0, 20952.0, 107.0)), P, ACT)
+        st, cmd = avoid_step(
+            st,
+            sense(P.no_progress_s + 0.1 * (i + 1), at_wall, -96.4, (17699.0, 20952.0, 107.0)),
+            P,
+            ACT,
+        )
         modes.append(st.mode)
         assert not cmd.follow and cmd.vel_mm_s <= 0 and cmd.rvel_deg_s <= 0, (i, st, cmd)
     assert modes[0] in (AvoidMode.ALIGN, AvoidMode.BACKOFF) and st.side in (0, -1)
@@ -225,15 +260,21 @@ def test_a_leader_behind_round_a_corner_is_turned_onto_not_escaped_from() -> Non
 def corner_world() -> Scenario:
     """Corner 2 of the corridor: corridor B (x 18.5-21.5) north into C (y 18.5-21.5) east;
     the relay has overrun the corner, facing the end wall, its leader 6 m down C."""
-    return parse_scenario({
-        "name": "corner", "environment": "indoor", "relays": 1,
-        "command_center": {"x": 20.0, "y": 0.0},
-        "leader": {"waypoints": [{"x": 26.0, "y": 20.0}]},
-        "relay": [{"name": "r", "x": 19.7, "y": 20.87, "theta_deg": 102.0}],
-        "walls": [{"points": [[18.5, 10.0], [18.5, 21.5], [30.0, 21.5]], "material": "brick"},
-                  {"points": [[21.5, 10.0], [21.5, 18.5], [30.0, 18.5]], "material": "brick"}],
-        "radio": {"shadow_sigma_db": 0.0, "fading": False},
-    })
+    return parse_scenario(
+        {
+            "name": "corner",
+            "environment": "indoor",
+            "relays": 1,
+            "command_center": {"x": 20.0, "y": 0.0},
+            "leader": {"waypoints": [{"x": 26.0, "y": 20.0}]},
+            "relay": [{"name": "r", "x": 19.7, "y": 20.87, "theta_deg": 102.0}],
+            "walls": [
+                {"points": [[18.5, 10.0], [18.5, 21.5], [30.0, 21.5]], "material": "brick"},
+                {"points": [[21.5, 10.0], [21.5, 18.5], [30.0, 18.5]], "material": "brick"},
+            ],
+            "radio": {"shadow_sigma_db": 0.0, "fading": False},
+        }
+    )
 
 
 @pytest.mark.parametrize("seed", [1, 2, 3])
@@ -266,24 +307,50 @@ def test_an_escape_never_takes_the_robot_beyond_max_stray_m_of_where_it_took_ove
     x = 5800.0
     st, cmd = avoid_step(st, sense(10.0, wall, -60.0, (x, 0.0, 0.0)), P, ACT)
     assert st.mode is AvoidMode.WALL and cmd.vel_mm_s > 0  # within the bound: on it goes
-    st, cmd = avoid_step(st, sense(10.1, wall, -60.0, (P.max_stray_m * 1000.0 + 10.0, 0.0, 0.0)), P, ACT)
-    assert st.mode is AvoidMode.BLOCKED and (cmd.vel_mm_s, cmd.rvel_deg_s, cmd.reason) == (0, 0, "blocked")
+    st, cmd = avoid_step(
+        st, sense(10.1, wall, -60.0, (P.max_stray_m * 1000.0 + 10.0, 0.0, 0.0)), P, ACT
+    )
+    assert st.mode is AvoidMode.BLOCKED and (cmd.vel_mm_s, cmd.rvel_deg_s, cmd.reason) == (
+        0,
+        0,
+        "blocked",
+    )
 
 
 modes_st = st.sampled_from([m for m in AvoidMode if m not in (AvoidMode.FOLLOW, AvoidMode.BLOCKED)])
 
 
-@given(mode=modes_st, side=st.sampled_from([-1, 1]), bearing=st.floats(-180.0, 180.0),
-       heading=st.floats(-180.0, 180.0), angle=st.floats(-math.pi, math.pi),
-       beyond_m=st.floats(0.001, 50.0), ranges=st.lists(st.integers(100, 5000), min_size=16, max_size=16))
+@given(
+    mode=modes_st,
+    side=st.sampled_from([-1, 1]),
+    bearing=st.floats(-180.0, 180.0),
+    heading=st.floats(-180.0, 180.0),
+    angle=st.floats(-math.pi, math.pi),
+    beyond_m=st.floats(0.001, 50.0),
+    ranges=st.lists(st.integers(100, 5000), min_size=16, max_size=16),
+)
 def test_beyond_max_stray_m_an_escape_holds_whatever_it_sees(
-        mode: AvoidMode, side: int, bearing: float, heading: float, angle: float, beyond_m: float,
-        ranges: list[int]) -> None:
+    mode: AvoidMode,
+    side: int,
+    bearing: float,
+    heading: float,
+    angle: float,
+    beyond_m: float,
+    ranges: list[int],
+) -> None:
     hit = (1000.0, -2000.0)
     r_mm = (P.max_stray_m + beyond_m) * 1000.0
     pose = (hit[0] + r_mm * math.cos(angle), hit[1] + r_mm * math.sin(angle), heading)
-    st0 = AvoidState(mode=mode, side=side, escape_t=0.0, hit_at=hit, last_pose=pose,
-                     backoff_from=pose[:2], lane_ref=pose, corner_heading_deg=heading)
+    st0 = AvoidState(
+        mode=mode,
+        side=side,
+        escape_t=0.0,
+        hit_at=hit,
+        last_pose=pose,
+        backoff_from=pose[:2],
+        lane_ref=pose,
+        corner_heading_deg=heading,
+    )
     new, cmd = avoid_step(st0, sense(1.0, list(ranges), bearing, pose), P, ACT)
     assert new.mode is AvoidMode.BLOCKED
     assert (cmd.follow, cmd.vel_mm_s, cmd.rvel_deg_s, cmd.reason) == (False, 0, 0, "blocked")
@@ -298,10 +365,21 @@ def test_the_state_machine_is_pure() -> None:
 
 def test_the_controller_reports_the_escape() -> None:
     inputs = ControlInputs(
-        mode=Mode.FOLLOW, sip_age_s=0.1, rssi_age_s=0.5, scan_servo_ok=True, bearing_deg=-2.0,
-        prev_bearing_deg=-2.0, rssi_leader_dbm=-50.0, rssi_behind_dbm=-40.0, rear_age_s=1.0,
-        front_sonar=front_readings(ring(s3=320, s4=320)), leader_lost=False,
-        t_s=0.0, odom=(0.0, 0.0, 0.0), rear_sonar=rear_readings(ring()))
+        mode=Mode.FOLLOW,
+        sip_age_s=0.1,
+        rssi_age_s=0.5,
+        scan_servo_ok=True,
+        bearing_deg=-2.0,
+        prev_bearing_deg=-2.0,
+        rssi_leader_dbm=-50.0,
+        rssi_behind_dbm=-40.0,
+        rear_age_s=1.0,
+        front_sonar=front_readings(ring(s3=320, s4=320)),
+        leader_lost=False,
+        t_s=0.0,
+        odom=(0.0, 0.0, 0.0),
+        rear_sonar=rear_readings(ring()),
+    )
     memory = ControlMemory(link_drive=True)
     reasons = []
     for i in range(60):
@@ -310,7 +388,9 @@ def test_the_controller_reports_the_escape() -> None:
         reasons.append(out.reason)
         vel, rvel = wheel_to_vel_rvel(out.left_mm_s, out.right_mm_s)
         if out.reason == "avoiding":
-            assert out.state is DriveState.AVOIDING and (vel != 0 or abs(rvel) >= ACT.min_turn_deg_s)
+            assert out.state is DriveState.AVOIDING and (
+                vel != 0 or abs(rvel) >= ACT.min_turn_deg_s
+            )
     assert "obstacle" in reasons and "avoiding" in reasons  # the paper's law first, then the escape
     # Anything that stops the robot resets the escape.
     held = control_step(dataclasses.replace(inputs, mode=Mode.HOLD), ControlParams(), memory)
@@ -321,17 +401,25 @@ def test_the_controller_reports_the_escape() -> None:
 
 
 def box_world(width_m: float, x_m: float, y_m: float) -> Scenario:
-    return parse_scenario({
-        "name": "box", "environment": "outdoor", "relays": 1,
-        "command_center": {"x": -1.5, "y": 0.0},
-        "leader": {"waypoints": [{"x": 10.0, "y": 0.0}]},
-        "relay": [{"name": "r", "x": 0.0, "y": 0.0}],
-        "boxes": [{"min": [x_m - width_m / 2, y_m - width_m / 2],
-                   "max": [x_m + width_m / 2, y_m + width_m / 2]}],
-        # A steady radio: the link rule must keep saying "the leader is beyond", or a
-        # shadowing peak can stop the relay legitimately before it meets the box.
-        "radio": {"shadow_sigma_db": 0.0, "fading": False},
-    })
+    return parse_scenario(
+        {
+            "name": "box",
+            "environment": "outdoor",
+            "relays": 1,
+            "command_center": {"x": -1.5, "y": 0.0},
+            "leader": {"waypoints": [{"x": 10.0, "y": 0.0}]},
+            "relay": [{"name": "r", "x": 0.0, "y": 0.0}],
+            "boxes": [
+                {
+                    "min": [x_m - width_m / 2, y_m - width_m / 2],
+                    "max": [x_m + width_m / 2, y_m + width_m / 2],
+                }
+            ],
+            # A steady radio: the link rule must keep saying "the leader is beyond", or a
+            # shadowing peak can stop the relay legitimately before it meets the box.
+            "radio": {"shadow_sigma_db": 0.0, "fading": False},
+        }
+    )
 
 
 def check_step(step: Step, stop_m: float) -> None:
@@ -343,8 +431,11 @@ def check_step(step: Step, stop_m: float) -> None:
         assert rear_min_m(rear) >= stop_m, step
     if step.vel_mm_s == 0 and step.rvel_deg_s != 0:
         side = 1 if step.rvel_deg_s > 0 else -1
-        near = [r.range_m for r in front if r.range_m is not None
-                and r.heading_deg in (side * 90.0, side * 50.0)]
+        near = [
+            r.range_m
+            for r in front
+            if r.range_m is not None and r.heading_deg in (side * 90.0, side * 50.0)
+        ]
         assert min(near, default=5.0) >= stop_m, step
     if step.out.reason == "avoiding":
         assert step.vel_mm_s != 0 or step.rvel_deg_s != 0
@@ -352,13 +443,29 @@ def check_step(step: Step, stop_m: float) -> None:
 
 # Each example is a whole closed-loop run (about 0.2 s): no shrinking or tracing phases.
 @pytest.mark.timeout(300)
-@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow],
-          phases=(Phase.explicit, Phase.reuse, Phase.generate))
-@given(width=st.floats(0.1, 1.0), x=st.floats(1.5, 4.0), y=st.floats(-1.0, 1.0), seed=st.integers(0, 1000))
-def test_a_single_box_near_the_line_is_passed_in_bounded_time(width: float, x: float, y: float, seed: int) -> None:
+@settings(
+    max_examples=40,
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow],
+    phases=(Phase.explicit, Phase.reuse, Phase.generate),
+)
+@given(
+    width=st.floats(0.1, 1.0),
+    x=st.floats(1.5, 4.0),
+    y=st.floats(-1.0, 1.0),
+    seed=st.integers(0, 1000),
+)
+def test_a_single_box_near_the_line_is_passed_in_bounded_time(
+    width: float, x: float, y: float, seed: int
+) -> None:
     stop_m = ControlParams().stop_distance_m
-    out = run_model(box_world(width, x, y), seed=seed, past_m=x + width / 2, seconds=150.0,
-                    on_step=lambda s: check_step(s, stop_m))
+    out = run_model(
+        box_world(width, x, y),
+        seed=seed,
+        past_m=x + width / 2,
+        seconds=150.0,
+        on_step=lambda s: check_step(s, stop_m),
+    )
     assert out.collisions == 0
     assert out.min_clearance_m >= 0.1
     assert out.passed_at_s is not None, out
@@ -366,16 +473,27 @@ def test_a_single_box_near_the_line_is_passed_in_bounded_time(width: float, x: f
 
 def test_without_the_escape_the_papers_law_deadlocks_on_the_box() -> None:
     scenario = load_scenario("box-dead-ahead")
-    before = run_model(scenario, seed=1, past_m=2.75, seconds=90.0, escape=False, bearing_noise_deg=0.0)
+    before = run_model(
+        scenario, seed=1, past_m=2.75, seconds=90.0, escape=False, bearing_noise_deg=0.0
+    )
     assert before.passed_at_s is None and before.final_reason == "obstacle"
-    assert 2.25 - before.x_m - 0.313 == pytest.approx(0.24, abs=0.03)  # nose ~0.24 m short of the face
+    assert 2.25 - before.x_m - 0.313 == pytest.approx(
+        0.24, abs=0.03
+    )  # nose ~0.24 m short of the face
     after = run_model(scenario, seed=1, past_m=2.75, seconds=90.0, bearing_noise_deg=0.0)
     assert after.passed_at_s is not None and after.collisions == 0
 
 
-@pytest.mark.parametrize(("name", "past_m"), [
-    ("box-dead-ahead", 2.75), ("box-dead-ahead-offset", 2.75), ("u-trap", 3.5),
-    ("doorway", 3.0), ("person-in-corridor", 2.75)])
+@pytest.mark.parametrize(
+    ("name", "past_m"),
+    [
+        ("box-dead-ahead", 2.75),
+        ("box-dead-ahead-offset", 2.75),
+        ("u-trap", 3.5),
+        ("doorway", 3.0),
+        ("person-in-corridor", 2.75),
+    ],
+)
 def test_shipped_obstacle_scenarios_are_passed(name: str, past_m: float) -> None:
     out = run_model(load_scenario(name), seed=1, past_m=past_m, seconds=300.0)
     assert out.passed_at_s is not None and out.collisions == 0 and out.min_clearance_m >= 0.1, out

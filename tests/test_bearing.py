@@ -17,8 +17,14 @@ FULL = plan_scan(0.0, 180.0, 25, (-90.0, 90.0), True)
 patterns = st.sampled_from([cos_n_pattern, gaussian_pattern])
 
 
-def scan(pattern: object, bearing: float, angles: tuple[float, ...] = FULL, level: float = -50.0,
-         jitter_db: float = 0.0, rng: random.Random | None = None) -> list[float]:
+def scan(
+    pattern: object,
+    bearing: float,
+    angles: tuple[float, ...] = FULL,
+    level: float = -50.0,
+    jitter_db: float = 0.0,
+    rng: random.Random | None = None,
+) -> list[float]:
     out = []
     for a in angles:
         noise = rng.uniform(-jitter_db, jitter_db) if rng is not None else 0.0
@@ -27,7 +33,12 @@ def scan(pattern: object, bearing: float, angles: tuple[float, ...] = FULL, leve
 
 
 @settings(max_examples=300, deadline=None)
-@given(make=patterns, beamwidth=st.floats(30.0, 60.0), ftb=st.floats(12.0, 30.0), bearing=st.floats(-85.0, 85.0))
+@given(
+    make=patterns,
+    beamwidth=st.floats(30.0, 60.0),
+    ftb=st.floats(12.0, 30.0),
+    bearing=st.floats(-85.0, 85.0),
+)
 def test_noise_free_any_antenna_any_bearing_within_4_degrees(make, beamwidth, ftb, bearing) -> None:
     pattern = make(beamwidth, ftb)
     fit = fit_main_lobe(FULL, scan(pattern, bearing))
@@ -40,16 +51,23 @@ def test_noise_free_any_antenna_any_bearing_within_4_degrees(make, beamwidth, ft
 
 @settings(max_examples=200, deadline=None)
 @given(make=patterns, beamwidth=st.floats(30.0, 60.0), bearing=st.floats(-85.0, 85.0))
-def test_with_the_learned_beamwidth_a_lobe_cut_by_the_servo_limit_is_within_1_degree(make, beamwidth,
-                                                                                       bearing) -> None:
+def test_with_the_learned_beamwidth_a_lobe_cut_by_the_servo_limit_is_within_1_degree(
+    make, beamwidth, bearing
+) -> None:
     fit = fit_main_lobe(FULL, scan(make(beamwidth, 20.0), bearing), beamwidth_prior_deg=beamwidth)
     assert fit is not None and abs(fit.bearing_deg - bearing) <= 1.5
 
 
 @settings(max_examples=200, deadline=None)
-@given(offset=st.floats(-40.0, 40.0), shift=st.floats(-20.0, 20.0), bearing=st.floats(-40.0, 40.0),
-       beamwidth=st.floats(30.0, 60.0))
-def test_level_does_not_matter_and_rotating_the_scene_rotates_the_answer(offset, shift, bearing, beamwidth) -> None:
+@given(
+    offset=st.floats(-40.0, 40.0),
+    shift=st.floats(-20.0, 20.0),
+    bearing=st.floats(-40.0, 40.0),
+    beamwidth=st.floats(30.0, 60.0),
+)
+def test_level_does_not_matter_and_rotating_the_scene_rotates_the_answer(
+    offset, shift, bearing, beamwidth
+) -> None:
     pattern = cos_n_pattern(beamwidth, 20.0)
     base = fit_main_lobe(FULL, scan(pattern, bearing))
     louder = fit_main_lobe(FULL, scan(pattern, bearing, level=-50.0 + offset))
@@ -69,7 +87,9 @@ def test_two_db_jitter_costs_a_few_degrees_and_the_sd_says_so(beamwidth: float, 
     errors, z = [], []
     for bearing in range(-60, 61, 10):
         for _ in range(15):
-            fit = fit_main_lobe(FULL, scan(pattern, bearing, jitter_db=2.0, rng=rng), beamwidth_prior_deg=beamwidth)
+            fit = fit_main_lobe(
+                FULL, scan(pattern, bearing, jitter_db=2.0, rng=rng), beamwidth_prior_deg=beamwidth
+            )
             assert fit is not None
             errors.append(fit.bearing_deg - bearing)
             z.append((fit.bearing_deg - bearing) / fit.sd_deg)
@@ -102,8 +122,12 @@ def test_a_leader_beyond_the_servo_limit_is_extrapolated_but_bounded() -> None:
 
 
 @settings(max_examples=150, deadline=None)
-@given(make=patterns, beamwidth=st.floats(30.0, 60.0), bearing=st.floats(-85.0, 85.0),
-       levels=st.lists(st.floats(-15.0, 15.0), min_size=2, max_size=5))
+@given(
+    make=patterns,
+    beamwidth=st.floats(30.0, 60.0),
+    bearing=st.floats(-85.0, 85.0),
+    levels=st.lists(st.floats(-15.0, 15.0), min_size=2, max_size=5),
+)
 def test_scans_fitted_together_each_keep_their_level(make, beamwidth, bearing, levels) -> None:
     # The same lobe heard at different levels (the leader nearer, other shadowing) is the
     # same lobe: the scans' levels do not move the pooled bearing, the peak is the newest
@@ -111,8 +135,11 @@ def test_scans_fitted_together_each_keep_their_level(make, beamwidth, bearing, l
     pattern = make(beamwidth, 20.0)
     ids = [k for k in range(len(levels)) for _ in FULL]
     flat = fit_main_lobe(FULL * len(levels), scan(pattern, bearing) * len(levels), scan_ids=ids)
-    pooled = fit_main_lobe(FULL * len(levels), [x for lv in levels for x in scan(pattern, bearing, level=-50.0 + lv)],
-                           scan_ids=ids)
+    pooled = fit_main_lobe(
+        FULL * len(levels),
+        [x for lv in levels for x in scan(pattern, bearing, level=-50.0 + lv)],
+        scan_ids=ids,
+    )
     assert flat is not None and pooled is not None
     assert pooled.bearing_deg == pytest.approx(flat.bearing_deg, abs=1e-6)
     assert pooled.peak_dbm == pytest.approx(flat.peak_dbm + levels[-1], abs=1e-6)
@@ -129,14 +156,19 @@ def test_five_faded_scans_fitted_together_beat_five_fits_averaged_at_a_servo_lim
     for _ in range(60):
         scans = [[x + rng.gauss(0.0, 3.0) for x in scan(pattern, 60.0)] for _ in range(5)]
         fits = [f for f in (fit_main_lobe(FULL, s) for s in scans) if f is not None]
-        w = [1.0 / f.sd_deg ** 2 for f in fits]
-        single_err.append(sum(f.bearing_deg * x for f, x in zip(fits, w, strict=True)) / sum(w) - 60.0)
-        pooled = fit_main_lobe(FULL * 5, [x for s in scans for x in s], scan_ids=[k for k in range(5) for _ in FULL])
+        w = [1.0 / f.sd_deg**2 for f in fits]
+        single_err.append(
+            sum(f.bearing_deg * x for f, x in zip(fits, w, strict=True)) / sum(w) - 60.0
+        )
+        pooled = fit_main_lobe(
+            FULL * 5, [x for s in scans for x in s], scan_ids=[k for k in range(5) for _ in FULL]
+        )
         assert pooled is not None
         pooled_err.append(pooled.bearing_deg - 60.0)
 
     def rms(xs: list[float]) -> float:
         return math.sqrt(sum(x * x for x in xs) / len(xs))
+
     assert rms(pooled_err) < 0.75 * rms(single_err)
     assert abs(sum(pooled_err) / len(pooled_err)) < 1.5
 
@@ -147,16 +179,23 @@ def test_scan_ids_must_match_the_samples() -> None:
 
 
 @settings(max_examples=200, deadline=None)
-@given(rows=st.lists(st.tuples(st.floats(-90.0, 90.0), st.floats(-90.0, -20.0), st.floats(0.1, 1.0),
-                               st.integers(0, 3)), min_size=6, max_size=60),
-       prior=st.one_of(st.none(), st.tuples(st.floats(-0.01, -0.0001), st.floats(0.0, 1e4))))
+@given(
+    rows=st.lists(
+        st.tuples(
+            st.floats(-90.0, 90.0), st.floats(-90.0, -20.0), st.floats(0.1, 1.0), st.integers(0, 3)
+        ),
+        min_size=6,
+        max_size=60,
+    ),
+    prior=st.one_of(st.none(), st.tuples(st.floats(-0.01, -0.0001), st.floats(0.0, 1e4))),
+)
 def test_the_closed_forms_solve_the_normal_equations(rows, prior) -> None:
     # The scan end's fits use a closed-form 3x3 inverse and one-pass pooled sums; both
     # against the equations written out plainly.
     from relayd.bearing import _inverse_sym3, _wls_pooled
 
     us, ys, ws, gs = (list(x) for x in zip(*rows, strict=True))
-    s = [sum(w * u ** k for u, w in zip(us, ws, strict=True)) for k in range(5)]
+    s = [sum(w * u**k for u, w in zip(us, ws, strict=True)) for k in range(5)]
     m = [[s[0], s[1], s[2]], [s[1], s[2], s[3]], [s[2], s[3], s[4]]]
     inv = _inverse_sym3(*s)
     if inv is not None:
@@ -167,10 +206,15 @@ def test_the_closed_forms_solve_the_normal_equations(rows, prior) -> None:
     # Pooled: (b, c) minimise the weighted squares with one free level per scan.
     fit = _wls_pooled(us, ys, ws, prior, gs)
     groups = sorted(set(gs))
-    cent = {g: [sum(w * u for u, w, h in zip(us, ws, gs, strict=True) if h == g),
-                sum(w * u * u for u, w, h in zip(us, ws, gs, strict=True) if h == g),
-                sum(w * y for y, w, h in zip(ys, ws, gs, strict=True) if h == g),
-                sum(w for w, h in zip(ws, gs, strict=True) if h == g)] for g in groups}
+    cent = {
+        g: [
+            sum(w * u for u, w, h in zip(us, ws, gs, strict=True) if h == g),
+            sum(w * u * u for u, w, h in zip(us, ws, gs, strict=True) if h == g),
+            sum(w * y for y, w, h in zip(ys, ws, gs, strict=True) if h == g),
+            sum(w for w, h in zip(ws, gs, strict=True) if h == g),
+        ]
+        for g in groups
+    }
     m00 = m01 = m11 = r0 = r1 = 0.0
     for u, y, w, g in zip(us, ys, ws, gs, strict=True):
         su, sv, sy, sw = cent[g]

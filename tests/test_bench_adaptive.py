@@ -24,11 +24,21 @@ def test_every_shipped_scenario_takes_the_adaptive_policy(name: str) -> None:
 
 def test_metrics_from_a_trace() -> None:
     def rec(t: float, moving: bool, hops: list[float], broken: bool) -> dict[str, object]:
-        return {"t": t, "leader": {"moving": moving}, "hops": [{"mbps": m} for m in hops],
-                "e2e_mbps": min(hops), "broken": broken, "relays": [{"x": 1.0, "threshold_b_dbm": -66.0}]}
+        return {
+            "t": t,
+            "leader": {"moving": moving},
+            "hops": [{"mbps": m} for m in hops],
+            "e2e_mbps": min(hops),
+            "broken": broken,
+            "relays": [{"x": 1.0, "threshold_b_dbm": -66.0}],
+        }
 
-    records = [rec(0.0, False, [27, 27], False), rec(0.1, True, [27, 12], False), rec(0.2, True, [27, 9], False),
-               rec(0.3, True, [0, 9], True)]
+    records = [
+        rec(0.0, False, [27, 27], False),
+        rec(0.1, True, [27, 12], False),
+        rec(0.2, True, [27, 9], False),
+        rec(0.3, True, [0, 9], True),
+    ]
     m = adaptive.metrics(records, {"goal_reached": False, "collisions": 0}, 10.0)
     assert m["min_e2e_mbps"] == 0 and m["share_above_target"] == pytest.approx(1 / 3)
     assert m["down_s"] == pytest.approx(0.1) and m["final_thr_b"] == [-66.0]
@@ -39,9 +49,17 @@ def test_metrics_from_a_trace() -> None:
 
 def test_parking_table_per_seed() -> None:
     def row(variant: str, seed: int, min_e2e: float) -> dict[str, object]:
-        return {"scenario": "parking", "variant": variant, "seed": seed, "min_e2e_mbps": min_e2e,
-                "min_e2e_at_target_mbps": 11.0, "share_above_target": 0.99, "below_target_s": 4.0,
-                "longest_below_s": 2.5, "down_s": 0.0}
+        return {
+            "scenario": "parking",
+            "variant": variant,
+            "seed": seed,
+            "min_e2e_mbps": min_e2e,
+            "min_e2e_at_target_mbps": 11.0,
+            "share_above_target": 0.99,
+            "below_target_s": 4.0,
+            "longest_below_s": 2.5,
+            "down_s": 0.0,
+        }
 
     text = adaptive.parking_table([row("fixed", 1, 14.0), row("adaptive", 1, 2.9)], 2)
     assert "| 1 | 14.0 / 11.0 / 99.0% / 4.0, 2.5 / 0 | 2.9 / 11.0 / 99.0% / 4.0, 2.5 / 0 |" in text

@@ -15,11 +15,17 @@ from relayd.controller import background_speed
 from relayd.sim.scenario import load_scenario
 
 
-@given(l0=st.floats(-30.0, -10.0), n=st.floats(1.2, 4.0), gap=st.floats(1.0, 4.5),
-       leader=st.floats(50.0, 350.0), v_max=st.floats(360.0, 1200.0))
+@given(
+    l0=st.floats(-30.0, -10.0),
+    n=st.floats(1.2, 4.0),
+    gap=st.floats(1.0, 4.5),
+    leader=st.floats(50.0, 350.0),
+    v_max=st.floats(360.0, 1200.0),
+)
 @settings(max_examples=100, deadline=None)
 def test_the_speed_law_keeps_up_where_it_stops_and_is_flat_out_at_5_m(
-        l0: float, n: float, gap: float, leader: float, v_max: float) -> None:
+    l0: float, n: float, gap: float, leader: float, v_max: float
+) -> None:
     fit = PathLossFit.known(l0, n, 3.0)
     thr = fit.rssi_at(gap)
     w1, w2 = fs.speed_law(fit, thr, leader, v_max)
@@ -47,14 +53,17 @@ def test_the_policies_are_calibrates_thresholds_for_the_scenarios_radio(name: st
     assert gap == pytest.approx(r.l0_dbm - 10.0 * r.exponent * math.log10(3.0))
     within = fs.within_threshold(sc)
     # The median at 5 m raised by z(0.1 %) = 3.09 sigma: a stop beyond 5 m once in a thousand.
-    assert within == pytest.approx(r.l0_dbm - 10.0 * r.exponent * math.log10(5.0) + 3.0902 * r.shadow_sigma_db,
-                                   abs=0.01)
+    assert within == pytest.approx(
+        r.l0_dbm - 10.0 * r.exponent * math.log10(5.0) + 3.0902 * r.shadow_sigma_db, abs=0.01
+    )
     assert within > gap  # the stricter ask stops sooner
     for policy in fs.POLICIES[1:]:
         control = {**sc.control, **policy.control(sc)}
         ControlSettings.model_validate(control)  # a config the daemon accepts
         assert control["w1"] > 0
-        assert control["leader_gap_max_m"] == fs.GAP_MAX_M  # the sonar release (docs/CONTROL.md 5.3)
+        assert (
+            control["leader_gap_max_m"] == fs.GAP_MAX_M
+        )  # the sonar release (docs/CONTROL.md 5.3)
     assert "leader_gap_max_m" not in fs.POLICIES[0].control(sc)  # the paper's rule alone
 
 
@@ -76,4 +85,3 @@ def test_the_rear_free_corridor_policy_is_within_5_m_without_the_rear_duty() -> 
     assert free.control == {**within.control, "rear_link": "ignore"}
     ControlSettings.model_validate(free.control)
     assert free.relays == sc.relays
-

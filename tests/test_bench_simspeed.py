@@ -14,7 +14,12 @@ def test_cases_parse() -> None:
     assert Case.parse("convoy") == Case("convoy")
     assert Case.parse("drift:1:3:on") == Case("drift", 1, 3, "on")
     assert Case.parse("corridor::2") == Case("corridor", None, 2)
-    assert Case.parse("drift:1:3:on").argv(simspeed.ROOT)[-4:] == ["--relays", "1", "--recovery", "on"]
+    assert Case.parse("drift:1:3:on").argv(simspeed.ROOT)[-4:] == [
+        "--relays",
+        "1",
+        "--recovery",
+        "on",
+    ]
     for bad in ("", "x:1:1:maybe", "a:1:2:on:extra"):
         with pytest.raises(argparse.ArgumentTypeError):
             Case.parse(bad)
@@ -23,13 +28,14 @@ def test_cases_parse() -> None:
 @pytest.mark.timeout(120)
 def test_one_real_run_is_measured_and_digested() -> None:
     run = simspeed.run_case(Case("corridor", 0, 1), simspeed.ROOT)
-    assert run.sim_s > 250.0          # corridor without relays: the person walks on until it breaks
+    assert run.sim_s > 250.0  # corridor without relays: the person walks on until it breaks
     assert 0.0 < run.cpu_s < 120.0
     assert len(run.digest) == 12
 
 
-def test_a_case_that_differs_between_the_trees_fails_the_bench(monkeypatch: pytest.MonkeyPatch,
-                                                               tmp_path, capsys) -> None:
+def test_a_case_that_differs_between_the_trees_fails_the_bench(
+    monkeypatch: pytest.MonkeyPatch, tmp_path, capsys
+) -> None:
     def fake_run(case: Case, tree) -> Run:
         return Run(1.0, 0.5, 100.0, "aaaa" if tree == simspeed.ROOT else "bbbb")
 

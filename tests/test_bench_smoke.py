@@ -37,15 +37,22 @@ FAST_SCAN = {"mode": "continuous", "width_deg": 60.0}
 
 
 #: The latency benchmark, run in a process of its own (see below); prints its figures as JSON.
-LATENCY_SMOKE = ("import asyncio, json; from bench import latency; "
-                 "print(json.dumps(asyncio.run(latency.measure(cycles=20, load_rps=200.0, "
-                 f"scan={FAST_SCAN!r}))))")
+LATENCY_SMOKE = (
+    "import asyncio, json; from bench import latency; "
+    "print(json.dumps(asyncio.run(latency.measure(cycles=20, load_rps=200.0, "
+    f"scan={FAST_SCAN!r}))))"
+)
 
 
 async def _latency_in_own_process() -> dict[str, Any]:
-    proc = await asyncio.create_subprocess_exec(sys.executable, "-c", LATENCY_SMOKE, cwd=ROOT,
-                                                stdout=asyncio.subprocess.PIPE,
-                                                stderr=asyncio.subprocess.PIPE)
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable,
+        "-c",
+        LATENCY_SMOKE,
+        cwd=ROOT,
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE,
+    )
     out, err = await proc.communicate()
     assert proc.returncode == 0, err.decode(errors="replace")[-3000:]
     fig: dict[str, Any] = json.loads(out.decode().strip().splitlines()[-1])
@@ -146,8 +153,13 @@ def test_scan_minimum_and_theorem1() -> None:
 
 
 def test_report_renders_table_and_keeps_discussion(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
-    out = BenchOutput("estimator", [Result("estimator", "x | y", 1.234, "ms", "< 2 ms", True, "a|b"),
-                                    Result("estimator", "broken", None, "", "", False)])
+    out = BenchOutput(
+        "estimator",
+        [
+            Result("estimator", "x | y", 1.234, "ms", "< 2 ms", True, "a|b"),
+            Result("estimator", "broken", None, "", "", False),
+        ],
+    )
     text = table(out.results)
     assert "| x \\| y |" in text and "a\\|b" in text  # a '|' in a cell does not split it
     assert "1.23 ms" in text and "pass" in text and "**FAIL**" in text and "n/a" in text
@@ -199,7 +211,9 @@ def test_tracking_bench_runs_and_the_lobe_estimator_beats_the_centroid_at_the_ed
 def test_tracking_share_runs_the_simulator_under_a_follow_policy_with_a_relay_more() -> None:
     from bench import followshare
 
-    sc = followshare.policy_scenario("corridor", followshare.CORRIDOR_PLUS_ONE, {"estimator": "lobe"})
+    sc = followshare.policy_scenario(
+        "corridor", followshare.CORRIDOR_PLUS_ONE, {"estimator": "lobe"}
+    )
     assert sc.relays == 3 and sc.control["threshold_l_dbm"] > sc.control["threshold_b_dbm"]
     shares = followshare.sim_share(sc, 1, seconds=15.0)
     assert len(shares) == 3 and all(0.0 <= s.within <= 1.0 for s in shares)
@@ -211,7 +225,13 @@ def test_tracking_share_counts_time_beyond_5_m_by_reason_and_while_free() -> Non
 
     def rec(gap: float, reason: str) -> dict[str, object]:
         return {"relays": [{"gap_m": gap, "reason": reason}]}
-    records = [rec(3.0, "driving"), rec(6.0, "rear_weak"), rec(7.0, "rear_weak"), rec(6.0, "leader_near")]
+
+    records = [
+        rec(3.0, "driving"),
+        rec(6.0, "rear_weak"),
+        rec(7.0, "rear_weak"),
+        rec(6.0, "leader_near"),
+    ]
     (share,) = tracking.relay_shares(records)  # type: ignore[arg-type]
     assert share.within == pytest.approx(0.25)
     assert share.within_free == pytest.approx(0.5)  # 1 of the 2 records not held by rear_weak

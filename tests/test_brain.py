@@ -47,18 +47,35 @@ SIP_S = 0.1
 
 
 def sip(t: float, theta_deg: float = 0.0) -> SipEvent:
-    s = Sip(t=t, x_mm=0.0, y_mm=0.0, theta_deg=theta_deg, left_mm_s=0.0, right_mm_s=0.0, battery_v=13.0,
-            motors_enabled=True, estop=False, stall_left=False, stall_right=False, moving=False, sonar=())
+    s = Sip(
+        t=t,
+        x_mm=0.0,
+        y_mm=0.0,
+        theta_deg=theta_deg,
+        left_mm_s=0.0,
+        right_mm_s=0.0,
+        battery_v=13.0,
+        motors_enabled=True,
+        estop=False,
+        stall_left=False,
+        stall_right=False,
+        moving=False,
+        sonar=(),
+    )
     return SipEvent(t, s, (None,) * 16)
 
 
 def rear(t: float, dbm: float = -40.0) -> LinkEvent:
-    q = LinkQuality(t=t, signal_dbm=dbm, rssi=None, noise_dbm=None, ccq_pct=None, tx_mbps=None, rx_mbps=None)
+    q = LinkQuality(
+        t=t, signal_dbm=dbm, rssi=None, noise_dbm=None, ccq_pct=None, tx_mbps=None, rx_mbps=None
+    )
     return LinkEvent(t, LinkSide.REAR, q)
 
 
 def config(**scan: object) -> Settings:
-    return Settings.model_validate({"scan": scan, "wifi": {"sample_hz": scan.pop("sample_hz", 20.0)}})
+    return Settings.model_validate(
+        {"scan": scan, "wifi": {"sample_hz": scan.pop("sample_hz", 20.0)}}
+    )
 
 
 @dataclass
@@ -72,14 +89,22 @@ class Script:
         self.log.extend((self.t, a) for a in actions)
         return actions
 
-    def scan(self, leader_deg: float = 20.0, level_dbm: float = -50.0, angles: tuple[float, ...] = ()) -> list[Action]:
+    def scan(
+        self, leader_deg: float = 20.0, level_dbm: float = -50.0, angles: tuple[float, ...] = ()
+    ) -> list[Action]:
         """A whole sweep's samples (a Yagi hearing a leader at leader_deg), then its end."""
         for a in angles or (-30.0, -10.0, 10.0, 30.0, 50.0):
             self.feed(ScanSampleEvent(self.t, a, level_dbm - abs(a - leader_deg) / 3.0))
         return self.feed(ScanDone(self.t, self.t - 1.0, 5))
 
-    def run(self, seconds: float, *, rssi_hz: float | None, rssi_until: float | None = None,
-            scan_s: float | None = None) -> None:
+    def run(
+        self,
+        seconds: float,
+        *,
+        rssi_hz: float | None,
+        rssi_until: float | None = None,
+        scan_s: float | None = None,
+    ) -> None:
         """SIPs every 100 ms, rear polls every second, RSSI samples at rssi_hz (until
         rssi_until) and, while samples flow, a finished scan every scan_s."""
         end = self.t + seconds
@@ -117,16 +142,25 @@ def driving_script(cfg: Settings) -> Script:
 
 # ---------------------------------------------------------------- stale RSSI ----------
 
+
 @settings(max_examples=25, deadline=None)
-@given(samples=st.integers(3, 361), settle_s=st.floats(0.0, 2.0), width_deg=st.floats(10.0, 360.0),
-       sample_hz=st.sampled_from([2.0, 5.0, 10.0, 20.0, 50.0]), mode=st.sampled_from(["step", "continuous"]))
+@given(
+    samples=st.integers(3, 361),
+    settle_s=st.floats(0.0, 2.0),
+    width_deg=st.floats(10.0, 360.0),
+    sample_hz=st.sampled_from([2.0, 5.0, 10.0, 20.0, 50.0]),
+    mode=st.sampled_from(["step", "continuous"]),
+)
 def test_wheels_stop_soon_after_the_rssi_source_freezes_whatever_the_scan(
-        samples: int, settle_s: float, width_deg: float, sample_hz: float, mode: str) -> None:
+    samples: int, settle_s: float, width_deg: float, sample_hz: float, mode: str
+) -> None:
     """Stale after max(0.5 s, 5 sample periods) without a fresh sample, then one SIP period at most.
 
     For any source at 5 Hz or faster that is within 1 s of the freeze, whatever the scan.
     """
-    cfg = config(samples=samples, settle_s=settle_s, width_deg=width_deg, mode=mode, sample_hz=sample_hz)
+    cfg = config(
+        samples=samples, settle_s=settle_s, width_deg=width_deg, mode=mode, sample_hz=sample_hz
+    )
     s = driving_script(cfg)
     frozen_t = s.t
     s.run(4.0, rssi_hz=sample_hz, rssi_until=frozen_t, scan_s=nominal_scan_period_s(cfg))
@@ -161,7 +195,11 @@ def test_a_scan_that_stops_completing_stops_the_wheels_too() -> None:
     scan_t = max(a.record.t for _, a in s.log if isinstance(a, ScanResult))
     s.run(limit + 1.0, rssi_hz=20.0)  # samples keep flowing, no sweep ends
     out = s.brain.last_output
-    assert out is not None and out.reason == "scan_stale" and (out.left_mm_s, out.right_mm_s) == (0.0, 0.0)
+    assert (
+        out is not None
+        and out.reason == "scan_stale"
+        and (out.left_mm_s, out.right_mm_s) == (0.0, 0.0)
+    )
     stop_t = next(t for t, w in s.wheels() if w.stop and t > scan_t)
     assert limit < stop_t - scan_t <= limit + SIP_S + 1e-6
     s.scan()  # a sweep completes again: driving resumes by itself
@@ -170,6 +208,7 @@ def test_a_scan_that_stops_completing_stops_the_wheels_too() -> None:
 
 
 # ---------------------------------------------------------------- what caused a wheel command
+
 
 def test_only_sip_caused_commands_carry_a_sip_time() -> None:
     s = driving_script(config())
@@ -221,8 +260,13 @@ def test_the_shell_counts_driver_latency_only_for_sip_caused_commands() -> None:
     clock = ManualClock(10.0)
     robot = Robot(clock)
     latencies: list[float] = []
-    shell = ControlShell(bus=None, brain=Brain(brain_params(config())), robot=robot,  # type: ignore[arg-type]
-                         clock=clock, on_latency=latencies.append)
+    shell = ControlShell(
+        bus=None,
+        brain=Brain(brain_params(config())),
+        robot=robot,  # type: ignore[arg-type]
+        clock=clock,
+        on_latency=latencies.append,
+    )
     robot.last_sip_rx = clock.t = 10.0
     clock.t = 10.0004
     shell.execute(WheelCommand(100.0, 120.0, False, 10.0))  # the SIP decoded at 10.0 caused it
@@ -240,21 +284,29 @@ def test_the_shell_counts_driver_latency_only_for_sip_caused_commands() -> None:
 
 # ---------------------------------------------------------------- scans and the bearing memory
 
+
 @pytest.mark.parametrize("estimator", ["wca", "lobe"])
-def test_a_finished_scan_points_the_link_antenna_and_plans_around_the_bearing(estimator: str) -> None:
+def test_a_finished_scan_points_the_link_antenna_and_plans_around_the_bearing(
+    estimator: str,
+) -> None:
     cfg = config(samples=7, width_deg=60.0, estimator=estimator, window="full")
     s = Script(Brain(brain_params(cfg)))
     # The scanner is ready before the servo answers: the plan waits for the servo.
     assert s.feed(ScanReady(s.t)) == []
     first = s.feed(DeviceEvent(s.t, PANTILT, DeviceStatus.UP))
     plan0 = next(a for a in first if isinstance(a, ScanPlan))
-    assert plan0.angles_deg[0] == pytest.approx(-30.0) and plan0.angles_deg[-1] == pytest.approx(30.0)
+    assert plan0.angles_deg[0] == pytest.approx(-30.0) and plan0.angles_deg[-1] == pytest.approx(
+        30.0
+    )
     s.feed(sip(s.t, theta_deg=0.0))
     actions = s.scan(leader_deg=20.0)
     result = next(a for a in actions if isinstance(a, ScanResult))
     target = next(a for a in actions if isinstance(a, ServoTarget))
     assert 10.0 < result.estimate.bearing_deg < 30.0
-    assert target.channel == cfg.pantilt.link_channel and target.angle_deg == result.estimate.bearing_deg
+    assert (
+        target.channel == cfg.pantilt.link_channel
+        and target.angle_deg == result.estimate.bearing_deg
+    )
     # The robot turns 15 degrees left before the next sweep starts: its window follows
     # the leader into the new frame (planned when the scanner is ready, not at the scan's end).
     s.feed(sip(s.t, theta_deg=15.0))
@@ -263,7 +315,9 @@ def test_a_finished_scan_points_the_link_antenna_and_plans_around_the_bearing(es
     assert centre == pytest.approx(result.estimate.bearing_deg - 15.0)
     assert plan.angles_deg[0] > plan.angles_deg[-1]  # sweeps alternate direction
     s.feed(ScanSampleEvent(s.t, 0.0, -60.0))
-    assert not any(isinstance(a, ScanResult) for a in s.feed(ScanDone(s.t, s.t, 1)))  # too few samples
+    assert not any(
+        isinstance(a, ScanResult) for a in s.feed(ScanDone(s.t, s.t, 1))
+    )  # too few samples
 
 
 def test_leader_lost_after_three_weak_scans_widens_the_window() -> None:

@@ -53,14 +53,33 @@ class Relay:
             out = self.brain.last_output
             if out is not None:
                 self.x_mm += (out.left_mm_s + out.right_mm_s) / 2.0 * 0.1
-            s = Sip(t=self.t, x_mm=self.x_mm, y_mm=0.0, theta_deg=0.0, left_mm_s=0.0, right_mm_s=0.0,
-                    battery_v=13.0, motors_enabled=True, estop=False, stall_left=False, stall_right=False,
-                    moving=False, sonar=())
+            s = Sip(
+                t=self.t,
+                x_mm=self.x_mm,
+                y_mm=0.0,
+                theta_deg=0.0,
+                left_mm_s=0.0,
+                right_mm_s=0.0,
+                battery_v=13.0,
+                motors_enabled=True,
+                estop=False,
+                stall_left=False,
+                stall_right=False,
+                moving=False,
+                sonar=(),
+            )
             if self.rssi_fresh:
                 self.feed(RssiEvent(self.t, RssiSample(self.t, -50.0, True)))
             if round(self.t * 10) % 10 == 0:
-                q = LinkQuality(t=self.t, signal_dbm=self.rear_dbm, rssi=None, noise_dbm=None, ccq_pct=None,
-                                tx_mbps=None, rx_mbps=None)
+                q = LinkQuality(
+                    t=self.t,
+                    signal_dbm=self.rear_dbm,
+                    rssi=None,
+                    noise_dbm=None,
+                    ccq_pct=None,
+                    tx_mbps=None,
+                    rx_mbps=None,
+                )
                 self.feed(LinkEvent(self.t, LinkSide.REAR, q))
             self.feed(SipEvent(self.t, s, (5000,) * 16))
             self.t = round(self.t + 0.1, 9)
@@ -78,7 +97,9 @@ class Relay:
 
 
 def relay(enabled: bool) -> Relay:
-    cfg = Settings.model_validate({"recovery": {"enabled": enabled}, "scan": {"samples": 5, "width_deg": 120}})
+    cfg = Settings.model_validate(
+        {"recovery": {"enabled": enabled}, "scan": {"samples": 5, "width_deg": 120}}
+    )
     r = Relay(Brain(brain_params(cfg)))
     r.feed(DeviceEvent(0.0, PANTILT, DeviceStatus.UP))
     # Follow for 6 s: the leader fading from -40 dBm (laying crumbs), the robot driving.
@@ -112,7 +133,10 @@ def test_leader_lost_widens_then_retraces_then_resumes_following() -> None:
     x_lost = r.x_mm
     # Widen first: the next plan spans the servo's range; wheels stay at zero until that scan ends.
     plan = next(a for a in r.feed(ScanReady(r.t)) if isinstance(a, ScanPlan))
-    assert (min(plan.angles_deg), max(plan.angles_deg)) == (pytest.approx(-90.0), pytest.approx(90.0))
+    assert (min(plan.angles_deg), max(plan.angles_deg)) == (
+        pytest.approx(-90.0),
+        pytest.approx(90.0),
+    )
     r.step(1.0)
     assert r.wheels == (0.0, 0.0) and r.brain.recovery.phase is Phase.WIDEN
     r.scan(-100.0)
@@ -166,7 +190,11 @@ def test_a_recovery_bug_stops_the_wheels_and_says_so(monkeypatch: pytest.MonkeyP
     r.step(0.2)
     assert r.wheels == (0.0, 0.0)
     out = r.brain.last_output
-    assert out is not None and out.state is DriveState.FAULT and out.reason == "recovery_error: ZeroDivisionError"
+    assert (
+        out is not None
+        and out.state is DriveState.FAULT
+        and out.reason == "recovery_error: ZeroDivisionError"
+    )
 
 
 def test_recovery_config_is_strict_and_reaches_the_brain() -> None:
@@ -174,12 +202,22 @@ def test_recovery_config_is_strict_and_reaches_the_brain() -> None:
     from relayd.config_load import parse_settings
 
     rear = {"rear": {"url": "http://10.0.0.2", "password_env": "X"}}
-    for bad in ({"enabled": "off"}, {"max_time_s": float("inf")}, {"widen_scans": 1.5}, {"speed": 1}):
+    for bad in (
+        {"enabled": "off"},
+        {"max_time_s": float("inf")},
+        {"widen_scans": 1.5},
+        {"speed": 1},
+    ):
         with pytest.raises(ConfigError) as e:
             parse_settings({"ap": rear, "recovery": bad})
         assert all(m.startswith("recovery.") for m in e.value.errors), e.value.errors
-    cfg = parse_settings({"ap": rear, "recovery": {"enabled": True, "max_distance_m": 5},
-                          "control": {"v_max_mm_s": 120, "lost_rssi_dbm": -80}})
+    cfg = parse_settings(
+        {
+            "ap": rear,
+            "recovery": {"enabled": True, "max_distance_m": 5},
+            "control": {"v_max_mm_s": 120, "lost_rssi_dbm": -80},
+        }
+    )
     p = brain_params(cfg).recovery
     assert p.enabled and p.max_distance_m == 5.0 and p.lost_rssi_dbm == -80.0
     assert p.retrace_speed_mm_s == p.backup_speed_mm_s == 120.0  # never above v_max
@@ -190,9 +228,21 @@ def test_recovery_config_is_strict_and_reaches_the_brain() -> None:
 def test_relayd_status_prints_the_recovery_line() -> None:
     from relayd.commands.status import format_recovery
 
-    running = {"enabled": True, "phase": "backup", "kind": "rear", "episodes": 2, "elapsed_s": 7.0,
-               "distance_m": 0.8, "max_distance_m": 8.0, "max_time_s": 60.0, "trail_crumbs": 31,
-               "last_outcome": "found"}
-    assert format_recovery(running) == "backup (link behind), 7 s of 60 s, 0.8 m of 8.0 m; 2 episode(s), trail 31 crumbs"
+    running = {
+        "enabled": True,
+        "phase": "backup",
+        "kind": "rear",
+        "episodes": 2,
+        "elapsed_s": 7.0,
+        "distance_m": 0.8,
+        "max_distance_m": 8.0,
+        "max_time_s": 60.0,
+        "trail_crumbs": 31,
+        "last_outcome": "found",
+    }
+    assert (
+        format_recovery(running)
+        == "backup (link behind), 7 s of 60 s, 0.8 m of 8.0 m; 2 episode(s), trail 31 crumbs"
+    )
     idle = {**running, "phase": "idle", "kind": None, "elapsed_s": None, "distance_m": None}
     assert format_recovery(idle) == "idle, last found; 2 episode(s), trail 31 crumbs"

@@ -64,13 +64,40 @@ class Relay:
                 dbm, rate = self.shadow if self.x_mm > EDGE_MM else CLEAR
                 if self.x_mm > EDGE_MM:
                     self.shadow_polls.append((self.t, self.x_mm, dbm))
-                sta = Station(mac="00:11:22:33:44:55", signal_dbm=dbm, ccq_pct=100.0, tx_mbps=rate, rx_mbps=rate)
-                q = LinkQuality(t=self.t, signal_dbm=None, rssi=None, noise_dbm=-95.0, ccq_pct=None,
-                                tx_mbps=None, rx_mbps=None, stations=(sta,), mode="ap")
+                sta = Station(
+                    mac="00:11:22:33:44:55",
+                    signal_dbm=dbm,
+                    ccq_pct=100.0,
+                    tx_mbps=rate,
+                    rx_mbps=rate,
+                )
+                q = LinkQuality(
+                    t=self.t,
+                    signal_dbm=None,
+                    rssi=None,
+                    noise_dbm=-95.0,
+                    ccq_pct=None,
+                    tx_mbps=None,
+                    rx_mbps=None,
+                    stations=(sta,),
+                    mode="ap",
+                )
                 self.feed(LinkEvent(self.t, LinkSide.REAR, q))
-            s = Sip(t=self.t, x_mm=self.x_mm, y_mm=0.0, theta_deg=0.0, left_mm_s=0.0, right_mm_s=0.0,
-                    battery_v=13.0, motors_enabled=True, estop=False, stall_left=False, stall_right=False,
-                    moving=False, sonar=())
+            s = Sip(
+                t=self.t,
+                x_mm=self.x_mm,
+                y_mm=0.0,
+                theta_deg=0.0,
+                left_mm_s=0.0,
+                right_mm_s=0.0,
+                battery_v=13.0,
+                motors_enabled=True,
+                estop=False,
+                stall_left=False,
+                stall_right=False,
+                moving=False,
+                sonar=(),
+            )
             self.feed(SipEvent(self.t, s, (5000,) * 16))
             self.t = round(self.t + 0.1, 9)
 
@@ -86,11 +113,18 @@ class Relay:
 
 
 def relay(policy: str, shadow: tuple[float, float] = SHADOW) -> Relay:
-    cfg = Settings.model_validate({
-        "scan": {"samples": 5, "width_deg": 120},
-        "control": {"link_policy": policy, "threshold_b_dbm": -70.0, "threshold_b_min_dbm": -80.0,
-                    "threshold_b_max_dbm": -50.0, "threshold_l_dbm": -30.0},
-    })
+    cfg = Settings.model_validate(
+        {
+            "scan": {"samples": 5, "width_deg": 120},
+            "control": {
+                "link_policy": policy,
+                "threshold_b_dbm": -70.0,
+                "threshold_b_min_dbm": -80.0,
+                "threshold_b_max_dbm": -50.0,
+                "threshold_l_dbm": -30.0,
+            },
+        }
+    )
     r = Relay(Brain(brain_params(cfg)), shadow=shadow)
     r.feed(DeviceEvent(0.0, PANTILT, DeviceStatus.UP))
     return r
@@ -109,7 +143,9 @@ def test_adaptive_relay_steps_back_out_of_the_shadow_and_holds() -> None:
     assert r.brain.retreat.retreats >= 1 and r.brain.retreat.floor_dbm == CLEAR[0] + HOLD_MARGIN_DB
     assert out.left_mm_s == out.right_mm_s == 0.0
     views = [a for a in r.log if isinstance(a, LinkModelView)]
-    assert views[-1].threshold_b_dbm == pytest.approx(CLEAR[0] + HOLD_MARGIN_DB)  # /status shows the hold
+    assert views[-1].threshold_b_dbm == pytest.approx(
+        CLEAR[0] + HOLD_MARGIN_DB
+    )  # /status shows the hold
     reasons = {a.reason for a in r.log if hasattr(a, "reason")}
     assert "retreat" in reasons
 

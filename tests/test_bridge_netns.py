@@ -102,9 +102,25 @@ def bridged() -> Iterator[tuple[str, str]]:
             created.append(ns)
         _ip("-n", ns_br, "link", "add", "br0", "type", "bridge")
         _ip("-n", ns_br, "link", "set", "br0", "up")
-        for ns, addr, port_name in ((ns_robot, ROBOT_ADDR, f"r{suffix}"), (ns_cc, CC_ADDR, f"c{suffix}")):
+        for ns, addr, port_name in (
+            (ns_robot, ROBOT_ADDR, f"r{suffix}"),
+            (ns_cc, CC_ADDR, f"c{suffix}"),
+        ):
             # eth0 inside the end namespace, its peer is a port of br0.
-            _ip("-n", ns, "link", "add", "eth0", "type", "veth", "peer", "name", port_name, "netns", ns_br)
+            _ip(
+                "-n",
+                ns,
+                "link",
+                "add",
+                "eth0",
+                "type",
+                "veth",
+                "peer",
+                "name",
+                port_name,
+                "netns",
+                ns_br,
+            )
             _ip("-n", ns_br, "link", "set", port_name, "master", "br0")
             _ip("-n", ns_br, "link", "set", port_name, "up")
             _ip("-n", ns, "addr", "add", f"{addr}/{PREFIX_LEN}", "dev", "eth0")
@@ -125,9 +141,15 @@ def _start(ns: str, args: list[str], log: Path) -> subprocess.Popen[bytes]:
     """`python -m relayd ARGS` inside `ns`, in its own process group, output to `log`."""
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     with log.open("wb") as out:
-        return subprocess.Popen(["ip", "netns", "exec", ns, PYTHON, "-m", "relayd", *args], cwd=ROOT,
-                                env=env, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                start_new_session=True)
+        return subprocess.Popen(
+            ["ip", "netns", "exec", ns, PYTHON, "-m", "relayd", *args],
+            cwd=ROOT,
+            env=env,
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            start_new_session=True,
+        )
 
 
 def _stop(proc: subprocess.Popen[bytes]) -> None:
@@ -156,7 +178,9 @@ def _config_path(rig: subprocess.Popen[bytes], out: Path, timeout_s: float = 30.
 
     found = until_sync(config_or_exit, "relayd fake rig's config path", timeout_s)
     if not isinstance(found, Path):
-        raise AssertionError(f"relayd fake rig wrote no config (exit {rig.poll()}):\n{out.read_text()}")
+        raise AssertionError(
+            f"relayd fake rig wrote no config (exit {rig.poll()}):\n{out.read_text()}"
+        )
     return found
 
 
@@ -166,17 +190,47 @@ def test_status_and_metrics_across_the_bridge(bridged: tuple[str, str], tmp_path
     rig_out, run_out = tmp_path / "rig.out", tmp_path / "run.out"
     procs: list[subprocess.Popen[bytes]] = []
     try:
-        procs.append(_start(ns_robot, ["fake", "rig", "--dir", str(work), "--api-bind", ROBOT_ADDR,
-                                       "--api-port", str(API_PORT)], rig_out))
+        procs.append(
+            _start(
+                ns_robot,
+                [
+                    "fake",
+                    "rig",
+                    "--dir",
+                    str(work),
+                    "--api-bind",
+                    ROBOT_ADDR,
+                    "--api-port",
+                    str(API_PORT),
+                ],
+                rig_out,
+            )
+        )
         config = _config_path(procs[0], rig_out)
         token = (work / "relay1-api-token").read_text().strip()
         procs.append(_start(ns_robot, ["run", "-c", str(config)], run_out))
         fetch = subprocess.run(
-            ["ip", "netns", "exec", ns_cc, PYTHON, "-c", FETCH_SCRIPT, f"http://{ROBOT_ADDR}:{API_PORT}",
-             str(READY_TIMEOUT_S), ",".join(DEVICES)],
-            capture_output=True, text=True, timeout=READY_TIMEOUT_S + 30, check=False)
-        assert fetch.returncode == 0, (f"{fetch.stderr}\n--- relayd run:\n{run_out.read_text()}"
-                                       f"\n--- fake rig:\n{rig_out.read_text()}")
+            [
+                "ip",
+                "netns",
+                "exec",
+                ns_cc,
+                PYTHON,
+                "-c",
+                FETCH_SCRIPT,
+                f"http://{ROBOT_ADDR}:{API_PORT}",
+                str(READY_TIMEOUT_S),
+                ",".join(DEVICES),
+            ],
+            capture_output=True,
+            text=True,
+            timeout=READY_TIMEOUT_S + 30,
+            check=False,
+        )
+        assert fetch.returncode == 0, (
+            f"{fetch.stderr}\n--- relayd run:\n{run_out.read_text()}"
+            f"\n--- fake rig:\n{rig_out.read_text()}"
+        )
         assert procs[1].poll() is None, "relayd run exited"
         result = json.loads(fetch.stdout)
         status = result["status"]
@@ -191,8 +245,11 @@ def test_status_and_metrics_across_the_bridge(bridged: tuple[str, str], tmp_path
         assert token not in run_out.read_text() and password not in run_out.read_text()
 
         assert result["metrics_type"].startswith("text/plain")
-        samples = {(s.name, tuple(sorted(s.labels.items()))): s.value
-                   for fam in text_string_to_metric_families(result["metrics"]) for s in fam.samples}
+        samples = {
+            (s.name, tuple(sorted(s.labels.items()))): s.value
+            for fam in text_string_to_metric_families(result["metrics"])
+            for s in fam.samples
+        }
         for device in DEVICES:
             assert samples[("relayd_device_connected", (("device", device),))] == 1.0, device
         assert samples[("relayd_sips_received_total", ())] > 0

@@ -71,8 +71,10 @@ async def test_a_slow_subscriber_never_delays_the_control_path() -> None:
             if hang:
                 await stuck.wait()
 
-    tasks = [asyncio.create_task(reader(fast, got_fast, False)),
-             asyncio.create_task(reader(slow, got_slow, True))]
+    tasks = [
+        asyncio.create_task(reader(fast, got_fast, False)),
+        asyncio.create_task(reader(slow, got_slow, True)),
+    ]
     try:
         for i in range(100):
             bus.publish(i)  # synchronous: returns without waiting for any reader

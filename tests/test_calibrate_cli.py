@@ -21,10 +21,24 @@ from relayd.cli import main
 def test_cli_on_a_synthetic_recording(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     rec = tmp_path / "drive.mcap"
     # Far enough (60 m) that the rate falls below the target: the measured threshold appears.
-    write_recording(rec, drive_messages(l0_dbm=-20.0, n=3.0, sigma_db=3.0, seed=4, far_m=60.0, penalty_db=6.0))
+    write_recording(
+        rec, drive_messages(l0_dbm=-20.0, n=3.0, sigma_db=3.0, seed=4, far_m=60.0, penalty_db=6.0)
+    )
     out = tmp_path / "out"
-    code = main(["calibrate", "path-loss", "--from", str(rec), "--hop-m", "12", "--target-mbps", "10",
-                 "--out", str(out)])
+    code = main(
+        [
+            "calibrate",
+            "path-loss",
+            "--from",
+            str(rec),
+            "--hop-m",
+            "12",
+            "--target-mbps",
+            "10",
+            "--out",
+            str(out),
+        ]
+    )
     text = capsys.readouterr().out
     assert code == 0, text
     doc = json.loads((out / "path-loss.json").read_text())
@@ -32,7 +46,9 @@ def test_cli_on_a_synthetic_recording(tmp_path: Path, capsys: pytest.CaptureFixt
     assert doc["fit"]["l0_dbm"] == pytest.approx(-20.0, abs=2.0)
     thr = doc["thresholds"]
     # 6 dB of multipath: the rates say ~6 dB more than the 802.11g table would.
-    assert thr["by_measured_rate"] is not None and thr["by_measured_rate"] > thr["by_throughput"] + 2.0
+    assert (
+        thr["by_measured_rate"] is not None and thr["by_measured_rate"] > thr["by_throughput"] + 2.0
+    )
     snippet = tomllib.loads((out / "path-loss.toml").read_text())
     assert snippet["control"]["threshold_b_dbm"] == round(thr["chosen"])
     assert snippet["control"]["target_hop_mbps"] == 10
@@ -40,7 +56,9 @@ def test_cli_on_a_synthetic_recording(tmp_path: Path, capsys: pytest.CaptureFixt
     assert "L0" in text and "threshold_b_dbm" in text
 
 
-def test_cli_errors_are_one_line_and_exit_1(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_cli_errors_are_one_line_and_exit_1(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     assert main(["calibrate", "path-loss", "--from", str(tmp_path / "missing.mcap")]) == 1
     assert "missing.mcap" in capsys.readouterr().err
     junk = tmp_path / "junk.mcap"
@@ -56,11 +74,21 @@ def test_cli_errors_are_one_line_and_exit_1(tmp_path: Path, capsys: pytest.Captu
 def test_readings_take_the_distance_of_the_last_sip() -> None:
     sip = {"sip": {"x_mm": 0.0, "y_mm": 0.0}}
     msgs: list[tuple[str, dict[str, Any]]] = [
-        ("/link", {"t": 0.0, "side": "rear", "quality": {"signal_dbm": -30.0}}),  # before odometry: dropped
+        (
+            "/link",
+            {"t": 0.0, "side": "rear", "quality": {"signal_dbm": -30.0}},
+        ),  # before odometry: dropped
         ("/robot/sip", sip),
         ("/robot/sip", {"sip": {"x_mm": 3000.0, "y_mm": 4000.0}}),
         ("/link", {"t": 1.0, "side": "front", "quality": {"signal_dbm": -50.0}}),
-        ("/link", {"t": 1.0, "side": "rear", "quality": {"signal_dbm": -40.0, "tx_mbps": 54.0, "stations": []}}),
+        (
+            "/link",
+            {
+                "t": 1.0,
+                "side": "rear",
+                "quality": {"signal_dbm": -40.0, "tx_mbps": 54.0, "stations": []},
+            },
+        ),
         ("/wifi/rssi", {"t": 1.1, "sample": {"rssi_dbm": -45.0, "fresh": True}}),
     ]
     rear = readings_from_messages(msgs, start_distance_m=2.0)
@@ -99,10 +127,22 @@ class FakeRelayd:
                 self.x_mm += self.speed * 0.25
         d = 1.0 + self.x_mm / 1000.0
         signal = -20.0 - 30.0 * math.log10(d)
-        return web.json_response({"pose": {"x_mm": self.x_mm, "y_mm": 0.0, "theta_deg": 0.0}, "uptime_s": 1.0,
-                                  "reason": reason, "rssi_behind_dbm": signal,
-                                  "links": {"rear": {"signal_dbm": signal, "tx_mbps": 54.0, "rx_mbps": 54.0,
-                                                     "ccq_pct": 90.0}}})
+        return web.json_response(
+            {
+                "pose": {"x_mm": self.x_mm, "y_mm": 0.0, "theta_deg": 0.0},
+                "uptime_s": 1.0,
+                "reason": reason,
+                "rssi_behind_dbm": signal,
+                "links": {
+                    "rear": {
+                        "signal_dbm": signal,
+                        "tx_mbps": 54.0,
+                        "rx_mbps": 54.0,
+                        "ccq_pct": 90.0,
+                    }
+                },
+            }
+        )
 
     async def set_mode(self, request: web.Request) -> web.Response:
         if not self._authorized(request):
@@ -136,8 +176,17 @@ async def test_drive_goes_through_manual_mode_and_ends_in_hold() -> None:
     fake = FakeRelayd("s3cret")
     runner, url = await _serve(fake)
     try:
-        readings, why = await sample_live(LiveOptions(url=url, drive=True, token="s3cret", speed_mm_s=200.0,
-                                                      distance_m=5.0, hz=50.0, seconds=60.0))
+        readings, why = await sample_live(
+            LiveOptions(
+                url=url,
+                drive=True,
+                token="s3cret",
+                speed_mm_s=200.0,
+                distance_m=5.0,
+                hz=50.0,
+                seconds=60.0,
+            )
+        )
     finally:
         await runner.cleanup()
     assert why == "distance"
@@ -150,7 +199,9 @@ async def test_drive_stops_on_a_fail_safe_and_read_only_never_posts() -> None:
     fake = FakeRelayd("s3cret", wall_m=2.0)
     runner, url = await _serve(fake)
     try:
-        _, why = await sample_live(LiveOptions(url=url, drive=True, token="s3cret", distance_m=10.0, hz=50.0))
+        _, why = await sample_live(
+            LiveOptions(url=url, drive=True, token="s3cret", distance_m=10.0, hz=50.0)
+        )
         assert "obstacle" in why and fake.modes[-1] == "hold"
         quiet = FakeRelayd("s3cret")
         runner2, url2 = await _serve(quiet)
@@ -163,7 +214,9 @@ async def test_drive_stops_on_a_fail_safe_and_read_only_never_posts() -> None:
         await runner.cleanup()
 
 
-async def test_drive_needs_a_token(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+async def test_drive_needs_a_token(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
     monkeypatch.delenv("RELAYD_API_TOKEN", raising=False)
     parser = argparse.ArgumentParser()
     calibrate_cli.configure(parser)
@@ -174,7 +227,9 @@ async def test_drive_needs_a_token(monkeypatch: pytest.MonkeyPatch, capsys: pyte
 
 def test_synthetic_guided_drive_is_slow_through_the_first_metres() -> None:
     """As --drive: a third of the speed inside near_m, so three times the readings per metre there."""
-    msgs = drive_messages(l0_dbm=-20.0, n=3.0, sigma_db=0.0, seed=1, far_m=12.0, near_m=4.0, poll_s=0.5)
+    msgs = drive_messages(
+        l0_dbm=-20.0, n=3.0, sigma_db=0.0, seed=1, far_m=12.0, near_m=4.0, poll_s=0.5
+    )
     readings = readings_from_messages(msgs)
     near = sum(1 for r in readings if 1.5 <= r.distance_m < 3.5)
     far = sum(1 for r in readings if 6.0 <= r.distance_m < 8.0)
@@ -197,10 +252,17 @@ def test_the_leader_link_prints_the_median_gap_and_the_bound_on_it() -> None:
     assert thr.chosen == thr.by_length  # the snippet keeps the median gap, as before
     text = text_report(fit, thr, wanted, "test")
     assert "following gap 5 m:  threshold_l_dbm = -37.5 dBm" in text
-    assert "gap at most 5 m (outage 0.01):  threshold_l_dbm = -28.2 dBm  (a median gap of 2.1 m)" in text
+    assert (
+        "gap at most 5 m (outage 0.01):  threshold_l_dbm = -28.2 dBm  (a median gap of 2.1 m)"
+        in text
+    )
     # The snippet's comment says what its value is: the median gap, not an outage level.
-    assert "threshold_l_dbm = -37   # hop 5 m, the median gap" in config_snippet(fit, thr, wanted, "test")
+    assert "threshold_l_dbm = -37   # hop 5 m, the median gap" in config_snippet(
+        fit, thr, wanted, "test"
+    )
     rear = Wanted(link="rear", hop_m=5.0, outage=0.001)
-    assert "# hop 5 m, at 0.1 % outage" in config_snippet(fit, thresholds(fit, [], rear), rear, "test")
+    assert "# hop 5 m, at 0.1 % outage" in config_snippet(
+        fit, thresholds(fit, [], rear), rear, "test"
+    )
     # The rear link has no bound: its hop-length threshold already carries the margin.
     assert thresholds(fit, [], Wanted(link="rear", hop_m=5.0)).bound is None

@@ -21,8 +21,16 @@ from relayd.calibrate.fit import (
 )
 
 
-def synthetic_drive(l0: float, n: float, sigma: float, seed: int, *, points: int = 400, far_m: float = 30.0,
-                    outliers: float = 0.0) -> tuple[list[float], list[float]]:
+def synthetic_drive(
+    l0: float,
+    n: float,
+    sigma: float,
+    seed: int,
+    *,
+    points: int = 400,
+    far_m: float = 30.0,
+    outliers: float = 0.0,
+) -> tuple[list[float], list[float]]:
     """A robot pushed from 1 m to `far_m` away from the node, one reading every few cm:
     log-normal shadowing per reading, integer dBm as a radio reports, and a share of
     wild readings (a person walking between the antennas: 15-30 dB down)."""
@@ -60,7 +68,11 @@ def test_robust_to_a_tenth_of_wild_readings(seed: int) -> None:
 
 
 @settings(max_examples=30, deadline=None)
-@given(a=st.floats(-40, 0), b=st.floats(-5, -1), xs=st.lists(st.floats(0, 20), min_size=3, max_size=30, unique=True))
+@given(
+    a=st.floats(-40, 0),
+    b=st.floats(-5, -1),
+    xs=st.lists(st.floats(0, 20), min_size=3, max_size=30, unique=True),
+)
 def test_huber_is_exact_on_a_line(a: float, b: float, xs: list[float]) -> None:
     if max(xs) - min(xs) < 1.0:
         return
@@ -80,7 +92,9 @@ def test_refuses_data_without_a_slope() -> None:
 
 def test_near_field_and_noise_floor_are_left_out() -> None:
     d, r = synthetic_drive(-15.0, 3.0, 2.0, 1)
-    fit = fit_path_loss([0.1, 0.2, *d, 25.0], [-5.0, -5.0, *r, -95.0], floor_dbm=-95.0, resamples=20)
+    fit = fit_path_loss(
+        [0.1, 0.2, *d, 25.0], [-5.0, -5.0, *r, -95.0], floor_dbm=-95.0, resamples=20
+    )
     assert fit.dropped == 3
     assert fit.n == pytest.approx(3.0, abs=0.2)
 
@@ -94,31 +108,43 @@ def test_thresholds() -> None:
     # 10 Mbit/s after a MAC efficiency of 0.5 needs 802.11g's 24 Mbit/s rate: -74 dBm.
     assert required_rssi_dbm(10.0) == -74.0
     assert required_rssi_dbm(10.0, "802.11n-1x1") == -74.0
-    assert threshold_for_throughput(fit, 10.0, 0.05) == pytest.approx(-74.0 + 1.6449 * fit.sigma_db, abs=0.01)
+    assert threshold_for_throughput(fit, 10.0, 0.05) == pytest.approx(
+        -74.0 + 1.6449 * fit.sigma_db, abs=0.01
+    )
     with pytest.raises(ValueError, match="more than"):
         required_rssi_dbm(40.0)
     assert fit.distance_at(fit.rssi_at(7.0)) == pytest.approx(7.0)
 
 
-@given(l0=st.floats(-40.0, 0.0), n=st.floats(1.0, 5.0), sigma=st.floats(0.0, 10.0),
-       hop=st.floats(0.5, 100.0), outage=st.floats(0.001, 0.4))
+@given(
+    l0=st.floats(-40.0, 0.0),
+    n=st.floats(1.0, 5.0),
+    sigma=st.floats(0.0, 10.0),
+    hop=st.floats(0.5, 100.0),
+    outage=st.floats(0.001, 0.4),
+)
 @settings(max_examples=100, deadline=None)
-def test_a_known_model_gives_the_fits_thresholds(l0: float, n: float, sigma: float, hop: float,
-                                                 outage: float) -> None:
+def test_a_known_model_gives_the_fits_thresholds(
+    l0: float, n: float, sigma: float, hop: float, outage: float
+) -> None:
     """A model given (a simulator's radio) answers the threshold questions with the same
     arithmetic as a fitted one: the median at the hop raised by z sigma, and back again."""
     fit = PathLossFit.known(l0, n, sigma)
     assert fit.rssi_at(1.0) == pytest.approx(l0)
     assert fit.distance_at(fit.rssi_at(hop)) == pytest.approx(hop, rel=1e-9)
     thr = threshold_for_hop_length(fit, hop, outage)
-    assert thr == pytest.approx(l0 - 10.0 * n * math.log10(hop) + NormalDist().inv_cdf(1.0 - outage) * sigma)
+    assert thr == pytest.approx(
+        l0 - 10.0 * n * math.log10(hop) + NormalDist().inv_cdf(1.0 - outage) * sigma
+    )
     # A stricter outage never lowers the threshold (the robot stops sooner, not later).
     assert threshold_for_hop_length(fit, hop, outage / 2.0) >= thr
     assert l0 in fit.l0_ci and n in fit.n_ci
 
 
-@pytest.mark.parametrize(("l0", "n", "sigma"), [(math.nan, 2.0, 3.0), (-20.0, 0.0, 3.0), (-20.0, 2.0, -1.0),
-                                                (-20.0, math.inf, 3.0)])
+@pytest.mark.parametrize(
+    ("l0", "n", "sigma"),
+    [(math.nan, 2.0, 3.0), (-20.0, 0.0, 3.0), (-20.0, 2.0, -1.0), (-20.0, math.inf, 3.0)],
+)
 def test_a_known_model_refuses_nonsense(l0: float, n: float, sigma: float) -> None:
     with pytest.raises(ValueError):
         PathLossFit.known(l0, n, sigma)

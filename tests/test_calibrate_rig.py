@@ -49,8 +49,11 @@ def rear_dbm(x_mm: float) -> float:
 async def relay(tmp: Path) -> AsyncIterator[tuple[FakeRig, Daemon, str]]:
     clock = LoopClock()
     async with FakeRig(tmp / "rig", clock=clock, links="memory") as rig:
-        doc = rig.config_doc(api_port=0, control={"mode": "hold"},
-                             record={"enabled": True, "path": str(tmp / "drive.mcap")})
+        doc = rig.config_doc(
+            api_port=0,
+            control={"mode": "hold"},
+            record={"enabled": True, "path": str(tmp / "drive.mcap")},
+        )
         daemon = Daemon(parse_settings(doc), env=rig.env, clock=clock)
 
         async def world() -> None:
@@ -68,7 +71,9 @@ async def relay(tmp: Path) -> AsyncIterator[tuple[FakeRig, Daemon, str]]:
                     return daemon.api_port is not None
 
                 await until(serving, "the API to bind", poll_s=0.05)
-                await until(lambda: daemon.state.reason == "hold", "the daemon in hold", poll_s=0.05)
+                await until(
+                    lambda: daemon.state.reason == "hold", "the daemon in hold", poll_s=0.05
+                )
                 yield rig, daemon, f"http://127.0.0.1:{daemon.api_port}"
         finally:
             w.cancel()
@@ -85,8 +90,15 @@ async def drive(rig: FakeRig, url: str, **kw: float) -> tuple[list[tuple[float, 
 
     w = asyncio.create_task(watch())
     try:
-        opts = LiveOptions(url=url, drive=True, speed_mm_s=SPEED_MM_S, near_m=NEAR_M, token=rig.api_token,
-                           start_distance_m=1.0 + rig.robot.x_mm / 1000.0, **kw)  # type: ignore[arg-type]
+        opts = LiveOptions(
+            url=url,
+            drive=True,
+            speed_mm_s=SPEED_MM_S,
+            near_m=NEAR_M,
+            token=rig.api_token,
+            start_distance_m=1.0 + rig.robot.x_mm / 1000.0,
+            **kw,
+        )  # type: ignore[arg-type]
         _readings, why = await sample_live(opts)
     finally:
         w.cancel()
@@ -95,8 +107,12 @@ async def drive(rig: FakeRig, url: str, **kw: float) -> tuple[list[tuple[float, 
 
 async def settled(rig: FakeRig, daemon: Daemon) -> None:
     """Wheels at zero and the daemon in hold mode (where every --drive run must leave it)."""
-    await until(lambda: rig.robot.vel_mm_s == 0.0 and str(daemon.state.mode) == "hold",
-                "wheels at zero in hold mode", 10.0, poll_s=0.1)
+    await until(
+        lambda: rig.robot.vel_mm_s == 0.0 and str(daemon.state.mode) == "hold",
+        "wheels at zero in hold mode",
+        10.0,
+        poll_s=0.1,
+    )
 
 
 async def test_drive_a_real_relayd_then_calibrate_from_its_own_recording(tmp_path: Path) -> None:
@@ -120,8 +136,12 @@ async def test_drive_a_real_relayd_then_calibrate_from_its_own_recording(tmp_pat
         await settled(rig, daemon)
         assert rig.robot.x_mm < wall_mm - 150.0
         rig.robot.sonar_fn = None
-        await until(lambda: not any(r is not None and r < 4000 for r in daemon.state.sonar_mm),
-                    "the whole sonar ring fired again: the way is clear", 10.0, poll_s=0.1)
+        await until(
+            lambda: not any(r is not None and r < 4000 for r in daemon.state.sonar_mm),
+            "the whole sonar ring fired again: the way is clear",
+            10.0,
+            poll_s=0.1,
+        )
 
         # 3. The base goes silent mid-drive: no SIP, wheels at zero, the run ends in hold.
         async def go_silent() -> None:
@@ -132,8 +152,12 @@ async def test_drive_a_real_relayd_then_calibrate_from_its_own_recording(tmp_pat
         _seen, why = await drive(rig, url, distance_m=5.0, seconds=60.0)
         await silent
         assert why == "the daemon stopped the robot: no_sip"
-        await until(lambda: str(daemon.state.mode) == "hold", "hold mode after the silent base", 10.0,
-                    poll_s=0.1)
+        await until(
+            lambda: str(daemon.state.mode) == "hold",
+            "hold mode after the silent base",
+            10.0,
+            poll_s=0.1,
+        )
         assert daemon.state.wheels_left_mm_s == 0.0 and daemon.state.wheels_right_mm_s == 0.0
     # The daemon has stopped: its recording is complete.
 
@@ -142,9 +166,26 @@ async def test_drive_a_real_relayd_then_calibrate_from_its_own_recording(tmp_pat
     out = tmp_path / "out"
     # The command as a shell runs it (in its own process: it owns its loop and signals).
     proc = await asyncio.to_thread(
-        subprocess.run, [sys.executable, "-m", "relayd", "calibrate", "path-loss", "--from", str(recording),
-                         "--start-distance-m", "1", "--target-mbps", "10", "--out", str(out)],
-        capture_output=True, text=True, timeout=120)
+        subprocess.run,
+        [
+            sys.executable,
+            "-m",
+            "relayd",
+            "calibrate",
+            "path-loss",
+            "--from",
+            str(recording),
+            "--start-distance-m",
+            "1",
+            "--target-mbps",
+            "10",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 0, proc.stderr
     assert "path loss of the rear link" in proc.stdout
     fit = json.loads((out / "path-loss.json").read_text())["fit"]

@@ -30,14 +30,26 @@ def _expected_options(module: str) -> list[str]:
 
 def test_the_tree_has_every_group() -> None:
     paths = {path for path, _ in TREE}
-    assert {("run",), ("check-config",), ("sim",), ("status",), ("probe", "wifi"),
-            ("probe", "pantilt"), ("fake", "robot"), ("fake", "rig")} <= paths
+    assert {
+        ("run",),
+        ("check-config",),
+        ("sim",),
+        ("status",),
+        ("probe", "wifi"),
+        ("probe", "pantilt"),
+        ("fake", "robot"),
+        ("fake", "rig"),
+    } <= paths
 
 
-@pytest.mark.parametrize(("path", "module"), [(p, parser.module) for p, parser in TREE],
-                         ids=[" ".join(p) for p, _ in TREE])
-def test_help_lists_every_option(path: tuple[str, ...], module: str,
-                                 capsys: pytest.CaptureFixture[str]) -> None:
+@pytest.mark.parametrize(
+    ("path", "module"),
+    [(p, parser.module) for p, parser in TREE],
+    ids=[" ".join(p) for p, _ in TREE],
+)
+def test_help_lists_every_option(
+    path: tuple[str, ...], module: str, capsys: pytest.CaptureFixture[str]
+) -> None:
     expected = _expected_options(module)
     assert expected, f"{module} adds no options?"
     with pytest.raises(SystemExit) as exc:
@@ -50,8 +62,9 @@ def test_help_lists_every_option(path: tuple[str, ...], module: str,
 
 
 @pytest.mark.parametrize("path", [p for p, _ in TREE], ids=[" ".join(p) for p, _ in TREE])
-def test_unknown_option_shows_the_subcommands_usage(path: tuple[str, ...],
-                                                    capsys: pytest.CaptureFixture[str]) -> None:
+def test_unknown_option_shows_the_subcommands_usage(
+    path: tuple[str, ...], capsys: pytest.CaptureFixture[str]
+) -> None:
     with pytest.raises(SystemExit) as exc:
         main([*path, "--no-such-option"])
     assert exc.value.code == 2

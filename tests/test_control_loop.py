@@ -44,9 +44,21 @@ from relayd.statewriter import StateWriter
 
 
 def Sip(t: float, theta_deg: float = 0.0) -> ArcosSip:
-    return ArcosSip(t=t, x_mm=0.0, y_mm=0.0, theta_deg=theta_deg, left_mm_s=0.0, right_mm_s=0.0,
-                    battery_v=13.0, motors_enabled=True, estop=False, stall_left=False,
-                    stall_right=False, moving=False, sonar=())
+    return ArcosSip(
+        t=t,
+        x_mm=0.0,
+        y_mm=0.0,
+        theta_deg=theta_deg,
+        left_mm_s=0.0,
+        right_mm_s=0.0,
+        battery_v=13.0,
+        motors_enabled=True,
+        estop=False,
+        stall_left=False,
+        stall_right=False,
+        moving=False,
+        sonar=(),
+    )
 
 
 @dataclass
@@ -88,16 +100,31 @@ class StandInRobot:
 class Loop:
     """The control shell, its brain and the state writer wired as the daemon wires them."""
 
-    def __init__(self, clock: Clock, robot: StandInRobot, mode: Mode, *, scanner: bool = True,
-                 tick_s: float = 0.1, on_step: Callable[[float], None] | None = None,
-                 on_latency: Callable[[float], None] | None = None) -> None:
+    def __init__(
+        self,
+        clock: Clock,
+        robot: StandInRobot,
+        mode: Mode,
+        *,
+        scanner: bool = True,
+        tick_s: float = 0.1,
+        on_step: Callable[[float], None] | None = None,
+        on_latency: Callable[[float], None] | None = None,
+    ) -> None:
         self.clock = clock
         self.state = RelayState(mode=mode)
         self.brain = Brain(BrainParams(control=PARAMS, has_scanner=scanner), mode=mode)
         self.bus: Bus[Event, Action] = Bus()
         self.writer = StateWriter(self.state)
-        self.shell = ControlShell(bus=self.bus, brain=self.brain, robot=robot, clock=clock, tick_s=tick_s,
-                                  on_step=on_step, on_latency=on_latency)
+        self.shell = ControlShell(
+            bus=self.bus,
+            brain=self.brain,
+            robot=robot,
+            clock=clock,
+            tick_s=tick_s,
+            on_step=on_step,
+            on_latency=on_latency,
+        )
         self.bus.connect(self.brain.handle, self._on_actions)
 
     def _on_actions(self, event: Event, actions: Sequence[Action]) -> None:
@@ -149,12 +176,21 @@ class World:
         self.loop.bus.publish(RssiEvent(self.clock.t, RssiSample(self.clock.t, -50.0, True)))
 
     def rear(self) -> None:
-        q = LinkQuality(t=self.clock.t, signal_dbm=self.rear_dbm, rssi=None, noise_dbm=None, ccq_pct=None,
-                        tx_mbps=None, rx_mbps=None)
+        q = LinkQuality(
+            t=self.clock.t,
+            signal_dbm=self.rear_dbm,
+            rssi=None,
+            noise_dbm=None,
+            ccq_pct=None,
+            tx_mbps=None,
+            rx_mbps=None,
+        )
         self.loop.bus.publish(LinkEvent(self.clock.t, LinkSide.REAR, q))
 
     def servo(self, ok: bool) -> None:
-        self.loop.bus.publish(DeviceEvent(self.clock.t, PANTILT, DeviceStatus.UP if ok else DeviceStatus.DOWN))
+        self.loop.bus.publish(
+            DeviceEvent(self.clock.t, PANTILT, DeviceStatus.UP if ok else DeviceStatus.DOWN)
+        )
 
     def fresh(self) -> None:
         """An RSSI sample arrives now; the rear AP was polled now; a SIP arrives now."""
@@ -163,7 +199,9 @@ class World:
         self.sip()
 
 
-PARAMS = ControlParams(sip_timeout_s=0.5, rssi_timeout_s=2.0, rear_timeout_s=3.0, manual_deadman_s=0.5)
+PARAMS = ControlParams(
+    sip_timeout_s=0.5, rssi_timeout_s=2.0, rear_timeout_s=3.0, manual_deadman_s=0.5
+)
 
 
 def make_world(mode: Mode = Mode.FOLLOW, *, sip: bool = True) -> World:
@@ -366,7 +404,9 @@ def test_bearing_is_corrected_for_the_turn_since_the_scan() -> None:
 async def test_run_ticks_without_sips_and_unregisters_its_listener() -> None:
     robot = StandInRobot()
     latencies: list[float] = []
-    loop = Loop(LoopClock(), robot, Mode.FOLLOW, scanner=False, tick_s=0.01, on_step=latencies.append)
+    loop = Loop(
+        LoopClock(), robot, Mode.FOLLOW, scanner=False, tick_s=0.01, on_step=latencies.append
+    )
     state = loop.state
     task = asyncio.create_task(loop.run())
     await until(lambda: state.loop_tick_t is not None and robot.listeners, "the first tick")
@@ -426,16 +466,29 @@ def test_a_driver_reporting_a_failure_is_published_as_fault_until_it_is_up() -> 
     radio_state = {"state": LinkState.CONNECTING, "error": None}
 
     def health_of(device: str, now: dict[str, object]) -> Callable[[], DriverHealth]:
-        return lambda: DriverHealth(device=device, state=LinkState(now["state"]),
-                                    last_error=str(now["error"]) if now["error"] else None)
+        return lambda: DriverHealth(
+            device=device,
+            state=LinkState(now["state"]),
+            last_error=str(now["error"]) if now["error"] else None,
+        )
 
-    shell = ControlShell(bus=bus, brain=brain, robot=robot, clock=clock,
-                         health={"robot": health_of("robot", robot_state),
-                                 "ap.rear": health_of("ap.rear", radio_state)})
+    shell = ControlShell(
+        bus=bus,
+        brain=brain,
+        robot=robot,
+        clock=clock,
+        health={
+            "robot": health_of("robot", robot_state),
+            "ap.rear": health_of("ap.rear", radio_state),
+        },
+    )
 
     def events() -> list[tuple[str, DeviceStatus, str | None]]:
-        return [(e.device, e.status, e.detail) for e in iter(seen.get_nowait, None)
-                if isinstance(e, DeviceEvent)]
+        return [
+            (e.device, e.status, e.detail)
+            for e in iter(seen.get_nowait, None)
+            if isinstance(e, DeviceEvent)
+        ]
 
     shell.check_devices()
     assert events() == [("ap.rear", DeviceStatus.DOWN, None), ("robot", DeviceStatus.UP, None)]
@@ -444,8 +497,10 @@ def test_a_driver_reporting_a_failure_is_published_as_fault_until_it_is_up() -> 
     robot_state.update(state=LinkState.DOWN, error="SerialException: device disconnected")
     radio_state.update(state=LinkState.DOWN, error="login refused")
     shell.check_devices()
-    assert events() == [("ap.rear", DeviceStatus.FAULT, "login refused"),
-                        ("robot", DeviceStatus.FAULT, "SerialException: device disconnected")]
+    assert events() == [
+        ("ap.rear", DeviceStatus.FAULT, "login refused"),
+        ("robot", DeviceStatus.FAULT, "SerialException: device disconnected"),
+    ]
     bus.publish(Tick(clock.now()))
     assert brain.last_output is not None and brain.last_output.state is DriveState.FAULT
     assert (brain.last_output.left_mm_s, brain.last_output.right_mm_s) == (0.0, 0.0)
@@ -461,5 +516,7 @@ def test_a_driver_reporting_a_failure_is_published_as_fault_until_it_is_up() -> 
     # A fault the supervisor reports (the task failed while the driver looks fine).
     shell.report_fault("robot", "OSError: helper lost the robot")
     shell.check_devices()
-    assert events() == [("robot", DeviceStatus.FAULT, "OSError: helper lost the robot"),
-                        ("robot", DeviceStatus.UP, None)]
+    assert events() == [
+        ("robot", DeviceStatus.FAULT, "OSError: helper lost the robot"),
+        ("robot", DeviceStatus.UP, None),
+    ]

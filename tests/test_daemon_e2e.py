@@ -81,33 +81,56 @@ def reason(daemon: Daemon) -> tuple[DriveState, str]:
 
 
 @contextlib.asynccontextmanager
-async def relay(tmp_path: Path, *, leader_deg: float = 0.0, distance_m: float = 6.0,
-                control: dict[str, Any] | None = None, scan: dict[str, Any] | None = None,
-                pantilt: dict[str, Any] | None = None) -> AsyncIterator[tuple[FakeRig, Daemon]]:
+async def relay(
+    tmp_path: Path,
+    *,
+    leader_deg: float = 0.0,
+    distance_m: float = 6.0,
+    control: dict[str, Any] | None = None,
+    scan: dict[str, Any] | None = None,
+    pantilt: dict[str, Any] | None = None,
+) -> AsyncIterator[tuple[FakeRig, Daemon]]:
     a = math.radians(leader_deg)
-    rig = FakeRig(tmp_path, leader_xy_m=(distance_m * math.cos(a), distance_m * math.sin(a)),
-                  clock=LoopClock(), links="memory")
+    rig = FakeRig(
+        tmp_path,
+        leader_xy_m=(distance_m * math.cos(a), distance_m * math.sin(a)),
+        clock=LoopClock(),
+        links="memory",
+    )
     async with rig:
-        settings = parse_settings(rig.config_doc(scan={**SCAN, **(scan or {})}, control=control,
-                                                 pantilt={**PANTILT, **(pantilt or {})}))
+        settings = parse_settings(
+            rig.config_doc(
+                scan={**SCAN, **(scan or {})},
+                control=control,
+                pantilt={**PANTILT, **(pantilt or {})},
+            )
+        )
         daemon = Daemon(settings, env=rig.env, clock=rig.clock)
         async with running(daemon):
             yield rig, daemon
 
 
 async def driving(rig: FakeRig, daemon: Daemon) -> None:
-    await until(lambda: reason(daemon) == (DriveState.DRIVING, "driving") and rig.robot.target_vel_mm_s > 0,
-                "the relay drives")
+    await until(
+        lambda: reason(daemon) == (DriveState.DRIVING, "driving") and rig.robot.target_vel_mm_s > 0,
+        "the relay drives",
+    )
 
 
-@pytest.mark.parametrize(("leader_deg", "mode"), [(25.0, "step"), (-25.0, "step"), (25.0, "continuous")])
+@pytest.mark.parametrize(
+    ("leader_deg", "mode"), [(25.0, "step"), (-25.0, "step"), (25.0, "continuous")]
+)
 @pytest.mark.virtual_time
 async def test_bearing_converges_and_the_robot_turns_toward_the_leader(
-        tmp_path: Path, leader_deg: float, mode: str) -> None:
+    tmp_path: Path, leader_deg: float, mode: str
+) -> None:
     side = math.copysign(1.0, leader_deg)
     # A continuous sweep samples at 20 Hz while moving: slew slowly enough for ~13 samples.
     speed = {"speed_deg_s": 180} if mode == "continuous" else None
-    async with relay(tmp_path, leader_deg=leader_deg, scan={"mode": mode}, pantilt=speed) as (rig, daemon):
+    async with relay(tmp_path, leader_deg=leader_deg, scan={"mode": mode}, pantilt=speed) as (
+        rig,
+        daemon,
+    ):
         st = daemon.state
         await until(lambda: st.scan_count >= 3, "three scans")
         # From then on every scan's bearing is within 6 degrees of the truth at its end.
@@ -119,13 +142,17 @@ async def test_bearing_converges_and_the_robot_turns_toward_the_leader(
             errors.append(st.bearing_deg - rig.true_bearing_deg())
         assert max(abs(e) for e in errors) < 6.0, errors
         # The robot turns toward the leader: heading moves to its side, the true bearing shrinks.
-        await until(lambda: side * rig.robot.theta_deg > 4.0 and side * rig.true_bearing_deg() < 20.0,
-                    "the robot turning toward the leader")
+        await until(
+            lambda: side * rig.robot.theta_deg > 4.0 and side * rig.true_bearing_deg() < 20.0,
+            "the robot turning toward the leader",
+        )
         assert rig.robot.x_mm > 100.0  # and drives forward
         assert side * rig.true_bearing_deg() > -6.0  # without overshooting
         # The link antenna points where the scan says the leader is.
-        await until(lambda: st.bearing_deg is not None and abs(rig.link_deg - st.bearing_deg) < 2.0,
-                    "the link servo at the bearing")
+        await until(
+            lambda: st.bearing_deg is not None and abs(rig.link_deg - st.bearing_deg) < 2.0,
+            "the link servo at the bearing",
+        )
         assert side * rig.link_deg > 3.0
         assert st.link_bearing_deg is not None and abs(st.link_bearing_deg - rig.link_deg) < 2.0
 
@@ -137,9 +164,13 @@ async def test_stops_when_the_leader_is_near_and_resumes(tmp_path: Path) -> None
         await driving(rig, daemon)
         assert daemon.state.rssi_leader_dbm is not None and daemon.state.rssi_leader_dbm < -40.0
         rig.leader_xy_m = leader_at(rig, 0.0, 2.0)
-        await until(lambda: reason(daemon) == (DriveState.STOPPED, "leader_near"), "stopped, leader_near")
+        await until(
+            lambda: reason(daemon) == (DriveState.STOPPED, "leader_near"), "stopped, leader_near"
+        )
         assert daemon.state.rssi_leader_dbm is not None and daemon.state.rssi_leader_dbm >= -40.0
-        await until(lambda: wheels_zero(rig) and rig.robot.vel_mm_s == 0.0, "the fake robot standing")
+        await until(
+            lambda: wheels_zero(rig) and rig.robot.vel_mm_s == 0.0, "the fake robot standing"
+        )
         assert (daemon.state.wheels_left_mm_s, daemon.state.wheels_right_mm_s) == (0.0, 0.0)
         # The leader drives off: RSSI^l falls below threshold_l - hysteresis, the relay follows.
         rig.leader_xy_m = leader_at(rig, 0.0, 10.0)
@@ -151,14 +182,19 @@ async def test_stops_when_the_rear_link_is_weak_or_stale_and_resumes(tmp_path: P
     async with relay(tmp_path) as (rig, daemon):
         await driving(rig, daemon)
         rig.set_rear_signal(-80.0)  # RSSI^b below threshold_b (-60)
-        await until(lambda: reason(daemon) == (DriveState.STOPPED, "rear_weak"), "stopped, rear_weak")
+        await until(
+            lambda: reason(daemon) == (DriveState.STOPPED, "rear_weak"), "stopped, rear_weak"
+        )
         await until(lambda: wheels_zero(rig), "VEL 0 at the fake robot")
         assert daemon.state.rssi_behind_dbm == -80.0
         rig.set_rear_signal(-55.0)
         await driving(rig, daemon)
         # The rear AP stops answering: RSSI^b goes stale and the relay holds (rear_link = require).
         await rig.rear.set_down(True)
-        await until(lambda: reason(daemon) == (DriveState.FAULT, "rear_link_stale"), "fault, rear_link_stale")
+        await until(
+            lambda: reason(daemon) == (DriveState.FAULT, "rear_link_stale"),
+            "fault, rear_link_stale",
+        )
         await until(lambda: wheels_zero(rig), "VEL 0 at the fake robot")
         await rig.rear.set_down(False)
         await driving(rig, daemon)
@@ -184,7 +220,9 @@ async def test_stops_within_one_sip_period_of_rssi_going_stale_and_resumes(tmp_p
             late_s = stop_t - (last_fresh + timeout)
             print(f"rssi_stale {late_s * 1000:.0f} ms after the freshness limit ({timeout:.2f} s)")
             assert late_s >= 0.0  # not before the limit...
-            assert late_s <= 0.1 + 0.3  # ...and within one SIP period (plus slack for a busy machine)
+            assert (
+                late_s <= 0.1 + 0.3
+            )  # ...and within one SIP period (plus slack for a busy machine)
             await until(lambda: wheels_zero(rig), "VEL 0 at the fake robot")
             rig.rssi_frozen = False
             await driving(rig, daemon)
@@ -212,11 +250,15 @@ async def test_modes_hold_manual_and_deadman(tmp_path: Path) -> None:
             assert reason(daemon) == (DriveState.DRIVING, "manual")
         assert rig.robot.target_vel_mm_s == pytest.approx(200.0, abs=5.0)
         assert rig.robot.target_rvel_deg_s > 0.0
-        await until(lambda: rig.robot.x_mm > x0 + 50.0 and rig.robot.theta_deg > theta0 + 1.0,
-                    "the fake robot moving under manual control")
+        await until(
+            lambda: rig.robot.x_mm > x0 + 50.0 and rig.robot.theta_deg > theta0 + 1.0,
+            "the fake robot moving under manual control",
+        )
         # Commands stop: the dead-man zeroes the wheels.
-        await until(lambda: reason(daemon) == (DriveState.STOPPED, "deadman") and wheels_zero(rig),
-                    "dead-man stop")
+        await until(
+            lambda: reason(daemon) == (DriveState.STOPPED, "deadman") and wheels_zero(rig),
+            "dead-man stop",
+        )
         assert daemon.clock.now() - last_cmd >= 0.5
         # Drive commands are refused outside manual mode; follow resumes the loop.
         daemon.control.set_mode(Mode.FOLLOW)

@@ -24,12 +24,14 @@ from relayd.vtime import LoopClock
 
 
 def _settings(robot_url: str) -> Settings:
-    return Settings.model_validate({
-        "robot": {"port": robot_url},
-        "pantilt": {"enabled": False},
-        "wifi": {"enabled": False},
-        "api": {"enabled": False},
-    })
+    return Settings.model_validate(
+        {
+            "robot": {"port": robot_url},
+            "pantilt": {"enabled": False},
+            "wifi": {"enabled": False},
+            "api": {"enabled": False},
+        }
+    )
 
 
 @pytest.mark.virtual_time
@@ -89,11 +91,19 @@ async def test_a_failed_device_task_is_published_as_fault_then_up_again() -> Non
     await daemon.start()
     try:
         await clock.sleep(4.0)
-        seen = [e for e in iter(devices.get_nowait, None)
-                if isinstance(e, DeviceEvent) and e.device == "robot"]
+        seen = [
+            e
+            for e in iter(devices.get_nowait, None)
+            if isinstance(e, DeviceEvent) and e.device == "robot"
+        ]
         statuses = [e.status for e in seen]
         # Down until the handshake, up, the fault, and up again on the next tick.
-        assert statuses == [DeviceStatus.DOWN, DeviceStatus.UP, DeviceStatus.FAULT, DeviceStatus.UP], seen
+        assert statuses == [
+            DeviceStatus.DOWN,
+            DeviceStatus.UP,
+            DeviceStatus.FAULT,
+            DeviceStatus.UP,
+        ], seen
         fault, back = seen[2], seen[3]
         assert fault.detail == "OSError: helper lost the robot"
         assert fault.t - started == pytest.approx(2.0, abs=0.2)

@@ -37,14 +37,30 @@ DASHBOARD = ROOT / "deploy" / "grafana" / "relayd-convoy.json"
 TARGET_LABELS = {"job", "instance", "relay"}
 #: Series Prometheus makes itself for each target.
 PROMETHEUS_SERIES = {"up": TARGET_LABELS}
-PROMQL_KEYWORDS = {"by", "without", "on", "ignoring", "group_left", "group_right", "bool",
-                   "and", "or", "unless", "offset", "inf", "nan", "atan2"}
+PROMQL_KEYWORDS = {
+    "by",
+    "without",
+    "on",
+    "ignoring",
+    "group_left",
+    "group_right",
+    "bool",
+    "and",
+    "or",
+    "unless",
+    "offset",
+    "inf",
+    "nan",
+    "atan2",
+}
 
 
 def promtool() -> str:
     path = shutil.which("promtool")
     if path is None:
-        skip_or_fail("promtool not installed (Debian: apt-get install prometheus; scripts/test does it as root)")
+        skip_or_fail(
+            "promtool not installed (Debian: apt-get install prometheus; scripts/test does it as root)"
+        )
     return path
 
 
@@ -70,7 +86,9 @@ def exported() -> dict[str, dict[str, set[str]]]:
             st.sonar_mm = [1000] * 16
             st.last_scan = ScanRecord(99.0, (0.0,), (-40.0,), 0.0, -40.0, 0)
             for link in ("front", "rear"):
-                st.links[link] = LinkInfo(signal_dbm=-60, ccq_pct=90, tx_mbps=54, rx_mbps=48, t=99.0)
+                st.links[link] = LinkInfo(
+                    signal_dbm=-60, ccq_pct=90, tx_mbps=54, rx_mbps=48, t=99.0
+                )
             for device in ("robot", "pantilt", "wifi", "ap.rear", "ap.front"):
                 st.health[device] = DeviceHealth(connected=True, last_data_t=99.0)
             m = Metrics(st, _Clock())
@@ -87,9 +105,9 @@ def exported() -> dict[str, dict[str, set[str]]]:
 
 
 _STRING = re.compile(r'"(?:[^"\\]|\\.)*"')
-_SELECTOR = re.compile(r'(?<![\w.:$])([A-Za-z_:][A-Za-z0-9_:]*)?\s*\{([^}]*)\}')
+_SELECTOR = re.compile(r"(?<![\w.:$])([A-Za-z_:][A-Za-z0-9_:]*)?\s*\{([^}]*)\}")
 _MATCHER = re.compile(r'([A-Za-z_][A-Za-z0-9_]*)\s*(=~|!~|!=|=)\s*"((?:[^"\\]|\\.)*)"')
-_WORD = re.compile(r'(?<![\w.:$])[A-Za-z_:][A-Za-z0-9_:]*')
+_WORD = re.compile(r"(?<![\w.:$])[A-Za-z_:][A-Za-z0-9_:]*")
 
 
 def metric_names(expr: str) -> set[str]:
@@ -100,7 +118,7 @@ def metric_names(expr: str) -> set[str]:
     e = re.sub(r"\b(by|without|on|ignoring|group_left|group_right)\s*\([^)]*\)", " ", e)
     names = set()
     for m in _WORD.finditer(e):
-        if e[m.end():].lstrip().startswith("(") or m.group(0).lower() in PROMQL_KEYWORDS:
+        if e[m.end() :].lstrip().startswith("(") or m.group(0).lower() in PROMQL_KEYWORDS:
             continue
         names.add(m.group(0))
     return names
@@ -117,25 +135,33 @@ def selectors(expr: str) -> Iterator[tuple[str, str, str, str]]:
 
 def test_promql_parser_sees_what_it_must() -> None:
     # The checker itself: a typo in a name or a label value must be visible to it.
-    expr = ('histogram_quantile(0.99, sum by (relay, le) (rate(relayd_control_latency_seconds_bucket'
-            '{relay=~"$relay"}[$__rate_interval]))) > on(relay) group_left relayd_rssi_dbm{peer="behind"} * 1e3')
+    expr = (
+        "histogram_quantile(0.99, sum by (relay, le) (rate(relayd_control_latency_seconds_bucket"
+        '{relay=~"$relay"}[$__rate_interval]))) > on(relay) group_left relayd_rssi_dbm{peer="behind"} * 1e3'
+    )
     assert metric_names(expr) == {"relayd_control_latency_seconds_bucket", "relayd_rssi_dbm"}
-    assert set(selectors(expr)) == {("relayd_control_latency_seconds_bucket", "relay", "=~", "$relay"),
-                                    ("relayd_rssi_dbm", "peer", "=", "behind")}
+    assert set(selectors(expr)) == {
+        ("relayd_control_latency_seconds_bucket", "relay", "=~", "$relay"),
+        ("relayd_rssi_dbm", "peer", "=", "behind"),
+    }
     assert _unknown_references('relayd_rssi_dbm{peer="rear"}', exported())  # no such peer
     assert _unknown_references("relayd_rssi_dbms", exported())
 
 
 def _unknown_references(expr: str, known: dict[str, dict[str, set[str]]]) -> list[str]:
     known = {**known, **{k: {label: set() for label in v} for k, v in PROMETHEUS_SERIES.items()}}
-    problems = [f"metric {name} is not exported" for name in sorted(metric_names(expr)) if name not in known]
+    problems = [
+        f"metric {name} is not exported" for name in sorted(metric_names(expr)) if name not in known
+    ]
     for name, label, op, value in selectors(expr):
         if name not in known or label in TARGET_LABELS:
             continue
         if label not in known[name]:
             problems.append(f"{name} has no label {label}")
         elif op == "=" and value not in known[name][label]:
-            problems.append(f'{name}{{{label}="{value}"}} never exported (has {sorted(known[name][label])})')
+            problems.append(
+                f'{name}{{{label}="{value}"}} never exported (has {sorted(known[name][label])})'
+            )
     return problems
 
 
@@ -145,6 +171,7 @@ def _rules() -> list[dict[str, Any]]:
 
 
 # --- promtool ------------------------------------------------------------------------------
+
 
 def test_promtool_accepts_the_scrape_config_and_its_rules() -> None:
     result = _run(promtool(), "check", "config", str(SCRAPE_CONFIG))
@@ -164,14 +191,19 @@ def test_alerts_fire_on_synthetic_series() -> None:
     result = _run(promtool(), "test", "rules", str(RULES_TEST))
     assert result.returncode == 0, result.stdout + result.stderr
     tests = yaml.safe_load(RULES_TEST.read_text(encoding="utf-8"))["tests"]
-    fired = {case["alertname"] for t in tests for case in t["alert_rule_test"] if case["exp_alerts"]}
-    quiet = {case["alertname"] for t in tests for case in t["alert_rule_test"] if not case["exp_alerts"]}
+    fired = {
+        case["alertname"] for t in tests for case in t["alert_rule_test"] if case["exp_alerts"]
+    }
+    quiet = {
+        case["alertname"] for t in tests for case in t["alert_rule_test"] if not case["exp_alerts"]
+    }
     every = {rule["alert"] for rule in _rules()}
     # Each alert is shown both firing and not yet firing (its hold time matters).
     assert fired == every and quiet == every
 
 
 # --- the files' content ----------------------------------------------------------------------
+
 
 def test_the_required_alerts_exist_with_their_hold_times() -> None:
     rules = {rule["alert"]: rule for rule in _rules()}
@@ -245,9 +277,17 @@ def test_dashboard_uses_a_prometheus_datasource_variable() -> None:
 
 def test_dashboard_shows_links_states_latency_and_battery() -> None:
     text = " ".join(expr for _, expr in dashboard_exprs())
-    for metric in ("relayd_rssi_dbm", "relayd_rssi_threshold_dbm", "relayd_link_signal_dbm",
-                   "relayd_drive_state", "relayd_drive_info", "relayd_mode",
-                   "relayd_control_latency_seconds_bucket", "relayd_battery_volts", "up"):
+    for metric in (
+        "relayd_rssi_dbm",
+        "relayd_rssi_threshold_dbm",
+        "relayd_link_signal_dbm",
+        "relayd_drive_state",
+        "relayd_drive_info",
+        "relayd_mode",
+        "relayd_control_latency_seconds_bucket",
+        "relayd_battery_volts",
+        "up",
+    ):
         assert re.search(rf"\b{metric}\b", text), metric
 
 
@@ -258,7 +298,7 @@ def test_dashboard_expressions_name_exported_metrics() -> None:
     for title, expr in exprs:
         if expr.startswith("label_values("):
             # label_values(metric, label): a Grafana function, not PromQL.
-            metric, label = (s.strip() for s in expr[len("label_values("):-1].split(","))
+            metric, label = (s.strip() for s in expr[len("label_values(") : -1].split(","))
             assert metric in known and label in TARGET_LABELS, title
             continue
         problems = _unknown_references(expr, known)

@@ -74,7 +74,13 @@ def shell_blocks(text: str) -> Iterator[tuple[int, list[str]]]:
         while end < len(lines) and lines[end].strip() != "```":
             end += 1
         if lang in SHELL_LANGS:
-            yield i + 2, [line[len(indent):] if line.startswith(indent) else line for line in lines[i + 1:end]]
+            yield (
+                i + 2,
+                [
+                    line[len(indent) :] if line.startswith(indent) else line
+                    for line in lines[i + 1 : end]
+                ],
+            )
         i = end + 1
 
 
@@ -86,7 +92,9 @@ def _tokens(line: str) -> list[str]:
 
 
 def _expand(token: str, env: dict[str, str]) -> str:
-    return re.sub(r"\$\{?([A-Za-z_][A-Za-z0-9_]*)\}?", lambda m: env.get(m.group(1), m.group(0)), token)
+    return re.sub(
+        r"\$\{?([A-Za-z_][A-Za-z0-9_]*)\}?", lambda m: env.get(m.group(1), m.group(0)), token
+    )
 
 
 def commands(doc: str) -> Iterator[Command]:
@@ -106,7 +114,7 @@ def commands(doc: str) -> Iterator[Command]:
                 while i < len(lines) and lines[i].strip() != delimiter:
                     i += 1
                 i += 1
-                tokens = tokens[:tokens.index("<<")]
+                tokens = tokens[: tokens.index("<<")]
             current: list[str] = []
             for tok in [*tokens, ";"]:
                 if tok not in CONTROL_OPERATORS:
@@ -156,16 +164,33 @@ def parse_cli(argv: list[str]) -> argparse.Namespace | None:
 
 
 def test_the_reader_sees_the_commands_a_shell_would() -> None:
-    block = ["R=/opt/relayd/venv/bin/relayd", "$R probe pantilt --port /dev/x \\",
-             "    --channel 0 --angle 45   # to the LEFT", "cat > f <<'EOF'", "relayd nonsense", "EOF",
-             "TOKEN=t; R2=http://h:8080", 'A=1 $R status $R2 && echo "$TOKEN" | jq .']
+    block = [
+        "R=/opt/relayd/venv/bin/relayd",
+        "$R probe pantilt --port /dev/x \\",
+        "    --channel 0 --angle 45   # to the LEFT",
+        "cat > f <<'EOF'",
+        "relayd nonsense",
+        "EOF",
+        "TOKEN=t; R2=http://h:8080",
+        'A=1 $R status $R2 && echo "$TOKEN" | jq .',
+    ]
     doc = ROOT / "README.md"
     text = "```sh\n" + "\n".join(block) + "\n```\n"
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(Path, "read_text", lambda self, encoding=None: text if self == doc else "")
         found = [c.argv for c in commands("README.md")]
     assert found == [
-        ["/opt/relayd/venv/bin/relayd", "probe", "pantilt", "--port", "/dev/x", "--channel", "0", "--angle", "45"],
+        [
+            "/opt/relayd/venv/bin/relayd",
+            "probe",
+            "pantilt",
+            "--port",
+            "/dev/x",
+            "--channel",
+            "0",
+            "--angle",
+            "45",
+        ],
         ["cat"],
         ["/opt/relayd/venv/bin/relayd", "status", "http://h:8080"],
         ["echo", "t"],
@@ -282,8 +307,12 @@ async def test_the_control_curl_commands_work_against_the_api() -> None:
     controls = _Controls()
     state = RelayState()
     app = make_app(state, controls, clock=REAL_CLOCK, token=token)
-    posts = [c for doc in DOCS for c in commands(doc)
-             if c.argv[0] == "curl" and ("-d" in c.argv or "--data" in c.argv)]
+    posts = [
+        c
+        for doc in DOCS
+        for c in commands(doc)
+        if c.argv[0] == "curl" and ("-d" in c.argv or "--data" in c.argv)
+    ]
     assert len(posts) >= 3
     async with TestClient(TestServer(app)) as client:
         for cmd in posts:
@@ -308,14 +337,20 @@ def test_readme_command_table_names_real_subcommands_and_options() -> None:
         if not words or words[0] not in _choices():
             raise AssertionError(f"README: `{span}`: no subcommand {words[:1]}")
         path = [words[0]]
-        if words[0] in ("probe", "fake", "calibrate") and len(words) > 1 and not words[1].startswith(("-", "[", ".")):
+        if (
+            words[0] in ("probe", "fake", "calibrate")
+            and len(words) > 1
+            and not words[1].startswith(("-", "[", "."))
+        ):
             path.append(words[1])
-        for alternative in (path[1].split("|") if len(path) > 1 else [None]):
+        for alternative in path[1].split("|") if len(path) > 1 else [None]:
             argv = [path[0]] + ([alternative] if alternative else [])
             parser = _subparser(argv)
             options = set(parser._option_string_actions)
             for opt in re.findall(r"(?<![\w-])(--?[a-z][\w-]*)", " ".join(words)):
-                assert opt in options, f"README: `{span}`: relayd {' '.join(argv)} has no option {opt}"
+                assert opt in options, (
+                    f"README: `{span}`: relayd {' '.join(argv)} has no option {opt}"
+                )
             checked += 1
     assert checked >= 10
 

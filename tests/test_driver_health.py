@@ -39,8 +39,11 @@ def test_health_is_frozen_and_its_counters_read_only() -> None:
 async def test_robot_health_follows_the_session() -> None:
     clock = Clock(10.0)
     fake = FakeRobot(clock=clock)
-    robot = ArcosRobot(fake.serve_memory("health-robot"), clock=clock,
-                       backoff=Backoff(initial_s=0.1, maximum_s=0.2, jitter=0))
+    robot = ArcosRobot(
+        fake.serve_memory("health-robot"),
+        clock=clock,
+        backoff=Backoff(initial_s=0.1, maximum_s=0.2, jitter=0),
+    )
     assert robot.health().state is LinkState.CONNECTING
     try:
         async with running(robot):
@@ -65,8 +68,16 @@ async def test_robot_health_follows_the_session() -> None:
 async def test_pantilt_health_counts_timeouts_as_errors() -> None:
     clock = Clock(10.0)
     fake = FakeMaestro(clock=clock)
-    pt = make_pantilt("maestro", fake.serve_memory("health-servo"), None, {0: ServoCalibration()},
-                      clock=clock, reply_timeout_s=0.5, poll_s=1000.0, max_timeouts=5)
+    pt = make_pantilt(
+        "maestro",
+        fake.serve_memory("health-servo"),
+        None,
+        {0: ServoCalibration()},
+        clock=clock,
+        reply_timeout_s=0.5,
+        poll_s=1000.0,
+        max_timeouts=5,
+    )
     assert pt.health().state is LinkState.CONNECTING
     task = asyncio.create_task(pt.run())
     try:

@@ -91,8 +91,14 @@ def zero(s: Step) -> bool:
 
 
 @contextlib.asynccontextmanager
-async def running(work: Path, *, wrong_ap_password: bool = False, drive: bool = True,
-                  virtual: bool = False, **config: Any) -> AsyncIterator[Run]:
+async def running(
+    work: Path,
+    *,
+    wrong_ap_password: bool = False,
+    drive: bool = True,
+    virtual: bool = False,
+    **config: Any,
+) -> AsyncIterator[Run]:
     """A FakeRig and a Daemon on it (API on port 0); waits until the robot drives.
 
     `wrong_ap_password`: the config is written as `relayd run` reads it, secrets in
@@ -127,10 +133,15 @@ async def running(work: Path, *, wrong_ap_password: bool = False, drive: bool = 
         daemon.bus.connect(daemon.brain.handle, record)
         async with run_daemon(daemon) as task:
             run = Run(rig, daemon, task, session, steps)
-            await until(lambda: daemon.api_port is not None or task.done(), "the API", START_TIMEOUT_S)
+            await until(
+                lambda: daemon.api_port is not None or task.done(), "the API", START_TIMEOUT_S
+            )
             if drive:
-                await until(lambda: daemon.state.reason == "driving" or task.done(), "driving",
-                            START_TIMEOUT_S)
+                await until(
+                    lambda: daemon.state.reason == "driving" or task.done(),
+                    "driving",
+                    START_TIMEOUT_S,
+                )
             assert not task.done(), task
             yield run
 
@@ -150,8 +161,11 @@ async def test_robot_port_vanishes_and_returns(tmp_path: Path) -> None:
         assert robot.connected and daemon.state.wheels_left_mm_s != 0.0
         t_hang = run.now()
         rig.robot.hang_up()
-        await until(lambda: daemon.state.wheels_left_mm_s == 0.0 and daemon.state.reason == "no_sip",
-                    "wheels zero after the hang-up", 5.0)
+        await until(
+            lambda: daemon.state.wheels_left_mm_s == 0.0 and daemon.state.reason == "no_sip",
+            "wheels zero after the hang-up",
+            5.0,
+        )
         stop = run.first_step(t_hang, zero)
         assert stop is not None and stop.reason == "no_sip"
         # At once: the link's loss is seen, not only the SIP timeout (0.5 s) later.
@@ -162,16 +176,23 @@ async def test_robot_port_vanishes_and_returns(tmp_path: Path) -> None:
         async def fault_shown() -> bool:
             doc = await run.status()
             h = doc["health"]["robot"]
-            return (not h["connected"] and h["last_error"] is not None and doc["state"] == "fault"
-                    and doc["wheels_mm_s"] == {"left": 0.0, "right": 0.0})
+            return (
+                not h["connected"]
+                and h["last_error"] is not None
+                and doc["state"] == "fault"
+                and doc["wheels_mm_s"] == {"left": 0.0, "right": 0.0}
+            )
 
         await until(fault_shown, "/status showing the robot fault", 5.0, poll_s=0.05)
         doc = await run.status()
         assert port_missing(str(rig.robot_port))
         assert str(rig.robot_port) in doc["health"]["robot"]["last_error"]
 
-        await until(lambda: robot.backoff.attempts >= AWAY_BACKOFF_ATTEMPTS,
-                    "the reconnect backoff grown past a second", 10.0)
+        await until(
+            lambda: robot.backoff.attempts >= AWAY_BACKOFF_ATTEMPTS,
+            "the reconnect backoff grown past a second",
+            10.0,
+        )
         assert not robot.connected
         # Nothing moved while away: zero was the last wheel command, and stays.
         assert all(zero(s) for s in run.steps if s.t >= stop.t)
@@ -180,7 +201,9 @@ async def test_robot_port_vanishes_and_returns(tmp_path: Path) -> None:
         rig.robot.reappear()
         await until(lambda: robot.connected, "the robot reconnecting", 10.0)
         t_conn = time.monotonic()
-        assert t_conn - t_back < RECONNECT_WITHIN_S + 0.2, f"reconnected {t_conn - t_back:.2f} s after return"
+        assert t_conn - t_back < RECONNECT_WITHIN_S + 0.2, (
+            f"reconnected {t_conn - t_back:.2f} s after return"
+        )
         await until(lambda: daemon.state.reason == "driving", "driving again", 10.0)
 
         async def recovery_shown() -> bool:
@@ -192,8 +215,9 @@ async def test_robot_port_vanishes_and_returns(tmp_path: Path) -> None:
         run.assert_alive()
 
 
-async def status_until(run: Run, pred: Callable[[dict[str, Any]], bool], what: str,
-                       timeout_s: float = 5.0) -> dict[str, Any]:
+async def status_until(
+    run: Run, pred: Callable[[dict[str, Any]], bool], what: str, timeout_s: float = 5.0
+) -> dict[str, Any]:
     """GET /status until `pred` holds (a driver notices a failure a moment after it happens)."""
 
     async def holds() -> dict[str, Any] | None:
@@ -280,19 +304,46 @@ def _servo_hang_up(run: Run) -> None:
 
 
 SOURCES = [
-    Source("sip", "no_sip", lambda d: d.settings.robot.lost_after_s, _last_sip_t,
-           lambda r: setattr(r.rig.robot, "silent", True),
-           lambda r: setattr(r.rig.robot, "silent", False)),
-    Source("rssi", "rssi_stale", lambda d: control_params(d.settings).rssi_timeout_s,
-           lambda r: r.daemon.monitor.last_fresh_t if r.daemon.monitor else None,
-           lambda r: setattr(r.rig, "rssi_frozen", True),
-           lambda r: setattr(r.rig, "rssi_frozen", False)),
-    Source("servo_hang_up", "scan_servo", lambda d: 0.0, _servo_t, _servo_hang_up,
-           lambda r: r.rig.maestro.reappear()),
-    Source("servo_silent", "scan_servo", lambda d: 0.0, _servo_t, _servo_silent,
-           lambda r: setattr(r.rig.maestro, "silent", False)),
-    Source("rear_ap", "rear_link_stale", lambda d: control_params(d.settings).rear_timeout_s, _rear_t,
-           lambda r: r.rig.rear.set_down(True), lambda r: r.rig.rear.set_down(False)),
+    Source(
+        "sip",
+        "no_sip",
+        lambda d: d.settings.robot.lost_after_s,
+        _last_sip_t,
+        lambda r: setattr(r.rig.robot, "silent", True),
+        lambda r: setattr(r.rig.robot, "silent", False),
+    ),
+    Source(
+        "rssi",
+        "rssi_stale",
+        lambda d: control_params(d.settings).rssi_timeout_s,
+        lambda r: r.daemon.monitor.last_fresh_t if r.daemon.monitor else None,
+        lambda r: setattr(r.rig, "rssi_frozen", True),
+        lambda r: setattr(r.rig, "rssi_frozen", False),
+    ),
+    Source(
+        "servo_hang_up",
+        "scan_servo",
+        lambda d: 0.0,
+        _servo_t,
+        _servo_hang_up,
+        lambda r: r.rig.maestro.reappear(),
+    ),
+    Source(
+        "servo_silent",
+        "scan_servo",
+        lambda d: 0.0,
+        _servo_t,
+        _servo_silent,
+        lambda r: setattr(r.rig.maestro, "silent", False),
+    ),
+    Source(
+        "rear_ap",
+        "rear_link_stale",
+        lambda d: control_params(d.settings).rear_timeout_s,
+        _rear_t,
+        lambda r: r.rig.rear.set_down(True),
+        lambda r: r.rig.rear.set_down(False),
+    ),
 ]
 
 
@@ -311,9 +362,15 @@ async def test_each_data_source_goes_stale_in_turn(tmp_path: Path) -> None:
             # Healthy again: driving, on a scan finished since the last repair (a servo
             # that came back resumes on its old bearing until its first sweep ends, and
             # a fault then would meet the "no completed scan" rule first).
-            await until(lambda: daemon.state.reason == "driving" and daemon.state.last_scan is not None
-                        and daemon.state.last_scan.t >= healthy_since,  # noqa: B023
-                        f"driving before {src.name}", 15.0)
+            await until(
+                lambda: (
+                    daemon.state.reason == "driving"
+                    and daemon.state.last_scan is not None
+                    and daemon.state.last_scan.t >= healthy_since  # noqa: B023
+                ),
+                f"driving before {src.name}",
+                15.0,
+            )
             t_break = run.now()
             await _maybe_await(src.break_(run))
             reason = src.reason
@@ -326,7 +383,11 @@ async def test_each_data_source_goes_stale_in_turn(tmp_path: Path) -> None:
             threshold = src.threshold_s(daemon)
             age = stop.t - data_t
             # Not before the data was really stale, and at most one SIP period after.
-            assert age >= threshold - 0.01 or src.name.startswith("servo"), (src.name, age, threshold)
+            assert age >= threshold - 0.01 or src.name.startswith("servo"), (
+                src.name,
+                age,
+                threshold,
+            )
             assert age <= threshold + SIP_PERIOD_S + SLACK_S, (src.name, age, threshold)
             assert daemon.state.wheels_left_mm_s == daemon.state.wheels_right_mm_s == 0.0
             assert str(daemon.state.state) == "fault"
@@ -371,11 +432,19 @@ async def test_airos_expiry_slowness_and_garbage_keep_the_daemon_right(tmp_path:
         # Slow answers (beyond the poll timeout): unreachable, RSSI^b stale, wheels held.
         t0 = run.now()
         rig.rear.slow_s = timeout_s * 3
-        await until(lambda: daemon.state.reason == "rear_link_stale", "rear_link_stale on slow AP", 10.0)
-        await until(lambda: poller.counters["timeouts"] > 0 and daemon.state.rssi_behind_dbm is None,
-                    "the timeout counted and RSSI^b cleared", 5.0)
-        doc = await status_until(run, lambda d: not d["health"]["ap.rear"]["connected"],
-                                 "/status showing the rear AP down")
+        await until(
+            lambda: daemon.state.reason == "rear_link_stale", "rear_link_stale on slow AP", 10.0
+        )
+        await until(
+            lambda: poller.counters["timeouts"] > 0 and daemon.state.rssi_behind_dbm is None,
+            "the timeout counted and RSSI^b cleared",
+            5.0,
+        )
+        doc = await status_until(
+            run,
+            lambda d: not d["health"]["ap.rear"]["connected"],
+            "/status showing the rear AP down",
+        )
         rear = doc["health"]["ap.rear"]
         assert rear["errors"] >= 1 and "no answer within" in rear["last_error"]
         assert doc["rssi_behind_dbm"] is None and doc["wheels_mm_s"] == {"left": 0.0, "right": 0.0}
@@ -387,15 +456,24 @@ async def test_airos_expiry_slowness_and_garbage_keep_the_daemon_right(tmp_path:
         bad = poller.counters["bad_json"]
         rig.rear.malformed = True
         await until(lambda: poller.counters["bad_json"] > bad, "malformed JSON counted", 5.0)
-        await until(lambda: daemon.state.reason == "rear_link_stale", "rear_link_stale on bad JSON", 10.0)
-        doc = await status_until(run, lambda d: not d["health"]["ap.rear"]["connected"],
-                                 "/status showing bad data from the rear AP")
+        await until(
+            lambda: daemon.state.reason == "rear_link_stale", "rear_link_stale on bad JSON", 10.0
+        )
+        doc = await status_until(
+            run,
+            lambda d: not d["health"]["ap.rear"]["connected"],
+            "/status showing bad data from the rear AP",
+        )
         assert "JSON" in doc["health"]["ap.rear"]["last_error"]
         rig.rear.malformed = False
         await until(lambda: daemon.state.reason == "driving", "driving after bad JSON", 15.0)
-        doc = await status_until(run, lambda d: d["health"]["ap.rear"]["connected"]
-                                 and d["health"]["ap.rear"]["last_error"] is None,
-                                 "/status showing the rear AP back")
+        doc = await status_until(
+            run,
+            lambda d: (
+                d["health"]["ap.rear"]["connected"] and d["health"]["ap.rear"]["last_error"] is None
+            ),
+            "/status showing the rear AP back",
+        )
         assert doc["rssi_behind_dbm"] == -55.0 and doc["links"]["rear"]["signal_dbm"] == -55.0
         # The front radio was never touched and never failed.
         assert daemon.pollers["front"].counters["errors"] == 0
@@ -405,17 +483,28 @@ async def test_airos_expiry_slowness_and_garbage_keep_the_daemon_right(tmp_path:
 @pytest.mark.virtual_time
 async def test_wrong_ap_password_is_reported_and_holds_the_robot(tmp_path: Path) -> None:
     """A wrong password in the config's password file: auth_failed in /status, no RSSI^b."""
-    async with running(tmp_path, wrong_ap_password=True, drive=False, virtual=True,
-                       control={"rear_link": "require"}) as run:
+    async with running(
+        tmp_path,
+        wrong_ap_password=True,
+        drive=False,
+        virtual=True,
+        control={"rear_link": "require"},
+    ) as run:
         daemon = run.daemon
         poller = daemon.pollers["rear"]
         await until(lambda: poller.state == "auth_failed", "auth_failed", 10.0)
-        await until(lambda: daemon.state.scan_count >= 1 and daemon.state.reason == "rear_link_stale",
-                    "the robot held for want of RSSI^b", 20.0)
+        await until(
+            lambda: daemon.state.scan_count >= 1 and daemon.state.reason == "rear_link_stale",
+            "the robot held for want of RSSI^b",
+            20.0,
+        )
         assert daemon.state.rssi_behind_dbm is None
         assert all(zero(s) for s in run.steps)
-        status = await status_until(run, lambda d: d["health"]["ap.rear"]["last_error"] is not None,
-                                    "/status showing the login failure")
+        status = await status_until(
+            run,
+            lambda d: d["health"]["ap.rear"]["last_error"] is not None,
+            "/status showing the login failure",
+        )
         rear = status["health"]["ap.rear"]
         assert not rear["connected"] and rear["errors"] >= 1
         assert "login refused" in rear["last_error"]
@@ -438,7 +527,9 @@ async def test_shutdown_with_a_slow_ap_leaves_no_task_behind(tmp_path: Path) -> 
         requests = rear.counters["requests"]
         rear.slow_s = 2.0
         # The next request (a status poll, and later the logout) hangs in the fake radio.
-        await until(lambda: rear.counters["requests"] > requests, "a request hanging in the radio", 10.0)
+        await until(
+            lambda: rear.counters["requests"] > requests, "a request hanging in the radio", 10.0
+        )
         t0 = time.monotonic()
         run.task.cancel()
         with contextlib.suppress(asyncio.CancelledError):

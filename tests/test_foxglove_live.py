@@ -63,13 +63,16 @@ def test_config_defaults_off_and_on_loopback() -> None:
     assert s.foxglove == FoxgloveSettings(enabled=False, bind="127.0.0.1", port=8765)
 
 
-@pytest.mark.parametrize(("section", "expected"), [
-    ({"enabled": "yes"}, "foxglove.enabled"),
-    ({"bind": "robot.local"}, "foxglove.bind: 'robot.local' is not an IP address"),
-    ({"port": 70000}, "foxglove.port"),
-    ({"prot": 8766}, "foxglove.prot: unknown key (did you mean 'port'?)"),
-    ({"enabled": True, "port": 8080}, "foxglove.port: 8080 is also api.port"),
-])
+@pytest.mark.parametrize(
+    ("section", "expected"),
+    [
+        ({"enabled": "yes"}, "foxglove.enabled"),
+        ({"bind": "robot.local"}, "foxglove.bind: 'robot.local' is not an IP address"),
+        ({"port": 70000}, "foxglove.port"),
+        ({"prot": 8766}, "foxglove.prot: unknown key (did you mean 'port'?)"),
+        ({"enabled": True, "port": 8080}, "foxglove.port: 8080 is also api.port"),
+    ],
+)
 def test_config_errors_name_the_key(section: dict[str, Any], expected: str) -> None:
     with pytest.raises(ConfigError) as err:
         parse_settings({**BASE, "foxglove": section})
@@ -78,7 +81,9 @@ def test_config_errors_name_the_key(section: dict[str, Any], expected: str) -> N
 
 def test_the_live_channels_are_the_recorders(tmp_path: Path) -> None:
     """One source of truth: each topic, schema name and schema byte string as the recorder writes it."""
-    settings = parse_settings({**BASE, "record": {"enabled": True, "path": str(tmp_path / "r.mcap")}})
+    settings = parse_settings(
+        {**BASE, "record": {"enabled": True, "path": str(tmp_path / "r.mcap")}}
+    )
 
     class Bus:
         def subscribe_with_actions(self, name: str, maxlen: int = 1) -> Any:
@@ -92,11 +97,22 @@ def test_the_live_channels_are_the_recorders(tmp_path: Path) -> None:
             return 0.0
 
     rec = Recorder(Bus(), settings, Clock())  # type: ignore[arg-type]
-    recorded = [rec._spec(cls) for cls in (*codec.EVENT_TYPES.values(), *codec.ACTION_TYPES.values())]
+    recorded = [
+        rec._spec(cls) for cls in (*codec.EVENT_TYPES.values(), *codec.ACTION_TYPES.values())
+    ]
     recorded += list(rec._view_specs.values())
     assert channel_specs() == recorded
-    assert {"/robot/sip", "/robot/pose", "/wifi/rssi", "/scan/sample", "/action/scan_result", "/state",
-            "/action/decision", "/action/wheels", "/log"} <= {s.topic for s in recorded}
+    assert {
+        "/robot/sip",
+        "/robot/pose",
+        "/wifi/rssi",
+        "/scan/sample",
+        "/action/scan_result",
+        "/state",
+        "/action/decision",
+        "/action/wheels",
+        "/log",
+    } <= {s.topic for s in recorded}
 
 
 # -- the wire ------------------------------------------------------------------------------
@@ -130,15 +146,25 @@ class WireClient:
             elif doc["op"] == "advertise":
                 for ch in doc["channels"]:
                     self.channels[ch["id"]] = ch
-                    self.validators[ch["id"]] = jsonschema.Draft202012Validator(json.loads(ch["schema"]))
+                    self.validators[ch["id"]] = jsonschema.Draft202012Validator(
+                        json.loads(ch["schema"])
+                    )
 
     def channel_id(self, topic: str) -> int:
         return next(cid for cid, ch in self.channels.items() if ch["topic"] == topic)
 
     async def subscribe_all(self) -> None:
         self.subs = {100 + k: cid for k, cid in enumerate(sorted(self.channels))}
-        await self.ws.send_str(json.dumps({"op": "subscribe", "subscriptions": [
-            {"id": sid, "channelId": cid} for sid, cid in self.subs.items()]}))
+        await self.ws.send_str(
+            json.dumps(
+                {
+                    "op": "subscribe",
+                    "subscriptions": [
+                        {"id": sid, "channelId": cid} for sid, cid in self.subs.items()
+                    ],
+                }
+            )
+        )
 
     async def read(self) -> None:
         """Decode and validate every frame until the socket closes."""
@@ -153,14 +179,19 @@ class WireClient:
 
 
 @contextlib.asynccontextmanager
-async def live_relay(tmp_path: Path, leader_xy_m: tuple[float, float] = (6.0, 1.0),
-                     sip_period_s: float = 0.1) -> AsyncIterator[tuple[FakeRig, Daemon, str]]:
+async def live_relay(
+    tmp_path: Path, leader_xy_m: tuple[float, float] = (6.0, 1.0), sip_period_s: float = 0.1
+) -> AsyncIterator[tuple[FakeRig, Daemon, str]]:
     """A daemon on the fake rig (real clock, this process) with the live server on a free port."""
     rig = FakeRig(tmp_path, leader_xy_m=leader_xy_m)
     rig.robot.sip_period_s = sip_period_s
     async with rig:
-        doc = rig.config_doc(scan=SCAN, pantilt=PANTILT, robot={"display_name": "relay one"},
-                             log={"level": "warning"})
+        doc = rig.config_doc(
+            scan=SCAN,
+            pantilt=PANTILT,
+            robot={"display_name": "relay one"},
+            log={"level": "warning"},
+        )
         doc["foxglove"] = {"enabled": True, "port": 0}
         daemon = Daemon(parse_settings(doc), env=rig.env)
         async with running(daemon):
@@ -171,8 +202,10 @@ async def live_relay(tmp_path: Path, leader_xy_m: tuple[float, float] = (6.0, 1.
 
 @contextlib.asynccontextmanager
 async def wire_client(url: str) -> AsyncIterator[WireClient]:
-    async with aiohttp.ClientSession() as session, \
-            session.ws_connect(url, protocols=[SUBPROTOCOL], max_msg_size=0) as ws:
+    async with (
+        aiohttp.ClientSession() as session,
+        session.ws_connect(url, protocols=[SUBPROTOCOL], max_msg_size=0) as ws,
+    ):
         assert ws.protocol == SUBPROTOCOL
         client = WireClient(ws)
         await client.hello()
@@ -180,13 +213,19 @@ async def wire_client(url: str) -> AsyncIterator[WireClient]:
 
 
 def forward_commands(rig: FakeRig) -> int:
-    return sum(1 for cmd, arg in rig.robot.commands if cmd == Command.VEL and isinstance(arg, int) and arg > 0)
+    return sum(
+        1
+        for cmd, arg in rig.robot.commands
+        if cmd == Command.VEL and isinstance(arg, int) and arg > 0
+    )
 
 
 async def test_advertise_subscribe_and_messages_on_the_wire(tmp_path: Path) -> None:
     async with live_relay(tmp_path) as (rig, daemon, url), wire_client(url) as client:
         assert client.server_info["name"] == "relay one"
-        assert client.server_info["capabilities"] == []  # read-only: no publishing, services or parameters
+        assert (
+            client.server_info["capabilities"] == []
+        )  # read-only: no publishing, services or parameters
         specs = {s.topic: s for s in channel_specs()}
         assert {ch["topic"] for ch in client.channels.values()} == set(specs)
         for ch in client.channels.values():
@@ -201,15 +240,31 @@ async def test_advertise_subscribe_and_messages_on_the_wire(tmp_path: Path) -> N
         assert live.sent == 0
         await client.subscribe_all()
         reader = asyncio.create_task(client.read())
-        want = {"/robot/sip", "/robot/pose", "/wifi/rssi", "/scan/sample", "/action/scan_result",
-                "/action/decision", "/action/wheels", "/state", "/tick"}
-        await until(lambda: want <= set(client.received) or reader.done(),
-                    f"messages on {sorted(want)} (got {sorted(client.received)})", 60)
+        want = {
+            "/robot/sip",
+            "/robot/pose",
+            "/wifi/rssi",
+            "/scan/sample",
+            "/action/scan_result",
+            "/action/decision",
+            "/action/wheels",
+            "/state",
+            "/tick",
+        }
+        await until(
+            lambda: want <= set(client.received) or reader.done(),
+            f"messages on {sorted(want)} (got {sorted(client.received)})",
+            60,
+        )
         assert not reader.done(), reader
         now = time.time_ns()
         for topic in want:
             for log_time, _doc in client.received[topic]:
-                assert abs(log_time - now) < 30e9, (topic, log_time, now)  # wall-clock, like a recording
+                assert abs(log_time - now) < 30e9, (
+                    topic,
+                    log_time,
+                    now,
+                )  # wall-clock, like a recording
         # /state is latched: the current values first, whenever the client subscribed.
         first_keys = [doc["key"] for _t, doc in client.received["/state"][:3]]
         assert set(first_keys) == {"mode", "drive_state", "reason"}
@@ -225,11 +280,20 @@ async def test_advertise_subscribe_and_messages_on_the_wire(tmp_path: Path) -> N
         async with wire_client(url) as late:
             state_id = late.channel_id("/state")
             late.subs = {1: state_id}
-            await late.ws.send_str(json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": state_id}]}))
+            await late.ws.send_str(
+                json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": state_id}]})
+            )
             late_reader = asyncio.create_task(late.read())
             await until(lambda: len(late.received.get("/state", [])) >= 3, "the latched /state", 30)
-            assert {doc["key"] for _t, doc in late.received["/state"][:3]} == {"mode", "drive_state", "reason"}
-            assert late.received["/state"][1][1] == {"key": "drive_state", "value": str(daemon.state.state)}
+            assert {doc["key"] for _t, doc in late.received["/state"][:3]} == {
+                "mode",
+                "drive_state",
+                "reason",
+            }
+            assert late.received["/state"][1][1] == {
+                "key": "drive_state",
+                "value": str(daemon.state.state),
+            }
             late_reader.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await late_reader
@@ -257,18 +321,28 @@ def raw_stalled_client(port: int, channel_ids: list[int]) -> socket.socket:
     sock.settimeout(10)
     sock.connect(("127.0.0.1", port))
     key = base64.b64encode(os.urandom(16)).decode()
-    sock.sendall((f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
-                  f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
-                  f"Sec-WebSocket-Protocol: {SUBPROTOCOL}\r\n\r\n").encode())
+    sock.sendall(
+        (
+            f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+            f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
+            f"Sec-WebSocket-Protocol: {SUBPROTOCOL}\r\n\r\n"
+        ).encode()
+    )
     head = b""
     while b"\r\n\r\n" not in head:
         head += sock.recv(1)
     assert head.startswith(b"HTTP/1.1 101"), head
-    payload = json.dumps({"op": "subscribe", "subscriptions": [
-        {"id": 1 + k, "channelId": cid} for k, cid in enumerate(channel_ids)]}).encode()
+    payload = json.dumps(
+        {
+            "op": "subscribe",
+            "subscriptions": [{"id": 1 + k, "channelId": cid} for k, cid in enumerate(channel_ids)],
+        }
+    ).encode()
     mask = os.urandom(4)
     n = len(payload)
-    header = bytes([0x81]) + (bytes([0x80 | n]) if n < 126 else bytes([0x80 | 126]) + struct.pack(">H", n))
+    header = bytes([0x81]) + (
+        bytes([0x80 | n]) if n < 126 else bytes([0x80 | 126]) + struct.pack(">H", n)
+    )
     sock.sendall(header + mask + bytes(b ^ mask[k % 4] for k, b in enumerate(payload)))
     return sock
 
@@ -280,7 +354,11 @@ def unread_bytes(sock: socket.socket) -> int:
 
 async def test_a_client_that_never_reads_does_not_stall_the_robot(tmp_path: Path) -> None:
     # A far leader: the relay drives the whole test. SIPs at 40 Hz: four times a robot's data.
-    async with live_relay(tmp_path, leader_xy_m=(40.0, 3.0), sip_period_s=0.025) as (rig, daemon, url):
+    async with live_relay(tmp_path, leader_xy_m=(40.0, 3.0), sip_period_s=0.025) as (
+        rig,
+        daemon,
+        url,
+    ):
         live = daemon.live
         assert live is not None
         st = daemon.state
@@ -289,16 +367,25 @@ async def test_a_client_that_never_reads_does_not_stall_the_robot(tmp_path: Path
             stalled = raw_stalled_client(live.port or 0, sorted(good.channels))
             await good.subscribe_all()
             reader = asyncio.create_task(good.read())
-            await until(lambda: unread_bytes(stalled) > 1000, "data queued at the stalled client", 30)
+            await until(
+                lambda: unread_bytes(stalled) > 1000, "data queued at the stalled client", 30
+            )
             sent, x, scans = forward_commands(rig), rig.robot.x_mm, st.scan_count
             started = time.monotonic()
             # Data piles up at the stalled client while the robot works on. (At this rate,
             # ~50 kB/s, the kernel's socket buffers would take a minute to fill: that
             # overflow, and the SDK's backlog dropping, is the virtual-time test below. A
             # 12 s window here filled nothing more than this one does.)
-            await until(lambda: time.monotonic() - started > STALLED_WINDOW_S and forward_commands(rig) > sent + 20
-                        and rig.robot.x_mm > x + 500 and st.scan_count > scans + 2,
-                        "the robot driving and scanning on", 60)
+            await until(
+                lambda: (
+                    time.monotonic() - started > STALLED_WINDOW_S
+                    and forward_commands(rig) > sent + 20
+                    and rig.robot.x_mm > x + 500
+                    and st.scan_count > scans + 2
+                ),
+                "the robot driving and scanning on",
+                60,
+            )
             assert st.state is DriveState.DRIVING
             # The other client still gets the present, not a backlog.
             sips = good.received["/robot/sip"]
@@ -330,7 +417,9 @@ async def test_a_taken_port_is_a_config_error_naming_the_key(tmp_path: Path) -> 
             daemon = Daemon(parse_settings(doc), env=rig.env)
             with pytest.raises(ConfigError) as err:
                 await daemon.run()
-            assert err.value.errors[0].startswith(f"foxglove.port: cannot listen on 127.0.0.1:{port}")
+            assert err.value.errors[0].startswith(
+                f"foxglove.port: cannot listen on 127.0.0.1:{port}"
+            )
             assert not rig.robot.commands or forward_commands(rig) == 0
     finally:
         blocker.close()
@@ -343,7 +432,8 @@ def tcp_wmem_max() -> int:
 
 @pytest.mark.virtual_time
 async def test_on_virtual_time_a_stalled_client_overflows_its_backlog_and_the_robot_drives_on(
-        tmp_path: Path) -> None:
+    tmp_path: Path,
+) -> None:
     """More data than every buffer between the server and a stalled client can hold.
 
     On virtual time the rig runs flat out, so minutes of a robot's data pass in seconds:
@@ -370,7 +460,11 @@ async def test_on_virtual_time_a_stalled_client_overflows_its_backlog_and_the_ro
                     """The kernel's send buffer, both receive buffers, a full SDK backlog of the largest messages."""
                     return tcp_wmem_max() + 2 * 65536 + CLIENT_BACKLOG * live.max_message_bytes
 
-                await until(lambda: live.sent_bytes > 1.1 * can_hold(), "more data than the buffers hold", 600)
+                await until(
+                    lambda: live.sent_bytes > 1.1 * can_hold(),
+                    "more data than the buffers hold",
+                    600,
+                )
                 moved_mm = rig.robot.x_mm - x0
                 # Driving at v_max the whole time: what it covered is what the virtual time allowed.
                 assert moved_mm > 0.5 * 400.0 * (rig.clock.now() - t0)
@@ -402,8 +496,14 @@ async def test_the_benchmark_measures_with_a_viewer_connected() -> None:
 async def test_an_address_not_on_this_machine_names_foxglove_bind(tmp_path: Path) -> None:
     async with FakeRig(tmp_path) as rig:
         doc = rig.config_doc(log={"level": "warning"})
-        doc["foxglove"] = {"enabled": True, "bind": "192.0.2.1", "port": 0}  # TEST-NET-1: never local
+        doc["foxglove"] = {
+            "enabled": True,
+            "bind": "192.0.2.1",
+            "port": 0,
+        }  # TEST-NET-1: never local
         daemon = Daemon(parse_settings(doc), env=rig.env)
         with pytest.raises(ConfigError) as err:
             await daemon.run()
-        assert err.value.errors[0].startswith("foxglove.bind: cannot listen on 192.0.2.1:0"), err.value.errors
+        assert err.value.errors[0].startswith("foxglove.bind: cannot listen on 192.0.2.1:0"), (
+            err.value.errors
+        )

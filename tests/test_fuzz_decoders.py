@@ -54,10 +54,8 @@ from drivers.wifi.fake import format_proc_row, link_quality_for
 from drivers.wifi.parsers import PROC_HEADER_1, PROC_HEADER_2, parse_proc_net_wireless
 from drivers.wifi.sources import IwSource, ProcfsSource
 
-FUZZ = settings(deadline=None, suppress_health_check=[HealthCheck.too_slow],
-                max_examples=1000)
-FEW = settings(deadline=None, suppress_health_check=[HealthCheck.too_slow],
-               max_examples=400)
+FUZZ = settings(deadline=None, suppress_health_check=[HealthCheck.too_slow], max_examples=1000)
+FEW = settings(deadline=None, suppress_health_check=[HealthCheck.too_slow], max_examples=400)
 
 
 def _chunks(data: bytes, cuts: list[int]) -> Iterator[bytes]:
@@ -70,19 +68,29 @@ def _chunks(data: bytes, cuts: list[int]) -> Iterator[bytes]:
 
 packets = st.builds(Packet, st.integers(0, 255), st.binary(max_size=120))
 # Garbage biased towards the bytes that confuse a framer: sync pairs and small counts.
-garbage = st.lists(st.one_of(st.binary(max_size=12), st.just(b"\xfa\xfb"), st.just(b"\xfa"),
-                             st.builds(lambda n: b"\xfa\xfb" + bytes((n,)), st.integers(0, 255))),
-                   max_size=8).map(b"".join)
+garbage = st.lists(
+    st.one_of(
+        st.binary(max_size=12),
+        st.just(b"\xfa\xfb"),
+        st.just(b"\xfa"),
+        st.builds(lambda n: b"\xfa\xfb" + bytes((n,)), st.integers(0, 255)),
+    ),
+    max_size=8,
+).map(b"".join)
 
 
 SENTINEL = Packet(0xAB, b"end")
 
 
 @FUZZ
-@given(junk=garbage, pkts=st.lists(packets, min_size=1, max_size=3),
-       cuts=st.lists(st.integers(0, 2000), max_size=12))
-def test_arcos_packets_after_any_garbage_at_any_split(junk: bytes, pkts: list[Packet],
-                                                      cuts: list[int]) -> None:
+@given(
+    junk=garbage,
+    pkts=st.lists(packets, min_size=1, max_size=3),
+    cuts=st.lists(st.integers(0, 2000), max_size=12),
+)
+def test_arcos_packets_after_any_garbage_at_any_split(
+    junk: bytes, pkts: list[Packet], cuts: list[int]
+) -> None:
     # Garbage that holds a whole valid frame of its own is not garbage.
     assume(Decoder().feed(junk + bytes(258)) == [])
     # 258 zero bytes complete any false frame still waiting without forming a new one
@@ -101,10 +109,14 @@ def test_arcos_packets_after_any_garbage_at_any_split(junk: bytes, pkts: list[Pa
 
 
 @FUZZ
-@given(junk=st.binary(max_size=80).filter(lambda b: b"\xfa\xfb" not in b),
-       pkt=packets, cuts=st.lists(st.integers(0, 400), max_size=10))
-def test_arcos_packet_after_syncless_garbage_always_decodes(junk: bytes, pkt: Packet,
-                                                            cuts: list[int]) -> None:
+@given(
+    junk=st.binary(max_size=80).filter(lambda b: b"\xfa\xfb" not in b),
+    pkt=packets,
+    cuts=st.lists(st.integers(0, 400), max_size=10),
+)
+def test_arcos_packet_after_syncless_garbage_always_decodes(
+    junk: bytes, pkt: Packet, cuts: list[int]
+) -> None:
     # Garbage without a sync pair may still end in FA: the packet's own FA FB follows.
     d = Decoder()
     out: list[Packet] = []
@@ -119,11 +131,19 @@ def test_arcos_packet_after_syncless_garbage_always_decodes(junk: bytes, pkt: Pa
 
 sonar = st.lists(st.tuples(st.integers(0, 255), st.integers(0, 0xFFFF)), max_size=16)
 raw_sips = st.builds(
-    RawSip, moving=st.booleans(), x_raw=st.integers(0, 0xFFFF), y_raw=st.integers(0, 0xFFFF),
-    th_raw=st.integers(-32768, 32767), left_raw=st.integers(-32768, 32767),
-    right_raw=st.integers(-32768, 32767), battery_dv=st.integers(0, 255),
-    stall_bumpers=st.integers(0, 0xFFFF), control=st.integers(-32768, 32767),
-    flags=st.integers(0, 0xFFFF), compass=st.integers(0, 255), sonar=sonar.map(tuple),
+    RawSip,
+    moving=st.booleans(),
+    x_raw=st.integers(0, 0xFFFF),
+    y_raw=st.integers(0, 0xFFFF),
+    th_raw=st.integers(-32768, 32767),
+    left_raw=st.integers(-32768, 32767),
+    right_raw=st.integers(-32768, 32767),
+    battery_dv=st.integers(0, 255),
+    stall_bumpers=st.integers(0, 0xFFFF),
+    control=st.integers(-32768, 32767),
+    flags=st.integers(0, 0xFFFF),
+    compass=st.integers(0, 255),
+    sonar=sonar.map(tuple),
     battery_x10=st.one_of(st.none(), st.integers(0, 0xFFFF)),
 )
 
@@ -131,8 +151,12 @@ raw_sips = st.builds(
 @FUZZ
 @given(ptype=st.sampled_from([0x32, 0x33, 0x20, 0x02, 0x90, 0x00]), payload=st.binary(max_size=252))
 def test_arcos_payload_decoders_raise_only_codec_error(ptype: int, payload: bytes) -> None:
-    for decode in (lambda: decode_raw_sip(ptype, payload), lambda: decode_identity(payload),
-                   lambda: decode_config(payload), lambda: decode_command(Packet(ptype, payload))):
+    for decode in (
+        lambda: decode_raw_sip(ptype, payload),
+        lambda: decode_identity(payload),
+        lambda: decode_config(payload),
+        lambda: decode_command(Packet(ptype, payload)),
+    ):
         try:
             decode()
         except CodecError:
@@ -142,17 +166,31 @@ def test_arcos_payload_decoders_raise_only_codec_error(ptype: int, payload: byte
 # Found by a random seed: the junk's FA FB and the first packet's FA open a false frame of
 # 250 bytes whose body sums to 0 and whose "checksum" is the zero padding, so it passes and
 # swallows the bad SIP and the good one.
-_SWALLOWED = RawSip(moving=True, x_raw=0, y_raw=0, th_raw=0, left_raw=0, right_raw=-15934,
-                    battery_dv=0, stall_bumpers=0, control=-1, flags=1024, compass=0,
-                    sonar=((100, 0), (0, 767)), digin=255, digout=255, battery_x10=4297)
+_SWALLOWED = RawSip(
+    moving=True,
+    x_raw=0,
+    y_raw=0,
+    th_raw=0,
+    left_raw=0,
+    right_raw=-15934,
+    battery_dv=0,
+    stall_bumpers=0,
+    control=-1,
+    flags=1024,
+    compass=0,
+    sonar=((100, 0), (0, 767)),
+    digin=255,
+    digout=255,
+    battery_x10=4297,
+)
 
 
 @FEW
-@given(bad=st.lists(st.binary(max_size=60), min_size=1, max_size=4), good=raw_sips,
-       junk=garbage)
+@given(bad=st.lists(st.binary(max_size=60), min_size=1, max_size=4), good=raw_sips, junk=garbage)
 @example(bad=[b"\xd2H$z6\x94>\xaey\xb1z\xb8\xaeL"], good=_SWALLOWED, junk=b"\xfa\xfb")
-def test_arcos_driver_takes_a_valid_sip_after_bad_ones(bad: list[bytes], good: RawSip,
-                                                       junk: bytes) -> None:
+def test_arcos_driver_takes_a_valid_sip_after_bad_ones(
+    bad: list[bytes], good: RawSip, junk: bytes
+) -> None:
     """The driver's own packet path: bad SIPs are counted, the next good one is used.
 
     The oracle is what the decoder delivers, not what was sent: the 16-bit checksum lets
@@ -202,8 +240,10 @@ def _decodes(pkt: Packet) -> bool:
 
 
 @FEW
-@given(name=st.text(st.characters(min_codepoint=1, max_codepoint=255), max_size=20),
-       cut=st.integers(0, 200))
+@given(
+    name=st.text(st.characters(min_codepoint=1, max_codepoint=255), max_size=20),
+    cut=st.integers(0, 200),
+)
 def test_arcos_identity_and_config_round_trip_or_codec_error(name: str, cut: int) -> None:
     ident = RobotIdentity(name, "Pioneer", "p3at-sh")
     assert decode_identity(encode_identity(ident)) == ident
@@ -256,11 +296,16 @@ def _pantilt(protocol: str) -> Any:
 
 
 @FUZZ
-@given(stray=st.binary(max_size=20), quarter=st.integers(0, mc.MAX_14BIT),
-       extra=st.binary(max_size=3), cuts=st.lists(st.integers(0, 8), max_size=4),
-       noise=st.binary(min_size=1, max_size=3))
-def test_maestro_reply_after_stray_bytes_at_any_split(stray: bytes, quarter: int, extra: bytes,
-                                                      cuts: list[int], noise: bytes) -> None:
+@given(
+    stray=st.binary(max_size=20),
+    quarter=st.integers(0, mc.MAX_14BIT),
+    extra=st.binary(max_size=3),
+    cuts=st.lists(st.integers(0, 8), max_size=4),
+    noise=st.binary(min_size=1, max_size=3),
+)
+def test_maestro_reply_after_stray_bytes_at_any_split(
+    stray: bytes, quarter: int, extra: bytes, cuts: list[int], noise: bytes
+) -> None:
     pt = _pantilt("maestro")
     reply = _assemble(pt, stray, bytes((quarter & 0xFF, quarter >> 8)) + extra, cuts, 2)
     assert mc.decode_position_us(reply) == quarter / 4.0
@@ -274,9 +319,15 @@ def test_maestro_reply_after_stray_bytes_at_any_split(stray: bytes, quarter: int
 
 
 @FUZZ
-@given(stray=st.binary(max_size=20), pulse10=st.integers(0, 255), moving=st.booleans(),
-       reply=st.binary(max_size=3))
-def test_ssc32_reply_after_stray_bytes(stray: bytes, pulse10: int, moving: bool, reply: bytes) -> None:
+@given(
+    stray=st.binary(max_size=20),
+    pulse10=st.integers(0, 255),
+    moving=st.booleans(),
+    reply=st.binary(max_size=3),
+)
+def test_ssc32_reply_after_stray_bytes(
+    stray: bytes, pulse10: int, moving: bool, reply: bytes
+) -> None:
     pt = _pantilt("ssc32")
     assert sc.decode_pulse_us(_assemble(pt, stray, bytes((pulse10,)), [], 1)) == pulse10 * 10
     assert sc.decode_movement(_assemble(pt, b"", b"+" if moving else b".", [], 1)) is moving
@@ -290,8 +341,10 @@ def test_ssc32_reply_after_stray_bytes(stray: bytes, pulse10: int, moving: bool,
 
 # ---------------------------------------------------------------------- Wi-Fi sources
 
-_text = st.one_of(st.text(st.characters(exclude_categories=["Cs"]), max_size=300),
-                  st.lists(st.sampled_from(list(" \t:.|-0123456789wlan1\n")), max_size=200).map("".join))
+_text = st.one_of(
+    st.text(st.characters(exclude_categories=["Cs"]), max_size=300),
+    st.lists(st.sampled_from(list(" \t:.|-0123456789wlan1\n")), max_size=200).map("".join),
+)
 
 
 @pytest.fixture(scope="module")
@@ -304,8 +357,11 @@ def loop() -> Iterator[asyncio.AbstractEventLoop]:
 @FEW
 @given(junk=st.lists(_text, min_size=1, max_size=3), level=st.integers(-95, -20))
 def test_procfs_source_after_garbage_files_reads_a_valid_one(
-        tmp_path_factory: pytest.TempPathFactory, loop: asyncio.AbstractEventLoop,
-        junk: list[str], level: int) -> None:
+    tmp_path_factory: pytest.TempPathFactory,
+    loop: asyncio.AbstractEventLoop,
+    junk: list[str],
+    level: int,
+) -> None:
     path: Path = tmp_path_factory.mktemp("procfs") / "wireless"
     src = ProcfsSource("wlan1", path=path)
     for text in junk:
@@ -313,8 +369,14 @@ def test_procfs_source_after_garbage_files_reads_a_valid_one(
         path.write_text(text, encoding="utf-8")
         sample = loop.run_until_complete(src.read())
         assert not sample.fresh and sample.rssi_dbm is None
-    row = format_proc_row("wlan1", link=link_quality_for(level), link_updated=True, level=level,
-                          level_updated=True, misc=len(junk))
+    row = format_proc_row(
+        "wlan1",
+        link=link_quality_for(level),
+        link_updated=True,
+        level=level,
+        level_updated=True,
+        misc=len(junk),
+    )
     path.write_text(PROC_HEADER_1 + "\n" + PROC_HEADER_2 + "\n" + row + "\n", encoding="utf-8")
     sample = loop.run_until_complete(src.read())
     assert sample.fresh and sample.rssi_dbm == level
@@ -332,15 +394,18 @@ class _ScriptedIw(IwSource):
         return self.outputs.pop(0)
 
 
-IW_LINK = ("Connected to 34:fc:b9:74:cf:d0 (on wlan1)\n\tSSID: relay\n\tfreq: 5260\n"
-           "\tRX: 149879 bytes ({rx} packets)\n\tTX: 4747 bytes (33 packets)\n"
-           "\tsignal: {dbm} dBm\n\ttx bitrate: 6.0 MBit/s\n")
+IW_LINK = (
+    "Connected to 34:fc:b9:74:cf:d0 (on wlan1)\n\tSSID: relay\n\tfreq: 5260\n"
+    "\tRX: 149879 bytes ({rx} packets)\n\tTX: 4747 bytes (33 packets)\n"
+    "\tsignal: {dbm} dBm\n\ttx bitrate: 6.0 MBit/s\n"
+)
 
 
 @FEW
 @given(junk=st.lists(_text, min_size=1, max_size=3), level=st.integers(-95, -20))
 def test_iw_source_after_garbage_output_reads_a_valid_one(
-        loop: asyncio.AbstractEventLoop, junk: list[str], level: int) -> None:
+    loop: asyncio.AbstractEventLoop, junk: list[str], level: int
+) -> None:
     src = _ScriptedIw([*junk, IW_LINK.format(rx=900, dbm=level)])
     for _ in junk:
         sample = loop.run_until_complete(src.read())
@@ -367,16 +432,34 @@ def documents() -> list[tuple[bytes, Any]]:
 
 
 @FUZZ
-@given(which=st.integers(0, 10), before=st.binary(max_size=40), after=st.binary(max_size=40),
-       cut=st.integers(0, 10_000), flip=st.integers(0, 10_000), byte=st.integers(0, 255))
+@given(
+    which=st.integers(0, 10),
+    before=st.binary(max_size=40),
+    after=st.binary(max_size=40),
+    cut=st.integers(0, 10_000),
+    flip=st.integers(0, 10_000),
+    byte=st.integers(0, 255),
+)
 def test_airos_any_bytes_around_a_document_then_the_document(
-        documents: list[tuple[bytes, Any]], which: int, before: bytes, after: bytes, cut: int,
-        flip: int, byte: int) -> None:
+    documents: list[tuple[bytes, Any]],
+    which: int,
+    before: bytes,
+    after: bytes,
+    cut: int,
+    flip: int,
+    byte: int,
+) -> None:
     raw, expected = documents[which % len(documents)]
     mutated = bytearray(raw)
     mutated[flip % len(raw)] = byte
-    for blob in (before + raw + after, raw[: cut % len(raw)], bytes(mutated), before, after,
-                 json.dumps(json.loads(raw)["wireless"]).encode()):
+    for blob in (
+        before + raw + after,
+        raw[: cut % len(raw)],
+        bytes(mutated),
+        before,
+        after,
+        json.dumps(json.loads(raw)["wireless"]).encode(),
+    ):
         for decode in (lambda b: decode_status(b, t=0.0), decode_stations):
             try:
                 decode(blob)
@@ -384,4 +467,3 @@ def test_airos_any_bytes_around_a_document_then_the_document(
                 pass
     # The decoders keep no state: the real document still gives what it gives alone.
     assert decode_status(raw, t=0.0).to_json() == expected
-

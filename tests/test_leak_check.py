@@ -16,7 +16,7 @@ pytest_plugins = ["pytester"]
 
 TESTS = Path(__file__).resolve().parent
 
-PROBES = '''
+PROBES = """
 import asyncio
 import pytest
 
@@ -40,19 +40,26 @@ async def test_clean_on_the_module_loop():
 
 async def test_clean():
     await asyncio.sleep(0)
-'''
+"""
 
 
-def test_every_kind_of_leak_fails_and_clean_tests_pass(pytester: pytest.Pytester,
-                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+def test_every_kind_of_leak_fails_and_clean_tests_pass(
+    pytester: pytest.Pytester, monkeypatch: pytest.MonkeyPatch
+) -> None:
     pytester.makeconftest((TESTS / "conftest.py").read_text())
-    pytester.makeini("[pytest]\nasyncio_mode = auto\nasyncio_default_fixture_loop_scope = function\n"
-                     "markers =\n    virtual_time: probe\n")
+    pytester.makeini(
+        "[pytest]\nasyncio_mode = auto\nasyncio_default_fixture_loop_scope = function\n"
+        "markers =\n    virtual_time: probe\n"
+    )
     pytester.makepyfile(test_probes=PROBES)
     monkeypatch.setenv("PYTHONPATH", str(TESTS))  # the conftest's loop factory imports support.py
     result = pytester.runpytest_subprocess("-p", "no:cacheprovider")
     result.assert_outcomes(passed=6, errors=4)
     out = result.stdout.str()
-    for name in ("test_leaks_a_task", "test_leaks_a_timer", "test_leaks_on_virtual_time",
-                 "test_leaks_on_the_module_loop"):
+    for name in (
+        "test_leaks_a_task",
+        "test_leaks_a_timer",
+        "test_leaks_on_virtual_time",
+        "test_leaks_on_the_module_loop",
+    ):
         assert f"ERROR test_probes.py::{name}" in out, out

@@ -54,7 +54,9 @@ async def test_a_hung_up_port_is_one_warning_and_other_reports_pass_through() ->
                 transport.write(b"\x84\x00\x70\x2e")
                 return False
 
-            await until(written_until_closed, "the port closed after a failed write", 10.0, poll_s=0.01)
+            await until(
+                written_until_closed, "the port closed after a failed write", 10.0, poll_s=0.01
+            )
         failed = [e for e in logs if e["event"] == "serial_transport_failed"]
         assert failed and failed[0]["log_level"] == "warning", logs
         assert failed[0]["port"] == name and "exc_info" not in failed[0]
@@ -84,7 +86,6 @@ async def test_reopening_does_not_stack_handlers() -> None:
     loop.set_exception_handler(None)
 
 
-
 async def test_the_api_and_serial_filters_stack_once_whatever_the_order() -> None:
     from relayd.api.server import install_accept_error_limit
 
@@ -95,7 +96,9 @@ async def test_the_api_and_serial_filters_stack_once_whatever_the_order() -> Non
         transport, proto = await open_link(name, 115200, _Lost)
         await close_link(transport, proto.closed)
         installed = loop.get_exception_handler()
-        install_accept_error_limit(loop)  # the serial filter now wraps the API's: still no second one
+        install_accept_error_limit(
+            loop
+        )  # the serial filter now wraps the API's: still no second one
         transport, proto = await open_link(name, 115200, _Lost)
         await close_link(transport, proto.closed)
         assert loop.get_exception_handler() is installed

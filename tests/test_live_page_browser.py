@@ -24,8 +24,15 @@ from relayd.fakes.rig import FakeRig
 pytestmark = pytest.mark.browser
 
 CHROMIUM = Path("/usr/bin/chromium")
-CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-                 "--disable-component-update", "--disable-sync", "--no-first-run"]
+CHROMIUM_ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+]
 #: Generous: a sweep takes a few seconds, more on a shared machine.
 SCAN_TIMEOUT_MS = 30_000
 
@@ -40,8 +47,9 @@ def _require_chromium() -> None:
 async def served(tmp_path: Path) -> AsyncIterator[tuple[str, FakeRig, Daemon]]:
     _require_chromium()
     async with FakeRig(tmp_path, leader_xy_m=(6.0, 2.0)) as rig:  # 18 deg to the left
-        daemon = Daemon(parse_settings(rig.config_doc(api_port=0, control={"mode": "hold"})),
-                        env=rig.env)
+        daemon = Daemon(
+            parse_settings(rig.config_doc(api_port=0, control={"mode": "hold"})), env=rig.env
+        )
         async with running(daemon) as task:
             await until(lambda: daemon.api_port is not None or task.done(), "the API to bind", 20.0)
             if task.done():
@@ -50,7 +58,8 @@ async def served(tmp_path: Path) -> AsyncIterator[tuple[str, FakeRig, Daemon]]:
 
 
 async def test_live_page_shows_the_daemon_and_redraws_on_a_new_scan(
-        served: tuple[str, FakeRig, Daemon], tmp_path: Path) -> None:
+    served: tuple[str, FakeRig, Daemon], tmp_path: Path
+) -> None:
     from playwright.async_api import async_playwright
 
     url, rig, daemon = served
@@ -70,7 +79,9 @@ async def test_live_page_shows_the_daemon_and_redraws_on_a_new_scan(
 
             # The daemon's first sweep arrives and is drawn.
             await page.wait_for_function(
-                "() => document.querySelectorAll('#scan-points circle').length > 0", timeout=SCAN_TIMEOUT_MS)
+                "() => document.querySelectorAll('#scan-points circle').length > 0",
+                timeout=SCAN_TIMEOUT_MS,
+            )
             assert state.last_scan is not None
             assert await page.text_content("#robot-name") == rig.name
             assert await page.text_content("#mode") == "hold"
@@ -88,7 +99,9 @@ async def test_live_page_shows_the_daemon_and_redraws_on_a_new_scan(
             assert await page.locator("#health tbody tr").count() == len(state.health_now()) == 5
             await page.wait_for_function(
                 "() => [...document.querySelectorAll('#health tbody tr')].every("
-                "r => r.textContent.includes('up'))", timeout=10_000)
+                "r => r.textContent.includes('up'))",
+                timeout=10_000,
+            )
             assert await page.locator("#links tbody tr").count() == 2
             old_points = await page.get_attribute("#scan-trace", "points")
             old_x2 = float(await page.get_attribute("#bearing-line", "x2") or "nan")
@@ -102,30 +115,45 @@ async def test_live_page_shows_the_daemon_and_redraws_on_a_new_scan(
             full_sweep = state.scan_count + 2
             await page.wait_for_function(
                 "(n) => parseInt(document.getElementById('scan-count').textContent) >= n",
-                arg=full_sweep, timeout=2 * SCAN_TIMEOUT_MS)
+                arg=full_sweep,
+                timeout=2 * SCAN_TIMEOUT_MS,
+            )
             new_points = await page.get_attribute("#scan-trace", "points")
             assert new_points != old_points
             # The adaptive window is still centred on the old side for the sweeps right
             # after the move: where they see the leader only at their edge, the lobe fit
             # may land past it (-60 deg was seen, on a loaded machine). Re-centred, the
             # estimate is within 10 deg of the truth (-45 deg) in a sweep or two.
-            await until(lambda: state.bearing_deg is not None
-                        and abs(state.bearing_deg - rig.true_bearing_deg()) <= 10,
-                        "the bearing estimate on the leader's new side", 2 * SCAN_TIMEOUT_MS / 1000)
+            await until(
+                lambda: (
+                    state.bearing_deg is not None
+                    and abs(state.bearing_deg - rig.true_bearing_deg()) <= 10
+                ),
+                "the bearing estimate on the leader's new side",
+                2 * SCAN_TIMEOUT_MS / 1000,
+            )
             await page.wait_for_function(
                 "(n) => parseInt(document.getElementById('scan-count').textContent) >= n",
-                arg=state.scan_count, timeout=SCAN_TIMEOUT_MS)
-            assert float(await page.get_attribute("#bearing-line", "x2") or "nan") > 50  # leans right
+                arg=state.scan_count,
+                timeout=SCAN_TIMEOUT_MS,
+            )
+            assert (
+                float(await page.get_attribute("#bearing-line", "x2") or "nan") > 50
+            )  # leans right
             assert state.bearing_deg is not None
             shown = float((await page.text_content("#bearing") or "nan").rstrip("°"))
-            assert shown == pytest.approx(state.bearing_deg, abs=2)  # a later sweep may differ a bit
+            assert shown == pytest.approx(
+                state.bearing_deg, abs=2
+            )  # a later sweep may differ a bit
             await page.screenshot(path=str(tmp_path / "live.png"), full_page=True)
         finally:
             await browser.close()
 
     assert not problems, problems
     # Offline: every request went to the robot itself (data: URLs need no network).
-    foreign: list[Any] = [r for r in requests if not r.startswith(url) and not r.startswith("data:")]
+    foreign: list[Any] = [
+        r for r in requests if not r.startswith(url) and not r.startswith("data:")
+    ]
     assert not foreign, foreign
 
 
@@ -145,30 +173,40 @@ async def test_live_page_shows_the_recovery_state_and_progress(tmp_path: Path) -
             url = f"http://127.0.0.1:{daemon.api_port}"
             problems: list[str] = []
             async with async_playwright() as pw:
-                browser = await pw.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_ARGS)
+                browser = await pw.chromium.launch(
+                    executable_path=str(CHROMIUM), args=CHROMIUM_ARGS
+                )
                 try:
                     page = await browser.new_page(viewport={"width": 1400, "height": 1000})
                     page.on("pageerror", lambda e: problems.append(str(e)))
                     await page.goto(url + "/")
                     await page.wait_for_function(
-                        "() => !document.getElementById('recovery-box').hidden", timeout=SCAN_TIMEOUT_MS)
+                        "() => !document.getElementById('recovery-box').hidden",
+                        timeout=SCAN_TIMEOUT_MS,
+                    )
                     assert (await page.text_content("#recovery-phase") or "").startswith("idle")
                     rig.set_rear_signal(-92.0)  # below control.lost_rssi_dbm (-85)
                     await page.wait_for_function(
                         "() => document.getElementById('recovery-phase').textContent.startsWith('backup')",
-                        timeout=SCAN_TIMEOUT_MS)
+                        timeout=SCAN_TIMEOUT_MS,
+                    )
                     assert await page.text_content("#recovery-phase") == "backup · link behind"
                     assert "of 300 s" in (await page.text_content("#recovery-progress") or "")
                     # A busy test process can starve an input for a moment (a passing
                     # stale-input fault); the page must show the episode driving.
                     await page.wait_for_function(
                         "() => document.getElementById('drive-state').textContent === 'recovering'",
-                        timeout=SCAN_TIMEOUT_MS)
-                    assert daemon.state.recovery is not None and daemon.state.recovery.phase == "backup"
+                        timeout=SCAN_TIMEOUT_MS,
+                    )
+                    assert (
+                        daemon.state.recovery is not None
+                        and daemon.state.recovery.phase == "backup"
+                    )
                     rig.set_rear_signal(-50.0)
                     await page.wait_for_function(
                         "() => document.getElementById('recovery-progress').textContent.includes('restored')",
-                        timeout=SCAN_TIMEOUT_MS)
+                        timeout=SCAN_TIMEOUT_MS,
+                    )
                 finally:
                     await browser.close()
             assert not problems, problems

@@ -67,6 +67,7 @@ def json_lines(text: str) -> list[tuple[int, dict[str, Any]]]:
 
 # --- no frame locals ---------------------------------------------------------------------
 
+
 @pytest.mark.parametrize("fmt", ["json", "console"])
 async def test_exception_during_login_never_logs_the_password(fmt: str) -> None:
     radio = FakeAirOs("ubnt", PASSWORD)
@@ -86,7 +87,9 @@ async def test_exception_during_login_never_logs_the_password(fmt: str) -> None:
     try:
         with captured(fmt) as buf:
             supervisor.start()
-            await until(lambda: "injected fault during login" in buf.getvalue(), "the failure logged")
+            await until(
+                lambda: "injected fault during login" in buf.getvalue(), "the failure logged"
+            )
             await supervisor.stop(0.5)
         text = buf.getvalue()
     finally:
@@ -97,6 +100,7 @@ async def test_exception_during_login_never_logs_the_password(fmt: str) -> None:
 
 
 # --- one pipeline, priority prefix ---------------------------------------------------------
+
 
 def test_foreign_lines_are_json_with_a_priority_prefix() -> None:
     # setup_logging runs inside catch_warnings, so it is its own captureWarnings that
@@ -128,11 +132,14 @@ async def test_asyncio_loop_errors_come_out_as_json() -> None:
     with captured("json") as buf:
         loop = asyncio.get_running_loop()
         loop.call_exception_handler({"message": "something asyncio noticed"})
-    (prio, event), = json_lines(buf.getvalue())
-    assert prio == 3 and "something asyncio noticed" in event["event"] and event["logger"] == "asyncio"
+    ((prio, event),) = json_lines(buf.getvalue())
+    assert (
+        prio == 3 and "something asyncio noticed" in event["event"] and event["logger"] == "asyncio"
+    )
 
 
 # --- malformed requests and wrong tokens ----------------------------------------------------
+
 
 async def _raw(port: int, data: bytes) -> bytes:
     reader, writer = await asyncio.open_connection("127.0.0.1", port)
@@ -157,8 +164,9 @@ class _Controls:
 async def test_malformed_requests_are_info_without_traceback_and_rate_limited() -> None:
     clock = ManualClock(1000.0)
     with captured("json") as buf:
-        server, port = await start_api(make_app(RelayState(), _Controls(), clock=clock, token=TOKEN),
-                                       "127.0.0.1", 0)
+        server, port = await start_api(
+            make_app(RelayState(), _Controls(), clock=clock, token=TOKEN), "127.0.0.1", 0
+        )
         try:
             for _ in range(20):
                 answer = await _raw(port, b"GET /status HTTP/1.1\r\nHost: x\r\nBad Header\r\n\r\n")
@@ -175,14 +183,17 @@ async def test_malformed_requests_are_info_without_traceback_and_rate_limited() 
 async def test_wrong_token_warnings_are_rate_limited_with_a_count() -> None:
     clock = ManualClock(1000.0)
     with captured("json") as buf:
-        server, port = await start_api(make_app(RelayState(), _Controls(), clock=clock, token=TOKEN),
-                                       "127.0.0.1", 0)
+        server, port = await start_api(
+            make_app(RelayState(), _Controls(), clock=clock, token=TOKEN), "127.0.0.1", 0
+        )
         try:
             async with aiohttp.ClientSession() as session:
+
                 async def post(token: str | None) -> int:
                     headers = {"Authorization": f"Bearer {token}"} if token else {}
-                    async with session.post(f"http://127.0.0.1:{port}/api/mode", json={"mode": "hold"},
-                                            headers=headers) as resp:
+                    async with session.post(
+                        f"http://127.0.0.1:{port}/api/mode", json={"mode": "hold"}, headers=headers
+                    ) as resp:
                         return resp.status
 
                 for _ in range(30):

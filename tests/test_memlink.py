@@ -71,9 +71,11 @@ async def test_one_byte_chunks_and_random_chunks_keep_the_stream() -> None:
 
 
 async def test_garbage_drop_and_delay() -> None:
-    port = MemoryPort(lambda _d: None, "hostile",
-                      faults_to_driver=LinkFaults(garbage_rate=1.0, garbage_avoid=frozenset({0xFA}),
-                                                  seed=1))
+    port = MemoryPort(
+        lambda _d: None,
+        "hostile",
+        faults_to_driver=LinkFaults(garbage_rate=1.0, garbage_avoid=frozenset({0xFA}), seed=1),
+    )
     url = port.open()
     try:
         _, proto = await open_link(url, 9600, Recorder)
@@ -111,8 +113,12 @@ async def test_garbage_drop_and_delay() -> None:
 async def test_close_flushes_what_was_written_then_reports_lost() -> None:
     got = bytearray()
     disconnects: list[int] = []
-    port = MemoryPort(got.extend, "flush", on_disconnect=lambda: disconnects.append(1),
-                      faults_to_device=LinkFaults(chunk_bytes=1))
+    port = MemoryPort(
+        got.extend,
+        "flush",
+        on_disconnect=lambda: disconnects.append(1),
+        faults_to_device=LinkFaults(chunk_bytes=1),
+    )
     url = port.open()
     try:
         transport, proto = await open_link(url, 9600, Recorder)

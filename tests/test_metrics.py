@@ -68,8 +68,14 @@ def test_levels_are_read_at_scrape_time() -> None:
     assert after[("relayd_sonar_range_meters", (("sonar", "3"),))] == 1.234
     assert after[("relayd_link_signal_dbm", (("link", "front"),))] == -50.0
     assert after[("relayd_link_ccq_ratio", (("link", "front"),))] == 0.8
-    assert after[("relayd_link_rate_bits_per_second", (("direction", "tx"), ("link", "front")))] == 54e6
-    assert ("relayd_link_rate_bits_per_second", (("direction", "rx"), ("link", "front"))) not in after
+    assert (
+        after[("relayd_link_rate_bits_per_second", (("direction", "tx"), ("link", "front")))]
+        == 54e6
+    )
+    assert (
+        "relayd_link_rate_bits_per_second",
+        (("direction", "rx"), ("link", "front")),
+    ) not in after
     assert after[("relayd_device_connected", (("device", "base"),))] == 1.0
     assert after[("relayd_device_errors_total", (("device", "base"),))] == 3.0
     assert after[("relayd_device_data_age_seconds", (("device", "base"),))] == 0.5
@@ -99,13 +105,24 @@ _maybe_float = st.one_of(st.none(), st.floats(allow_nan=True, allow_infinity=Tru
 
 
 @settings(max_examples=60, deadline=None)
-@given(rssi_l=_maybe_float, rssi_b=_maybe_float, bearing=_maybe_float, battery=_maybe_float,
-       signal=_maybe_float, ccq=_maybe_float,
-       sonar=st.lists(st.one_of(st.none(), st.integers(0, 10_000)), min_size=16, max_size=16))
-def test_any_state_scrapes_to_valid_exposition(rssi_l: float | None, rssi_b: float | None,
-                                               bearing: float | None, battery: float | None,
-                                               signal: float | None, ccq: float | None,
-                                               sonar: list[int | None]) -> None:
+@given(
+    rssi_l=_maybe_float,
+    rssi_b=_maybe_float,
+    bearing=_maybe_float,
+    battery=_maybe_float,
+    signal=_maybe_float,
+    ccq=_maybe_float,
+    sonar=st.lists(st.one_of(st.none(), st.integers(0, 10_000)), min_size=16, max_size=16),
+)
+def test_any_state_scrapes_to_valid_exposition(
+    rssi_l: float | None,
+    rssi_b: float | None,
+    bearing: float | None,
+    battery: float | None,
+    signal: float | None,
+    ccq: float | None,
+    sonar: list[int | None],
+) -> None:
     state = RelayState()
     state.rssi_leader_dbm, state.rssi_behind_dbm = rssi_l, rssi_b
     state.bearing_deg, state.battery_v = bearing, battery
@@ -117,8 +134,13 @@ def test_any_state_scrapes_to_valid_exposition(rssi_l: float | None, rssi_b: flo
     assert any(f.name == "relayd_build_info" for f in families)
     for fam in families:
         for sample in fam.samples:
-            if fam.name in ("relayd_rssi_dbm", "relayd_bearing_degrees", "relayd_battery_volts",
-                            "relayd_link_signal_dbm", "relayd_link_ccq_ratio"):
+            if fam.name in (
+                "relayd_rssi_dbm",
+                "relayd_bearing_degrees",
+                "relayd_battery_volts",
+                "relayd_link_signal_dbm",
+                "relayd_link_ccq_ratio",
+            ):
                 # Unknown or non-finite levels are absent, never exported as NaN.
                 assert math.isfinite(sample.value)
 

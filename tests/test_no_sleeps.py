@@ -26,18 +26,29 @@ ALLOWED: dict[tuple[str, str], str] = {
     ("support.py", "until"): "the poll interval of the shared wait-for-a-condition helper",
     ("support.py", "until_sync"): "the same, for synchronous tests",
     ("rig_proc.py", "main.sample"): "the sampling period of the rig's wheel-speed sampler",
-    ("test_reconnect.py", "Device.serve"): "a fake device's session that lasts the seconds the test scripted",
+    (
+        "test_reconnect.py",
+        "Device.serve",
+    ): "a fake device's session that lasts the seconds the test scripted",
     ("test_scanner.py", "ScriptedSource.read"): "a fake RSSI source's modelled read latency",
-    ("test_serial_leaks.py", "test_hang_ups_idle_under_a_write_and_during_a_connect"):
-        "the injected fault: how long the cable stays pulled mid-connect; any outcome is then checked",
-    ("test_systemd_unit.py", "_pet_periods"):
-        "waits out watchdog periods to see that no pet came; its one caller runs on virtual time",
+    (
+        "test_serial_leaks.py",
+        "test_hang_ups_idle_under_a_write_and_during_a_connect",
+    ): "the injected fault: how long the cable stays pulled mid-connect; any outcome is then checked",
+    (
+        "test_systemd_unit.py",
+        "_pet_periods",
+    ): "waits out watchdog periods to see that no pet came; its one caller runs on virtual time",
     ("flood.py", "_slow_header"): "the slow-header attacker's pace: one byte a second",
     ("flood.py", "flood"): "how long the flood is held (its length is the load being applied)",
-    ("test_live_page_ops.py", "test_stale_when_the_daemon_is_paused_or_killed"):
-        "watches a live page for 3 s of wall time to see it never goes stale (a span: the page's timers are wall time)",
-    ("test_live_page_ops.py", "test_controls_reasons_history_and_layout"):
-        "the operator's drive refresh pace (a manual drive is re-sent every 0.15 s for 4 s)",
+    (
+        "test_live_page_ops.py",
+        "test_stale_when_the_daemon_is_paused_or_killed",
+    ): "watches a live page for 3 s of wall time to see it never goes stale (a span: the page's timers are wall time)",
+    (
+        "test_live_page_ops.py",
+        "test_controls_reasons_history_and_layout",
+    ): "the operator's drive refresh pace (a manual drive is re-sent every 0.15 s for 4 s)",
 }
 
 
@@ -52,14 +63,21 @@ class Sleep:
 
 
 def _mentions_virtual_time(node: ast.AST, aliases: set[str]) -> bool:
-    return any((isinstance(n, ast.Attribute) and n.attr == "virtual_time")
-               or (isinstance(n, ast.Name) and n.id in aliases) for n in ast.walk(node))
+    return any(
+        (isinstance(n, ast.Attribute) and n.attr == "virtual_time")
+        or (isinstance(n, ast.Name) and n.id in aliases)
+        for n in ast.walk(node)
+    )
 
 
 def _is_sleep(call: ast.Call, sleep_names: set[str]) -> bool:
     f = call.func
     if isinstance(f, ast.Attribute):
-        return f.attr == "sleep" and isinstance(f.value, ast.Name) and f.value.id in ("asyncio", "time")
+        return (
+            f.attr == "sleep"
+            and isinstance(f.value, ast.Name)
+            and f.value.id in ("asyncio", "time")
+        )
     return isinstance(f, ast.Name) and f.id in sleep_names
 
 
@@ -72,9 +90,14 @@ def _is_zero(call: ast.Call) -> bool:
 
 def _runs_virtual(func: ast.AST) -> bool:
     """True if `func` calls `vtime.run(...)`: the coroutines it defines run on virtual time."""
-    return any(isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute) and n.func.attr == "run"
-               and isinstance(n.func.value, ast.Name) and n.func.value.id == "vtime"
-               for n in ast.walk(func))
+    return any(
+        isinstance(n, ast.Call)
+        and isinstance(n.func, ast.Attribute)
+        and n.func.attr == "run"
+        and isinstance(n.func.value, ast.Name)
+        and n.func.value.id == "vtime"
+        for n in ast.walk(func)
+    )
 
 
 def wall_sleeps(path: Path) -> list[Sleep]:
@@ -99,11 +122,17 @@ def wall_sleeps(path: Path) -> list[Sleep]:
         # `inner_virtual`: functions defined here run on virtual time (under vtime.run).
         for child in ast.iter_child_nodes(node):
             if isinstance(child, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
-                marked = inner_virtual or any(_mentions_virtual_time(d, aliases) for d in child.decorator_list)
+                marked = inner_virtual or any(
+                    _mentions_virtual_time(d, aliases) for d in child.decorator_list
+                )
                 visit(child, [*qual, child.name], marked, marked or _runs_virtual(child))
                 continue
-            if (isinstance(child, ast.Call) and _is_sleep(child, sleep_names)
-                    and not _is_zero(child) and not virtual):
+            if (
+                isinstance(child, ast.Call)
+                and _is_sleep(child, sleep_names)
+                and not _is_zero(child)
+                and not virtual
+            ):
                 found.append(Sleep(path.name, ".".join(qual), child.lineno))
             visit(child, qual, virtual, inner_virtual)
 
@@ -118,8 +147,10 @@ def _all_wall_sleeps() -> list[Sleep]:
 def test_no_fixed_wall_sleeps_outside_the_allowed_places() -> None:
     sleeps = _all_wall_sleeps()
     bad = [str(s) for s in sleeps if (s.file, s.func) not in ALLOWED]
-    assert not bad, ("a fixed wall-clock sleep: wait on the condition (support.until), or run "
-                     "the test on virtual time, or add it to ALLOWED with why:\n  " + "\n  ".join(bad))
+    assert not bad, (
+        "a fixed wall-clock sleep: wait on the condition (support.until), or run "
+        "the test on virtual time, or add it to ALLOWED with why:\n  " + "\n  ".join(bad)
+    )
 
 
 def test_every_allowed_place_still_sleeps() -> None:
@@ -165,12 +196,16 @@ def test_the_scan_finds_wall_sleeps_and_passes_virtual_ones(tmp_path: Path) -> N
     probe.write_text(PROBE)
     found = [(s.func, s.line) for s in wall_sleeps(probe)]
     lines = PROBE.splitlines()
-    want = [("test_waits", lines.index("    await asyncio.sleep(0.3)") + 1),
-            ("test_waits", lines.index("    time.sleep(x)") + 1),
-            ("test_waits", lines.index("    await nap(1)") + 1),
-            ("test_runs_on_vtime", lines.index("    time.sleep(1)") + 1)]
+    want = [
+        ("test_waits", lines.index("    await asyncio.sleep(0.3)") + 1),
+        ("test_waits", lines.index("    time.sleep(x)") + 1),
+        ("test_waits", lines.index("    await nap(1)") + 1),
+        ("test_runs_on_vtime", lines.index("    time.sleep(1)") + 1),
+    ]
     assert found == want
-    (tmp_path / "test_marked.py").write_text("import pytest, asyncio\n"
-                                             "pytestmark = [pytest.mark.asyncio, pytest.mark.virtual_time]\n"
-                                             "async def test_x():\n    await asyncio.sleep(3)\n")
+    (tmp_path / "test_marked.py").write_text(
+        "import pytest, asyncio\n"
+        "pytestmark = [pytest.mark.asyncio, pytest.mark.virtual_time]\n"
+        "async def test_x():\n    await asyncio.sleep(3)\n"
+    )
     assert wall_sleeps(tmp_path / "test_marked.py") == []

@@ -32,15 +32,19 @@ BUILD_TIMEOUT_S = 600
 INSTALL_TIMEOUT_S = 300
 
 
-def _run(args: list[str], timeout_s: float, env: dict[str, str] | None = None,
-         cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(args, capture_output=True, text=True, timeout=timeout_s, env=env,
-                          cwd=cwd, check=False)
+def _run(
+    args: list[str], timeout_s: float, env: dict[str, str] | None = None, cwd: Path | None = None
+) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        args, capture_output=True, text=True, timeout=timeout_s, env=env, cwd=cwd, check=False
+    )
 
 
 def _source_copy(dest: Path) -> Path:
     """The checkout's files (tracked and new, not ignored), so the build writes nothing here."""
-    listed = _run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"], 30, cwd=ROOT)
+    listed = _run(
+        ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"], 30, cwd=ROOT
+    )
     if listed.returncode != 0:
         pytest.skip("not a git checkout: cannot tell sources from build output")
     for name in filter(None, listed.stdout.split("\0")):
@@ -58,10 +62,15 @@ def _canonical(name: str) -> str:
 def test_wheelhouse_installs_relayd_without_an_index(tmp_path: Path) -> None:
     source = _source_copy(tmp_path / "src")
     wheelhouse = tmp_path / "wheelhouse"
-    built = _run([sys.executable, "-m", "pip", "wheel", "--quiet", "-w", str(wheelhouse), "."],
-                 BUILD_TIMEOUT_S, cwd=source)
+    built = _run(
+        [sys.executable, "-m", "pip", "wheel", "--quiet", "-w", str(wheelhouse), "."],
+        BUILD_TIMEOUT_S,
+        cwd=source,
+    )
     if built.returncode != 0:
-        skip_or_fail(f"cannot build the wheelhouse here (no package index?): {built.stderr[-1500:]}")
+        skip_or_fail(
+            f"cannot build the wheelhouse here (no package index?): {built.stderr[-1500:]}"
+        )
 
     # Every runtime dependency is in it, as a wheel.
     wheels = {_canonical(p.name.split("-")[0]) for p in wheelhouse.glob("*.whl")}
@@ -78,9 +87,24 @@ def test_wheelhouse_installs_relayd_without_an_index(tmp_path: Path) -> None:
     assert made.returncode == 0, made.stderr
     env = {k: v for k, v in os.environ.items() if not k.startswith("PIP_")}
     env["PIP_CONFIG_FILE"] = os.devnull
-    installed = _run([sys.executable, "-m", "pip", "--python", str(venv / "bin" / "python"), "install",
-                      "--quiet", "--no-index", "--find-links", str(wheelhouse), "relayd"],
-                     INSTALL_TIMEOUT_S, env=env, cwd=tmp_path)
+    installed = _run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "--python",
+            str(venv / "bin" / "python"),
+            "install",
+            "--quiet",
+            "--no-index",
+            "--find-links",
+            str(wheelhouse),
+            "relayd",
+        ],
+        INSTALL_TIMEOUT_S,
+        env=env,
+        cwd=tmp_path,
+    )
     assert installed.returncode == 0, installed.stdout + installed.stderr
 
     relayd = venv / "bin" / "relayd"
@@ -88,8 +112,10 @@ def test_wheelhouse_installs_relayd_without_an_index(tmp_path: Path) -> None:
     assert version.returncode == 0 and version.stdout.strip() == f"relayd {__version__}", version
     checked = _run([str(relayd), "check-config", str(ROOT / "config" / "relayd.toml")], 60, env=env)
     assert checked.returncode == 0, checked.stdout + checked.stderr
-    probe = ("import importlib.resources as r, relayd.daemon, relayd.api.app, drivers.arcos.driver, "
-             "drivers.wifi.sources, drivers.airos.poller; "
-             "assert (r.files('relayd') / 'api' / 'static' / 'index.html').is_file()")
+    probe = (
+        "import importlib.resources as r, relayd.daemon, relayd.api.app, drivers.arcos.driver, "
+        "drivers.wifi.sources, drivers.airos.poller; "
+        "assert (r.files('relayd') / 'api' / 'static' / 'index.html').is_file()"
+    )
     imported = _run([str(venv / "bin" / "python"), "-c", probe], 120, env=env, cwd=tmp_path)
     assert imported.returncode == 0, imported.stderr

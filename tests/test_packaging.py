@@ -18,8 +18,9 @@ def test_license_is_an_spdx_string_with_its_file() -> None:
     doc = tomllib.loads((ROOT / "pyproject.toml").read_text())
     project = doc["project"]
     assert project["license"] == "MIT"
-    assert not any(c.startswith("License ::") for c in project.get("classifiers", [])), \
+    assert not any(c.startswith("License ::") for c in project.get("classifiers", [])), (
         "license classifiers are deprecated next to an SPDX license"
+    )
     for pattern in project["license-files"]:
         assert list(ROOT.glob(pattern)), pattern
     assert "MIT License" in (ROOT / "LICENSE").read_text()

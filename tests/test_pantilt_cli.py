@@ -19,9 +19,21 @@ from relayd.cli import main
 def served(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[tuple[str, str]]:
     link = tmp_path / "servo"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "relayd", "fake", "pantilt", "--protocol", request.param,
-         "--link", str(link)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        [
+            sys.executable,
+            "-m",
+            "relayd",
+            "fake",
+            "pantilt",
+            "--protocol",
+            request.param,
+            "--link",
+            str(link),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert proc.stdout is not None
         ready, _, _ = select.select([proc.stdout], [], [], 20)
@@ -41,8 +53,9 @@ def probe(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str
     return code, out, err
 
 
-def test_probe_moves_waits_and_reads_back(served: tuple[str, str],
-                                          capsys: pytest.CaptureFixture[str]) -> None:
+def test_probe_moves_waits_and_reads_back(
+    served: tuple[str, str], capsys: pytest.CaptureFixture[str]
+) -> None:
     protocol, path = served
     base = ["--port", path, "--protocol", protocol, "--channel", "1", "--json"]
     code, out, err = probe(capsys, *base, "--angle", "0")
@@ -73,21 +86,45 @@ def test_probe_moves_waits_and_reads_back(served: tuple[str, str],
 def test_probe_into_a_reader_that_closed_exits_0(served: tuple[str, str]) -> None:
     """`relayd probe pantilt ... | true`: the reading is done, so no traceback and exit 0."""
     protocol, path = served
-    code, _, err, _ = piped_into_head(["probe", "pantilt", "--port", path, "--protocol", protocol,
-                                       "--channel", "1", "--angle", "0"], lines=0, timeout_s=30)
+    code, _, err, _ = piped_into_head(
+        [
+            "probe",
+            "pantilt",
+            "--port",
+            path,
+            "--protocol",
+            protocol,
+            "--channel",
+            "1",
+            "--angle",
+            "0",
+        ],
+        lines=0,
+        timeout_s=30,
+    )
     assert code == 0, err
     for noise in ("BrokenPipe", "Traceback", "Exception ignored"):
         assert noise not in err, err[:2000]
 
 
 def test_probe_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    code, out, err = probe(capsys, "--port", str(tmp_path / "nothing"), "--protocol", "maestro",
-                           "--channel", "0")
+    code, out, err = probe(
+        capsys, "--port", str(tmp_path / "nothing"), "--protocol", "maestro", "--channel", "0"
+    )
     assert code == 1 and out == "" and "cannot open" in err
     code, _, err = probe(capsys, "--port", "/dev/null", "--protocol", "ssc32", "--channel", "40")
     assert code == 2 and "channel out of range" in err
-    code, _, err = probe(capsys, "--port", "/dev/null", "--protocol", "ssc32", "--channel", "0",
-                         "--pulse-us", "1000,900,2000")
+    code, _, err = probe(
+        capsys,
+        "--port",
+        "/dev/null",
+        "--protocol",
+        "ssc32",
+        "--channel",
+        "0",
+        "--pulse-us",
+        "1000,900,2000",
+    )
     assert code == 2 and "monotonic" in err
 
 

@@ -113,20 +113,30 @@ def test_ssc32_replies() -> None:
 def test_ssc32_parse_is_lenient_like_the_firmware() -> None:
     assert sc.parse_command(b"q") == sc.Ssc32QueryMovement()
     assert sc.parse_command(b" # 5 p 1500 s 100\n") == sc.Ssc32GroupMove(
-        (sc.Ssc32Move(5, 1500, 100),))
+        (sc.Ssc32Move(5, 1500, 100),)
+    )
     assert sc.parse_command(b"QP0QP1") == sc.Ssc32QueryPulse((0, 1))
     assert sc.parse_command(b"#0P1000#1P2000S20T500") == sc.Ssc32GroupMove(
-        (sc.Ssc32Move(0, 1000), sc.Ssc32Move(1, 2000, 20)), 500)
+        (sc.Ssc32Move(0, 1000), sc.Ssc32Move(1, 2000, 20)), 500
+    )
     for bad in (b"", b"#0", b"#0P", b"#40P1500", b"#0P3000", b"hello", b"QP", b"T100", b"#0P1500T"):
         with pytest.raises(sc.Ssc32SyntaxError):
             sc.parse_command(bad)
 
 
-@given(st.lists(st.tuples(st.integers(0, 31), st.integers(500, 2500),
-                          st.one_of(st.none(), st.integers(1, 65535))), min_size=1, max_size=4),
-       st.one_of(st.none(), st.integers(0, 65535)))
-def test_ssc32_encode_parse_round_trip(moves: list[tuple[int, int, int | None]],
-                                       time_ms: int | None) -> None:
+@given(
+    st.lists(
+        st.tuples(
+            st.integers(0, 31), st.integers(500, 2500), st.one_of(st.none(), st.integers(1, 65535))
+        ),
+        min_size=1,
+        max_size=4,
+    ),
+    st.one_of(st.none(), st.integers(0, 65535)),
+)
+def test_ssc32_encode_parse_round_trip(
+    moves: list[tuple[int, int, int | None]], time_ms: int | None
+) -> None:
     group = tuple(sc.Ssc32Move(*m) for m in moves)
     frame = sc.encode_group_move(group, time_ms)
     assert frame.endswith(b"\r") and frame.count(b"\r") == 1
@@ -138,8 +148,13 @@ def test_ssc32_encode_parse_round_trip(moves: list[tuple[int, int, int | None]],
 
 def test_fuzz_reply_decoders() -> None:
     rng = random.Random(1234)
-    decoders = [mc.decode_position_us, mc.decode_moving_state, mc.decode_errors,
-                sc.decode_movement, sc.decode_pulse_us]
+    decoders = [
+        mc.decode_position_us,
+        mc.decode_moving_state,
+        mc.decode_errors,
+        sc.decode_movement,
+        sc.decode_pulse_us,
+    ]
     ok = 0
     for _ in range(20000):
         data = rng.randbytes(rng.choice((0, 1, 1, 2, 2, 3, rng.randrange(16))))
@@ -193,12 +208,18 @@ def test_piecewise_and_reversed_calibration() -> None:
     assert rev.pulse_range_us() == (1000, 2000)
 
 
-@pytest.mark.parametrize("kwargs", [
-    {"pulse_us": (1000, 1000, 2000)}, {"pulse_us": (1000, 2500, 2000)},
-    {"pulse_us": (1000, 1500)}, {"pulse_us": (0, 1500, 2000)},
-    {"pulse_us": (1000, math.nan, 2000)}, {"limits_deg": (10, -10)},
-    {"limits_deg": (-math.inf, 0)},
-])
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"pulse_us": (1000, 1000, 2000)},
+        {"pulse_us": (1000, 2500, 2000)},
+        {"pulse_us": (1000, 1500)},
+        {"pulse_us": (0, 1500, 2000)},
+        {"pulse_us": (1000, math.nan, 2000)},
+        {"limits_deg": (10, -10)},
+        {"limits_deg": (-math.inf, 0)},
+    ],
+)
 def test_bad_calibration_is_a_clear_error(kwargs: dict[str, object]) -> None:
     with pytest.raises(ValueError):
         ServoCalibration(**kwargs)  # type: ignore[arg-type]

@@ -55,9 +55,14 @@ async def make_rig(protocol: str, tmp_path: Path, kind: str = "memory", **option
         path = fake.serve_pty(tmp_path / f"{protocol}-servo")
     opts: dict[str, float] = {"reply_timeout_s": 3.0, "poll_s": 1000.0}
     opts.update(options)
-    pt = make_pantilt(protocol, path, None,
-                      {0: ServoCalibration(), 1: ServoCalibration(pulse_us=(2000, 1500, 1000))},
-                      clock=clock, **opts)
+    pt = make_pantilt(
+        protocol,
+        path,
+        None,
+        {0: ServoCalibration(), 1: ServoCalibration(pulse_us=(2000, 1500, 1000))},
+        clock=clock,
+        **opts,
+    )
     task = asyncio.create_task(pt.run())
     await until(lambda: pt.connected)
     return Rig(protocol, clock, fake, pt, task, TOL_DEG[protocol])
@@ -137,9 +142,11 @@ async def test_two_channels_interleaved_without_crosstalk(rig: Rig) -> None:
             assert await pt.get_angle(channel) == pytest.approx(a, abs=rig.tol)
             await asyncio.sleep(0)
 
-    await asyncio.gather(worker(0, [-80, -40, 0, 40, 80] * 3),
-                         worker(1, [70, 35, -35, -70, 10] * 3),
-                         *(pt.is_moving() for _ in range(10)))
+    await asyncio.gather(
+        worker(0, [-80, -40, 0, 40, 80] * 3),
+        worker(1, [70, 35, -35, -70, 10] * 3),
+        *(pt.is_moving() for _ in range(10)),
+    )
     assert pt.counters["stray_bytes"] == 0 and pt.counters["timeouts"] == 0
 
 
@@ -230,8 +237,9 @@ async def test_not_connected_is_an_error() -> None:
 async def test_run_backs_off_while_the_port_is_missing(tmp_path: Path) -> None:
     clock = Clock(SPEED)
     link = tmp_path / "servo"
-    pt = make_pantilt("maestro", str(link), None, {0: ServoCalibration()}, clock=clock,
-                      poll_s=1000.0)
+    pt = make_pantilt(
+        "maestro", str(link), None, {0: ServoCalibration()}, clock=clock, poll_s=1000.0
+    )
     task = asyncio.create_task(pt.run())
     await until(lambda: pt.counters["errors"] >= 2)
     assert "cannot open" in (pt.last_error or "")
@@ -290,8 +298,15 @@ class GarblingSsc32(FakeSsc32):
 async def test_garbled_and_unsolicited_bytes_are_counted_not_fatal(tmp_path: Path) -> None:
     clock = LoopClock()
     fake = GarblingSsc32(clock=clock)
-    pt = make_pantilt("ssc32", fake.serve_memory("servo"), None,
-                      {0: ServoCalibration()}, clock=clock, reply_timeout_s=3.0, poll_s=1000.0)
+    pt = make_pantilt(
+        "ssc32",
+        fake.serve_memory("servo"),
+        None,
+        {0: ServoCalibration()},
+        clock=clock,
+        reply_timeout_s=3.0,
+        poll_s=1000.0,
+    )
     task = asyncio.create_task(pt.run())
     try:
         await until(lambda: pt.connected)
@@ -313,8 +328,13 @@ async def test_garbled_and_unsolicited_bytes_are_counted_not_fatal(tmp_path: Pat
 
 @VT
 async def test_close_ends_run_even_while_backing_off(tmp_path: Path) -> None:
-    pt = make_pantilt("maestro", str(tmp_path / "absent"), None, {0: ServoCalibration()},
-                      backoff=Backoff(initial_s=60.0, maximum_s=60.0))
+    pt = make_pantilt(
+        "maestro",
+        str(tmp_path / "absent"),
+        None,
+        {0: ServoCalibration()},
+        backoff=Backoff(initial_s=60.0, maximum_s=60.0),
+    )
     task = asyncio.create_task(pt.run())
     await until(lambda: pt.counters["errors"] >= 1)
     await pt.close()
@@ -328,10 +348,18 @@ async def test_replies_split_into_single_bytes_and_delayed_still_answer(protocol
     clock = LoopClock()
     fake = FAKES[protocol](clock=clock)
     one_byte = LinkFaults(chunk_bytes=1, delay_s=0.01)
-    url = fake.serve_memory(f"{protocol}-slow", faults_to_driver=one_byte,
-                            faults_to_device=LinkFaults(chunk_bytes=1))
-    pt = make_pantilt(protocol, url, None, {0: ServoCalibration()}, clock=clock,
-                      reply_timeout_s=1.0, poll_s=1000.0)
+    url = fake.serve_memory(
+        f"{protocol}-slow", faults_to_driver=one_byte, faults_to_device=LinkFaults(chunk_bytes=1)
+    )
+    pt = make_pantilt(
+        protocol,
+        url,
+        None,
+        {0: ServoCalibration()},
+        clock=clock,
+        reply_timeout_s=1.0,
+        poll_s=1000.0,
+    )
     task = asyncio.create_task(pt.run())
     try:
         await until(lambda: pt.connected)

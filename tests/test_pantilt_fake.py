@@ -104,9 +104,12 @@ def test_maestro_acceleration_ramps() -> None:
     assert fake.position_us(0) == 2000.0
 
 
-@given(st.floats(1, 2000), st.one_of(st.just(0.0), st.floats(1, 5000)),
-       st.one_of(st.just(0.0), st.floats(1, 5000)),
-       st.lists(st.floats(0, 20), min_size=2, max_size=10))
+@given(
+    st.floats(1, 2000),
+    st.one_of(st.just(0.0), st.floats(1, 5000)),
+    st.one_of(st.just(0.0), st.floats(1, 5000)),
+    st.lists(st.floats(0, 20), min_size=2, max_size=10),
+)
 def test_ramp_is_monotonic_and_bounded(d: float, v: float, a: float, times: list[float]) -> None:
     last = 0.0
     for t in sorted(times):

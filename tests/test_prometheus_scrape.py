@@ -56,15 +56,18 @@ def scrape_config_for(daemon_port: int, rules: Path) -> dict[str, Any]:
     doc["global"].update(scrape_interval="1s", scrape_timeout="900ms", evaluation_interval="1s")
     doc["rule_files"] = [str(rules)]
     (job,) = [j for j in doc["scrape_configs"] if j["job_name"] == "relayd"]
-    job["static_configs"] = [{"targets": [f"127.0.0.1:{daemon_port}"], "labels": {"relay": "relay1"}}]
+    job["static_configs"] = [
+        {"targets": [f"127.0.0.1:{daemon_port}"], "labels": {"relay": "relay1"}}
+    ]
     return doc
 
 
 class Prometheus:
     """A prometheus server subprocess and a client for its HTTP API."""
 
-    def __init__(self, proc: asyncio.subprocess.Process, url: str, session: ClientSession,
-                 log: Path) -> None:
+    def __init__(
+        self, proc: asyncio.subprocess.Process, url: str, session: ClientSession, log: Path
+    ) -> None:
         self.proc, self.url, self.session, self.log = proc, url, session, log
 
     async def get(self, path: str, **params: str) -> dict[str, Any]:
@@ -75,7 +78,9 @@ class Prometheus:
             return doc
 
     async def query(self, expr: str) -> list[dict[str, Any]]:
-        result: list[dict[str, Any]] = (await self.get("/api/v1/query", query=expr))["data"]["result"]
+        result: list[dict[str, Any]] = (await self.get("/api/v1/query", query=expr))["data"][
+            "result"
+        ]
         return result
 
     def died(self) -> str | None:
@@ -88,7 +93,9 @@ class Prometheus:
 async def prometheus(work: Path, config: dict[str, Any]) -> AsyncIterator[Prometheus]:
     binary = shutil.which("prometheus")
     if binary is None:
-        skip_or_fail("prometheus not installed (Debian: apt-get install prometheus; scripts/test does it as root)")
+        skip_or_fail(
+            "prometheus not installed (Debian: apt-get install prometheus; scripts/test does it as root)"
+        )
     work.mkdir(parents=True, exist_ok=True)
     config_path = work / "prometheus.yml"
     config_path.write_text(yaml.safe_dump(config), encoding="utf-8")
@@ -96,9 +103,14 @@ async def prometheus(work: Path, config: dict[str, Any]) -> AsyncIterator[Promet
     port = _free_port()
     with log.open("wb") as log_file:
         proc = await asyncio.create_subprocess_exec(
-            binary, f"--config.file={config_path}", f"--storage.tsdb.path={work / 'data'}",
-            f"--web.listen-address=127.0.0.1:{port}", "--log.level=warn",
-            stdin=asyncio.subprocess.DEVNULL, stdout=log_file, stderr=log_file,
+            binary,
+            f"--config.file={config_path}",
+            f"--storage.tsdb.path={work / 'data'}",
+            f"--web.listen-address=127.0.0.1:{port}",
+            "--log.level=warn",
+            stdin=asyncio.subprocess.DEVNULL,
+            stdout=log_file,
+            stderr=log_file,
         )
     try:
         async with ClientSession() as session:
@@ -126,13 +138,18 @@ async def prometheus(work: Path, config: dict[str, Any]) -> AsyncIterator[Promet
 
 async def test_prometheus_scrapes_relayd_and_evaluates_the_shipped_rules(tmp_path: Path) -> None:
     async with FakeRig(tmp_path / "rig") as rig:
-        settings = parse_settings(rig.config_doc(api_port=0, control={"mode": "hold"},
-                                                 robot={"display_name": DISPLAY_NAME}))
+        settings = parse_settings(
+            rig.config_doc(
+                api_port=0, control={"mode": "hold"}, robot={"display_name": DISPLAY_NAME}
+            )
+        )
         daemon = Daemon(settings, env=rig.env)
         async with running(daemon) as task:
             await until(lambda: daemon.api_port is not None or task.done(), "the API to bind")
             assert daemon.api_port is not None, task.result()
-            async with prometheus(tmp_path / "prom", scrape_config_for(daemon.api_port, RULES)) as prom:
+            async with prometheus(
+                tmp_path / "prom", scrape_config_for(daemon.api_port, RULES)
+            ) as prom:
                 await _check(prom, daemon)
 
 
@@ -142,7 +159,9 @@ async def _check(prom: Prometheus, daemon: Daemon) -> None:
         assert prom.died() is None, prom.died()
         return await prom.query('relayd_uptime_seconds{job="relayd", relay="relay1"}') or None
 
-    (series,) = await until(uptime, "a scraped relayd_uptime_seconds", SCRAPE_TIMEOUT_S, poll_s=0.25)
+    (series,) = await until(
+        uptime, "a scraped relayd_uptime_seconds", SCRAPE_TIMEOUT_S, poll_s=0.25
+    )
     assert series["metric"]["instance"] == f"127.0.0.1:{daemon.api_port}"
     assert float(series["value"][1]) > 0
     (up,) = await prom.query('up{job="relayd"}')
@@ -151,7 +170,9 @@ async def _check(prom: Prometheus, daemon: Daemon) -> None:
     assert info["metric"]["state"] == str(daemon.state.state) == "stopped"
     assert info["metric"]["reason"] == daemon.state.reason == "hold"
     # The fake base reports its battery and the fake rear radio RSSI^b: both reach Prometheus.
-    battery = await until(lambda: prom.query("relayd_battery_volts"), "the battery voltage", 20.0, poll_s=0.25)
+    battery = await until(
+        lambda: prom.query("relayd_battery_volts"), "the battery voltage", 20.0, poll_s=0.25
+    )
     assert float(battery[0]["value"][1]) == pytest.approx(daemon.state.battery_v or 0, abs=0.2)
 
     # 2. The shipped rules load and evaluate against real data without errors.
@@ -162,7 +183,9 @@ async def _check(prom: Prometheus, daemon: Daemon) -> None:
         return rules if done else None
 
     rules = await until(evaluated, "every rule to be evaluated once", 20.0, poll_s=0.25)
-    assert {r["name"] for r in rules} == {r["alert"] for r in yaml.safe_load(RULES.read_text())["groups"][0]["rules"]}
+    assert {r["name"] for r in rules} == {
+        r["alert"] for r in yaml.safe_load(RULES.read_text())["groups"][0]["rules"]
+    }
     for rule in rules:
         assert rule["health"] == "ok", rule
     # A healthy relay in hold fires nothing.
@@ -176,9 +199,16 @@ async def _check(prom: Prometheus, daemon: Daemon) -> None:
             continue
         promql = expr.replace("$relay", "relay1").replace("$__rate_interval", "1m")
         answered[title] = await prom.query(promql)
-    for title in ("Scrape", "State and reason now", "Mode", "Drive state", "Battery",
-                  "RSSI of the leader (Yagi) and of the node behind, with thresholds",
-                  "Radio links (airOS signal)", "Devices connected"):
+    for title in (
+        "Scrape",
+        "State and reason now",
+        "Mode",
+        "Drive state",
+        "Battery",
+        "RSSI of the leader (Yagi) and of the node behind, with thresholds",
+        "Radio links (airOS signal)",
+        "Devices connected",
+    ):
         assert answered[title], f"dashboard panel {title!r} has no data"
     (state,) = answered["Drive state"]
     assert state["value"][1] == "3"  # the mapping's number for "stopped"

@@ -36,9 +36,13 @@ def _default_logging() -> Iterator[None]:
 
 
 def make(clock: Clock | None = None, **kw: object) -> Reconnect:
-    return Reconnect(structlog.get_logger("test"), "dev_failed",
-                     backoff=Backoff(initial_s=1.0, maximum_s=5.0, jitter=0),
-                     clock=clock or ManualClock(0.0), **kw)  # type: ignore[arg-type]
+    return Reconnect(
+        structlog.get_logger("test"),
+        "dev_failed",
+        backoff=Backoff(initial_s=1.0, maximum_s=5.0, jitter=0),
+        clock=clock or ManualClock(0.0),
+        **kw,
+    )  # type: ignore[arg-type]
 
 
 def levels(logs: Sequence[Mapping[str, Any]], event: str) -> list[object]:
@@ -120,8 +124,9 @@ class Device:
     a port closed under it would. Times are loop (virtual) seconds.
     """
 
-    def __init__(self, stop: asyncio.Event, connects: Sequence[Outcome] = (),
-                 serves: Sequence[Outcome] = ()) -> None:
+    def __init__(
+        self, stop: asyncio.Event, connects: Sequence[Outcome] = (), serves: Sequence[Outcome] = ()
+    ) -> None:
         self.stop = stop
         self.connects = list(connects)
         self.serves = list(serves)
@@ -166,8 +171,14 @@ class Device:
         self.losses += 1
 
     async def run(self, r: Reconnect, describe: Describe = DEVICE_TROUBLE) -> None:
-        await r.run(self.connect, self.serve, stop=self.stop, describe=describe,
-                    on_failure=self.on_failure, after_loss=self.after_loss)
+        await r.run(
+            self.connect,
+            self.serve,
+            stop=self.stop,
+            describe=describe,
+            on_failure=self.on_failure,
+            after_loss=self.after_loss,
+        )
 
     def gaps(self) -> list[float]:
         return [round(b - a, 9) for a, b in itertools.pairwise(self.attempts_t)]
@@ -196,7 +207,8 @@ async def test_run_backs_off_on_the_capped_schedule_and_starts_over_after_a_conn
     # had been reset, so the 7th try comes 1 s later.
     assert dev.gaps() == [1.0, 2.0, 4.0, 5.0, 5.0, 1.0]
     assert [(n, t) for n, _, t in dev.failures] == [("ConnectionError", "no such port")] * 5 + [
-        ("ConnectionError", "hung up")]
+        ("ConnectionError", "hung up")
+    ]
     assert dev.losses == 6  # after each counted failure; not after the stop
     assert r.last_error == "hung up"
     assert levels(logs, "dev_failed") == ["warning", "debug", "debug", "debug", "debug", "warning"]
@@ -209,7 +221,9 @@ async def test_a_serve_that_returns_is_a_loss_not_a_failure() -> None:
     dev = Device(stop, serves=[30.0])
     r = loop_reconnect()
     task = asyncio.create_task(dev.run(r))
-    await until(lambda: len(dev.attempts_t) == 2 and dev.serving, "the second connection", timeout_s=100.0)
+    await until(
+        lambda: len(dev.attempts_t) == 2 and dev.serving, "the second connection", timeout_s=100.0
+    )
     stop.set()
     await task
     assert dev.gaps() == [31.0]  # served 30 s, then the first backoff step
@@ -219,7 +233,9 @@ async def test_a_serve_that_returns_is_a_loss_not_a_failure() -> None:
 @VT
 async def test_describe_says_how_a_failure_is_logged_and_kept() -> None:
     stop = asyncio.Event()
-    refused = Failure(kind="auth", event="dev_refused", text="login refused", fields={"hint": "password"})
+    refused = Failure(
+        kind="auth", event="dev_refused", text="login refused", fields={"hint": "password"}
+    )
 
     def describe(exc: Exception) -> Failure:
         return refused if isinstance(exc, PermissionError) else expecting(ConnectionError)(exc)
@@ -234,13 +250,16 @@ async def test_describe_says_how_a_failure_is_logged_and_kept() -> None:
     assert [(n, f, t) for n, f, t in dev.failures] == [
         ("PermissionError", refused, "login refused"),
         ("KeyError", UNEXPECTED, "unexpected: KeyError('bug')"),
-        ("ConnectionError", Failure(), "gone")]
+        ("ConnectionError", Failure(), "gone"),
+    ]
     refusal = next(e for e in logs if e["event"] == "dev_refused")
     assert refusal["hint"] == "password" and refusal["log_level"] == "warning"
     # The bug does not end the loop, but is an ERROR with its traceback; the streak's
     # third failure is no news (DEBUG).
     assert [(e["log_level"], e.get("exc_info")) for e in logs if e["event"] == "dev_failed"] == [
-        ("error", True), ("debug", None)]
+        ("error", True),
+        ("debug", None),
+    ]
     assert dev.gaps() == [1.0, 2.0, 4.0]
 
 
@@ -339,14 +358,16 @@ async def test_run_retries_a_replugged_port_at_once(tmp_path: Path) -> None:
 
 # ---- backoff bounds, for any schedule ------------------------------------------------
 
-schedules = st.tuples(st.floats(0.001, 10.0), st.floats(0.001, 600.0), st.floats(1.0, 4.0),
-                      st.floats(0.0, 0.5))
+schedules = st.tuples(
+    st.floats(0.001, 10.0), st.floats(0.001, 600.0), st.floats(1.0, 4.0), st.floats(0.0, 0.5)
+)
 
 
 @settings(max_examples=300, deadline=None)
 @given(schedules, st.integers(1, 40), st.randoms(use_true_random=False))
 def test_backoff_delays_grow_to_the_cap_within_the_jitter(
-        schedule: tuple[float, float, float, float], n: int, rng: random.Random) -> None:
+    schedule: tuple[float, float, float, float], n: int, rng: random.Random
+) -> None:
     initial_s, maximum_s, factor, jitter = schedule
     b = Backoff(initial_s=initial_s, maximum_s=maximum_s, factor=factor, jitter=jitter, _rng=rng)
     nominal_prev = 0.0
@@ -358,8 +379,11 @@ def test_backoff_delays_grow_to_the_cap_within_the_jitter(
         assert 0.0 < delay <= maximum_s * (1 + jitter) + 1e-9
         nominal_prev = nominal
     b.reset()
-    assert min(maximum_s, initial_s) * (1 - jitter) - 1e-9 <= b.next_delay() \
+    assert (
+        min(maximum_s, initial_s) * (1 - jitter) - 1e-9
+        <= b.next_delay()
         <= min(maximum_s, initial_s) * (1 + jitter) + 1e-9
+    )
 
 
 @settings(max_examples=60, deadline=None)
@@ -370,8 +394,12 @@ def test_run_waits_exactly_the_backoff_schedule(initial_s: float, maximum_s: flo
     async def scenario() -> list[float]:
         stop = asyncio.Event()
         dev = Device(stop, connects=[ConnectionError("down")] * n)
-        r = Reconnect(structlog.get_logger("test"), "dev_failed", clock=LoopClock(),
-                      backoff=Backoff(initial_s=initial_s, maximum_s=maximum_s, jitter=0))
+        r = Reconnect(
+            structlog.get_logger("test"),
+            "dev_failed",
+            clock=LoopClock(),
+            backoff=Backoff(initial_s=initial_s, maximum_s=maximum_s, jitter=0),
+        )
         with capture_logs():
             task = asyncio.create_task(dev.run(r))
             async with asyncio.timeout(n * maximum_s + 1.0):

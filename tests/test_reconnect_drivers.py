@@ -31,16 +31,23 @@ pytestmark = pytest.mark.virtual_time
 
 
 def errors_with_traceback(logs: list[dict[str, Any]], event: str) -> list[str]:
-    return [e["error"] for e in logs
-            if e["event"] == event and e["log_level"] == "error" and e.get("exc_info") is True]
+    return [
+        e["error"]
+        for e in logs
+        if e["event"] == event and e["log_level"] == "error" and e.get("exc_info") is True
+    ]
 
 
 async def test_a_bug_in_a_robot_session_is_loud_and_the_robot_reconnects(
-        monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     clock = LoopClock()
     fake = FakeRobot(clock=clock)
-    robot = ArcosRobot(fake.serve_memory("bug-robot"), clock=clock,
-                       backoff=Backoff(initial_s=0.1, maximum_s=0.2, jitter=0))
+    robot = ArcosRobot(
+        fake.serve_memory("bug-robot"),
+        clock=clock,
+        backoff=Backoff(initial_s=0.1, maximum_s=0.2, jitter=0),
+    )
     serve = ArcosSession.serve
     bugs = [KeyError("sonar")]
 
@@ -53,13 +60,17 @@ async def test_a_bug_in_a_robot_session_is_loud_and_the_robot_reconnects(
     try:
         with capture_logs() as logs:
             async with running(robot):
-                await until(lambda: robot.health().reconnects == 1 and robot.connected,
-                            "the robot back after the bug")
+                await until(
+                    lambda: robot.health().reconnects == 1 and robot.connected,
+                    "the robot back after the bug",
+                )
                 await until(lambda: robot.health().state is LinkState.UP, "SIPs again")
                 h = robot.health()
                 # (last_error then tells how the dropped session's port ended.)
                 assert h.counters["link_errors"] == 0 and h.counters["sessions"] == 2
-        assert errors_with_traceback(logs, "robot_session_failed") == ["unexpected: KeyError('sonar')"]
+        assert errors_with_traceback(logs, "robot_session_failed") == [
+            "unexpected: KeyError('sonar')"
+        ]
     finally:
         await fake.stop()
 
@@ -83,8 +94,15 @@ async def test_shutting_a_robot_down_is_not_a_failure() -> None:
 async def test_a_bug_in_a_servo_poll_is_loud_and_the_servo_task_lives_on() -> None:
     clock = LoopClock()
     fake = FakeMaestro(clock=clock)
-    pt = make_pantilt("maestro", fake.serve_memory("bug-servo"), None, {0: ServoCalibration()},
-                      clock=clock, poll_s=1.0, backoff=Backoff(initial_s=0.1, jitter=0))
+    pt = make_pantilt(
+        "maestro",
+        fake.serve_memory("bug-servo"),
+        None,
+        {0: ServoCalibration()},
+        clock=clock,
+        poll_s=1.0,
+        backoff=Backoff(initial_s=0.1, jitter=0),
+    )
     poll = pt._poll
     bugs = [ZeroDivisionError("division by zero")]
 
@@ -115,8 +133,14 @@ async def test_a_bug_in_an_airos_poll_is_loud_and_polling_goes_on() -> None:
     clock = LoopClock()
     updates: list[LinkQuality] = []
     async with FakeAirOs("ubnt", "secret-pass", clock=clock) as fake:
-        poller = AirOsPoller(fake.base_url or "", "ubnt", "secret-pass", poll_s=1.0, clock=clock,
-                             on_update=updates.append)
+        poller = AirOsPoller(
+            fake.base_url or "",
+            "ubnt",
+            "secret-pass",
+            poll_s=1.0,
+            clock=clock,
+            on_update=updates.append,
+        )
         fetch = poller.client.fetch
         bugs = [KeyError("wireless")]
 
@@ -140,9 +164,15 @@ async def test_airos_polls_at_a_fixed_rate_and_backs_off_on_the_shared_loop() ->
     clock = LoopClock()
     polled_t: list[float] = []
     async with FakeAirOs("ubnt", "secret-pass", clock=clock) as fake:
-        poller = AirOsPoller(fake.base_url or "", "ubnt", "secret-pass", poll_s=1.0, clock=clock,
-                             on_update=lambda q: polled_t.append(clock.now()),
-                             backoff=Backoff(initial_s=1.0, maximum_s=5.0, jitter=0))
+        poller = AirOsPoller(
+            fake.base_url or "",
+            "ubnt",
+            "secret-pass",
+            poll_s=1.0,
+            clock=clock,
+            on_update=lambda q: polled_t.append(clock.now()),
+            backoff=Backoff(initial_s=1.0, maximum_s=5.0, jitter=0),
+        )
         async with running(poller):
             await until(lambda: len(polled_t) >= 4, "four polls")
             gaps = [b - a for a, b in itertools.pairwise(polled_t)]

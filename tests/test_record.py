@@ -69,21 +69,52 @@ from relayd.state import DriveState, Mode, ScanRecord
 
 
 def sip(t: float, x_mm: float = 0.0, theta_deg: float = 0.0) -> Sip:
-    return Sip(t=t, x_mm=x_mm, y_mm=0.5 * x_mm, theta_deg=theta_deg, left_mm_s=100.0, right_mm_s=120.0,
-               battery_v=12.9, motors_enabled=True, estop=False, stall_left=False, stall_right=False,
-               moving=True, sonar=((1, 2500), (6, 3000)), bumpers_front=0, flags=3)
+    return Sip(
+        t=t,
+        x_mm=x_mm,
+        y_mm=0.5 * x_mm,
+        theta_deg=theta_deg,
+        left_mm_s=100.0,
+        right_mm_s=120.0,
+        battery_v=12.9,
+        motors_enabled=True,
+        estop=False,
+        stall_left=False,
+        stall_right=False,
+        moving=True,
+        sonar=((1, 2500), (6, 3000)),
+        bumpers_front=0,
+        flags=3,
+    )
 
 
 def quality(t: float, dbm: float = -55.0) -> LinkQuality:
-    return LinkQuality(t=t, signal_dbm=dbm, rssi=dbm + 96, noise_dbm=-95.0, ccq_pct=90.0, tx_mbps=54.0,
-                       rx_mbps=54.0, stations=(Station("00:11:22:33:44:55", dbm, 90.0, 54.0, 54.0),),
-                       mode="ap", essid="relay", frequency_mhz=2437.0, hostname="rear")
+    return LinkQuality(
+        t=t,
+        signal_dbm=dbm,
+        rssi=dbm + 96,
+        noise_dbm=-95.0,
+        ccq_pct=90.0,
+        tx_mbps=54.0,
+        rx_mbps=54.0,
+        stations=(Station("00:11:22:33:44:55", dbm, 90.0, 54.0, 54.0),),
+        mode="ap",
+        essid="relay",
+        frequency_mhz=2437.0,
+        hostname="rear",
+    )
 
 
 def every_type(t: float = 5.0) -> tuple[list[Event], list[Action]]:
     """One instance of every event and action type, with awkward values where it matters."""
-    est = ScanEstimate(bearing_deg=12.5, rssi_leader_dbm=-48.0, situation=0, angles_deg=(-30.0, 0.0, 30.0),
-                       rssi_dbm=(-60.0, -48.0, -55.0), nrssi_dbm=(-60.0, -48.0, -55.0))
+    est = ScanEstimate(
+        bearing_deg=12.5,
+        rssi_leader_dbm=-48.0,
+        situation=0,
+        angles_deg=(-30.0, 0.0, 30.0),
+        rssi_dbm=(-60.0, -48.0, -55.0),
+        nrssi_dbm=(-60.0, -48.0, -55.0),
+    )
     events: list[Event] = [
         SipEvent(t, sip(t), (None,) * 8 + (2500,) * 8),
         RssiEvent(t, RssiSample(t, None, False)),
@@ -106,13 +137,36 @@ def every_type(t: float = 5.0) -> tuple[list[Event], list[Action]]:
         ServoTarget(1, -12.5),
         ScanPlan((-30.0, 0.0, 30.0)),
         Decision(t, 250.5, 300.25, DriveState.DRIVING, "driving", 0, Mode.FOLLOW, True),
-        ScanResult(ScanRecord(t, (-30.0, 0.0, 30.0), (-60.0, -48.0, -55.0), 12.5, -48.0, 0, 2.5), est),
+        ScanResult(
+            ScanRecord(t, (-30.0, 0.0, 30.0), (-60.0, -48.0, -55.0), 12.5, -48.0, 0, 2.5), est
+        ),
         RearLink(None),
         RearLink(-61.0),
-        RecoveryReport(RecoveryView(True, Phase.RETRACE, Kind.LEADER, 2, 14.0, 3.5, 8.0, 60.0,
-                                    117, "found")),
-        LinkModelView(-68.25, LinkModelStatus("adaptive", -68.25, -66.0, (-80.0, -50.0), 10.0, 0.1, True, 42, 19.5,
-                                              0.9, -73.5, 1.5, 0.97, -64.0, 11.4, False, 0)),
+        RecoveryReport(
+            RecoveryView(True, Phase.RETRACE, Kind.LEADER, 2, 14.0, 3.5, 8.0, 60.0, 117, "found")
+        ),
+        LinkModelView(
+            -68.25,
+            LinkModelStatus(
+                "adaptive",
+                -68.25,
+                -66.0,
+                (-80.0, -50.0),
+                10.0,
+                0.1,
+                True,
+                42,
+                19.5,
+                0.9,
+                -73.5,
+                1.5,
+                0.97,
+                -64.0,
+                11.4,
+                False,
+                0,
+            ),
+        ),
     ]
     return events, actions
 
@@ -148,7 +202,11 @@ def test_schemas_are_strict() -> None:
     schema = codec.message_schema(WheelCommand)
     ok = {"seq": 1, "i": 0, "left_mm_s": 1.0, "right_mm_s": 2.0, "stop": False, "sip_t": None}
     jsonschema.validate(ok, schema)
-    for bad in ({**ok, "extra": 1}, {k: v for k, v in ok.items() if k != "stop"}, {**ok, "stop": "no"}):
+    for bad in (
+        {**ok, "extra": 1},
+        {k: v for k, v in ok.items() if k != "stop"},
+        {**ok, "stop": "no"},
+    ):
         with pytest.raises(jsonschema.ValidationError):
             jsonschema.validate(bad, schema)
 
@@ -221,8 +279,12 @@ class Route:
 
 
 def settings_for(path: Path, **record: Any) -> Settings:
-    return parse_settings({"record": {"enabled": True, "path": str(path), **record},
-                           "control": {"rear_link": "ignore"}})
+    return parse_settings(
+        {
+            "record": {"enabled": True, "path": str(path), **record},
+            "control": {"rear_link": "ignore"},
+        }
+    )
 
 
 async def record_route(settings: Settings, seconds: float, **kw: Any) -> Route:
@@ -235,15 +297,21 @@ async def record_route(settings: Settings, seconds: float, **kw: Any) -> Route:
     return route
 
 
-async def test_the_file_holds_every_event_and_the_actions_the_brain_returned(tmp_path: Path) -> None:
+async def test_the_file_holds_every_event_and_the_actions_the_brain_returned(
+    tmp_path: Path,
+) -> None:
     route = await record_route(settings_for(tmp_path / "r.mcap"), 12.0)
     rec = read_recording(tmp_path / "r.mcap")
-    assert rec.complete and rec.recorder == {"events": str(len(route.returned)),
-                                             "actions": str(sum(len(a) for _, a in route.returned)),
-                                             "dropped": "0"}
+    assert rec.complete and rec.recorder == {
+        "events": str(len(route.returned)),
+        "actions": str(sum(len(a) for _, a in route.returned)),
+        "dropped": "0",
+    }
     assert [s.event for s in rec.steps] == [ev for ev, _ in route.returned]
     assert [s.actions for s in rec.steps] == [acts for _, acts in route.returned]
-    assert any(isinstance(a, WheelCommand) and a.left_mm_s > 0 for s in rec.steps for a in s.actions)
+    assert any(
+        isinstance(a, WheelCommand) and a.left_mm_s > 0 for s in rec.steps for a in s.actions
+    )
     # About one chunk per clock second.
     assert 10 <= rec.chunks <= 14
     # The same brain, fed the recorded inputs, decides exactly the same.
@@ -265,6 +333,7 @@ async def test_each_channel_validates_against_the_schema_stored_in_the_file(tmp_
     channels: dict[int, int] = {}
     seen: dict[int, int] = {}
     from mcap.records import Channel
+
     for rec in _all_records(tmp_path / "r.mcap"):
         if isinstance(rec, Schema):
             assert rec.encoding == "jsonschema"
@@ -293,7 +362,9 @@ async def test_rotation_makes_parts_that_replay_together(tmp_path: Path) -> None
     route = await record_route(settings, 40.0)
     files = route.recorder._sink.files
     assert len(files) >= 3 and not stale.exists() and keep.exists()
-    assert all(p.stat().st_size < 60_000 + 30_000 for p in files)  # + the last chunk and the summary
+    assert all(
+        p.stat().st_size < 60_000 + 30_000 for p in files
+    )  # + the last chunk and the summary
     parts = [read_recording(p) for p in files]
     assert [p.info.part for p in parts] == list(range(1, len(parts) + 1))
     assert len({p.info.run_id for p in parts}) == 1
@@ -316,6 +387,7 @@ async def test_the_total_size_is_kept_by_deleting_the_oldest_parts(tmp_path: Pat
 
 def test_directory_mode_names_files_by_start_time(tmp_path: Path) -> None:
     from datetime import UTC, datetime
+
     series = writer.FileSeries(tmp_path, datetime(2026, 5, 1, 12, 0, 0, tzinfo=UTC))
     assert series.path(1).name == "relayd-20260501T120000Z.mcap"
     assert series.path(2).name == "relayd-20260501T120000Z.2.mcap"
@@ -414,7 +486,9 @@ async def test_a_stalled_disk_ends_the_recording_instead_of_growing_memory(tmp_p
         await until(lambda: bool(disks) and disks[0].stuck.is_set(), "the writer to hang", 10)
         # The recorder judges a stall by wall time (a real disk hangs in real time): the
         # hung write must have lasted past stall_s before more data arrives.
-        await until(lambda: time.monotonic() - disks[0].stuck_t > stall_s, "the write hung past stall_s", 10)
+        await until(
+            lambda: time.monotonic() - disks[0].stuck_t > stall_s, "the write hung past stall_s", 10
+        )
         await route.drive(2.0)
         await until(lambda: route.recorder.state == "failed", "the recorder to give up", 10)
         assert "not keeping up" in (route.recorder.error or "")
@@ -430,8 +504,16 @@ async def test_a_stalled_disk_ends_the_recording_instead_of_growing_memory(tmp_p
 
 def test_no_secret_in_the_recorded_config() -> None:
     assert strip_userinfo("http://ubnt:hunter2@10.0.0.2:80/x") == "http://10.0.0.2:80/x"
-    settings = parse_settings({"ap": {"rear": {"url": "https://ubnt:hunter2@10.0.0.2",
-                                               "password_file": "/tmp/relayd-test-ap-pass"}}})
+    settings = parse_settings(
+        {
+            "ap": {
+                "rear": {
+                    "url": "https://ubnt:hunter2@10.0.0.2",
+                    "password_file": "/tmp/relayd-test-ap-pass",
+                }
+            }
+        }
+    )
     doc = json.dumps(recordable_config(settings))
     assert "hunter2" not in doc and "10.0.0.2" in doc and "/tmp/relayd-test-ap-pass" in doc
 
@@ -439,11 +521,16 @@ def test_no_secret_in_the_recorded_config() -> None:
 async def test_metadata_carries_version_config_and_start(tmp_path: Path) -> None:
     settings = settings_for(tmp_path / "r.mcap")
     await record_route(settings, 1.0)
-    meta = {r.name: r.metadata for r in _all_records(tmp_path / "r.mcap") if isinstance(r, Metadata)}
+    meta = {
+        r.name: r.metadata for r in _all_records(tmp_path / "r.mcap") if isinstance(r, Metadata)
+    }
     from relayd import __version__
+
     assert meta["relayd"]["version"] == __version__
     assert parse_settings(json.loads(meta["relayd"]["config"])) == settings
-    assert meta["relayd"]["start_time"].startswith("20") and int(meta["relayd"]["start_unix_ns"]) > 0
+    assert (
+        meta["relayd"]["start_time"].startswith("20") and int(meta["relayd"]["start_unix_ns"]) > 0
+    )
 
 
 # -- config --------------------------------------------------------------------------------------
@@ -466,13 +553,16 @@ def test_overrides_parse_toml_values_and_refuse_unknown_keys() -> None:
     base = parse_settings({"control": {"rear_link": "ignore"}}).model_dump(mode="json")
     assert apply_overrides(base, [("control.kp", 2.5)]).control.kp == 2.5
     from relayd.record.replay import OverrideError
+
     with pytest.raises(OverrideError, match="no key 'kpp'"):
         apply_overrides(base, [("control.kpp", 2.0)])
     with pytest.raises(OverrideError, match=r"control\.kp"):
         apply_overrides(base, [("control.kp", -1.0)])
 
 
-async def test_replay_cli_zero_divergences_what_if_and_plots(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+async def test_replay_cli_zero_divergences_what_if_and_plots(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     await record_route(settings_for(tmp_path / "r.mcap"), 8.0)
     f = str(tmp_path / "r.mcap")
     assert cli.main(["replay", f, "--json"]) == 0
@@ -480,14 +570,21 @@ async def test_replay_cli_zero_divergences_what_if_and_plots(tmp_path: Path, cap
     assert out["divergences"] == 0 and out["first_divergence"] is None
     assert out["events"] > 100 and out["actions"] > 100 and out["file"] == f
     # What-if: another kp changes the wheel speeds; that is a report, not a failure.
-    assert cli.main(["replay", f, "--json", "--set", "control.kp=3.0", "--plot", str(tmp_path / "plots")]) == 0
+    assert (
+        cli.main(
+            ["replay", f, "--json", "--set", "control.kp=3.0", "--plot", str(tmp_path / "plots")]
+        )
+        == 0
+    )
     w = json.loads(capsys.readouterr().out)["what_if"]
     assert w["differences"] > 0 and w["first_t"] is not None and w["max_wheel_diff_mm_s"] > 1.0
     assert (tmp_path / "plots" / "rssi_bearing.png").stat().st_size > 1000
     assert (tmp_path / "plots" / "path.png").stat().st_size > 1000
 
 
-async def test_a_changed_recording_diverges_with_exit_1(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+async def test_a_changed_recording_diverges_with_exit_1(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     """Replay is a real comparison: a brain configured differently from the recording diverges."""
     settings = settings_for(tmp_path / "r.mcap")
     await record_route(settings, 5.0)
@@ -499,10 +596,12 @@ async def test_a_changed_recording_diverges_with_exit_1(tmp_path: Path, capsys: 
     assert other.first["recorded"] != other.first["replayed"]
 
 
-async def test_another_version_is_refused_naming_both(tmp_path: Path, capsys: pytest.CaptureFixture[str],
-                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+async def test_another_version_is_refused_naming_both(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
     await record_route(settings_for(tmp_path / "r.mcap"), 2.0)
     import relayd.commands.replay as replay_cmd
+
     monkeypatch.setattr(replay_cmd, "__version__", "9.9.9")
     assert cli.main(["replay", str(tmp_path / "r.mcap")]) == 2
     err = capsys.readouterr().err
@@ -510,8 +609,9 @@ async def test_another_version_is_refused_naming_both(tmp_path: Path, capsys: py
     assert cli.main(["replay", str(tmp_path / "r.mcap"), "--any-version", "--json"]) == 0
 
 
-async def test_a_corrupt_or_cut_file_gives_exit_2_naming_where(tmp_path: Path,
-                                                                capsys: pytest.CaptureFixture[str]) -> None:
+async def test_a_corrupt_or_cut_file_gives_exit_2_naming_where(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     await record_route(settings_for(tmp_path / "r.mcap"), 5.0)
     good = (tmp_path / "r.mcap").read_bytes()
     rec = read_recording(tmp_path / "r.mcap")
@@ -520,7 +620,7 @@ async def test_a_corrupt_or_cut_file_gives_exit_2_naming_where(tmp_path: Path,
     offsets = [off for off, r in _chunk_offsets(tmp_path / "r.mcap")]
     bad = bytearray(good)
     mid = offsets[2] + 80
-    bad[mid:mid + 16] = bytes(16)
+    bad[mid : mid + 16] = bytes(16)
     (tmp_path / "corrupt.mcap").write_bytes(bytes(bad))
     assert cli.main(["replay", str(tmp_path / "corrupt.mcap")]) == 2
     err = capsys.readouterr().err
@@ -529,7 +629,11 @@ async def test_a_corrupt_or_cut_file_gives_exit_2_naming_where(tmp_path: Path,
     (tmp_path / "cut.mcap").write_bytes(good[: offsets[3] + 50])
     assert cli.main(["replay", str(tmp_path / "cut.mcap")]) == 2
     err = capsys.readouterr().err
-    assert f"at byte {offsets[3]}" in err and "ends without its summary" in err and "3 complete chunk(s)" in err
+    assert (
+        f"at byte {offsets[3]}" in err
+        and "ends without its summary" in err
+        and "3 complete chunk(s)" in err
+    )
     # ... and --partial replays what it holds.
     assert cli.main(["replay", str(tmp_path / "cut.mcap"), "--partial", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["complete"] is False
@@ -557,8 +661,11 @@ def test_the_example_config_records_where_the_service_may_write() -> None:
     root = Path(__file__).resolve().parents[1]
     config = tomllib.loads((root / "config" / "relayd.toml").read_text())
     unit = (root / "systemd" / "relayd.service").read_text()
-    state_dir = next(line.split("=", 1)[1].strip() for line in unit.splitlines()
-                     if line.startswith("StateDirectory="))
+    state_dir = next(
+        line.split("=", 1)[1].strip()
+        for line in unit.splitlines()
+        if line.startswith("StateDirectory=")
+    )
     assert config["record"]["enabled"] is True
     assert config["record"]["path"].startswith(f"/var/lib/{state_dir}/")
     parse_settings(config)  # and it validates
@@ -576,11 +683,31 @@ def test_relayd_status_shows_the_recording() -> None:
     from relayd.commands.status import format_status
 
     base = {"mode": "follow", "state": "driving", "reason": "driving"}
-    ok = {"enabled": True, "state": "recording", "path": "/var/lib/relayd/recordings/r.mcap", "files": 1,
-          "bytes": 2_500_000, "events": 10, "dropped": 0, "error": None}
-    line = next(x for x in format_status({**base, "recording": ok}).splitlines() if x.startswith("recording"))
-    assert line.split() == ["recording", "recording", "/var/lib/relayd/recordings/r.mcap", "2.5", "MB"]
-    failed = format_status({**base, "recording": {**ok, "state": "failed", "error": "OSError: disk full"}})
+    ok = {
+        "enabled": True,
+        "state": "recording",
+        "path": "/var/lib/relayd/recordings/r.mcap",
+        "files": 1,
+        "bytes": 2_500_000,
+        "events": 10,
+        "dropped": 0,
+        "error": None,
+    }
+    line = next(
+        x
+        for x in format_status({**base, "recording": ok}).splitlines()
+        if x.startswith("recording")
+    )
+    assert line.split() == [
+        "recording",
+        "recording",
+        "/var/lib/relayd/recordings/r.mcap",
+        "2.5",
+        "MB",
+    ]
+    failed = format_status(
+        {**base, "recording": {**ok, "state": "failed", "error": "OSError: disk full"}}
+    )
     assert "FAILED" in failed and "DISK FULL" in failed
     assert "recording" not in format_status({**base, "recording": None}).replace("reason", "")
 

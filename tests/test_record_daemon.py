@@ -81,11 +81,28 @@ def validate_channels(path: Path) -> dict[str, int]:
 
 
 def test_a_simulated_run_recorded_then_replayed_has_zero_divergences(
-        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     out = tmp_path / "sim"
     # The shortest run with scans and driving: the obstacle course, 15 s, one relay.
-    assert cli.main(["sim", "--scenario", "obstacle", "--seconds", "15", "--speed", "max", "--record",
-                     "--no-plots", "--out", str(out)]) == 0
+    assert (
+        cli.main(
+            [
+                "sim",
+                "--scenario",
+                "obstacle",
+                "--seconds",
+                "15",
+                "--speed",
+                "max",
+                "--record",
+                "--no-plots",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     capsys.readouterr()
     f = out / "relay1.mcap"
     rec = read_recording(f)
@@ -93,7 +110,9 @@ def test_a_simulated_run_recorded_then_replayed_has_zero_divergences(
     assert rec.recorder is not None and rec.recorder["dropped"] == "0"
     actions = [a for s in rec.steps for a in s.actions]
     assert sum(isinstance(a, ScanResult) for a in actions) >= 3
-    assert any(isinstance(a, WheelCommand) and a.left_mm_s > 0 and a.right_mm_s > 0 for a in actions)
+    assert any(
+        isinstance(a, WheelCommand) and a.left_mm_s > 0 and a.right_mm_s > 0 for a in actions
+    )
     assert 12 <= rec.chunks <= 20  # about one chunk per simulated second
     # A normal stop: the last event is the shutdown, and the file has its summary, so the
     # mcap library's indexed reader (what viewers use to seek) finds every message.
@@ -105,8 +124,16 @@ def test_a_simulated_run_recorded_then_replayed_has_zero_divergences(
         assert len(summary.chunk_indexes) == rec.chunks
         assert sum(1 for _ in reader.iter_messages()) == summary.statistics.message_count
     counts = validate_channels(f)
-    assert {"/robot/sip", "/robot/pose", "/wifi/rssi", "/scan/sample", "/action/wheels",
-            "/action/decision", "/state", "/log"} <= set(counts)
+    assert {
+        "/robot/sip",
+        "/robot/pose",
+        "/wifi/rssi",
+        "/scan/sample",
+        "/action/wheels",
+        "/action/decision",
+        "/state",
+        "/log",
+    } <= set(counts)
     assert cli.main(["replay", str(f), "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["divergences"] == 0 and report["first_divergence"] is None
@@ -131,25 +158,40 @@ async def relay(tmp_path: Path, **record: Any) -> AsyncIterator[tuple[FakeRig, D
 
 
 def forward_commands(rig: FakeRig) -> int:
-    return sum(1 for cmd, arg in rig.robot.commands if cmd == Command.VEL and isinstance(arg, int) and arg > 0)
+    return sum(
+        1
+        for cmd, arg in rig.robot.commands
+        if cmd == Command.VEL and isinstance(arg, int) and arg > 0
+    )
 
 
 async def drives_on_after_the_recording_failed(rig: FakeRig, daemon: Daemon) -> None:
     st = daemon.state
-    await until(lambda: st.snapshot(daemon.clock.now())["recording"]["state"] == "failed",
-                "the recording to fail", 30)
+    await until(
+        lambda: st.snapshot(daemon.clock.now())["recording"]["state"] == "failed",
+        "the recording to fail",
+        30,
+    )
     rec = st.snapshot(daemon.clock.now())["recording"]
     assert "No space left" in rec["error"] or "ENOSPC" in rec["error"] or "28" in rec["error"]
     sent, x = forward_commands(rig), rig.robot.x_mm
     scans = st.scan_count
-    await until(lambda: forward_commands(rig) > sent + 3 and rig.robot.x_mm > x + 50 and st.scan_count > scans + 1,
-                "the robot driving and scanning on", 30)
+    await until(
+        lambda: (
+            forward_commands(rig) > sent + 3
+            and rig.robot.x_mm > x + 50
+            and st.scan_count > scans + 1
+        ),
+        "the robot driving and scanning on",
+        30,
+    )
     assert st.state is DriveState.DRIVING
 
 
 @pytest.mark.virtual_time
 async def test_a_full_disk_stops_the_recording_and_the_robot_keeps_driving(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     from structlog.testing import capture_logs
 
     monkeypatch.setattr(writer, "open_file", lambda p: FullDisk(p, 40_000))
@@ -169,8 +211,12 @@ async def test_a_real_full_tmpfs(tmp_path: Path) -> None:
     mnt.mkdir()
     if os.geteuid() != 0:
         pytest.skip("mounting a tmpfs needs root")
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=96k", "tmpfs", str(mnt)],
-                          capture_output=True, text=True, check=False)
+    done = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=96k", "tmpfs", str(mnt)],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
     if done.returncode != 0:
         pytest.skip(f"cannot mount a tmpfs here: {done.stderr.strip()}")
     try:
@@ -185,21 +231,36 @@ async def test_a_real_full_tmpfs(tmp_path: Path) -> None:
 
 
 async def test_a_killed_daemon_leaves_a_file_that_reads_to_its_last_chunk(
-        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     rec_path = tmp_path / "killed.mcap"
     async with FakeRig(tmp_path, leader_xy_m=(6.0, 1.0)) as rig:
         cfg = rig.write_config(secrets_in_files=True, scan=SCAN, pantilt=PANTILT)
         proc = await asyncio.create_subprocess_exec(
-            sys.executable, "-m", "relayd", "run", "-c", str(cfg), "--record", str(rec_path),
-            "--log-format", "json", stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            sys.executable,
+            "-m",
+            "relayd",
+            "run",
+            "-c",
+            str(cfg),
+            "--record",
+            str(rec_path),
+            "--log-format",
+            "json",
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
         try:
+
             def chunks() -> int:
                 try:
                     return read_recording(rec_path, partial=True).chunks if rec_path.exists() else 0
                 except RecordingError:
                     return 0  # not even its metadata yet
 
-            await until(lambda: chunks() >= 3 and forward_commands(rig) > 0, "three chunks written", 60)
+            await until(
+                lambda: chunks() >= 3 and forward_commands(rig) > 0, "three chunks written", 60
+            )
         finally:
             proc.send_signal(signal.SIGKILL)
             await proc.wait()
@@ -218,9 +279,14 @@ async def test_a_killed_daemon_leaves_a_file_that_reads_to_its_last_chunk(
     report = json.loads(capsys.readouterr().out)
     assert report["complete"] is False and report["divergences"] == 0 and report["events"] > 50
     # No secret in it: the run resolved both from files, neither reached the recording.
-    blob = b"".join(r.data if isinstance(r, Message | Schema) else
-                    json.dumps(r.metadata).encode() if isinstance(r, Metadata) else b""
-                    for r in contents(rec_path))
+    blob = b"".join(
+        r.data
+        if isinstance(r, Message | Schema)
+        else json.dumps(r.metadata).encode()
+        if isinstance(r, Metadata)
+        else b""
+        for r in contents(rec_path)
+    )
     config = read_recording(rec_path, partial=True).info.config
     assert config["ap"]["rear"]["password_file"].endswith("relay1-ap-password")  # where, not what
     assert rig.ap_password.encode() not in blob and rig.api_token.encode() not in blob

@@ -37,11 +37,23 @@ STOP_REAR = ControlOutput(0.0, 0.0, DriveState.STOPPED, "rear_weak", 1, ControlM
 DRIVING = ControlOutput(200.0, 200.0, DriveState.DRIVING, "driving", 1, ControlMemory())
 
 
-def ci(pose: tuple[float, float, float] | None = (0.0, 0.0, 0.0), t: float = 0.0, **kw: object) -> ControlInputs:
+def ci(
+    pose: tuple[float, float, float] | None = (0.0, 0.0, 0.0), t: float = 0.0, **kw: object
+) -> ControlInputs:
     base: dict[str, object] = dict(
-        mode=Mode.FOLLOW, sip_age_s=0.05, rssi_age_s=0.05, scan_servo_ok=True, bearing_deg=0.0,
-        prev_bearing_deg=0.0, rssi_leader_dbm=-50.0, rssi_behind_dbm=-80.0, rear_age_s=0.5,
-        front_sonar=(), leader_lost=False, t_s=t, odom=pose,
+        mode=Mode.FOLLOW,
+        sip_age_s=0.05,
+        rssi_age_s=0.05,
+        scan_servo_ok=True,
+        bearing_deg=0.0,
+        prev_bearing_deg=0.0,
+        rssi_leader_dbm=-50.0,
+        rssi_behind_dbm=-80.0,
+        rear_age_s=0.5,
+        front_sonar=(),
+        leader_lost=False,
+        t_s=t,
+        odom=pose,
     )
     base.update(kw)
     return ControlInputs(**base)  # type: ignore[arg-type]
@@ -51,8 +63,9 @@ def ci(pose: tuple[float, float, float] | None = (0.0, 0.0, 0.0), t: float = 0.0
 GRADUAL_DBM = -72.0
 
 
-def walked_into_shadow(edge_mm: float = 2000.0, past_mm: float = 100.0,
-                       miss_dbm: float = GRADUAL_DBM) -> tuple[RetreatMemory, float]:
+def walked_into_shadow(
+    edge_mm: float = 2000.0, past_mm: float = 100.0, miss_dbm: float = GRADUAL_DBM
+) -> tuple[RetreatMemory, float]:
     """A relay that drove along +x meeting the target at -66 dBm at every poll (one each
     200 mm) up to edge_mm, then one poll past_mm beyond it that missed at miss_dbm: the
     controller stops it there, at its rear limit. Returns (memory, x)."""
@@ -69,7 +82,9 @@ def walked_into_shadow(edge_mm: float = 2000.0, past_mm: float = 100.0,
     return m, x
 
 
-def run_move(m: RetreatMemory, x: float, dt: float = 0.1) -> tuple[ControlOutput, RetreatMemory, float]:
+def run_move(
+    m: RetreatMemory, x: float, dt: float = 0.1
+) -> tuple[ControlOutput, RetreatMemory, float]:
     """Let a started move run to its end (exact kinematics); returns the last output and where it stopped."""
     pose = (x, 0.0, 0.0)
     out = STOP_REAR
@@ -92,7 +107,13 @@ def stand_below(m: RetreatMemory, x: float, polls: int) -> tuple[ControlOutput, 
 
 
 def test_every_retreat_reason_has_a_phrase() -> None:
-    assert {"retreat", "retreat_hold", "retreat_stale_input", "rear_obstacle", "rear_blocked"} <= set(phrasebook())
+    assert {
+        "retreat",
+        "retreat_hold",
+        "retreat_stale_input",
+        "rear_obstacle",
+        "rear_blocked",
+    } <= set(phrasebook())
 
 
 def test_it_steps_back_after_enough_polls_below_target_standing_and_holds_with_a_floor() -> None:
@@ -170,12 +191,15 @@ def test_an_edge_waits_for_the_controller_to_stop_it() -> None:
     assert out is near and m2.target is None  # standing for another reason: never back
 
 
-@pytest.mark.parametrize(("drop_db", "moved_mm", "edge"), [
-    (EDGE_DROP_DB, 100.0, True),
-    (EDGE_DROP_DB - 0.5, 100.0, False),       # within what two fading readings differ by
-    (EDGE_DROP_DB + 6.0, 5.0, False),         # standing: the drop came to it (something between)
-    (EDGE_DROP_DB + 6.0, EDGE_M * 1000.0 + 50.0, False),  # too far driven to be one edge
-])
+@pytest.mark.parametrize(
+    ("drop_db", "moved_mm", "edge"),
+    [
+        (EDGE_DROP_DB, 100.0, True),
+        (EDGE_DROP_DB - 0.5, 100.0, False),  # within what two fading readings differ by
+        (EDGE_DROP_DB + 6.0, 5.0, False),  # standing: the drop came to it (something between)
+        (EDGE_DROP_DB + 6.0, EDGE_M * 1000.0 + 50.0, False),  # too far driven to be one edge
+    ],
+)
 def test_what_counts_as_an_edge(drop_db: float, moved_mm: float, edge: bool) -> None:
     trail = (Spot(0.0, 0.0, -66.0, True), Spot(50.0, 0.0))
     assert is_edge(trail, Spot(moved_mm, 0.0, -66.0 - drop_db, False)) is edge
@@ -185,8 +209,13 @@ def test_what_counts_as_an_edge(drop_db: float, moved_mm: float, edge: bool) -> 
 
 
 def test_retreat_target_prefers_the_poll_before_the_newest_that_met() -> None:
-    trail = (Spot(0.0, 0.0, -65.0, True), Spot(100.0, 0.0), Spot(200.0, 0.0, -66.0, True),
-             Spot(300.0, 0.0), Spot(400.0, 0.0, -80.0, False))
+    trail = (
+        Spot(0.0, 0.0, -65.0, True),
+        Spot(100.0, 0.0),
+        Spot(200.0, 0.0, -66.0, True),
+        Spot(300.0, 0.0),
+        Spot(400.0, 0.0, -80.0, False),
+    )
     assert retreat_target(trail, 400.0, 0.0, MAX_RETREAT_M) == 0
     # The poll before the newest that met missed: the newest that met it is the goal.
     trail2 = (Spot(0.0, 0.0, -80.0, False), *trail[1:])
@@ -204,17 +233,27 @@ def test_no_spot_within_the_bound_means_it_stays() -> None:
 
 def test_retreat_target_counts_path_not_straight_line() -> None:
     # A U-shaped trail: the met spot is 0.5 m away in a straight line but 4.5 m of path.
-    trail = (Spot(0.0, 500.0, -60.0, True), Spot(2000.0, 500.0), Spot(2000.0, 0.0), Spot(0.0, 0.0, -80.0, False))
+    trail = (
+        Spot(0.0, 500.0, -60.0, True),
+        Spot(2000.0, 500.0),
+        Spot(2000.0, 0.0),
+        Spot(0.0, 0.0, -80.0, False),
+    )
     assert retreat_target(trail, 0.0, 0.0, MAX_RETREAT_M) is None
     assert retreat_target(trail, 0.0, 0.0, 5.0) == 0
 
 
 @settings(max_examples=80, deadline=None)
-@given(which=st.sampled_from(REAR_SONARS), range_mm=st.integers(1, int(P.stop_distance_m * 1000)),
-       others=st.lists(st.integers(1, 5000), min_size=16, max_size=16), edge=st.booleans(),
-       steps=st.integers(0, 6))
-def test_never_reverses_toward_an_echo_inside_stop_distance(which: int, range_mm: int, others: list[int],
-                                                            edge: bool, steps: int) -> None:
+@given(
+    which=st.sampled_from(REAR_SONARS),
+    range_mm=st.integers(1, int(P.stop_distance_m * 1000)),
+    others=st.lists(st.integers(1, 5000), min_size=16, max_size=16),
+    edge=st.booleans(),
+    steps=st.integers(0, 6),
+)
+def test_never_reverses_toward_an_echo_inside_stop_distance(
+    which: int, range_mm: int, others: list[int], edge: bool, steps: int
+) -> None:
     """Whatever started the move and wherever it is, an echo behind within stop_distance means
     no backward wheel speed on that step."""
     m, x = walked_into_shadow(miss_dbm=-80.0 if edge else GRADUAL_DBM)
@@ -254,7 +293,9 @@ def test_leaving_follow_mode_aborts_with_zero_wheels() -> None:
     _, m = stand_below(m, x, BELOW_POLLS)
     assert m.target is not None
     out, m = retreat_step(ci((x, 0.0, 0.0), mode=Mode.MANUAL), OPEN, STOP_REAR, P, m, enabled=True)
-    assert out.left_mm_s == out.right_mm_s == 0.0 and m.target is None and m.last_outcome == "aborted"
+    assert (
+        out.left_mm_s == out.right_mm_s == 0.0 and m.target is None and m.last_outcome == "aborted"
+    )
 
 
 STALE = st.sampled_from(["sip", "rssi", "rear", "rear_none", "pose", "nan_age"])
@@ -270,8 +311,12 @@ def test_any_doubt_during_a_move_means_zero_wheels(which: str, steps: int) -> No
         out, m = retreat_step(ci(pose), OPEN, STOP_REAR, P, m, enabled=True)
         pose = diff_drive(pose, out.left_mm_s, out.right_mm_s, 0.1)
     table: dict[str, dict[str, object]] = {
-        "sip": {"sip_age_s": 5.0}, "rssi": {"rssi_age_s": 5.0}, "rear": {"rear_age_s": 10.0},
-        "rear_none": {"rssi_behind_dbm": None}, "pose": {"odom": None}, "nan_age": {"sip_age_s": math.nan},
+        "sip": {"sip_age_s": 5.0},
+        "rssi": {"rssi_age_s": 5.0},
+        "rear": {"rear_age_s": 10.0},
+        "rear_none": {"rssi_behind_dbm": None},
+        "pose": {"odom": None},
+        "nan_age": {"sip_age_s": math.nan},
     }
     args = dict(table[which])
     odom = args.pop("odom", pose)
@@ -288,8 +333,12 @@ def test_stale_input_never_starts_a_move(which: str, edge: bool) -> None:
         _, m = stand_below(m, x, BELOW_POLLS - 1)
         m = record_poll(m, (x, 0.0, 0.0), -80.0, False)
     table: dict[str, dict[str, object]] = {
-        "sip": {"sip_age_s": 5.0}, "rssi": {"rssi_age_s": 5.0}, "rear": {"rear_age_s": 10.0},
-        "rear_none": {"rssi_behind_dbm": None}, "pose": {"odom": None}, "nan_age": {"sip_age_s": math.nan},
+        "sip": {"sip_age_s": 5.0},
+        "rssi": {"rssi_age_s": 5.0},
+        "rear": {"rear_age_s": 10.0},
+        "rear_none": {"rssi_behind_dbm": None},
+        "pose": {"odom": None},
+        "nan_age": {"sip_age_s": math.nan},
     }
     args = dict(table[which])
     odom = args.pop("odom", (x, 0.0, 0.0))
@@ -298,10 +347,17 @@ def test_stale_input_never_starts_a_move(which: str, edge: bool) -> None:
 
 
 @settings(max_examples=60, deadline=None)
-@given(edge_m=st.floats(0.5, 6.0), past_m=st.floats(0.05, 4.0), dt=st.floats(0.05, 1.0),
-       rounds=st.integers(1, 10), spacing_mm=st.floats(50.0, 1500.0), drop_db=st.floats(0.0, 30.0))
-def test_reverse_travel_never_exceeds_the_bound(edge_m: float, past_m: float, dt: float, rounds: int,
-                                                spacing_mm: float, drop_db: float) -> None:
+@given(
+    edge_m=st.floats(0.5, 6.0),
+    past_m=st.floats(0.05, 4.0),
+    dt=st.floats(0.05, 1.0),
+    rounds=st.integers(1, 10),
+    spacing_mm=st.floats(50.0, 1500.0),
+    drop_db=st.floats(0.0, 30.0),
+)
+def test_reverse_travel_never_exceeds_the_bound(
+    edge_m: float, past_m: float, dt: float, rounds: int, spacing_mm: float, drop_db: float
+) -> None:
     """Over repeated triggers in one place (an edge or polls below, drops of any size), with
     any control period, the path reversed stays within MAX_RETREAT_M (the speed is tapered
     to what is left)."""

@@ -45,14 +45,20 @@ class Relayd:
         self.stdout: list[str] = []
         self.stderr: list[str] = []
         assert proc.stdout is not None and proc.stderr is not None
-        self._readers = [asyncio.create_task(self._drain(proc.stdout, self.stdout)),
-                         asyncio.create_task(self._drain(proc.stderr, self.stderr))]
+        self._readers = [
+            asyncio.create_task(self._drain(proc.stdout, self.stdout)),
+            asyncio.create_task(self._drain(proc.stderr, self.stderr)),
+        ]
 
     @classmethod
     async def start(cls, *args: str, env: dict[str, str] | None = None) -> Relayd:
         proc = await asyncio.create_subprocess_exec(
-            sys.executable, "-m", "relayd", *args,
-            stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+            sys.executable,
+            "-m",
+            "relayd",
+            *args,
+            stdout=asyncio.subprocess.PIPE,
+            stderr=asyncio.subprocess.PIPE,
             env=env if env is not None else clean_env(),
         )
         return cls(proc)
@@ -102,11 +108,20 @@ def find_stop_sequence(commands: Sequence[tuple[int, object]]) -> tuple[int, int
     close = next((i for i, (c, a) in enumerate(commands) if c == CLOSE and a == 1), None)
     if close is None:
         return None
-    enable0 = max((i for i, (c, a) in enumerate(commands[:close]) if c == Command.ENABLE and a == 0), default=None)
+    enable0 = max(
+        (i for i, (c, a) in enumerate(commands[:close]) if c == Command.ENABLE and a == 0),
+        default=None,
+    )
     if enable0 is None:
         return None
-    vel0 = max((i for i, (c, a) in enumerate(commands[:enable0])
-                if c in (Command.VEL, Command.VEL2) and a == 0), default=None)
+    vel0 = max(
+        (
+            i
+            for i, (c, a) in enumerate(commands[:enable0])
+            if c in (Command.VEL, Command.VEL2) and a == 0
+        ),
+        default=None,
+    )
     if vel0 is None:
         return None
     return vel0, enable0, close
@@ -114,39 +129,62 @@ def find_stop_sequence(commands: Sequence[tuple[int, object]]) -> tuple[int, int
 
 async def test_run_drives_and_sigterm_zeroes_wheels_disables_and_closes(tmp_path: Path) -> None:
     async with FakeRig(tmp_path) as rig:
-        config = rig.write_config(secrets_in_files=True, scan=SCAN, pantilt=PANTILT,
-                                  log={"format": "json"})
+        config = rig.write_config(
+            secrets_in_files=True, scan=SCAN, pantilt=PANTILT, log={"format": "json"}
+        )
         relayd = await Relayd.start("run", "-c", str(config))
         try:
-            await until(lambda: rig.robot.target_vel_mm_s > 0 and rig.robot.motors_enabled,
-                        "the fake robot driven forward")
-            await until(lambda: any(e.get("event") == "drive_state" and e.get("state") == "driving"
-                                    for e in relayd.events()), "a drive_state=driving log line")
+            await until(
+                lambda: rig.robot.target_vel_mm_s > 0 and rig.robot.motors_enabled,
+                "the fake robot driven forward",
+            )
+            await until(
+                lambda: any(
+                    e.get("event") == "drive_state" and e.get("state") == "driving"
+                    for e in relayd.events()
+                ),
+                "a drive_state=driving log line",
+            )
             mark = len(rig.robot.commands)
             t_signal = time.monotonic()
             relayd.proc.send_signal(signal.SIGTERM)
             t_close: float | None = None
             try:
-                seq = await until(lambda: find_stop_sequence(rig.robot.commands[mark:]),
-                                  "VEL 0, ENABLE 0, CLOSE after SIGTERM", 10.0, poll_s=0.002)
+                seq = await until(
+                    lambda: find_stop_sequence(rig.robot.commands[mark:]),
+                    "VEL 0, ENABLE 0, CLOSE after SIGTERM",
+                    10.0,
+                    poll_s=0.002,
+                )
                 t_close = time.monotonic()
             except AssertionError:
-                pytest.fail(f"no VEL 0, ENABLE 0, CLOSE after SIGTERM: {rig.robot.commands[mark:]}\n"
-                            + relayd.output())
+                pytest.fail(
+                    f"no VEL 0, ENABLE 0, CLOSE after SIGTERM: {rig.robot.commands[mark:]}\n"
+                    + relayd.output()
+                )
             code = await relayd.wait(10)
             t_exit = time.monotonic()
         finally:
             await relayd.kill()
         close_s, exit_s = t_close - t_signal, t_exit - t_signal
-        print(f"SIGTERM -> CLOSE at the fake robot {close_s * 1000:.0f} ms, -> process exit {exit_s * 1000:.0f} ms")
+        print(
+            f"SIGTERM -> CLOSE at the fake robot {close_s * 1000:.0f} ms, -> process exit {exit_s * 1000:.0f} ms"
+        )
         assert code == 0, relayd.output()
         after = rig.robot.commands[mark:]
         vel0, _enable0, close = seq
         # Nothing moves the wheels once the stop has started, and CLOSE is the last word.
-        moving = [(c, a) for c, a in after[vel0:] if c in (Command.VEL, Command.RVEL, Command.VEL2) and a != 0]
+        moving = [
+            (c, a)
+            for c, a in after[vel0:]
+            if c in (Command.VEL, Command.RVEL, Command.VEL2) and a != 0
+        ]
         assert moving == [], after
-        assert all(c in (Command.VEL, Command.RVEL, Command.ENABLE, Command.SYNC0) or i == close
-                   for i, (c, _a) in enumerate(after) if i > vel0), after
+        assert all(
+            c in (Command.VEL, Command.RVEL, Command.ENABLE, Command.SYNC0) or i == close
+            for i, (c, _a) in enumerate(after)
+            if i > vel0
+        ), after
         assert not rig.robot.opened and not rig.robot.motors_enabled
         assert close_s <= CLOSE_LIMIT_S, f"CLOSE {close_s:.3f} s after SIGTERM"
         assert exit_s <= 10.0
@@ -155,7 +193,9 @@ async def test_run_drives_and_sigterm_zeroes_wheels_disables_and_closes(tmp_path
         names = [e.get("event") for e in events]
         assert "robot_safe_stop" in names and names[-1] == "stopped", names[-10:]
         shutdown = names.index("shutting_down")
-        complaints = [e for e in events[shutdown:] if e.get("level") in ("warning", "error", "critical")]
+        complaints = [
+            e for e in events[shutdown:] if e.get("level") in ("warning", "error", "critical")
+        ]
         assert complaints == [], complaints
 
 
@@ -176,7 +216,12 @@ class OpenWatch:
         if self._fd < 0:
             raise OSError(ctypes.get_errno(), "inotify_init1")
         for path in paths:
-            if self._libc.inotify_add_watch(self._fd, os.path.realpath(path).encode(), self.IN_OPEN) < 0:
+            if (
+                self._libc.inotify_add_watch(
+                    self._fd, os.path.realpath(path).encode(), self.IN_OPEN
+                )
+                < 0
+            ):
                 raise OSError(ctypes.get_errno(), f"inotify_add_watch {path}")
 
     def opened(self) -> bool:
@@ -208,7 +253,9 @@ async def refused(rig: FakeRig, config: Path, env: dict[str, str] | None = None)
     return relayd.output()
 
 
-async def test_run_with_a_bad_config_exits_2_naming_the_key_before_touching_devices(tmp_path: Path) -> None:
+async def test_run_with_a_bad_config_exits_2_naming_the_key_before_touching_devices(
+    tmp_path: Path,
+) -> None:
     async with FakeRig(tmp_path) as rig:
         doc = rig.config_doc(scan=SCAN, control={"kpp": 2.0, "threshold_b_dbm": 50.0})
         config = tmp_path / "bad.toml"
@@ -217,7 +264,9 @@ async def test_run_with_a_bad_config_exits_2_naming_the_key_before_touching_devi
         assert "control.kpp" in err and "control.threshold_b_dbm" in err, err
 
 
-async def test_run_with_a_missing_secret_exits_2_naming_the_key_before_touching_devices(tmp_path: Path) -> None:
+async def test_run_with_a_missing_secret_exits_2_naming_the_key_before_touching_devices(
+    tmp_path: Path,
+) -> None:
     async with FakeRig(tmp_path) as rig:
         config = rig.write_config(scan=SCAN)  # AP passwords come from the environment...
         env = clean_env()

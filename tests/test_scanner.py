@@ -76,8 +76,9 @@ class ScriptedSource:
 
     POISON_DBM = 10.0
 
-    def __init__(self, fake: FakeMaestro, clock: Clock, *, latency_s: float = 0.0,
-                 stale_every: int = 0) -> None:
+    def __init__(
+        self, fake: FakeMaestro, clock: Clock, *, latency_s: float = 0.0, stale_every: int = 0
+    ) -> None:
         self.fake = fake
         self.clock = clock
         self.latency_s = latency_s
@@ -176,9 +177,21 @@ class Bench:
     def turn_to(self, heading_deg: float) -> None:
         """The robot's odometry heading is now `heading_deg` (a SIP says so)."""
         t = self.clock.now()
-        sip = Sip(t=t, x_mm=0.0, y_mm=0.0, theta_deg=heading_deg, left_mm_s=0.0, right_mm_s=0.0,
-                  battery_v=13.0, motors_enabled=True, estop=False, stall_left=False, stall_right=False,
-                  moving=False, sonar=())
+        sip = Sip(
+            t=t,
+            x_mm=0.0,
+            y_mm=0.0,
+            theta_deg=heading_deg,
+            left_mm_s=0.0,
+            right_mm_s=0.0,
+            battery_v=13.0,
+            motors_enabled=True,
+            estop=False,
+            stall_left=False,
+            stall_right=False,
+            moving=False,
+            sonar=(),
+        )
         self.bus.publish(SipEvent(t, sip, (None,) * 16))
 
     async def prepare(self) -> None:
@@ -199,36 +212,76 @@ class Bench:
 
 
 @contextlib.asynccontextmanager
-async def bench(tmp_path: Path, *, mode: str = "step", latency_s: float = 0.0,
-                stale_every: int = 0, reply_timeout_s: float = 0.25) -> AsyncIterator[Bench]:
+async def bench(
+    tmp_path: Path,
+    *,
+    mode: str = "step",
+    latency_s: float = 0.0,
+    stale_every: int = 0,
+    reply_timeout_s: float = 0.25,
+) -> AsyncIterator[Bench]:
     clock = LoopClock()
     fake = FakeMaestro(clock=clock, initial_us=1500.0)
     url = fake.serve_memory(f"scanner-servo-{next(_names)}")
-    pt = make_pantilt("maestro", url, None, {SCAN: ServoCalibration(), LINK: ServoCalibration()},
-                      clock=clock, reply_timeout_s=reply_timeout_s, poll_s=1000.0,
-                      backoff=Backoff(initial_s=0.05, maximum_s=0.2))
+    pt = make_pantilt(
+        "maestro",
+        url,
+        None,
+        {SCAN: ServoCalibration(), LINK: ServoCalibration()},
+        clock=clock,
+        reply_timeout_s=reply_timeout_s,
+        poll_s=1000.0,
+        backoff=Backoff(initial_s=0.05, maximum_s=0.2),
+    )
     servo = RecordingServo(pt, clock)
     source = ScriptedSource(fake, clock, latency_s=latency_s, stale_every=stale_every)
     state = RelayState()
     bus: Bus[Event, Action] = Bus()
     monitor = RssiMonitor(source, SAMPLE_HZ, bus, clock)
-    brain = Brain(BrainParams(
-        estimator=EstimatorParams(),
-        scan=ScanParams(scan_channel=SCAN, link_channel=LINK, samples=SAMPLES, width_deg=WIDTH_DEG,
-                        limits_deg=LIMITS, lost_rssi_dbm=-85.0),
-    ))
+    brain = Brain(
+        BrainParams(
+            estimator=EstimatorParams(),
+            scan=ScanParams(
+                scan_channel=SCAN,
+                link_channel=LINK,
+                samples=SAMPLES,
+                width_deg=WIDTH_DEG,
+                limits_deg=LIMITS,
+                lost_rssi_dbm=-85.0,
+            ),
+        )
+    )
 
     def servo_changed() -> None:
         ok = scanner.servo_ok
         bus.publish(DeviceEvent(clock.now(), PANTILT, DeviceStatus.UP if ok else DeviceStatus.DOWN))
 
     scanner = Scanner(
-        pantilt=servo, monitor=monitor, bus=bus, clock=clock, scan_channel=SCAN,
-        link_channel=LINK, limits_deg=LIMITS, speed_deg_s=SPEED_DEG_S, settle_s=SETTLE_S, mode=mode,
+        pantilt=servo,
+        monitor=monitor,
+        bus=bus,
+        clock=clock,
+        scan_channel=SCAN,
+        link_channel=LINK,
+        limits_deg=LIMITS,
+        speed_deg_s=SPEED_DEG_S,
+        settle_s=SETTLE_S,
+        mode=mode,
         on_servo_change=servo_changed,
     )
-    b = Bench(clock, fake, pt, servo, source, monitor, state, scanner, brain, bus,
-              StateWriter(state, link_channel=LINK))
+    b = Bench(
+        clock,
+        fake,
+        pt,
+        servo,
+        source,
+        monitor,
+        state,
+        scanner,
+        brain,
+        bus,
+        StateWriter(state, link_channel=LINK),
+    )
     bus.connect(brain.handle, b.on_actions)
     b.turn_to(0.0)
     tasks = [asyncio.create_task(pt.run()), asyncio.create_task(monitor.run())]
@@ -253,7 +306,9 @@ def travel_s(prev: float | None, target: float) -> float:
 
 
 @pytest.mark.virtual_time
-async def test_step_mode_pairs_each_angle_with_the_first_fresh_sample_after_arrival(tmp_path: Path) -> None:
+async def test_step_mode_pairs_each_angle_with_the_first_fresh_sample_after_arrival(
+    tmp_path: Path,
+) -> None:
     async with bench(tmp_path, stale_every=4) as b:
         await b.prepare()
         prev: float | None = None

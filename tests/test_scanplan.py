@@ -29,7 +29,9 @@ def test_a_sweep_goes_the_asked_way_and_is_shifted_inside_the_limits() -> None:
 
 
 @given(st.floats(-180.0, 180.0), st.floats(-720.0, 720.0), st.floats(-720.0, 720.0))
-def test_a_bearing_seen_from_a_new_heading_is_wrapped_and_turned_back(b: float, h0: float, h1: float) -> None:
+def test_a_bearing_seen_from_a_new_heading_is_wrapped_and_turned_back(
+    b: float, h0: float, h1: float
+) -> None:
     now = in_current_frame(b, h0, h1)
     assert now is not None and -180.0 <= now < 180.0
     diff = (now - (b - (h1 - h0))) % 360.0

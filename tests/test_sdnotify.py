@@ -76,11 +76,14 @@ def test_disabled_outside_systemd(path_socket: tuple[socket.socket, str]) -> Non
 
 def test_watchdog_pid_is_respected(path_socket: tuple[socket.socket, str]) -> None:
     sock, path = path_socket
-    other = SdNotifier({"NOTIFY_SOCKET": path, "WATCHDOG_USEC": "10000000", "WATCHDOG_PID": "999"}, pid=1000)
+    other = SdNotifier(
+        {"NOTIFY_SOCKET": path, "WATCHDOG_USEC": "10000000", "WATCHDOG_PID": "999"}, pid=1000
+    )
     assert other.watchdog_interval_s is None
     other.watchdog()  # not for us: nothing sent
-    ours = SdNotifier({"NOTIFY_SOCKET": path, "WATCHDOG_USEC": "10000000",
-                       "WATCHDOG_PID": str(os.getpid())})
+    ours = SdNotifier(
+        {"NOTIFY_SOCKET": path, "WATCHDOG_USEC": "10000000", "WATCHDOG_PID": str(os.getpid())}
+    )
     assert ours.watchdog_interval_s == 5.0
     ours.watchdog()
     assert sock.recv(4096) == b"WATCHDOG=1"
@@ -98,6 +101,7 @@ def test_unreachable_socket_is_counted_not_raised(tmp_path: Path) -> None:
 
 
 # --- systemd unit ------------------------------------------------------------------------
+
 
 def test_unit_file_directives() -> None:
     unit = parse_unit((ROOT / "systemd" / "relayd.service").read_text())
@@ -140,24 +144,38 @@ def test_unit_file_passes_systemd_analyze_verify(tmp_path: Path) -> None:
     text = text.replace("/opt/relayd/venv/bin/relayd", shutil.which("true") or "/bin/true")
     unit = tmp_path / "relayd.service"
     unit.write_text(text)
-    proc = subprocess.run(["systemd-analyze", "verify", "--man=no", str(unit)],
-                          capture_output=True, text=True, timeout=60, check=False)
+    proc = subprocess.run(
+        ["systemd-analyze", "verify", "--man=no", str(unit)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
     # Outside a booted systemd (containers, CI) verify cannot talk to the manager; only
     # complaints about our own file count.
-    relevant = [line for line in (proc.stdout + proc.stderr).splitlines()
-                if "relayd.service" in line and "Failed to" not in line]
+    relevant = [
+        line
+        for line in (proc.stdout + proc.stderr).splitlines()
+        if "relayd.service" in line and "Failed to" not in line
+    ]
     assert not relevant, "\n".join(relevant)
 
 
 # --- udev rules --------------------------------------------------------------------------
 
-_MATCH = re.compile(r'^(SUBSYSTEMS?|ATTRS?\{[a-z_A-Z]+\}|KERNELS?|ACTION|ENV\{[A-Z_]+\}|DRIVERS?)=="[^"]*"$')
+_MATCH = re.compile(
+    r'^(SUBSYSTEMS?|ATTRS?\{[a-z_A-Z]+\}|KERNELS?|ACTION|ENV\{[A-Z_]+\}|DRIVERS?)=="[^"]*"$'
+)
 _ASSIGN = re.compile(r'^(SYMLINK\+|NAME|GROUP|MODE|TAG\+|ENV\{[A-Z_]+\})="[^"]*"$')
 
 
 def test_udev_rules_are_well_formed() -> None:
     text = (ROOT / "config" / "99-relayd.rules").read_text()
-    rules = [line.strip() for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")]
+    rules = [
+        line.strip()
+        for line in text.splitlines()
+        if line.strip() and not line.lstrip().startswith("#")
+    ]
     assert rules
     symlinks, names = set(), set()
     for rule in rules:

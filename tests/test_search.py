@@ -21,8 +21,14 @@ from relayd.state import DriveState, Mode
 P = SearchParams()
 
 
-def run(bearing0: float, steps: int, *, dt: float = 0.1, turns: bool = True,
-        found_after: int | None = None) -> tuple[list[float], SearchState, float]:
+def run(
+    bearing0: float,
+    steps: int,
+    *,
+    dt: float = 0.1,
+    turns: bool = True,
+    found_after: int | None = None,
+) -> tuple[list[float], SearchState, float]:
     """Step the search with a robot that turns as asked (or not at all); the evidence stays
     where it was seen, in the world: (the rates asked for, the last state, the heading turned)."""
     st_, heading, t, rates = SearchState(), 0.0, 0.0, []
@@ -110,7 +116,10 @@ def test_the_guard_refuses_a_turn_without_room() -> None:
     # Something inside the circle the corners sweep: no turn in place at all.
     near = [None] * 16
     near[0] = 350  # the left sonar, 0.35 m
-    assert search_wheels(25.0, act, front_readings(near), rear_readings(near), 0.3, 400.0) == (0.0, 0.0)
+    assert search_wheels(25.0, act, front_readings(near), rear_readings(near), 0.3, 400.0) == (
+        0.0,
+        0.0,
+    )
 
 
 # -- through the controller ------------------------------------------------------------
@@ -118,32 +127,53 @@ def test_the_guard_refuses_a_turn_without_room() -> None:
 
 def lost_inputs(**changes: object) -> ControlInputs:
     base = ControlInputs(
-        mode=Mode.FOLLOW, sip_age_s=0.1, rssi_age_s=0.1, scan_servo_ok=True, bearing_deg=None,
-        prev_bearing_deg=None, rssi_leader_dbm=-40.0, rssi_behind_dbm=-40.0, rear_age_s=0.5,
-        front_sonar=front_readings([None] * 16), leader_lost=True, t_s=10.0, odom=(0.0, 0.0, 90.0),
-        rear_sonar=rear_readings([None] * 16), search_bearing_deg=-130.0,
+        mode=Mode.FOLLOW,
+        sip_age_s=0.1,
+        rssi_age_s=0.1,
+        scan_servo_ok=True,
+        bearing_deg=None,
+        prev_bearing_deg=None,
+        rssi_leader_dbm=-40.0,
+        rssi_behind_dbm=-40.0,
+        rear_age_s=0.5,
+        front_sonar=front_readings([None] * 16),
+        leader_lost=True,
+        t_s=10.0,
+        odom=(0.0, 0.0, 90.0),
+        rear_sonar=rear_readings([None] * 16),
+        search_bearing_deg=-130.0,
     )
     return dataclasses.replace(base, **changes)  # type: ignore[arg-type]
 
 
-def test_the_controller_turns_a_lost_relay_toward_a_leader_behind_it_and_forgets_once_found() -> None:
+def test_the_controller_turns_a_lost_relay_toward_a_leader_behind_it_and_forgets_once_found() -> (
+    None
+):
     p = ControlParams()
     out = control_step(lost_inputs(), p, ControlMemory(link_drive=True))
     assert out.state is DriveState.LEADER_LOST and out.reason == "leader_search"
     assert out.left_mm_s > 0 > out.right_mm_s  # to the right, in place
     assert out.memory.search.side == -1 and out.memory.link_drive
     # Found: the wheel law takes over, and the next loss starts afresh.
-    found = control_step(lost_inputs(leader_lost=False, bearing_deg=-20.0, search_bearing_deg=None,
-                                     rssi_leader_dbm=-50.0), p, out.memory)
+    found = control_step(
+        lost_inputs(
+            leader_lost=False, bearing_deg=-20.0, search_bearing_deg=None, rssi_leader_dbm=-50.0
+        ),
+        p,
+        out.memory,
+    )
     assert found.state is DriveState.DRIVING and found.memory.search == SearchState()
 
 
-@pytest.mark.parametrize("changes", [
-    {"search_bearing_deg": None},  # nothing seen
-    {"search_bearing_deg": -30.0},  # within the servo's sweep
-    {"odom": None},
-    {"front_sonar": front_readings([350] + [None] * 15)},  # no room to turn
-])
+@pytest.mark.parametrize(
+    "changes",
+    [
+        {"search_bearing_deg": None},  # nothing seen
+        {"search_bearing_deg": -30.0},  # within the servo's sweep
+        {"odom": None},
+        {"front_sonar": front_readings([350] + [None] * 15)},  # no room to turn
+    ],
+)
 def test_the_controller_keeps_the_wheels_at_zero_otherwise(changes: dict) -> None:
     out = control_step(lost_inputs(**changes), ControlParams(), ControlMemory())
     assert (out.left_mm_s, out.right_mm_s) == (0.0, 0.0) and out.reason == "leader_lost"
@@ -151,7 +181,9 @@ def test_the_controller_keeps_the_wheels_at_zero_otherwise(changes: dict) -> Non
 
 
 @settings(max_examples=100, deadline=None)
-@given(rate=st.floats(5.0, 90.0), v_max=st.floats(20.0, 1000.0), side=st.sampled_from([-130.0, 130.0]))
+@given(
+    rate=st.floats(5.0, 90.0), v_max=st.floats(20.0, 1000.0), side=st.sampled_from([-130.0, 130.0])
+)
 def test_the_turn_keeps_each_wheel_within_v_max(rate: float, v_max: float, side: float) -> None:
     """As every follow-mode command: 90 deg/s is +-462 mm/s a wheel, 25 deg/s +-128."""
     p = ControlParams(v_max_mm_s=v_max, search=SearchParams(rate_deg_s=rate))
@@ -162,10 +194,17 @@ def test_the_turn_keeps_each_wheel_within_v_max(rate: float, v_max: float, side:
         assert out.left_mm_s == -out.right_mm_s and (out.right_mm_s > 0) == (side > 0)
 
 
-@pytest.mark.parametrize("changes", [
-    {"mode": Mode.HOLD}, {"mode": Mode.MANUAL}, {"sip_age_s": None}, {"rssi_age_s": None},
-    {"scan_servo_ok": False}, {"rear_age_s": None},
-])
+@pytest.mark.parametrize(
+    "changes",
+    [
+        {"mode": Mode.HOLD},
+        {"mode": Mode.MANUAL},
+        {"sip_age_s": None},
+        {"rssi_age_s": None},
+        {"scan_servo_ok": False},
+        {"rear_age_s": None},
+    ],
+)
 def test_hold_manual_and_the_fail_safes_end_the_search(changes: dict) -> None:
     p = ControlParams()
     turning = control_step(lost_inputs(), p, ControlMemory(link_drive=True)).memory
@@ -194,16 +233,22 @@ def test_a_leader_that_walks_past_the_relay_is_found_again_by_turning(search: bo
     # "Leader near" at any RSSI (threshold_l -70 dBm): the paper's law never moves this
     # relay, so only the search can. The leader ends where no sweep of the servo's +-90
     # reaches it: the track is lost, its last fits at the left limit.
-    r = BrainRig(scan={"estimator": "lobe", "window": "adaptive"}, leader=passing_leader,
-                 pattern=cos_n_pattern(45.0, 15.0), mode=Mode.FOLLOW,
-                 control={"search_turn": search, "threshold_l_dbm": -70.0, "threshold_b_dbm": -90.0})
+    r = BrainRig(
+        scan={"estimator": "lobe", "window": "adaptive"},
+        leader=passing_leader,
+        pattern=cos_n_pattern(45.0, 15.0),
+        mode=Mode.FOLLOW,
+        control={"search_turn": search, "threshold_l_dbm": -70.0, "threshold_b_dbm": -90.0},
+    )
     r.start()
     r.run_until(20.0)
     assert abs(r.true_bearing_deg() - 26.6) < 1.0 and r.theta_deg == 0.0
     seen: list[str] = []
     r.run_until(60.0, lambda rig: seen.append(rig.brain.last_output.reason))  # type: ignore[union-attr]
     if search:
-        assert "leader_search" in seen and "leader_search" not in seen[-50:]  # over, 5 s ago at least
+        assert (
+            "leader_search" in seen and "leader_search" not in seen[-50:]
+        )  # over, 5 s ago at least
         # It turned left, toward where the leader went, until its last evidence (the left
         # limit) was ahead: the leader is in the servo's reach and found, where it stays.
         assert 60.0 < r.theta_deg <= 180.0

@@ -124,8 +124,9 @@ async def _close(fake: FakeMaestro, pt: PanTilt, task: asyncio.Task[None]) -> No
     fake.close()
 
 
-async def _connected_and_alone(fake: FakeMaestro, pt: PanTilt, what: str,
-                               reports: list[asyncio.Future[Any]]) -> None:
+async def _connected_and_alone(
+    fake: FakeMaestro, pt: PanTilt, what: str, reports: list[asyncio.Future[Any]]
+) -> None:
     # Connected to the port that is there now: a request is answered (right after a
     # quick pull and replug the driver may still hold the port that just went away).
     async def answered() -> bool:
@@ -138,15 +139,20 @@ async def _connected_and_alone(fake: FakeMaestro, pt: PanTilt, what: str,
 
     await until(answered, f"{what}: a request answered on the new port", 20.0, poll_s=0.02)
     # Every late report has come in (and been ignored) before we look.
-    await until(lambda: all(r.done() for r in reports), f"{what}: the late close reports", timeout_s=20.0)
+    await until(
+        lambda: all(r.done() for r in reports), f"{what}: the late close reports", timeout_s=20.0
+    )
     for _ in range(SETTLE_TURNS):
         await asyncio.sleep(0)
     assert pt.connected, f"{what}: a late close report took the new port down ({pt.last_error})"
-    assert fds_on(fake.path) == 2, f"{what}: descriptors on the tty besides the fake's and the driver's"
+    assert fds_on(fake.path) == 2, (
+        f"{what}: descriptors on the tty besides the fake's and the driver's"
+    )
 
 
 async def test_a_late_close_report_of_a_dropped_port_leaves_the_new_port_alone(
-        tmp_path: Path, late_close: list[asyncio.Future[Any]]) -> None:
+    tmp_path: Path, late_close: list[asyncio.Future[Any]]
+) -> None:
     """The soak's failure: silent controller, drop, fast reconnect, late report; five times."""
     fake, pt, task = await _rig(tmp_path, poll_s=0.5)
     try:
@@ -162,7 +168,8 @@ async def test_a_late_close_report_of_a_dropped_port_leaves_the_new_port_alone(
 
 
 async def test_hang_ups_idle_under_a_write_and_during_a_connect(
-        tmp_path: Path, late_close: list[asyncio.Future[Any]]) -> None:
+    tmp_path: Path, late_close: list[asyncio.Future[Any]]
+) -> None:
     """Pulled and replugged twelve times, in the three places it hurts; reconnects every time."""
     fake, pt, task = await _rig(tmp_path, reply_timeout_s=0.5)
     try:
@@ -182,8 +189,12 @@ async def test_hang_ups_idle_under_a_write_and_during_a_connect(
                 # Plugged in, and pulled again while the driver opens or handshakes.
                 errors = pt.counters["errors"]
                 fake.reappear()
-                await until(lambda e=errors: pt.counters["errors"] > e or pt.connected
-                            or fds_on(fake.path) > 1, f"cycle {cycle}: a connect under way")
+                await until(
+                    lambda e=errors: (
+                        pt.counters["errors"] > e or pt.connected or fds_on(fake.path) > 1
+                    ),
+                    f"cycle {cycle}: a connect under way",
+                )
                 fake.hang_up()
                 # The fault injected, not a wait for an outcome: the cable stays out this
                 # long mid-connect; whatever the driver makes of it, it must then recover.
@@ -196,7 +207,8 @@ async def test_hang_ups_idle_under_a_write_and_during_a_connect(
 
 
 async def test_close_ends_with_the_port_closed_when_the_background_close_is_cancelled(
-        tmp_path: Path) -> None:
+    tmp_path: Path,
+) -> None:
     fake, pt, task = await _rig(tmp_path)
     try:
         assert fds_on(fake.path) == 2
@@ -217,7 +229,8 @@ async def test_close_ends_with_the_port_closed_when_the_background_close_is_canc
 
 
 async def test_an_open_cancelled_in_the_executor_leaves_no_port_open(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     fake = FakeMaestro(clock=Clock(SPEED))
     path = fake.serve_pty(tmp_path / "servo")
     loop = asyncio.get_running_loop()
@@ -227,7 +240,10 @@ async def test_an_open_cancelled_in_the_executor_leaves_no_port_open(
 
     def slow_open(executor: Any, fn: Callable[..., Any], *args: Any) -> asyncio.Future[Any]:
         # Ours opens with _open_serial; pyserial-asyncio's own path with serial_for_url.
-        if getattr(getattr(fn, "func", fn), "__name__", "") not in ("_open_serial", "serial_for_url"):
+        if getattr(getattr(fn, "func", fn), "__name__", "") not in (
+            "_open_serial",
+            "serial_for_url",
+        ):
             return orig(executor, fn, *args)
 
         def opened_late() -> Any:

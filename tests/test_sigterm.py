@@ -27,8 +27,14 @@ async def _start(*args: str) -> tuple[asyncio.subprocess.Process, list[str]]:
     env = {k: v for k, v in os.environ.items() if not k.startswith("RELAYD_")}
     env["PYTHONUNBUFFERED"] = "1"
     proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "relayd", *args, env=env,
-        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT)
+        sys.executable,
+        "-m",
+        "relayd",
+        *args,
+        env=env,
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.STDOUT,
+    )
     lines: list[str] = []
 
     async def drain() -> None:
@@ -55,14 +61,20 @@ async def _sigterm_exit_s(proc: asyncio.subprocess.Process, lines: list[str]) ->
     return exit_s
 
 
-@pytest.mark.parametrize("args", [
-    ("robot", "--pty", "--link", "{dir}/base"),
-    ("robot", "--tcp", "0"),
-    ("pantilt", "--protocol", "maestro", "--link", "{dir}/servo"),
-    ("pantilt", "--protocol", "ssc32", "--link", "{dir}/servo"),
-    ("ap",),
-], ids=lambda a: " ".join(a[:2]))
-async def test_fake_exits_quickly_and_removes_its_link(tmp_path: Path, args: tuple[str, ...]) -> None:
+@pytest.mark.parametrize(
+    "args",
+    [
+        ("robot", "--pty", "--link", "{dir}/base"),
+        ("robot", "--tcp", "0"),
+        ("pantilt", "--protocol", "maestro", "--link", "{dir}/servo"),
+        ("pantilt", "--protocol", "ssc32", "--link", "{dir}/servo"),
+        ("ap",),
+    ],
+    ids=lambda a: " ".join(a[:2]),
+)
+async def test_fake_exits_quickly_and_removes_its_link(
+    tmp_path: Path, args: tuple[str, ...]
+) -> None:
     argv = [a.format(dir=tmp_path) for a in args]
     proc, lines = await _start("fake", *argv)
     await until(lambda: lines, "the fake's address on stdout")
@@ -99,7 +111,10 @@ async def test_run_exits_quickly_after_sigterm(tmp_path: Path) -> None:
         await until(lambda: rig_lines, "the rig's config path")
         proc, lines = await _start("run", "-c", rig_lines[0], "--log-format", "console")
         try:
-            await until(lambda: any("robot_connected" in ln for ln in lines), "relayd connected to the robot")
+            await until(
+                lambda: any("robot_connected" in ln for ln in lines),
+                "relayd connected to the robot",
+            )
             await until(lambda: any("api_listening" in ln for ln in lines), "the API listening")
             exit_s = await _sigterm_exit_s(proc, lines)
         finally:

@@ -43,7 +43,7 @@ def test_convoy_followers_track_and_stop_during_pauses() -> None:
         # Wheel commands the robot never acted on mean the daemon's command path is
         # backlogged (e.g. VEL 0 queued on every control tick under CPU load).
         assert f["unapplied_command_s"] < 3.0, f
-        assert f["travelled_m"] > 8.0, f            # both really followed
+        assert f["travelled_m"] > 8.0, f  # both really followed
         assert f["max_gap_m"] < 15.0, f
     recs = result.records
     pauses = _pause_windows(runner)
@@ -60,7 +60,7 @@ def test_convoy_followers_track_and_stop_during_pauses() -> None:
             speeds = [abs(r["relays"][i]["v_mm_s"]) for r in window]
             assert max(speeds) == 0, (t0, i, [abs(r["relays"][i]["v_mm_s"]) for r in pause])
             gaps = [r["relays"][i]["gap_m"] for r in pause]
-            assert min(gaps) > 1.0, (t0, i, gaps)       # behind it, not on top of it
+            assert min(gaps) > 1.0, (t0, i, gaps)  # behind it, not on top of it
     # followers end up along the leader's path: the first follower passed the sharp turn
     last = recs[-1]["relays"][0]
     assert last["y"] > 3.0, last

@@ -38,13 +38,19 @@ def test_equal_hops_cost_more_with_every_relay() -> None:
 
 
 @given(st.lists(rates, min_size=1, max_size=6), st.floats(min_value=0.0, max_value=1.0))
-def test_never_above_the_weakest_hop_and_never_below_full_sharing(hops: list[float], k: float) -> None:
+def test_never_above_the_weakest_hop_and_never_below_full_sharing(
+    hops: list[float], k: float
+) -> None:
     e2e = chain_throughput_mbps(hops, k)
     assert e2e <= min(hops) + 1e-3
     assert e2e >= 1.0 / sum(1.0 / h for h in hops) - 1e-3
 
 
-@given(st.lists(rates, min_size=1, max_size=6), st.floats(min_value=0.0, max_value=0.9), st.floats(0.01, 0.1))
+@given(
+    st.lists(rates, min_size=1, max_size=6),
+    st.floats(min_value=0.0, max_value=0.9),
+    st.floats(0.01, 0.1),
+)
 def test_more_coupling_never_helps(hops: list[float], k: float, dk: float) -> None:
     assert chain_throughput_mbps(hops, k + dk) <= chain_throughput_mbps(hops, k) + 1e-3
 
@@ -79,6 +85,12 @@ def test_start_orders_zero_one_two_relays_in_both_paper_scenarios(name: str) -> 
 def test_outdoor_without_relays_breaks_round_the_second_corner() -> None:
     """Fig. 6-21: after almost 60 m the link without relays goes, before the goal."""
     w = World(load_scenario("outdoor").with_relays(0), seed=1)
-    broke = next((t for t in range(int(w.leader_script.end_s) + 1)
-                  if (w.advance(float(t)) or True) and w.links().broken), None)
+    broke = next(
+        (
+            t
+            for t in range(int(w.leader_script.end_s) + 1)
+            if (w.advance(float(t)) or True) and w.links().broken
+        ),
+        None,
+    )
     assert broke is not None and 250 < broke < w.leader_script.end_s

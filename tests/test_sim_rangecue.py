@@ -26,10 +26,16 @@ def test_a_relay_in_a_bright_spot_drives_on_instead_of_standing_beyond_5_m() -> 
     result = vtime.run(SimRunner(sc, speed=None, seed=4, seconds=45.0).run())
     rows = [(r["t"], x) for r in result.records for x in r["relays"]]
     released = [(t, x) for t, x in rows if x["reason"] == "leader_far_sonar"]
-    assert any(x["name"] == "relay2" and 25.0 <= t <= 35.0 for t, x in released), "no release where it stood"
+    assert any(x["name"] == "relay2" and 25.0 <= t <= 35.0 for t, x in released), (
+        "no release where it stood"
+    )
     # Released only with the leader truly beyond the limit less the hysteresis.
     assert all(x["gap_m"] >= fs.GAP_MAX_M - RELEASE_HYSTERESIS_M for _, x in released), released
     # ... and no relay stands on "leader_near" with its leader beyond 5 m.
-    standing_far = [(t, x["name"], x["gap_m"]) for t, x in rows if x["reason"] == "leader_near" and x["gap_m"] > 5.0]
+    standing_far = [
+        (t, x["name"], x["gap_m"])
+        for t, x in rows
+        if x["reason"] == "leader_near" and x["gap_m"] > 5.0
+    ]
     assert not standing_far
     assert result.summary["collisions"] == 0

@@ -30,9 +30,15 @@ def test_pulse_to_deg_inverts_the_default_calibration() -> None:
 def test_generated_settings_validate() -> None:
     from relayd.config import Settings
 
-    doc = relay_settings(robot_port="/tmp/x-base", servo_port="/tmp/x-servo", procfs_path="/tmp/x-wl",
-                         rear_url="http://127.0.0.1:1", front_url="http://127.0.0.1:2",
-                         control={"threshold_l_dbm": -30}, scan={})
+    doc = relay_settings(
+        robot_port="/tmp/x-base",
+        servo_port="/tmp/x-servo",
+        procfs_path="/tmp/x-wl",
+        rear_url="http://127.0.0.1:1",
+        front_url="http://127.0.0.1:2",
+        control={"threshold_l_dbm": -30},
+        scan={},
+    )
     s = Settings.model_validate(doc)
     assert s.robot.port == "/tmp/x-base"
     assert s.pantilt.protocol == "maestro"
@@ -42,32 +48,72 @@ def test_generated_settings_validate() -> None:
     assert s.ap.rear is not None and s.ap.rear.password_env
 
 
-def _rec(t: float, lx: float, e2e: float, broken: bool, gaps: list[float], state: str = "driving") -> dict:
-    return {"t": t, "leader": {"x": lx, "y": 0.0, "moving": True}, "e2e_mbps": e2e, "broken": broken,
-            "relays": [{"name": f"r{i}", "gap_m": g, "state": state, "reason": "why", "rssi_l_dbm": -40.0}
-                       for i, g in enumerate(gaps)]}
+def _rec(
+    t: float, lx: float, e2e: float, broken: bool, gaps: list[float], state: str = "driving"
+) -> dict:
+    return {
+        "t": t,
+        "leader": {"x": lx, "y": 0.0, "moving": True},
+        "e2e_mbps": e2e,
+        "broken": broken,
+        "relays": [
+            {"name": f"r{i}", "gap_m": g, "state": state, "reason": "why", "rssi_l_dbm": -40.0}
+            for i, g in enumerate(gaps)
+        ],
+    }
 
 
 def test_summarize_reached_and_broken() -> None:
-    recs = [_rec(0, 0, 27, False, [2.0]), _rec(1, 5, 12, False, [4.0]), _rec(2, 10, 6, False, [3.0])]
+    recs = [
+        _rec(0, 0, 27, False, [2.0]),
+        _rec(1, 5, 12, False, [4.0]),
+        _rec(2, 10, 6, False, [3.0]),
+    ]
     f = [{"name": "r0", "collisions": 0, "travelled_m": 3.0}]
-    s = summarize(recs, scenario="x", relays=1, goal=(10, 0), goal_radius_m=0.5, collisions=0, followers=f)
+    s = summarize(
+        recs, scenario="x", relays=1, goal=(10, 0), goal_radius_m=0.5, collisions=0, followers=f
+    )
     assert s["goal_reached"] is True and s["link_broken_at_s"] is None
     assert s["min_e2e_mbps"] == 6 and s["final_e2e_mbps"] == 6
     assert s["followers"][0]["max_gap_m"] == 4.0 and s["followers"][0]["stopped_reason"] == "why"
-    for key in ("scenario", "relays", "sim_seconds", "goal_reached", "link_broken_at_s", "min_e2e_mbps",
-                "final_e2e_mbps", "collisions", "followers"):
+    for key in (
+        "scenario",
+        "relays",
+        "sim_seconds",
+        "goal_reached",
+        "link_broken_at_s",
+        "min_e2e_mbps",
+        "final_e2e_mbps",
+        "collisions",
+        "followers",
+    ):
         assert key in s
     recs[1]["broken"] = True
     recs[1]["e2e_mbps"] = 0
-    s = summarize(recs, scenario="x", relays=1, goal=(10, 0), goal_radius_m=0.5, collisions=0, followers=f)
+    s = summarize(
+        recs, scenario="x", relays=1, goal=(10, 0), goal_radius_m=0.5, collisions=0, followers=f
+    )
     assert s["goal_reached"] is False and s["link_broken_at_s"] == 1 and s["min_e2e_mbps"] == 0
     # never got there
-    s = summarize(recs[:2], scenario="x", relays=1, goal=(10, 0), goal_radius_m=0.5, collisions=0, followers=f)
+    s = summarize(
+        recs[:2], scenario="x", relays=1, goal=(10, 0), goal_radius_m=0.5, collisions=0, followers=f
+    )
     assert s["goal_reached"] is False and s["goal_reached_at_s"] is None
-    assert "goal NOT reached" in format_summary(s | {"followers": [
-        {"name": "r0", "max_gap_m": 4.0, "final_gap_m": 3.0, "travelled_m": 3.0,
-         "final_state": "stopped", "stopped_reason": "rear_weak"}]})
+    assert "goal NOT reached" in format_summary(
+        s
+        | {
+            "followers": [
+                {
+                    "name": "r0",
+                    "max_gap_m": 4.0,
+                    "final_gap_m": 3.0,
+                    "travelled_m": 3.0,
+                    "final_state": "stopped",
+                    "stopped_reason": "rear_weak",
+                }
+            ]
+        }
+    )
 
 
 def test_unapplied_command_time() -> None:
@@ -76,7 +122,7 @@ def test_unapplied_command_time() -> None:
     def rec(t: float, wheels: list[int], v: int) -> dict:
         return {"t": t, "relays": [{"wheels": wheels, "v_mm_s": v, "w_deg_s": 0.0}]}
 
-    recs = [rec(0.1 * k, [200, 200], 0) for k in range(31)]          # 3 s commanded, never moving
+    recs = [rec(0.1 * k, [200, 200], 0) for k in range(31)]  # 3 s commanded, never moving
     assert unapplied_command_s(recs, 0) == pytest.approx(2.0, abs=0.15)
     moving = [rec(0.1 * k, [200, 200], 0 if k < 3 else 150) for k in range(31)]
     assert unapplied_command_s(moving, 0) == 0.0
@@ -86,7 +132,9 @@ def test_unapplied_command_time() -> None:
 
 def test_progress_line_only_on_a_terminal() -> None:
     rec = _rec(12.5, 3, 18, False, [2.5])
-    assert "t=12.5/100s" in progress_text(rec, 100) and "r0:driving/-40dBm" in progress_text(rec, 100)
+    assert "t=12.5/100s" in progress_text(rec, 100) and "r0:driving/-40dBm" in progress_text(
+        rec, 100
+    )
     buf = io.StringIO()
     p = ProgressLine(100, stream=buf)
     p(rec)
@@ -99,7 +147,9 @@ def test_progress_line_only_on_a_terminal() -> None:
     assert buf.getvalue().count("\r") == 2 and buf.getvalue().endswith("\n")
 
 
-def test_cli_bad_scenario_and_bad_relays(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_cli_bad_scenario_and_bad_relays(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     assert main(["sim", "--scenario", "atlantis", "--out", str(tmp_path)]) == 2
     assert "no scenario named" in capsys.readouterr().err
     assert main(["sim", "--scenario", "corridor", "--relays", "7", "--out", str(tmp_path)]) == 2
@@ -109,11 +159,17 @@ def test_cli_bad_scenario_and_bad_relays(tmp_path: Path, capsys: pytest.CaptureF
         main(["sim", "--speed", "0"])
 
 
-def test_cli_corridor_without_relays_writes_every_output(tmp_path: Path,
-                                                          capsys: pytest.CaptureFixture[str]) -> None:
+def test_cli_corridor_without_relays_writes_every_output(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     # No daemons: the world alone.
     out = tmp_path / "o"
-    assert main(["sim", "--scenario", "corridor", "--relays", "0", "--speed", "max", "--out", str(out)]) == 0
+    assert (
+        main(
+            ["sim", "--scenario", "corridor", "--relays", "0", "--speed", "max", "--out", str(out)]
+        )
+        == 0
+    )
     text = capsys.readouterr().out
     assert "link broke at" in text and "goal NOT reached" in text
     s = json.loads((out / "summary.json").read_text())
@@ -146,12 +202,18 @@ y = 0.0
 
 
 @pytest.mark.slow
-def test_cli_relays_all_runs_each_count_with_real_daemons(tmp_path: Path,
-                                                           capsys: pytest.CaptureFixture[str]) -> None:
+def test_cli_relays_all_runs_each_count_with_real_daemons(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     scen = tmp_path / "tiny.toml"
     scen.write_text(TINY)
     out = tmp_path / "o"
-    assert main(["sim", "--scenario", str(scen), "--relays", "all", "--speed", "max", "--out", str(out)]) == 0
+    assert (
+        main(
+            ["sim", "--scenario", str(scen), "--relays", "all", "--speed", "max", "--out", str(out)]
+        )
+        == 0
+    )
     text = capsys.readouterr().out
     assert "solo: API and live page at http://127.0.0.1:" in text
     top = json.loads((out / "summary.json").read_text())
@@ -184,7 +246,10 @@ def test_each_relay_serves_its_api_while_the_sim_runs(tmp_path: Path) -> None:
 
     async def fetch(name: str, port: int) -> None:
         await asyncio.sleep(0.3)
-        async with aiohttp.ClientSession() as http, http.get(f"http://127.0.0.1:{port}/status") as resp:
+        async with (
+            aiohttp.ClientSession() as http,
+            http.get(f"http://127.0.0.1:{port}/status") as resp,
+        ):
             assert resp.status == 200
             seen[name] = await resp.json()
 
@@ -194,7 +259,9 @@ def test_each_relay_serves_its_api_while_the_sim_runs(tmp_path: Path) -> None:
             tasks.append(asyncio.create_task(fetch(name, port)))
 
     async def main() -> None:
-        runner = SimRunner(load_scenario(scen), speed=4, seconds=4, on_ready=ready, out_dir=tmp_path / "o")
+        runner = SimRunner(
+            load_scenario(scen), speed=4, seconds=4, on_ready=ready, out_dir=tmp_path / "o"
+        )
         await runner.run()
         await asyncio.gather(*tasks)
 
@@ -206,10 +273,28 @@ def test_each_relay_serves_its_api_while_the_sim_runs(tmp_path: Path) -> None:
 
 def test_same_scenario_and_seed_give_byte_identical_summary_and_trace(tmp_path: Path) -> None:
     """The simulator runs on virtual time with in-process devices: a run is reproducible."""
+
     def sim(name: str, seed: int) -> tuple[bytes, bytes]:
         out = tmp_path / name
-        assert main(["sim", "--scenario", "convoy", "--seconds", "12", "--speed", "max", "--seed", str(seed),
-                     "--no-plots", "--out", str(out)]) == 0
+        assert (
+            main(
+                [
+                    "sim",
+                    "--scenario",
+                    "convoy",
+                    "--seconds",
+                    "12",
+                    "--speed",
+                    "max",
+                    "--seed",
+                    str(seed),
+                    "--no-plots",
+                    "--out",
+                    str(out),
+                ]
+            )
+            == 0
+        )
         return (out / "summary.json").read_bytes(), (out / "trace.jsonl").read_bytes()
 
     first, second = sim("a", 1), sim("b", 1)
@@ -222,13 +307,31 @@ def test_same_scenario_and_seed_give_byte_identical_summary_and_trace(tmp_path: 
 
 
 @pytest.mark.slow
-def test_sim_log_is_plain_json_with_relay_and_sim_time(tmp_path: Path,
-                                                       capsys: pytest.CaptureFixture[str]) -> None:
+def test_sim_log_is_plain_json_with_relay_and_sim_time(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     scen = tmp_path / "tiny.toml"
     scen.write_text(TINY)
     out = tmp_path / "o"
-    assert main(["sim", "--scenario", str(scen), "--relays", "1", "--speed", "4", "--seconds", "8",
-                 "--no-plots", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "sim",
+                "--scenario",
+                str(scen),
+                "--relays",
+                "1",
+                "--speed",
+                "4",
+                "--seconds",
+                "8",
+                "--no-plots",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     capsys.readouterr()
     lines = (out / "sim.log").read_text().splitlines()
     assert lines, "sim.log is empty at the default level"

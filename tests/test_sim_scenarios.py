@@ -69,12 +69,12 @@ def test_obstacle_follower_gets_round_box_and_corner() -> None:
     s = result.summary
     f = s["followers"][0]
     assert s["collisions"] == 0
-    assert f["final_gap_m"] < 6.0, f                    # reached its leader
+    assert f["final_gap_m"] < 6.0, f  # reached its leader
     assert f["stopped_reason"] == "leader_near", f
     recs = result.records
     # it really had to avoid: the box made it turn away (situation 1) at some point
     assert any(r["relays"][0]["situation"] == 1 for r in recs)
-    assert recs[-1]["relays"][0]["y"] > 10.0            # past the building's corner (y = 2.5)
+    assert recs[-1]["relays"][0]["y"] > 10.0  # past the building's corner (y = 2.5)
 
 
 @pytest.mark.timeout(150)

@@ -67,9 +67,9 @@ def test_wall_crossings_are_counted() -> None:
 
 def test_footprint_collision_with_wall_box_and_robot() -> None:
     body = footprint(0, 0, 0, 0.626, 0.505)
-    assert polygon_hits_segment(body, Segment(0.3, -1, 0.3, 1))          # front bumper touches
+    assert polygon_hits_segment(body, Segment(0.3, -1, 0.3, 1))  # front bumper touches
     assert not polygon_hits_segment(body, Segment(0.32, -1, 0.32, 1))
-    turned = footprint(0, 0, 90, 0.626, 0.505)                             # long axis now along y
+    turned = footprint(0, 0, 90, 0.626, 0.505)  # long axis now along y
     assert not polygon_hits_segment(turned, Segment(0.3, -1, 0.3, 1))
     box = Box(0.2, 0.2, 0.7, 0.7)
     assert any(polygon_hits_segment(body, s) for s in box.segments())
@@ -140,7 +140,7 @@ def test_yagi_pattern() -> None:
     assert yagi_gain_db(60.0) == pytest.approx(10 * math.log10(0.25))
     assert yagi_gain_db(120.0) == -20.0
     assert yagi_gain_db(180.0) == -20.0
-    assert yagi_gain_db(89.9) == -20.0          # cos^2 below the floor near 90
+    assert yagi_gain_db(89.9) == -20.0  # cos^2 below the floor near 90
     assert yagi_gain_db(360.0) == 0.0
 
 
@@ -150,10 +150,23 @@ def test_yagi_gain_falls_off_axis(a: float, b: float) -> None:
         assert yagi_gain_db(a) >= yagi_gain_db(b)
 
 
-@pytest.mark.parametrize(("dbm", "mbps"), [
-    (-40, 54), (-65, 54), (-65.01, 48), (-66, 48), (-70, 36), (-74, 24), (-77, 18),
-    (-79, 12), (-81, 9), (-82, 6), (-82.01, 0), (-100, 0),
-])
+@pytest.mark.parametrize(
+    ("dbm", "mbps"),
+    [
+        (-40, 54),
+        (-65, 54),
+        (-65.01, 48),
+        (-66, 48),
+        (-70, 36),
+        (-74, 24),
+        (-77, 18),
+        (-79, 12),
+        (-81, 9),
+        (-82, 6),
+        (-82.01, 0),
+        (-100, 0),
+    ],
+)
 def test_rate_table_boundaries(dbm: float, mbps: float) -> None:
     assert phy_rate_mbps(dbm) == mbps
     assert throughput_mbps(dbm) == mbps * 0.5
@@ -177,13 +190,15 @@ def test_shadowing_is_spatially_correlated_with_the_right_spread() -> None:
     pts = [(x * 7.3, y * 7.3) for x in range(30) for y in range(30)]
     vals = [f.value(*p) for p in pts]
     assert 0.6 < statistics.pstdev(vals) < 1.4
+
     def corr(dist: float) -> float:
         a = vals
         b = [f.value(p[0] + dist, p[1]) for p in pts]
         return statistics.correlation(a, b)
-    assert corr(0.2) > 0.9                  # smooth over short moves
-    assert 0.35 < corr(2.0) < 0.85          # exp(-1/2) = 0.61 at the correlation length
-    assert abs(corr(8.0)) < 0.25            # independent far apart
+
+    assert corr(0.2) > 0.9  # smooth over short moves
+    assert 0.35 < corr(2.0) < 0.85  # exp(-1/2) = 0.61 at the correlation length
+    assert abs(corr(8.0)) < 0.25  # independent far apart
 
 
 def test_fading_rayleigh_deeper_than_rician() -> None:
@@ -237,8 +252,12 @@ def test_builtin_scenarios_load() -> None:
 
 
 def _minimal() -> dict:
-    return {"name": "t", "command_center": {"x": 0, "y": 0},
-            "leader": {"waypoints": [{"x": 1, "y": 0}]}, "relays": 0}
+    return {
+        "name": "t",
+        "command_center": {"x": 0, "y": 0},
+        "leader": {"waypoints": [{"x": 1, "y": 0}]},
+        "relays": 0,
+    }
 
 
 def test_scenario_errors_name_the_key() -> None:
@@ -286,9 +305,9 @@ def test_sonar_sees_a_wall_ahead_and_nothing_behind() -> None:
     d["leader"] = {"waypoints": [{"x": -4, "y": 6}]}  # out of every beam's reach
     w = World(parse_scenario(d), seed=0)
     r = w.sonar_mm(0, 0, 0, 0)
-    assert r[3] == pytest.approx(2000, abs=15)   # sonar 3 at x=245 looks ahead at +10 deg
+    assert r[3] == pytest.approx(2000, abs=15)  # sonar 3 at x=245 looks ahead at +10 deg
     assert r[4] == pytest.approx(2000, abs=15)
-    assert r[0] == 5000                          # left side: no echo -> max range
+    assert r[0] == 5000  # left side: no echo -> max range
     # turned around, the rear sonars see the wall
     r = w.sonar_mm(0, 0, 0, 180)
     assert r[11] == pytest.approx(2000, abs=15) and r[12] == pytest.approx(2000, abs=15)
@@ -307,7 +326,9 @@ def _one_relay(**extra: object) -> dict:
 def test_sonar_is_exactly_mirror_symmetric() -> None:
     # The box-dead-ahead case: 0.5 m, centred on the heading. A real ring sees it symmetrically,
     # and so must the simulated one (no rays or noise to break the tie for the robot).
-    w = World(parse_scenario(_one_relay(boxes=[{"min": [2.25, -0.25], "max": [2.75, 0.25]}])), seed=0)
+    w = World(
+        parse_scenario(_one_relay(boxes=[{"min": [2.25, -0.25], "max": [2.75, 0.25]}])), seed=0
+    )
     for x_mm in (0.0, 1200.0, 1704.0):
         r = w.sonar_mm(0, x_mm, 0, 0)
         assert (r[0], r[1], r[2], r[3]) == (r[7], r[6], r[5], r[4])
@@ -345,8 +366,9 @@ def test_sonar_noise_only_when_the_scenario_asks() -> None:
     assert noisy[0] != noisy[1]
 
 
-@pytest.mark.parametrize("name", ["box-dead-ahead", "box-dead-ahead-offset", "u-trap", "doorway",
-                                  "person-in-corridor"])
+@pytest.mark.parametrize(
+    "name", ["box-dead-ahead", "box-dead-ahead-offset", "u-trap", "doorway", "person-in-corridor"]
+)
 def test_obstacle_scenarios_ship_and_start_clear(name: str) -> None:
     sc = load_scenario(name)
     w = World(sc, seed=0)
@@ -364,12 +386,12 @@ def test_motion_guard_rejects_and_counts_contact() -> None:
     assert w.motion_ok(0, 600, 0, 0)
     w.set_pose(0, 600, 0, 0)
     assert not w.motion_ok(0, 700, 0, 0)
-    assert not w.motion_ok(0, 710, 0, 0)        # still pushing: one contact, not two
+    assert not w.motion_ok(0, 710, 0, 0)  # still pushing: one contact, not two
     assert w.collisions() == 1
-    assert w.motion_ok(0, 680, 0, 0)            # creeping up to the wall: the same contact
+    assert w.motion_ok(0, 680, 0, 0)  # creeping up to the wall: the same contact
     assert not w.motion_ok(0, 700, 0, 0, old=(680, 0, 0))
     assert w.collisions() == 1
-    assert w.motion_ok(0, 500, 0, 0)            # backing off clear of the wall ends it
+    assert w.motion_ok(0, 500, 0, 0)  # backing off clear of the wall ends it
     assert not w.motion_ok(0, 720, 0, 0)
     assert w.collisions() == 2
 
@@ -406,7 +428,7 @@ def test_turning_in_place_against_a_wall_is_one_contact() -> None:
     d["walls"] = [{"points": [[1.0, -3], [1.0, 3]]}]
     d["leader"] = {"waypoints": [{"x": -4, "y": 0}]}
     w = World(parse_scenario(d), seed=0)
-    old = (680.0, 0.0, 0.0)                     # front bumper 7 mm from the wall
+    old = (680.0, 0.0, 0.0)  # front bumper 7 mm from the wall
     for _ in range(5):
         # the FakeRobot's pattern: translation rejected, then rotation in place accepted
         assert not w.motion_ok(0, 780, 0, 0, old=old)
@@ -438,8 +460,16 @@ def test_scenario_errors_all_in_one_pass() -> None:
     with pytest.raises(ScenarioError) as ei:
         parse_scenario(d)
     errors = ei.value.errors
-    for key in ("leader.waypoints.1.x", "walls.0.material", "boxes.0.material", "relays:",
-                "control.kp", "control.threshold_l_dbm", "scan.samples", "relay.0.control.kd"):
+    for key in (
+        "leader.waypoints.1.x",
+        "walls.0.material",
+        "boxes.0.material",
+        "relays:",
+        "control.kp",
+        "control.threshold_l_dbm",
+        "scan.samples",
+        "relay.0.control.kd",
+    ):
         assert any(e.startswith(key) for e in errors), (key, errors)
     # The shared control table's errors are not repeated for each relay.
     assert not any(e.startswith("relay.0.control.kp") for e in errors), errors

@@ -13,10 +13,21 @@ from relayd.sim.scenario import ScenarioError, load_scenario, parse_scenario
 from relayd.sim.world import World
 from relayd.sim.zones import RadioZone, path_environment, zone_at
 
-HALL = RadioZone("hall", ((0.0, -5.0), (10.0, -5.0), (10.0, 5.0), (0.0, 5.0)), exponent=2.0,
-                 shadow_sigma_db=2.0, rician_k_db=10.0)
-CORRIDOR = RadioZone("corridor", ((10.0, -1.0), (30.0, -1.0), (30.0, 1.0), (10.0, 1.0)), exponent=4.0,
-                     shadow_sigma_db=6.0, rician_k_db=0.0, multipath_db=5.0)
+HALL = RadioZone(
+    "hall",
+    ((0.0, -5.0), (10.0, -5.0), (10.0, 5.0), (0.0, 5.0)),
+    exponent=2.0,
+    shadow_sigma_db=2.0,
+    rician_k_db=10.0,
+)
+CORRIDOR = RadioZone(
+    "corridor",
+    ((10.0, -1.0), (30.0, -1.0), (30.0, 1.0), (10.0, 1.0)),
+    exponent=4.0,
+    shadow_sigma_db=6.0,
+    rician_k_db=0.0,
+    multipath_db=5.0,
+)
 DEFAULTS = {"l0_dbm": -20.0, "exponent": 3.0, "shadow_sigma_db": 4.0, "rician_k_db": 6.0}
 
 
@@ -24,19 +35,31 @@ def test_a_link_takes_the_environment_of_the_ground_it_crosses() -> None:
     zones = (HALL, CORRIDOR)
     assert path_environment((1, 0), (9, 0), (), **DEFAULTS).exponent == 3.0
     inside = path_environment((1, 0), (9, 0), zones, **DEFAULTS)
-    assert (inside.exponent, inside.shadow_sigma_db, inside.multipath_db, inside.l0_dbm) == (2.0, 2.0, 0.0, -20.0)
+    assert (inside.exponent, inside.shadow_sigma_db, inside.multipath_db, inside.l0_dbm) == (
+        2.0,
+        2.0,
+        0.0,
+        -20.0,
+    )
     half = path_environment((0, 0), (20, 0), zones, **DEFAULTS)
     assert half.exponent == pytest.approx(3.0) and half.multipath_db == pytest.approx(2.5)
     assert half == path_environment((20, 0), (0, 0), zones, **DEFAULTS)  # symmetric
     outside = path_environment((0, 20), (10, 20), zones, **DEFAULTS)
     assert outside.exponent == 3.0 and outside.multipath_db == 0.0
-    assert zone_at((5, 0), zones) is HALL and zone_at((20, 0), zones) is CORRIDOR and zone_at((5, 9), zones) is None
+    assert (
+        zone_at((5, 0), zones) is HALL
+        and zone_at((20, 0), zones) is CORRIDOR
+        and zone_at((5, 9), zones) is None
+    )
 
 
 def test_multipath_costs_rate_not_signal() -> None:
     clean = Radio(RadioParams(fading=False, shadow_sigma_db=0.0, zones=(HALL,)), [], seed=1)
-    dense = Radio(RadioParams(fading=False, shadow_sigma_db=0.0, zones=(replace(HALL, multipath_db=5.0),)), [],
-                  seed=1)
+    dense = Radio(
+        RadioParams(fading=False, shadow_sigma_db=0.0, zones=(replace(HALL, multipath_db=5.0),)),
+        [],
+        seed=1,
+    )
     a, b = (1.0, 0.0), (9.0, 0.0)
     assert clean.mean_power_dbm(a, b) == dense.mean_power_dbm(a, b)
     assert clean.rate_penalty_db(a, b) == 0.0 and dense.rate_penalty_db(a, b) == 5.0
@@ -44,8 +67,14 @@ def test_multipath_costs_rate_not_signal() -> None:
 
 def test_fading_is_deeper_in_the_corridor() -> None:
     radio = Radio(RadioParams(shadow_sigma_db=0.0, zones=(HALL, CORRIDOR)), [], seed=3)
-    hall = [radio.sample_dbm((1, 0), (9, 0)) - radio.mean_power_dbm((1, 0), (9, 0))[0] for _ in range(2000)]
-    cor = [radio.sample_dbm((12, 0), (28, 0)) - radio.mean_power_dbm((12, 0), (28, 0))[0] for _ in range(2000)]
+    hall = [
+        radio.sample_dbm((1, 0), (9, 0)) - radio.mean_power_dbm((1, 0), (9, 0))[0]
+        for _ in range(2000)
+    ]
+    cor = [
+        radio.sample_dbm((12, 0), (28, 0)) - radio.mean_power_dbm((12, 0), (28, 0))[0]
+        for _ in range(2000)
+    ]
     assert statistics.pstdev(cor) > 1.5 * statistics.pstdev(hall)
 
 
@@ -57,7 +86,9 @@ def test_mixed_scenario_hall_is_open_and_corridor_is_dense() -> None:
     radio = world.radio
     env_hall = radio.environment((5.0, 0.0), (25.0, 0.0))
     env_cor = radio.environment((55.0, 0.0), (75.0, 0.0))
-    assert env_cor.exponent > env_hall.exponent and env_cor.shadow_sigma_db > env_hall.shadow_sigma_db
+    assert (
+        env_cor.exponent > env_hall.exponent and env_cor.shadow_sigma_db > env_hall.shadow_sigma_db
+    )
     assert env_cor.multipath_db > 0.0 == env_hall.multipath_db
     # The same 20 m hop loses far more in the corridor (median, shadowing aside).
     loss_hall = 10 * env_hall.exponent * math.log10(20.0)

@@ -35,20 +35,35 @@ FORBIDDEN: tuple[tuple[str, re.Pattern[str]], ...] = (
     ("the outside style guide", re.compile(r"\bSTYLE\.md\b")),
     ("a SPEC section or the SPEC itself", re.compile(r"\bSPEC\b")),
     ("an outside research note", re.compile(r"servo-wifi-airos|p3at-arcos")),
-    ("the outside contract or notes, by name",
-     re.compile(r"\b(?:[Tt]he spec(?:'s)?|[Pp]rotocol doc|doc pitfall|the doc's)\b")),
+    (
+        "the outside contract or notes, by name",
+        re.compile(r"\b(?:[Tt]he spec(?:'s)?|[Pp]rotocol doc|doc pitfall|the doc's)\b"),
+    ),
     # "issue 14" pointed into the tracker the work was planned in, which does not ship;
     # an upstream project's issue is cited with its name and a '#' ("AriaCoda issue #15").
     ("a tracker issue number instead of what it was about", re.compile(r"\b[Ii]ssues? \d")),
     # The same tracker and the planning notes without a number. Only "the/this issue" as a
     # noun: the verb ("the controller issues a stop") and plural are left alone.
-    ("the tracker's issue instead of what it asked for",
-     re.compile(r"\b[Tt]h(?:e|is) (?:[a-z]+ing )?issue(?:'s)?\b")),
+    (
+        "the tracker's issue instead of what it asked for",
+        re.compile(r"\b[Tt]h(?:e|is) (?:[a-z]+ing )?issue(?:'s)?\b"),
+    ),
     ("the planning brief instead of what it asked for", re.compile(r"\b[Tt]he brief\b")),
 )
 
-_SKIP_DIRS = {".git", ".venv", "node_modules", "__pycache__", ".mypy_cache", ".ruff_cache",
-              ".pytest_cache", ".hypothesis", "sim-out", "build", "dist"}
+_SKIP_DIRS = {
+    ".git",
+    ".venv",
+    "node_modules",
+    "__pycache__",
+    ".mypy_cache",
+    ".ruff_cache",
+    ".pytest_cache",
+    ".hypothesis",
+    "sim-out",
+    "build",
+    "dist",
+}
 
 
 def _repo_files() -> list[str]:
@@ -56,7 +71,10 @@ def _repo_files() -> list[str]:
     try:
         out = subprocess.run(
             ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
-            cwd=ROOT, capture_output=True, check=True, timeout=30,
+            cwd=ROOT,
+            capture_output=True,
+            check=True,
+            timeout=30,
         ).stdout
         names = sorted({n for n in out.decode("utf-8", "replace").split("\0") if n})
         if names:
@@ -64,7 +82,8 @@ def _repo_files() -> list[str]:
     except (OSError, subprocess.SubprocessError):
         pass
     return sorted(
-        p.relative_to(ROOT).as_posix() for p in ROOT.rglob("*")
+        p.relative_to(ROOT).as_posix()
+        for p in ROOT.rglob("*")
         if p.is_file() and not _SKIP_DIRS.intersection(p.relative_to(ROOT).parts)
     )
 
@@ -164,8 +183,11 @@ def test_every_file_path_named_in_the_repo_exists() -> None:
         if text is None:
             continue
         for lineno, line in enumerate(text.splitlines(), 1):
-            missing += [f"{name}:{lineno}: {path}" for path in _named_paths(line)
-                        if not (ROOT / path).exists()]
+            missing += [
+                f"{name}:{lineno}: {path}"
+                for path in _named_paths(line)
+                if not (ROOT / path).exists()
+            ]
     assert not missing, "these lines name files that do not exist:\n" + "\n".join(missing)
 
 
@@ -173,8 +195,10 @@ def test_every_file_path_named_in_the_repo_exists() -> None:
     ("line", "paths"),
     [
         ("the guarded accept loop (relayd/api/guard.py)", ["relayd/api/guard.py"]),
-        ("`drivers/arcos/fake.py` and `drivers/arcos/fakebody.py`",
-         ["drivers/arcos/fake.py", "drivers/arcos/fakebody.py"]),
+        (
+            "`drivers/arcos/fake.py` and `drivers/arcos/fakebody.py`",
+            ["drivers/arcos/fake.py", "drivers/arcos/fakebody.py"],
+        ),
         ("figures go in bench/RESULTS.md.", ["bench/RESULTS.md"]),
         ("relayd/tracking.py   new: the filter", ["relayd/tracking.py"]),
         ("ExecStart=/opt/relayd/venv/bin/relayd run -c /etc/relayd/relayd.toml", []),

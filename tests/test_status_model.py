@@ -28,10 +28,25 @@ def test_a_fresh_state_matches_the_model() -> None:
 
 
 def test_a_busy_state_matches_the_model_field_by_field() -> None:
-    st = RelayState(started_t=1.0, bearing_deg=12.5, rssi_leader_dbm=-48.0, x_mm=10.0, y_mm=-3.0,
-                    theta_deg=5.0, battery_v=12.9, robot_name="relay1")
-    st.last_scan = ScanRecord(t=2.0, angles_deg=(-10.0, 0.0, 10.0), rssi_dbm=(-60.0, -50.0, -55.0),
-                              bearing_deg=1.0, rssi_leader_dbm=-50.0, situation=0, period_s=1.2)
+    st = RelayState(
+        started_t=1.0,
+        bearing_deg=12.5,
+        rssi_leader_dbm=-48.0,
+        x_mm=10.0,
+        y_mm=-3.0,
+        theta_deg=5.0,
+        battery_v=12.9,
+        robot_name="relay1",
+    )
+    st.last_scan = ScanRecord(
+        t=2.0,
+        angles_deg=(-10.0, 0.0, 10.0),
+        rssi_dbm=(-60.0, -50.0, -55.0),
+        bearing_deg=1.0,
+        rssi_leader_dbm=-50.0,
+        situation=0,
+        period_s=1.2,
+    )
     st.links["rear"] = LinkInfo(signal_dbm=-55.0, ccq_pct=90.0, t=2.5)
     st.health_sources["robot"] = lambda: DeviceHealth(connected=True, last_data_t=2.9, errors=1)
     st.device("pantilt").errors = 2  # the supervisor's record of a failed task

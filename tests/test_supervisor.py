@@ -34,7 +34,9 @@ async def test_failing_task_restarts_without_touching_others() -> None:
     sup.start()
     await until(lambda: ticks["flaky"] >= 3, "the flaky task's third run")
     steady_before = ticks["steady"]
-    await until(lambda: ticks["steady"] > steady_before, "the steady task ticking on", timeout_s=1.0)
+    await until(
+        lambda: ticks["steady"] > steady_before, "the steady task ticking on", timeout_s=1.0
+    )
     assert sup.restarts("flaky") >= 2
     assert state.health["pantilt"].errors >= 2
     assert "servo adapter unplugged" in (state.health["pantilt"].last_error or "")
@@ -52,6 +54,7 @@ async def test_stop_order_is_reverse_of_start() -> None:
                 await asyncio.Event().wait()
             finally:
                 order.append(name)
+
         return task
 
     for name in ("robot", "scanner", "control"):

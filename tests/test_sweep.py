@@ -43,6 +43,7 @@ def _without_wall(rows: list[dict[str, str]]) -> list[dict[str, str]]:
 
 # --- the grid --------------------------------------------------------------------------
 
+
 def test_parse_set_values_and_shorthand() -> None:
     assert parse_value("3") == 3 and parse_value("-2.5") == -2.5 and parse_value("true") is True
     assert parse_value("step") == "step"
@@ -62,20 +63,32 @@ def test_apply_override_walks_tables_and_lists() -> None:
     apply_override(doc, ("relay", "0", "control", "threshold_b_dbm"), -40)
     apply_override(doc, ("radio", "exponent"), 2.0)
     apply_override(doc, ("control", "kp"), 0.5)
-    assert doc == {"relay": [{"name": "a", "control": {"threshold_b_dbm": -40}}], "radio": {"exponent": 2.0},
-                   "control": {"kp": 0.5}}
+    assert doc == {
+        "relay": [{"name": "a", "control": {"threshold_b_dbm": -40}}],
+        "radio": {"exponent": 2.0},
+        "control": {"kp": 0.5},
+    }
     with pytest.raises(GridError, match="out of range"):
         apply_override(doc, ("relay", "3", "x"), 1)
 
 
 def test_build_grid_expands_in_order_and_validates_up_front() -> None:
-    specs = build_grid(["convoy"], [0, 2], [1, 2], [parse_set("radio.shadow_sigma_db=2,4")], seconds=3)
+    specs = build_grid(
+        ["convoy"], [0, 2], [1, 2], [parse_set("radio.shadow_sigma_db=2,4")], seconds=3
+    )
     assert len(specs) == 8
-    assert [(s.params[0][1], s.relays, s.seed) for s in specs[:4]] == [(2, 0, 1), (2, 0, 2), (2, 2, 1), (2, 2, 2)]
+    assert [(s.params[0][1], s.relays, s.seed) for s in specs[:4]] == [
+        (2, 0, 1),
+        (2, 0, 2),
+        (2, 2, 1),
+        (2, 2, 2),
+    ]
     assert specs[0].run_id == "convoy/relays-0/radio.shadow_sigma_db=2/seed-1"
     assert specs[0].doc["radio"]["shadow_sigma_db"] == 2
     # the digest follows the parameters, not the object
-    again = build_grid(["convoy"], [0, 2], [1, 2], [parse_set("radio.shadow_sigma_db=2,4")], seconds=3)
+    again = build_grid(
+        ["convoy"], [0, 2], [1, 2], [parse_set("radio.shadow_sigma_db=2,4")], seconds=3
+    )
     assert [s.digest for s in specs] == [s.digest for s in again]
     assert len({s.digest for s in specs}) == 8
     with pytest.raises(GridError, match=r"radio\.shadow_sigma_db"):
@@ -108,12 +121,24 @@ def test_progress_bar_counts_and_eta() -> None:
 
 # --- real sweeps -----------------------------------------------------------------------
 
+
 @pytest.mark.timeout(240)
-def test_two_workers_equal_one_worker_and_resume(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_two_workers_equal_one_worker_and_resume(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     # 4 runs: two relay counts x two values of one axis; a second, one-valued axis still
     # checks the column order of several --set keys.
-    grid = [*TINY, "--relays", "0,1", "--seed-list", "2", "--set", "radio.shadow_sigma_db=2,8",
-            "--set", "leader.speed_m_s=0.2"]
+    grid = [
+        *TINY,
+        "--relays",
+        "0,1",
+        "--seed-list",
+        "2",
+        "--set",
+        "radio.shadow_sigma_db=2,8",
+        "--set",
+        "leader.speed_m_s=0.2",
+    ]
     two, one = tmp_path / "two", tmp_path / "one"
     assert main(["sweep", *grid, "--workers", "2", "--out", str(two)]) == 0
     rows = _rows(two / "runs.csv")
@@ -144,12 +169,28 @@ def test_two_workers_equal_one_worker_and_resume(tmp_path: Path, capsys: pytest.
 
 
 @pytest.mark.timeout(120)
-def test_a_failing_run_is_retried_once_then_recorded(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_a_failing_run_is_retried_once_then_recorded(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     out = tmp_path / "fail"
     # No run can finish in 0.3 s of wall time (the child alone takes longer to start).
     t0 = time.monotonic()
-    code = main(["sweep", *TINY, "--relays", "1", "--seeds", "1", "--workers", "1", "--run-timeout", "0.3",
-                 "--out", str(out)])
+    code = main(
+        [
+            "sweep",
+            *TINY,
+            "--relays",
+            "1",
+            "--seeds",
+            "1",
+            "--workers",
+            "1",
+            "--run-timeout",
+            "0.3",
+            "--out",
+            str(out),
+        ]
+    )
     assert code == 1
     assert time.monotonic() - t0 < 100
     (row,) = _rows(out / "runs.csv")
@@ -158,21 +199,43 @@ def test_a_failing_run_is_retried_once_then_recorded(tmp_path: Path, capsys: pyt
     assert row["min_e2e_mbps"] == "" and row["wall_s"] == ""
     meta = json.loads((out / row["run_dir"] / "run.json").read_text())
     assert meta["status"] == "failed"
-    assert "failed: `runs/convoy/relays-1/seed-1` after 2 attempt(s)" in (out / "report.md").read_text()
+    assert (
+        "failed: `runs/convoy/relays-1/seed-1` after 2 attempt(s)"
+        in (out / "report.md").read_text()
+    )
     # a failed run is not 'finished': the next invocation tries it again
     capsys.readouterr()
-    assert main(["sweep", *TINY, "--relays", "1", "--seeds", "1", "--workers", "1", "--out", str(out)]) == 0
+    assert (
+        main(["sweep", *TINY, "--relays", "1", "--seeds", "1", "--workers", "1", "--out", str(out)])
+        == 0
+    )
     assert "1 run, 0 already done, 0 failed" in capsys.readouterr().out
     assert _rows(out / "runs.csv")[0]["status"] == "ok"
 
 
 @pytest.mark.timeout(120)
-def test_an_unreachable_scheduler_is_an_error_not_a_hang(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_an_unreachable_scheduler_is_an_error_not_a_hang(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     port = _free_port()
     t0 = time.monotonic()
     # --connect-timeout bounds the wait (default 30 s); a short one keeps the test short.
-    code = main(["sweep", *TINY, "--relays", "0", "--seeds", "1", "--scheduler", f"tcp://127.0.0.1:{port}",
-                 "--connect-timeout", "2", "--out", str(tmp_path / "x")])
+    code = main(
+        [
+            "sweep",
+            *TINY,
+            "--relays",
+            "0",
+            "--seeds",
+            "1",
+            "--scheduler",
+            f"tcp://127.0.0.1:{port}",
+            "--connect-timeout",
+            "2",
+            "--out",
+            str(tmp_path / "x"),
+        ]
+    )
     waited_s = time.monotonic() - t0
     assert code == 2 and 2.0 <= waited_s < 60, waited_s
     assert "no Dask cluster" in capsys.readouterr().err
@@ -197,8 +260,12 @@ def _kill_group(p: subprocess.Popen[bytes]) -> None:
 
 
 def _scheduler(dask_cli: str, port: int, log: IO[bytes]) -> subprocess.Popen[bytes]:
-    return subprocess.Popen([dask_cli, "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
-                            stdout=log, stderr=log, start_new_session=True)
+    return subprocess.Popen(
+        [dask_cli, "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
+        stdout=log,
+        stderr=log,
+        start_new_session=True,
+    )
 
 
 @pytest.mark.timeout(120)
@@ -213,8 +280,22 @@ def test_a_cluster_without_workers_does_not_hang_the_sweep(tmp_path: Path) -> No
         with Client(f"tcp://127.0.0.1:{port}", timeout="60s"):
             pass  # the scheduler is up
         t0 = time.monotonic()
-        code = main(["sweep", *TINY, "--relays", "0", "--seeds", "2", "--scheduler", f"tcp://127.0.0.1:{port}",
-                     "--no-worker-timeout", "3", "--out", str(tmp_path / "x")])
+        code = main(
+            [
+                "sweep",
+                *TINY,
+                "--relays",
+                "0",
+                "--seeds",
+                "2",
+                "--scheduler",
+                f"tcp://127.0.0.1:{port}",
+                "--no-worker-timeout",
+                "3",
+                "--out",
+                str(tmp_path / "x"),
+            ]
+        )
         assert code == 1 and time.monotonic() - t0 < 60
         rows = _rows(tmp_path / "x" / "runs.csv")
         assert [r["status"] for r in rows] == ["failed", "failed"]
@@ -237,17 +318,50 @@ def test_external_scheduler_two_workers_one_killed(tmp_path: Path) -> None:
     try:
         procs.append(_scheduler(dask_cli, port, log))
         for _ in range(2):
-            procs.append(subprocess.Popen([dask_cli, "worker", addr, "--nthreads", "1", "--host", "127.0.0.1",
-                                           "--no-dashboard", "--memory-limit", "0"],
-                                          stdout=log, stderr=log, start_new_session=True))
+            procs.append(
+                subprocess.Popen(
+                    [
+                        dask_cli,
+                        "worker",
+                        addr,
+                        "--nthreads",
+                        "1",
+                        "--host",
+                        "127.0.0.1",
+                        "--no-dashboard",
+                        "--memory-limit",
+                        "0",
+                    ],
+                    stdout=log,
+                    stderr=log,
+                    start_new_session=True,
+                )
+            )
         from distributed import Client
 
         with Client(addr, timeout="60s") as c:
             c.wait_for_workers(2, timeout=90)
         out = tmp_path / "ext"
-        sweep = subprocess.Popen([sys.executable, "-m", "relayd", "sweep", *TINY, "--relays", "0,1",
-                                  "--seeds", "2", "--scheduler", addr, "--out", str(out)],
-                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
+        sweep = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "relayd",
+                "sweep",
+                *TINY,
+                "--relays",
+                "0,1",
+                "--seeds",
+                "2",
+                "--scheduler",
+                addr,
+                "--out",
+                str(out),
+            ],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
         procs.append(sweep)
 
         def a_run_done() -> bool:

@@ -74,11 +74,21 @@ def _seconds(value: str) -> float:
 
 #: The unit's kernel/system sandboxing set, each with the value that turns it on.
 HARDENING = {
-    "ProtectHome": "yes", "PrivateTmp": "yes", "ProtectKernelTunables": "yes",
-    "ProtectKernelModules": "yes", "ProtectKernelLogs": "yes", "ProtectControlGroups": "yes",
-    "ProtectClock": "yes", "ProtectHostname": "yes", "LockPersonality": "yes",
-    "RestrictRealtime": "yes", "RestrictNamespaces": "yes", "RestrictSUIDSGID": "yes",
-    "SystemCallArchitectures": "native", "UMask": "0077", "RemoveIPC": "yes",
+    "ProtectHome": "yes",
+    "PrivateTmp": "yes",
+    "ProtectKernelTunables": "yes",
+    "ProtectKernelModules": "yes",
+    "ProtectKernelLogs": "yes",
+    "ProtectControlGroups": "yes",
+    "ProtectClock": "yes",
+    "ProtectHostname": "yes",
+    "LockPersonality": "yes",
+    "RestrictRealtime": "yes",
+    "RestrictNamespaces": "yes",
+    "RestrictSUIDSGID": "yes",
+    "SystemCallArchitectures": "native",
+    "UMask": "0077",
+    "RemoveIPC": "yes",
 }
 
 
@@ -99,8 +109,11 @@ def test_hardening_still_reaches_what_udev_names() -> None:
     the service user is in; the config is under ConfigurationDirectory."""
     allowed = {rule.split()[0].removeprefix("char-") for rule in _unit()["Service"]["DeviceAllow"]}
     groups = set(_service("SupplementaryGroups").split()) | {_service("Group")}
-    rules = [line for line in (ROOT / "config" / "99-relayd.rules").read_text().splitlines()
-             if line.strip() and not line.lstrip().startswith("#")]
+    rules = [
+        line
+        for line in (ROOT / "config" / "99-relayd.rules").read_text().splitlines()
+        if line.strip() and not line.lstrip().startswith("#")
+    ]
     serial = [r for r in rules if 'SUBSYSTEM=="tty"' in r]
     assert serial
     for rule in serial:
@@ -126,6 +139,7 @@ def test_secrets_file_names_the_variables_the_example_config_uses() -> None:
 
 # --- ExecStart ---------------------------------------------------------------------------
 
+
 def test_execstart_is_a_relayd_run_the_cli_accepts() -> None:
     argv = shlex.split(_service("ExecStart"))
     exe = Path(argv[0])
@@ -142,21 +156,32 @@ def test_execstart_is_a_relayd_run_the_cli_accepts() -> None:
 
 # --- systemd-analyze security ------------------------------------------------------------
 
+
 def test_systemd_analyze_security_exposure(tmp_path: Path) -> None:
     if shutil.which("systemd-analyze") is None:
         skip_or_fail("systemd-analyze not installed (apt-get install systemd)")
     unit = tmp_path / "relayd.service"
-    unit.write_text(UNIT.read_text().replace("/opt/relayd/venv/bin/relayd", shutil.which("true") or "/bin/true"))
-    proc = subprocess.run(["systemd-analyze", "security", "--offline=true", "--no-pager", str(unit)],
-                          capture_output=True, text=True, timeout=60, check=False)
+    unit.write_text(
+        UNIT.read_text().replace("/opt/relayd/venv/bin/relayd", shutil.which("true") or "/bin/true")
+    )
+    proc = subprocess.run(
+        ["systemd-analyze", "security", "--offline=true", "--no-pager", str(unit)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
     found = re.search(r"Overall exposure level for \S+: (\d+\.\d+)", proc.stdout)
     if found is None:
-        skip_or_fail(f"this systemd-analyze cannot rate a unit offline: {proc.stderr.strip()[:200]}")
+        skip_or_fail(
+            f"this systemd-analyze cannot rate a unit offline: {proc.stderr.strip()[:200]}"
+        )
     # systemd rates 0-10; below 3 is "OK". Serial access needs some exposure (no PrivateDevices).
     assert float(found.group(1)) < 3.0, proc.stdout
 
 
 # --- the notify protocol, as systemd would see it ------------------------------------------
+
 
 class NotifySocket:
     """An abstract-namespace datagram socket collecting (loop time, {KEY: value}) messages."""
@@ -220,7 +245,8 @@ def _relayd_argv(config: Path) -> list[str]:
 
 
 async def test_relayd_run_notifies_ready_pets_the_watchdog_and_stops(
-        tmp_path: Path, notify_socket: NotifySocket) -> None:
+    tmp_path: Path, notify_socket: NotifySocket
+) -> None:
     watchdog_s = _seconds(_service("WatchdogSec"))
     stop_timeout_s = _seconds(_service("TimeoutStopSec"))
     port = _free_port()
@@ -246,19 +272,28 @@ async def test_relayd_run_notifies_ready_pets_the_watchdog_and_stops(
         env.update(NOTIFY_SOCKET=notify_socket.name, WATCHDOG_USEC=str(round(watchdog_s * 1e6)))
         out = (tmp_path / "relayd.log").open("wb")
         proc = await asyncio.create_subprocess_exec(
-            *_relayd_argv(config), cwd=tmp_path, env=env, stdin=subprocess.DEVNULL,
-            stdout=out, stderr=subprocess.STDOUT)
+            *_relayd_argv(config),
+            cwd=tmp_path,
+            env=env,
+            stdin=subprocess.DEVNULL,
+            stdout=out,
+            stderr=subprocess.STDOUT,
+        )
         try:
             await notify_socket.wait_for("READY", 30.0)
             assert api_at_ready == [True], "READY=1 before the API was listening"
-            async with ClientSession() as session, \
-                    session.get(f"http://127.0.0.1:{port}/status") as resp:
+            async with (
+                ClientSession() as session,
+                session.get(f"http://127.0.0.1:{port}/status") as resp,
+            ):
                 assert resp.status == 200
                 assert (await resp.json())["uptime_s"] >= 0
 
             # Pets keep coming, far more often than WatchdogSec would fire.
             first = await notify_socket.wait_for("WATCHDOG", 15.0)
-            last = await notify_socket.wait_for("WATCHDOG", 15.0, count=len(notify_socket.with_key("WATCHDOG")) + 4)
+            last = await notify_socket.wait_for(
+                "WATCHDOG", 15.0, count=len(notify_socket.with_key("WATCHDOG")) + 4
+            )
             pets = [t for t, _ in notify_socket.with_key("WATCHDOG") if first <= t <= last]
             gaps = [b - a for a, b in itertools.pairwise(pets)]
             assert max(gaps) < watchdog_s / 2, gaps
@@ -292,6 +327,7 @@ def _free_port() -> int:
 
 # --- the watchdog is petted only while the control loop ticks -------------------------------
 
+
 class RecordingNotifier:
     def __init__(self) -> None:
         self.calls: list[str] = []
@@ -315,7 +351,8 @@ class RecordingNotifier:
 
 @pytest.mark.virtual_time
 async def test_watchdog_pets_only_while_the_control_loop_ticks(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """The control task is held back, then runs, then wedges; pets follow the ticks.
 
     In virtual time, the rig's robot and servo on memory links: the pet periods waited
@@ -341,11 +378,16 @@ async def test_watchdog_pets_only_while_the_control_loop_ticks(
     notifier = RecordingNotifier()
     clock = LoopClock()
     async with FakeRig(tmp_path, clock=clock, links="memory") as rig:
-        daemon = Daemon(parse_settings(rig.config_doc(api_port=0, control={"mode": "hold"})),
-                        env=rig.env, notifier=notifier, clock=clock)
+        daemon = Daemon(
+            parse_settings(rig.config_doc(api_port=0, control={"mode": "hold"})),
+            env=rig.env,
+            notifier=notifier,
+            clock=clock,
+        )
         task = asyncio.create_task(daemon.run())
         try:
             async with ClientSession() as session:
+
                 async def healthz() -> int:
                     async with session.get(f"http://127.0.0.1:{daemon.api_port}/healthz") as resp:
                         return resp.status
@@ -355,7 +397,11 @@ async def test_watchdog_pets_only_while_the_control_loop_ticks(
 
                 await until(ready, "READY", 10.0, poll_s=0.05)
                 # Devices are up, but the control loop has not ticked: no pet, /healthz 503.
-                await until(lambda: daemon.state.health_now()["robot"].connected, "the robot connected", 10.0)
+                await until(
+                    lambda: daemon.state.health_now()["robot"].connected,
+                    "the robot connected",
+                    10.0,
+                )
                 await _pet_periods(daemon)
                 assert notifier.pets == 0
                 assert await healthz() == 503
@@ -391,6 +437,7 @@ async def _pet_periods(daemon: Daemon, periods: int = 3) -> None:
 
 
 # --- resources and scheduling ----------------------------------------------------------
+
 
 def test_descriptor_limit_leaves_room_for_the_api_cap_and_the_devices() -> None:
     from relayd.api.guard import FD_RESERVE, MAX_CONNECTIONS

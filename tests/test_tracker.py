@@ -17,8 +17,18 @@ P = TrackerParams()
 
 
 @settings(max_examples=200, deadline=None)
-@given(steps=st.lists(st.tuples(st.floats(0.3, 6.0), st.floats(1.0, 10.0), st.floats(-30.0, 30.0),
-                                st.floats(-60.0, 60.0)), min_size=1, max_size=40))
+@given(
+    steps=st.lists(
+        st.tuples(
+            st.floats(0.3, 6.0),
+            st.floats(1.0, 10.0),
+            st.floats(-30.0, 30.0),
+            st.floats(-60.0, 60.0),
+        ),
+        min_size=1,
+        max_size=40,
+    )
+)
 def test_variance_stays_bounded_and_the_covariance_valid(steps) -> None:
     tr = tracker.start(0.0, 0.0, 0.0, 5.0, P)
     t = heading = 0.0
@@ -63,7 +73,9 @@ def test_the_heading_change_is_the_control_input(turn, b) -> None:
 def test_headings_wrapping_at_180_are_one_small_turn() -> None:
     tr = tracker.start(0.0, 179.0, 0.0, 2.0, P)
     moved = tracker.predict(tr, 0.0, -179.0, P)
-    assert moved.bearing_deg == pytest.approx(-2.0) and moved.sd_deg == pytest.approx(tr.sd_deg, abs=0.01)
+    assert moved.bearing_deg == pytest.approx(-2.0) and moved.sd_deg == pytest.approx(
+        tr.sd_deg, abs=0.01
+    )
 
 
 @given(t=st.floats(0.1, 600.0))
@@ -99,17 +111,29 @@ def test_an_outlier_is_gated_and_a_real_jump_is_reacquired() -> None:
 
 @settings(max_examples=100, deadline=None)
 @given(rate=st.floats(-30.0, 30.0), turn=st.floats(-40.0, 40.0), off=st.floats(40.0, 120.0))
-def test_a_rejected_measurement_stops_the_prediction_running_on_at_its_rate(rate, turn, off) -> None:
+def test_a_rejected_measurement_stops_the_prediction_running_on_at_its_rate(
+    rate, turn, off
+) -> None:
     # A track that learnt a rate (perhaps from a leader that jumped) and then sees the
     # leader far from its prediction: it holds its last bearing (in today's frame)
     # instead of extrapolating further, until the next scan decides.
-    tr = tracker.Track(t=10.0, heading_deg=0.0, bearing_deg=0.0, rate_deg_s=rate, p_bb=4.0, p_bw=0.0,
-                       p_ww=0.25, updates=5)
+    tr = tracker.Track(
+        t=10.0,
+        heading_deg=0.0,
+        bearing_deg=0.0,
+        rate_deg_s=rate,
+        p_bb=4.0,
+        p_bw=0.0,
+        p_ww=0.25,
+        updates=5,
+    )
     predicted = tracker.predict(tr, 12.0, turn, P).bearing_deg
     held, ok = tracker.update(tr, 12.0, turn, predicted + off, 1.0, P)
     assert not ok and held.rejects == 1
     assert held.rate_deg_s == 0.0
-    assert held.bearing_deg == pytest.approx(-turn, abs=1e-9)  # the last bearing, seen after the turn
+    assert held.bearing_deg == pytest.approx(
+        -turn, abs=1e-9
+    )  # the last bearing, seen after the turn
     later = tracker.predict(held, 20.0, turn, P)
     assert later.bearing_deg == pytest.approx(-turn, abs=1e-9)
 
@@ -126,8 +150,16 @@ def test_non_finite_input_is_refused() -> None:
 
 
 def _confident(b: float = 20.0, rate: float = 0.0) -> tracker.Track:
-    return tracker.Track(t=0.0, heading_deg=0.0, bearing_deg=b, rate_deg_s=rate, p_bb=9.0, p_bw=0.0,
-                         p_ww=0.25, updates=20)
+    return tracker.Track(
+        t=0.0,
+        heading_deg=0.0,
+        bearing_deg=b,
+        rate_deg_s=rate,
+        p_bb=9.0,
+        p_bw=0.0,
+        p_ww=0.25,
+        updates=20,
+    )
 
 
 def test_fits_too_unsure_to_start_a_track_do_not_hold_one() -> None:
@@ -150,14 +182,22 @@ def test_the_convoy_corners_that_kept_a_wrong_bearing_now_lose_or_move_it() -> N
     # passes its leader at a corner, the truth swings from +23 to -175 deg, and the scans
     # see it, each unsure. Before: the track stayed at +15..+46 for 15 s.
     # Seed 6, relay2: a confident track at +16 deg turning at 5 deg/s, then fits far right.
-    tr = replace(_confident(16.1, 5.2), t=1128.75, heading_deg=146.6, p_bb=6.2 ** 2)
-    scans = [(1130.6, 155.7, -86.1, 45.7), (1132.7, 164.9, -97.0, 69.4), (1135.15, 175.5, -116.8, 159.9)]
+    tr = replace(_confident(16.1, 5.2), t=1128.75, heading_deg=146.6, p_bb=6.2**2)
+    scans = [
+        (1130.6, 155.7, -86.1, 45.7),
+        (1132.7, 164.9, -97.0, 69.4),
+        (1135.15, 175.5, -116.8, 159.9),
+    ]
     for t, h, b, sd in scans:
         tr, _ = tracker.update(tr, t, h, b, sd, P)
     assert tracker.is_lost(tr, P)
     # Seed 1, relay1: a track at +36 deg (sd 2.6), fits at the narrowed window's edge.
-    tr = replace(_confident(35.9, 9.0), t=1105.45, heading_deg=127.8, p_bb=2.6 ** 2)
-    scans = [(1106.35, 135.3, -8.3, 33.9), (1107.25, 142.9, -16.2, 23.1), (1108.25, 148.3, -15.1, 18.0)]
+    tr = replace(_confident(35.9, 9.0), t=1105.45, heading_deg=127.8, p_bb=2.6**2)
+    scans = [
+        (1106.35, 135.3, -8.3, 33.9),
+        (1107.25, 142.9, -16.2, 23.1),
+        (1108.25, 148.3, -15.1, 18.0),
+    ]
     for t, h, b, sd in scans:
         tr, _ = tracker.update(tr, t, h, b, sd, P)
     assert tracker.is_lost(tr, P) or abs(tr.bearing_deg - -15.1) <= 18.0
@@ -165,8 +205,12 @@ def test_the_convoy_corners_that_kept_a_wrong_bearing_now_lose_or_move_it() -> N
 
 
 @settings(max_examples=300, deadline=None)
-@given(side=st.sampled_from((-1.0, 1.0)), off=st.floats(40.0, 175.0), sds=st.lists(st.floats(5.0, 150.0),
-       min_size=4, max_size=4), dt=st.floats(0.8, 3.0))
+@given(
+    side=st.sampled_from((-1.0, 1.0)),
+    off=st.floats(40.0, 175.0),
+    sds=st.lists(st.floats(5.0, 150.0), min_size=4, max_size=4),
+    dt=st.floats(0.8, 3.0),
+)
 def test_a_run_of_unsure_scans_on_one_side_ends_the_track_within_four(side, off, sds, dt) -> None:
     # Scans that each fit far from a confident prediction, on the same side, each sure
     # enough to say so (off >= 2 sd + 10) or too unsure to be used at all. Three, as a
@@ -186,12 +230,19 @@ def test_a_run_of_unsure_scans_on_one_side_ends_the_track_within_four(side, off,
         # ending the track.
         if abs(math.remainder(tr.bearing_deg - meas, 360.0)) < off / 2.0:
             return
-    pytest.fail(f"still confident at {tr.bearing_deg:.1f} deg (sd {tr.sd_deg:.1f}) with the scans at {meas:.0f}")
+    pytest.fail(
+        f"still confident at {tr.bearing_deg:.1f} deg (sd {tr.sd_deg:.1f}) with the scans at {meas:.0f}"
+    )
 
 
 @settings(max_examples=150, deadline=None)
-@given(b0=st.floats(-60.0, 60.0), rate=st.floats(-5.0, 5.0), sd=st.floats(1.0, 25.0),
-       dt=st.floats(0.8, 3.0), seed=st.integers(0, 10_000))
+@given(
+    b0=st.floats(-60.0, 60.0),
+    rate=st.floats(-5.0, 5.0),
+    sd=st.floats(1.0, 25.0),
+    dt=st.floats(0.8, 3.0),
+    seed=st.integers(0, 10_000),
+)
 def test_a_consistent_leader_is_never_dropped(b0, rate, sd, dt, seed) -> None:
     # Scans whose spread is what they claim, however wide (up to the usable limit): the
     # disagreement test may fire now and then (it is a 1 % test), but it only widens the
@@ -203,7 +254,9 @@ def test_a_consistent_leader_is_never_dropped(b0, rate, sd, dt, seed) -> None:
         t += dt
         tr, _ = tracker.update(tr, t, 0.0, b0 + rate * t + rng.gauss(0.0, sd), sd, P)
         assert not tracker.is_lost(tr, P) and tr.misses == 0
-        assert abs(math.remainder(tr.bearing_deg - (b0 + rate * t), 360.0)) < 5.0 * max(tr.sd_deg, sd)
+        assert abs(math.remainder(tr.bearing_deg - (b0 + rate * t), 360.0)) < 5.0 * max(
+            tr.sd_deg, sd
+        )
 
 
 @given(zs=st.lists(st.floats(-2.0, 2.0), min_size=0, max_size=P.bias_scans - 1))

@@ -26,8 +26,14 @@ def test_mypy_strict_is_clean() -> None:
     if importlib.util.find_spec("mypy") is None:
         skip_or_fail("mypy is not installed (pip install -e '.[dev]')")
     # The files and flags come from pyproject.toml, read from the checkout's root.
-    done = subprocess.run([sys.executable, "-m", "mypy"], cwd=ROOT, capture_output=True, text=True,
-                          timeout=MYPY_TIMEOUT_S, check=False)
+    done = subprocess.run(
+        [sys.executable, "-m", "mypy"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=MYPY_TIMEOUT_S,
+        check=False,
+    )
     if done.returncode != 0:
         pytest.fail(f"mypy exit {done.returncode}:\n{done.stdout}{done.stderr}", pytrace=False)
     assert done.stdout.startswith("Success:"), done.stdout

@@ -65,7 +65,10 @@ def test_example_config_uses_the_udev_names() -> None:
     links = _symlinks(rules)
     net = _rule_with(rules, "NAME")
     config = tomllib.loads(EXAMPLE.read_text())
-    assert config["robot"]["port"] in links and links[config["robot"]["port"]]["ATTRS{idVendor}"][1] == "0403"
+    assert (
+        config["robot"]["port"] in links
+        and links[config["robot"]["port"]]["ATTRS{idVendor}"][1] == "0403"
+    )
     assert config["pantilt"]["port"] in links
     assert links[config["pantilt"]["port"]]["ATTRS{idVendor}"][1] == "1ffb"
     assert config["wifi"]["interface"] == net["NAME"][1]

@@ -32,41 +32,147 @@ FILES = sorted(p.name for p in FIXTURES.glob("*.txt"))
 # What each capture says, read off the file by hand. A new fixture without an entry
 # here fails test_every_fixture_has_expectations.
 EXPECTED: dict[str, dict[str, Any]] = {
-    "iw_link_jantman_issue1_5260MHz.txt": {"link": IwLink(
-        connected=True, bssid="34:fc:b9:74:cf:d0", interface="wlan0",
-        ssid="Guardia Forest Treasure Secure", freq_mhz=5260, rx_bytes=149879, rx_packets=882,
-        tx_bytes=4747, tx_packets=33, signal_dbm=-39, beacon_interval_tu=100)},
-    "iw_link_lede_tp1043_2462MHz.txt": {"link": IwLink(
-        connected=True, bssid="f4:f2:6d:22:7c:f0", interface="wlan0", ssid="LEDE-tp1043",
-        freq_mhz=2462, rx_bytes=7007190, rx_packets=72847, tx_bytes=20015, tx_packets=226,
-        signal_dbm=-39, beacon_interval_tu=None)},
-    "iw_link_opensolo_2447MHz.txt": {"link": IwLink(
-        connected=True, bssid="d4:d7:48:81:68:a0", interface="wlan0", ssid="3DRobotics",
-        freq_mhz=2447, rx_bytes=5779050, rx_packets=38689, tx_bytes=13885, tx_packets=73,
-        signal_dbm=-37, beacon_interval_tu=85)},
-    "proc_net_wireless_glances_wlp2s0.txt": {"proc": {
-        "wlp2s0": dict(status=0, link=51, link_updated=True, level=-59, level_updated=True,
-                       noise=-256, noise_updated=False, discard_nwid=0, discard_crypt=0,
-                       discard_frag=0, discard_retry=0, discard_misc=5881, missed_beacon=0)}},
-    "proc_net_wireless_telegraf_two_ifaces.txt": {"proc": {
-        "wlan0": dict(status=0, link=60, link_updated=True, level=-50, level_updated=True,
-                      noise=-256, noise_updated=False, discard_nwid=0, discard_crypt=0,
-                      discard_frag=0, discard_retry=1525, discard_misc=0, missed_beacon=0),
-        "wlan1": dict(status=0, link=70, link_updated=True, level=-39, level_updated=True,
-                      noise=-256, noise_updated=False, discard_nwid=0, discard_crypt=0,
-                      discard_frag=0, discard_retry=12096, discard_misc=191188,
-                      missed_beacon=0)}},
-    "station_dump_openwrt_packages_issue16471_chain_signals.txt": {"stations": [IwStation(
-        mac="8c:be:be:f5:8f:59", interface="wlan0", inactive_time_ms=120, rx_bytes=14835,
-        rx_packets=296, tx_packets=90, signal_dbm=-57, signal_chains_dbm=(-62, -59),
-        signal_avg_dbm=-66, signal_avg_chains_dbm=(-71, -69))]},
-    "station_get_mt76_issue20_bogus_signal.txt": {"stations": [IwStation(
-        mac="00:13:10:14:c4:fe", interface="wlan1", inactive_time_ms=110, rx_bytes=122899664,
-        rx_packets=778197, tx_packets=4, signal_dbm=-101, signal_avg_dbm=-102,
-        connected_time_s=39194)], "rejected": True},
-    "station_get_rtl8723bs_mdlayher_wifi_issue27.txt": {"stations": [IwStation(
-        mac="<BSSID>", interface="wlan0", rx_packets=1428888, tx_packets=6618022,
-        signal_dbm=-45)]},
+    "iw_link_jantman_issue1_5260MHz.txt": {
+        "link": IwLink(
+            connected=True,
+            bssid="34:fc:b9:74:cf:d0",
+            interface="wlan0",
+            ssid="Guardia Forest Treasure Secure",
+            freq_mhz=5260,
+            rx_bytes=149879,
+            rx_packets=882,
+            tx_bytes=4747,
+            tx_packets=33,
+            signal_dbm=-39,
+            beacon_interval_tu=100,
+        )
+    },
+    "iw_link_lede_tp1043_2462MHz.txt": {
+        "link": IwLink(
+            connected=True,
+            bssid="f4:f2:6d:22:7c:f0",
+            interface="wlan0",
+            ssid="LEDE-tp1043",
+            freq_mhz=2462,
+            rx_bytes=7007190,
+            rx_packets=72847,
+            tx_bytes=20015,
+            tx_packets=226,
+            signal_dbm=-39,
+            beacon_interval_tu=None,
+        )
+    },
+    "iw_link_opensolo_2447MHz.txt": {
+        "link": IwLink(
+            connected=True,
+            bssid="d4:d7:48:81:68:a0",
+            interface="wlan0",
+            ssid="3DRobotics",
+            freq_mhz=2447,
+            rx_bytes=5779050,
+            rx_packets=38689,
+            tx_bytes=13885,
+            tx_packets=73,
+            signal_dbm=-37,
+            beacon_interval_tu=85,
+        )
+    },
+    "proc_net_wireless_glances_wlp2s0.txt": {
+        "proc": {
+            "wlp2s0": dict(
+                status=0,
+                link=51,
+                link_updated=True,
+                level=-59,
+                level_updated=True,
+                noise=-256,
+                noise_updated=False,
+                discard_nwid=0,
+                discard_crypt=0,
+                discard_frag=0,
+                discard_retry=0,
+                discard_misc=5881,
+                missed_beacon=0,
+            )
+        }
+    },
+    "proc_net_wireless_telegraf_two_ifaces.txt": {
+        "proc": {
+            "wlan0": dict(
+                status=0,
+                link=60,
+                link_updated=True,
+                level=-50,
+                level_updated=True,
+                noise=-256,
+                noise_updated=False,
+                discard_nwid=0,
+                discard_crypt=0,
+                discard_frag=0,
+                discard_retry=1525,
+                discard_misc=0,
+                missed_beacon=0,
+            ),
+            "wlan1": dict(
+                status=0,
+                link=70,
+                link_updated=True,
+                level=-39,
+                level_updated=True,
+                noise=-256,
+                noise_updated=False,
+                discard_nwid=0,
+                discard_crypt=0,
+                discard_frag=0,
+                discard_retry=12096,
+                discard_misc=191188,
+                missed_beacon=0,
+            ),
+        }
+    },
+    "station_dump_openwrt_packages_issue16471_chain_signals.txt": {
+        "stations": [
+            IwStation(
+                mac="8c:be:be:f5:8f:59",
+                interface="wlan0",
+                inactive_time_ms=120,
+                rx_bytes=14835,
+                rx_packets=296,
+                tx_packets=90,
+                signal_dbm=-57,
+                signal_chains_dbm=(-62, -59),
+                signal_avg_dbm=-66,
+                signal_avg_chains_dbm=(-71, -69),
+            )
+        ]
+    },
+    "station_get_mt76_issue20_bogus_signal.txt": {
+        "stations": [
+            IwStation(
+                mac="00:13:10:14:c4:fe",
+                interface="wlan1",
+                inactive_time_ms=110,
+                rx_bytes=122899664,
+                rx_packets=778197,
+                tx_packets=4,
+                signal_dbm=-101,
+                signal_avg_dbm=-102,
+                connected_time_s=39194,
+            )
+        ],
+        "rejected": True,
+    },
+    "station_get_rtl8723bs_mdlayher_wifi_issue27.txt": {
+        "stations": [
+            IwStation(
+                mac="<BSSID>",
+                interface="wlan0",
+                rx_packets=1428888,
+                tx_packets=6618022,
+                signal_dbm=-45,
+            )
+        ]
+    },
 }
 
 
@@ -137,7 +243,8 @@ def test_fixture_values_with_tabs_or_spaces(name: str, convert: Any) -> None:
         assert "\t" in converted
         rows = parse_proc_net_wireless(converted)
         assert {k: r.level for k, r in rows.items()} == {
-            k: v["level"] for k, v in EXPECTED[name]["proc"].items()}
+            k: v["level"] for k, v in EXPECTED[name]["proc"].items()
+        }
         return
     converted = convert(text)
     _check(converted, EXPECTED[name])
@@ -166,10 +273,19 @@ def test_station_dump_from_the_protocol_doc_with_beacon_fields() -> None:
         "Station 11:22:33:44:55:66 (on wlo1)\n\tinactive time:\t900 ms\n\tsignal:\t-70 dBm\n"
     )
     a, b = parse_iw_stations(text)
-    assert a == IwStation(mac="04:f0:21:32:3f:d2", interface="wlo1", inactive_time_ms=70,
-                          rx_packets=12577, beacon_rx=2325, beacon_loss=0, signal_dbm=-60,
-                          signal_chains_dbm=(-60, -60), signal_avg_dbm=-59,
-                          beacon_signal_avg_dbm=-58, connected_time_s=233)
+    assert a == IwStation(
+        mac="04:f0:21:32:3f:d2",
+        interface="wlo1",
+        inactive_time_ms=70,
+        rx_packets=12577,
+        beacon_rx=2325,
+        beacon_loss=0,
+        signal_dbm=-60,
+        signal_chains_dbm=(-60, -60),
+        signal_avg_dbm=-59,
+        beacon_signal_avg_dbm=-58,
+        connected_time_s=233,
+    )
     assert (b.mac, b.signal_dbm, b.inactive_time_ms) == ("11:22:33:44:55:66", -70, 900)
 
 
@@ -179,12 +295,26 @@ def test_old_iw_unsigned_beacon_signal_avg() -> None:
     assert wrap_u8_dbm(218) == -38
 
 
-@pytest.mark.parametrize(("raw", "dbm", "ok"), [
-    (-60, -60, True), (-1, -1, True), (-100, -100, True), (196, -60, True),
-    (0, 0, False), (-128, -128, False), (-256, -256, False), (5, 5, False), (63, 63, False),
-    (64, -192, False), (70, -186, False), (-101, -101, False), (-111, -111, False),
-    (128, -128, False), (255, -1, True),
-])
+@pytest.mark.parametrize(
+    ("raw", "dbm", "ok"),
+    [
+        (-60, -60, True),
+        (-1, -1, True),
+        (-100, -100, True),
+        (196, -60, True),
+        (0, 0, False),
+        (-128, -128, False),
+        (-256, -256, False),
+        (5, 5, False),
+        (63, 63, False),
+        (64, -192, False),
+        (70, -186, False),
+        (-101, -101, False),
+        (-111, -111, False),
+        (128, -128, False),
+        (255, -1, True),
+    ],
+)
 def test_plausibility_rules(raw: int, dbm: int, ok: bool) -> None:
     assert wrap_u8_dbm(raw) == dbm
     assert plausible_rssi_dbm(wrap_u8_dbm(raw)) is ok
@@ -206,12 +336,27 @@ def test_parse_dbm_variants() -> None:
 
 
 def test_proc_row_round_trip_through_kernel_format() -> None:
-    line = format_proc_row("wlan1", link=50, link_updated=True, level=-60, level_updated=True,
-                           noise=-95, noise_updated=True, misc=7, missed_beacon=3)
+    line = format_proc_row(
+        "wlan1",
+        link=50,
+        link_updated=True,
+        level=-60,
+        level_updated=True,
+        noise=-95,
+        noise_updated=True,
+        misc=7,
+        missed_beacon=3,
+    )
     row = parse_proc_wireless_line(line)
     assert row is not None
-    assert (row.interface, row.link, row.level, row.noise, row.discard_misc, row.missed_beacon) \
-        == ("wlan1", 50, -60, -95, 7, 3)
+    assert (row.interface, row.link, row.level, row.noise, row.discard_misc, row.missed_beacon) == (
+        "wlan1",
+        50,
+        -60,
+        -95,
+        7,
+        3,
+    )
     assert row.level_updated and row.noise_updated
     assert parse_proc_wireless_line(PROC_HEADER_1) is None
     assert parse_proc_wireless_line(PROC_HEADER_2) is None
@@ -228,13 +373,12 @@ def test_proc_unmarked_and_biased_levels() -> None:
 
 _LINE_BREAKS = "\n\r\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029"
 _garbage_line = st.text(
-    alphabet=st.characters(exclude_categories=["Cs"], exclude_characters=_LINE_BREAKS),
-    max_size=80)
+    alphabet=st.characters(exclude_categories=["Cs"], exclude_characters=_LINE_BREAKS), max_size=80
+)
 _format_chars = st.sampled_from(list("\t :.-[],()<>0123456789abcdefdBmStation\n"))
 _format_text = st.lists(_format_chars, max_size=300).map("".join)
 _any_text = st.one_of(st.text(max_size=400), _format_text)
-_FUZZ = settings(max_examples=1200, deadline=None,
-                 suppress_health_check=[HealthCheck.too_slow])
+_FUZZ = settings(max_examples=1200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
 @_FUZZ
@@ -252,8 +396,23 @@ def _garble(rng: random.Random, text: str) -> str:
     chars = list(text)
     for _ in range(rng.randint(1, 12)):
         i = rng.randint(0, len(chars))
-        c = rng.choice(["\t", " ", "\n", ":", ".", "-", "[", "]", "\x00", "\u2028", "é",
-                        chr(rng.randint(32, 0x2FFF)), str(rng.randint(0, 9))])
+        c = rng.choice(
+            [
+                "\t",
+                " ",
+                "\n",
+                ":",
+                ".",
+                "-",
+                "[",
+                "]",
+                "\x00",
+                "\u2028",
+                "é",
+                chr(rng.randint(32, 0x2FFF)),
+                str(rng.randint(0, 9)),
+            ]
+        )
         op = rng.choice(["del", "sub", "ins"])
         if op == "ins" or i == len(chars):
             chars.insert(i, c)

@@ -33,8 +33,23 @@ def test_probe_wifi_procfs_json(tmp_path: Path, capsys: pytest.CaptureFixture[st
     th = threading.Thread(target=updates)
     th.start()
     try:
-        code = main(["probe", "wifi", "--source", "procfs", "--interface", "wlan1",
-                     "--path", str(path), "--seconds", "0.3", "--hz", "20", "--json"])
+        code = main(
+            [
+                "probe",
+                "wifi",
+                "--source",
+                "procfs",
+                "--interface",
+                "wlan1",
+                "--path",
+                str(path),
+                "--seconds",
+                "0.3",
+                "--hz",
+                "20",
+                "--json",
+            ]
+        )
     finally:
         stop.set()
         th.join()
@@ -53,13 +68,27 @@ def test_probe_wifi_procfs_json(tmp_path: Path, capsys: pytest.CaptureFixture[st
     assert ts == sorted(ts) and ts[-1] <= 0.3
 
 
-def test_probe_wifi_missing_interface_exits_1(tmp_path: Path,
-                                              capsys: pytest.CaptureFixture[str]) -> None:
+def test_probe_wifi_missing_interface_exits_1(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     path = tmp_path / "wireless"
     ProcfsWriter(path, "wlan0").write(-50)
     t0 = time.monotonic()
-    code = main(["probe", "wifi", "--source", "procfs", "--interface", "wlan1",
-                 "--path", str(path), "--seconds", "30", "--json"])
+    code = main(
+        [
+            "probe",
+            "wifi",
+            "--source",
+            "procfs",
+            "--interface",
+            "wlan1",
+            "--path",
+            str(path),
+            "--seconds",
+            "30",
+            "--json",
+        ]
+    )
     captured = capsys.readouterr()
     # At the first read, not after --seconds of "stale" lines.
     assert code == 1 and time.monotonic() - t0 < 5
@@ -67,10 +96,22 @@ def test_probe_wifi_missing_interface_exits_1(tmp_path: Path,
     assert "relayd probe wifi: interface missing: wlan1 not listed" in captured.err
 
 
-def test_probe_wifi_missing_file_exits_1_at_once(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_probe_wifi_missing_file_exits_1_at_once(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     t0 = time.monotonic()
-    code = main(["probe", "wifi", "--source", "procfs", "--path", str(tmp_path / "nothing"),
-                 "--seconds", "30"])
+    code = main(
+        [
+            "probe",
+            "wifi",
+            "--source",
+            "procfs",
+            "--path",
+            str(tmp_path / "nothing"),
+            "--seconds",
+            "30",
+        ]
+    )
     captured = capsys.readouterr()
     assert code == 1 and time.monotonic() - t0 < 5
     assert "stale" not in captured.out
@@ -86,8 +127,9 @@ def test_probe_wifi_missing_iw_binary_exits_1_at_once(capsys: pytest.CaptureFixt
     assert "no iw binary at '/nonexistent'" in captured.err
 
 
-def test_probe_wifi_a_hung_source_is_bounded_by_seconds(tmp_path: Path,
-                                                        capsys: pytest.CaptureFixture[str]) -> None:
+def test_probe_wifi_a_hung_source_is_bounded_by_seconds(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     iw = tmp_path / "iw"
     iw.write_text("#!/bin/sh\nexec sleep 30\n")
     iw.chmod(0o755)
@@ -100,8 +142,20 @@ def test_probe_wifi_a_hung_source_is_bounded_by_seconds(tmp_path: Path,
 def test_probe_wifi_human_output(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     path = tmp_path / "wireless"
     ProcfsWriter(path, "wlan1").write(-47)
-    code = main(["probe", "wifi", "--source", "procfs", "--interface", "wlan1",
-                 "--path", str(path), "--seconds", "0"])
+    code = main(
+        [
+            "probe",
+            "wifi",
+            "--source",
+            "procfs",
+            "--interface",
+            "wlan1",
+            "--path",
+            str(path),
+            "--seconds",
+            "0",
+        ]
+    )
     captured = capsys.readouterr()
     assert code == 0
     assert captured.out.splitlines() == ["   0.000 s    -47 dBm  fresh"]
@@ -113,20 +167,22 @@ def test_probe_wifi_rejects_bad_rate(capsys: pytest.CaptureFixture[str]) -> None
     assert "--hz" in capsys.readouterr().err
 
 
-def test_probe_wifi_iw_source_with_a_fake_binary(tmp_path: Path,
-                                                 capsys: pytest.CaptureFixture[str]) -> None:
+def test_probe_wifi_iw_source_with_a_fake_binary(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     iw = tmp_path / "iw"
-    iw.write_text("#!/bin/sh\nprintf 'Connected to f4:f2:6d:22:7c:f0 (on wlan1)\\n"
-                  "\\tsignal: -52 dBm\\n'\n")
+    iw.write_text(
+        "#!/bin/sh\nprintf 'Connected to f4:f2:6d:22:7c:f0 (on wlan1)\\n\\tsignal: -52 dBm\\n'\n"
+    )
     iw.chmod(0o755)
-    code = main(["probe", "wifi", "--source", "iw", "--iw", str(iw), "--seconds", "0",
-                 "--json"])
+    code = main(["probe", "wifi", "--source", "iw", "--iw", str(iw), "--seconds", "0", "--json"])
     assert code == 0
     assert _lines(capsys.readouterr().out) == [{"t": 0.0, "rssi_dbm": -52.0, "fresh": True}]
 
 
-def test_probe_wifi_after_the_daemons_logging_was_set_up(tmp_path: Path,
-                                                          capsys: pytest.CaptureFixture[str]) -> None:
+def test_probe_wifi_after_the_daemons_logging_was_set_up(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     """A probe's warning must print even when the caller had configured the daemon's pipeline.
 
     The daemon's processors are stdlib-bound (logger names); the probe's own logger is a
@@ -140,8 +196,21 @@ def test_probe_wifi_after_the_daemons_logging_was_set_up(tmp_path: Path,
     try:
         path = tmp_path / "wireless"
         ProcfsWriter(path, "wlan0").write(-50)
-        code = main(["probe", "wifi", "--source", "procfs", "--interface", "wlan1",
-                     "--path", str(path), "--seconds", "5", "--json"])
+        code = main(
+            [
+                "probe",
+                "wifi",
+                "--source",
+                "procfs",
+                "--interface",
+                "wlan1",
+                "--path",
+                str(path),
+                "--seconds",
+                "5",
+                "--json",
+            ]
+        )
     finally:
         structlog.reset_defaults()
     captured = capsys.readouterr()
@@ -159,8 +228,22 @@ def test_probe_wifi_piped_into_head_stops_quietly(tmp_path: Path, fmt: list[str]
     path = tmp_path / "wireless"
     ProcfsWriter(path, "wlan1").write(-47)
     code, got, err, _ = piped_into_head(
-        ["probe", "wifi", "--source", "procfs", "--interface", "wlan1", "--path", str(path),
-         "--seconds", "60", *fmt], lines=1, timeout_s=30)
+        [
+            "probe",
+            "wifi",
+            "--source",
+            "procfs",
+            "--interface",
+            "wlan1",
+            "--path",
+            str(path),
+            "--seconds",
+            "60",
+            *fmt,
+        ],
+        lines=1,
+        timeout_s=30,
+    )
     assert "-47" in got[0]
     assert code == 0, err
     for noise in ("BrokenPipe", "Traceback", "Exception ignored"):

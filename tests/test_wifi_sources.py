@@ -42,9 +42,16 @@ def test_writer_file_has_kernel_headers_and_one_update_per_write(tmp_path: Path)
     w.write(-60)
     lines = path.read_text().splitlines()
     assert lines[:2] == [PROC_HEADER_1, PROC_HEADER_2]
-    assert lines[2] == format_proc_row("wlan1", link=50, link_updated=True, level=-60,
-                                       level_updated=True, noise=-95, noise_updated=True,
-                                       misc=1).rstrip("\n")
+    assert lines[2] == format_proc_row(
+        "wlan1",
+        link=50,
+        link_updated=True,
+        level=-60,
+        level_updated=True,
+        noise=-95,
+        noise_updated=True,
+        misc=1,
+    ).rstrip("\n")
     first = parse_proc_net_wireless(path.read_text())["wlan1"]
     w.write(-60)
     second = parse_proc_net_wireless(path.read_text())["wlan1"]
@@ -183,8 +190,10 @@ async def test_procfs_not_associated_row(proc: Any) -> None:
 
 async def test_procfs_unmarked_level_is_not_fresh(tmp_path: Path) -> None:
     path = tmp_path / "w"
-    path.write_text(f"{PROC_HEADER_1}\n{PROC_HEADER_2}\n"
-                    + format_proc_row("wlan1", link=50, level=-60, level_updated=False))
+    path.write_text(
+        f"{PROC_HEADER_1}\n{PROC_HEADER_2}\n"
+        + format_proc_row("wlan1", link=50, level=-60, level_updated=False)
+    )
     s = await ProcfsSource("wlan1", path=path).read()
     assert (s.rssi_dbm, s.fresh) == (-60.0, False)
 
@@ -197,19 +206,21 @@ async def test_procfs_garbage_file_is_reported_not_raised(tmp_path: Path) -> Non
     assert (s.rssi_dbm, s.fresh, src.available, src.errors) == (None, False, False, 1)
 
 
-@pytest.mark.parametrize(("name", "iface", "dbm"), [
-    ("proc_net_wireless_telegraf_two_ifaces.txt", "wlan0", -50.0),
-    ("proc_net_wireless_telegraf_two_ifaces.txt", "wlan1", -39.0),
-    ("proc_net_wireless_glances_wlp2s0.txt", "wlp2s0", -59.0),
-])
+@pytest.mark.parametrize(
+    ("name", "iface", "dbm"),
+    [
+        ("proc_net_wireless_telegraf_two_ifaces.txt", "wlan0", -50.0),
+        ("proc_net_wireless_telegraf_two_ifaces.txt", "wlan1", -39.0),
+        ("proc_net_wireless_glances_wlp2s0.txt", "wlp2s0", -59.0),
+    ],
+)
 async def test_procfs_reads_real_captures(name: str, iface: str, dbm: float) -> None:
     src = ProcfsSource(iface, path=FIXTURES / name)
     assert (await src.read()).rssi_dbm == dbm
 
 
 @pytest.mark.virtual_time
-async def test_stream_runs_at_sample_hz_on_the_clock_and_survives_vanishing(
-        tmp_path: Path) -> None:
+async def test_stream_runs_at_sample_hz_on_the_clock_and_survives_vanishing(tmp_path: Path) -> None:
     clock = LoopClock()
     path = tmp_path / "w"
     w = ProcfsWriter(path, "wlan1")
@@ -296,9 +307,11 @@ class FakeIw:
 
 
 def _link(signal: int, rx_packets: int) -> str:
-    return (f"Connected to f4:f2:6d:22:7c:f0 (on wlan1)\n\tSSID: leader\n\tfreq: 2462\n"
-            f"\tRX: 7007190 bytes ({rx_packets} packets)\n\tTX: 20015 bytes (226 packets)\n"
-            f"\tsignal: {signal} dBm\n")
+    return (
+        f"Connected to f4:f2:6d:22:7c:f0 (on wlan1)\n\tSSID: leader\n\tfreq: 2462\n"
+        f"\tRX: 7007190 bytes ({rx_packets} packets)\n\tTX: 20015 bytes (226 packets)\n"
+        f"\tsignal: {signal} dBm\n"
+    )
 
 
 @pytest.fixture
@@ -336,8 +349,9 @@ async def test_iw_station_get_bogus_signal_is_rejected(fake_iw: FakeIw) -> None:
 
 
 async def test_iw_station_dump_with_chains(fake_iw: FakeIw) -> None:
-    fake_iw.reply((FIXTURES / "station_dump_openwrt_packages_issue16471_chain_signals.txt")
-                  .read_text())
+    fake_iw.reply(
+        (FIXTURES / "station_dump_openwrt_packages_issue16471_chain_signals.txt").read_text()
+    )
     src = IwSource("wlan0", iw_path=str(fake_iw.path), mode="dump")
     s = await src.read()
     assert (s.rssi_dbm, s.fresh) == (-57.0, True)
@@ -397,13 +411,21 @@ async def test_iw_from_path_lookup(fake_iw: FakeIw, monkeypatch: pytest.MonkeyPa
 # ------------------------------------------------------------------------ Nl80211Source
 
 
-def _station_msg(mac: str = "04:f0:21:32:3f:d2", *, signal: int | None = -60,
-                 rx_packets: int = 12577, beacon_rx: int | None = 2325,
-                 inactive_ms: int = 70, chains: list[int] | None = None) -> nl80211cmd:
+def _station_msg(
+    mac: str = "04:f0:21:32:3f:d2",
+    *,
+    signal: int | None = -60,
+    rx_packets: int = 12577,
+    beacon_rx: int | None = 2325,
+    inactive_ms: int = 70,
+    chains: list[int] | None = None,
+) -> nl80211cmd:
     """A real NL80211_CMD_NEW_STATION message, encoded and decoded by pyroute2."""
-    info: list[list[Any]] = [["NL80211_STA_INFO_INACTIVE_TIME", inactive_ms],
-                             ["NL80211_STA_INFO_RX_PACKETS", rx_packets],
-                             ["NL80211_STA_INFO_SIGNAL_AVG", -59]]
+    info: list[list[Any]] = [
+        ["NL80211_STA_INFO_INACTIVE_TIME", inactive_ms],
+        ["NL80211_STA_INFO_RX_PACKETS", rx_packets],
+        ["NL80211_STA_INFO_SIGNAL_AVG", -59],
+    ]
     if signal is not None:
         info.append(["NL80211_STA_INFO_SIGNAL", signal])
     if beacon_rx is not None:
@@ -412,8 +434,11 @@ def _station_msg(mac: str = "04:f0:21:32:3f:d2", *, signal: int | None = -60,
         info.append(["NL80211_STA_INFO_CHAIN_SIGNAL", chains])
     msg = nl80211cmd()
     msg["cmd"] = NL80211_NAMES["NL80211_CMD_NEW_STATION"]
-    msg["attrs"] = [["NL80211_ATTR_IFINDEX", 3], ["NL80211_ATTR_MAC", mac],
-                    ["NL80211_ATTR_STA_INFO", {"attrs": info}]]
+    msg["attrs"] = [
+        ["NL80211_ATTR_IFINDEX", 3],
+        ["NL80211_ATTR_MAC", mac],
+        ["NL80211_ATTR_STA_INFO", {"attrs": info}],
+    ]
     msg.encode()
     decoded = nl80211cmd(msg.data)
     decoded.decode()
@@ -422,15 +447,27 @@ def _station_msg(mac: str = "04:f0:21:32:3f:d2", *, signal: int | None = -60,
 
 def test_station_reading_from_a_pyroute2_message() -> None:
     r = station_reading(_station_msg(chains=[-60, -62]))
-    assert (r.mac, r.signal_dbm, r.signal_avg_dbm, r.rx_packets, r.beacon_rx,
-            r.inactive_time_ms, r.chain_signal_dbm) == (
-        "04:f0:21:32:3f:d2", -60, -59, 12577, 2325, 70, (-60, -62))
+    assert (
+        r.mac,
+        r.signal_dbm,
+        r.signal_avg_dbm,
+        r.rx_packets,
+        r.beacon_rx,
+        r.inactive_time_ms,
+        r.chain_signal_dbm,
+    ) == ("04:f0:21:32:3f:d2", -60, -59, 12577, 2325, 70, (-60, -62))
 
 
 def test_station_reading_from_a_dict_and_from_junk() -> None:
-    d = {"attrs": [["NL80211_ATTR_MAC", "aa:bb:cc:dd:ee:ff"],
-                   ["NL80211_ATTR_STA_INFO", {"attrs": [["NL80211_STA_INFO_SIGNAL", -70],
-                                                        ["NL80211_STA_INFO_RX_PACKETS", 5]]}]]}
+    d = {
+        "attrs": [
+            ["NL80211_ATTR_MAC", "aa:bb:cc:dd:ee:ff"],
+            [
+                "NL80211_ATTR_STA_INFO",
+                {"attrs": [["NL80211_STA_INFO_SIGNAL", -70], ["NL80211_STA_INFO_RX_PACKETS", 5]]},
+            ],
+        ]
+    }
     r = station_reading(d)
     assert (r.mac, r.signal_dbm, r.rx_packets, r.beacon_rx) == ("aa:bb:cc:dd:ee:ff", -70, 5, None)
     for junk in (None, {}, {"attrs": [["x"]]}, 42, "text"):
@@ -484,29 +521,38 @@ def _nl_source(script: list[Any], **kw: Any) -> tuple[Nl80211Source, list[FakeAs
 
 
 async def test_nl80211_freshness_from_counters() -> None:
-    src, made = _nl_source([
-        [_station_msg(signal=-60, rx_packets=10, beacon_rx=5)],
-        [_station_msg(signal=-60, rx_packets=10, beacon_rx=5)],   # nothing new
-        [_station_msg(signal=-60, rx_packets=10, beacon_rx=6)],   # a beacon: fresh
-        [_station_msg(signal=-61, rx_packets=11, beacon_rx=6)],
-        [_station_msg(signal=0, rx_packets=12, beacon_rx=6)],     # impossible: rejected
-        [],                                                       # empty dump
-    ])
+    src, made = _nl_source(
+        [
+            [_station_msg(signal=-60, rx_packets=10, beacon_rx=5)],
+            [_station_msg(signal=-60, rx_packets=10, beacon_rx=5)],  # nothing new
+            [_station_msg(signal=-60, rx_packets=10, beacon_rx=6)],  # a beacon: fresh
+            [_station_msg(signal=-61, rx_packets=11, beacon_rx=6)],
+            [_station_msg(signal=0, rx_packets=12, beacon_rx=6)],  # impossible: rejected
+            [],  # empty dump
+        ]
+    )
     got = [await src.read() for _ in range(6)]
     assert [(s.rssi_dbm, s.fresh) for s in got] == [
-        (-60.0, True), (-60.0, False), (-60.0, True), (-61.0, True), (None, False),
-        (None, False)]
+        (-60.0, True),
+        (-60.0, False),
+        (-60.0, True),
+        (-61.0, True),
+        (None, False),
+        (None, False),
+    ]
     assert (src.samples, src.rejected, src.errors) == (3, 1, 0)
     assert not src.associated and src.last_error == "not associated"
     assert len(made) == 1 and made[0].ifindexes == [3] * 6
 
 
 async def test_nl80211_enodev_is_reported_and_retried() -> None:
-    src, made = _nl_source([
-        [_station_msg(signal=-60)],
-        NetlinkError(errno.ENODEV),
-        [_station_msg(signal=-62, rx_packets=20000)],
-    ])
+    src, made = _nl_source(
+        [
+            [_station_msg(signal=-60)],
+            NetlinkError(errno.ENODEV),
+            [_station_msg(signal=-62, rx_packets=20000)],
+        ]
+    )
     assert (await src.read()).fresh
     s = await src.read()
     assert (s.rssi_dbm, s.fresh, src.available) == (None, False, False)
@@ -519,9 +565,11 @@ async def test_nl80211_enodev_is_reported_and_retried() -> None:
 
 @pytest.mark.virtual_time
 async def test_nl80211_timeout_and_odd_errors_never_escape() -> None:
-    src, made = _nl_source(["hang", RuntimeError("decoder blew up"),
-                            NetlinkError(errno.EOPNOTSUPP), [_station_msg()]],
-                           clock=LoopClock(), timeout_s=0.5)
+    src, made = _nl_source(
+        ["hang", RuntimeError("decoder blew up"), NetlinkError(errno.EOPNOTSUPP), [_station_msg()]],
+        clock=LoopClock(),
+        timeout_s=0.5,
+    )
     s = await src.read()
     assert s.rssi_dbm is None and src.last_error is not None and "timed out" in src.last_error
     await src.read()

@@ -262,7 +262,9 @@ class AirOsClient:
         # may be an airOS 5/6 lighttpd guarding a path it does not have (UNVERIFIED), so
         # only the JSON kind is taken as wrong credentials there.
         if refused and (self.firmware_setting == 8 or "json" in answer.content_type):
-            raise AirOsAuthError(f"airOS 8 login refused for user {self.username!r} (HTTP {answer.status})")
+            raise AirOsAuthError(
+                f"airOS 8 login refused for user {self.username!r} (HTTP {answer.status})"
+            )
         if answer.status == 200 and answer.csrf_id:
             self._csrf_id = answer.csrf_id
             return True
@@ -287,11 +289,16 @@ class AirOsClient:
             part.set_content_disposition("form-data", name=name)
         origin = str(self.base_url)
         answer = await self._request(
-            "POST", "/login.cgi", data=form, headers={"Origin": origin, "Referer": origin + "/login.cgi"}
+            "POST",
+            "/login.cgi",
+            data=form,
+            headers={"Origin": origin, "Referer": origin + "/login.cgi"},
         )
         if answer.status in (301, 302, 303, 307) and "login.cgi" not in answer.location:
             return
-        if answer.status == 200 or (answer.status in (301, 302, 303, 307) and "login.cgi" in answer.location):
+        if answer.status == 200 or (
+            answer.status in (301, 302, 303, 307) and "login.cgi" in answer.location
+        ):
             # The firmware shows its login page again: the credentials were wrong.
             raise AirOsAuthError(f"airOS login refused for user {self.username!r}")
         raise AirOsConnectionError(f"POST /login.cgi: unexpected HTTP {answer.status}")

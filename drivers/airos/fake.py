@@ -34,6 +34,7 @@ log = structlog.get_logger(__name__)
 
 _Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
 
+
 @dataclass(slots=True)
 class _Session:
     authed: bool = False
@@ -83,13 +84,17 @@ class FakeAirOs:
             "logouts": 0,
         }
         self._sessions: dict[str, _Session] = {}
-        self._cookie_name = "AIROS_SESSIONID" if version == 6 else f"AIROS_{secrets.token_hex(6).upper()}"
+        self._cookie_name = (
+            "AIROS_SESSIONID" if version == 6 else f"AIROS_{secrets.token_hex(6).upper()}"
+        )
         self._runner: web.AppRunner | None = None
         self._site: web.TCPSite | None = None
         self.base_url: str | None = None
 
     def __repr__(self) -> str:
-        return f"FakeAirOs(url={self.base_url!r}, version={self.version}, username={self.username!r})"
+        return (
+            f"FakeAirOs(url={self.base_url!r}, version={self.version}, username={self.username!r})"
+        )
 
     # -- live values -----------------------------------------------------------------------
 
@@ -274,7 +279,9 @@ class FakeAirOs:
         if session is None or username != self.username or password != self._password:
             self.counters["failed_logins"] += 1
             # The firmware answers a failed login with its login page again (docs/PROTOCOLS.md 4.1).
-            return await self._login_page(request, error='<p class="error">Invalid credentials.</p>')
+            return await self._login_page(
+                request, error='<p class="error">Invalid credentials.</p>'
+            )
         session.authed = True
         self.counters["logins"] += 1
         uri = form.get("uri")
@@ -286,15 +293,18 @@ class FakeAirOs:
             status = self.v6_api_auth_status
             if status in (301, 302, 303, 307):
                 return _redirect("/login.cgi?uri=/api/auth")
-            return web.Response(status=status, text=f"<html><body>{status}</body></html>",
-                                content_type="text/html")
+            return web.Response(
+                status=status, text=f"<html><body>{status}</body></html>", content_type="text/html"
+            )
         try:
             body = await request.json()
         except ValueError:
             body = None
-        if not isinstance(body, dict) or body.get("username") != self.username or body.get(
-            "password"
-        ) != self._password:
+        if (
+            not isinstance(body, dict)
+            or body.get("username") != self.username
+            or body.get("password") != self._password
+        ):
             self.counters["failed_logins"] += 1
             return web.json_response({"error": "Invalid credentials"}, status=401)  # UNVERIFIED
         response = web.json_response({"ok": True, "fwversion": "v8.7.18"})

@@ -195,7 +195,14 @@ def station_entry(station: Station, index: int = 0) -> dict[str, Any]:
         "txpower": 20,
         "noisefloor": None if station.noise_dbm is None else round(station.noise_dbm),
         "airmax": {"priority": 0, "quality": 85, "beam": 0, "signal": 0, "capacity": 60},
-        "stats": {"rx_data": 0, "rx_bytes": 0, "rx_pps": 0, "tx_data": 0, "tx_bytes": 0, "tx_pps": 0},
+        "stats": {
+            "rx_data": 0,
+            "rx_bytes": 0,
+            "rx_pps": 0,
+            "tx_data": 0,
+            "tx_bytes": 0,
+            "tx_pps": 0,
+        },
         "rates": ["MCS0", "MCS15"],
         "signals": [signal, signal],
     }

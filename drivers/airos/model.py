@@ -212,7 +212,9 @@ def parse_stations(doc: object) -> tuple[Station, ...]:
     return tuple(parse_station(e) for e in doc if isinstance(e, Mapping))
 
 
-def parse_status(doc: object, *, t: float, stations: tuple[Station, ...] | None = None) -> LinkQuality:
+def parse_status(
+    doc: object, *, t: float, stations: tuple[Station, ...] | None = None
+) -> LinkQuality:
     """A decoded status.cgi object -> LinkQuality.
 
     On a station the only peer is the AP, described by status.cgi's own fields; on an AP
@@ -270,11 +272,17 @@ def decode_json(raw: str | bytes, what: str = "answer") -> Any:
     """json.loads that only ever raises AirOsDataError (bad UTF-8, syntax, absurd nesting)."""
     try:
         return json.loads(raw)
-    except (ValueError, RecursionError, TypeError) as exc:  # JSONDecodeError/UnicodeError are ValueError
+    except (
+        ValueError,
+        RecursionError,
+        TypeError,
+    ) as exc:  # JSONDecodeError/UnicodeError are ValueError
         raise AirOsDataError(f"{what}: malformed JSON ({type(exc).__name__})") from None
 
 
-def decode_status(raw: str | bytes, *, t: float, stations: tuple[Station, ...] | None = None) -> LinkQuality:
+def decode_status(
+    raw: str | bytes, *, t: float, stations: tuple[Station, ...] | None = None
+) -> LinkQuality:
     return parse_status(decode_json(raw, "status.cgi"), t=t, stations=stations)
 
 

@@ -85,9 +85,17 @@ class AirOsPoller:
         # Capped low: while RSSI^b is unknown the relay may be held still (rear_link =
         # "require"), so a radio that is back must be noticed within seconds, and one
         # HTTP request every few seconds costs nothing on the bridge.
-        self._backoff = backoff or Backoff(initial_s=min(1.0, poll_s), maximum_s=max(5.0, 4.0 * poll_s))
-        self._reconnect = Reconnect(log.bind(url=self.url), "airos_poll_failed", backoff=self._backoff,
-                                    clock=clock, remind_s=remind_s, recovered_event="")
+        self._backoff = backoff or Backoff(
+            initial_s=min(1.0, poll_s), maximum_s=max(5.0, 4.0 * poll_s)
+        )
+        self._reconnect = Reconnect(
+            log.bind(url=self.url),
+            "airos_poll_failed",
+            backoff=self._backoff,
+            clock=clock,
+            remind_s=remind_s,
+            recovered_event="",
+        )
         self.latest: LinkQuality | None = None
         self.state: str = "connecting"
         self.last_error: str | None = None
@@ -121,9 +129,14 @@ class AirOsPoller:
         else:
             state = LinkState.DOWN
         return DeviceHealth(
-            device="ap", state=state, last_error=self.last_error,
-            errors=self.counters["errors"], reconnects=self.counters["relogins"],
-            last_rx_t=self.last_update_t, counters=self.counters)
+            device="ap",
+            state=state,
+            last_error=self.last_error,
+            errors=self.counters["errors"],
+            reconnects=self.counters["relogins"],
+            last_rx_t=self.last_update_t,
+            counters=self.counters,
+        )
 
     def age_s(self) -> float | None:
         """Clock seconds since the last good poll, None before the first."""
@@ -136,8 +149,13 @@ class AirOsPoller:
     async def run(self) -> None:
         """Poll until cancelled; on cancel, log out and close the session."""
         try:
-            await self._reconnect.run(self._first_poll, self._serve, stop=self._stop,
-                                      describe=_describe, on_failure=self._failed)
+            await self._reconnect.run(
+                self._first_poll,
+                self._serve,
+                stop=self._stop,
+                describe=_describe,
+                on_failure=self._failed,
+            )
         finally:
             await self.close()
 
@@ -192,7 +210,9 @@ class AirOsPoller:
                 raise
             except AirOsDataError:
                 self.counters["bad_json"] += 1
-                self.client.logged_in = False  # maybe an expired session: log in again, then back off
+                self.client.logged_in = (
+                    False  # maybe an expired session: log in again, then back off
+                )
                 raise
         self._expired_in_row = 0
         self.counters["polls"] += 1
@@ -222,12 +242,19 @@ class _ExpiredAgain(Exception):
 def _describe(exc: Exception) -> Failure:
     """A failed poll's class: its state ("kind") and its log line."""
     if isinstance(exc, AirOsAuthError):
-        return Failure(kind="auth_failed", event="airos_auth_failed",
-                       fields={"hint": "check the username and password"})
+        return Failure(
+            kind="auth_failed",
+            event="airos_auth_failed",
+            fields={"hint": "check the username and password"},
+        )
     if isinstance(exc, AirOsConnectionError):  # timeouts included
         return Failure(kind="unreachable", event="airos_link_unreachable")
     if isinstance(exc, AirOsDataError | _ExpiredAgain):
         return Failure(kind="bad_data", event="airos_link_bad_data")
     # A long-running task must survive anything; a bug is logged with its traceback.
-    return Failure(kind="unreachable", event="airos_poll_crashed", unexpected=True,
-                   text=f"{type(exc).__name__}: {exc}")
+    return Failure(
+        kind="unreachable",
+        event="airos_poll_crashed",
+        unexpected=True,
+        text=f"{type(exc).__name__}: {exc}",
+    )

@@ -200,8 +200,15 @@ class Decoder:
     plus the newest chunk.
     """
 
-    __slots__ = ("_buf", "bytes_rx", "checksum_errors", "garbage_bytes", "length_errors",
-                 "packets", "resyncs")
+    __slots__ = (
+        "_buf",
+        "bytes_rx",
+        "checksum_errors",
+        "garbage_bytes",
+        "length_errors",
+        "packets",
+        "resyncs",
+    )
 
     def __init__(self) -> None:
         self._buf = bytearray()

@@ -50,8 +50,16 @@ from drivers.reconnect import Failure, Reconnect, expecting
 log = structlog.get_logger(__name__)
 
 __all__ = [
-    "CMD_SPACING_S", "MOTION_COMMANDS", "REFRESH_S", "SIP_CYCLE_S", "STANDARD_BAUDS",
-    "ArcosError", "ArcosRobot", "HandshakeError", "NotConnected", "SessionLost",
+    "CMD_SPACING_S",
+    "MOTION_COMMANDS",
+    "REFRESH_S",
+    "SIP_CYCLE_S",
+    "STANDARD_BAUDS",
+    "ArcosError",
+    "ArcosRobot",
+    "HandshakeError",
+    "NotConnected",
+    "SessionLost",
 ]
 
 Listener = Callable[[Sip], None]
@@ -63,11 +71,20 @@ _describe = expecting(ArcosError, LinkError, OSError, CodecError)
 class ArcosRobot:
     """A P3-AT base over a serial path, `socket://host:port` or `memory://name`."""
 
-    def __init__(self, url: str, baud: int = 9600, *, clock: Clock = REAL_CLOCK,
-                 subclass_override: str | None = None, lost_after_s: float = 0.5,
-                 enable_motors: bool = False, drop_after_s: float = 4.0,
-                 sync_timeout_s: float = 1.0, max_misses: int = 10,
-                 backoff: Backoff | None = None) -> None:
+    def __init__(
+        self,
+        url: str,
+        baud: int = 9600,
+        *,
+        clock: Clock = REAL_CLOCK,
+        subclass_override: str | None = None,
+        lost_after_s: float = 0.5,
+        enable_motors: bool = False,
+        drop_after_s: float = 4.0,
+        sync_timeout_s: float = 1.0,
+        max_misses: int = 10,
+        backoff: Backoff | None = None,
+    ) -> None:
         self.url = url
         self.baud = baud
         self.clock = clock
@@ -92,9 +109,16 @@ class ArcosRobot:
         self.sonar = SonarRing()
         self.odometry = Odometry()
         self.decoder = Decoder()
-        self.stats = {"bytes_tx": 0, "sips": 0, "old_sessions": 0,
-                      "handshake_failures": 0, "link_errors": 0, "bad_sips": 0,
-                      "listener_errors": 0, "sessions": 0}
+        self.stats = {
+            "bytes_tx": 0,
+            "sips": 0,
+            "old_sessions": 0,
+            "handshake_failures": 0,
+            "link_errors": 0,
+            "bad_sips": 0,
+            "listener_errors": 0,
+            "sessions": 0,
+        }
         #: Called with the seconds from a SIP's bytes arriving to the wheel command it
         #: caused being written (the control latency), measured on the host's
         #: performance counter, not the clock: it is real time even in the simulator.
@@ -105,8 +129,9 @@ class ArcosRobot:
         self._listeners: list[Listener] = []
         self._in_sip: float | None = None  # rx time of the SIP whose listeners are running
         self._session: ArcosSession | None = None
-        self._reconnect = Reconnect(log.bind(url=url), "robot_session_failed",
-                                    backoff=self.backoff, clock=clock, url=url)
+        self._reconnect = Reconnect(
+            log.bind(url=url), "robot_session_failed", backoff=self.backoff, clock=clock, url=url
+        )
         self._closing = False
         self._closed = asyncio.Event()
 
@@ -155,11 +180,14 @@ class ArcosRobot:
             state = LinkState.DOWN if self._reconnect.failures else LinkState.CONNECTING
         counters = self.counters
         return DeviceHealth(
-            device="robot", state=state, last_error=self.last_error,
+            device="robot",
+            state=state,
+            last_error=self.last_error,
             errors=sum(v for k, v in counters.items() if k.endswith(("errors", "resyncs"))),
             reconnects=counters["reconnects"],
             last_rx_t=self.last_sip.t if self.last_sip is not None else None,
-            counters=counters)
+            counters=counters,
+        )
 
     @property
     def motors_wish(self) -> bool:
@@ -235,9 +263,14 @@ class ArcosRobot:
     async def run(self) -> None:
         """Keep a session up until cancelled or shut down. Never raises but CancelledError."""
         try:
-            await self._reconnect.run(self.connect, self._serve, stop=self._closed,
-                                      describe=_describe, on_failure=self._failed,
-                                      after_loss=self._after_loss)
+            await self._reconnect.run(
+                self.connect,
+                self._serve,
+                stop=self._closed,
+                describe=_describe,
+                on_failure=self._failed,
+                after_loss=self._after_loss,
+            )
         except asyncio.CancelledError:
             await self._safe_stop()
             raise

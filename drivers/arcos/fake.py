@@ -56,15 +56,34 @@ SIP_PERIOD_S = 0.1
 class FakeRobot(FakeBody):
     """A protocol-true P3-AT served over a pty, loopback TCP and/or an in-memory link."""
 
-    def __init__(self, name: str = "relay", robot_class: str = "Pioneer", subclass: str = "p3at",
-                 *, clock: Clock = REAL_CLOCK, sonar_fn: SonarFn | None = None,
-                 motion_guard: MotionGuard | None = None, pose: Pose = (0.0, 0.0, 0.0),
-                 battery_v: float = 13.0, trans_accel_mm_s2: float = 300.0,
-                 rot_accel_deg_s2: float = 100.0, sonars_per_sip: int = 8,
-                 watchdog_s: float = 2.0, old_session: bool = False, seed: int | None = None) -> None:
-        super().__init__(subclass, sonar_fn=sonar_fn, motion_guard=motion_guard, pose=pose,
-                         battery_v=battery_v, trans_accel_mm_s2=trans_accel_mm_s2,
-                         rot_accel_deg_s2=rot_accel_deg_s2, sonars_per_sip=sonars_per_sip)
+    def __init__(
+        self,
+        name: str = "relay",
+        robot_class: str = "Pioneer",
+        subclass: str = "p3at",
+        *,
+        clock: Clock = REAL_CLOCK,
+        sonar_fn: SonarFn | None = None,
+        motion_guard: MotionGuard | None = None,
+        pose: Pose = (0.0, 0.0, 0.0),
+        battery_v: float = 13.0,
+        trans_accel_mm_s2: float = 300.0,
+        rot_accel_deg_s2: float = 100.0,
+        sonars_per_sip: int = 8,
+        watchdog_s: float = 2.0,
+        old_session: bool = False,
+        seed: int | None = None,
+    ) -> None:
+        super().__init__(
+            subclass,
+            sonar_fn=sonar_fn,
+            motion_guard=motion_guard,
+            pose=pose,
+            battery_v=battery_v,
+            trans_accel_mm_s2=trans_accel_mm_s2,
+            rot_accel_deg_s2=rot_accel_deg_s2,
+            sonars_per_sip=sonars_per_sip,
+        )
         self.identity = RobotIdentity(name, robot_class, subclass)
         self.clock = clock
         self.watchdog_s = watchdog_s
@@ -128,12 +147,21 @@ class FakeRobot(FakeBody):
         self._ensure_task()
         return url
 
-    def serve_memory(self, name: str, *, faults_to_driver: LinkFaults | None = None,
-                     faults_to_device: LinkFaults | None = None) -> str:
+    def serve_memory(
+        self,
+        name: str,
+        *,
+        faults_to_driver: LinkFaults | None = None,
+        faults_to_device: LinkFaults | None = None,
+    ) -> str:
         """Serve on an in-memory link (unit tests). Returns the `memory://` URL."""
         if self._mem is None:
-            self._mem = MemoryPort(self._on_data, name, faults_to_driver=faults_to_driver,
-                                   faults_to_device=faults_to_device)
+            self._mem = MemoryPort(
+                self._on_data,
+                name,
+                faults_to_driver=faults_to_driver,
+                faults_to_device=faults_to_device,
+            )
         url = self._mem.open()
         self._ensure_task()
         return url
@@ -250,9 +278,17 @@ class FakeRobot(FakeBody):
         elif cmd == Command.SONAR:
             self.sonar_on = iarg is None or iarg != 0
         elif cmd == Command.CONFIG:
-            self._emit(encode_packet(PacketType.CONFIG, encode_config(
-                self.identity, watchdog_ms=round(self.watchdog_s * 1000),
-                trans_accel=round(self.trans_accel_mm_s2), rot_accel=round(self.rot_accel_deg_s2))))
+            self._emit(
+                encode_packet(
+                    PacketType.CONFIG,
+                    encode_config(
+                        self.identity,
+                        watchdog_ms=round(self.watchdog_s * 1000),
+                        trans_accel=round(self.trans_accel_mm_s2),
+                        rot_accel=round(self.rot_accel_deg_s2),
+                    ),
+                )
+            )
         elif cmd == Command.SETO:
             self.reset_odometry()
         # PULSE, OPEN and everything else: recorded only (MobileSim ignores unknown numbers).
@@ -318,7 +354,6 @@ class FakeRobot(FakeBody):
             log.info("fake_robot_watchdog_stop")
         self.move(dt)
 
-
     def _send_sip(self) -> None:
         ptype, payload = self.build_sip().encode()
         self._emit(encode_packet(ptype, payload))
@@ -333,8 +368,10 @@ class FakeRobot(FakeBody):
             data = data[:-1] + bytes(((data[-1] + 1 + self._rng.randrange(255)) & 0xFF,))
         if self.garbage:
             # Never 0xFA: a false header would stall the stream until 255 bytes arrived.
-            junk = bytes(self._rng.choice([b for b in range(256) if b != 0xFA])
-                         for _ in range(self._rng.randint(1, 8)))
+            junk = bytes(
+                self._rng.choice([b for b in range(256) if b != 0xFA])
+                for _ in range(self._rng.randint(1, 8))
+            )
             data = junk + data
         if self.split_writes and len(data) > 1:
             cuts = sorted(self._rng.sample(range(1, len(data)), min(3, len(data) - 1)))

@@ -41,10 +41,18 @@ FIRING_ORDER = tuple(i for pair in zip(range(8), range(8, 16), strict=True) for 
 class FakeBody:
     """A P3-AT's motion, odometry and sonar, and the SIP that reports them."""
 
-    def __init__(self, subclass: str = "p3at", *, sonar_fn: SonarFn | None = None,
-                 motion_guard: MotionGuard | None = None, pose: Pose = (0.0, 0.0, 0.0),
-                 battery_v: float = 13.0, trans_accel_mm_s2: float = 300.0,
-                 rot_accel_deg_s2: float = 100.0, sonars_per_sip: int = 8) -> None:
+    def __init__(
+        self,
+        subclass: str = "p3at",
+        *,
+        sonar_fn: SonarFn | None = None,
+        motion_guard: MotionGuard | None = None,
+        pose: Pose = (0.0, 0.0, 0.0),
+        battery_v: float = 13.0,
+        trans_accel_mm_s2: float = 300.0,
+        rot_accel_deg_s2: float = 100.0,
+        sonars_per_sip: int = 8,
+    ) -> None:
         self.factors = conv_factors(subclass)
         self.sonar_fn = sonar_fn
         self.motion_guard = motion_guard
@@ -95,7 +103,9 @@ class FakeBody:
         if not self._can_move():
             self._halt(hard=True)
         self.vel_mm_s = approach(self.vel_mm_s, self.target_vel_mm_s, self.trans_accel_mm_s2 * dt)
-        self.rvel_deg_s = approach(self.rvel_deg_s, self.target_rvel_deg_s, self.rot_accel_deg_s2 * dt)
+        self.rvel_deg_s = approach(
+            self.rvel_deg_s, self.target_rvel_deg_s, self.rot_accel_deg_s2 * dt
+        )
         self.stalled = False
         if dt <= 0 or (self.vel_mm_s == 0 and self.rvel_deg_s == 0):
             return
@@ -112,8 +122,10 @@ class FakeBody:
         if not self.sonar_on:
             return ()
         ranges: Sequence[float | None] = (
-            self.sonar_fn(self.x_mm, self.y_mm, self.theta_deg) if self.sonar_fn is not None
-            else [None] * SONAR_COUNT)
+            self.sonar_fn(self.x_mm, self.y_mm, self.theta_deg)
+            if self.sonar_fn is not None
+            else [None] * SONAR_COUNT
+        )
         out = []
         for _ in range(self.sonars_per_sip):
             idx = FIRING_ORDER[self._fire_pos % SONAR_COUNT]
@@ -132,11 +144,19 @@ class FakeBody:
         th_units = round(math.radians(self._odo[2]) / ANGLE_CONV_RAD)
         return RawSip(
             moving=abs(vel) > 0 or abs(self.rvel_deg_s) > 0,
-            x_raw=round(self._odo[0] / dist) & 0x7FFF, y_raw=round(self._odo[1] / dist) & 0x7FFF,
+            x_raw=round(self._odo[0] / dist) & 0x7FFF,
+            y_raw=round(self._odo[1] / dist) & 0x7FFF,
             th_raw=max(-2048, min(2047, th_units)) if th_units != 2048 else -2048,
-            left_raw=round(left), right_raw=round(right),
+            left_raw=round(left),
+            right_raw=round(right),
             battery_dv=max(0, min(255, round(self.battery_v * 10))),
-            stall_bumpers=(STALL_LEFT | STALL_RIGHT) if self.stalled else 0, control=0,
-            flags=flags, compass=0, sonar=self._sonar_readings(),
-            battery_x10=round(self.battery_v * 10), charge_state=0,
-            rotvel_x10=round(self.rvel_deg_s * 10), fault_flags=0)
+            stall_bumpers=(STALL_LEFT | STALL_RIGHT) if self.stalled else 0,
+            control=0,
+            flags=flags,
+            compass=0,
+            sonar=self._sonar_readings(),
+            battery_x10=round(self.battery_v * 10),
+            charge_state=0,
+            rotvel_x10=round(self.rvel_deg_s * 10),
+            fault_flags=0,
+        )

@@ -35,8 +35,9 @@ def approach(value: float, target: float, max_step: float) -> float:
     return max(target, value - max_step)
 
 
-def drive_step(pose: Pose, vel_mm_s: float, rvel_deg_s: float, dt: float,
-               guard: MotionGuard | None) -> Move:
+def drive_step(
+    pose: Pose, vel_mm_s: float, rvel_deg_s: float, dt: float, guard: MotionGuard | None
+) -> Move:
     """Where `pose` gets in `dt` s at these speeds (mid-point heading), walls permitting."""
     x, y, th = pose
     dth = rvel_deg_s * dt
@@ -54,7 +55,11 @@ def drive_step(pose: Pose, vel_mm_s: float, rvel_deg_s: float, dt: float,
     turned = math.radians(new[2] - dth / 2.0)
     frac = 0.5
     for _ in range(5):
-        trial = (x + frac * full_ds * math.cos(turned), y + frac * full_ds * math.sin(turned), new[2])
+        trial = (
+            x + frac * full_ds * math.cos(turned),
+            y + frac * full_ds * math.sin(turned),
+            new[2],
+        )
         if guard(pose, trial):
             ds, new = frac * full_ds, trial
             break

@@ -40,8 +40,15 @@ OnLost = Callable[[Exception | None], None]
 class ArcosProtocol(asyncio.Protocol):
     """Bytes in, packets out; paced packets in, bytes out."""
 
-    def __init__(self, clock: Clock, on_packet: OnPacket, on_lost: OnLost, *,
-                 decoder: Decoder | None = None, stats: dict[str, int] | None = None) -> None:
+    def __init__(
+        self,
+        clock: Clock,
+        on_packet: OnPacket,
+        on_lost: OnLost,
+        *,
+        decoder: Decoder | None = None,
+        stats: dict[str, int] | None = None,
+    ) -> None:
         self.clock = clock
         self._on_packet = on_packet
         self._on_lost = on_lost

@@ -92,8 +92,9 @@ class ArcosSession:
         self.robot = robot
         self.clock = robot.clock
         self.url = robot.url
-        self.proto = ArcosProtocol(robot.clock, self.on_packet, self.on_link_lost,
-                                   decoder=robot.decoder, stats=robot.stats)
+        self.proto = ArcosProtocol(
+            robot.clock, self.on_packet, self.on_link_lost, decoder=robot.decoder, stats=robot.stats
+        )
         #: OPEN was sent: the robot is in a session that must be CLOSEd.
         self.opened = False
         self.opened_t = 0.0
@@ -122,7 +123,9 @@ class ArcosSession:
             while True:
                 sent += 1
                 if sent > 6 * robot.max_misses:
-                    raise HandshakeError(f"robot at {self.url}: no handshake after {sent - 1} SYNC packets")
+                    raise HandshakeError(
+                        f"robot at {self.url}: no handshake after {sent - 1} SYNC packets"
+                    )
                 proto.clear_rx()
                 proto.write(encode_command(state))
                 try:
@@ -135,7 +138,8 @@ class ArcosSession:
                         tried = ", ".join(str(b) for b in bauds) if is_serial else "tcp"
                         raise HandshakeError(
                             f"robot at {self.url} never answered SYNC{state} "
-                            f"({misses} tries; baud {tried})") from None
+                            f"({misses} tries; baud {tried})"
+                        ) from None
                     if len(bauds) > 1 and misses_here >= 2 and proto.transport is not None:
                         baud_i = (baud_i + 1) % len(bauds)
                         misses_here = 0
@@ -217,17 +221,26 @@ class ArcosSession:
             await proto.send_paced(encode_command(Command.ENABLE, 1))
         robot.connected = True
         robot.stats["sessions"] += 1
-        log.info("robot_connected", url=self.url, name=identity.name, robot_class=identity.robot_class,
-                 subclass=identity.subclass, odometry_subclass=subclass, baud=robot.current_baud,
-                 motors=robot.motors_wish,
-                 watchdog_ms=robot.config.watchdog_ms if robot.config else None)
+        log.info(
+            "robot_connected",
+            url=self.url,
+            name=identity.name,
+            robot_class=identity.robot_class,
+            subclass=identity.subclass,
+            odometry_subclass=subclass,
+            baud=robot.current_baud,
+            motors=robot.motors_wish,
+            watchdog_ms=robot.config.watchdog_ms if robot.config else None,
+        )
 
     # ------------------------------------------------------------------ serving
 
     async def serve(self) -> None:
         """Reflect the wishes until the session ends; raises the reason it ended."""
-        tasks = {asyncio.create_task(self.proto.tx_loop(), name="arcos-tx"),
-                 asyncio.create_task(self._tick_loop(), name="arcos-tick")}
+        tasks = {
+            asyncio.create_task(self.proto.tx_loop(), name="arcos-tx"),
+            asyncio.create_task(self._tick_loop(), name="arcos-tick"),
+        }
         try:
             await self.lost.wait()
         finally:
@@ -382,7 +395,12 @@ class ArcosSession:
         proto.held = True
         proto.clear_tx()
         if self.opened and proto.writable:
-            for data in (_VEL0, _RVEL0, encode_command(Command.ENABLE, 0), encode_command(CLOSE, 1)):
+            for data in (
+                _VEL0,
+                _RVEL0,
+                encode_command(Command.ENABLE, 0),
+                encode_command(CLOSE, 1),
+            ):
                 proto.write(data)
                 # A paced write must not hold up a cancelled task: bound the whole sequence.
                 with contextlib.suppress(TimeoutError):

@@ -91,8 +91,10 @@ def decode_identity(payload: bytes) -> RobotIdentity:
 
 
 def encode_identity(identity: RobotIdentity) -> bytes:
-    return b"".join(s.encode("latin-1") + b"\x00"
-                    for s in (identity.name, identity.robot_class, identity.subclass))
+    return b"".join(
+        s.encode("latin-1") + b"\x00"
+        for s in (identity.name, identity.robot_class, identity.subclass)
+    )
 
 
 @dataclass(frozen=True, slots=True)
@@ -125,10 +127,22 @@ class RawSip:
         """(packet type, payload) for the fake robot."""
         if len(self.sonar) > 255:
             raise CodecError("too many sonar readings for one SIP")
-        out = bytearray(struct.pack(
-            "<HHhhhBHhHBB", self.x_raw & 0xFFFF, self.y_raw & 0xFFFF, self.th_raw,
-            self.left_raw, self.right_raw, self.battery_dv & 0xFF, self.stall_bumpers & 0xFFFF,
-            self.control, self.flags & 0xFFFF, self.compass & 0xFF, len(self.sonar)))
+        out = bytearray(
+            struct.pack(
+                "<HHhhhBHhHBB",
+                self.x_raw & 0xFFFF,
+                self.y_raw & 0xFFFF,
+                self.th_raw,
+                self.left_raw,
+                self.right_raw,
+                self.battery_dv & 0xFF,
+                self.stall_bumpers & 0xFFFF,
+                self.control,
+                self.flags & 0xFFFF,
+                self.compass & 0xFF,
+                len(self.sonar),
+            )
+        )
         for idx, rng in self.sonar:
             out += struct.pack("<BH", idx, max(0, min(0xFFFF, rng)))
         out += bytes((self.grip_state, self.anport, self.analog, self.digin, self.digout))
@@ -171,11 +185,25 @@ def decode_raw_sip(ptype: int, payload: bytes) -> RawSip:
     if len(tail) >= 12:
         extra["fault_flags"] = struct.unpack_from("<H", tail, 10)[0]
     return RawSip(
-        moving=ptype == PacketType.SIP_MOVING, x_raw=x, y_raw=y, th_raw=th, left_raw=lv,
-        right_raw=rv, battery_dv=batt, stall_bumpers=stall, control=control, flags=flags,
-        compass=compass, sonar=tuple((int(i), int(r)) for i, r in sonar),
-        grip_state=byte(0, 0), anport=byte(1, 0), analog=byte(2, 0), digin=byte(3, 0xFF),
-        digout=byte(4, 0xFF), **extra)
+        moving=ptype == PacketType.SIP_MOVING,
+        x_raw=x,
+        y_raw=y,
+        th_raw=th,
+        left_raw=lv,
+        right_raw=rv,
+        battery_dv=batt,
+        stall_bumpers=stall,
+        control=control,
+        flags=flags,
+        compass=compass,
+        sonar=tuple((int(i), int(r)) for i, r in sonar),
+        grip_state=byte(0, 0),
+        anport=byte(1, 0),
+        analog=byte(2, 0),
+        digin=byte(3, 0xFF),
+        digout=byte(4, 0xFF),
+        **extra,
+    )
 
 
 @dataclass(frozen=True, slots=True)
@@ -248,15 +276,18 @@ class Odometry:
         self.x_mm += c * dx_mm - s * dy_mm
         self.y_mm += s * dx_mm + c * dy_mm
         self.theta_deg = normalize_deg(
-            self.theta_deg + math.degrees(dth * factors.angle_rad_per_unit))
+            self.theta_deg + math.degrees(dth * factors.angle_rad_per_unit)
+        )
 
 
 def wheel_to_vel_rvel(left_mm_s: float, right_mm_s: float) -> tuple[int, int]:
     """(VEL mm/s, RVEL deg/s) for wheel speeds, clamped to the P3-AT limits (docs/PROTOCOLS.md 1.7)."""
     vel = round((left_mm_s + right_mm_s) / 2.0)
     rvel = round(math.degrees((right_mm_s - left_mm_s) / 2.0 * DIFF_CONV_FACTOR))
-    return (max(-MAX_VEL_MM_S, min(MAX_VEL_MM_S, vel)),
-            max(-MAX_RVEL_DEG_S, min(MAX_RVEL_DEG_S, rvel)))
+    return (
+        max(-MAX_VEL_MM_S, min(MAX_VEL_MM_S, vel)),
+        max(-MAX_RVEL_DEG_S, min(MAX_RVEL_DEG_S, rvel)),
+    )
 
 
 def vel_rvel_to_wheels(vel_mm_s: float, rvel_deg_s: float) -> tuple[float, float]:
@@ -275,14 +306,25 @@ def sip_from_raw(raw: RawSip, odo: Odometry, t: float, factors: ConvFactors) -> 
         rotvel = math.degrees((right - left) / 2.0 * factors.diff_conv)
     battery_dv = raw.battery_x10 if raw.battery_x10 else raw.battery_dv
     return Sip(
-        t=t, x_mm=odo.x_mm, y_mm=odo.y_mm, theta_deg=odo.theta_deg,
-        left_mm_s=left, right_mm_s=right, battery_v=battery_dv / 10.0,
-        motors_enabled=bool(raw.flags & FLAG_MOTORS), estop=bool(raw.flags & FLAG_ESTOP),
+        t=t,
+        x_mm=odo.x_mm,
+        y_mm=odo.y_mm,
+        theta_deg=odo.theta_deg,
+        left_mm_s=left,
+        right_mm_s=right,
+        battery_v=battery_dv / 10.0,
+        motors_enabled=bool(raw.flags & FLAG_MOTORS),
+        estop=bool(raw.flags & FLAG_ESTOP),
         stall_left=bool(raw.stall_bumpers & STALL_LEFT),
-        stall_right=bool(raw.stall_bumpers & STALL_RIGHT), moving=raw.moving,
+        stall_right=bool(raw.stall_bumpers & STALL_RIGHT),
+        moving=raw.moving,
         sonar=tuple((i, round(r * factors.range_mm_per_unit)) for i, r in raw.sonar),
-        bumpers_front=(raw.stall_bumpers >> 9) & 0x7F, bumpers_rear=(raw.stall_bumpers >> 1) & 0x7F,
-        sonar_enabled=bool(raw.flags & FLAG_SONARS), rotvel_deg_s=rotvel, flags=raw.flags)
+        bumpers_front=(raw.stall_bumpers >> 9) & 0x7F,
+        bumpers_rear=(raw.stall_bumpers >> 1) & 0x7F,
+        sonar_enabled=bool(raw.flags & FLAG_SONARS),
+        rotvel_deg_s=rotvel,
+        flags=raw.flags,
+    )
 
 
 @dataclass(frozen=True, slots=True)
@@ -332,13 +374,33 @@ def decode_config(payload: bytes) -> RobotConfig:
             pos += size
         else:
             opt.append(None)
-    return RobotConfig(cls, sub.lower(), serial, name, rvt, tvt, rat, tat, pwm, sip_cycle,
-                       host_baud, front_sonar=opt[1], rear_sonar=opt[2], low_battery_dv=opt[3],
-                       watchdog_ms=opt[5])
+    return RobotConfig(
+        cls,
+        sub.lower(),
+        serial,
+        name,
+        rvt,
+        tvt,
+        rat,
+        tat,
+        pwm,
+        sip_cycle,
+        host_baud,
+        front_sonar=opt[1],
+        rear_sonar=opt[2],
+        low_battery_dv=opt[3],
+        watchdog_ms=opt[5],
+    )
 
 
-def encode_config(identity: RobotIdentity, *, watchdog_ms: int = 2000, sip_cycle_ms: int = 100,
-                  trans_accel: int = 300, rot_accel: int = 100) -> bytes:
+def encode_config(
+    identity: RobotIdentity,
+    *,
+    watchdog_ms: int = 2000,
+    sip_cycle_ms: int = 100,
+    trans_accel: int = 300,
+    rot_accel: int = 100,
+) -> bytes:
     """A CONFIGpac payload through ShutdownVoltage plus a firmware string (fake robot)."""
     out = bytearray()
     for s in (identity.robot_class, identity.subclass, "FAKE"):

@@ -29,12 +29,22 @@ class SonarPose:
 
 #: ARIA params/p3at.p == ArRobotTypes.cpp == MobileSim p3at (docs/PROTOCOLS.md 1.11).
 SONAR_POSES: tuple[SonarPose, ...] = (
-    SonarPose(147, 136, 90), SonarPose(193, 119, 50), SonarPose(227, 79, 30),
-    SonarPose(245, 27, 10), SonarPose(245, -27, -10), SonarPose(227, -79, -30),
-    SonarPose(193, -119, -50), SonarPose(147, -136, -90),
-    SonarPose(-144, -136, -90), SonarPose(-189, -119, -130), SonarPose(-223, -79, -150),
-    SonarPose(-241, -27, -170), SonarPose(-241, 27, 170), SonarPose(-223, 79, 150),
-    SonarPose(-189, 119, 130), SonarPose(-144, 136, 90),
+    SonarPose(147, 136, 90),
+    SonarPose(193, 119, 50),
+    SonarPose(227, 79, 30),
+    SonarPose(245, 27, 10),
+    SonarPose(245, -27, -10),
+    SonarPose(227, -79, -30),
+    SonarPose(193, -119, -50),
+    SonarPose(147, -136, -90),
+    SonarPose(-144, -136, -90),
+    SonarPose(-189, -119, -130),
+    SonarPose(-223, -79, -150),
+    SonarPose(-241, -27, -170),
+    SonarPose(-241, 27, 170),
+    SonarPose(-223, 79, 150),
+    SonarPose(-189, 119, 130),
+    SonarPose(-144, 136, 90),
 )
 
 
@@ -84,7 +94,9 @@ class SonarRing:
         t = self.updated_t[index]
         return None if t is None else max(0.0, now - t)
 
-    def front_min_mm(self, *, max_age_s: float | None = None, now: float | None = None) -> int | None:
+    def front_min_mm(
+        self, *, max_age_s: float | None = None, now: float | None = None
+    ) -> int | None:
         """Nearest front-ring range (sonars 0-7); `NO_ECHO_MM` if they all saw nothing.
 
         None when no front sonar has a (fresh enough) reading at all.
@@ -103,8 +115,11 @@ class SonarRing:
 
     def points(self, indices: Iterable[int] = range(SONAR_COUNT)) -> list[SonarPoint]:
         """Obstacle points in the robot frame for the sonars that have an echo."""
-        return [reading_point(i, r) for i in indices
-                if (r := self.ranges_mm[i]) is not None and r < NO_ECHO_MM]
+        return [
+            reading_point(i, r)
+            for i in indices
+            if (r := self.ranges_mm[i]) is not None and r < NO_ECHO_MM
+        ]
 
     def clear(self) -> None:
         self.ranges_mm = [None] * SONAR_COUNT

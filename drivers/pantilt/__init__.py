@@ -23,20 +23,34 @@ PROTOCOLS: dict[str, type[PanTilt]] = {"maestro": MaestroPanTilt, "ssc32": Ssc32
 DEFAULT_BAUD: dict[str, int] = {"maestro": 115200, "ssc32": 9600}
 
 
-def make_pantilt(protocol: Literal["maestro", "ssc32"] | str, url: str, baud: int | None,
-                 calibrations: Mapping[int, ServoCalibration], *, clock: Clock = REAL_CLOCK,
-                 **options: Any) -> PanTilt:
+def make_pantilt(
+    protocol: Literal["maestro", "ssc32"] | str,
+    url: str,
+    baud: int | None,
+    calibrations: Mapping[int, ServoCalibration],
+    *,
+    clock: Clock = REAL_CLOCK,
+    **options: Any,
+) -> PanTilt:
     """A pan-tilt driver for `protocol` on `url`; `options` go to the driver
     (reply_timeout_s, max_timeouts, poll_s)."""
     try:
         cls = PROTOCOLS[protocol]
     except KeyError:
-        raise ValueError(f"unknown pan-tilt protocol {protocol!r}; "
-                         f"expected one of {sorted(PROTOCOLS)}") from None
+        raise ValueError(
+            f"unknown pan-tilt protocol {protocol!r}; expected one of {sorted(PROTOCOLS)}"
+        ) from None
     return cls(url, baud or DEFAULT_BAUD[protocol], calibrations, clock=clock, **options)
 
 
 __all__ = [
-    "DEFAULT_BAUD", "PROTOCOLS", "MaestroPanTilt", "PanTilt", "PanTiltError", "ReplyError",
-    "ServoCalibration", "Ssc32PanTilt", "make_pantilt",
+    "DEFAULT_BAUD",
+    "PROTOCOLS",
+    "MaestroPanTilt",
+    "PanTilt",
+    "PanTiltError",
+    "ReplyError",
+    "ServoCalibration",
+    "Ssc32PanTilt",
+    "make_pantilt",
 ]

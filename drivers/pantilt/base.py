@@ -29,17 +29,32 @@ class PanTilt(ServoSession):
     raise `PanTiltError` when not connected or when the controller does not answer.
     """
 
-    def __init__(self, url: str, baud: int, calibrations: Mapping[int, ServoCalibration], *,
-                 clock: Clock = REAL_CLOCK, reply_timeout_s: float = 0.25,
-                 max_timeouts: int = 3, poll_s: float = 1.0,
-                 backoff: Backoff | None = None) -> None:
+    def __init__(
+        self,
+        url: str,
+        baud: int,
+        calibrations: Mapping[int, ServoCalibration],
+        *,
+        clock: Clock = REAL_CLOCK,
+        reply_timeout_s: float = 0.25,
+        max_timeouts: int = 3,
+        poll_s: float = 1.0,
+        backoff: Backoff | None = None,
+    ) -> None:
         if not calibrations:
             raise ValueError("at least one servo channel needs a calibration")
         self._cal: dict[int, ServoCalibration] = dict(calibrations)
         for channel, cal in self._cal.items():
             self._check_channel_range(channel, cal)
-        super().__init__(url, baud, clock=clock, reply_timeout_s=reply_timeout_s,
-                         max_timeouts=max_timeouts, poll_s=poll_s, backoff=backoff)
+        super().__init__(
+            url,
+            baud,
+            clock=clock,
+            reply_timeout_s=reply_timeout_s,
+            max_timeouts=max_timeouts,
+            poll_s=poll_s,
+            backoff=backoff,
+        )
         self._speed_deg_s: dict[int, float] = {}
 
     # ---- back-end hooks ---------------------------------------------------------------
@@ -80,8 +95,9 @@ class PanTilt(ServoSession):
         try:
             return self._cal[channel]
         except KeyError:
-            raise PanTiltError(f"servo channel {channel} is not configured "
-                               f"(configured: {self.channels})") from None
+            raise PanTiltError(
+                f"servo channel {channel} is not configured (configured: {self.channels})"
+            ) from None
 
     def limits(self, channel: int) -> tuple[float, float]:
         lo, hi = self.calibration(channel).limits_deg
@@ -99,8 +115,13 @@ class PanTilt(ServoSession):
         angle = cal.clamp(wanted)
         if angle != wanted:
             self.counters["clamped"] += 1
-            self._log.warning("angle_clamped", channel=channel, asked_deg=wanted,
-                              commanded_deg=angle, limits_deg=cal.limits_deg)
+            self._log.warning(
+                "angle_clamped",
+                channel=channel,
+                asked_deg=wanted,
+                commanded_deg=angle,
+                limits_deg=cal.limits_deg,
+            )
         await self._send_target(channel, cal.angle_to_pulse_us(angle))
         return angle
 

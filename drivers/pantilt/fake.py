@@ -55,11 +55,17 @@ class _FakeController(abc.ABC):
         self._port = PtyPort(self.feed, link_path=link_path)
         return self._port.open()
 
-    def serve_memory(self, name: str, *, faults_to_driver: LinkFaults | None = None,
-                     faults_to_device: LinkFaults | None = None) -> str:
+    def serve_memory(
+        self,
+        name: str,
+        *,
+        faults_to_driver: LinkFaults | None = None,
+        faults_to_device: LinkFaults | None = None,
+    ) -> str:
         """Serve on an in-memory link (unit tests); returns the `memory://` URL to open."""
-        self._port = MemoryPort(self.feed, name, faults_to_driver=faults_to_driver,
-                                faults_to_device=faults_to_device)
+        self._port = MemoryPort(
+            self.feed, name, faults_to_driver=faults_to_driver, faults_to_device=faults_to_device
+        )
         return self._port.open()
 
     @property
@@ -124,9 +130,12 @@ class _FakeController(abc.ABC):
 
 # Data bytes after the command byte, per compact command.
 _MAESTRO_DATA_LEN: dict[int, int] = {
-    mc.MaestroCommand.SET_TARGET: 3, mc.MaestroCommand.SET_SPEED: 3,
-    mc.MaestroCommand.SET_ACCELERATION: 3, mc.MaestroCommand.GET_POSITION: 1,
-    mc.MaestroCommand.GET_MOVING_STATE: 0, mc.MaestroCommand.GET_ERRORS: 0,
+    mc.MaestroCommand.SET_TARGET: 3,
+    mc.MaestroCommand.SET_SPEED: 3,
+    mc.MaestroCommand.SET_ACCELERATION: 3,
+    mc.MaestroCommand.GET_POSITION: 1,
+    mc.MaestroCommand.GET_MOVING_STATE: 0,
+    mc.MaestroCommand.GET_ERRORS: 0,
     mc.MaestroCommand.GO_HOME: 0,
 }
 
@@ -139,10 +148,16 @@ class FakeMaestro(_FakeController):
     listed are "ignore"), used by Go Home and whenever an error bit gets set.
     """
 
-    def __init__(self, *, clock: Clock = REAL_CLOCK, channels: int = 6,
-                 initial_us: float | None = None, range_us: tuple[float, float] = (992.0, 2000.0),
-                 home_us: dict[int, float] | None = None,
-                 device_number: int = mc.DEFAULT_DEVICE_NUMBER) -> None:
+    def __init__(
+        self,
+        *,
+        clock: Clock = REAL_CLOCK,
+        channels: int = 6,
+        initial_us: float | None = None,
+        range_us: tuple[float, float] = (992.0, 2000.0),
+        home_us: dict[int, float] | None = None,
+        device_number: int = mc.DEFAULT_DEVICE_NUMBER,
+    ) -> None:
         super().__init__(channels, initial_us, clock)
         self.range_us = range_us
         self.home_us = dict(home_us or {})
@@ -264,8 +279,11 @@ class FakeMaestro(_FakeController):
                 self.servos[ch].retarget(now, home)
 
     def _apply_profile(self, ch: int, now: float) -> None:
-        self.servos[ch].set_profile(now, self.speed_units[ch] * mc.US_PER_S_PER_SPEED_UNIT,
-                                    self.accel_units[ch] * mc.US_PER_S2_PER_ACCEL_UNIT)
+        self.servos[ch].set_profile(
+            now,
+            self.speed_units[ch] * mc.US_PER_S_PER_SPEED_UNIT,
+            self.accel_units[ch] * mc.US_PER_S2_PER_ACCEL_UNIT,
+        )
 
     def _mini_ssc(self, servo: int, target8: int) -> None:
         # Default Mini SSC offset 0, neutral 1500 us, range 476.25 us (formula UNVERIFIED).
@@ -280,8 +298,13 @@ class FakeMaestro(_FakeController):
 class FakeSsc32(_FakeController):
     """A Lynxmotion SSC-32/SSC-32U: ASCII lines, group moves, Q and QP queries."""
 
-    def __init__(self, *, clock: Clock = REAL_CLOCK, channels: int = sc.MAX_CHANNELS,
-                 initial_us: float | None = None) -> None:
+    def __init__(
+        self,
+        *,
+        clock: Clock = REAL_CLOCK,
+        channels: int = sc.MAX_CHANNELS,
+        initial_us: float | None = None,
+    ) -> None:
         super().__init__(channels, initial_us, clock)
         #: Parsed commands in arrival order.
         self.commands: list[sc.Ssc32Command] = []
@@ -317,7 +340,8 @@ class FakeSsc32(_FakeController):
             self.ignored_lines += 1
             return
         if isinstance(cmd, sc.Ssc32GroupMove) and any(
-                m.channel >= self.channel_count for m in cmd.moves):
+            m.channel >= self.channel_count for m in cmd.moves
+        ):
             self.ignored_lines += 1
             return
         self.commands.append(cmd)
@@ -325,8 +349,9 @@ class FakeSsc32(_FakeController):
         if isinstance(cmd, sc.Ssc32QueryMovement):
             self._reply(b"+" if self.moving() else b".")
         elif isinstance(cmd, sc.Ssc32QueryPulse):
-            self._reply(bytes(min(255, round(self.servos[ch].position_us(now) / 10))
-                              for ch in cmd.channels))
+            self._reply(
+                bytes(min(255, round(self.servos[ch].position_us(now) / 10)) for ch in cmd.channels)
+            )
         else:
             self._group_move(cmd, now)
 

@@ -48,11 +48,11 @@ class MaestroCommand(IntEnum):
 class MaestroError(IntFlag):
     """Bits of the Get Errors reply (bit 8 is UNVERIFIED in the research notes)."""
 
-    SERIAL_SIGNAL = 1 << 0        # a stop bit was missing: baud mismatch
+    SERIAL_SIGNAL = 1 << 0  # a stop bit was missing: baud mismatch
     SERIAL_OVERRUN = 1 << 1
     SERIAL_RX_BUFFER_FULL = 1 << 2
     SERIAL_CRC = 1 << 3
-    SERIAL_PROTOCOL = 1 << 4      # malformed or unknown command
+    SERIAL_PROTOCOL = 1 << 4  # malformed or unknown command
     SERIAL_TIMEOUT = 1 << 5
     SCRIPT_STACK = 1 << 6
     SCRIPT_CALL_STACK = 1 << 7
@@ -171,8 +171,15 @@ class MaestroPanTilt(PanTilt):
 
     protocol_name = "maestro"
 
-    def __init__(self, url: str, baud: int, calibrations: Mapping[int, ServoCalibration], *,
-                 clock: Clock = REAL_CLOCK, **kwargs: Any) -> None:
+    def __init__(
+        self,
+        url: str,
+        baud: int,
+        calibrations: Mapping[int, ServoCalibration],
+        *,
+        clock: Clock = REAL_CLOCK,
+        **kwargs: Any,
+    ) -> None:
         super().__init__(url, baud, calibrations, clock=clock, **kwargs)
         self._accel: dict[int, int] = {}
         #: Names from the latest Get Errors that reported anything (the device clears on read).
@@ -183,8 +190,10 @@ class MaestroPanTilt(PanTilt):
         _channel(channel)
         lo, hi = cal.pulse_range_us()
         if us_to_quarter(lo) < 1 or us_to_quarter(hi) > MAX_14BIT:
-            raise ValueError(f"channel {channel}: pulses {lo:.0f}..{hi:.0f} us are outside "
-                             f"the Maestro's 0.25..{MAX_14BIT / 4} us")
+            raise ValueError(
+                f"channel {channel}: pulses {lo:.0f}..{hi:.0f} us are outside "
+                f"the Maestro's 0.25..{MAX_14BIT / 4} us"
+            )
 
     async def _send_target(self, channel: int, pulse_us: float) -> None:
         await self._write(set_target(channel, us_to_quarter(pulse_us)))
@@ -246,6 +255,14 @@ class MaestroPanTilt(PanTilt):
 
 
 __all__ = [
-    "MaestroCommand", "MaestroError", "MaestroPanTilt", "PanTiltError", "decode_14bit",
-    "decode_errors", "decode_moving_state", "decode_position_us", "encode_14bit", "error_names",
+    "MaestroCommand",
+    "MaestroError",
+    "MaestroPanTilt",
+    "PanTiltError",
+    "decode_14bit",
+    "decode_errors",
+    "decode_moving_state",
+    "decode_position_us",
+    "encode_14bit",
+    "error_names",
 ]

@@ -82,9 +82,17 @@ class ServoSession(abc.ABC):
 
     protocol_name: ClassVar[str] = ""
 
-    def __init__(self, url: str, baud: int, *, clock: Clock = REAL_CLOCK,
-                 reply_timeout_s: float = 0.25, max_timeouts: int = 3, poll_s: float = 1.0,
-                 backoff: Backoff | None = None) -> None:
+    def __init__(
+        self,
+        url: str,
+        baud: int,
+        *,
+        clock: Clock = REAL_CLOCK,
+        reply_timeout_s: float = 0.25,
+        max_timeouts: int = 3,
+        poll_s: float = 1.0,
+        backoff: Backoff | None = None,
+    ) -> None:
         self.url = url
         self.baud = int(baud)
         self._clock = clock
@@ -93,8 +101,9 @@ class ServoSession(abc.ABC):
         self.poll_s = poll_s
         self._backoff = backoff or Backoff(initial_s=0.2, maximum_s=5.0)
         self._log = log.bind(device="pantilt", protocol=self.protocol_name, port=url)
-        self._reconnect = Reconnect(self._log, "pantilt_connect_failed", backoff=self._backoff,
-                                    clock=clock, url=url)
+        self._reconnect = Reconnect(
+            self._log, "pantilt_connect_failed", backoff=self._backoff, clock=clock, url=url
+        )
         self._lock = asyncio.Lock()
         self._transport: asyncio.Transport | None = None
         self._proto: _SerialProtocol | None = None
@@ -116,7 +125,11 @@ class ServoSession(abc.ABC):
         self.last_reply_t: float | None = None
         # "clamped" counts PanTilt's angles beyond a servo's limits: one dict for health().
         self.counters: dict[str, int] = {
-            "commands": 0, "timeouts": 0, "errors": 0, "reconnects": 0, "clamped": 0,
+            "commands": 0,
+            "timeouts": 0,
+            "errors": 0,
+            "reconnects": 0,
+            "clamped": 0,
             "stray_bytes": 0,
         }
 
@@ -168,8 +181,13 @@ class ServoSession(abc.ABC):
         self._close_requested.clear()
         try:
             # A replugged adapter is retried as soon as its path is back.
-            await self._reconnect.run(self.connect, self._serve, stop=self._close_requested,
-                                      describe=_describe, on_failure=self._failed)
+            await self._reconnect.run(
+                self.connect,
+                self._serve,
+                stop=self._close_requested,
+                describe=_describe,
+                on_failure=self._failed,
+            )
         finally:
             await self._drop()
 
@@ -257,8 +275,11 @@ class ServoSession(abc.ABC):
         self._lost.set()
 
     def _require_transport(self) -> asyncio.Transport:
-        if (self._transport is None or self._transport.is_closing()
-                or not (self._ready or self._handshaking)):
+        if (
+            self._transport is None
+            or self._transport.is_closing()
+            or not (self._ready or self._handshaking)
+        ):
             raise PanTiltError(f"pan-tilt controller on {self.url} is not connected")
         return self._transport
 
@@ -284,8 +305,9 @@ class ServoSession(abc.ABC):
                     reply = await fut
             except TimeoutError:
                 self._on_timeout(frame)
-                raise PanTiltError(f"no reply to {frame!r} within {self.reply_timeout_s} s "
-                                   f"from {self.url}") from None
+                raise PanTiltError(
+                    f"no reply to {frame!r} within {self.reply_timeout_s} s from {self.url}"
+                ) from None
             finally:
                 self._waiter = None
                 self._rx.clear()
@@ -298,8 +320,9 @@ class ServoSession(abc.ABC):
         self.counters["timeouts"] += 1
         self._consecutive_timeouts += 1
         self._note_error(f"no reply to {frame!r}")
-        self._log.warning("pantilt_reply_timeout", frame=frame.hex(" "),
-                          consecutive=self._consecutive_timeouts)
+        self._log.warning(
+            "pantilt_reply_timeout", frame=frame.hex(" "), consecutive=self._consecutive_timeouts
+        )
         if self._consecutive_timeouts >= self.max_timeouts and self._transport is not None:
             self._log.warning("pantilt_silent_dropping_link", timeouts=self._consecutive_timeouts)
             self._note_error(f"controller silent: {self._consecutive_timeouts} unanswered requests")
@@ -328,10 +351,17 @@ class ServoSession(abc.ABC):
         elif self.connected:
             state = LinkState.UP if self._consecutive_timeouts == 0 else LinkState.STALE
         else:
-            state = LinkState.DOWN if self.counters["errors"] or self.counters["timeouts"] \
+            state = (
+                LinkState.DOWN
+                if self.counters["errors"] or self.counters["timeouts"]
                 else LinkState.CONNECTING
+            )
         return DeviceHealth(
-            device="pantilt", state=state, last_error=self.last_error,
+            device="pantilt",
+            state=state,
+            last_error=self.last_error,
             errors=self.counters["timeouts"] + self.counters["errors"],
-            reconnects=self.counters["reconnects"], last_rx_t=self.last_reply_t,
-            counters=self.counters)
+            reconnects=self.counters["reconnects"],
+            last_rx_t=self.last_reply_t,
+            counters=self.counters,
+        )

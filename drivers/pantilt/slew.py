@@ -10,8 +10,9 @@ import math
 from dataclasses import dataclass
 
 
-def travelled_us(distance_us: float, elapsed_s: float, speed_us_s: float,
-                 accel_us_s2: float) -> float:
+def travelled_us(
+    distance_us: float, elapsed_s: float, speed_us_s: float, accel_us_s2: float
+) -> float:
     """How far a ramp that started at rest has gone after `elapsed_s` (0 = unlimited)."""
     d = distance_us
     if d <= 0:

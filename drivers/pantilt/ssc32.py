@@ -39,7 +39,7 @@ class Ssc32SyntaxError(ValueError):
 class Ssc32Move:
     channel: int
     pulse_us: int
-    speed_us_s: int | None = None   # None or 0: as fast as the servo goes
+    speed_us_s: int | None = None  # None or 0: as fast as the servo goes
 
 
 @dataclass(frozen=True, slots=True)
@@ -74,8 +74,9 @@ def _check_move(channel: int, pulse_us: int, speed_us_s: int | None) -> None:
         raise ValueError(f"SSC-32 speed out of range 0..{MAX_SPEED_US_S} us/s: {speed_us_s}")
 
 
-def encode_move(channel: int, pulse_us: int, speed_us_s: int | None = None,
-                time_ms: int | None = None) -> bytes:
+def encode_move(
+    channel: int, pulse_us: int, speed_us_s: int | None = None, time_ms: int | None = None
+) -> bytes:
     """`#<ch>P<pw>[S<spd>][T<time>]\\r`; speed None or 0 is sent as no S (full speed)."""
     return encode_group_move([Ssc32Move(channel, pulse_us, speed_us_s)], time_ms)
 
@@ -156,8 +157,15 @@ class Ssc32PanTilt(PanTilt):
 
     protocol_name = "ssc32"
 
-    def __init__(self, url: str, baud: int, calibrations: Mapping[int, ServoCalibration], *,
-                 clock: Clock = REAL_CLOCK, **kwargs: Any) -> None:
+    def __init__(
+        self,
+        url: str,
+        baud: int,
+        calibrations: Mapping[int, ServoCalibration],
+        *,
+        clock: Clock = REAL_CLOCK,
+        **kwargs: Any,
+    ) -> None:
         super().__init__(url, baud, calibrations, clock=clock, **kwargs)
         self._speed_us_s: dict[int, int] = {}
 
@@ -166,8 +174,10 @@ class Ssc32PanTilt(PanTilt):
             raise ValueError(f"SSC-32 channel out of range 0..{MAX_CHANNELS - 1}: {channel}")
         lo, hi = cal.pulse_range_us()
         if round(lo) < MIN_PULSE_US or round(hi) > MAX_PULSE_US:
-            raise ValueError(f"channel {channel}: pulses {lo:.0f}..{hi:.0f} us are outside "
-                             f"the SSC-32's {MIN_PULSE_US}..{MAX_PULSE_US} us")
+            raise ValueError(
+                f"channel {channel}: pulses {lo:.0f}..{hi:.0f} us are outside "
+                f"the SSC-32's {MIN_PULSE_US}..{MAX_PULSE_US} us"
+            )
 
     async def _send_target(self, channel: int, pulse_us: float) -> None:
         speed = self._speed_us_s.get(channel)
@@ -175,7 +185,9 @@ class Ssc32PanTilt(PanTilt):
 
     async def _send_speed(self, channel: int, us_per_s: float) -> None:
         # Nothing to send: the SSC-32 takes the speed with each move.
-        self._speed_us_s[channel] = 0 if us_per_s <= 0 else min(MAX_SPEED_US_S, max(1, round(us_per_s)))
+        self._speed_us_s[channel] = (
+            0 if us_per_s <= 0 else min(MAX_SPEED_US_S, max(1, round(us_per_s)))
+        )
 
     async def _read_pulse_us(self, channel: int) -> float:
         reply = await self._request(encode_query_pulse(channel), 1)
@@ -190,8 +202,18 @@ class Ssc32PanTilt(PanTilt):
 
 
 __all__ = [
-    "PanTiltError", "Ssc32Command", "Ssc32GroupMove", "Ssc32Move", "Ssc32PanTilt",
-    "Ssc32QueryMovement", "Ssc32QueryPulse", "Ssc32SyntaxError",
-    "decode_movement", "decode_pulse_us", "encode_group_move", "encode_move",
-    "encode_query_pulse", "parse_command",
+    "PanTiltError",
+    "Ssc32Command",
+    "Ssc32GroupMove",
+    "Ssc32Move",
+    "Ssc32PanTilt",
+    "Ssc32QueryMovement",
+    "Ssc32QueryPulse",
+    "Ssc32SyntaxError",
+    "decode_movement",
+    "decode_pulse_us",
+    "encode_group_move",
+    "encode_move",
+    "encode_query_pulse",
+    "parse_command",
 ]

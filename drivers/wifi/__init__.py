@@ -27,9 +27,15 @@ SourceKind = Literal["nl80211", "procfs", "iw"]
 SOURCE_KINDS: tuple[str, ...] = ("nl80211", "procfs", "iw")
 
 
-def make_source(kind: str, interface: str, *, path: str | os.PathLike[str] | None = None,
-                clock: Clock = REAL_CLOCK, min_dbm: float = RSSI_MIN_DBM,
-                iw_path: str = "iw") -> RssiSource:
+def make_source(
+    kind: str,
+    interface: str,
+    *,
+    path: str | os.PathLike[str] | None = None,
+    clock: Clock = REAL_CLOCK,
+    min_dbm: float = RSSI_MIN_DBM,
+    iw_path: str = "iw",
+) -> RssiSource:
     """The RSSI source of `kind` for `interface`.
 
     `path` is the /proc/net/wireless-format file of the "procfs" source (default the
@@ -39,8 +45,12 @@ def make_source(kind: str, interface: str, *, path: str | os.PathLike[str] | Non
     if kind == "nl80211":
         return Nl80211Source(interface, clock=clock, min_dbm=min_dbm)
     if kind == "procfs":
-        return ProcfsSource(interface, path=PROC_NET_WIRELESS if path is None else path,
-                            clock=clock, min_dbm=min_dbm)
+        return ProcfsSource(
+            interface,
+            path=PROC_NET_WIRELESS if path is None else path,
+            clock=clock,
+            min_dbm=min_dbm,
+        )
     if kind == "iw":
         return IwSource(interface, clock=clock, min_dbm=min_dbm, iw_path=iw_path)
     raise ValueError(f"unknown RSSI source {kind!r}; expected one of {', '.join(SOURCE_KINDS)}")

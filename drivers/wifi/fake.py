@@ -20,14 +20,40 @@ from drivers.wifi.parsers import PROC_HEADER_1, PROC_HEADER_2
 _ROW = "%6s: %04x  %3d%c  %3d%c  %3d%c  %6d %6d %6d %6d %6d   %6d\n"
 
 
-def format_proc_row(interface: str, *, status: int = 0, link: int = 0, link_updated: bool = False,
-                    level: int = 0, level_updated: bool = False, noise: int = -256,
-                    noise_updated: bool = False, nwid: int = 0, crypt: int = 0, frag: int = 0,
-                    retry: int = 0, misc: int = 0, missed_beacon: int = 0) -> str:
+def format_proc_row(
+    interface: str,
+    *,
+    status: int = 0,
+    link: int = 0,
+    link_updated: bool = False,
+    level: int = 0,
+    level_updated: bool = False,
+    noise: int = -256,
+    noise_updated: bool = False,
+    nwid: int = 0,
+    crypt: int = 0,
+    frag: int = 0,
+    retry: int = 0,
+    misc: int = 0,
+    missed_beacon: int = 0,
+) -> str:
     """One interface row exactly as the kernel prints it."""
-    return _ROW % (interface, status, link, "." if link_updated else " ",
-                   level, "." if level_updated else " ", noise, "." if noise_updated else " ",
-                   nwid, crypt, frag, retry, misc, missed_beacon)
+    return _ROW % (
+        interface,
+        status,
+        link,
+        "." if link_updated else " ",
+        level,
+        "." if level_updated else " ",
+        noise,
+        "." if noise_updated else " ",
+        nwid,
+        crypt,
+        frag,
+        retry,
+        misc,
+        missed_beacon,
+    )
 
 
 def link_quality_for(level_dbm: int) -> int:
@@ -38,8 +64,13 @@ def link_quality_for(level_dbm: int) -> int:
 class ProcfsWriter:
     """Writes `path` in /proc/net/wireless format for one interface (plus fixed extras)."""
 
-    def __init__(self, path: str | os.PathLike[str], interface: str = "wlan1", *,
-                 other_rows: Mapping[str, str] | None = None) -> None:
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        interface: str = "wlan1",
+        *,
+        other_rows: Mapping[str, str] | None = None,
+    ) -> None:
         self.path = Path(path)
         self.interface = interface
         #: extra interfaces' rows (already formatted) kept in the file, e.g. the laptop's own
@@ -48,7 +79,9 @@ class ProcfsWriter:
         self._row: str | None = None
         self._tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.{id(self):x}.tmp")
 
-    def write(self, level_dbm: float, link: int | None = None, noise_dbm: float | None = -95) -> None:
+    def write(
+        self, level_dbm: float, link: int | None = None, noise_dbm: float | None = -95
+    ) -> None:
         """Publish one update with this level (any integer dBm, even impossible ones).
 
         `link` defaults to cfg80211's quality for the level; `noise_dbm=None` prints the
@@ -58,8 +91,10 @@ class ProcfsWriter:
         self.updates += 1
         self._row = format_proc_row(
             self.interface,
-            link=link_quality_for(level) if link is None else int(link), link_updated=True,
-            level=level, level_updated=True,
+            link=link_quality_for(level) if link is None else int(link),
+            link_updated=True,
+            level=level,
+            level_updated=True,
             noise=-256 if noise_dbm is None else round(noise_dbm),
             noise_updated=noise_dbm is not None,
             misc=self.updates,

@@ -66,7 +66,8 @@ def station_reading(msg: Any) -> StationReading:
         signal_dbm=_as_int(_get_attr(info, "NL80211_STA_INFO_SIGNAL")),
         signal_avg_dbm=_as_int(_get_attr(info, "NL80211_STA_INFO_SIGNAL_AVG")),
         chain_signal_dbm=tuple(c for c in chains if isinstance(c, int))
-        if isinstance(chains, list | tuple) else (),
+        if isinstance(chains, list | tuple)
+        else (),
         rx_packets=_as_int(_get_attr(info, "NL80211_STA_INFO_RX_PACKETS")),
         beacon_rx=_as_int(_get_attr(info, "NL80211_STA_INFO_BEACON_RX")),
         inactive_time_ms=_as_int(_get_attr(info, "NL80211_STA_INFO_INACTIVE_TIME")),
@@ -80,8 +81,9 @@ def observe_stations(msgs: Sequence[Any], bssid: str | None = None) -> Observati
         readings = [r for r in readings if r.mac and r.mac.lower() == bssid.lower()]
     if not readings:
         return Observation(None, None, updated=False)
-    sta = min(readings, key=lambda r: r.inactive_time_ms if r.inactive_time_ms is not None
-              else 1 << 62)
+    sta = min(
+        readings, key=lambda r: r.inactive_time_ms if r.inactive_time_ms is not None else 1 << 62
+    )
     key = (sta.mac, sta.rx_packets, sta.beacon_rx, sta.signal_dbm)
     return Observation(sta.signal_dbm, key, updated=sta.signal_dbm is not None)
 
@@ -122,11 +124,17 @@ class Nl80211Source(RssiSource):
 
     kind = "nl80211"
 
-    def __init__(self, interface: str, *, clock: Clock = REAL_CLOCK,
-                 min_dbm: float = RSSI_MIN_DBM, bssid: str | None = None,
-                 timeout_s: float = 0.5,
-                 iw_factory: Callable[[], StationDumper] = _default_iw_factory,
-                 ifindex_of: Callable[[str], int] = socket.if_nametoindex) -> None:
+    def __init__(
+        self,
+        interface: str,
+        *,
+        clock: Clock = REAL_CLOCK,
+        min_dbm: float = RSSI_MIN_DBM,
+        bssid: str | None = None,
+        timeout_s: float = 0.5,
+        iw_factory: Callable[[], StationDumper] = _default_iw_factory,
+        ifindex_of: Callable[[str], int] = socket.if_nametoindex,
+    ) -> None:
         super().__init__(interface, clock=clock, min_dbm=min_dbm)
         self.bssid = bssid
         self.timeout_s = timeout_s
@@ -167,8 +175,10 @@ class Nl80211Source(RssiSource):
             if code == errno.ENODEV:
                 raise InterfaceMissing(f"{self.interface}: nl80211 says no such device") from exc
             if code == errno.ENOENT:
-                raise InterfaceMissing("nl80211 is not available (no cfg80211 wireless "
-                                       "device or generic netlink family)") from exc
+                raise InterfaceMissing(
+                    "nl80211 is not available (no cfg80211 wireless "
+                    "device or generic netlink family)"
+                ) from exc
             if code == errno.EOPNOTSUPP:
                 raise InterfaceMissing(f"{self.interface} is not a wireless interface") from exc
             raise SourceError(f"nl80211 station dump failed: {type(exc).__name__}: {exc}") from exc

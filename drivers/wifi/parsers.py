@@ -96,12 +96,20 @@ def parse_proc_wireless_line(line: str) -> ProcWirelessRow | None:
     except ValueError:
         return None
     return ProcWirelessRow(
-        interface=g[0], status=status,
-        link=int(g[2]), link_updated=g[3] == ".",
-        level=int(g[4]), level_updated=g[5] == ".",
-        noise=int(g[6]), noise_updated=g[7] == ".",
-        discard_nwid=int(g[8]), discard_crypt=int(g[9]), discard_frag=int(g[10]),
-        discard_retry=int(g[11]), discard_misc=int(g[12]), missed_beacon=int(g[13]),
+        interface=g[0],
+        status=status,
+        link=int(g[2]),
+        link_updated=g[3] == ".",
+        level=int(g[4]),
+        level_updated=g[5] == ".",
+        noise=int(g[6]),
+        noise_updated=g[7] == ".",
+        discard_nwid=int(g[8]),
+        discard_crypt=int(g[9]),
+        discard_frag=int(g[10]),
+        discard_retry=int(g[11]),
+        discard_misc=int(g[12]),
+        missed_beacon=int(g[13]),
         line=line.strip(),
     )
 

@@ -78,14 +78,15 @@ class RssiSource(abc.ABC):
 
     kind: ClassVar[str]
 
-    def __init__(self, interface: str, *, clock: Clock = REAL_CLOCK,
-                 min_dbm: float = RSSI_MIN_DBM) -> None:
+    def __init__(
+        self, interface: str, *, clock: Clock = REAL_CLOCK, min_dbm: float = RSSI_MIN_DBM
+    ) -> None:
         self.interface = interface
         self.clock = clock
         self.min_dbm = min_dbm
-        self.samples = 0    # fresh, accepted samples
-        self.rejected = 0   # updates carrying an impossible value
-        self.errors = 0     # reads that failed (interface missing, I/O, timeout)
+        self.samples = 0  # fresh, accepted samples
+        self.rejected = 0  # updates carrying an impossible value
+        self.errors = 0  # reads that failed (interface missing, I/O, timeout)
         self.reads = 0
         self.available = False
         self.associated = False
@@ -103,8 +104,12 @@ class RssiSource(abc.ABC):
 
     @property
     def counters(self) -> dict[str, int]:
-        return {"reads": self.reads, "samples": self.samples,
-                "rejected": self.rejected, "errors": self.errors}
+        return {
+            "reads": self.reads,
+            "samples": self.samples,
+            "rejected": self.rejected,
+            "errors": self.errors,
+        }
 
     def health(self) -> DeviceHealth:
         """The adapter's health now (see drivers.health).
@@ -117,9 +122,14 @@ class RssiSource(abc.ABC):
         else:
             state = LinkState.DOWN if self.errors else LinkState.CONNECTING
         return DeviceHealth(
-            device="wifi", state=state, last_error=self.last_error,
-            errors=self.errors + self.rejected, reconnects=0,
-            last_rx_t=self.last_sample_t, counters=self.counters)
+            device="wifi",
+            state=state,
+            last_error=self.last_error,
+            errors=self.errors + self.rejected,
+            reconnects=0,
+            last_rx_t=self.last_sample_t,
+            counters=self.counters,
+        )
 
     @abc.abstractmethod
     async def _observe(self) -> Observation:
@@ -216,8 +226,14 @@ class ProcfsSource(RssiSource):
 
     kind = "procfs"
 
-    def __init__(self, interface: str, *, path: str | os.PathLike[str] = PROC_NET_WIRELESS,
-                 clock: Clock = REAL_CLOCK, min_dbm: float = RSSI_MIN_DBM) -> None:
+    def __init__(
+        self,
+        interface: str,
+        *,
+        path: str | os.PathLike[str] = PROC_NET_WIRELESS,
+        clock: Clock = REAL_CLOCK,
+        min_dbm: float = RSSI_MIN_DBM,
+    ) -> None:
         super().__init__(interface, clock=clock, min_dbm=min_dbm)
         self.path = Path(path)
 
@@ -252,9 +268,17 @@ class IwSource(RssiSource):
 
     kind = "iw"
 
-    def __init__(self, interface: str, *, clock: Clock = REAL_CLOCK,
-                 min_dbm: float = RSSI_MIN_DBM, iw_path: str = "iw", mode: str = "link",
-                 bssid: str | None = None, timeout_s: float = 1.0) -> None:
+    def __init__(
+        self,
+        interface: str,
+        *,
+        clock: Clock = REAL_CLOCK,
+        min_dbm: float = RSSI_MIN_DBM,
+        iw_path: str = "iw",
+        mode: str = "link",
+        bssid: str | None = None,
+        timeout_s: float = 1.0,
+    ) -> None:
         super().__init__(interface, clock=clock, min_dbm=min_dbm)
         if mode not in ("link", "dump", "get"):
             raise ValueError(f"iw mode must be link, dump or get, got {mode!r}")
@@ -277,9 +301,12 @@ class IwSource(RssiSource):
         argv = self.command()
         try:
             proc = await asyncio.create_subprocess_exec(
-                *argv, stdin=asyncio.subprocess.DEVNULL, stdout=asyncio.subprocess.PIPE,
+                *argv,
+                stdin=asyncio.subprocess.DEVNULL,
+                stdout=asyncio.subprocess.PIPE,
                 stderr=asyncio.subprocess.PIPE,
-                env={**os.environ, "LC_ALL": "C"})
+                env={**os.environ, "LC_ALL": "C"},
+            )
         except OSError as exc:
             raise SourceError(f"cannot run {self.iw_path}: {exc}") from exc
         try:
@@ -309,15 +336,20 @@ class IwSource(RssiSource):
                 raise SourceError(f"unrecognised `iw link` output: {text[:80]!r}")
             if not link.connected:
                 return Observation(None, None, updated=False)
-            return Observation(link.signal_dbm, (link.rx_packets, link.signal_dbm),
-                               updated=link.signal_dbm is not None)
+            return Observation(
+                link.signal_dbm,
+                (link.rx_packets, link.signal_dbm),
+                updated=link.signal_dbm is not None,
+            )
         stations = parse_iw_stations(text)
         if self.bssid is not None:
             stations = [s for s in stations if s.mac.lower() == self.bssid.lower()]
         if not stations:
             return Observation(None, None, updated=False)
         # Several peers (not the managed-mode case): the one heard most recently.
-        sta = min(stations, key=lambda s: s.inactive_time_ms if s.inactive_time_ms is not None
-                  else 1 << 62)
+        sta = min(
+            stations,
+            key=lambda s: s.inactive_time_ms if s.inactive_time_ms is not None else 1 << 62,
+        )
         key = (sta.mac, sta.rx_packets, sta.beacon_rx, sta.signal_dbm)
         return Observation(sta.signal_dbm, key, updated=sta.signal_dbm is not None)

@@ -89,8 +89,9 @@ def dumps(value: Any) -> str:
 
 
 def _json(value: Any, status: int = 200, headers: dict[str, str] | None = None) -> web.Response:
-    return web.Response(text=dumps(value), status=status, content_type="application/json",
-                        headers=headers)
+    return web.Response(
+        text=dumps(value), status=status, content_type="application/json", headers=headers
+    )
 
 
 def _error(status: int, message: str, field_name: str | None = None, **extra: Any) -> web.Response:
@@ -130,8 +131,13 @@ def _auth_warning(ctx: ApiContext, event: str, request: web.Request) -> None:
     can send them as fast as they like. First one at once, then one a minute with a count."""
     count = ctx.auth_log_limit.hit(f"{event}:{request.remote}", ctx.clock.now())
     if count is not None:
-        log.warning(event, path=request.path, peer=request.remote, count=count,
-                    every_s=ctx.auth_log_limit.every_s)
+        log.warning(
+            event,
+            path=request.path,
+            peer=request.remote,
+            count=count,
+            every_s=ctx.auth_log_limit.every_s,
+        )
 
 
 def _authorize(ctx: ApiContext, request: web.Request) -> web.Response | None:
@@ -144,8 +150,9 @@ def _authorize(ctx: ApiContext, request: web.Request) -> web.Response | None:
         _auth_warning(ctx, "api_auth_missing", request)
         return _error(401, "missing bearer token")
     # Compare bytes: compare_digest refuses non-ASCII str, and a header may hold anything.
-    if not hmac.compare_digest(presented.encode("utf-8", "backslashreplace"),
-                               ctx.token.encode("utf-8")):
+    if not hmac.compare_digest(
+        presented.encode("utf-8", "backslashreplace"), ctx.token.encode("utf-8")
+    ):
         _auth_warning(ctx, "api_auth_failed", request)
         return _error(401, "wrong bearer token")
     return None
@@ -162,7 +169,11 @@ async def handle_status(request: web.Request) -> web.Response:
     ctx = request.app[CONTEXT]
     now = ctx.clock.now()
     cached = ctx.status_cache
-    if cached is None or cached[0] != ctx.state.revision or not 0.0 <= now - cached[1] < STATUS_REUSE_S:
+    if (
+        cached is None
+        or cached[0] != ctx.state.revision
+        or not 0.0 <= now - cached[1] < STATUS_REUSE_S
+    ):
         cached = (ctx.state.revision, now, dumps(ctx.state.snapshot(now)))
         ctx.status_cache = cached
     return web.Response(text=cached[2], content_type="application/json")
@@ -171,16 +182,23 @@ async def handle_status(request: web.Request) -> web.Response:
 async def handle_healthz(request: web.Request) -> web.Response:
     ctx = request.app[CONTEXT]
     st = ctx.state
-    body: dict[str, Any] = {"mode": str(st.mode), "state": str(st.state),
-                            "max_age_s": ctx.healthz_max_age_s}
+    body: dict[str, Any] = {
+        "mode": str(st.mode),
+        "state": str(st.state),
+        "max_age_s": ctx.healthz_max_age_s,
+    }
     if st.loop_tick_t is None:
-        return _json({"ok": False, "reason": "control loop has not ticked yet",
-                      "loop_age_s": None, **body}, 503)
+        return _json(
+            {"ok": False, "reason": "control loop has not ticked yet", "loop_age_s": None, **body},
+            503,
+        )
     age_s = max(0.0, ctx.clock.now() - st.loop_tick_t)
     body["loop_age_s"] = round(age_s, 3)
     if age_s > ctx.healthz_max_age_s:
-        return _json({"ok": False, "reason": f"control loop stalled: last tick {age_s:.3f} s ago",
-                      **body}, 503)
+        return _json(
+            {"ok": False, "reason": f"control loop stalled: last tick {age_s:.3f} s ago", **body},
+            503,
+        )
     return _json({"ok": True, "reason": "control loop alive", **body})
 
 
@@ -196,7 +214,7 @@ async def handle_index(request: web.Request) -> web.Response:
         headers={
             # Everything the page needs comes from this server: it must work offline.
             "Content-Security-Policy": "default-src 'self'; img-src 'self' data:; "
-                                       "style-src 'self'; script-src 'self'; connect-src 'self'",
+            "style-src 'self'; script-src 'self'; connect-src 'self'",
             "Cache-Control": "no-cache",
         },
     )
@@ -248,12 +266,14 @@ async def handle_events(request: web.Request) -> web.StreamResponse:
     """Push the status document whenever `state.touch()` fires; heartbeat while idle."""
     ctx = request.app[CONTEXT]
     state, clock = ctx.state, ctx.clock
-    resp = web.StreamResponse(headers={
-        "Content-Type": "text/event-stream",
-        "Cache-Control": "no-cache",
-        # Tell reverse proxies not to buffer the stream.
-        "X-Accel-Buffering": "no",
-    })
+    resp = web.StreamResponse(
+        headers={
+            "Content-Type": "text/event-stream",
+            "Cache-Control": "no-cache",
+            # Tell reverse proxies not to buffer the stream.
+            "X-Accel-Buffering": "no",
+        }
+    )
     task = asyncio.current_task()
     if task is not None:
         ctx.sse_tasks.add(task)
@@ -270,8 +290,10 @@ async def handle_events(request: web.Request) -> web.StreamResponse:
                     async with clock.timeout(ctx.sse_heartbeat_s):
                         await changed.wait()
                 except TimeoutError:
-                    beat = {"uptime_s": round(clock.now() - state.started_t, 3),
-                            "revision": state.revision}
+                    beat = {
+                        "uptime_s": round(clock.now() - state.started_t, 3),
+                        "revision": state.revision,
+                    }
                     await resp.write(_sse("heartbeat", dumps(beat)))
                 continue
             sent_rev = state.revision

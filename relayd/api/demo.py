@@ -44,20 +44,34 @@ class DemoControls:
         self.state.touch()
 
 
-def synthetic_scan(t: float, leader_deg: float, samples: int = 25, peak_dbm: float = -42.0,
-                   rng: random.Random | None = None) -> ScanRecord:
+def synthetic_scan(
+    t: float,
+    leader_deg: float,
+    samples: int = 25,
+    peak_dbm: float = -42.0,
+    rng: random.Random | None = None,
+) -> ScanRecord:
     """A Yagi sweep -90..+90 towards a leader at `leader_deg` (cos^2 beam, some noise)."""
     rng = rng or random.Random(0)
     angles = tuple(-90.0 + 180.0 * j / (samples - 1) for j in range(samples))
     rssi = []
     for a in angles:
         off = math.radians(a - leader_deg)
-        gain_db = 10 * math.log10(max(math.cos(off) ** 2, 1e-3)) if abs(off) < math.pi / 2 else -30.0
+        gain_db = (
+            10 * math.log10(max(math.cos(off) ** 2, 1e-3)) if abs(off) < math.pi / 2 else -30.0
+        )
         rssi.append(round(peak_dbm + gain_db + rng.gauss(0, 1.0), 1))
     weights = [10 ** ((r - max(rssi)) / 10) for r in rssi]
     bearing = sum(w * a for w, a in zip(weights, angles, strict=True)) / sum(weights)
-    return ScanRecord(t=t, angles_deg=angles, rssi_dbm=tuple(rssi), bearing_deg=round(bearing, 2),
-                      rssi_leader_dbm=max(rssi), situation=0, period_s=1.6)
+    return ScanRecord(
+        t=t,
+        angles_deg=angles,
+        rssi_dbm=tuple(rssi),
+        bearing_deg=round(bearing, 2),
+        rssi_leader_dbm=max(rssi),
+        situation=0,
+        period_s=1.6,
+    )
 
 
 def populate(state: RelayState, clock: Clock) -> None:
@@ -68,8 +82,12 @@ def populate(state: RelayState, clock: Clock) -> None:
     state.mode = Mode.FOLLOW
     state.state = DriveState.DRIVING
     state.reason = "demo: synthetic state, no devices"
-    state.thresholds = {"threshold_l_dbm": -30.0, "threshold_b_dbm": -60.0,
-                        "threshold_o_m": 0.8, "v_max_mm_s": 400.0}
+    state.thresholds = {
+        "threshold_l_dbm": -30.0,
+        "threshold_b_dbm": -60.0,
+        "threshold_o_m": 0.8,
+        "v_max_mm_s": 400.0,
+    }
     scan = synthetic_scan(now, 20.0)
     state.last_scan = scan
     state.scan_count = 1
@@ -81,13 +99,31 @@ def populate(state: RelayState, clock: Clock) -> None:
     state.x_mm, state.y_mm, state.theta_deg = 1250.0, -300.0, 12.0
     state.battery_v = 12.6
     state.motors_enabled = True
-    state.sonar_mm = [2400, 1800, 3100, 4200, 4300, 2900, 1200, 650,
-                      5000, 5000, 3300, 2800, 2700, 3900, 1500, 900]
+    state.sonar_mm = [
+        2400,
+        1800,
+        3100,
+        4200,
+        4300,
+        2900,
+        1200,
+        650,
+        5000,
+        5000,
+        3300,
+        2800,
+        2700,
+        3900,
+        1500,
+        900,
+    ]
     state.links = {
-        "front": LinkInfo(signal_dbm=-48, rssi=47, noise_dbm=-96, ccq_pct=91, tx_mbps=54.0,
-                          rx_mbps=48.0, t=now),
-        "rear": LinkInfo(signal_dbm=-55, rssi=40, noise_dbm=-95, ccq_pct=84, tx_mbps=36.0,
-                         rx_mbps=36.0, t=now),
+        "front": LinkInfo(
+            signal_dbm=-48, rssi=47, noise_dbm=-96, ccq_pct=91, tx_mbps=54.0, rx_mbps=48.0, t=now
+        ),
+        "rear": LinkInfo(
+            signal_dbm=-55, rssi=40, noise_dbm=-95, ccq_pct=84, tx_mbps=36.0, rx_mbps=36.0, t=now
+        ),
     }
     for name in ("base", "servo", "wifi", "ap_front", "ap_rear"):
         health = state.device(name)
@@ -116,7 +152,9 @@ async def animate(state: RelayState, clock: Clock, period_s: float = 0.1) -> Non
             state.bearing_deg = scan.bearing_deg
             state.link_bearing_deg = scan.bearing_deg
             state.rssi_leader_dbm = scan.rssi_leader_dbm
-            state.sonar_mm = [max(300, min(5000, (r or 2000) + rng.randint(-80, 80))) for r in state.sonar_mm]
+            state.sonar_mm = [
+                max(300, min(5000, (r or 2000) + rng.randint(-80, 80))) for r in state.sonar_mm
+            ]
         state.touch()
 
 

@@ -114,8 +114,14 @@ def fd_reserve(soft_limit: int) -> int:
 class GuardedServer:
     """The accept loop in front of aiohttp (see the module docstring)."""
 
-    def __init__(self, *, max_connections: int = MAX_CONNECTIONS, idle_timeout_s: float = IDLE_TIMEOUT_S,
-                 evict_idle_s: float = EVICT_IDLE_S, fd_limit: int | None = None) -> None:
+    def __init__(
+        self,
+        *,
+        max_connections: int = MAX_CONNECTIONS,
+        idle_timeout_s: float = IDLE_TIMEOUT_S,
+        evict_idle_s: float = EVICT_IDLE_S,
+        fd_limit: int | None = None,
+    ) -> None:
         self.max_connections = max_connections
         self.idle_timeout_s = idle_timeout_s
         self.evict_idle_s = evict_idle_s
@@ -127,7 +133,13 @@ class GuardedServer:
         self.fd_limit = fd_limit
         self.conns: set[_Conn] = set()
         self.handlers: dict[asyncio.BaseProtocol, _Conn] = {}
-        self.counters = {"accepted": 0, "evicted": 0, "idle_closed": 0, "refused": 0, "accept_errors": 0}
+        self.counters = {
+            "accepted": 0,
+            "evicted": 0,
+            "idle_closed": 0,
+            "refused": 0,
+            "accept_errors": 0,
+        }
         self._factory: Callable[[], asyncio.Protocol] | None = None
         self._listen: socket.socket | None = None
         self._ssl: ssl.SSLContext | None = None
@@ -140,8 +152,9 @@ class GuardedServer:
     # -- aiohttp side -------------------------------------------------------------------
 
     @web.middleware
-    async def middleware(self, request: web.Request,
-                         handler: Callable[[web.Request], Awaitable[web.StreamResponse]]) -> web.StreamResponse:
+    async def middleware(
+        self, request: web.Request, handler: Callable[[web.Request], Awaitable[web.StreamResponse]]
+    ) -> web.StreamResponse:
         """Marks the connection busy while a request is handled (an event stream stays busy)."""
         conn = self.handlers.get(request.protocol)
         if conn is None:
@@ -155,8 +168,12 @@ class GuardedServer:
 
     # -- life cycle -----------------------------------------------------------------------
 
-    def start(self, sock: socket.socket, factory: Callable[[], asyncio.Protocol],
-              ssl_context: ssl.SSLContext | None = None) -> None:
+    def start(
+        self,
+        sock: socket.socket,
+        factory: Callable[[], asyncio.Protocol],
+        ssl_context: ssl.SSLContext | None = None,
+    ) -> None:
         self._loop = asyncio.get_running_loop()
         self._listen, self._factory, self._ssl = sock, factory, ssl_context
         sock.setblocking(False)
@@ -216,7 +233,9 @@ class GuardedServer:
         for _ in range(ACCEPT_BATCH):
             if self._active() >= self.max_connections and not self._evict(now):
                 self._pause()  # the rest wait in the listen backlog; resumed when a slot frees
-                self._note("api_connections_at_cap", now, "cap", max_connections=self.max_connections)
+                self._note(
+                    "api_connections_at_cap", now, "cap", max_connections=self.max_connections
+                )
                 return
             try:
                 sock, addr = self._listen.accept()
@@ -231,8 +250,13 @@ class GuardedServer:
             if sock.fileno() >= self.fd_limit:
                 sock.close()
                 self.counters["refused"] += 1
-                self._note("api_connection_refused", now, "fds", fd_limit=self.fd_limit,
-                           reason="descriptors reserved for the devices")
+                self._note(
+                    "api_connection_refused",
+                    now,
+                    "fds",
+                    fd_limit=self.fd_limit,
+                    reason="descriptors reserved for the devices",
+                )
                 self._backoff(now)
                 return
             sock.setblocking(False)
@@ -250,18 +274,29 @@ class GuardedServer:
         factory = self._factory
         try:
             await self._loop.connect_accepted_socket(
-                lambda: _Relay(self, conn, factory()), sock=conn.sock, ssl=self._ssl,
-                ssl_handshake_timeout=self.idle_timeout_s if self._ssl is not None else None)
+                lambda: _Relay(self, conn, factory()),
+                sock=conn.sock,
+                ssl=self._ssl,
+                ssl_handshake_timeout=self.idle_timeout_s if self._ssl is not None else None,
+            )
         except Exception as exc:  # noqa: BLE001 - whatever a client did, it must not escape the task
             # A failed TLS handshake or a peer gone before we started: nothing to serve.
-            log.debug("api_connection_setup_failed", peer=conn.peer, error=str(exc) or type(exc).__name__)
+            log.debug(
+                "api_connection_setup_failed", peer=conn.peer, error=str(exc) or type(exc).__name__
+            )
             conn.sock.close()
             self.drop(conn)
 
     def _evict(self, now: float) -> bool:
         """Close the connection idle longest, if one has been idle long enough; True if one was."""
-        idle = [c for c in self.conns if not c.closing and c.busy == 0 and c.transport is not None
-                and now - c.idle_since >= self.evict_idle_s]
+        idle = [
+            c
+            for c in self.conns
+            if not c.closing
+            and c.busy == 0
+            and c.transport is not None
+            and now - c.idle_since >= self.evict_idle_s
+        ]
         if not idle:
             return False
         victim = min(idle, key=lambda c: c.idle_since)
@@ -278,8 +313,12 @@ class GuardedServer:
         self.conns.discard(conn)
         if conn.handler is not None:
             self.handlers.pop(conn.handler, None)
-        if self._loop is not None and not self._reading and self._loop.time() >= self._backoff_until \
-                and self._active() < self.max_connections:
+        if (
+            self._loop is not None
+            and not self._reading
+            and self._loop.time() >= self._backoff_until
+            and self._active() < self.max_connections
+        ):
             self._resume()
 
     async def _sweep(self) -> None:
@@ -288,8 +327,12 @@ class GuardedServer:
             await asyncio.sleep(SWEEP_S)
             now = loop.time()
             for conn in list(self.conns):
-                if not conn.closing and conn.busy == 0 and conn.transport is not None \
-                        and now - conn.idle_since > self.idle_timeout_s:
+                if (
+                    not conn.closing
+                    and conn.busy == 0
+                    and conn.transport is not None
+                    and now - conn.idle_since > self.idle_timeout_s
+                ):
                     self.counters["idle_closed"] += 1
                     self._close(conn)
             if not self._reading and now >= self._backoff_until:

@@ -52,17 +52,27 @@ def sample_values(doc: dict[str, Any]) -> tuple[Any, ...]:
     """The FIELDS of one status document (missing or non-finite numbers become None)."""
     pose = doc.get("pose") or {}
     return (
-        _finite(doc.get("rssi_leader_dbm")), _finite(doc.get("rssi_behind_dbm")),
-        _finite(doc.get("bearing_deg")), doc.get("state"),
-        _finite(pose.get("x_mm")), _finite(pose.get("y_mm")), _finite(pose.get("theta_deg")),
+        _finite(doc.get("rssi_leader_dbm")),
+        _finite(doc.get("rssi_behind_dbm")),
+        _finite(doc.get("bearing_deg")),
+        doc.get("state"),
+        _finite(pose.get("x_mm")),
+        _finite(pose.get("y_mm")),
+        _finite(pose.get("theta_deg")),
     )
 
 
 class History:
     """Ring buffer of status samples; `sample()` on a timer, `window()` for the endpoint."""
 
-    def __init__(self, snapshot: Callable[[float], dict[str, Any]], clock: Clock, *,
-                 period_s: float = DEFAULT_PERIOD_S, window_s: float = DEFAULT_WINDOW_S) -> None:
+    def __init__(
+        self,
+        snapshot: Callable[[float], dict[str, Any]],
+        clock: Clock,
+        *,
+        period_s: float = DEFAULT_PERIOD_S,
+        window_s: float = DEFAULT_WINDOW_S,
+    ) -> None:
         if period_s <= 0 or window_s < period_s:
             raise ValueError("history needs period_s > 0 and window_s >= period_s")
         self._snapshot = snapshot
@@ -101,8 +111,13 @@ class History:
         }
         for i, name in enumerate(FIELDS):
             columns[name] = [s.values[i] for s in chosen]
-        return {"period_s": self.period_s, "window_s": self.window_s,
-                "next_seq": self.next_seq, "thresholds": self._thresholds, "samples": columns}
+        return {
+            "period_s": self.period_s,
+            "window_s": self.window_s,
+            "next_seq": self.next_seq,
+            "thresholds": self._thresholds,
+            "samples": columns,
+        }
 
 
 HISTORY: web.AppKey[History] = web.AppKey("relayd_history", History)
@@ -121,8 +136,9 @@ def parse_after(raw: str | None) -> int:
     return value
 
 
-def install(app: web.Application, history: History,
-            respond: Callable[[Any, int], web.Response]) -> None:
+def install(
+    app: web.Application, history: History, respond: Callable[[Any, int], web.Response]
+) -> None:
     """Register GET /history on `app` and run the sampler while the app runs."""
     app[HISTORY] = history
 

@@ -30,13 +30,17 @@ def _obj(props: dict[str, Any], *, nullable: bool = False, required: bool = True
 
 
 def _error(description: str) -> dict[str, Any]:
-    return {"description": description,
-            "content": {"application/json": {"schema": {"$ref": "#/components/schemas/Error"}}}}
+    return {
+        "description": description,
+        "content": {"application/json": {"schema": {"$ref": "#/components/schemas/Error"}}},
+    }
 
 
 def _json(description: str, ref: str) -> dict[str, Any]:
-    return {"description": description,
-            "content": {"application/json": {"schema": {"$ref": f"#/components/schemas/{ref}"}}}}
+    return {
+        "description": description,
+        "content": {"application/json": {"schema": {"$ref": f"#/components/schemas/{ref}"}}},
+    }
 
 
 #: Generated from the typed model of the document (relayd.api.status.Status).
@@ -47,24 +51,31 @@ def _column(items: dict[str, Any]) -> dict[str, Any]:
     return {"type": "array", "items": items}
 
 
-HISTORY_SCHEMA: dict[str, Any] = _obj({
-    "period_s": _num(False, description="seconds between samples"),
-    "window_s": _num(False, description="how far back the daemon keeps samples"),
-    "next_seq": {"type": "integer", "minimum": 0,
-                 "description": "the sequence number the next sample will get"},
-    "thresholds": {"type": "object", "additionalProperties": {"type": "number"}},
-    "samples": _obj({
-        "seq": _column({"type": "integer", "minimum": 0}),
-        "age_s": _column({"type": "number", "minimum": 0}),
-        "rssi_leader_dbm": _column(_num()),
-        "rssi_behind_dbm": _column(_num()),
-        "bearing_deg": _column(_num()),
-        "state": _column({"type": "string", "enum": [s.value for s in DriveState]}),
-        "x_mm": _column(_num()),
-        "y_mm": _column(_num()),
-        "theta_deg": _column(_num()),
-    }),
-})
+HISTORY_SCHEMA: dict[str, Any] = _obj(
+    {
+        "period_s": _num(False, description="seconds between samples"),
+        "window_s": _num(False, description="how far back the daemon keeps samples"),
+        "next_seq": {
+            "type": "integer",
+            "minimum": 0,
+            "description": "the sequence number the next sample will get",
+        },
+        "thresholds": {"type": "object", "additionalProperties": {"type": "number"}},
+        "samples": _obj(
+            {
+                "seq": _column({"type": "integer", "minimum": 0}),
+                "age_s": _column({"type": "number", "minimum": 0}),
+                "rssi_leader_dbm": _column(_num()),
+                "rssi_behind_dbm": _column(_num()),
+                "bearing_deg": _column(_num()),
+                "state": _column({"type": "string", "enum": [s.value for s in DriveState]}),
+                "x_mm": _column(_num()),
+                "y_mm": _column(_num()),
+                "theta_deg": _column(_num()),
+            }
+        ),
+    }
+)
 
 
 def build_openapi(max_drive_mm_s: float) -> dict[str, Any]:
@@ -72,7 +83,9 @@ def build_openapi(max_drive_mm_s: float) -> dict[str, Any]:
     wheel = {"type": "number", "minimum": -max_drive_mm_s, "maximum": max_drive_mm_s}
     secured: list[dict[str, list[str]]] = [{"bearer": []}]
     control_errors = {
-        "400": _error("bad JSON, or a missing, unknown, wrong-typed or out-of-range field (named in `field`)"),
+        "400": _error(
+            "bad JSON, or a missing, unknown, wrong-typed or out-of-range field (named in `field`)"
+        ),
         "401": _error("no or wrong bearer token"),
         "403": _error("no API token is configured: control endpoints are disabled"),
         "409": _error("the current mode does not allow this request"),
@@ -86,73 +99,130 @@ def build_openapi(max_drive_mm_s: float) -> dict[str, Any]:
             "description": "Status and control of one Wi-Fi relay robot.",
         },
         "paths": {
-            "/status": {"get": {
-                "summary": "Everything the robot knows right now",
-                "operationId": "getStatus",
-                "responses": {"200": _json("the status document", "Status")},
-            }},
-            "/healthz": {"get": {
-                "summary": "Liveness of the control loop",
-                "operationId": "getHealthz",
-                "responses": {
-                    "200": _json("the control loop ticked recently", "Health"),
-                    "503": _json("the control loop is not ticking; `reason` says why", "Health"),
-                },
-            }},
-            "/history": {"get": {
-                "summary": "The last minutes of RSSI^l, RSSI^b, bearing, state and pose, as "
-                           "columns, oldest first (a bounded ring buffer in the daemon)",
-                "operationId": "getHistory",
-                "parameters": [{
-                    "name": "after", "in": "query", "required": False,
-                    "description": "only samples with a larger seq (-1 or absent: all); a value "
-                                   "beyond the newest returns all, the daemon having restarted",
-                    "schema": {"type": "integer", "minimum": -1},
-                }],
-                "responses": {"200": _json("samples, each column in the same order", "History"),
-                              "400": _error("`after` is not an integer >= -1")},
-            }},
-            "/metrics": {"get": {
-                "summary": "Prometheus metrics",
-                "operationId": "getMetrics",
-                "responses": {"200": {"description": "Prometheus text exposition",
-                                      "content": {"text/plain": {"schema": {"type": "string"}}}}},
-            }},
-            "/events": {"get": {
-                "summary": "Server-Sent Events: `status` events carrying the status document, "
-                           "`heartbeat` events while nothing changes",
-                "operationId": "getEvents",
-                "responses": {"200": {"description": "an endless event stream",
-                                      "content": {"text/event-stream": {"schema": {"type": "string"}}}}},
-            }},
-            "/openapi.json": {"get": {
-                "summary": "This document",
-                "operationId": "getOpenapi",
-                "responses": {"200": {"description": "OpenAPI 3.0 document",
-                                      "content": {"application/json": {"schema": {"type": "object"}}}}},
-            }},
-            "/": {"get": {
-                "summary": "The live page",
-                "operationId": "getLivePage",
-                "responses": {"200": {"description": "HTML page",
-                                      "content": {"text/html": {"schema": {"type": "string"}}}}},
-            }},
-            "/api/mode": {"post": {
-                "summary": "Change the operating mode",
-                "operationId": "setMode",
-                "security": secured,
-                "requestBody": {"required": True, "content": {"application/json": {
-                    "schema": {"$ref": "#/components/schemas/ModeRequest"}}}},
-                "responses": {"200": _json("mode changed", "ModeResponse"), **control_errors},
-            }},
-            "/api/drive": {"post": {
-                "summary": "Drive the wheels (manual mode only; expires after the dead-man time)",
-                "operationId": "drive",
-                "security": secured,
-                "requestBody": {"required": True, "content": {"application/json": {
-                    "schema": {"$ref": "#/components/schemas/DriveRequest"}}}},
-                "responses": {"200": _json("command accepted", "DriveResponse"), **control_errors},
-            }},
+            "/status": {
+                "get": {
+                    "summary": "Everything the robot knows right now",
+                    "operationId": "getStatus",
+                    "responses": {"200": _json("the status document", "Status")},
+                }
+            },
+            "/healthz": {
+                "get": {
+                    "summary": "Liveness of the control loop",
+                    "operationId": "getHealthz",
+                    "responses": {
+                        "200": _json("the control loop ticked recently", "Health"),
+                        "503": _json(
+                            "the control loop is not ticking; `reason` says why", "Health"
+                        ),
+                    },
+                }
+            },
+            "/history": {
+                "get": {
+                    "summary": "The last minutes of RSSI^l, RSSI^b, bearing, state and pose, as "
+                    "columns, oldest first (a bounded ring buffer in the daemon)",
+                    "operationId": "getHistory",
+                    "parameters": [
+                        {
+                            "name": "after",
+                            "in": "query",
+                            "required": False,
+                            "description": "only samples with a larger seq (-1 or absent: all); a value "
+                            "beyond the newest returns all, the daemon having restarted",
+                            "schema": {"type": "integer", "minimum": -1},
+                        }
+                    ],
+                    "responses": {
+                        "200": _json("samples, each column in the same order", "History"),
+                        "400": _error("`after` is not an integer >= -1"),
+                    },
+                }
+            },
+            "/metrics": {
+                "get": {
+                    "summary": "Prometheus metrics",
+                    "operationId": "getMetrics",
+                    "responses": {
+                        "200": {
+                            "description": "Prometheus text exposition",
+                            "content": {"text/plain": {"schema": {"type": "string"}}},
+                        }
+                    },
+                }
+            },
+            "/events": {
+                "get": {
+                    "summary": "Server-Sent Events: `status` events carrying the status document, "
+                    "`heartbeat` events while nothing changes",
+                    "operationId": "getEvents",
+                    "responses": {
+                        "200": {
+                            "description": "an endless event stream",
+                            "content": {"text/event-stream": {"schema": {"type": "string"}}},
+                        }
+                    },
+                }
+            },
+            "/openapi.json": {
+                "get": {
+                    "summary": "This document",
+                    "operationId": "getOpenapi",
+                    "responses": {
+                        "200": {
+                            "description": "OpenAPI 3.0 document",
+                            "content": {"application/json": {"schema": {"type": "object"}}},
+                        }
+                    },
+                }
+            },
+            "/": {
+                "get": {
+                    "summary": "The live page",
+                    "operationId": "getLivePage",
+                    "responses": {
+                        "200": {
+                            "description": "HTML page",
+                            "content": {"text/html": {"schema": {"type": "string"}}},
+                        }
+                    },
+                }
+            },
+            "/api/mode": {
+                "post": {
+                    "summary": "Change the operating mode",
+                    "operationId": "setMode",
+                    "security": secured,
+                    "requestBody": {
+                        "required": True,
+                        "content": {
+                            "application/json": {
+                                "schema": {"$ref": "#/components/schemas/ModeRequest"}
+                            }
+                        },
+                    },
+                    "responses": {"200": _json("mode changed", "ModeResponse"), **control_errors},
+                }
+            },
+            "/api/drive": {
+                "post": {
+                    "summary": "Drive the wheels (manual mode only; expires after the dead-man time)",
+                    "operationId": "drive",
+                    "security": secured,
+                    "requestBody": {
+                        "required": True,
+                        "content": {
+                            "application/json": {
+                                "schema": {"$ref": "#/components/schemas/DriveRequest"}
+                            }
+                        },
+                    },
+                    "responses": {
+                        "200": _json("command accepted", "DriveResponse"),
+                        **control_errors,
+                    },
+                }
+            },
         },
         "components": {
             "securitySchemes": {"bearer": {"type": "http", "scheme": "bearer"}},
@@ -189,8 +259,10 @@ def build_openapi(max_drive_mm_s: float) -> dict[str, Any]:
                 "ModeResponse": {
                     "type": "object",
                     "required": ["ok", "mode"],
-                    "properties": {"ok": {"type": "boolean"},
-                                   "mode": {"type": "string", "enum": [m.value for m in Mode]}},
+                    "properties": {
+                        "ok": {"type": "boolean"},
+                        "mode": {"type": "string", "enum": [m.value for m in Mode]},
+                    },
                 },
                 "DriveRequest": {
                     "type": "object",
@@ -201,8 +273,11 @@ def build_openapi(max_drive_mm_s: float) -> dict[str, Any]:
                 "DriveResponse": {
                     "type": "object",
                     "required": ["ok", "left_mm_s", "right_mm_s"],
-                    "properties": {"ok": {"type": "boolean"},
-                                   "left_mm_s": {"type": "number"}, "right_mm_s": {"type": "number"}},
+                    "properties": {
+                        "ok": {"type": "boolean"},
+                        "left_mm_s": {"type": "number"},
+                        "right_mm_s": {"type": "number"},
+                    },
                 },
             },
         },

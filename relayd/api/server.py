@@ -55,8 +55,12 @@ class _AcceptErrorLimit:
             return False
         count = self._limit.hit("accept", lp.time())
         if count is not None:
-            log.warning("accept_failed", error=str(context.get("exception")), count=count,
-                        every_s=LOG_EVERY_S)
+            log.warning(
+                "accept_failed",
+                error=str(context.get("exception")),
+                count=count,
+                every_s=LOG_EVERY_S,
+            )
         return True
 
 
@@ -89,8 +93,12 @@ def tls_context(api: ApiSettings) -> ssl.SSLContext | None:
     try:
         ctx.load_cert_chain(api.tls_cert, api.tls_key)
     except ssl.SSLError as exc:
-        raise ConfigError([f"api.tls_cert, api.tls_key: {api.tls_cert} and {api.tls_key} are not a "
-                           f"PEM certificate and its private key: {exc.reason or exc}"]) from None
+        raise ConfigError(
+            [
+                f"api.tls_cert, api.tls_key: {api.tls_cert} and {api.tls_key} are not a "
+                f"PEM certificate and its private key: {exc.reason or exc}"
+            ]
+        ) from None
     return ctx
 
 
@@ -101,9 +109,14 @@ def listen_socket(host: str, port: int) -> socket.socket:
     return socket.create_server((host, port), family=family, backlog=LISTEN_BACKLOG)
 
 
-async def start_api(app: web.Application, host: str, port: int, *,
-                    ssl_context: ssl.SSLContext | None = None,
-                    guard: GuardedServer | None = None) -> tuple[ApiServer, int]:
+async def start_api(
+    app: web.Application,
+    host: str,
+    port: int,
+    *,
+    ssl_context: ssl.SSLContext | None = None,
+    guard: GuardedServer | None = None,
+) -> tuple[ApiServer, int]:
     """Serve `app` on host:port (0 = ephemeral), HTTPS with `ssl_context`; returns the server and port.
 
     Stop with `await server.cleanup()`. The access log is off: the live page and
@@ -115,7 +128,9 @@ async def start_api(app: web.Application, host: str, port: int, *,
     app.middlewares.insert(0, guard.middleware)
     # keepalive_timeout is aiohttp's own idle limit; the guard's sweep enforces the same
     # deadline on connections that never finished a request.
-    runner = web.AppRunner(app, access_log=None, shutdown_timeout=2.0, keepalive_timeout=guard.idle_timeout_s)
+    runner = web.AppRunner(
+        app, access_log=None, shutdown_timeout=2.0, keepalive_timeout=guard.idle_timeout_s
+    )
     await runner.setup()
     try:
         sock = listen_socket(host, port)
@@ -128,6 +143,12 @@ async def start_api(app: web.Application, host: str, port: int, *,
         raise RuntimeError("aiohttp's runner has no server after setup()")
     guard.start(sock, runner.server, ssl_context)
     bound = int(sock.getsockname()[1])
-    log.info("api_listening", host=host, port=bound, tls=ssl_context is not None,
-             max_connections=guard.max_connections, fd_limit=guard.fd_limit)
+    log.info(
+        "api_listening",
+        host=host,
+        port=bound,
+        tls=ssl_context is not None,
+        max_connections=guard.max_connections,
+        fd_limit=guard.fd_limit,
+    )
     return ApiServer(runner, guard), bound

@@ -65,13 +65,16 @@ class LinkModel(_Model):
     """The rear-link model (docs/CONTROL.md section 5.1): the limit it sets and why."""
 
     policy: Literal["fixed", "adaptive"] = Field(
-        description="adaptive: threshold_b_dbm is the model's; fixed: the model only advises")
+        description="adaptive: threshold_b_dbm is the model's; fixed: the model only advises"
+    )
     threshold_b_dbm: float = Field(description="the model's rear limit (in force when adaptive)")
     configured_threshold_b_dbm: float
     bounds_dbm: Annotated[list[float], Field(min_length=2, max_length=2)]
     target_hop_mbps: float
     outage: float
-    learning: bool = Field(description="enough samples for the model's limit to replace the configured one")
+    learning: bool = Field(
+        description="enough samples for the model's limit to replace the configured one"
+    )
     samples: Annotated[int, Field(ge=0)]
     effective_samples: float
     ok_share: float | None = Field(description="share of recent polls that met target_hop_mbps")
@@ -82,12 +85,15 @@ class LinkModel(_Model):
     last_delivered_mbps: float | None
     stale: bool
     refused_stale: Annotated[int, Field(ge=0)]
+
+
 class Recording(_Model):
     """The recorder (docs/RECORDING.md); None in /status when the daemon has none."""
 
     enabled: bool
     state: Literal["off", "recording", "stopped", "failed"] = Field(
-        description="failed: a write error (e.g. a full disk) ended the recording; the robot keeps working")
+        description="failed: a write error (e.g. a full disk) ended the recording; the robot keeps working"
+    )
     path: str | None = Field(description="the file being written, or the last one")
     files: Annotated[int, Field(ge=0)]
     bytes: Annotated[int, Field(ge=0)]
@@ -109,21 +115,26 @@ class Recovery(_Model):
     max_time_s: float
     trail_crumbs: Annotated[int, Field(ge=0)]
     last_outcome: str | None = Field(
-        description="found, restored, preempted, aborted, gave_up_time or gave_up_distance")
+        description="found, restored, preempted, aborted, gave_up_time or gave_up_distance"
+    )
 
 
 class Status(_Model):
     version: str
     robot: str | None = Field(description="name the base reports (ARCOS SYNC2)")
     display_name: str | None = Field(
-        description="the operator's name for this robot (config robot.display_name)")
+        description="the operator's name for this robot (config robot.display_name)"
+    )
     uptime_s: float
     mode: Mode
     state: DriveState
     reason: str
-    bearing_deg: float | None = Field(description="leader bearing, robot frame, counter-clockwise positive")
+    bearing_deg: float | None = Field(
+        description="leader bearing, robot frame, counter-clockwise positive"
+    )
     bearing_sd_deg: float | None = Field(
-        description="the bearing's standard deviation from the tracking filter (null: the WCA estimator, or no track)")
+        description="the bearing's standard deviation from the tracking filter (null: the WCA estimator, or no track)"
+    )
     link_bearing_deg: float | None = Field(description="where the link antenna (servo 2) points")
     rssi_leader_dbm: float | None = Field(description="RSSI^l: best RSSI of the last scan")
     rssi_behind_dbm: float | None = Field(description="RSSI^b: RSSI of the node behind")

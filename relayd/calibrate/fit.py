@@ -96,9 +96,20 @@ class PathLossFit:
                 raise ValueError(f"{name} must be finite, got {value}")
         if n <= 0 or sigma_db < 0:
             raise ValueError(f"need n > 0 and sigma_db >= 0, got n {n}, sigma_db {sigma_db}")
-        return cls(l0_dbm, n, sigma_db, Interval(l0_dbm, l0_dbm), Interval(n, n), Interval(sigma_db, sigma_db),
-                   sigma_fast_db=0.0, sigma_slow_db=sigma_db, points=0, dropped=0,
-                   distance_range_m=(math.nan, math.nan), confidence=1.0)
+        return cls(
+            l0_dbm,
+            n,
+            sigma_db,
+            Interval(l0_dbm, l0_dbm),
+            Interval(n, n),
+            Interval(sigma_db, sigma_db),
+            sigma_fast_db=0.0,
+            sigma_slow_db=sigma_db,
+            points=0,
+            dropped=0,
+            distance_range_m=(math.nan, math.nan),
+            confidence=1.0,
+        )
 
     def rssi_at(self, distance_m: float) -> float:
         """The model's median RSSI at a distance."""
@@ -110,13 +121,20 @@ class PathLossFit:
 
     def to_json(self) -> dict[str, object]:
         return {
-            "l0_dbm": round(self.l0_dbm, 2), "n": round(self.n, 3), "sigma_db": round(self.sigma_db, 2),
+            "l0_dbm": round(self.l0_dbm, 2),
+            "n": round(self.n, 3),
+            "sigma_db": round(self.sigma_db, 2),
             "l0_ci": [round(self.l0_ci.low, 2), round(self.l0_ci.high, 2)],
             "n_ci": [round(self.n_ci.low, 3), round(self.n_ci.high, 3)],
             "sigma_ci": [round(self.sigma_ci.low, 2), round(self.sigma_ci.high, 2)],
-            "sigma_fast_db": round(self.sigma_fast_db, 2), "sigma_slow_db": round(self.sigma_slow_db, 2),
-            "points": self.points, "dropped": self.dropped,
-            "distance_range_m": [round(self.distance_range_m[0], 2), round(self.distance_range_m[1], 2)],
+            "sigma_fast_db": round(self.sigma_fast_db, 2),
+            "sigma_slow_db": round(self.sigma_slow_db, 2),
+            "points": self.points,
+            "dropped": self.dropped,
+            "distance_range_m": [
+                round(self.distance_range_m[0], 2),
+                round(self.distance_range_m[1], 2),
+            ],
             "confidence": self.confidence,
         }
 
@@ -145,8 +163,9 @@ def _wls(x: Sequence[float], y: Sequence[float], w: Sequence[float]) -> tuple[fl
     return my - b * mx, b
 
 
-def huber_line(x: Sequence[float], y: Sequence[float], k: float = HUBER_K,
-               rounds: int = 50) -> tuple[float, float, float]:
+def huber_line(
+    x: Sequence[float], y: Sequence[float], k: float = HUBER_K, rounds: int = 50
+) -> tuple[float, float, float]:
     """Robust line y = a + b x: Huber IRLS, then bisquare IRLS from it: (a, b, residual sd of the inliers)."""
     a, b = _wls(x, y, [1.0] * len(x))
     scale = 0.0
@@ -165,7 +184,10 @@ def huber_line(x: Sequence[float], y: Sequence[float], k: float = HUBER_K,
     res = [yi - a - b * xi for xi, yi in zip(x, y, strict=True)]
     scale = _mad_sd(res)
     for _ in range(rounds if scale > 1e-9 else 0):
-        w = [(1.0 - (r / (BISQUARE_C * scale)) ** 2) ** 2 if abs(r) < BISQUARE_C * scale else 0.0 for r in res]
+        w = [
+            (1.0 - (r / (BISQUARE_C * scale)) ** 2) ** 2 if abs(r) < BISQUARE_C * scale else 0.0
+            for r in res
+        ]
         if sum(1 for wi in w if wi > 0) < 3:
             break
         try:
@@ -188,23 +210,40 @@ def _fast_sd(x: Sequence[float], res: Sequence[float]) -> float:
     return _mad_sd(diffs) / math.sqrt(2.0) if len(diffs) >= 2 else 0.0
 
 
-def fit_path_loss(distance_m: Sequence[float], rssi_dbm: Sequence[float], *, confidence: float = 0.95,
-                  resamples: int = 300, seed: int = 0, min_distance_m: float = MIN_DISTANCE_M,
-                  floor_dbm: float | None = None, block_m: float = 4.0) -> PathLossFit:
+def fit_path_loss(
+    distance_m: Sequence[float],
+    rssi_dbm: Sequence[float],
+    *,
+    confidence: float = 0.95,
+    resamples: int = 300,
+    seed: int = 0,
+    min_distance_m: float = MIN_DISTANCE_M,
+    floor_dbm: float | None = None,
+    block_m: float = 4.0,
+) -> PathLossFit:
     """Fit L0, n and sigma to (distance, RSSI) readings; see the module docstring."""
     if len(distance_m) != len(rssi_dbm):
         raise FitError("distance and RSSI lists differ in length")
-    pairs = [(d, r) for d, r in zip(distance_m, rssi_dbm, strict=True)
-             if math.isfinite(d) and math.isfinite(r) and d >= min_distance_m
-             and (floor_dbm is None or r > floor_dbm)]
+    pairs = [
+        (d, r)
+        for d, r in zip(distance_m, rssi_dbm, strict=True)
+        if math.isfinite(d)
+        and math.isfinite(r)
+        and d >= min_distance_m
+        and (floor_dbm is None or r > floor_dbm)
+    ]
     dropped = len(distance_m) - len(pairs)
     if len(pairs) < MIN_POINTS:
-        raise FitError(f"{len(pairs)} usable readings (need {MIN_POINTS} at {min_distance_m:g} m or more)")
+        raise FitError(
+            f"{len(pairs)} usable readings (need {MIN_POINTS} at {min_distance_m:g} m or more)"
+        )
     pairs.sort()
     d_lo, d_hi = pairs[0][0], pairs[-1][0]
     if d_hi < MIN_SPAN_RATIO * d_lo:
-        raise FitError(f"readings only from {d_lo:.1f} to {d_hi:.1f} m: drive to at least "
-                       f"{MIN_SPAN_RATIO:g} x the start distance for a slope")
+        raise FitError(
+            f"readings only from {d_lo:.1f} to {d_hi:.1f} m: drive to at least "
+            f"{MIN_SPAN_RATIO:g} x the start distance for a slope"
+        )
     x = [10.0 * math.log10(d) for d, _ in pairs]
     y = [r for _, r in pairs]
     a, b, sd = huber_line(x, y)
@@ -225,7 +264,9 @@ def fit_path_loss(distance_m: Sequence[float], rssi_dbm: Sequence[float], *, con
         idx: list[int] = []
         while len(idx) < count:
             d0 = d_lo + rng.random() * room
-            idx.extend(range(bisect.bisect_left(dists, d0), bisect.bisect_right(dists, d0 + block_m)))
+            idx.extend(
+                range(bisect.bisect_left(dists, d0), bisect.bisect_right(dists, d0 + block_m))
+            )
         idx = idx[:count]
         bx, by = [x[i] for i in idx], [y[i] for i in idx]
         try:
@@ -245,12 +286,24 @@ def fit_path_loss(distance_m: Sequence[float], rssi_dbm: Sequence[float], *, con
         hi = s[min(len(s) - 1, math.ceil((1.0 - tail) * (len(s) - 1)))]
         return Interval(lo, hi)
 
-    return PathLossFit(l0_dbm=a, n=-b, sigma_db=sd, l0_ci=pct(l0s), n_ci=pct(ns), sigma_ci=pct(sds),
-                       sigma_fast_db=fast, sigma_slow_db=slow, points=count, dropped=dropped,
-                       distance_range_m=(d_lo, d_hi), confidence=confidence)
+    return PathLossFit(
+        l0_dbm=a,
+        n=-b,
+        sigma_db=sd,
+        l0_ci=pct(l0s),
+        n_ci=pct(ns),
+        sigma_ci=pct(sds),
+        sigma_fast_db=fast,
+        sigma_slow_db=slow,
+        points=count,
+        dropped=dropped,
+        distance_range_m=(d_lo, d_hi),
+        confidence=confidence,
+    )
 
 
 # -- thresholds --------------------------------------------------------------------------
+
 
 def z_of(outage: float) -> float:
     """The one-sided normal quantile for an outage probability (0.1 -> 1.28)."""
@@ -266,7 +319,9 @@ def threshold_for_hop_length(fit: PathLossFit, hop_m: float, outage: float) -> f
     return fit.rssi_at(hop_m) + z_of(outage) * fit.sigma_db
 
 
-def required_rssi_dbm(target_mbps: float, phy: str = "802.11g", mac_efficiency: float = 0.5) -> float:
+def required_rssi_dbm(
+    target_mbps: float, phy: str = "802.11g", mac_efficiency: float = 0.5
+) -> float:
     """The weakest signal whose 802.11 rate still carries `target_mbps` after MAC overhead."""
     need = None
     for sens, rate in RATE_TABLES[phy]:
@@ -274,12 +329,20 @@ def required_rssi_dbm(target_mbps: float, phy: str = "802.11g", mac_efficiency: 
             need = sens
     if need is None:
         best = RATE_TABLES[phy][0][1] * mac_efficiency
-        raise ValueError(f"{target_mbps:g} Mbit/s is more than {phy} carries ({best:g} Mbit/s at best)")
+        raise ValueError(
+            f"{target_mbps:g} Mbit/s is more than {phy} carries ({best:g} Mbit/s at best)"
+        )
     return need
 
 
-def threshold_for_throughput(fit: PathLossFit, target_mbps: float, outage: float, *, phy: str = "802.11g",
-                             mac_efficiency: float = 0.5) -> float:
+def threshold_for_throughput(
+    fit: PathLossFit,
+    target_mbps: float,
+    outage: float,
+    *,
+    phy: str = "802.11g",
+    mac_efficiency: float = 0.5,
+) -> float:
     """threshold_b so that the hop still carries `target_mbps` where the relay stops, with
     probability 1 - outage: the rate's sensitivity plus z sigma of single-reading spread."""
     return required_rssi_dbm(target_mbps, phy, mac_efficiency) + z_of(outage) * fit.sigma_db

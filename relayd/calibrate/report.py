@@ -48,7 +48,9 @@ class Thresholds:
     @property
     def chosen(self) -> float | None:
         """The most demanding of the asked-for thresholds (higher = the robot stops sooner)."""
-        values = [v for v in (self.by_length, self.by_throughput, self.by_measured_rate) if v is not None]
+        values = [
+            v for v in (self.by_length, self.by_throughput, self.by_measured_rate) if v is not None
+        ]
         return max(values) if values else None
 
 
@@ -56,16 +58,30 @@ def measured_rate_threshold(readings: Sequence[Reading], wanted: Wanted) -> floa
     """The adaptive model run over the drive: the RSSI^b where the measured rates meet the target."""
     if wanted.target_mbps is None:
         return None
-    verdicts = [d >= wanted.target_mbps for r in readings
-                if (d := LinkSample(0.0, r.rssi_dbm, r.tx_mbps, r.rx_mbps, r.ccq_pct)
-                    .delivered_mbps(wanted.mac_efficiency)) is not None]
+    verdicts = [
+        d >= wanted.target_mbps
+        for r in readings
+        if (
+            d := LinkSample(0.0, r.rssi_dbm, r.tx_mbps, r.rx_mbps, r.ccq_pct).delivered_mbps(
+                wanted.mac_efficiency
+            )
+        )
+        is not None
+    ]
     if sum(verdicts) < MIN_VERDICTS or len(verdicts) - sum(verdicts) < MIN_VERDICTS:
         return None  # the drive never saw the rate on both sides of the target: nothing measured
-    model = LinkModel(LinkPolicyParams(adaptive=True, target_hop_mbps=wanted.target_mbps, outage=wanted.outage,
-                                       bounds_dbm=(-95.0, -20.0), fallback_dbm=-60.0,
-                                       mac_efficiency=wanted.mac_efficiency,
-                                       half_life_samples=max(60.0, 10.0 * len(readings)),
-                                       stale_s=math.inf))
+    model = LinkModel(
+        LinkPolicyParams(
+            adaptive=True,
+            target_hop_mbps=wanted.target_mbps,
+            outage=wanted.outage,
+            bounds_dbm=(-95.0, -20.0),
+            fallback_dbm=-60.0,
+            mac_efficiency=wanted.mac_efficiency,
+            half_life_samples=max(60.0, 10.0 * len(readings)),
+            stale_s=math.inf,
+        )
+    )
     for i, r in enumerate(readings):
         model.observe(LinkSample(float(i), r.rssi_dbm, r.tx_mbps, r.rx_mbps, r.ccq_pct), float(i))
     return model.threshold_dbm if model.n_eff >= model.params.min_samples else None
@@ -73,12 +89,19 @@ def measured_rate_threshold(readings: Sequence[Reading], wanted: Wanted) -> floa
 
 def thresholds(fit: PathLossFit, readings: Sequence[Reading], wanted: Wanted) -> Thresholds:
     key = "threshold_l_dbm" if wanted.link == "leader" else "threshold_b_dbm"
-    by_len = None if wanted.hop_m is None else threshold_for_hop_length(fit, wanted.hop_m, wanted.outage)
+    by_len = (
+        None if wanted.hop_m is None else threshold_for_hop_length(fit, wanted.hop_m, wanted.outage)
+    )
     by_tp = None
     by_rate = None
     if wanted.target_mbps is not None and key == "threshold_b_dbm":
-        by_tp = threshold_for_throughput(fit, wanted.target_mbps, wanted.outage, phy=wanted.phy,
-                                         mac_efficiency=wanted.mac_efficiency)
+        by_tp = threshold_for_throughput(
+            fit,
+            wanted.target_mbps,
+            wanted.outage,
+            phy=wanted.phy,
+            mac_efficiency=wanted.mac_efficiency,
+        )
         by_rate = measured_rate_threshold(readings, wanted)
     bound = None
     if key == "threshold_l_dbm" and by_len is not None:
@@ -105,26 +128,36 @@ def text_report(fit: PathLossFit, thr: Thresholds, wanted: Wanted, source: str) 
     ]
     width = fit.n_ci.high - fit.n_ci.low
     if width > 0.6:
-        lines.append(f"  note      n is uncertain (+-{width / 2:.2f}): drive further, or repeat the pass "
-                     "along another line and give both recordings")
+        lines.append(
+            f"  note      n is uncertain (+-{width / 2:.2f}): drive further, or repeat the pass "
+            "along another line and give both recordings"
+        )
     lines.append(f"thresholds at {wanted.outage:.0%} outage:")
     if thr.by_length is not None:
         what = "following gap" if thr.key == "threshold_l_dbm" else "hop length"
         lines.append(f"  {what} {wanted.hop_m:g} m:  {thr.key} = {thr.by_length:.1f} dBm")
     if thr.bound is not None:
-        lines.append(f"  gap at most {wanted.hop_m:g} m (outage {wanted.outage:g}):  {thr.key} = {thr.bound:.1f} dBm"
-                     f"  (a median gap of {fit.distance_at(thr.bound):.1f} m)")
+        lines.append(
+            f"  gap at most {wanted.hop_m:g} m (outage {wanted.outage:g}):  {thr.key} = {thr.bound:.1f} dBm"
+            f"  (a median gap of {fit.distance_at(thr.bound):.1f} m)"
+        )
     if thr.by_throughput is not None and wanted.target_mbps is not None:
         need = required_rssi_dbm(wanted.target_mbps, wanted.phy, wanted.mac_efficiency)
-        lines.append(f"  hop throughput {wanted.target_mbps:g} Mbit/s ({wanted.phy} needs {need:g} dBm, "
-                     f"+ {thr.by_throughput - need:.1f} dB margin):  {thr.key} = {thr.by_throughput:.1f} dBm"
-                     f"  (about {fit.distance_at(thr.by_throughput):.1f} m in this place)")
+        lines.append(
+            f"  hop throughput {wanted.target_mbps:g} Mbit/s ({wanted.phy} needs {need:g} dBm, "
+            f"+ {thr.by_throughput - need:.1f} dB margin):  {thr.key} = {thr.by_throughput:.1f} dBm"
+            f"  (about {fit.distance_at(thr.by_throughput):.1f} m in this place)"
+        )
     if thr.by_measured_rate is not None:
-        lines.append(f"  from the radio's own rates and CCQ on this drive:  {thr.key} = "
-                     f"{thr.by_measured_rate:.1f} dBm")
+        lines.append(
+            f"  from the radio's own rates and CCQ on this drive:  {thr.key} = "
+            f"{thr.by_measured_rate:.1f} dBm"
+        )
     elif thr.by_throughput is not None:
-        lines.append("  (the drive never took the radio's rate below the target: drive further for a "
-                     "threshold measured from the rates)")
+        lines.append(
+            "  (the drive never took the radio's rate below the target: drive further for a "
+            "threshold measured from the rates)"
+        )
     if thr.chosen is None:
         lines.append("  (give --hop-m and/or --target-mbps for thresholds)")
     return "\n".join(lines)
@@ -149,20 +182,25 @@ def config_snippet(fit: PathLossFit, thr: Thresholds, wanted: Wanted, source: st
             asked.append(f"{wanted.target_mbps:g} Mbit/s")
         # The leader link's threshold is the median at the gap (the robot stops on reaching
         # it); the outage applies to its "gap at most" line in the report, not to this one.
-        how = ("the median gap" if thr.bound is not None and chosen == thr.by_length
-               else f"at {100 * wanted.outage:g} % outage")
+        how = (
+            "the median gap"
+            if thr.bound is not None and chosen == thr.by_length
+            else f"at {100 * wanted.outage:g} % outage"
+        )
         lines.append(f"{thr.key} = {round(chosen)}   # {', '.join(asked)}, {how}")
     if thr.key == "threshold_b_dbm" and wanted.target_mbps is not None:
         lines += [
             f"target_hop_mbps = {wanted.target_mbps:g}",
             f"outage_probability = {wanted.outage:g}",
-            f"# link_policy = \"adaptive\" starts from {thr.key} and learns from there "
+            f'# link_policy = "adaptive" starts from {thr.key} and learns from there '
             "(docs/CONTROL.md section 5.1)",
         ]
     return "\n".join(lines) + "\n"
 
 
-def plot_fit(fit: PathLossFit, readings: Sequence[Reading], thr: Thresholds, path: Path, title: str) -> bool:
+def plot_fit(
+    fit: PathLossFit, readings: Sequence[Reading], thr: Thresholds, path: Path, title: str
+) -> bool:
     """RSSI against distance (log axis), the fitted line with its +-sigma band, the thresholds.
     False when matplotlib is not installed (`pip install 'relayd[sim]'`)."""
     try:
@@ -175,19 +213,30 @@ def plot_fit(fit: PathLossFit, readings: Sequence[Reading], thr: Thresholds, pat
     fig, ax = plt.subplots(figsize=(8, 5))
     try:
         d = [r.distance_m for r in readings]
-        ax.scatter(d, [r.rssi_dbm for r in readings], s=6, alpha=0.4, color="tab:blue", label="readings")
+        ax.scatter(
+            d, [r.rssi_dbm for r in readings], s=6, alpha=0.4, color="tab:blue", label="readings"
+        )
         lo, hi = fit.distance_range_m
         xs = [lo * (hi / lo) ** (i / 100) for i in range(101)]
         mid = [fit.rssi_at(x) for x in xs]
-        ax.plot(xs, mid, color="black",
-                label=f"L0 = {fit.l0_dbm:.1f} dBm, n = {fit.n:.2f}")
-        ax.fill_between(xs, [m - fit.sigma_db for m in mid], [m + fit.sigma_db for m in mid], color="grey",
-                        alpha=0.25, label=f"+-sigma = {fit.sigma_db:.1f} dB")
-        for value, name, style in ((thr.by_length, "by hop length", "--"),
-                                   (thr.by_throughput, "by throughput", ":"),
-                                   (thr.by_measured_rate, "by measured rate", "-.")):
+        ax.plot(xs, mid, color="black", label=f"L0 = {fit.l0_dbm:.1f} dBm, n = {fit.n:.2f}")
+        ax.fill_between(
+            xs,
+            [m - fit.sigma_db for m in mid],
+            [m + fit.sigma_db for m in mid],
+            color="grey",
+            alpha=0.25,
+            label=f"+-sigma = {fit.sigma_db:.1f} dB",
+        )
+        for value, name, style in (
+            (thr.by_length, "by hop length", "--"),
+            (thr.by_throughput, "by throughput", ":"),
+            (thr.by_measured_rate, "by measured rate", "-."),
+        ):
             if value is not None:
-                ax.axhline(value, linestyle=style, color="tab:red", label=f"{thr.key} {name}: {value:.1f}")
+                ax.axhline(
+                    value, linestyle=style, color="tab:red", label=f"{thr.key} {name}: {value:.1f}"
+                )
         ax.set_xscale("log")
         ax.set_xlabel("distance from the node (m, odometry)")
         ax.set_ylabel("RSSI (dBm)")

@@ -54,19 +54,37 @@ def _num(value: Any) -> float | None:
     return float(value) if math.isfinite(value) else None
 
 
-def link_reading(quality: dict[str, Any]) -> tuple[float | None, float | None, float | None, float | None]:
+def link_reading(
+    quality: dict[str, Any],
+) -> tuple[float | None, float | None, float | None, float | None]:
     """(signal, tx, rx, ccq) of one airOS poll: the strongest station's, else the radio's own."""
-    stations = [s for s in quality.get("stations") or [] if isinstance(s, dict) and _num(s.get("signal_dbm"))]
+    stations = [
+        s
+        for s in quality.get("stations") or []
+        if isinstance(s, dict) and _num(s.get("signal_dbm"))
+    ]
     if stations:
         best = max(stations, key=lambda s: _num(s.get("signal_dbm")) or -999.0)
-        return (_num(best.get("signal_dbm")), _num(best.get("tx_mbps")), _num(best.get("rx_mbps")),
-                _num(best.get("ccq_pct")))
-    return (_num(quality.get("signal_dbm")), _num(quality.get("tx_mbps")), _num(quality.get("rx_mbps")),
-            _num(quality.get("ccq_pct")))
+        return (
+            _num(best.get("signal_dbm")),
+            _num(best.get("tx_mbps")),
+            _num(best.get("rx_mbps")),
+            _num(best.get("ccq_pct")),
+        )
+    return (
+        _num(quality.get("signal_dbm")),
+        _num(quality.get("tx_mbps")),
+        _num(quality.get("rx_mbps")),
+        _num(quality.get("ccq_pct")),
+    )
 
 
-def readings_from_messages(messages: Iterable[tuple[str, dict[str, Any]]], *, link: str = "rear",
-                           start_distance_m: float = 1.0) -> list[Reading]:
+def readings_from_messages(
+    messages: Iterable[tuple[str, dict[str, Any]]],
+    *,
+    link: str = "rear",
+    start_distance_m: float = 1.0,
+) -> list[Reading]:
     """Readings from (topic, decoded message) pairs in time order, as a recording holds them."""
     if link not in LINKS:
         raise ValueError(f"link must be one of {', '.join(LINKS)}")
@@ -110,8 +128,9 @@ def iter_recording(path: str | Path) -> Iterator[tuple[str, dict[str, Any]]]:
     with f:
         try:
             reader = make_reader(f)
-            for _schema, channel, message in reader.iter_messages(topics=["/robot/sip", "/link", "/wifi/rssi"],
-                                                                  log_time_order=True):
+            for _schema, channel, message in reader.iter_messages(
+                topics=["/robot/sip", "/link", "/wifi/rssi"], log_time_order=True
+            ):
                 try:
                     doc = json.loads(message.data)
                 except ValueError:
@@ -119,22 +138,31 @@ def iter_recording(path: str | Path) -> Iterator[tuple[str, dict[str, Any]]]:
                 if isinstance(doc, dict):
                     yield channel.topic, doc
         except (McapError, EOFError, ValueError) as exc:
-            raise SourceError(f"{p}: not a readable MCAP recording ({type(exc).__name__}: {exc})") from None
+            raise SourceError(
+                f"{p}: not a readable MCAP recording ({type(exc).__name__}: {exc})"
+            ) from None
 
 
-def readings_from_recording(path: str | Path, *, link: str = "rear", start_distance_m: float = 1.0) -> list[Reading]:
-    readings = readings_from_messages(iter_recording(path), link=link, start_distance_m=start_distance_m)
+def readings_from_recording(
+    path: str | Path, *, link: str = "rear", start_distance_m: float = 1.0
+) -> list[Reading]:
+    readings = readings_from_messages(
+        iter_recording(path), link=link, start_distance_m=start_distance_m
+    )
     if not readings:
-        raise SourceError(f"{path}: no {link} link readings with odometry (channels /robot/sip and "
-                          f"{'/wifi/rssi' if link == 'leader' else '/link'})")
+        raise SourceError(
+            f"{path}: no {link} link readings with odometry (channels /robot/sip and "
+            f"{'/wifi/rssi' if link == 'leader' else '/link'})"
+        )
     return readings
 
 
 # -- a running relayd --------------------------------------------------------------------
 
 
-def status_reading(doc: dict[str, Any], *, link: str, origin: tuple[float, float] | None,
-                   start_distance_m: float) -> tuple[Reading | None, tuple[float, float] | None]:
+def status_reading(
+    doc: dict[str, Any], *, link: str, origin: tuple[float, float] | None, start_distance_m: float
+) -> tuple[Reading | None, tuple[float, float] | None]:
     """One /status document -> a reading (or None) and the odometry origin."""
     pose = doc.get("pose") or {}
     x, y = _num(pose.get("x_mm")), _num(pose.get("y_mm"))
@@ -153,8 +181,14 @@ def status_reading(doc: dict[str, Any], *, link: str, origin: tuple[float, float
         signal = _num(doc.get("rssi_behind_dbm"))
     if signal is None:
         return None, origin
-    return Reading(t, distance, signal, _num(li.get("tx_mbps")), _num(li.get("rx_mbps")),
-                   _num(li.get("ccq_pct"))), origin
+    return Reading(
+        t,
+        distance,
+        signal,
+        _num(li.get("tx_mbps")),
+        _num(li.get("rx_mbps")),
+        _num(li.get("ccq_pct")),
+    ), origin
 
 
 #: The share of the drive speed in the first `near_m` metres. L0 is the line's intercept
@@ -237,8 +271,9 @@ async def sample_live(opts: LiveOptions, *, progress: Any = None) -> tuple[list[
                     await post("/api/drive", {"left_mm_s": speed, "right_mm_s": speed})
                     next_drive = now + DRIVE_RESEND_S
                 doc = await status()
-                reading, origin = status_reading(doc, link=opts.link, origin=origin,
-                                                 start_distance_m=opts.start_distance_m)
+                reading, origin = status_reading(
+                    doc, link=opts.link, origin=origin, start_distance_m=opts.start_distance_m
+                )
                 if reading is not None:
                     distance = reading.distance_m
                     readings.append(reading)
@@ -247,8 +282,11 @@ async def sample_live(opts: LiveOptions, *, progress: Any = None) -> tuple[list[
                 if opts.drive and doc.get("reason") in STOP_REASONS:
                     why = f"the daemon stopped the robot: {doc.get('reason')}"
                     break
-                if origin is not None and reading is not None \
-                        and reading.distance_m - opts.start_distance_m >= opts.distance_m:
+                if (
+                    origin is not None
+                    and reading is not None
+                    and reading.distance_m - opts.start_distance_m >= opts.distance_m
+                ):
                     why = "distance"
                     break
                 await asyncio.sleep(min(1.0 / opts.hz, DRIVE_RESEND_S if opts.drive else 1.0))

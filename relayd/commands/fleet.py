@@ -21,16 +21,38 @@ from relayd.fleet.config import DEFAULT_PORT, FleetSettings, load_fleet, relay_f
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--relay", action="append", default=[], metavar="[NAME=]URL",
-                        help="a relay's API base URL, repeatable, in chain order from the leader")
+    parser.add_argument(
+        "--relay",
+        action="append",
+        default=[],
+        metavar="[NAME=]URL",
+        help="a relay's API base URL, repeatable, in chain order from the leader",
+    )
     parser.add_argument("-c", "--config", help="a TOML file with a [fleet] section")
-    parser.add_argument("--token-file", help="file holding the API token of the --relay relays (for hold-all)")
-    parser.add_argument("--bind", default=None, help="address of the fleet page (default 127.0.0.1)")
-    parser.add_argument("--port", type=int, default=None,
-                        help=f"port of the fleet page (default {DEFAULT_PORT}; 0 = any free port)")
-    parser.add_argument("--poll-s", type=float, default=None, help="seconds between polls of each relay (default 0.5)")
-    parser.add_argument("--timeout-s", type=float, default=None,
-                        help="seconds a relay may take to answer before it is shown as not answering (default 1)")
+    parser.add_argument(
+        "--token-file", help="file holding the API token of the --relay relays (for hold-all)"
+    )
+    parser.add_argument(
+        "--bind", default=None, help="address of the fleet page (default 127.0.0.1)"
+    )
+    parser.add_argument(
+        "--port",
+        type=int,
+        default=None,
+        help=f"port of the fleet page (default {DEFAULT_PORT}; 0 = any free port)",
+    )
+    parser.add_argument(
+        "--poll-s",
+        type=float,
+        default=None,
+        help="seconds between polls of each relay (default 0.5)",
+    )
+    parser.add_argument(
+        "--timeout-s",
+        type=float,
+        default=None,
+        help="seconds a relay may take to answer before it is shown as not answering (default 1)",
+    )
 
 
 def settings_from_args(args: argparse.Namespace) -> FleetSettings:
@@ -46,8 +68,16 @@ def settings_from_args(args: argparse.Namespace) -> FleetSettings:
     dupes = sorted({n for n in names if names.count(n) > 1})
     if dupes:
         raise ConfigError([f"--relay: two relays are named {n!r} (use NAME=URL)" for n in dupes])
-    overrides = {k: v for k, v in (("bind", args.bind), ("port", args.port), ("poll_s", args.poll_s),
-                                   ("timeout_s", args.timeout_s)) if v is not None}
+    overrides = {
+        k: v
+        for k, v in (
+            ("bind", args.bind),
+            ("port", args.port),
+            ("poll_s", args.poll_s),
+            ("timeout_s", args.timeout_s),
+        )
+        if v is not None
+    }
     for key in ("poll_s", "timeout_s"):
         if key in overrides and not overrides[key] > 0:
             raise ConfigError([f"--{key.replace('_', '-')}: must be > 0"])
@@ -57,15 +87,18 @@ def settings_from_args(args: argparse.Namespace) -> FleetSettings:
     return settings
 
 
-async def serve(settings: FleetSettings, ready: asyncio.Event | None = None,
-                port_box: list[int] | None = None) -> None:
+async def serve(
+    settings: FleetSettings, ready: asyncio.Event | None = None, port_box: list[int] | None = None
+) -> None:
     from relayd.api.app import start_api
     from relayd.fleet.server import make_fleet_app
 
     runner, port = await start_api(make_fleet_app(settings), settings.bind, settings.port)
     try:
-        print(f"relayd fleet: {len(settings.relays)} relay(s), page at http://{settings.bind}:{port}/",
-              flush=True)
+        print(
+            f"relayd fleet: {len(settings.relays)} relay(s), page at http://{settings.bind}:{port}/",
+            flush=True,
+        )
         if port_box is not None:
             port_box.append(port)
         if ready is not None:

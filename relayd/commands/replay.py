@@ -22,16 +22,37 @@ from relayd import __version__
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("files", nargs="+", metavar="FILE", help="a recording (.mcap); several: one run's parts in order")
+    parser.add_argument(
+        "files",
+        nargs="+",
+        metavar="FILE",
+        help="a recording (.mcap); several: one run's parts in order",
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
-    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                        help="what-if: replay with this config key changed (repeatable), e.g. control.kp=2.0")
-    parser.add_argument("--plot", metavar="DIR", default=None,
-                        help="draw RSSI/bearing and the odometry path into DIR (needs matplotlib)")
-    parser.add_argument("--partial", action="store_true",
-                        help="replay a cut file (killed daemon, full disk) up to its last complete chunk")
-    parser.add_argument("--any-version", action="store_true",
-                        help="replay a recording made by another relayd version (differences may then be code changes)")
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="what-if: replay with this config key changed (repeatable), e.g. control.kp=2.0",
+    )
+    parser.add_argument(
+        "--plot",
+        metavar="DIR",
+        default=None,
+        help="draw RSSI/bearing and the odometry path into DIR (needs matplotlib)",
+    )
+    parser.add_argument(
+        "--partial",
+        action="store_true",
+        help="replay a cut file (killed daemon, full disk) up to its last complete chunk",
+    )
+    parser.add_argument(
+        "--any-version",
+        action="store_true",
+        help="replay a recording made by another relayd version (differences may then be code changes)",
+    )
 
 
 def _fail(message: str) -> int:
@@ -60,17 +81,23 @@ def run(args: argparse.Namespace) -> int:
         return _fail(str(exc))
     info = rec.info
     if info.format != FORMAT:
-        return _fail(f"{rec.path}: recording format {info.format} (relayd {info.version}); "
-                     f"this relayd {__version__} reads format {FORMAT} only")
+        return _fail(
+            f"{rec.path}: recording format {info.format} (relayd {info.version}); "
+            f"this relayd {__version__} reads format {FORMAT} only"
+        )
     if info.version != __version__ and not args.any_version:
-        return _fail(f"{rec.path} was recorded by relayd {info.version}; this is relayd {__version__}. "
-                     "Its decisions may differ for that reason alone: replay it with relayd "
-                     f"{info.version}, or pass --any-version to compare anyway")
+        return _fail(
+            f"{rec.path} was recorded by relayd {info.version}; this is relayd {__version__}. "
+            "Its decisions may differ for that reason alone: replay it with relayd "
+            f"{info.version}, or pass --any-version to compare anyway"
+        )
     try:
         settings = parse_settings(info.config)
     except ConfigError as exc:
-        return _fail(f"{rec.path}: the recorded config does not validate with relayd {__version__}: "
-                     + "; ".join(exc.errors))
+        return _fail(
+            f"{rec.path}: the recorded config does not validate with relayd {__version__}: "
+            + "; ".join(exc.errors)
+        )
     try:
         what_if_settings = apply_overrides(info.config, overrides) if overrides else None
     except OverrideError as exc:
@@ -84,14 +111,25 @@ def run(args: argparse.Namespace) -> int:
 
     first = None
     if result.first is not None:
-        first = {"t": since_start(result.first["t"]), "seq": result.first["seq"], "event": result.first["event"],
-                 "recorded": result.first["recorded"], "replayed": result.first["replayed"]}
+        first = {
+            "t": since_start(result.first["t"]),
+            "seq": result.first["seq"],
+            "event": result.first["event"],
+            "recorded": result.first["recorded"],
+            "replayed": result.first["replayed"],
+        }
     out: dict[str, Any] = {
-        "file": str(rec.path), "files": [str(p.path) for p in parts],
-        "recorded_by": info.version, "replayed_by": __version__,
-        "robot": rec.robot, "complete": rec.complete, "broke": rec.broke,
+        "file": str(rec.path),
+        "files": [str(p.path) for p in parts],
+        "recorded_by": info.version,
+        "replayed_by": __version__,
+        "robot": rec.robot,
+        "complete": rec.complete,
+        "broke": rec.broke,
         "dropped": int(rec.recorder["dropped"]) if rec.recorder else None,
-        "events": result.events, "actions": result.actions, "divergences": result.divergences,
+        "events": result.events,
+        "actions": result.actions,
+        "divergences": result.divergences,
         "first_divergence": first,
     }
     if what_if_settings is not None:
@@ -119,16 +157,26 @@ def run(args: argparse.Namespace) -> int:
 
 def _human(o: dict[str, Any]) -> str:
     robot = o["robot"]
-    who = f"{robot['name']} ({robot['robot_class']} {robot['subclass']})" if robot else "an unidentified robot"
-    lines = [f"{o['file']}: relayd {o['recorded_by']} recording of {who}: {o['events']} events, "
-             f"{o['actions']} actions" + ("" if o["complete"] else " (file not finished)")]
+    who = (
+        f"{robot['name']} ({robot['robot_class']} {robot['subclass']})"
+        if robot
+        else "an unidentified robot"
+    )
+    lines = [
+        f"{o['file']}: relayd {o['recorded_by']} recording of {who}: {o['events']} events, "
+        f"{o['actions']} actions" + ("" if o["complete"] else " (file not finished)")
+    ]
     if o["dropped"]:
-        lines.append(f"  the recorder lost {o['dropped']} event(s): divergences after a gap are expected")
+        lines.append(
+            f"  the recorder lost {o['dropped']} event(s): divergences after a gap are expected"
+        )
     f = o["first_divergence"]
     if f is None:
         lines.append("  replay: no divergence: the brain decides exactly as recorded")
     else:
-        lines.append(f"  replay: {o['divergences']} divergence(s); the first at t={f['t']:.3f} s ({f['event']} #{f['seq']})")
+        lines.append(
+            f"  replay: {o['divergences']} divergence(s); the first at t={f['t']:.3f} s ({f['event']} #{f['seq']})"
+        )
         lines.append(f"    recorded: {json.dumps(f['recorded'])}")
         lines.append(f"    replayed: {json.dumps(f['replayed'])}")
     w = o.get("what_if")
@@ -137,9 +185,11 @@ def _human(o: dict[str, Any]) -> str:
         if w["differences"] == 0:
             lines.append(f"  what-if {sets}: no decision differs")
         else:
-            lines.append(f"  what-if {sets}: {w['differences']} of {o['events']} steps decide differently, the first "
-                         f"at t={w['first_t']:.3f} s; largest wheel-speed difference {w['max_wheel_diff_mm_s']:.1f} mm/s, "
-                         f"largest bearing difference {w['max_bearing_diff_deg']:.1f} deg")
+            lines.append(
+                f"  what-if {sets}: {w['differences']} of {o['events']} steps decide differently, the first "
+                f"at t={w['first_t']:.3f} s; largest wheel-speed difference {w['max_wheel_diff_mm_s']:.1f} mm/s, "
+                f"largest bearing difference {w['max_bearing_diff_deg']:.1f} deg"
+            )
     for p in o.get("plots", []):
         lines.append(f"  plot: {p}")
     return "\n".join(lines)

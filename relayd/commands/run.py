@@ -17,13 +17,22 @@ from relayd.logsetup import setup_logging
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("-c", "--config", default=str(DEFAULT_CONFIG_PATH),
-                        help=f"TOML config (default {DEFAULT_CONFIG_PATH})")
-    parser.add_argument("--log-format", choices=["json", "console"], default=None,
-                        help="override log.format")
-    parser.add_argument("--record", metavar="PATH", default=None,
-                        help="record this run to MCAP: a directory (one file per run) or a file ending "
-                             "in .mcap; turns [record] on with this path (docs/RECORDING.md)")
+    parser.add_argument(
+        "-c",
+        "--config",
+        default=str(DEFAULT_CONFIG_PATH),
+        help=f"TOML config (default {DEFAULT_CONFIG_PATH})",
+    )
+    parser.add_argument(
+        "--log-format", choices=["json", "console"], default=None, help="override log.format"
+    )
+    parser.add_argument(
+        "--record",
+        metavar="PATH",
+        default=None,
+        help="record this run to MCAP: a directory (one file per run) or a file ending "
+        "in .mcap; turns [record] on with this path (docs/RECORDING.md)",
+    )
 
 
 def _config_error(path: str, exc: ConfigError) -> int:
@@ -39,8 +48,11 @@ async def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         return _config_error(args.config, exc)
     if args.record is not None:
-        settings = settings.model_copy(update={
-            "record": settings.record.model_copy(update={"enabled": True, "path": args.record})})
+        settings = settings.model_copy(
+            update={
+                "record": settings.record.model_copy(update={"enabled": True, "path": args.record})
+            }
+        )
     setup_logging(settings.log.level, args.log_format or settings.log.format)
     from relayd.daemon import Daemon
     from relayd.sdnotify import SdNotifier
@@ -52,7 +64,9 @@ async def run(args: argparse.Namespace) -> int:
     log = structlog.get_logger("relayd")
     for warning in config_warnings(settings):
         log.warning("config_warning", problem=warning)
-    log.info("starting", config=args.config, robot=settings.robot.port, pantilt=settings.pantilt.port)
+    log.info(
+        "starting", config=args.config, robot=settings.robot.port, pantilt=settings.pantilt.port
+    )
     # Modules, config and drivers live as long as the process: moved out of the cyclic
     # collector's generations, they are not rescanned by full collections, which would
     # otherwise land as multi-millisecond pauses in the SIP -> wheel command path.

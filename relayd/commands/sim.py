@@ -36,7 +36,9 @@ def _relays_arg(text: str) -> int | str:
     try:
         n = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"--relays must be a number or 'all', got {text!r}") from None
+        raise argparse.ArgumentTypeError(
+            f"--relays must be a number or 'all', got {text!r}"
+        ) from None
     if n < 0:
         raise argparse.ArgumentTypeError("--relays must be >= 0")
     return n
@@ -45,27 +47,64 @@ def _relays_arg(text: str) -> int | str:
 def configure(parser: argparse.ArgumentParser) -> None:
     from relayd.sim.scenario import builtin_names
 
-    parser.add_argument("--scenario", default=DEFAULT_SCENARIO, metavar="NAME|FILE",
-                        help=f"a shipped scenario ({', '.join(builtin_names())}; default {DEFAULT_SCENARIO})"
-                             " or a scenario TOML file (docs/SIMULATOR.md)")
-    parser.add_argument("--relays", type=_relays_arg, default=None, metavar="N|all",
-                        help="number of relays, or 'all' for one run per count (default: the scenario's)")
-    parser.add_argument("--speed", type=speed, default=DEFAULT_SPEED, metavar="X|max",
-                        help=f"pace of the virtual clock over wall time, or 'max' (default {DEFAULT_SPEED:g});"
-                             " the results do not depend on it")
-    parser.add_argument("--seconds", type=positive_float, default=None, metavar="S",
-                        help="simulated seconds to run at most (default: the scenario's duration)")
-    parser.add_argument("--out", default="sim-out", metavar="DIR", help="output directory (default ./sim-out)")
-    parser.add_argument("--seed", type=int, default=1, metavar="N", help="world seed (shadowing, fading, sonar noise; default 1)")
+    parser.add_argument(
+        "--scenario",
+        default=DEFAULT_SCENARIO,
+        metavar="NAME|FILE",
+        help=f"a shipped scenario ({', '.join(builtin_names())}; default {DEFAULT_SCENARIO})"
+        " or a scenario TOML file (docs/SIMULATOR.md)",
+    )
+    parser.add_argument(
+        "--relays",
+        type=_relays_arg,
+        default=None,
+        metavar="N|all",
+        help="number of relays, or 'all' for one run per count (default: the scenario's)",
+    )
+    parser.add_argument(
+        "--speed",
+        type=speed,
+        default=DEFAULT_SPEED,
+        metavar="X|max",
+        help=f"pace of the virtual clock over wall time, or 'max' (default {DEFAULT_SPEED:g});"
+        " the results do not depend on it",
+    )
+    parser.add_argument(
+        "--seconds",
+        type=positive_float,
+        default=None,
+        metavar="S",
+        help="simulated seconds to run at most (default: the scenario's duration)",
+    )
+    parser.add_argument(
+        "--out", default="sim-out", metavar="DIR", help="output directory (default ./sim-out)"
+    )
+    parser.add_argument(
+        "--seed",
+        type=int,
+        default=1,
+        metavar="N",
+        help="world seed (shadowing, fading, sonar noise; default 1)",
+    )
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
-    parser.add_argument("--record", action="store_true",
-                        help="each relay's daemon records its run to <out>/<relay name>.mcap (docs/RECORDING.md)")
+    parser.add_argument(
+        "--record",
+        action="store_true",
+        help="each relay's daemon records its run to <out>/<relay name>.mcap (docs/RECORDING.md)",
+    )
 
-    parser.add_argument("--recovery", choices=["on", "off"], default=None,
-                        help="force every relay's recovery.enabled (default: the scenario's [recovery])")
-    parser.add_argument("--log-level", default="info",
-                        choices=["debug", "info", "warning", "error"],
-                        help="daemon log level in sim.log (default info)")
+    parser.add_argument(
+        "--recovery",
+        choices=["on", "off"],
+        default=None,
+        help="force every relay's recovery.enabled (default: the scenario's [recovery])",
+    )
+    parser.add_argument(
+        "--log-level",
+        default="info",
+        choices=["debug", "info", "warning", "error"],
+        help="daemon log level in sim.log (default info)",
+    )
 
 
 class SimLogFields:
@@ -101,17 +140,22 @@ def format_summary(s: dict[str, Any]) -> str:
     if breaks:
         lines.append(f"  link breaks: {len(breaks)}, down {s.get('downtime_s', 0.0):.1f} s in all")
     for f in s["followers"]:
-        lines.append(f"  {f['name']}: max gap {f['max_gap_m']:.1f} m, final gap {f['final_gap_m']:.1f} m, "
-                     f"travelled {f['travelled_m']:.1f} m, ends {f['final_state']} ({f['stopped_reason']})")
+        lines.append(
+            f"  {f['name']}: max gap {f['max_gap_m']:.1f} m, final gap {f['final_gap_m']:.1f} m, "
+            f"travelled {f['travelled_m']:.1f} m, ends {f['final_state']} ({f['stopped_reason']})"
+        )
         for e in f.get("recovery_episodes") or []:
-            lines.append(f"    recovery {e['kind']} {e['start_s']:.1f}-"
-                         + ("..." if e["end_s"] is None else f"{e['end_s']:.1f}")
-                         + f" s: {e['outcome']}, {e['distance_m']:.1f} m")
+            lines.append(
+                f"    recovery {e['kind']} {e['start_s']:.1f}-"
+                + ("..." if e["end_s"] is None else f"{e['end_s']:.1f}")
+                + f" s: {e['outcome']}, {e['distance_m']:.1f} m"
+            )
     return "\n".join(lines)
 
 
-async def run_one(scenario: Any, relays: int, args: argparse.Namespace, out: Path,
-                  plots: bool) -> tuple[dict[str, Any], list[dict[str, Any]], Any]:
+async def run_one(
+    scenario: Any, relays: int, args: argparse.Namespace, out: Path, plots: bool
+) -> tuple[dict[str, Any], list[dict[str, Any]], Any]:
     from relayd.sim import plots as sim_plots
     from relayd.sim.progress import ProgressLine
     from relayd.sim.runner import SimRunner
@@ -124,9 +168,17 @@ async def run_one(scenario: Any, relays: int, args: argparse.Namespace, out: Pat
         for name, port in ports.items():
             print(f"{name}: API and live page at http://127.0.0.1:{port}/", flush=True)
 
-    runner = SimRunner(sc, speed=args.speed, seed=args.seed, seconds=seconds, out_dir=out,
-                       on_progress=progress, on_ready=ready, record_dir=out if args.record else None,
-                       recovery=None if args.recovery is None else args.recovery == "on")
+    runner = SimRunner(
+        sc,
+        speed=args.speed,
+        seed=args.seed,
+        seconds=seconds,
+        out_dir=out,
+        on_progress=progress,
+        on_ready=ready,
+        record_dir=out if args.record else None,
+        recovery=None if args.recovery is None else args.recovery == "on",
+    )
     SIM_LOG_FIELDS.runner = runner
     try:
         result = await runner.run()
@@ -168,12 +220,19 @@ async def _run(args: argparse.Namespace) -> int:
     log_file = _open_log(out)
     try:
         # Plain JSON lines (no journald priority prefix): sim.log is read by tools and people.
-        setup_logging(args.log_level, "json", stream=log_file, journal=False, extra=[SIM_LOG_FIELDS])
+        setup_logging(
+            args.log_level, "json", stream=log_file, journal=False, extra=[SIM_LOG_FIELDS]
+        )
         plots = not args.no_plots and sim_plots.available()
         if args.no_plots is False and not plots:
-            print("matplotlib is not installed: no plots (pip install 'relayd[sim]')", file=sys.stderr)
-        counts = list(range(len(scenario.relay) + 1)) if args.relays == "all" else \
-            [scenario.relays if args.relays is None else int(args.relays)]
+            print(
+                "matplotlib is not installed: no plots (pip install 'relayd[sim]')", file=sys.stderr
+            )
+        counts = (
+            list(range(len(scenario.relay) + 1))
+            if args.relays == "all"
+            else [scenario.relays if args.relays is None else int(args.relays)]
+        )
         runs: list[tuple[str, list[dict[str, Any]]]] = []
         summaries = []
         for n in counts:
@@ -185,11 +244,16 @@ async def _run(args: argparse.Namespace) -> int:
             runs.append((f"{n} relay(s)", records))
             print(format_summary(summary), flush=True)
         if args.relays == "all":
-            (out / "summary.json").write_text(json.dumps({"scenario": scenario.name, "runs": summaries},
-                                                         indent=2) + "\n", encoding="utf-8")
+            (out / "summary.json").write_text(
+                json.dumps({"scenario": scenario.name, "runs": summaries}, indent=2) + "\n",
+                encoding="utf-8",
+            )
             if plots:
-                sim_plots.plot_throughput(runs, out / "throughput.png",
-                                          f"{scenario.name}: end-to-end throughput by number of relays")
+                sim_plots.plot_throughput(
+                    runs,
+                    out / "throughput.png",
+                    f"{scenario.name}: end-to-end throughput by number of relays",
+                )
         print(f"outputs in {out}/", flush=True)
     finally:
         # Never leave structlog writing into a closed file.

@@ -18,20 +18,36 @@ PASSWORD_ENV = "RELAYD_AP_PASSWORD"
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--fixture", default=None,
-                        help="a status.cgi JSON capture to serve (default: built-in loco M5 station)")
+    parser.add_argument(
+        "--fixture",
+        default=None,
+        help="a status.cgi JSON capture to serve (default: built-in loco M5 station)",
+    )
     parser.add_argument("--port", type=int, default=0, help="TCP port (default: any free port)")
-    parser.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
-    parser.add_argument("--version", type=int, choices=(6, 8), default=6,
-                        help="login flow to speak: airOS 6 form or airOS 8 /api/auth (default 6)")
+    parser.add_argument(
+        "--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)"
+    )
+    parser.add_argument(
+        "--version",
+        type=int,
+        choices=(6, 8),
+        default=6,
+        help="login flow to speak: airOS 6 form or airOS 8 /api/auth (default 6)",
+    )
     parser.add_argument("--username", default="ubnt", help="accepted login name (default ubnt)")
 
 
 async def run(args: argparse.Namespace) -> int:
     password = os.environ.get(PASSWORD_ENV, "ubnt")
     try:
-        fake = FakeAirOs(args.username, password, fixture=args.fixture, version=args.version,
-                         host=args.host, port=args.port)
+        fake = FakeAirOs(
+            args.username,
+            password,
+            fixture=args.fixture,
+            version=args.version,
+            host=args.host,
+            port=args.port,
+        )
     except (OSError, ValueError) as exc:
         print(f"relayd fake ap: {exc}", file=sys.stderr)
         return 2

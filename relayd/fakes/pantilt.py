@@ -15,12 +15,21 @@ from drivers.pantilt.fake import FakeMaestro, FakeSsc32
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--protocol", choices=("maestro", "ssc32"), default="maestro",
-                        help="controller to play: Pololu Maestro or Lynxmotion SSC-32 (default maestro)")
-    parser.add_argument("--link", default=None,
-                        help="also make this symlink to the pty (stable across hang-ups)")
-    parser.add_argument("--speed", type=float, default=1.0,
-                        help="clock speed-up for servo slews (default 1 = real time)")
+    parser.add_argument(
+        "--protocol",
+        choices=("maestro", "ssc32"),
+        default="maestro",
+        help="controller to play: Pololu Maestro or Lynxmotion SSC-32 (default maestro)",
+    )
+    parser.add_argument(
+        "--link", default=None, help="also make this symlink to the pty (stable across hang-ups)"
+    )
+    parser.add_argument(
+        "--speed",
+        type=float,
+        default=1.0,
+        help="clock speed-up for servo slews (default 1 = real time)",
+    )
 
 
 async def run(args: argparse.Namespace) -> int:
@@ -29,8 +38,9 @@ async def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"relayd fake pantilt: {exc}", file=sys.stderr)
         return 2
-    fake: FakeMaestro | FakeSsc32 = (FakeMaestro(clock=clock) if args.protocol == "maestro"
-                                     else FakeSsc32(clock=clock))
+    fake: FakeMaestro | FakeSsc32 = (
+        FakeMaestro(clock=clock) if args.protocol == "maestro" else FakeSsc32(clock=clock)
+    )
     try:
         path = fake.serve_pty(args.link)
     except OSError as exc:

@@ -108,7 +108,9 @@ class FakeRig:
     def true_bearing_deg(self) -> float:
         """The leader's direction in the robot frame (CCW positive), -180..180."""
         lx, ly = self.leader_xy_m
-        world = math.degrees(math.atan2(ly - self.robot.y_mm / 1000.0, lx - self.robot.x_mm / 1000.0))
+        world = math.degrees(
+            math.atan2(ly - self.robot.y_mm / 1000.0, lx - self.robot.x_mm / 1000.0)
+        )
         return math.remainder(world - self.robot.theta_deg, 360.0)
 
     def rssi_dbm(self, scan_deg: float | None = None) -> float:
@@ -178,24 +180,47 @@ class FakeRig:
         """Environment holding the secrets the generated config names."""
         return {AP_PASSWORD_ENV: self.ap_password, API_TOKEN_ENV: self.api_token}
 
-    def config_doc(self, *, api_bind: str = "127.0.0.1", api_port: int = 0,
-                   control: Mapping[str, Any] | None = None, scan: Mapping[str, Any] | None = None,
-                   **sections: Mapping[str, Any]) -> dict[str, Any]:
+    def config_doc(
+        self,
+        *,
+        api_bind: str = "127.0.0.1",
+        api_port: int = 0,
+        control: Mapping[str, Any] | None = None,
+        scan: Mapping[str, Any] | None = None,
+        **sections: Mapping[str, Any],
+    ) -> dict[str, Any]:
         """The config (config/relayd.toml's sections and keys) of a relayd driving these fakes; overrides merge per section."""
         if self.robot_port is None or self.rear_url is None:
             raise RuntimeError("start() the rig first")
         doc: dict[str, Any] = {
             "robot": {"port": self.robot_port, "baud": 9600},
-            "pantilt": {"port": self.servo_port, "protocol": "maestro", "scan_channel": 0,
-                        "link_channel": 1, "scan_pulse_us": [int(p) for p in PULSE_US],
-                        "link_pulse_us": [int(p) for p in PULSE_US]},
-            "wifi": {"source": "procfs", "interface": "wlan1", "procfs_path": str(self.procfs.path),
-                     "sample_hz": 20},
+            "pantilt": {
+                "port": self.servo_port,
+                "protocol": "maestro",
+                "scan_channel": 0,
+                "link_channel": 1,
+                "scan_pulse_us": [int(p) for p in PULSE_US],
+                "link_pulse_us": [int(p) for p in PULSE_US],
+            },
+            "wifi": {
+                "source": "procfs",
+                "interface": "wlan1",
+                "procfs_path": str(self.procfs.path),
+                "sample_hz": 20,
+            },
             "ap": {
-                "rear": {"url": self.rear_url, "username": "ubnt", "password_env": AP_PASSWORD_ENV,
-                         "poll_s": 0.5},
-                "front": {"url": self.front_url, "username": "ubnt", "password_env": AP_PASSWORD_ENV,
-                          "poll_s": 0.5},
+                "rear": {
+                    "url": self.rear_url,
+                    "username": "ubnt",
+                    "password_env": AP_PASSWORD_ENV,
+                    "poll_s": 0.5,
+                },
+                "front": {
+                    "url": self.front_url,
+                    "username": "ubnt",
+                    "password_env": AP_PASSWORD_ENV,
+                    "poll_s": 0.5,
+                },
             },
             "scan": dict(scan or {}),
             "control": dict(control or {}),
@@ -214,8 +239,9 @@ class FakeRig:
                 doc[name].update(overrides)
         return doc
 
-    def write_config(self, path: str | Path | None = None, *, secrets_in_files: bool = False,
-                     **kw: Any) -> Path:
+    def write_config(
+        self, path: str | Path | None = None, *, secrets_in_files: bool = False, **kw: Any
+    ) -> Path:
         """Write `config_doc(**kw)` as TOML (default: `<work>/<name>.toml`).
 
         With `secrets_in_files` the AP password and API token go into 0600 files next

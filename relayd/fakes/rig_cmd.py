@@ -19,13 +19,27 @@ from relayd.fakes.rig import FakeRig
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--dir", type=Path, default=None,
-                        help="where to put the pty links, RSSI file, secrets and config (default: a temp dir)")
-    parser.add_argument("--leader", type=float, nargs=2, default=(6.0, 2.0), metavar=("X_M", "Y_M"),
-                        help="the leader's position on the floor, robot starts at 0,0 facing +x")
-    parser.add_argument("--rear-dbm", type=float, default=-55.0, help="RSSI^b the rear radio reports")
+    parser.add_argument(
+        "--dir",
+        type=Path,
+        default=None,
+        help="where to put the pty links, RSSI file, secrets and config (default: a temp dir)",
+    )
+    parser.add_argument(
+        "--leader",
+        type=float,
+        nargs=2,
+        default=(6.0, 2.0),
+        metavar=("X_M", "Y_M"),
+        help="the leader's position on the floor, robot starts at 0,0 facing +x",
+    )
+    parser.add_argument(
+        "--rear-dbm", type=float, default=-55.0, help="RSSI^b the rear radio reports"
+    )
     parser.add_argument("--api-bind", default="127.0.0.1", help="[api] bind in the written config")
-    parser.add_argument("--api-port", type=int, default=8080, help="[api] port in the written config")
+    parser.add_argument(
+        "--api-port", type=int, default=8080, help="[api] port in the written config"
+    )
 
 
 async def run(args: argparse.Namespace) -> int:
@@ -33,7 +47,9 @@ async def run(args: argparse.Namespace) -> int:
     rig = FakeRig(work, leader_xy_m=tuple(args.leader), rear_signal_dbm=args.rear_dbm)
     try:
         await rig.start()
-        path = rig.write_config(secrets_in_files=True, api_bind=args.api_bind, api_port=args.api_port)
+        path = rig.write_config(
+            secrets_in_files=True, api_bind=args.api_bind, api_port=args.api_port
+        )
         print(path, flush=True)
         await asyncio.Event().wait()
     finally:

@@ -20,7 +20,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--link", metavar="PATH", help="with --pty: a stable symlink to the pty")
     parser.add_argument("--name", default="relay", help="robot name answered to SYNC2")
     parser.add_argument("--class", dest="robot_class", default="Pioneer", help="robot class")
-    parser.add_argument("--subclass", default="p3at", help="p3at (0.465 mm units) or p3at-sh (1 mm)")
+    parser.add_argument(
+        "--subclass", default="p3at", help="p3at (0.465 mm units) or p3at-sh (1 mm)"
+    )
 
 
 async def run(args: argparse.Namespace) -> int:

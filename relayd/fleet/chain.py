@@ -69,8 +69,13 @@ def _link_dbm(doc: dict[str, Any], side: str) -> float | None:
 def _hop(frm: str, to: str, measurements: list[dict[str, Any]]) -> dict[str, Any]:
     values = [m["dbm"] for m in measurements]
     weakest = min(values) if values else None
-    return {"from": frm, "to": to, "measurements": measurements, "rssi_dbm": weakest,
-            "est_mbps": None if weakest is None else throughput_mbps(weakest)}
+    return {
+        "from": frm,
+        "to": to,
+        "measurements": measurements,
+        "rssi_dbm": weakest,
+        "est_mbps": None if weakest is None else throughput_mbps(weakest),
+    }
 
 
 def hops(views: list[RelayView], now: float, stale_after_s: float) -> list[dict[str, Any]]:
@@ -82,8 +87,10 @@ def hops(views: list[RelayView], now: float, stale_after_s: float) -> list[dict[
         upstream = docs[k - 1] if k >= 1 else None  # the relay on the leader's side of the hop
         downstream = docs[k] if k < len(docs) else None  # the relay on the command center's side
         if upstream is not None:
-            for label, value in (("rear radio", _link_dbm(upstream, "rear")),
-                                 ("RSSI^b", _num(upstream.get("rssi_behind_dbm")))):
+            for label, value in (
+                ("rear radio", _link_dbm(upstream, "rear")),
+                ("RSSI^b", _num(upstream.get("rssi_behind_dbm"))),
+            ):
                 if value is not None:
                     measured.append({"by": f"{names[k]} {label}", "dbm": value})
                     break  # the rear radio's own report, or RSSI^b when it has none
@@ -117,19 +124,31 @@ def fleet_map(views: list[RelayView], now: float, stale_after_s: float) -> dict[
         x, y, th = _num(pose.get("x_mm")), _num(pose.get("y_mm")), _num(pose.get("theta_deg"))
         origin = v.relay.origin
         if origin is None or x is None or y is None:
-            unplaced.append({"name": v.relay.name,
-                             "why": "no origin configured" if origin is None else "no odometry yet"})
+            unplaced.append(
+                {
+                    "name": v.relay.name,
+                    "why": "no origin configured" if origin is None else "no odometry yet",
+                }
+            )
             continue
         mx, my = _to_map(origin, x, y)
         heading = origin[2] + (th or 0.0)
         bearing = _num(doc.get("bearing_deg"))
-        placed.append({
-            "name": v.relay.name, "x_m": round(mx, 3), "y_m": round(my, 3),
-            "heading_deg": round(heading, 1),
-            "leader_deg": None if bearing is None else round(heading + bearing, 1),
-            "state": doc.get("state"), "current": link_status(v, now, stale_after_s) == "live",
-            "trail": [[round(a, 3), round(b, 3)] for a, b in (_to_map(origin, tx, ty) for tx, ty in v.trail)],
-        })
+        placed.append(
+            {
+                "name": v.relay.name,
+                "x_m": round(mx, 3),
+                "y_m": round(my, 3),
+                "heading_deg": round(heading, 1),
+                "leader_deg": None if bearing is None else round(heading + bearing, 1),
+                "state": doc.get("state"),
+                "current": link_status(v, now, stale_after_s) == "live",
+                "trail": [
+                    [round(a, 3), round(b, 3)]
+                    for a, b in (_to_map(origin, tx, ty) for tx, ty in v.trail)
+                ],
+            }
+        )
     return {"relays": placed, "unplaced": unplaced}
 
 

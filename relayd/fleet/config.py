@@ -37,7 +37,7 @@ Finite = Annotated[float, Field(allow_inf_nan=False)]
 
 
 def normalise_url(url: str) -> str:
-    """"192.168.1.31:8080" -> "http://192.168.1.31:8080"; a trailing /status or / is dropped."""
+    """ "192.168.1.31:8080" -> "http://192.168.1.31:8080"; a trailing /status or / is dropped."""
     url = url.strip()
     if "://" not in url:
         url = "http://" + url
@@ -134,7 +134,11 @@ def parse_fleet(data: Mapping[str, Any], environ: Mapping[str, str] | None = Non
     for i, entry in enumerate(section.relay):
         token = entry.token
         if entry.token_file is not None or entry.token_env is not None:
-            key = f"fleet.relay[{i}].token_file" if entry.token_file else f"fleet.relay[{i}].token_env"
+            key = (
+                f"fleet.relay[{i}].token_file"
+                if entry.token_file
+                else f"fleet.relay[{i}].token_env"
+            )
             try:
                 token = resolve_secret(SecretRef(key, entry.token_env, entry.token_file), environ)
             except ConfigError as exc:
@@ -144,11 +148,19 @@ def parse_fleet(data: Mapping[str, Any], environ: Mapping[str, str] | None = Non
     errors.extend(_unique_names(relays))
     if errors:
         raise ConfigError(errors)
-    return FleetSettings(tuple(relays), section.bind, section.port, section.poll_s, section.timeout_s,
-                         section.stale_after_s)
+    return FleetSettings(
+        tuple(relays),
+        section.bind,
+        section.port,
+        section.poll_s,
+        section.timeout_s,
+        section.stale_after_s,
+    )
 
 
-def load_fleet(path: str | os.PathLike[str], environ: Mapping[str, str] | None = None) -> FleetSettings:
+def load_fleet(
+    path: str | os.PathLike[str], environ: Mapping[str, str] | None = None
+) -> FleetSettings:
     p = Path(path)
     try:
         data = tomllib.loads(p.read_text(encoding="utf-8"))

@@ -50,8 +50,15 @@ class RelayView:
 class RelayPoller:
     """Poll one relay forever on its own task."""
 
-    def __init__(self, relay: Relay, session: aiohttp.ClientSession, *, poll_s: float,
-                 timeout_s: float, clock: Clock = REAL_CLOCK) -> None:
+    def __init__(
+        self,
+        relay: Relay,
+        session: aiohttp.ClientSession,
+        *,
+        poll_s: float,
+        timeout_s: float,
+        clock: Clock = REAL_CLOCK,
+    ) -> None:
         self.view = RelayView(relay)
         self.session = session
         self.poll_s = poll_s
@@ -62,7 +69,10 @@ class RelayPoller:
         view, relay = self.view, self.view.relay
         t0 = self.clock.now()
         try:
-            async with asyncio.timeout(self.timeout_s), self.session.get(relay.url + "/status") as resp:
+            async with (
+                asyncio.timeout(self.timeout_s),
+                self.session.get(relay.url + "/status") as resp,
+            ):
                 if resp.status != 200:
                     raise RuntimeError(f"HTTP {resp.status}")
                 doc = await resp.json(content_type=None)
@@ -88,8 +98,13 @@ class RelayPoller:
     def _failed(self, kind: str, message: str) -> None:
         view = self.view
         if view.error != message:
-            log.warning("fleet_relay_down", relay=view.relay.name, url=view.relay.url, kind=kind,
-                        error=message)
+            log.warning(
+                "fleet_relay_down",
+                relay=view.relay.name,
+                url=view.relay.url,
+                kind=kind,
+                error=message,
+            )
         view.error, view.error_kind, view.attempt_t = message, kind, self.clock.now()
         view.failures += 1
         view.polls += 1
@@ -98,8 +113,12 @@ class RelayPoller:
         view = self.view
         pose = doc.get("pose") or {}
         x, y = pose.get("x_mm"), pose.get("y_mm")
-        if not (isinstance(x, int | float) and isinstance(y, int | float)
-                and math.isfinite(x) and math.isfinite(y)):
+        if not (
+            isinstance(x, int | float)
+            and isinstance(y, int | float)
+            and math.isfinite(x)
+            and math.isfinite(y)
+        ):
             return
         if view.trail_t is None or now - view.trail_t >= TRAIL_PERIOD_S:
             view.trail.append((float(x), float(y)))
@@ -127,8 +146,15 @@ def short_error(exc: BaseException) -> str:
 class Fleet:
     """All pollers, their tasks and the one HTTP session they share (no shared lock or queue)."""
 
-    def __init__(self, relays: tuple[Relay, ...], *, poll_s: float, timeout_s: float,
-                 stale_after_s: float = 2.0, clock: Clock = REAL_CLOCK) -> None:
+    def __init__(
+        self,
+        relays: tuple[Relay, ...],
+        *,
+        poll_s: float,
+        timeout_s: float,
+        stale_after_s: float = 2.0,
+        clock: Clock = REAL_CLOCK,
+    ) -> None:
         self.relays = relays
         self.poll_s, self.timeout_s, self.stale_after_s = poll_s, timeout_s, stale_after_s
         self.clock = clock
@@ -138,11 +164,19 @@ class Fleet:
 
     async def start(self) -> None:
         # Per-host connection limits would let one hung relay hold sockets others need: none.
-        self.session = aiohttp.ClientSession(connector=aiohttp.TCPConnector(limit=0, limit_per_host=4))
-        self.pollers = [RelayPoller(r, self.session, poll_s=self.poll_s, timeout_s=self.timeout_s,
-                                    clock=self.clock) for r in self.relays]
-        self._tasks = [asyncio.create_task(p.run(), name=f"fleet-poll-{p.view.relay.name}")
-                       for p in self.pollers]
+        self.session = aiohttp.ClientSession(
+            connector=aiohttp.TCPConnector(limit=0, limit_per_host=4)
+        )
+        self.pollers = [
+            RelayPoller(
+                r, self.session, poll_s=self.poll_s, timeout_s=self.timeout_s, clock=self.clock
+            )
+            for r in self.relays
+        ]
+        self._tasks = [
+            asyncio.create_task(p.run(), name=f"fleet-poll-{p.view.relay.name}")
+            for p in self.pollers
+        ]
 
     async def stop(self) -> None:
         for task in self._tasks:

@@ -31,18 +31,28 @@ log = structlog.get_logger(__name__)
 STATIC_DIR = Path(str(resources.files("relayd.fleet") / "static"))
 HOLD_TIMEOUT_S = 2.0
 FLEET: web.AppKey[Fleet] = web.AppKey("relayd_fleet", Fleet)
-CSP = ("default-src 'self'; img-src 'self' data:; style-src 'self'; script-src 'self'; "
-       "connect-src 'self'")
+CSP = (
+    "default-src 'self'; img-src 'self' data:; style-src 'self'; script-src 'self'; "
+    "connect-src 'self'"
+)
 
 
 def _json(value: Any, status: int = 200) -> web.Response:
-    return web.Response(text=json.dumps(value, allow_nan=False, separators=(",", ":")), status=status,
-                        content_type="application/json", headers={"Cache-Control": "no-store"})
+    return web.Response(
+        text=json.dumps(value, allow_nan=False, separators=(",", ":")),
+        status=status,
+        content_type="application/json",
+        headers={"Cache-Control": "no-store"},
+    )
 
 
 async def handle_index(request: web.Request) -> web.Response:
-    return web.Response(body=(STATIC_DIR / "index.html").read_bytes(), content_type="text/html",
-                        charset="utf-8", headers={"Content-Security-Policy": CSP, "Cache-Control": "no-cache"})
+    return web.Response(
+        body=(STATIC_DIR / "index.html").read_bytes(),
+        content_type="text/html",
+        charset="utf-8",
+        headers={"Content-Security-Policy": CSP, "Cache-Control": "no-cache"},
+    )
 
 
 async def handle_fleet(request: web.Request) -> web.Response:
@@ -50,15 +60,22 @@ async def handle_fleet(request: web.Request) -> web.Response:
     return _json(fleet_document(fleet.views(), fleet.clock.now(), fleet.stale_after_s))
 
 
-async def hold_one(session: aiohttp.ClientSession, relay: Relay, timeout_s: float) -> dict[str, Any]:
+async def hold_one(
+    session: aiohttp.ClientSession, relay: Relay, timeout_s: float
+) -> dict[str, Any]:
     """POST {"mode": "hold"} to one relay; the result says plainly what happened."""
     result: dict[str, Any] = {"name": relay.name, "url": relay.url, "ok": False, "status": None}
     if relay.token is None:
         return {**result, "message": "not sent: no token configured for this relay"}
     try:
-        async with asyncio.timeout(timeout_s), session.post(
-                relay.url + "/api/mode", json={"mode": "hold"},
-                headers={"Authorization": f"Bearer {relay.token}"}) as resp:
+        async with (
+            asyncio.timeout(timeout_s),
+            session.post(
+                relay.url + "/api/mode",
+                json={"mode": "hold"},
+                headers={"Authorization": f"Bearer {relay.token}"},
+            ) as resp,
+        ):
             text = await resp.text()
             result["status"] = resp.status
     except TimeoutError:
@@ -81,15 +98,23 @@ async def handle_hold_all(request: web.Request) -> web.Response:
     fleet = request.app[FLEET]
     if fleet.session is None:  # only between shutdown and the last request
         return _json({"error": "the fleet view is shutting down"}, 503)
-    results = await asyncio.gather(*(hold_one(fleet.session, r, HOLD_TIMEOUT_S) for r in fleet.relays))
-    log.info("fleet_hold_all", peer=request.remote,
-             results={r["name"]: r["message"] for r in results})
+    results = await asyncio.gather(
+        *(hold_one(fleet.session, r, HOLD_TIMEOUT_S) for r in fleet.relays)
+    )
+    log.info(
+        "fleet_hold_all", peer=request.remote, results={r["name"]: r["message"] for r in results}
+    )
     return _json({"ok": all(r["ok"] for r in results), "results": list(results)})
 
 
 def make_fleet_app(settings: FleetSettings, clock: Clock = REAL_CLOCK) -> web.Application:
-    fleet = Fleet(settings.relays, poll_s=settings.poll_s, timeout_s=settings.timeout_s,
-                  stale_after_s=settings.stale_after_s, clock=clock)
+    fleet = Fleet(
+        settings.relays,
+        poll_s=settings.poll_s,
+        timeout_s=settings.timeout_s,
+        stale_after_s=settings.stale_after_s,
+        clock=clock,
+    )
     app = web.Application(client_max_size=16 * 1024)
     app[FLEET] = fleet
 

@@ -27,9 +27,11 @@ def warnings_to_stderr() -> Iterator[None]:
     # The whole pipeline is replaced, processors too: the caller's may be the daemon's
     # stdlib-bound ones (add_logger_name needs a logging.Logger), which a PrintLogger breaks.
     structlog.configure(
-        processors=[structlog.processors.add_log_level,
-                    structlog.processors.TimeStamper(fmt="iso"),
-                    structlog.dev.ConsoleRenderer(colors=False)],
+        processors=[
+            structlog.processors.add_log_level,
+            structlog.processors.TimeStamper(fmt="iso"),
+            structlog.dev.ConsoleRenderer(colors=False),
+        ],
         wrapper_class=structlog.make_filtering_bound_logger(logging.WARNING),
         logger_factory=structlog.PrintLoggerFactory(sys.stderr),
         cache_logger_on_first_use=False,

@@ -32,17 +32,33 @@ FIRMWARES: dict[str, Firmware] = {"auto": "auto", "6": 6, "8": 8}
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--url", required=True, help="the radio, e.g. http://192.168.1.21")
     parser.add_argument("--username", default="ubnt", help="login name (default ubnt)")
-    parser.add_argument("--legacy-tls", action="store_true",
-                        help="allow TLS 1.0 / legacy ciphers (airOS 6 over https)")
-    parser.add_argument("--firmware", choices=("auto", "6", "8"), default="auto",
-                        help="login flow: airOS 5/6 form, airOS 8 /api/auth, or try both")
-    parser.add_argument("--timeout", type=float, default=5.0,
-                        help="per-request timeout in seconds (default 5)")
+    parser.add_argument(
+        "--legacy-tls",
+        action="store_true",
+        help="allow TLS 1.0 / legacy ciphers (airOS 6 over https)",
+    )
+    parser.add_argument(
+        "--firmware",
+        choices=("auto", "6", "8"),
+        default="auto",
+        help="login flow: airOS 5/6 form, airOS 8 /api/auth, or try both",
+    )
+    parser.add_argument(
+        "--timeout", type=float, default=5.0, help="per-request timeout in seconds (default 5)"
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON object per reading")
-    parser.add_argument("--seconds", type=float, default=0.0,
-                        help="keep reading for this long (default 0: one reading)")
-    parser.add_argument("--interval", type=float, default=1.0,
-                        help="seconds between readings with --seconds (default 1)")
+    parser.add_argument(
+        "--seconds",
+        type=float,
+        default=0.0,
+        help="keep reading for this long (default 0: one reading)",
+    )
+    parser.add_argument(
+        "--interval",
+        type=float,
+        default=1.0,
+        help="seconds between readings with --seconds (default 1)",
+    )
 
 
 def _human(q: LinkQuality) -> str:
@@ -55,14 +71,20 @@ def _human(q: LinkQuality) -> str:
         f"ccq      {v(q.ccq_pct, '%')}  tx {v(q.tx_mbps, 'Mbit/s')}  rx {v(q.rx_mbps, 'Mbit/s')}",
     ]
     for s in q.stations:
-        lines.append(f"station  {s.mac or '?'}  {v(s.signal_dbm, 'dBm')}  ccq {v(s.ccq_pct, '%')}"
-                     f"  tx {v(s.tx_mbps, 'Mbit/s')}  rx {v(s.rx_mbps, 'Mbit/s')}")
+        lines.append(
+            f"station  {s.mac or '?'}  {v(s.signal_dbm, 'dBm')}  ccq {v(s.ccq_pct, '%')}"
+            f"  tx {v(s.tx_mbps, 'Mbit/s')}  rx {v(s.rx_mbps, 'Mbit/s')}"
+        )
     return "\n".join(lines)
 
 
 async def run(args: argparse.Namespace) -> int:
-    if not (math.isfinite(args.seconds) and args.seconds >= 0 and math.isfinite(args.interval)
-            and args.interval > 0):
+    if not (
+        math.isfinite(args.seconds)
+        and args.seconds >= 0
+        and math.isfinite(args.interval)
+        and args.interval > 0
+    ):
         print("relayd probe ap: --seconds must be >= 0 and --interval > 0", file=sys.stderr)
         return 2
     password = os.environ.get(PASSWORD_ENV)
@@ -71,8 +93,14 @@ async def run(args: argparse.Namespace) -> int:
         return 2
     firmware = FIRMWARES[args.firmware]
     try:
-        client = AirOsClient(args.url, args.username, password, firmware=firmware,
-                             legacy_tls=args.legacy_tls, timeout_s=args.timeout)
+        client = AirOsClient(
+            args.url,
+            args.username,
+            password,
+            firmware=firmware,
+            legacy_tls=args.legacy_tls,
+            timeout_s=args.timeout,
+        )
     except ValueError as exc:
         print(f"relayd probe ap: {exc}", file=sys.stderr)
         return 2
@@ -111,7 +139,9 @@ async def _readings(args: argparse.Namespace, client: AirOsClient) -> int:
             break
         await asyncio.sleep(max(0.0, t0 + next_t - loop.time()))
     if series:
-        median = f"median signal {statistics.median(signals):g} dBm" if signals else "no signal reading"
+        median = (
+            f"median signal {statistics.median(signals):g} dBm" if signals else "no signal reading"
+        )
         print(f"# {read} reading(s) in {args.seconds:g} s, {median}", file=sys.stderr)
     return 0 if read else 1
 

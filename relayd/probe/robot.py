@@ -18,16 +18,32 @@ from relayd.probe import emit, warnings_to_stderr
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--port", required=True,
-                        help="serial device or socket://host:port (MobileSim: socket://127.0.0.1:8101)")
-    parser.add_argument("--baud", type=int, default=9600, help="first baud rate to try (default 9600)")
-    parser.add_argument("--seconds", type=float, default=5.0,
-                        help="how long to print SIPs after connecting (default 5)")
+    parser.add_argument(
+        "--port",
+        required=True,
+        help="serial device or socket://host:port (MobileSim: socket://127.0.0.1:8101)",
+    )
+    parser.add_argument(
+        "--baud", type=int, default=9600, help="first baud rate to try (default 9600)"
+    )
+    parser.add_argument(
+        "--seconds",
+        type=float,
+        default=5.0,
+        help="how long to print SIPs after connecting (default 5)",
+    )
     parser.add_argument("--json", action="store_true", help="one JSON object per line")
-    parser.add_argument("--subclass", default=None,
-                        help="override the subclass SYNC2 reports (odometry scale: p3at or p3at-sh)")
-    parser.add_argument("--retries", type=int, default=10,
-                        help="unanswered SYNC packets (1 s each) before giving up (default 10)")
+    parser.add_argument(
+        "--subclass",
+        default=None,
+        help="override the subclass SYNC2 reports (odometry scale: p3at or p3at-sh)",
+    )
+    parser.add_argument(
+        "--retries",
+        type=int,
+        default=10,
+        help="unanswered SYNC packets (1 s each) before giving up (default 10)",
+    )
 
 
 def sip_record(sip: Sip, robot: ArcosRobot, t0: float) -> dict[str, object]:
@@ -49,10 +65,12 @@ def sip_record(sip: Sip, robot: ArcosRobot, t0: float) -> dict[str, object]:
 def _text(rec: dict[str, object]) -> str:
     sonar = " ".join("-" if r is None else str(r) for r in rec["sonar_mm"])  # type: ignore[attr-defined]
     stall = ("L" if rec["stall_left"] else "-") + ("R" if rec["stall_right"] else "-")
-    return (f"t={rec['t']:7.2f}s x={rec['x_mm']:8.1f} y={rec['y_mm']:8.1f} "
-            f"th={rec['theta_deg']:7.2f} L={rec['left_mm_s']:6.0f} R={rec['right_mm_s']:6.0f} "
-            f"bat={rec['battery_v']:.1f}V motors={'on' if rec['motors_enabled'] else 'off'} "
-            f"stall={stall} sonar=[{sonar}]")
+    return (
+        f"t={rec['t']:7.2f}s x={rec['x_mm']:8.1f} y={rec['y_mm']:8.1f} "
+        f"th={rec['theta_deg']:7.2f} L={rec['left_mm_s']:6.0f} R={rec['right_mm_s']:6.0f} "
+        f"bat={rec['battery_v']:.1f}V motors={'on' if rec['motors_enabled'] else 'off'} "
+        f"stall={stall} sonar=[{sonar}]"
+    )
 
 
 async def run(args: argparse.Namespace) -> int:
@@ -61,18 +79,27 @@ async def run(args: argparse.Namespace) -> int:
 
 
 async def _probe(args: argparse.Namespace) -> int:
-    robot = ArcosRobot(args.port, args.baud, subclass_override=args.subclass,
-                       max_misses=max(1, args.retries), enable_motors=False)
+    robot = ArcosRobot(
+        args.port,
+        args.baud,
+        subclass_override=args.subclass,
+        max_misses=max(1, args.retries),
+        enable_motors=False,
+    )
     try:
         ident = await robot.connect()
     except (LinkError, HandshakeError) as exc:
         print(f"relayd probe robot: {exc}", file=sys.stderr)
         return 1
     if args.json:
-        head = json.dumps({"name": ident.name, "class": ident.robot_class, "subclass": ident.subclass})
+        head = json.dumps(
+            {"name": ident.name, "class": ident.robot_class, "subclass": ident.subclass}
+        )
     else:
-        head = (f"robot {ident.name!r}: class {ident.robot_class}, subclass {ident.subclass}, "
-                f"baud {robot.current_baud}")
+        head = (
+            f"robot {ident.name!r}: class {ident.robot_class}, subclass {ident.subclass}, "
+            f"baud {robot.current_baud}"
+        )
     reader_gone = asyncio.Event()
     if not emit(head):
         reader_gone.set()

@@ -30,5 +30,13 @@ class RecordingStatus(TypedDict):
 
 def off_status() -> RecordingStatus:
     """/status's `recording` when recording is not configured."""
-    return {"enabled": False, "state": "off", "path": None, "files": 0, "bytes": 0, "events": 0,
-            "dropped": 0, "error": None}
+    return {
+        "enabled": False,
+        "state": "off",
+        "path": None,
+        "files": 0,
+        "bytes": 0,
+        "events": 0,
+        "dropped": 0,
+        "error": None,
+    }

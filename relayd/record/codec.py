@@ -105,7 +105,9 @@ def _field_names(cls: type) -> tuple[str, ...]:
     names = tuple(f.name for f in dataclasses.fields(cls))
     clash = set(names) & set(ENVELOPE)
     if clash:
-        raise TypeError(f"{cls.__name__} has fields {sorted(clash)} reserved for the recording envelope")
+        raise TypeError(
+            f"{cls.__name__} has fields {sorted(clash)} reserved for the recording envelope"
+        )
     return names
 
 
@@ -164,7 +166,10 @@ def from_json(hint: Any, value: Any, where: str) -> Any:
             return tuple(from_json(args[0], v, f"{where}[{k}]") for k, v in enumerate(value))
         if len(args) != len(value):
             raise DecodeError(f"{where}: expected {len(args)} items, got {len(value)}")
-        return tuple(from_json(a, v, f"{where}[{k}]") for k, (a, v) in enumerate(zip(args, value, strict=True)))
+        return tuple(
+            from_json(a, v, f"{where}[{k}]")
+            for k, (a, v) in enumerate(zip(args, value, strict=True))
+        )
     if isinstance(hint, type) and issubclass(hint, Enum):
         try:
             return hint(value)
@@ -214,15 +219,23 @@ def schema_of(hint: Any) -> dict[str, Any]:
         args = typing.get_args(hint)
         if len(args) == 2 and args[1] is Ellipsis:
             return {"type": "array", "items": schema_of(args[0])}
-        return {"type": "array", "prefixItems": [schema_of(a) for a in args],
-                "minItems": len(args), "maxItems": len(args)}
+        return {
+            "type": "array",
+            "prefixItems": [schema_of(a) for a in args],
+            "minItems": len(args),
+            "maxItems": len(args),
+        }
     if isinstance(hint, type) and issubclass(hint, Enum):
         return {"type": "string", "enum": [m.value for m in hint]}
     if isinstance(hint, type) and dataclasses.is_dataclass(hint):
         hints = _hints(hint)
         props = {name: schema_of(hints[name]) for name in _field_names(hint)}
-        out: dict[str, Any] = {"type": "object", "properties": props, "required": list(props),
-                               "additionalProperties": False}
+        out: dict[str, Any] = {
+            "type": "object",
+            "properties": props,
+            "required": list(props),
+            "additionalProperties": False,
+        }
         doc = (hint.__doc__ or "").strip().splitlines()
         if doc:
             out["description"] = doc[0]
@@ -233,11 +246,19 @@ def schema_of(hint: Any) -> dict[str, Any]:
 def message_schema(cls: type) -> dict[str, Any]:
     """A channel's schema: the type's fields plus the envelope."""
     body = schema_of(cls)
-    props: dict[str, Any] = {"seq": {"type": "integer", "minimum": 0,
-                                     "description": "the event's number in the recording"}}
+    props: dict[str, Any] = {
+        "seq": {
+            "type": "integer",
+            "minimum": 0,
+            "description": "the event's number in the recording",
+        }
+    }
     if cls.__name__ in ACTION_TYPES:
-        props["i"] = {"type": "integer", "minimum": 0,
-                      "description": "place in the list of actions the brain returned for event `seq`"}
+        props["i"] = {
+            "type": "integer",
+            "minimum": 0,
+            "description": "place in the list of actions the brain returned for event `seq`",
+        }
     props.update(body["properties"])
     return {
         "$schema": "https://json-schema.org/draft/2020-12/schema",
@@ -248,4 +269,3 @@ def message_schema(cls: type) -> dict[str, Any]:
         "required": list(props),
         "additionalProperties": False,
     }
-

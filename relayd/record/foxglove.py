@@ -22,16 +22,23 @@ from typing import Any
 from relayd.events import Action, Decision, DeviceEvent, DeviceStatus, Event, ModeCommand, SipEvent
 
 _TIME: dict[str, Any] = {
-    "type": "object", "title": "time",
-    "properties": {"sec": {"type": "integer", "minimum": 0},
-                   "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999}},
+    "type": "object",
+    "title": "time",
+    "properties": {
+        "sec": {"type": "integer", "minimum": 0},
+        "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999},
+    },
     "required": ["sec", "nsec"],
 }
 
 
 def _xyz(title: str, keys: str) -> dict[str, Any]:
-    return {"title": title, "type": "object", "properties": {k: {"type": "number"} for k in keys},
-            "required": list(keys)}
+    return {
+        "title": title,
+        "type": "object",
+        "properties": {k: {"type": "number"} for k in keys},
+        "required": list(keys),
+    }
 
 
 POSE_IN_FRAME: dict[str, Any] = {
@@ -41,10 +48,15 @@ POSE_IN_FRAME: dict[str, Any] = {
     "properties": {
         "timestamp": _TIME,
         "frame_id": {"type": "string"},
-        "pose": {"title": "foxglove.Pose", "type": "object",
-                 "properties": {"position": _xyz("foxglove.Vector3", "xyz"),
-                                "orientation": _xyz("foxglove.Quaternion", "xyzw")},
-                 "required": ["position", "orientation"]},
+        "pose": {
+            "title": "foxglove.Pose",
+            "type": "object",
+            "properties": {
+                "position": _xyz("foxglove.Vector3", "xyz"),
+                "orientation": _xyz("foxglove.Quaternion", "xyzw"),
+            },
+            "required": ["position", "orientation"],
+        },
     },
     "required": ["timestamp", "frame_id", "pose"],
 }
@@ -56,8 +68,10 @@ LOG: dict[str, Any] = {
     "type": "object",
     "properties": {
         "timestamp": _TIME,
-        "level": {"title": "foxglove.LogLevel",
-                  "oneOf": [{"title": k, "const": v} for k, v in LOG_LEVELS.items()]},
+        "level": {
+            "title": "foxglove.LogLevel",
+            "oneOf": [{"title": k, "const": v} for k, v in LOG_LEVELS.items()],
+        },
         "message": {"type": "string"},
         "name": {"type": "string"},
         "file": {"type": "string"},
@@ -75,7 +89,11 @@ KEY_VALUE_PAIR: dict[str, Any] = {
 }
 
 #: View topic -> its schema.
-VIEWS: dict[str, dict[str, Any]] = {"/robot/pose": POSE_IN_FRAME, "/state": KEY_VALUE_PAIR, "/log": LOG}
+VIEWS: dict[str, dict[str, Any]] = {
+    "/robot/pose": POSE_IN_FRAME,
+    "/state": KEY_VALUE_PAIR,
+    "/log": LOG,
+}
 
 
 def stamp(ns: int) -> dict[str, int]:
@@ -85,15 +103,24 @@ def stamp(ns: int) -> dict[str, int]:
 def pose_in_frame(ev: SipEvent, ns: int) -> dict[str, Any]:
     half = math.radians(ev.sip.theta_deg) / 2.0
     return {
-        "timestamp": stamp(ns), "frame_id": "odom",
-        "pose": {"position": {"x": ev.sip.x_mm / 1000.0, "y": ev.sip.y_mm / 1000.0, "z": 0.0},
-                 "orientation": {"x": 0.0, "y": 0.0, "z": math.sin(half), "w": math.cos(half)}},
+        "timestamp": stamp(ns),
+        "frame_id": "odom",
+        "pose": {
+            "position": {"x": ev.sip.x_mm / 1000.0, "y": ev.sip.y_mm / 1000.0, "z": 0.0},
+            "orientation": {"x": 0.0, "y": 0.0, "z": math.sin(half), "w": math.cos(half)},
+        },
     }
 
 
 def log_line(ns: int, level: str, message: str, name: str, file: str) -> dict[str, Any]:
-    return {"timestamp": stamp(ns), "level": LOG_LEVELS[level], "message": message, "name": name,
-            "file": file, "line": 0}
+    return {
+        "timestamp": stamp(ns),
+        "level": LOG_LEVELS[level],
+        "message": message,
+        "name": name,
+        "file": file,
+        "line": 0,
+    }
 
 
 class Views:
@@ -103,18 +130,36 @@ class Views:
         self.name = name
         self._mode: str | None = None
 
-    def derive(self, event: Event, actions: Sequence[Action], ns: int) -> list[tuple[str, dict[str, Any]]]:
+    def derive(
+        self, event: Event, actions: Sequence[Action], ns: int
+    ) -> list[tuple[str, dict[str, Any]]]:
         out: list[tuple[str, dict[str, Any]]] = []
         if isinstance(event, SipEvent):
             out.append(("/robot/pose", pose_in_frame(event, ns)))
         elif isinstance(event, DeviceEvent):
             level = "INFO" if event.status is DeviceStatus.UP else "WARNING"
             detail = f": {event.detail}" if event.detail else ""
-            out.append(("/log", log_line(ns, level, f"device {event.device} {event.status}{detail}",
-                                         self.name, "relayd.control")))
+            out.append(
+                (
+                    "/log",
+                    log_line(
+                        ns,
+                        level,
+                        f"device {event.device} {event.status}{detail}",
+                        self.name,
+                        "relayd.control",
+                    ),
+                )
+            )
         elif isinstance(event, ModeCommand):
-            out.append(("/log", log_line(ns, "INFO", f"operator asks for mode {event.mode}", self.name,
-                                         "relayd.api")))
+            out.append(
+                (
+                    "/log",
+                    log_line(
+                        ns, "INFO", f"operator asks for mode {event.mode}", self.name, "relayd.api"
+                    ),
+                )
+            )
         for action in actions:
             if not isinstance(action, Decision):
                 continue
@@ -125,11 +170,29 @@ class Views:
             if action.changed:
                 out.append(("/state", {"key": "drive_state", "value": str(action.state)}))
                 out.append(("/state", {"key": "reason", "value": action.reason}))
-                out.append(("/log", log_line(
-                    ns, "INFO", f"drive_state {action.state} ({action.reason}) wheels "
-                    f"{action.left_mm_s:.0f}/{action.right_mm_s:.0f} mm/s", self.name, "relayd.brain")))
+                out.append(
+                    (
+                        "/log",
+                        log_line(
+                            ns,
+                            "INFO",
+                            f"drive_state {action.state} ({action.reason}) wheels "
+                            f"{action.left_mm_s:.0f}/{action.right_mm_s:.0f} mm/s",
+                            self.name,
+                            "relayd.brain",
+                        ),
+                    )
+                )
         return out
 
     def gap(self, ns: int, lost: int) -> tuple[str, dict[str, Any]]:
-        return ("/log", log_line(ns, "WARNING", f"recorder fell behind: {lost} event(s) not recorded here",
-                                 self.name, "relayd.record"))
+        return (
+            "/log",
+            log_line(
+                ns,
+                "WARNING",
+                f"recorder fell behind: {lost} event(s) not recorded here",
+                self.name,
+                "relayd.record",
+            ),
+        )

@@ -74,8 +74,15 @@ class BindError(Exception):
 class LiveServer:
     """One daemon's live Foxglove server. `start()`, `await run()` in a task, `close()`."""
 
-    def __init__(self, bus: RoutedBus, settings: Settings, clock: Clock, *,
-                 queue_len: int = QUEUE_LEN, drain_s: float = DRAIN_S) -> None:
+    def __init__(
+        self,
+        bus: RoutedBus,
+        settings: Settings,
+        clock: Clock,
+        *,
+        queue_len: int = QUEUE_LEN,
+        drain_s: float = DRAIN_S,
+    ) -> None:
         import foxglove  # the SDK's Rust module is loaded only when the server is enabled
 
         self._fox = foxglove
@@ -92,10 +99,17 @@ class LiveServer:
         self._by_topic: dict[str, Any] = {}
         for spec in channel_specs():
             self._by_topic[spec.topic] = foxglove.Channel(
-                spec.topic, message_encoding="json", context=self._context,
-                schema=foxglove.Schema(name=spec.schema_name, encoding="jsonschema", data=spec.schema))
-        self._topic_of = {cls: codec.topic_of(cls)
-                          for cls in (*codec.EVENT_TYPES.values(), *codec.ACTION_TYPES.values())}
+                spec.topic,
+                message_encoding="json",
+                context=self._context,
+                schema=foxglove.Schema(
+                    name=spec.schema_name, encoding="jsonschema", data=spec.schema
+                ),
+            )
+        self._topic_of = {
+            cls: codec.topic_of(cls)
+            for cls in (*codec.EVENT_TYPES.values(), *codec.ACTION_TYPES.values())
+        }
         self._views = Views(self.name)
         #: Set by the SDK's thread when a client subscribes to /state (a bool: atomic under the GIL).
         self._latch_wanted = False
@@ -134,8 +148,14 @@ class LiveServer:
 
         try:
             self._server = self._fox.start_server(
-                name=self.name, host=s.bind, port=s.port, context=self._context,
-                capabilities=[], message_backlog_size=CLIENT_BACKLOG, server_listener=Listener())
+                name=self.name,
+                host=s.bind,
+                port=s.port,
+                context=self._context,
+                capabilities=[],
+                message_backlog_size=CLIENT_BACKLOG,
+                server_listener=Listener(),
+            )
         except RuntimeError as exc:
             text = str(exc)
             key = "foxglove.bind" if "assign requested address" in text else "foxglove.port"
@@ -155,8 +175,11 @@ class LiveServer:
                     self._drain()
         except Exception as exc:  # noqa: BLE001 - a viewer's bug must not reach the supervisor
             self.error = f"{type(exc).__name__}: {exc}"
-            log.warning("foxglove_live_stopped", error=self.error,
-                        note="the robot keeps working; the live view sends nothing more")
+            log.warning(
+                "foxglove_live_stopped",
+                error=self.error,
+                note="the robot keeps working; the live view sends nothing more",
+            )
             self._bus.unsubscribe(sub)
 
     def close(self) -> None:
@@ -185,8 +208,17 @@ class LiveServer:
             self._seen_dropped += lost
             if "/log" in live:
                 ns = self._ns(self._clock.now())
-                self._send("/log", ns, log_line(ns, "WARNING", f"live view fell behind: {lost} event(s) not sent",
-                                                self.name, "relayd.record.live"))
+                self._send(
+                    "/log",
+                    ns,
+                    log_line(
+                        ns,
+                        "WARNING",
+                        f"live view fell behind: {lost} event(s) not sent",
+                        self.name,
+                        "relayd.record.live",
+                    ),
+                )
 
     def _take(self, item: Routed, live: set[str]) -> None:
         event, actions = item
@@ -215,7 +247,11 @@ class LiveServer:
         last = self._last
         if last is None:
             return
-        for key, value in (("mode", str(last.mode)), ("drive_state", str(last.state)), ("reason", last.reason)):
+        for key, value in (
+            ("mode", str(last.mode)),
+            ("drive_state", str(last.state)),
+            ("reason", last.reason),
+        ):
             self._send("/state", ns, {"key": key, "value": value})
 
     def _send(self, topic: str, ns: int, doc: dict[str, Any]) -> None:

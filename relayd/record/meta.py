@@ -68,9 +68,13 @@ class RunInfo:
 
     def to_metadata(self) -> dict[str, str]:
         return {
-            "version": self.version, "format": str(self.format), "start_time": self.start_time,
-            "start_unix_ns": str(self.start_unix_ns), "clock_t0": repr(self.clock_t0),
-            "run_id": self.run_id, "part": str(self.part),
+            "version": self.version,
+            "format": str(self.format),
+            "start_time": self.start_time,
+            "start_unix_ns": str(self.start_unix_ns),
+            "clock_t0": repr(self.clock_t0),
+            "run_id": self.run_id,
+            "part": str(self.part),
             "config": json.dumps(self.config, sort_keys=True, separators=(",", ":")),
         }
 
@@ -78,13 +82,28 @@ class RunInfo:
     def from_metadata(cls, data: dict[str, str]) -> RunInfo:
         """Raises KeyError/ValueError on a record that is not ours."""
         return cls(
-            version=data["version"], format=int(data["format"]), start_time=data["start_time"],
-            start_unix_ns=int(data["start_unix_ns"]), clock_t0=float(data["clock_t0"]),
-            run_id=data["run_id"], part=int(data["part"]), config=json.loads(data["config"]),
+            version=data["version"],
+            format=int(data["format"]),
+            start_time=data["start_time"],
+            start_unix_ns=int(data["start_unix_ns"]),
+            clock_t0=float(data["clock_t0"]),
+            run_id=data["run_id"],
+            part=int(data["part"]),
+            config=json.loads(data["config"]),
         )
 
 
-def run_info(settings: Settings, *, start_unix_ns: int, clock_t0: float, run_id: str, part: int) -> RunInfo:
+def run_info(
+    settings: Settings, *, start_unix_ns: int, clock_t0: float, run_id: str, part: int
+) -> RunInfo:
     start = datetime.fromtimestamp(start_unix_ns / 1e9, tz=UTC).isoformat(timespec="milliseconds")
-    return RunInfo(version=__version__, format=FORMAT, start_time=start, start_unix_ns=start_unix_ns,
-                   clock_t0=clock_t0, run_id=run_id, part=part, config=recordable_config(settings))
+    return RunInfo(
+        version=__version__,
+        format=FORMAT,
+        start_time=start,
+        start_unix_ns=start_unix_ns,
+        clock_t0=clock_t0,
+        run_id=run_id,
+        part=part,
+        config=recordable_config(settings),
+    )

@@ -44,9 +44,22 @@ def trace_records(rec: Recording) -> tuple[list[dict[str, Any]], list[float], li
                 state, reason = a.state.value, a.reason
         t = ev.t - t0
         if next_t is None or t >= next_t:
-            records.append({"t": round(t, 3), "relays": [{
-                "name": name, "rssi_l_dbm": rssi_l, "rssi_b_dbm": rssi_b, "bearing_deg": bearing,
-                "true_bearing_deg": None, "state": state, "reason": reason}]})
+            records.append(
+                {
+                    "t": round(t, 3),
+                    "relays": [
+                        {
+                            "name": name,
+                            "rssi_l_dbm": rssi_l,
+                            "rssi_b_dbm": rssi_b,
+                            "bearing_deg": bearing,
+                            "true_bearing_deg": None,
+                            "state": state,
+                            "reason": reason,
+                        }
+                    ],
+                }
+            )
             next_t = t + 1.0 / TRACE_HZ
     return records, xs, ys
 
@@ -58,5 +71,7 @@ def plot_recording(rec: Recording, out: Path) -> list[Path]:
     name = (rec.robot or {}).get("name", "relay")
     files = [out / "rssi_bearing.png", out / "path.png"]
     sim_plots.plot_rssi_bearing(records, files[0])
-    sim_plots.plot_paths({name: (xs, ys)}, files[1], f"{name}: path from odometry ({rec.path.name})")
+    sim_plots.plot_paths(
+        {name: (xs, ys)}, files[1], f"{name}: path from odometry ({rec.path.name})"
+    )
     return files

@@ -33,7 +33,9 @@ class RecordingError(Exception):
 
     def __init__(self, path: str | Path, message: str, offset: int | None = None) -> None:
         where = f" at byte {offset}" if offset is not None else ""
-        super().__init__(f"{path}: {message}{where}" if offset is None else f"{path}{where}: {message}")
+        super().__init__(
+            f"{path}: {message}{where}" if offset is None else f"{path}{where}: {message}"
+        )
         self.offset = offset
 
 
@@ -116,8 +118,9 @@ class _Chunked:
                     else:
                         raise codec.DecodeError(f"unknown message type {schema}")
                 except (ValueError, KeyError, TypeError) as exc:
-                    raise RecordingError(self.path, f"a {topic} message in the chunk does not decode: {exc}",
-                                         offset) from None
+                    raise RecordingError(
+                        self.path, f"a {topic} message in the chunk does not decode: {exc}", offset
+                    ) from None
         self.events.update(events)
         for seq, items in acts.items():
             self.acts.setdefault(seq, []).extend(items)
@@ -135,7 +138,9 @@ class _Cursor:
 
 def _records(f: BinaryIO, cursor: _Cursor) -> Iterator[tuple[int, McapRecord]]:
     """(offset where the record starts, record), in file order, chunks not expanded."""
-    reader = StreamReader(f, emit_chunks=True, validate_crcs=True, record_size_limit=RECORD_SIZE_LIMIT)
+    reader = StreamReader(
+        f, emit_chunks=True, validate_crcs=True, record_size_limit=RECORD_SIZE_LIMIT
+    )
     records = iter(reader.records)
     while True:
         cursor.start = f.tell()
@@ -181,8 +186,11 @@ def read_recording(path: str | Path, *, partial: bool = False) -> Recording:
                     try:
                         records = breakup_chunk(rec, validate_crc=True)
                     except Exception as exc:  # noqa: BLE001 - decompression, CRC or record errors alike
-                        raise RecordingError(p, f"chunk {chunks + 1} is corrupt ({type(exc).__name__}: {exc})",
-                                             offset) from None
+                        raise RecordingError(
+                            p,
+                            f"chunk {chunks + 1} is corrupt ({type(exc).__name__}: {exc})",
+                            offset,
+                        ) from None
                     chunked.take(records, offset)
                     chunks += 1
                 elif isinstance(rec, Metadata):
@@ -190,7 +198,9 @@ def read_recording(path: str | Path, *, partial: bool = False) -> Recording:
                         try:
                             info = RunInfo.from_metadata(rec.metadata)
                         except (KeyError, ValueError) as exc:
-                            raise RecordingError(p, f"bad relayd metadata ({exc})", offset) from None
+                            raise RecordingError(
+                                p, f"bad relayd metadata ({exc})", offset
+                            ) from None
                     elif rec.name == "robot":
                         robot = dict(rec.metadata)
                     elif rec.name == "recorder":
@@ -212,8 +222,10 @@ def read_recording(path: str | Path, *, partial: bool = False) -> Recording:
                 t0 = info.clock_t0 if info is not None else 0.0
                 last = f", the last event read {chunked.last_t - t0:.3f} s into the recording"
             if isinstance(exc, EndOfFile) or _cut_at(f, offset):
-                why = (f"the file ends without its summary (the recorder did not finish it: "
-                       f"a killed daemon or a full disk?); {chunks} complete chunk(s) before it{last}")
+                why = (
+                    f"the file ends without its summary (the recorder did not finish it: "
+                    f"a killed daemon or a full disk?); {chunks} complete chunk(s) before it{last}"
+                )
             else:
                 why = f"corrupt record ({type(exc).__name__}: {exc}); {chunks} complete chunk(s) before it{last}"
             if not partial or info is None:
@@ -222,8 +234,17 @@ def read_recording(path: str | Path, *, partial: bool = False) -> Recording:
     if info is None:
         raise RecordingError(p, "no relayd metadata: not a relayd recording")
     steps = _steps(p, chunked)
-    return Recording(p, info, steps, robot=robot, recorder=recorder, topics=chunked.topics, chunks=chunks,
-                     complete=complete, broke=broke)
+    return Recording(
+        p,
+        info,
+        steps,
+        robot=robot,
+        recorder=recorder,
+        topics=chunked.topics,
+        chunks=chunks,
+        complete=complete,
+        broke=broke,
+    )
 
 
 def _steps(p: Path, chunked: _Chunked) -> list[Step]:
@@ -231,12 +252,19 @@ def _steps(p: Path, chunked: _Chunked) -> list[Step]:
     for seq in sorted(chunked.events):
         items = sorted(chunked.acts.get(seq, []), key=lambda x: x[0])
         if [i for i, _, _ in items] != list(range(len(items))):
-            raise RecordingError(p, f"event {seq}: its actions are not numbered 0..{len(items) - 1}")
-        steps.append(Step(seq, chunked.events[seq], [a for _, a, _ in items], [d for _, _, d in items]))
+            raise RecordingError(
+                p, f"event {seq}: its actions are not numbered 0..{len(items) - 1}"
+            )
+        steps.append(
+            Step(seq, chunked.events[seq], [a for _, a, _ in items], [d for _, _, d in items])
+        )
     orphans = set(chunked.acts) - set(chunked.events)
     if orphans:
-        raise RecordingError(p, f"actions recorded for {len(orphans)} event(s) that are not in the file "
-                                f"(first: event {min(orphans)})")
+        raise RecordingError(
+            p,
+            f"actions recorded for {len(orphans)} event(s) that are not in the file "
+            f"(first: event {min(orphans)})",
+        )
     return steps
 
 
@@ -252,8 +280,11 @@ def join_parts(parts: list[Recording]) -> Recording:
         if part.info.run_id != run_id:
             raise RecordingError(part.path, f"is from another run than {first.path}")
         if part.info.part != k:
-            raise RecordingError(part.path, f"is part {part.info.part} of its run; replay needs parts 1..{part.info.part} "
-                                            "in order (a part starts with the brain's state from the parts before)")
+            raise RecordingError(
+                part.path,
+                f"is part {part.info.part} of its run; replay needs parts 1..{part.info.part} "
+                "in order (a part starts with the brain's state from the parts before)",
+            )
         if k < len(parts) and (not part.complete or part.broke is not None):
             raise RecordingError(part.path, "is cut short but is not the last part given")
     if len(parts) == 1:
@@ -264,6 +295,14 @@ def join_parts(parts: list[Recording]) -> Recording:
         for topic, n in p.topics.items():
             topics[topic] = topics.get(topic, 0) + n
     last = parts[-1]
-    return Recording(first.path, first.info, steps, robot=next((p.robot for p in parts if p.robot), None),
-                     recorder=last.recorder, topics=topics, chunks=sum(p.chunks for p in parts),
-                     complete=last.complete, broke=last.broke)
+    return Recording(
+        first.path,
+        first.info,
+        steps,
+        robot=next((p.robot for p in parts if p.robot), None),
+        recorder=last.recorder,
+        topics=topics,
+        chunks=sum(p.chunks for p in parts),
+        complete=last.complete,
+        broke=last.broke,
+    )

@@ -78,11 +78,21 @@ class RoutedBus(Protocol):
 class Recorder:
     """Records one daemon's route. `start()`, then `await run()` in a task; `await close()`."""
 
-    def __init__(self, bus: RoutedBus, settings: Settings, clock: Clock, *, path: str | None = None,
-                 identity: Callable[[], RobotIdentity | None] = lambda: None,
-                 opener: Callable[[Path], BinaryIO] | None = None, chunk_s: float = CHUNK_S,
-                 queue_len: int = QUEUE_LEN, max_pending: int = MAX_PENDING,
-                 stall_s: float = STALL_S, drain_s: float = DRAIN_S) -> None:
+    def __init__(
+        self,
+        bus: RoutedBus,
+        settings: Settings,
+        clock: Clock,
+        *,
+        path: str | None = None,
+        identity: Callable[[], RobotIdentity | None] = lambda: None,
+        opener: Callable[[Path], BinaryIO] | None = None,
+        chunk_s: float = CHUNK_S,
+        queue_len: int = QUEUE_LEN,
+        max_pending: int = MAX_PENDING,
+        stall_s: float = STALL_S,
+        drain_s: float = DRAIN_S,
+    ) -> None:
         rec = settings.record
         self.path = path if path is not None else rec.path
         self._bus = bus
@@ -99,11 +109,15 @@ class Recorder:
         run_id = uuid.uuid4().hex
         series = FileSeries(self.path, started)
         self._sink = McapSink(
-            series, lambda part: run_info(settings, start_unix_ns=self._ns0, clock_t0=self._t0,
-                                          run_id=run_id, part=part),
-            max_file_bytes=int(rec.max_file_mb * 1e6), max_total_bytes=int(rec.max_total_mb * 1e6),
+            series,
+            lambda part: run_info(
+                settings, start_unix_ns=self._ns0, clock_t0=self._t0, run_id=run_id, part=part
+            ),
+            max_file_bytes=int(rec.max_file_mb * 1e6),
+            max_total_bytes=int(rec.max_total_mb * 1e6),
             # Looked up now, not at import: tests swap in a writer that fails.
-            opener=opener if opener is not None else file_writer.open_file)
+            opener=opener if opener is not None else file_writer.open_file,
+        )
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread = WriterThread(self._sink, self._error_from_thread)
         self._views = Views()
@@ -127,10 +141,14 @@ class Recorder:
     def status(self) -> RecordingStatus:
         """The `recording` object of /status."""
         return {
-            "enabled": True, "state": self.state,
+            "enabled": True,
+            "state": self.state,
             "path": None if self._sink.path is None else str(self._sink.path),
-            "files": len(self._sink.files), "bytes": self._sink.bytes_written,
-            "events": self.events, "dropped": self.dropped, "error": self.error,
+            "files": len(self._sink.files),
+            "bytes": self._sink.bytes_written,
+            "events": self.events,
+            "dropped": self.dropped,
+            "error": self.error,
         }
 
     # -- lifecycle ------------------------------------------------------------------
@@ -163,8 +181,16 @@ class Recorder:
             try:
                 while (item := self._sub.get_nowait()) is not None:
                     self._take(item)
-                self._batch.metadata.append(("recorder", {
-                    "events": str(self.events), "actions": str(self.actions), "dropped": str(self.dropped)}))
+                self._batch.metadata.append(
+                    (
+                        "recorder",
+                        {
+                            "events": str(self.events),
+                            "actions": str(self.actions),
+                            "dropped": str(self.dropped),
+                        },
+                    )
+                )
                 self._handover()
             except Exception as exc:  # noqa: BLE001
                 self._fail(f"{type(exc).__name__}: {exc}")
@@ -201,8 +227,14 @@ class Recorder:
             msgs.append((self._spec(type(action)), ns, codec.encode(action, seq, i)))
         self.actions += len(actions)
         for topic, view in self._views.derive(event, actions, ns):
-            msgs.append((self._view_specs[topic], ns, json.dumps(view, separators=(",", ":")).encode()))
-        if isinstance(event, DeviceEvent) and event.device == "robot" and event.status is DeviceStatus.UP:
+            msgs.append(
+                (self._view_specs[topic], ns, json.dumps(view, separators=(",", ":")).encode())
+            )
+        if (
+            isinstance(event, DeviceEvent)
+            and event.device == "robot"
+            and event.status is DeviceStatus.UP
+        ):
             self._note_robot()
         if self._batch_t is None:
             self._batch_t = event.t
@@ -215,16 +247,29 @@ class Recorder:
         if ident is not None and ident != self._robot:
             self._robot = ident
             self._views.name = ident.name  # /log lines name the robot
-            self._batch.metadata.append(("robot", {
-                "name": ident.name, "robot_class": ident.robot_class, "subclass": ident.subclass}))
+            self._batch.metadata.append(
+                (
+                    "robot",
+                    {
+                        "name": ident.name,
+                        "robot_class": ident.robot_class,
+                        "subclass": ident.subclass,
+                    },
+                )
+            )
 
     def _after_drain(self) -> None:
         lost = self._sub.dropped - self._seen_dropped
         if lost > 0:
             self._seen_dropped += lost
             topic, view = self._views.gap(self._ns(self._clock.now()), lost)
-            self._batch.messages.append((self._view_specs[topic], self._ns(self._clock.now()),
-                                         json.dumps(view, separators=(",", ":")).encode()))
+            self._batch.messages.append(
+                (
+                    self._view_specs[topic],
+                    self._ns(self._clock.now()),
+                    json.dumps(view, separators=(",", ":")).encode(),
+                )
+            )
         if self._thread.error is not None:
             self._fail(self._thread.error)
 
@@ -233,7 +278,9 @@ class Recorder:
         thread = self._thread
         busy = thread.busy_since
         if busy is not None and time.monotonic() - busy > self._stall_s:
-            self._fail(f"the disk is not keeping up: one chunk's write has taken over {self._stall_s:g} s")
+            self._fail(
+                f"the disk is not keeping up: one chunk's write has taken over {self._stall_s:g} s"
+            )
             return
         if thread.pending >= self._max_pending:
             self._fail(f"the disk is not keeping up: {thread.pending} chunks waiting to be written")
@@ -253,6 +300,10 @@ class Recorder:
             return
         self.state, self.error = "failed", error
         self._batch = Batch()
-        log.warning("recording_stopped", error=error, path=self.status()["path"],
-                    note="the robot keeps working; nothing more is recorded in this run")
+        log.warning(
+            "recording_stopped",
+            error=error,
+            path=self.status()["path"],
+            note="the robot keeps working; nothing more is recorded in this run",
+        )
         self._bus.unsubscribe(self._sub)

@@ -127,11 +127,19 @@ def compare(recording: Recording, brain: Brain) -> Comparison:
         out.divergences += 1
         out.diverged_seqs.append(step.seq)
         if out.first is None:
-            out.first = {"t": step.event.t, "seq": step.seq, "event": type(step.event).__name__,
-                         "recorded": step.docs, "replayed": docs}
+            out.first = {
+                "t": step.event.t,
+                "seq": step.seq,
+                "event": type(step.event).__name__,
+                "recorded": step.docs,
+                "replayed": docs,
+            }
         for rec, rep in zip(_decisions(step.actions), _decisions(replayed), strict=False):
-            out.max_wheel_diff_mm_s = max(out.max_wheel_diff_mm_s, _diff(rec.left_mm_s, rep.left_mm_s),
-                                          _diff(rec.right_mm_s, rep.right_mm_s))
+            out.max_wheel_diff_mm_s = max(
+                out.max_wheel_diff_mm_s,
+                _diff(rec.left_mm_s, rep.left_mm_s),
+                _diff(rec.right_mm_s, rep.right_mm_s),
+            )
         for rb, pb in zip(_bearings(step.actions), _bearings(replayed), strict=False):
             out.max_bearing_diff_deg = max(out.max_bearing_diff_deg, _angle_diff(rb, pb))
     return out

@@ -57,7 +57,9 @@ class ChannelSpec:
 
 
 def channel_spec(topic: str, schema: dict[str, Any]) -> ChannelSpec:
-    return ChannelSpec(topic, str(schema["title"]), json.dumps(schema, separators=(",", ":")).encode())
+    return ChannelSpec(
+        topic, str(schema["title"]), json.dumps(schema, separators=(",", ":")).encode()
+    )
 
 
 @dataclass(slots=True)
@@ -113,8 +115,15 @@ def open_file(path: Path) -> BinaryIO:
 class McapSink:
     """The current file's mcap writer; lives in the writer thread only."""
 
-    def __init__(self, series: FileSeries, info: Callable[[int], RunInfo], *, max_file_bytes: int,
-                 max_total_bytes: int, opener: Callable[[Path], BinaryIO] = open_file) -> None:
+    def __init__(
+        self,
+        series: FileSeries,
+        info: Callable[[int], RunInfo],
+        *,
+        max_file_bytes: int,
+        max_total_bytes: int,
+        opener: Callable[[Path], BinaryIO] = open_file,
+    ) -> None:
         self.series = series
         self._info = info
         self._max_file = max_file_bytes
@@ -140,7 +149,9 @@ class McapSink:
         stream = self._opener(path)
         self._stream, self.path = stream, path
         self.files.append(path)
-        writer = self._writer = Writer(stream, chunk_size=CHUNK_BYTES_LIMIT, compression=CompressionType.LZ4)
+        writer = self._writer = Writer(
+            stream, chunk_size=CHUNK_BYTES_LIMIT, compression=CompressionType.LZ4
+        )
         self._channels, self._schemas = {}, {}
         writer.start(profile="", library=f"relayd {__version__}")
         writer.add_metadata("relayd", self._info(self.part).to_metadata())
@@ -166,7 +177,8 @@ class McapSink:
                 sid = self._schemas.get(spec.schema_name)
                 if sid is None:
                     sid = self._schemas[spec.schema_name] = writer.register_schema(
-                        spec.schema_name, "jsonschema", spec.schema)
+                        spec.schema_name, "jsonschema", spec.schema
+                    )
                 cid = channels[spec.topic] = writer.register_channel(spec.topic, "json", sid)
             writer.add_message(cid, log_time=ns, data=data, publish_time=ns)
         time.sleep(0)

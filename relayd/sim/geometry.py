@@ -36,8 +36,12 @@ class Segment:
         return math.hypot(self.x2 - self.x1, self.y2 - self.y1)
 
     def bbox(self) -> tuple[float, float, float, float]:
-        return (min(self.x1, self.x2), min(self.y1, self.y2),
-                max(self.x1, self.x2), max(self.y1, self.y2))
+        return (
+            min(self.x1, self.x2),
+            min(self.y1, self.y2),
+            max(self.x1, self.x2),
+            max(self.y1, self.y2),
+        )
 
 
 @dataclass(frozen=True, slots=True)
@@ -55,8 +59,12 @@ class Box:
             raise ValueError(f"box needs x_min < x_max and y_min < y_max, got {self!r}")
 
     def corners(self) -> Polygon:
-        return ((self.x_min, self.y_min), (self.x_max, self.y_min),
-                (self.x_max, self.y_max), (self.x_min, self.y_max))
+        return (
+            (self.x_min, self.y_min),
+            (self.x_max, self.y_min),
+            (self.x_max, self.y_max),
+            (self.x_min, self.y_max),
+        )
 
     def segments(self) -> tuple[Segment, ...]:
         return polygon_segments(self.corners(), self.material)
@@ -65,12 +73,15 @@ class Box:
 def polygon_segments(poly: Sequence[Point], material: str = "body") -> tuple[Segment, ...]:
     """The closed outline of a polygon as segments."""
     n = len(poly)
-    return tuple(Segment(poly[i][0], poly[i][1], poly[(i + 1) % n][0], poly[(i + 1) % n][1], material)
-                 for i in range(n))
+    return tuple(
+        Segment(poly[i][0], poly[i][1], poly[(i + 1) % n][0], poly[(i + 1) % n][1], material)
+        for i in range(n)
+    )
 
 
-def ray_segment_distance(ox: float, oy: float, dx: float, dy: float,
-                         x1: float, y1: float, x2: float, y2: float) -> float | None:
+def ray_segment_distance(
+    ox: float, oy: float, dx: float, dy: float, x1: float, y1: float, x2: float, y2: float
+) -> float | None:
     """Distance along the unit ray (ox, oy) + t (dx, dy), t >= 0, to the segment, or None."""
     ex, ey = x2 - x1, y2 - y1
     denom = dx * ey - dy * ex
@@ -86,8 +97,9 @@ def ray_segment_distance(ox: float, oy: float, dx: float, dy: float,
     return t
 
 
-def ray_circle_distance(ox: float, oy: float, dx: float, dy: float,
-                        cx: float, cy: float, r: float) -> float | None:
+def ray_circle_distance(
+    ox: float, oy: float, dx: float, dy: float, cx: float, cy: float, r: float
+) -> float | None:
     """Distance along the unit ray to the first intersection with a circle, or None."""
     fx, fy = ox - cx, oy - cy
     b = fx * dx + fy * dy
@@ -103,8 +115,14 @@ def ray_circle_distance(ox: float, oy: float, dx: float, dy: float,
     return 0.0 if t >= 0.0 else None  # origin inside the circle: touching
 
 
-def cast_ray(ox: float, oy: float, heading_deg: float, max_range_m: float,
-             segments: Iterable[Segment], circles: Iterable[tuple[float, float, float]] = ()) -> float | None:
+def cast_ray(
+    ox: float,
+    oy: float,
+    heading_deg: float,
+    max_range_m: float,
+    segments: Iterable[Segment],
+    circles: Iterable[tuple[float, float, float]] = (),
+) -> float | None:
     """Nearest hit of a ray against segments and circles (cx, cy, r) within max_range_m."""
     a = math.radians(heading_deg)
     dx, dy = math.cos(a), math.sin(a)
@@ -131,15 +149,24 @@ def segments_intersect(p1: Point, p2: Point, q1: Point, q2: Point) -> bool:
     d2 = _orient(q1[0], q1[1], q2[0], q2[1], p2[0], p2[1])
     d3 = _orient(p1[0], p1[1], p2[0], p2[1], q1[0], q1[1])
     d4 = _orient(p1[0], p1[1], p2[0], p2[1], q2[0], q2[1])
-    if ((d1 > 0) != (d2 > 0) and d1 != 0 and d2 != 0) and ((d3 > 0) != (d4 > 0) and d3 != 0 and d4 != 0):
+    if ((d1 > 0) != (d2 > 0) and d1 != 0 and d2 != 0) and (
+        (d3 > 0) != (d4 > 0) and d3 != 0 and d4 != 0
+    ):
         return True
 
     def on_seg(a: Point, b: Point, c: Point, d: float) -> bool:
-        return abs(d) < 1e-12 and min(a[0], b[0]) - 1e-12 <= c[0] <= max(a[0], b[0]) + 1e-12 \
+        return (
+            abs(d) < 1e-12
+            and min(a[0], b[0]) - 1e-12 <= c[0] <= max(a[0], b[0]) + 1e-12
             and min(a[1], b[1]) - 1e-12 <= c[1] <= max(a[1], b[1]) + 1e-12
+        )
 
-    return (on_seg(q1, q2, p1, d1) or on_seg(q1, q2, p2, d2)
-            or on_seg(p1, p2, q1, d3) or on_seg(p1, p2, q2, d4))
+    return (
+        on_seg(q1, q2, p1, d1)
+        or on_seg(q1, q2, p2, d2)
+        or on_seg(p1, p2, q1, d3)
+        or on_seg(p1, p2, q2, d4)
+    )
 
 
 def crossings(p: Point, q: Point, segments: Iterable[Segment]) -> list[Segment]:
@@ -151,8 +178,12 @@ def crossings(p: Point, q: Point, segments: Iterable[Segment]) -> list[Segment]:
     out = []
     for s in segments:
         sx1, sy1, sx2, sy2 = s.x1, s.y1, s.x2, s.y2
-        if ((sx1 < x0 and sx2 < x0) or (sx1 > x1 and sx2 > x1)
-                or (sy1 < y0 and sy2 < y0) or (sy1 > y1 and sy2 > y1)):
+        if (
+            (sx1 < x0 and sx2 < x0)
+            or (sx1 > x1 and sx2 > x1)
+            or (sy1 < y0 and sy2 < y0)
+            or (sy1 > y1 and sy2 > y1)
+        ):
             continue
         if segments_intersect(p, q, (sx1, sy1), (sx2, sy2)):
             out.append(s)
@@ -164,8 +195,10 @@ def footprint(x_m: float, y_m: float, theta_deg: float, length_m: float, width_m
     a = math.radians(theta_deg)
     c, s = math.cos(a), math.sin(a)
     hl, hw = length_m / 2.0, width_m / 2.0
-    return tuple((x_m + c * lx - s * ly, y_m + s * lx + c * ly)
-                 for lx, ly in ((hl, hw), (-hl, hw), (-hl, -hw), (hl, -hw)))
+    return tuple(
+        (x_m + c * lx - s * ly, y_m + s * lx + c * ly)
+        for lx, ly in ((hl, hw), (-hl, hw), (-hl, -hw), (hl, -hw))
+    )
 
 
 def point_in_polygon(pt: Point, poly: Sequence[Point]) -> bool:
@@ -242,9 +275,15 @@ def _clip_to_half_plane(p: Point, q: Point, nx: float, ny: float) -> tuple[Point
     return (p, m) if dp >= 0.0 else (m, q)
 
 
-def cone_range(ox: float, oy: float, heading_deg: float, half_width_deg: float, max_range_m: float,
-               segments: Iterable[Segment],
-               circles: Iterable[tuple[float, float, float]] = ()) -> float | None:
+def cone_range(
+    ox: float,
+    oy: float,
+    heading_deg: float,
+    half_width_deg: float,
+    max_range_m: float,
+    segments: Iterable[Segment],
+    circles: Iterable[tuple[float, float, float]] = (),
+) -> float | None:
     """Distance from (ox, oy) to the nearest point of any segment or disc inside the cone
     heading +- half_width (< 90 deg), or None when nothing lies within max_range_m.
 

@@ -30,8 +30,13 @@ class LeaderScript:
     """A leader walking waypoints, pausing where told, at a speed that may change with time
     (`speed_profile`: (clock s, m/s) pairs in time order). Pure in time."""
 
-    def __init__(self, waypoints: list[tuple[float, float, float]], speed_m_s: float,
-                 start_s: float = 0.0, speed_profile: list[tuple[float, float]] | None = None) -> None:
+    def __init__(
+        self,
+        waypoints: list[tuple[float, float, float]],
+        speed_m_s: float,
+        start_s: float = 0.0,
+        speed_profile: list[tuple[float, float]] | None = None,
+    ) -> None:
         if not waypoints:
             raise ValueError("a leader script needs at least one waypoint")
         if speed_m_s <= 0 or any(v <= 0 for _, v in speed_profile or ()):
@@ -101,6 +106,8 @@ class LeaderScript:
                 if a == b:
                     return LeaderPose(a[0], a[1], h, False, False)
                 f = min(1.0, self._distance(t0, t) / math.hypot(b[0] - a[0], b[1] - a[1]))
-                return LeaderPose(a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1]), h, True, False)
+                return LeaderPose(
+                    a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1]), h, True, False
+                )
         x, y, h = self._start
         return LeaderPose(x, y, h, False, False)

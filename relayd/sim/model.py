@@ -91,15 +91,27 @@ def clearance_m(poly: tuple[tuple[float, float], ...], segments: list[Segment]) 
             p, q = poly[i], poly[(i + 1) % n]
             if segments_intersect(p, q, a, b):
                 return 0.0
-            best = min(best, point_segment_distance(p, a, b), point_segment_distance(a, p, q),
-                       point_segment_distance(b, p, q))
+            best = min(
+                best,
+                point_segment_distance(p, a, b),
+                point_segment_distance(a, p, q),
+                point_segment_distance(b, p, q),
+            )
     return best
 
 
-def run_model(scenario: Scenario, *, seed: int = 0, past_m: float, seconds: float = 180.0,
-              params: ControlParams | None = None, bearing_noise_deg: float = 3.0,
-              scan_period_s: float = 4.5, on_step: Callable[[Step], None] | None = None,
-              escape: bool = True) -> Outcome:
+def run_model(
+    scenario: Scenario,
+    *,
+    seed: int = 0,
+    past_m: float,
+    seconds: float = 180.0,
+    params: ControlParams | None = None,
+    bearing_noise_deg: float = 3.0,
+    scan_period_s: float = 4.5,
+    on_step: Callable[[Step], None] | None = None,
+    escape: bool = True,
+) -> Outcome:
     """Drive relay 0 of `scenario` until its centre is `past_m` along the start->leader
     line (plus half the robot's length), or `seconds` of clock time. escape=False runs the
     paper's law alone (no time or odometry for the escape): the defect, for comparison."""
@@ -139,12 +151,21 @@ def run_model(scenario: Scenario, *, seed: int = 0, past_m: float, seconds: floa
             next_scan = t + scan_period_s
 
         inputs = ControlInputs(
-            mode=Mode.FOLLOW, sip_age_s=0.0, rssi_age_s=0.0 if rssi_l is not None else None,
-            scan_servo_ok=True, bearing_deg=_now_frame(bearing, scan_heading, th),
-            prev_bearing_deg=_now_frame(prev_bearing, prev_heading, th), rssi_leader_dbm=rssi_l,
-            rssi_behind_dbm=-40.0, rear_age_s=0.0, front_sonar=front_readings(ranges),
-            leader_lost=False, t_s=t if escape else None, odom=(x, y, th) if escape else None,
-            rear_sonar=rear_readings(ranges))
+            mode=Mode.FOLLOW,
+            sip_age_s=0.0,
+            rssi_age_s=0.0 if rssi_l is not None else None,
+            scan_servo_ok=True,
+            bearing_deg=_now_frame(bearing, scan_heading, th),
+            prev_bearing_deg=_now_frame(prev_bearing, prev_heading, th),
+            rssi_leader_dbm=rssi_l,
+            rssi_behind_dbm=-40.0,
+            rear_age_s=0.0,
+            front_sonar=front_readings(ranges),
+            leader_lost=False,
+            t_s=t if escape else None,
+            odom=(x, y, th) if escape else None,
+            rear_sonar=rear_readings(ranges),
+        )
         out = control_step(inputs, params, memory)
         memory = out.memory
         tv, trv = wheel_to_vel_rvel(out.left_mm_s, out.right_mm_s)
@@ -171,7 +192,7 @@ def run_model(scenario: Scenario, *, seed: int = 0, past_m: float, seconds: floa
         if clear < outcome.min_clearance_m:
             outcome.min_clearance_m = clear
             outcome.min_clearance_at = (t, x / 1000.0, y / 1000.0, th)
-        along = ((x / 1000.0 - sx) * math.cos(line) + (y / 1000.0 - sy) * math.sin(line))
+        along = (x / 1000.0 - sx) * math.cos(line) + (y / 1000.0 - sy) * math.sin(line)
         if outcome.passed_at_s is None and along >= goal:
             outcome.passed_at_s = t
             break

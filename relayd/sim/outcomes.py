@@ -15,7 +15,9 @@ from typing import Any
 BREAK_MERGE_S = 1.0
 
 
-def link_breaks(records: Sequence[dict[str, Any]], merge_s: float = BREAK_MERGE_S) -> list[dict[str, Any]]:
+def link_breaks(
+    records: Sequence[dict[str, Any]], merge_s: float = BREAK_MERGE_S
+) -> list[dict[str, Any]]:
     """The spells the end-to-end link was down: start and end (None: still down at the end)."""
     spells: list[list[float | None]] = []
     for r in records:
@@ -31,8 +33,13 @@ def link_breaks(records: Sequence[dict[str, Any]], merge_s: float = BREAK_MERGE_
     for start, end in spells:
         if start is None:  # a spell always opens with its start; nothing to report otherwise
             continue
-        out.append({"start_s": start, "end_s": end,
-                    "duration_s": None if end is None else round(end - start, 2)})
+        out.append(
+            {
+                "start_s": start,
+                "end_s": end,
+                "duration_s": None if end is None else round(end - start, 2),
+            }
+        )
     return out
 
 
@@ -56,13 +63,20 @@ def recovery_episodes(records: Sequence[dict[str, Any]], i: int) -> list[dict[st
         active = rec["phase"] in ("widen", "retrace", "backup")
         if cur is not None and (not active or rec["episodes"] != cur["episode"]):
             cur["end_s"] = r["t"]
-            cur["outcome"] = rec["outcome"] if rec["episodes"] == cur["episode"] or not active \
-                else "preempted"
+            cur["outcome"] = (
+                rec["outcome"] if rec["episodes"] == cur["episode"] or not active else "preempted"
+            )
             out.append(cur)
             cur = None
         if active and cur is None:
-            cur = {"episode": rec["episodes"], "kind": rec["kind"], "start_s": r["t"], "end_s": None,
-                   "outcome": None, "distance_m": 0.0}
+            cur = {
+                "episode": rec["episodes"],
+                "kind": rec["kind"],
+                "start_s": r["t"],
+                "end_s": None,
+                "outcome": None,
+                "distance_m": 0.0,
+            }
         if cur is not None and rec.get("distance_m") is not None:
             cur["distance_m"] = max(cur["distance_m"], rec["distance_m"])
     if cur is not None:

@@ -37,12 +37,21 @@ def _plt() -> Any:
 
 
 #: Shading of a relay's drive state (the daemon's DriveState) behind its time plots.
-STATE_COLORS: dict[str, str] = {"driving": "#c7e9c0", "stopped": "#fdd0a2", "avoiding": "#fcbba1",
-                                "leader_lost": "#d9d9d9", "fault": "#bcbddc"}
+STATE_COLORS: dict[str, str] = {
+    "driving": "#c7e9c0",
+    "stopped": "#fdd0a2",
+    "avoiding": "#fcbba1",
+    "leader_lost": "#d9d9d9",
+    "fault": "#bcbddc",
+}
 #: Hatching of the stop reasons that matter for a relay chain (the link rule's two halves).
 REASON_HATCH: dict[str, str] = {"leader_near": "//", "rear_weak": "\\\\"}
 #: Where map legends go: outside the axes, right of them, so no legend covers a wall.
-LEGEND_OUTSIDE: dict[str, Any] = {"loc": "upper left", "bbox_to_anchor": (1.02, 1.0), "borderaxespad": 0.0}
+LEGEND_OUTSIDE: dict[str, Any] = {
+    "loc": "upper left",
+    "bbox_to_anchor": (1.02, 1.0),
+    "borderaxespad": 0.0,
+}
 
 
 def marks_every(records: Sequence[dict[str, Any]], every_s: float = 20.0) -> list[dict[str, Any]]:
@@ -89,11 +98,18 @@ def plot_map(world: World, records: Sequence[dict[str, Any]], path: Path) -> Non
     plt = _plt()
     fig, ax = plt.subplots(figsize=(9.5, 6))
     for w in world.walls:
-        ax.plot([w.x1, w.x2], [w.y1, w.y2], color="saddlebrown" if w.material == "brick" else "grey",
-                lw=2.5 if w.material in ("brick", "concrete") else 1.2)
+        ax.plot(
+            [w.x1, w.x2],
+            [w.y1, w.y2],
+            color="saddlebrown" if w.material == "brick" else "grey",
+            lw=2.5 if w.material in ("brick", "concrete") else 1.2,
+        )
     for b in world.boxes:
-        ax.add_patch(plt.Rectangle((b.x_min, b.y_min), b.x_max - b.x_min, b.y_max - b.y_min,
-                                   color="dimgray", alpha=0.7))
+        ax.add_patch(
+            plt.Rectangle(
+                (b.x_min, b.y_min), b.x_max - b.x_min, b.y_max - b.y_min, color="dimgray", alpha=0.7
+            )
+        )
     ax.plot(*world.cc, marker="s", color="black", ms=9, ls="", label="command center")
     if records:
         lx = [r["leader"]["x"] for r in records]
@@ -116,15 +132,22 @@ def plot_map(world: World, records: Sequence[dict[str, Any]], path: Path) -> Non
                 continue
             label = f"{r['t']:.0f} s"
             bodies = [(-1, r["leader"]["x"], r["leader"]["y"])] + [
-                (i, rel["x"], rel["y"]) for i, rel in enumerate(r["relays"])]
+                (i, rel["x"], rel["y"]) for i, rel in enumerate(r["relays"])
+            ]
             for k, x, y in bodies:
                 ax.plot(x, y, marker="o", mfc="white", mec="red" if k < 0 else "black", ms=5, ls="")
                 prev = last_labelled.get(k)
                 if prev is not None and abs(prev[0] - x) + abs(prev[1] - y) < 0.5:
                     continue
                 last_labelled[k] = (x, y)
-                ax.annotate(label, (x, y), xytext=(4, 4) if k < 0 else (4, -8), textcoords="offset points",
-                            fontsize=6, color="red" if k < 0 else "dimgrey")
+                ax.annotate(
+                    label,
+                    (x, y),
+                    xytext=(4, 4) if k < 0 else (4, -8),
+                    textcoords="offset points",
+                    fontsize=6,
+                    color="red" if k < 0 else "dimgrey",
+                )
     gx, gy = world.leader_script.goal
     ax.plot(gx, gy, marker="o", mfc="none", mec="red", ms=12, ls="", label="goal")
     ax.set_aspect("equal")
@@ -152,14 +175,25 @@ def _shade_legend(ax: Any) -> None:
     import matplotlib.patches as mpatches
 
     handles = [mpatches.Patch(color=c, alpha=0.5, label=s) for s, c in STATE_COLORS.items()]
-    handles += [mpatches.Patch(facecolor="none", edgecolor="grey", hatch=h, label=f"stopped: {r}")
-                for r, h in REASON_HATCH.items()]
-    ax.legend(handles=handles, fontsize=7, ncol=len(handles), loc="upper center", bbox_to_anchor=(0.5, -0.35),
-              frameon=False)
+    handles += [
+        mpatches.Patch(facecolor="none", edgecolor="grey", hatch=h, label=f"stopped: {r}")
+        for r, h in REASON_HATCH.items()
+    ]
+    ax.legend(
+        handles=handles,
+        fontsize=7,
+        ncol=len(handles),
+        loc="upper center",
+        bbox_to_anchor=(0.5, -0.35),
+        frameon=False,
+    )
 
 
-def plot_rssi_bearing(records: Sequence[dict[str, Any]], path: Path,
-                      thresholds: Sequence[tuple[float, float]] | None = None) -> None:
+def plot_rssi_bearing(
+    records: Sequence[dict[str, Any]],
+    path: Path,
+    thresholds: Sequence[tuple[float, float]] | None = None,
+) -> None:
     """Per relay: RSSI$^l$ and RSSI$^b$ over time with the thresholds, and the estimated
     vs true bearing; the relay's drive state shaded behind both, its stop reason hatched."""
     plt = _plt()
@@ -175,8 +209,12 @@ def plot_rssi_bearing(records: Sequence[dict[str, Any]], path: Path,
         a1.plot(t, [r["relays"][i]["rssi_b_dbm"] for r in records], label=r"RSSI$^b$", alpha=0.8)
         if thresholds is not None and i < len(thresholds):
             th_l, th_b = thresholds[i]
-            a1.axhline(th_l, color="tab:blue", ls="--", lw=0.9, label=rf"Threshold$_l$ {th_l:g} dBm")
-            a1.axhline(th_b, color="tab:orange", ls="--", lw=0.9, label=rf"Threshold$_b$ {th_b:g} dBm")
+            a1.axhline(
+                th_l, color="tab:blue", ls="--", lw=0.9, label=rf"Threshold$_l$ {th_l:g} dBm"
+            )
+            a1.axhline(
+                th_b, color="tab:orange", ls="--", lw=0.9, label=rf"Threshold$_b$ {th_b:g} dBm"
+            )
             lo, hi = a1.get_ylim()
             a1.set_ylim(min(lo, th_l - 3, th_b - 3), max(hi, th_l + 3, th_b + 3))
         a1.set_ylabel("dBm")
@@ -200,7 +238,9 @@ def plot_rssi_bearing(records: Sequence[dict[str, Any]], path: Path,
     plt.close(fig)
 
 
-def plot_paths(paths: Mapping[str, tuple[Sequence[float], Sequence[float]]], path: Path, title: str) -> None:
+def plot_paths(
+    paths: Mapping[str, tuple[Sequence[float], Sequence[float]]], path: Path, title: str
+) -> None:
     """Paths in the plane (e.g. each robot's odometry), start and end marked, equal axes."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 6))
@@ -220,7 +260,9 @@ def plot_paths(paths: Mapping[str, tuple[Sequence[float], Sequence[float]]], pat
     plt.close(fig)
 
 
-def plot_throughput(runs: Sequence[tuple[str, Sequence[dict[str, Any]]]], path: Path, title: str) -> None:
+def plot_throughput(
+    runs: Sequence[tuple[str, Sequence[dict[str, Any]]]], path: Path, title: str
+) -> None:
     """End-to-end throughput over time; several runs (e.g. 0/1/2 relays) on one axis."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(9, 4))
@@ -229,9 +271,13 @@ def plot_throughput(runs: Sequence[tuple[str, Sequence[dict[str, Any]]]], path: 
     _finish_throughput(plt, fig, ax, title, path)
 
 
-def plot_throughput_bands(curves: Sequence[tuple[str, Sequence[float], Sequence[float], Sequence[float]]],
-                          path: Path, title: str, marks: Sequence[tuple[float, str]] = (),
-                          hlines: Sequence[tuple[float, str]] = ()) -> None:
+def plot_throughput_bands(
+    curves: Sequence[tuple[str, Sequence[float], Sequence[float], Sequence[float]]],
+    path: Path,
+    title: str,
+    marks: Sequence[tuple[float, str]] = (),
+    hlines: Sequence[tuple[float, str]] = (),
+) -> None:
     """Paper-style throughput over time for several seeds: per curve (label, t, mean, sd)
     a mean line and a +-1 sd band (clipped at 0 Mbps); `marks` are labelled vertical
     lines (e.g. when the leader passes a corner), `hlines` labelled horizontal ones."""
@@ -239,16 +285,36 @@ def plot_throughput_bands(curves: Sequence[tuple[str, Sequence[float], Sequence[
     fig, ax = plt.subplots(figsize=(9, 4))
     for x, label in marks:
         ax.axvline(x, color="grey", ls="--", lw=0.8)
-        ax.annotate(label, (x, 1.0), xycoords=("data", "axes fraction"), xytext=(3, -12),
-                    textcoords="offset points", fontsize=8, color="dimgrey")
+        ax.annotate(
+            label,
+            (x, 1.0),
+            xycoords=("data", "axes fraction"),
+            xytext=(3, -12),
+            textcoords="offset points",
+            fontsize=8,
+            color="dimgrey",
+        )
     for y, label in hlines:
         ax.axhline(y, color="grey", ls=":", lw=0.8)
-        ax.annotate(label, (0.0, y), xycoords=("axes fraction", "data"), xytext=(3, 2),
-                    textcoords="offset points", fontsize=8, color="dimgrey")
+        ax.annotate(
+            label,
+            (0.0, y),
+            xycoords=("axes fraction", "data"),
+            xytext=(3, 2),
+            textcoords="offset points",
+            fontsize=8,
+            color="dimgrey",
+        )
     for label, t, mean, sd in curves:
         (line,) = ax.plot(t, mean, label=label)
-        ax.fill_between(t, [max(0.0, m - s) for m, s in zip(mean, sd, strict=True)],
-                        [m + s for m, s in zip(mean, sd, strict=True)], color=line.get_color(), alpha=0.2, lw=0)
+        ax.fill_between(
+            t,
+            [max(0.0, m - s) for m, s in zip(mean, sd, strict=True)],
+            [m + s for m, s in zip(mean, sd, strict=True)],
+            color=line.get_color(),
+            alpha=0.2,
+            lw=0,
+        )
     _finish_throughput(plt, fig, ax, title, path)
 
 
@@ -257,12 +323,16 @@ def write_run_plots(world: World, records: Sequence[dict[str, Any]], out: Path) 
     out.mkdir(parents=True, exist_ok=True)
     files = [out / "map.png", out / "throughput.png"]
     plot_map(world, records, files[0])
-    plot_throughput([(f"{len(world.relays)} relay(s)", records)], files[1],
-                    f"{world.scenario.name}: end-to-end throughput")
+    plot_throughput(
+        [(f"{len(world.relays)} relay(s)", records)],
+        files[1],
+        f"{world.scenario.name}: end-to-end throughput",
+    )
     if world.relays:
         files.append(out / "rssi_bearing.png")
-        plot_rssi_bearing(records, files[-1],
-                          [relay_thresholds(world, i) for i in range(len(world.relays))])
+        plot_rssi_bearing(
+            records, files[-1], [relay_thresholds(world, i) for i in range(len(world.relays))]
+        )
     return files
 
 

@@ -21,15 +21,19 @@ def progress_text(rec: dict[str, Any], duration_s: float, width: int | None = No
     ones that do not are counted (`+2`) rather than wrapped onto a new line,
     which a carriage return cannot rewrite. A relay reads `name:state/RSSI^l/gap`.
     """
-    parts = [f"t={rec['t']:.1f}/{duration_s:.0f}s",
-             f"leader=({rec['leader']['x']:.1f},{rec['leader']['y']:.1f})",
-             f"e2e={rec['e2e_mbps']:4.1f}Mbps" + (" BROKEN" if rec["broken"] else "")]
+    parts = [
+        f"t={rec['t']:.1f}/{duration_s:.0f}s",
+        f"leader=({rec['leader']['x']:.1f},{rec['leader']['y']:.1f})",
+        f"e2e={rec['e2e_mbps']:4.1f}Mbps" + (" BROKEN" if rec["broken"] else ""),
+    ]
     relays = []
     for r in rec["relays"]:
         rssi = r["rssi_l_dbm"]
-        relays.append(f"{r['name']}:{r['state']}"
-                      + (f"/{rssi:.0f}dBm" if isinstance(rssi, int | float) else "")
-                      + f"/{r['gap_m']:.1f}m")
+        relays.append(
+            f"{r['name']}:{r['state']}"
+            + (f"/{rssi:.0f}dBm" if isinstance(rssi, int | float) else "")
+            + f"/{r['gap_m']:.1f}m"
+        )
     text = " ".join(parts + relays)
     if width is None or len(text) <= width:
         return text
@@ -43,8 +47,13 @@ def progress_text(rec: dict[str, Any], duration_s: float, width: int | None = No
 class ProgressLine:
     """Call it with each trace record; `close()` ends the line."""
 
-    def __init__(self, duration_s: float, stream: TextIO | None = None, every_s: float = 0.25,
-                 enabled: bool | None = None) -> None:
+    def __init__(
+        self,
+        duration_s: float,
+        stream: TextIO | None = None,
+        every_s: float = 0.25,
+        enabled: bool | None = None,
+    ) -> None:
         self.stream = sys.stderr if stream is None else stream
         self.duration_s = duration_s
         self.every_s = every_s

@@ -32,13 +32,20 @@ MAC_EFFICIENCY = 0.5
 #: Below this a hop is down (the slowest rate's sensitivity; -82 dBm in both tables).
 HOP_DOWN_DBM = RATE_TABLE_80211G[-1][0]
 
-DEFAULT_WALL_LOSS_DB: Mapping[str, float] = {"brick": 10.0, "light": 3.0, "concrete": 15.0,
-                                             "glass": 2.0, "box": 3.0}
+DEFAULT_WALL_LOSS_DB: Mapping[str, float] = {
+    "brick": 10.0,
+    "light": 3.0,
+    "concrete": 15.0,
+    "glass": 2.0,
+    "box": 3.0,
+}
 #: Airtime coupling of neighbouring hops (docs/SIMULATOR.md, "Multi-hop throughput").
 DEFAULT_HOP_COUPLING = 0.2
 
 
-def phy_rate_mbps(power_dbm: float, table: Sequence[tuple[float, float]] = RATE_TABLE_80211G) -> float:
+def phy_rate_mbps(
+    power_dbm: float, table: Sequence[tuple[float, float]] = RATE_TABLE_80211G
+) -> float:
     """The fastest rate of `table` whose sensitivity `power_dbm` meets; 0 when the hop is down."""
     for sens, rate in table:
         if power_dbm >= sens:
@@ -46,12 +53,16 @@ def phy_rate_mbps(power_dbm: float, table: Sequence[tuple[float, float]] = RATE_
     return 0.0
 
 
-def throughput_mbps(power_dbm: float, table: Sequence[tuple[float, float]] = RATE_TABLE_80211G) -> float:
+def throughput_mbps(
+    power_dbm: float, table: Sequence[tuple[float, float]] = RATE_TABLE_80211G
+) -> float:
     """Application throughput of one hop alone: PHY rate times the MAC efficiency."""
     return phy_rate_mbps(power_dbm, table) * MAC_EFFICIENCY
 
 
-def chain_throughput_mbps(hop_mbps: Sequence[float], coupling: float = DEFAULT_HOP_COUPLING) -> float:
+def chain_throughput_mbps(
+    hop_mbps: Sequence[float], coupling: float = DEFAULT_HOP_COUPLING
+) -> float:
     """End-to-end throughput of a relay chain whose neighbouring hops share airtime.
 
     Carrying x Mbps end to end, hop k is busy x/T_k of the time (T_k: its throughput
@@ -117,6 +128,7 @@ class RadioParams:
     @property
     def rate_table(self) -> tuple[tuple[float, float], ...]:
         return RATE_TABLES[self.phy]
+
     #: Per-zone environments (relayd/sim/zones.py); outside them the values above hold.
     zones: tuple[RadioZone, ...] = ()
 
@@ -145,8 +157,10 @@ class ShadowField:
         rng = random.Random(seed)
         k = 1.0 / max(corr_m, 1e-6)
         amp = math.sqrt(2.0 / waves)
-        self._waves = tuple((rng.gauss(0.0, k), rng.gauss(0.0, k), rng.uniform(0.0, 2 * math.pi), amp)
-                            for _ in range(waves))
+        self._waves = tuple(
+            (rng.gauss(0.0, k), rng.gauss(0.0, k), rng.uniform(0.0, 2 * math.pi), amp)
+            for _ in range(waves)
+        )
 
     def value(self, x_m: float, y_m: float) -> float:
         cos = math.cos
@@ -180,7 +194,9 @@ class Radio:
             if w.material not in params.wall_loss_db:
                 raise ValueError(f"wall material {w.material!r} has no loss in radio.wall_loss_db")
         #: (ax, ay, bx, by) -> (mean power without antenna gain, wall loss, walls crossed, environment)
-        self._paths: dict[tuple[float, float, float, float], tuple[float, float, int, PathEnvironment]] = {}
+        self._paths: dict[
+            tuple[float, float, float, float], tuple[float, float, int, PathEnvironment]
+        ] = {}
         self._shadow_at: dict[tuple[float, float], float] = {}
         self._memo_params = params
 
@@ -205,13 +221,25 @@ class Radio:
         if hit is not None:
             return hit
         p = self.params
-        env = path_environment(a, b, p.zones, l0_dbm=p.l0_dbm, exponent=p.exponent,
-                               shadow_sigma_db=p.shadow_sigma_db, rician_k_db=p.rician_k_db)
+        env = path_environment(
+            a,
+            b,
+            p.zones,
+            l0_dbm=p.l0_dbm,
+            exponent=p.exponent,
+            shadow_sigma_db=p.shadow_sigma_db,
+            rician_k_db=p.rician_k_db,
+        )
         hit_walls = crossings(a, b, self._walls)
         loss, n_walls = sum(p.wall_loss_db[w.material] for w in hit_walls), len(hit_walls)
         d = max(p.min_distance_m, math.hypot(b[0] - a[0], b[1] - a[1]))
         # Summed in the order of the budget P = L0 - 10 n log10(d) - walls + shadowing (+ gain).
-        base = env.l0_dbm - 10.0 * env.exponent * math.log10(d) - loss + self.shadowing_db(a, b, env.shadow_sigma_db)
+        base = (
+            env.l0_dbm
+            - 10.0 * env.exponent * math.log10(d)
+            - loss
+            + self.shadowing_db(a, b, env.shadow_sigma_db)
+        )
         if len(self._paths) >= MEMO_MAX_ENTRIES:
             self._paths.clear()
         out = self._paths[key] = (base, loss, n_walls, env)

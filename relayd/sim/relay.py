@@ -50,16 +50,35 @@ def _pose3(p: Any) -> tuple[float, float, float]:
     return float(p.x_mm), float(p.y_mm), float(p.theta_deg)
 
 
-def relay_settings(*, robot_port: str, servo_port: str, procfs_path: str, rear_url: str,
-                   front_url: str, control: dict[str, Any], scan: dict[str, Any],
-                   recovery: dict[str, Any] | None = None) -> dict[str, Any]:
+def relay_settings(
+    *,
+    robot_port: str,
+    servo_port: str,
+    procfs_path: str,
+    rear_url: str,
+    front_url: str,
+    control: dict[str, Any],
+    scan: dict[str, Any],
+    recovery: dict[str, Any] | None = None,
+) -> dict[str, Any]:
     """The config document (config/relayd.toml's sections and keys) of one simulated relay."""
     return {
         "recovery": dict(recovery or {}),
         "robot": {"port": robot_port, "baud": 9600},
-        "pantilt": {"port": servo_port, "protocol": "maestro", "scan_channel": 0, "link_channel": 1,
-                    "scan_pulse_us": list(map(int, PULSE_US)), "link_pulse_us": list(map(int, PULSE_US))},
-        "wifi": {"source": "procfs", "interface": "wlan1", "procfs_path": procfs_path, "sample_hz": 20},
+        "pantilt": {
+            "port": servo_port,
+            "protocol": "maestro",
+            "scan_channel": 0,
+            "link_channel": 1,
+            "scan_pulse_us": list(map(int, PULSE_US)),
+            "link_pulse_us": list(map(int, PULSE_US)),
+        },
+        "wifi": {
+            "source": "procfs",
+            "interface": "wlan1",
+            "procfs_path": procfs_path,
+            "sample_hz": 20,
+        },
         "ap": {
             "rear": {"url": rear_url, "username": "ubnt", "password_env": AP_PASSWORD_ENV},
             "front": {"url": front_url, "username": "ubnt", "password_env": AP_PASSWORD_ENV},
@@ -85,9 +104,20 @@ class SimRelay:
     task: asyncio.Task[None] | None = None
 
 
-async def start_relay(scenario: Scenario, world: World, i: int, *, clock: Clock, virtual: bool,
-                      work: Path, prefix: str, seed: int, password: str,
-                      recovery: dict[str, Any], record_dir: Path | None) -> SimRelay:
+async def start_relay(
+    scenario: Scenario,
+    world: World,
+    i: int,
+    *,
+    clock: Clock,
+    virtual: bool,
+    work: Path,
+    prefix: str,
+    seed: int,
+    password: str,
+    recovery: dict[str, Any],
+    record_dir: Path | None,
+) -> SimRelay:
     """Relay `i` of `world`: its fakes serving (in memory when `virtual`, else under
     `work`), the robot's SIP loop started, and its daemon built but not yet running.
     `prefix` names its in-memory links; the robot's fake gets seed `seed * 1000 + i`."""
@@ -107,9 +137,14 @@ async def start_relay(scenario: Scenario, world: World, i: int, *, clock: Clock,
     def motion_guard(old: Any, new: Any) -> bool:
         return world.motion_ok(i, *_pose3(new), old=_pose3(old))
 
-    robot = FakeRobot(name=body.name, clock=clock, sonar_fn=sonar_fn, motion_guard=motion_guard,
-                      pose=(body.x_m * 1000.0, body.y_m * 1000.0, body.theta_deg),
-                      seed=seed * 1000 + i)
+    robot = FakeRobot(
+        name=body.name,
+        clock=clock,
+        sonar_fn=sonar_fn,
+        motion_guard=motion_guard,
+        pose=(body.x_m * 1000.0, body.y_m * 1000.0, body.theta_deg),
+        seed=seed * 1000 + i,
+    )
     maestro = FakeMaestro(clock=clock, initial_us=PULSE_US[1])
     rear = FakeAirOs("ubnt", password, clock=clock)
     front = FakeAirOs("ubnt", password, clock=clock)
@@ -122,10 +157,13 @@ async def start_relay(scenario: Scenario, world: World, i: int, *, clock: Clock,
         procfs = MemoryRssi("wlan1", clock=clock)
         procfs_path = str(work / f"{body.name}-wireless")  # unused: the source is in memory
         rear_url, front_url = f"http://{tag}-rear.inproc", f"http://{tag}-front.inproc"
-        devices = DeviceOverrides(rssi_source=procfs, airos_clients={
-            "rear": InProcessAirOs(rear, clock=clock, name=f"{tag}-rear"),
-            "front": InProcessAirOs(front, clock=clock, name=f"{tag}-front"),
-        })
+        devices = DeviceOverrides(
+            rssi_source=procfs,
+            airos_clients={
+                "rear": InProcessAirOs(rear, clock=clock, name=f"{tag}-rear"),
+                "front": InProcessAirOs(front, clock=clock, name=f"{tag}-front"),
+            },
+        )
     else:
         robot_port = robot.serve_pty(str(work / f"{body.name}-base"))
         servo_port = maestro.serve_pty(str(work / f"{body.name}-servo"))
@@ -137,9 +175,16 @@ async def start_relay(scenario: Scenario, world: World, i: int, *, clock: Clock,
     procfs.write(world.yagi_rssi_dbm(i, 0.0))
     control = dict(scenario.control)
     control.update(scenario.relay[i].control)
-    doc = relay_settings(robot_port=robot_port, servo_port=servo_port, procfs_path=procfs_path,
-                         rear_url=rear_url, front_url=front_url, control=control,
-                         scan=dict(scenario.scan), recovery=recovery)
+    doc = relay_settings(
+        robot_port=robot_port,
+        servo_port=servo_port,
+        procfs_path=procfs_path,
+        rear_url=rear_url,
+        front_url=front_url,
+        control=control,
+        scan=dict(scenario.scan),
+        recovery=recovery,
+    )
     if record_dir is not None:
         doc["record"] = {"enabled": True, "path": str(record_dir / f"{body.name}.mcap")}
     settings = Settings.model_validate(doc)

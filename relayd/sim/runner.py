@@ -89,12 +89,20 @@ class SimResult:
 class SimRunner:
     """Runs one scenario with real daemons; `await run()` returns the summary and trace."""
 
-    def __init__(self, scenario: Scenario, *, speed: float | None = 10.0, seed: int = 1,
-                 seconds: float | None = None, out_dir: Path | None = None,
-                 workdir: Path | None = None,
-                 on_progress: Callable[[dict[str, Any]], None] | None = None,
-                 on_ready: Callable[[dict[str, int | None]], None] | None = None,
-                 record_dir: Path | None = None, recovery: bool | None = None) -> None:
+    def __init__(
+        self,
+        scenario: Scenario,
+        *,
+        speed: float | None = 10.0,
+        seed: int = 1,
+        seconds: float | None = None,
+        out_dir: Path | None = None,
+        workdir: Path | None = None,
+        on_progress: Callable[[dict[str, Any]], None] | None = None,
+        on_ready: Callable[[dict[str, int | None]], None] | None = None,
+        record_dir: Path | None = None,
+        recovery: bool | None = None,
+    ) -> None:
         self.scenario = scenario
         #: Each relay's daemon records to <record_dir>/<name>.mcap (its own [record] config).
         self.record_dir = record_dir
@@ -119,10 +127,19 @@ class SimRunner:
 
     # -- bring-up ---------------------------------------------------------------------
     async def _start_relay(self, i: int, work: Path) -> SimRelay:
-        relay = await start_relay(self.scenario, self.world, i, clock=self.clock, virtual=self.virtual,
-                                  work=work, prefix=f"sim{id(self):x}", seed=self.seed,
-                                  password=self._password, recovery=self._recovery_section(),
-                                  record_dir=self.record_dir)
+        relay = await start_relay(
+            self.scenario,
+            self.world,
+            i,
+            clock=self.clock,
+            virtual=self.virtual,
+            work=work,
+            prefix=f"sim{id(self):x}",
+            seed=self.seed,
+            password=self._password,
+            recovery=self._recovery_section(),
+            record_dir=self.record_dir,
+        )
         self._update_links()
         return relay
 
@@ -146,8 +163,9 @@ class SimRunner:
             x, y, th = float(r.robot.x_mm), float(r.robot.y_mm), float(r.robot.theta_deg)
             self._travelled[i] += math.hypot(x / 1000.0 - body.x_m, y / 1000.0 - body.y_m)
             self.world.set_pose(i, x, y, th)
-            self.world.set_servos(i, pulse_to_deg(r.maestro.position_us(0)),
-                                  pulse_to_deg(r.maestro.position_us(1)))
+            self.world.set_servos(
+                i, pulse_to_deg(r.maestro.position_us(0)), pulse_to_deg(r.maestro.position_us(1))
+            )
 
     def _write_rssi(self) -> None:
         for i, r in enumerate(self.relays):
@@ -164,8 +182,13 @@ class SimRunner:
                     continue
                 level = w.hop_sample_dbm(k)
                 rate = w.hop(k).phy_mbps
-                ap.set_link(level, noise_dbm=noise, ccq_pct=95.0 if rate else 0.0,
-                            tx_mbps=rate, rx_mbps=rate)
+                ap.set_link(
+                    level,
+                    noise_dbm=noise,
+                    ccq_pct=95.0 if rate else 0.0,
+                    tx_mbps=rate,
+                    rx_mbps=rate,
+                )
 
     def _record(self, t: float) -> dict[str, Any]:
         w = self.world
@@ -174,30 +197,53 @@ class SimRunner:
         for i, r in enumerate(self.relays):
             body = w.relays[i]
             st = r.daemon.state
-            relays.append({
-                "name": body.name, "x": round(body.x_m, 3), "y": round(body.y_m, 3),
-                "theta_deg": round(body.theta_deg, 1), "state": str(st.state), "reason": st.reason,
-                "bearing_deg": st.bearing_deg, "true_bearing_deg": round(w.true_bearing_deg(i), 1),
-                "rssi_l_dbm": st.rssi_leader_dbm, "rssi_b_dbm": st.rssi_behind_dbm,
-                "scan_deg": round(body.scan_deg, 1), "link_deg": round(body.link_deg, 1),
-                "gap_m": round(w.gap_m(i), 3), "collisions": body.collisions,
-                "wheels": [round(st.wheels_left_mm_s), round(st.wheels_right_mm_s)],
-                "v_mm_s": round(float(r.robot.vel_mm_s)),
-                "w_deg_s": round(float(r.robot.rvel_deg_s), 1),
-                "rssi_l_mean_dbm": round(w.radio.mean_power_dbm(body.pos, w.node_pos(i))[0], 1),
-                "situation": st.situation,
-                "threshold_b_dbm": st.thresholds.get("threshold_b_dbm"),
-                "recovery": None if (rv := st.recovery) is None else {
-                    "phase": str(rv.phase), "kind": None if rv.kind is None else str(rv.kind),
-                    "episodes": rv.episodes, "distance_m": rv.distance_m, "outcome": rv.last_outcome},
-            })
+            relays.append(
+                {
+                    "name": body.name,
+                    "x": round(body.x_m, 3),
+                    "y": round(body.y_m, 3),
+                    "theta_deg": round(body.theta_deg, 1),
+                    "state": str(st.state),
+                    "reason": st.reason,
+                    "bearing_deg": st.bearing_deg,
+                    "true_bearing_deg": round(w.true_bearing_deg(i), 1),
+                    "rssi_l_dbm": st.rssi_leader_dbm,
+                    "rssi_b_dbm": st.rssi_behind_dbm,
+                    "scan_deg": round(body.scan_deg, 1),
+                    "link_deg": round(body.link_deg, 1),
+                    "gap_m": round(w.gap_m(i), 3),
+                    "collisions": body.collisions,
+                    "wheels": [round(st.wheels_left_mm_s), round(st.wheels_right_mm_s)],
+                    "v_mm_s": round(float(r.robot.vel_mm_s)),
+                    "w_deg_s": round(float(r.robot.rvel_deg_s), 1),
+                    "rssi_l_mean_dbm": round(w.radio.mean_power_dbm(body.pos, w.node_pos(i))[0], 1),
+                    "situation": st.situation,
+                    "threshold_b_dbm": st.thresholds.get("threshold_b_dbm"),
+                    "recovery": None
+                    if (rv := st.recovery) is None
+                    else {
+                        "phase": str(rv.phase),
+                        "kind": None if rv.kind is None else str(rv.kind),
+                        "episodes": rv.episodes,
+                        "distance_m": rv.distance_m,
+                        "outcome": rv.last_outcome,
+                    },
+                }
+            )
         return {
             "t": round(t, 2),
-            "leader": {"x": round(w.leader.x_m, 3), "y": round(w.leader.y_m, 3), "moving": w.leader.moving},
+            "leader": {
+                "x": round(w.leader.x_m, 3),
+                "y": round(w.leader.y_m, 3),
+                "moving": w.leader.moving,
+            },
             "cc": [round(w.cc[0], 3), round(w.cc[1], 3)],
             "timed_present": list(w.timed_present),
             "relays": relays,
-            "hops": [{"dbm": round(h.power_dbm, 1), "mbps": h.rate_mbps, "walls": h.walls} for h in links.hops],
+            "hops": [
+                {"dbm": round(h.power_dbm, 1), "mbps": h.rate_mbps, "walls": h.walls}
+                for h in links.hops
+            ],
             "e2e_mbps": links.e2e_mbps,
             "broken": links.broken,
         }
@@ -227,7 +273,9 @@ class SimRunner:
                     self.on_progress(rec)
             if self.world.leader.done and done_at is None:
                 done_at = t
-            if t >= end or (done_at is not None and t >= done_at + self.scenario.settle_after_goal_s):
+            if t >= end or (
+                done_at is not None and t >= done_at + self.scenario.settle_after_goal_s
+            ):
                 break
             next_t += dt
             await clock.sleep(next_t - clock.now())
@@ -241,15 +289,22 @@ class SimRunner:
         with contextlib.ExitStack() as stack:
             work = self.workdir
             if work is None:
-                work = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="relayd-sim-",
-                                                                            dir=scratch_root())))
+                work = Path(
+                    stack.enter_context(
+                        tempfile.TemporaryDirectory(prefix="relayd-sim-", dir=scratch_root())
+                    )
+                )
             try:
                 contexts = [_relay_context(b.name) for b in self.world.relays]
                 for i, ctx in enumerate(contexts):
                     # In the relay's own context: its fakes' tasks inherit `relay=<name>` for sim.log.
-                    self.relays.append(await asyncio.create_task(self._start_relay(i, work), context=ctx))
+                    self.relays.append(
+                        await asyncio.create_task(self._start_relay(i, work), context=ctx)
+                    )
                 for r, ctx in zip(self.relays, contexts, strict=True):
-                    r.task = asyncio.create_task(r.daemon.run(), name=f"sim-daemon-{r.name}", context=ctx)
+                    r.task = asyncio.create_task(
+                        r.daemon.run(), name=f"sim-daemon-{r.name}", context=ctx
+                    )
                 ports = await self._wait_ports() if self.relays else {}
                 if self.on_ready is not None:
                     self.on_ready(ports)
@@ -281,18 +336,30 @@ class SimRunner:
         return 0.0 if self.t0 is None else self.clock.now() - self.t0
 
     def _summary(self, ports: dict[str, int | None]) -> dict[str, Any]:
-        followers = [{"name": b.name, "collisions": b.collisions, "travelled_m": self._travelled[i]}
-                     for i, b in enumerate(self.world.relays)]
-        return summarize(self.records, scenario=self.scenario.name, relays=len(self.world.relays),
-                         goal=self.world.leader_script.goal, goal_radius_m=self.scenario.goal_radius_m,
-                         collisions=self.world.collisions(), followers=followers)
+        followers = [
+            {"name": b.name, "collisions": b.collisions, "travelled_m": self._travelled[i]}
+            for i, b in enumerate(self.world.relays)
+        ]
+        return summarize(
+            self.records,
+            scenario=self.scenario.name,
+            relays=len(self.world.relays),
+            goal=self.world.leader_script.goal,
+            goal_radius_m=self.scenario.goal_radius_m,
+            collisions=self.world.collisions(),
+            followers=followers,
+        )
 
     def write_outputs(self, result: SimResult, out: Path) -> None:
         out.mkdir(parents=True, exist_ok=True)
-        (out / "summary.json").write_text(json.dumps(result.summary, indent=2) + "\n", encoding="utf-8")
+        (out / "summary.json").write_text(
+            json.dumps(result.summary, indent=2) + "\n", encoding="utf-8"
+        )
         # The API ports the OS picked: where to look during the run, not a result of it
         # (so they stay out of summary.json, which the same scenario and seed reproduce).
-        (out / "ports.json").write_text(json.dumps(result.api_ports, indent=2) + "\n", encoding="utf-8")
+        (out / "ports.json").write_text(
+            json.dumps(result.api_ports, indent=2) + "\n", encoding="utf-8"
+        )
         with (out / "trace.jsonl").open("w", encoding="utf-8") as f:
             for rec in result.records:
                 f.write(json.dumps(rec, separators=(",", ":")) + "\n")

@@ -211,13 +211,30 @@ class Scenario(_Model):
         return RadioParams(
             l0_dbm=r.l0_dbm if r.l0_dbm is not None else (-15.0 if indoor else -20.0),
             exponent=r.exponent if r.exponent is not None else (3.0 if indoor else 2.5),
-            wall_loss_db=self.wall_losses(), shadow_sigma_db=r.shadow_sigma_db,
-            shadow_corr_m=r.shadow_corr_m, rician_k_db=r.rician_k_db, fading=r.fading,
-            fading_avg_frames=r.fading_avg_frames, noise_floor_dbm=r.noise_floor_dbm,
-            yagi_floor_db=r.yagi_floor_db, patch_floor_db=r.patch_floor_db, phy=r.phy,
+            wall_loss_db=self.wall_losses(),
+            shadow_sigma_db=r.shadow_sigma_db,
+            shadow_corr_m=r.shadow_corr_m,
+            rician_k_db=r.rician_k_db,
+            fading=r.fading,
+            fading_avg_frames=r.fading_avg_frames,
+            noise_floor_dbm=r.noise_floor_dbm,
+            yagi_floor_db=r.yagi_floor_db,
+            patch_floor_db=r.patch_floor_db,
+            phy=r.phy,
             hop_coupling=r.hop_coupling,
-            zones=tuple(RadioZone(z.name, tuple(z.polygon), z.l0_dbm, z.exponent, z.shadow_sigma_db,
-                                  z.rician_k_db, z.multipath_db) for z in r.zones))
+            zones=tuple(
+                RadioZone(
+                    z.name,
+                    tuple(z.polygon),
+                    z.l0_dbm,
+                    z.exponent,
+                    z.shadow_sigma_db,
+                    z.rician_k_db,
+                    z.multipath_db,
+                )
+                for z in r.zones
+            ),
+        )
 
     def wall_segments(self) -> list[Segment]:
         """The walls present the whole run (timed ones: `timed_obstacles`)."""
@@ -245,7 +262,9 @@ class Scenario(_Model):
     def with_relays(self, n: int) -> Scenario:
         """The same world with the first `n` relays (counted from the leader backwards)."""
         if not 0 <= n <= len(self.relay):
-            raise ScenarioError([f"relays: {n} asked, scenario {self.name!r} has {len(self.relay)} start poses"])
+            raise ScenarioError(
+                [f"relays: {n} asked, scenario {self.name!r} has {len(self.relay)} start poses"]
+            )
         return self.model_copy(update={"relays": n})
 
 
@@ -285,7 +304,9 @@ def scenario_problems(data: dict[str, Any]) -> list[str]:
         for i, item in enumerate(_list(data.get(group))):
             material = _dict(item).get("material")
             if isinstance(material, str) and material not in losses:
-                out.append(f"{group}.{i}.material: unknown material {material!r} (known: {', '.join(sorted(losses))})")
+                out.append(
+                    f"{group}.{i}.material: unknown material {material!r} (known: {', '.join(sorted(losses))})"
+                )
     relays, starts = data.get("relays", 1), _list(data.get("relay"))
     if isinstance(relays, int) and not isinstance(relays, bool) and relays > len(starts):
         out.append(f"relays: relays = {relays} but only {len(starts)} [[relay]] start poses")
@@ -299,8 +320,10 @@ def _daemon_sections(data: dict[str, Any]) -> list[str]:
     out: list[str] = []
     base = _dict(data.get("control"))
     sections: tuple[tuple[str, Any, dict[str, Any]], ...] = (
-        ("control", ControlSettings, base), ("scan", ScanSettings, _dict(data.get("scan"))),
-        ("recovery", RecoverySettings, _dict(data.get("recovery"))))
+        ("control", ControlSettings, base),
+        ("scan", ScanSettings, _dict(data.get("scan"))),
+        ("recovery", RecoverySettings, _dict(data.get("recovery"))),
+    )
     for key, model, doc in sections:
         try:
             model.model_validate(doc)
@@ -335,7 +358,9 @@ def parse_scenario(data: dict[str, Any]) -> Scenario:
 
 def builtin_names() -> list[str]:
     folder = resources.files("relayd.sim") / "scenarios"
-    return sorted(p.name.removesuffix(".toml") for p in folder.iterdir() if p.name.endswith(".toml"))
+    return sorted(
+        p.name.removesuffix(".toml") for p in folder.iterdir() if p.name.endswith(".toml")
+    )
 
 
 def load_scenario(name_or_path: str | Path) -> Scenario:
@@ -356,8 +381,12 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
     else:
         res = resources.files("relayd.sim") / "scenarios" / f"{name_or_path}.toml"
         if not res.is_file():
-            raise ScenarioError([f"scenario: no scenario named {str(name_or_path)!r} "
-                                 f"(shipped: {', '.join(builtin_names())})"])
+            raise ScenarioError(
+                [
+                    f"scenario: no scenario named {str(name_or_path)!r} "
+                    f"(shipped: {', '.join(builtin_names())})"
+                ]
+            )
         text = res.read_text(encoding="utf-8")
     try:
         data = tomllib.loads(text)

@@ -21,10 +21,22 @@ if TYPE_CHECKING:
 
 #: P3-AT sonar ring (docs/PROTOCOLS.md 1.11): x forward, y left (mm), heading (deg, ccw).
 SONAR_POSES: tuple[tuple[float, float, float], ...] = (
-    (147, 136, 90), (193, 119, 50), (227, 79, 30), (245, 27, 10),
-    (245, -27, -10), (227, -79, -30), (193, -119, -50), (147, -136, -90),
-    (-144, -136, -90), (-189, -119, -130), (-223, -79, -150), (-241, -27, -170),
-    (-241, 27, 170), (-223, 79, 150), (-189, 119, 130), (-144, 136, 90),
+    (147, 136, 90),
+    (193, 119, 50),
+    (227, 79, 30),
+    (245, 27, 10),
+    (245, -27, -10),
+    (227, -79, -30),
+    (193, -119, -50),
+    (147, -136, -90),
+    (-144, -136, -90),
+    (-189, -119, -130),
+    (-223, -79, -150),
+    (-241, -27, -170),
+    (-241, 27, 170),
+    (-223, 79, 150),
+    (-189, 119, 130),
+    (-144, 136, 90),
 )
 
 
@@ -37,14 +49,30 @@ class SonarReadings(Sequence[int]):
 
     __slots__ = ("_c", "_cfg", "_circles", "_got", "_rng", "_s", "_segs", "_theta_deg", "_x", "_y")
 
-    def __init__(self, world: World, i: int, x_mm: float, y_mm: float, theta_deg: float, *,
-                 cfg: SonarSpec, rng: random.Random) -> None:
+    def __init__(
+        self,
+        world: World,
+        i: int,
+        x_mm: float,
+        y_mm: float,
+        theta_deg: float,
+        *,
+        cfg: SonarSpec,
+        rng: random.Random,
+    ) -> None:
         self._cfg = cfg
         x, y = self._x, self._y = x_mm / 1000.0, y_mm / 1000.0
         reach = cfg.max_range_m + 0.5
-        segs = [s for s in world.obstacles
-                if not (max(s.x1, s.x2) < x - reach or min(s.x1, s.x2) > x + reach
-                        or max(s.y1, s.y2) < y - reach or min(s.y1, s.y2) > y + reach)]
+        segs = [
+            s
+            for s in world.obstacles
+            if not (
+                max(s.x1, s.x2) < x - reach
+                or min(s.x1, s.x2) > x + reach
+                or max(s.y1, s.y2) < y - reach
+                or min(s.y1, s.y2) > y + reach
+            )
+        ]
         circles: list[tuple[float, float, float]] = []
         # Bodies (the leader, the other relays) count only when near: a centre `reach` + 1 m
         # away leaves even a robot's far corner (0.4 m) beyond every transducer's range
@@ -88,8 +116,15 @@ class SonarReadings(Sequence[int]):
         sx, sy, sh = SONAR_POSES[k]
         ox = self._x + (c * sx - s * sy) / 1000.0
         oy = self._y + (s * sx + c * sy) / 1000.0
-        best = cone_range(ox, oy, self._theta_deg + sh, cfg.beam_deg / 2.0, cfg.max_range_m,
-                          self._segs, self._circles)
+        best = cone_range(
+            ox,
+            oy,
+            self._theta_deg + sh,
+            cfg.beam_deg / 2.0,
+            cfg.max_range_m,
+            self._segs,
+            self._circles,
+        )
         max_mm = round(cfg.max_range_m * 1000)
         if best is None:
             return max_mm

@@ -27,8 +27,11 @@ def unapplied_command_s(records: Sequence[dict[str, Any]], i: int, grace_s: floa
     for r in records:
         rel = r["relays"][i]
         wheels = rel.get("wheels") or [0, 0]
-        stuck = max(abs(wheels[0]), abs(wheels[1])) > 50 and rel.get("v_mm_s", 0) == 0 \
+        stuck = (
+            max(abs(wheels[0]), abs(wheels[1])) > 50
+            and rel.get("v_mm_s", 0) == 0
             and abs(rel.get("w_deg_s", 0)) == 0
+        )
         if stuck:
             since = r["t"] if since is None else since
             if prev_t is not None and r["t"] - since > grace_s:
@@ -39,8 +42,16 @@ def unapplied_command_s(records: Sequence[dict[str, Any]], i: int, grace_s: floa
     return round(total, 2)
 
 
-def summarize(records: Sequence[dict[str, Any]], *, scenario: str, relays: int, goal: tuple[float, float],
-              goal_radius_m: float, collisions: int, followers: Sequence[dict[str, Any]]) -> dict[str, Any]:
+def summarize(
+    records: Sequence[dict[str, Any]],
+    *,
+    scenario: str,
+    relays: int,
+    goal: tuple[float, float],
+    goal_radius_m: float,
+    collisions: int,
+    followers: Sequence[dict[str, Any]],
+) -> dict[str, Any]:
     """summary.json from the trace: the keys docs/SIMULATOR.md lists.
 
     goal_reached: the leader got within goal_radius_m of its final waypoint while the
@@ -48,26 +59,33 @@ def summarize(records: Sequence[dict[str, Any]], *, scenario: str, relays: int, 
     staying connected"). link_broken_at_s: the first record with any hop down.
     """
     broken_at = next((r["t"] for r in records if r["broken"]), None)
-    arrived_at = next((r["t"] for r in records
-                       if math.hypot(r["leader"]["x"] - goal[0], r["leader"]["y"] - goal[1]) <= goal_radius_m),
-                      None)
+    arrived_at = next(
+        (
+            r["t"]
+            for r in records
+            if math.hypot(r["leader"]["x"] - goal[0], r["leader"]["y"] - goal[1]) <= goal_radius_m
+        ),
+        None,
+    )
     reached = arrived_at is not None and (broken_at is None or broken_at > arrived_at)
     e2e = [r["e2e_mbps"] for r in records]
     last = records[-1] if records else None
     out_followers = []
     for i, f in enumerate(followers):
         gaps = [r["relays"][i]["gap_m"] for r in records]
-        out_followers.append({
-            "name": f["name"],
-            "max_gap_m": round(max(gaps), 3) if gaps else None,
-            "final_gap_m": round(gaps[-1], 3) if gaps else None,
-            "stopped_reason": None if last is None else last["relays"][i]["reason"],
-            "final_state": None if last is None else last["relays"][i]["state"],
-            "collisions": f["collisions"],
-            "travelled_m": round(f["travelled_m"], 3),
-            "unapplied_command_s": unapplied_command_s(records, i) if records else 0.0,
-            "recovery_episodes": recovery_episodes(records, i),
-        })
+        out_followers.append(
+            {
+                "name": f["name"],
+                "max_gap_m": round(max(gaps), 3) if gaps else None,
+                "final_gap_m": round(gaps[-1], 3) if gaps else None,
+                "stopped_reason": None if last is None else last["relays"][i]["reason"],
+                "final_state": None if last is None else last["relays"][i]["state"],
+                "collisions": f["collisions"],
+                "travelled_m": round(f["travelled_m"], 3),
+                "unapplied_command_s": unapplied_command_s(records, i) if records else 0.0,
+                "recovery_episodes": recovery_episodes(records, i),
+            }
+        )
     return {
         "scenario": scenario,
         "relays": relays,

@@ -135,21 +135,31 @@ class World:
         self.obstacles: list[Segment] = list(self._static)
         # Boxes attenuate too (a crate or a car is in the way of the radio path); the radio
         # checks every material, timed ones included.
-        self.radio = Radio(scenario.radio_params(), self._static + [s for *_, o in self.timed for s in o], seed)
+        self.radio = Radio(
+            scenario.radio_params(), self._static + [s for *_, o in self.timed for s in o], seed
+        )
         self.radio.walls = tuple(self.obstacles)
         lead = scenario.leader
-        self.leader_script = LeaderScript([(w.x, w.y, w.pause_s) for w in lead.waypoints],
-                                          lead.speed_m_s, lead.start_s,
-                                          [(c.at_s, c.speed_m_s) for c in lead.speed_profile])
+        self.leader_script = LeaderScript(
+            [(w.x, w.y, w.pause_s) for w in lead.waypoints],
+            lead.speed_m_s,
+            lead.start_s,
+            [(c.at_s, c.speed_m_s) for c in lead.speed_profile],
+        )
         cc = scenario.command_center
         self.cc_script: LeaderScript | None = None
         if cc.waypoints:
-            self.cc_script = LeaderScript([(cc.x, cc.y, 0.0)] + [(w.x, w.y, w.pause_s) for w in cc.waypoints],
-                                          cc.speed_m_s, cc.start_s)
+            self.cc_script = LeaderScript(
+                [(cc.x, cc.y, 0.0)] + [(w.x, w.y, w.pause_s) for w in cc.waypoints],
+                cc.speed_m_s,
+                cc.start_s,
+            )
         self.leader_kind = lead.kind
         self.leader_radius_m = lead.radius_m
         self.cc: Point = (scenario.command_center.x, scenario.command_center.y)
-        self.relays = [RelayBody(r.name, r.x, r.y, r.theta_deg) for r in scenario.relay[: scenario.relays]]
+        self.relays = [
+            RelayBody(r.name, r.x, r.y, r.theta_deg) for r in scenario.relay[: scenario.relays]
+        ]
         self._sonar_rng = random.Random(seed ^ 0x50AA)
         self.t = 0.0
         self.leader = self.leader_script.pose(0.0)
@@ -193,7 +203,9 @@ class World:
         # could appear 0.1 m ahead of a moving relay, a contact no controller can avoid.
         margin = 2 * DOOR_CLEAR_M
         for r in self.relays:
-            poly = footprint(r.x_m, r.y_m, r.theta_deg, ROBOT_LENGTH_M + margin, ROBOT_WIDTH_M + margin)
+            poly = footprint(
+                r.x_m, r.y_m, r.theta_deg, ROBOT_LENGTH_M + margin, ROBOT_WIDTH_M + margin
+            )
             if any(polygon_hits_segment(poly, s) for s in outline):
                 return True
         lx, ly, rad = self.leader.x_m, self.leader.y_m, self.leader_radius_m + 2 * CONTACT_CLEAR_M
@@ -219,16 +231,21 @@ class World:
     def leader_polygon(self) -> Polygon | None:
         if self.leader_kind != "robot":
             return None
-        return footprint(self.leader.x_m, self.leader.y_m, self.leader.heading_deg,
-                         ROBOT_LENGTH_M, ROBOT_WIDTH_M)
+        return footprint(
+            self.leader.x_m, self.leader.y_m, self.leader.heading_deg, ROBOT_LENGTH_M, ROBOT_WIDTH_M
+        )
 
     def _collides(self, i: int, poly: Polygon) -> bool:
         xs = [p[0] for p in poly]
         ys = [p[1] for p in poly]
         x0, x1, y0, y1 = min(xs), max(xs), min(ys), max(ys)
         for s in self.obstacles:
-            if (max(s.x1, s.x2) < x0 or min(s.x1, s.x2) > x1
-                    or max(s.y1, s.y2) < y0 or min(s.y1, s.y2) > y1):
+            if (
+                max(s.x1, s.x2) < x0
+                or min(s.x1, s.x2) > x1
+                or max(s.y1, s.y2) < y0
+                or min(s.y1, s.y2) > y1
+            ):
                 continue
             if polygon_hits_segment(poly, s):
                 return True
@@ -246,15 +263,26 @@ class World:
                 return True
         for j, other in enumerate(self.relays):
             ox, oy = other.x_m, other.y_m
-            if (j == i or ox + ROBOT_RADIUS_M < x0 or ox - ROBOT_RADIUS_M > x1
-                    or oy + ROBOT_RADIUS_M < y0 or oy - ROBOT_RADIUS_M > y1):
+            if (
+                j == i
+                or ox + ROBOT_RADIUS_M < x0
+                or ox - ROBOT_RADIUS_M > x1
+                or oy + ROBOT_RADIUS_M < y0
+                or oy - ROBOT_RADIUS_M > y1
+            ):
                 continue
             if polygons_overlap(poly, other.polygon()):
                 return True
         return False
 
-    def motion_ok(self, i: int, new_x_mm: float, new_y_mm: float, new_theta_deg: float,
-                  old: tuple[float, float, float] | None = None) -> bool:
+    def motion_ok(
+        self,
+        i: int,
+        new_x_mm: float,
+        new_y_mm: float,
+        new_theta_deg: float,
+        old: tuple[float, float, float] | None = None,
+    ) -> bool:
         """The motion guard of relay i: False if the step from `old` (mm, mm, deg; default
         the last known pose) to the new pose makes the footprint touch anything.
 
@@ -265,17 +293,28 @@ class World:
         r = self.relays[i]
         if old is None:
             old = (r.x_m * 1000.0, r.y_m * 1000.0, r.theta_deg)
-        poly = footprint(new_x_mm / 1000.0, new_y_mm / 1000.0, new_theta_deg, ROBOT_LENGTH_M, ROBOT_WIDTH_M)
+        poly = footprint(
+            new_x_mm / 1000.0, new_y_mm / 1000.0, new_theta_deg, ROBOT_LENGTH_M, ROBOT_WIDTH_M
+        )
         if not self._collides(i, poly):
-            if r.in_contact and not self._collides(i, footprint(
-                    new_x_mm / 1000.0, new_y_mm / 1000.0, new_theta_deg,
-                    ROBOT_LENGTH_M + 2 * CONTACT_CLEAR_M, ROBOT_WIDTH_M + 2 * CONTACT_CLEAR_M)):
+            if r.in_contact and not self._collides(
+                i,
+                footprint(
+                    new_x_mm / 1000.0,
+                    new_y_mm / 1000.0,
+                    new_theta_deg,
+                    ROBOT_LENGTH_M + 2 * CONTACT_CLEAR_M,
+                    ROBOT_WIDTH_M + 2 * CONTACT_CLEAR_M,
+                ),
+            ):
                 r.in_contact = False
             return True
         if not r.in_contact:
             r.collisions += 1
             r.in_contact = True
-        old_poly = footprint(old[0] / 1000.0, old[1] / 1000.0, old[2], ROBOT_LENGTH_M, ROBOT_WIDTH_M)
+        old_poly = footprint(
+            old[0] / 1000.0, old[1] / 1000.0, old[2], ROBOT_LENGTH_M, ROBOT_WIDTH_M
+        )
         if self._collides(i, old_poly):
             # Already touching (something moved into us): let the robot move so it can get free.
             return True
@@ -293,14 +332,18 @@ class World:
         would break the exact mirror symmetry that a real sonar ring shows, and which
         the controller must cope with.
         """
-        ring = SonarReadings(self, i, x_mm, y_mm, theta_deg, cfg=self._sonar_cfg, rng=self._sonar_rng)
+        ring = SonarReadings(
+            self, i, x_mm, y_mm, theta_deg, cfg=self._sonar_cfg, rng=self._sonar_rng
+        )
         return [ring[k] for k in range(len(ring))]
 
     def sonar_ranges(self, i: int, x_mm: float, y_mm: float, theta_deg: float) -> Sequence[int]:
         """`sonar_mm`, each range computed when it is first read: a P3-AT SIP carries 8 of
         the 16, so the FakeRobot reads half. With sonar noise all 16 are computed at once,
         so the noise draws come in sonar order whichever are read (the same run)."""
-        ring = SonarReadings(self, i, x_mm, y_mm, theta_deg, cfg=self._sonar_cfg, rng=self._sonar_rng)
+        ring = SonarReadings(
+            self, i, x_mm, y_mm, theta_deg, cfg=self._sonar_cfg, rng=self._sonar_rng
+        )
         return ring if self._sonar_cfg.noise_mm <= 0 else [ring[k] for k in range(len(ring))]
 
     def yagi_rssi_dbm(self, i: int, scan_deg: float | None = None) -> float:
@@ -348,7 +391,9 @@ class World:
         return Hop(k, power, phy * MAC_EFFICIENCY, n_walls, phy)
 
     def links(self) -> LinkBudget:
-        return LinkBudget([self.hop(k) for k in range(len(self.relays) + 1)], self.radio.params.hop_coupling)
+        return LinkBudget(
+            [self.hop(k) for k in range(len(self.relays) + 1)], self.radio.params.hop_coupling
+        )
 
     def hop_sample_dbm(self, k: int) -> float:
         """A reported (faded) signal level of hop k, as an airOS radio shows it."""

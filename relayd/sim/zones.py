@@ -73,20 +73,31 @@ def zone_at(point: Point, zones: Sequence[RadioZone]) -> RadioZone | None:
     return None
 
 
-def path_environment(a: Point, b: Point, zones: Sequence[RadioZone], *, l0_dbm: float, exponent: float,
-                     shadow_sigma_db: float, rician_k_db: float) -> PathEnvironment:
+def path_environment(
+    a: Point,
+    b: Point,
+    zones: Sequence[RadioZone],
+    *,
+    l0_dbm: float,
+    exponent: float,
+    shadow_sigma_db: float,
+    rician_k_db: float,
+) -> PathEnvironment:
     """The defaults, or the share-weighted average of the zones along the path a-b."""
     if not zones:
         return PathEnvironment(l0_dbm, exponent, shadow_sigma_db, rician_k_db, 0.0)
     outside = (l0_dbm, exponent, shadow_sigma_db, rician_k_db, 0.0)
     # Each zone's five values worked out once per call, not per sample point.
-    inside = {id(z): (
-        l0_dbm if z.l0_dbm is None else z.l0_dbm,
-        exponent if z.exponent is None else z.exponent,
-        shadow_sigma_db if z.shadow_sigma_db is None else z.shadow_sigma_db,
-        rician_k_db if z.rician_k_db is None else z.rician_k_db,
-        z.multipath_db,
-    ) for z in zones}
+    inside = {
+        id(z): (
+            l0_dbm if z.l0_dbm is None else z.l0_dbm,
+            exponent if z.exponent is None else z.exponent,
+            shadow_sigma_db if z.shadow_sigma_db is None else z.shadow_sigma_db,
+            rician_k_db if z.rician_k_db is None else z.rician_k_db,
+            z.multipath_db,
+        )
+        for z in zones
+    }
     s0 = s1 = s2 = s3 = s4 = 0.0
     for i in range(PATH_SAMPLES):
         f = (i + 0.5) / PATH_SAMPLES

@@ -60,14 +60,18 @@ def run(spec: dict[str, Any], out: Path) -> dict[str, Any]:
         # a sweep keeps hundreds of them.
         setup_logging("warning", "json", stream=log_file, journal=False, extra=[fields])
         sc = parse_scenario(spec["scenario_doc"]).with_relays(int(spec["relays"]))
-        runner = SimRunner(sc, speed=spec.get("speed"), seed=int(spec["seed"]), seconds=spec.get("seconds"))
+        runner = SimRunner(
+            sc, speed=spec.get("speed"), seed=int(spec["seed"]), seconds=spec.get("seconds")
+        )
         fields.runner = runner
         result = vtime.run(runner.run(), speed=spec.get("speed"))
     summary = dict(result.summary)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
     series = series_1hz(result.records)
     series["start_e2e_mbps"] = [start_mean_mbps(result.records)]
-    (out / "series.json").write_text(json.dumps(series, separators=(",", ":")) + "\n", encoding="utf-8")
+    (out / "series.json").write_text(
+        json.dumps(series, separators=(",", ":")) + "\n", encoding="utf-8"
+    )
     if spec.get("trace"):
         with (out / "trace.jsonl").open("w", encoding="utf-8") as f:
             for rec in result.records:

@@ -41,8 +41,20 @@ from relayd.sweep.grid import RunSpec
 
 #: runs.csv columns before the --set keys, and after them.
 HEAD_COLUMNS = ("scenario", "relays", "seed")
-TAIL_COLUMNS = ("goal_reached", "link_broken_at_s", "min_e2e_mbps", "final_e2e_mbps", "start_e2e_mbps",
-                "collisions", "sim_seconds", "wall_s", "status", "attempts", "error", "run_dir")
+TAIL_COLUMNS = (
+    "goal_reached",
+    "link_broken_at_s",
+    "min_e2e_mbps",
+    "final_e2e_mbps",
+    "start_e2e_mbps",
+    "collisions",
+    "sim_seconds",
+    "wall_s",
+    "status",
+    "attempts",
+    "error",
+    "run_dir",
+)
 
 
 def default_workers() -> int:
@@ -79,22 +91,35 @@ def columns(set_keys: list[str]) -> list[str]:
     return [*HEAD_COLUMNS, *set_keys, *TAIL_COLUMNS]
 
 
-def row_for(spec: RunSpec, *, status: str, attempts: int, error: str = "", wall_s: float | None = None,
-            summary: dict[str, Any] | None = None, start_e2e_mbps: float | None = None) -> dict[str, Any]:
+def row_for(
+    spec: RunSpec,
+    *,
+    status: str,
+    attempts: int,
+    error: str = "",
+    wall_s: float | None = None,
+    summary: dict[str, Any] | None = None,
+    start_e2e_mbps: float | None = None,
+) -> dict[str, Any]:
     row: dict[str, Any] = {"scenario": spec.scenario, "relays": spec.relays, "seed": spec.seed}
     row.update(dict(spec.params))
     s = summary or {}
-    row.update({
-        "goal_reached": s.get("goal_reached", ""),
-        "link_broken_at_s": "" if s.get("link_broken_at_s") is None else s["link_broken_at_s"],
-        "min_e2e_mbps": s.get("min_e2e_mbps", ""),
-        "final_e2e_mbps": s.get("final_e2e_mbps", ""),
-        "start_e2e_mbps": "" if start_e2e_mbps is None else start_e2e_mbps,
-        "collisions": s.get("collisions", ""),
-        "sim_seconds": s.get("sim_seconds", ""),
-        "wall_s": "" if wall_s is None else wall_s,
-        "status": status, "attempts": attempts, "error": error, "run_dir": f"runs/{spec.run_id}",
-    })
+    row.update(
+        {
+            "goal_reached": s.get("goal_reached", ""),
+            "link_broken_at_s": "" if s.get("link_broken_at_s") is None else s["link_broken_at_s"],
+            "min_e2e_mbps": s.get("min_e2e_mbps", ""),
+            "final_e2e_mbps": s.get("final_e2e_mbps", ""),
+            "start_e2e_mbps": "" if start_e2e_mbps is None else start_e2e_mbps,
+            "collisions": s.get("collisions", ""),
+            "sim_seconds": s.get("sim_seconds", ""),
+            "wall_s": "" if wall_s is None else wall_s,
+            "status": status,
+            "attempts": attempts,
+            "error": error,
+            "run_dir": f"runs/{spec.run_id}",
+        }
+    )
     return row
 
 
@@ -120,14 +145,24 @@ def write_run(out: Path, spec: RunSpec, row: dict[str, Any], result: dict[str, A
         shutil.rmtree(folder)
     folder.mkdir(parents=True)
     if result is not None:
-        (folder / "summary.json").write_text(json.dumps(result["summary"], indent=2) + "\n", encoding="utf-8")
-        (folder / "series.json").write_text(json.dumps(result["series"], separators=(",", ":")) + "\n",
-                                            encoding="utf-8")
+        (folder / "summary.json").write_text(
+            json.dumps(result["summary"], indent=2) + "\n", encoding="utf-8"
+        )
+        (folder / "series.json").write_text(
+            json.dumps(result["series"], separators=(",", ":")) + "\n", encoding="utf-8"
+        )
         (folder / "sim.log").write_text(result.get("sim_log", ""), encoding="utf-8")
         if "trace" in result:
             (folder / "trace.jsonl").write_text(result["trace"], encoding="utf-8")
-    meta = {"run_id": spec.run_id, "digest": spec.digest, "status": row["status"], "attempts": row["attempts"],
-            "error": row["error"], "wall_s": row["wall_s"], "row": row}
+    meta = {
+        "run_id": spec.run_id,
+        "digest": spec.digest,
+        "status": row["status"],
+        "attempts": row["attempts"],
+        "error": row["error"],
+        "wall_s": row["wall_s"],
+        "row": row,
+    }
     tmp = folder / "run.json.tmp"
     tmp.write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")
     tmp.replace(folder / "run.json")
@@ -157,8 +192,15 @@ class SweepProgress:
     per finished run, so a log still shows how far a sweep got.
     """
 
-    def __init__(self, total: int, skipped: int, stream: TextIO | None = None, width: int = 24,
-                 enabled: bool | None = None, now: Callable[[], float] = time.monotonic) -> None:
+    def __init__(
+        self,
+        total: int,
+        skipped: int,
+        stream: TextIO | None = None,
+        width: int = 24,
+        enabled: bool | None = None,
+        now: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.stream = sys.stderr if stream is None else stream
         self.total = total
         self.skipped = skipped
@@ -218,14 +260,24 @@ def _start_client(opts: SweepOptions) -> tuple[Any, Any]:
     # allowed-failures 0: a run whose worker dies comes back as KilledWorker at once and
     # our own retry (once) decides, instead of Dask re-running it on up to 3 more workers.
     with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
-                               dashboard_address="127.0.0.1:0",
-                               memory_limit=0, silence_logs=logging.ERROR)
+        cluster = LocalCluster(
+            n_workers=n,
+            threads_per_worker=1,
+            processes=True,
+            host="127.0.0.1",
+            dashboard_address="127.0.0.1:0",
+            memory_limit=0,
+            silence_logs=logging.ERROR,
+        )
         return Client(cluster), cluster
 
 
-def run_sweep(specs: list[RunSpec], set_keys: list[str], opts: SweepOptions,
-              progress: SweepProgress | None = None) -> SweepOutcome:
+def run_sweep(
+    specs: list[RunSpec],
+    set_keys: list[str],
+    opts: SweepOptions,
+    progress: SweepProgress | None = None,
+) -> SweepOutcome:
     """Run every spec not yet finished in opts.out; returns the rows in grid order."""
     import distributed
     from distributed.client import FutureCancelledError
@@ -260,8 +312,13 @@ def run_sweep(specs: list[RunSpec], set_keys: list[str], opts: SweepOptions,
             def submit(i: int, attempt: int) -> Any:
                 spec = specs[i]
                 payload = spec.payload() | {"trace": opts.trace}
-                fut = client.submit(run_task, payload, opts.run_timeout_s, pure=False,
-                                    key=f"relayd-run-{spec.digest}-{i}-a{attempt}")
+                fut = client.submit(
+                    run_task,
+                    payload,
+                    opts.run_timeout_s,
+                    pure=False,
+                    key=f"relayd-run-{spec.digest}-{i}-a{attempt}",
+                )
                 futures[fut] = (i, attempt)
                 return fut
 
@@ -291,8 +348,14 @@ def run_sweep(specs: list[RunSpec], set_keys: list[str], opts: SweepOptions,
                         prog.update(failed=1)
                         continue
                     start = result["series"].get("start_e2e_mbps", [None])[0]
-                    rows[i] = row_for(spec, status="ok", attempts=attempt, wall_s=result["wall_s"],
-                                      summary=result["summary"], start_e2e_mbps=start)
+                    rows[i] = row_for(
+                        spec,
+                        status="ok",
+                        attempts=attempt,
+                        wall_s=result["wall_s"],
+                        summary=result["summary"],
+                        start_e2e_mbps=start,
+                    )
                     write_run(out, spec, rows[i], result)
                     ok += 1
                     prog.update(ok=1)
@@ -308,8 +371,12 @@ def run_sweep(specs: list[RunSpec], set_keys: list[str], opts: SweepOptions,
                     elif time.monotonic() - no_workers_since > opts.no_worker_timeout_s:
                         for fut in pending:
                             i, attempt = futures.pop(fut)
-                            rows[i] = row_for(specs[i], status="failed", attempts=attempt,
-                                              error=f"no Dask worker for {opts.no_worker_timeout_s:g} s")
+                            rows[i] = row_for(
+                                specs[i],
+                                status="failed",
+                                attempts=attempt,
+                                error=f"no Dask worker for {opts.no_worker_timeout_s:g} s",
+                            )
                             write_run(out, specs[i], rows[i], None)
                             failed += 1
                             prog.update(failed=1)

@@ -66,14 +66,30 @@ class RunSpec:
         not seen: sweep into a fresh --out after changing the simulator."""
         from relayd import __version__
 
-        blob = json.dumps({"doc": self.doc, "relays": self.relays, "seed": self.seed,
-                           "seconds": self.seconds, "relayd": __version__}, sort_keys=True, default=str)
+        blob = json.dumps(
+            {
+                "doc": self.doc,
+                "relays": self.relays,
+                "seed": self.seed,
+                "seconds": self.seconds,
+                "relayd": __version__,
+            },
+            sort_keys=True,
+            default=str,
+        )
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
     def payload(self) -> dict[str, Any]:
         """What the worker gets: plain JSON, no objects that need this module to unpickle."""
-        return {"run_id": self.run_id, "scenario_doc": self.doc, "relays": self.relays, "seed": self.seed,
-                "seconds": self.seconds, "speed": self.speed, "digest": self.digest}
+        return {
+            "run_id": self.run_id,
+            "scenario_doc": self.doc,
+            "relays": self.relays,
+            "seed": self.seed,
+            "seconds": self.seconds,
+            "speed": self.speed,
+            "digest": self.digest,
+        }
 
 
 def _safe(text: str) -> str:
@@ -111,9 +127,13 @@ def parse_set(text: str) -> SetAxis:
         raise GridError(f"--set {text!r}: expected KEY=V1,V2,...")
     path = tuple(key.split("."))
     if path[0] not in Scenario.model_fields:
-        owners = [sec for sec, keys in _config_sections().items() if path[0] in keys and len(path) == 1]
+        owners = [
+            sec for sec, keys in _config_sections().items() if path[0] in keys and len(path) == 1
+        ]
         if not owners:
-            raise GridError(f"--set {key}: not a scenario key, nor a key of the daemon's [control] or [scan]")
+            raise GridError(
+                f"--set {key}: not a scenario key, nor a key of the daemon's [control] or [scan]"
+            )
         path = (owners[0], *path)
     vals = tuple(parse_value(v) for v in values.split(","))
     return SetAxis(key, path, vals)
@@ -142,7 +162,9 @@ def _index(path: tuple[str, ...], i: int, n: int) -> int:
     try:
         k = int(path[i])
     except ValueError:
-        raise GridError(f"--set {'.'.join(path)}: {path[i]!r} must be an index into a list") from None
+        raise GridError(
+            f"--set {'.'.join(path)}: {path[i]!r} must be an index into a list"
+        ) from None
     if not 0 <= k < n:
         raise GridError(f"--set {'.'.join(path)}: index {k} out of range (list has {n})")
     return k
@@ -154,8 +176,15 @@ def scenario_doc(sc: Scenario) -> dict[str, Any]:
     return doc
 
 
-def build_grid(scenarios: list[str], relays: list[int] | None, seeds: list[int], sets: list[SetAxis], *,
-               seconds: float | None = None, speed: float | None = None) -> list[RunSpec]:
+def build_grid(
+    scenarios: list[str],
+    relays: list[int] | None,
+    seeds: list[int],
+    sets: list[SetAxis],
+    *,
+    seconds: float | None = None,
+    speed: float | None = None,
+) -> list[RunSpec]:
     """Every run of the grid, in a fixed order (scenario, set values, relays, seed).
 
     relays None: each scenario's own default count.
@@ -182,12 +211,14 @@ def build_grid(scenarios: list[str], relays: list[int] | None, seeds: list[int],
             for axis, v in zip(sets, combo, strict=True):
                 apply_override(doc, axis.path, v)
             params = tuple((a.key, v) for a, v in zip(sets, combo, strict=True))
-            for n in (relays if relays is not None else [base.relays]):
+            for n in relays if relays is not None else [base.relays]:
                 try:
                     sc = parse_scenario(copy.deepcopy(doc)).with_relays(n)
                 except ScenarioError as exc:
                     where = ", ".join(f"{k}={v}" for k, v in params) or "no --set"
-                    raise GridError(f"--scenario {name} ({where}, {n} relays): " + "; ".join(exc.errors)) from None
+                    raise GridError(
+                        f"--scenario {name} ({where}, {n} relays): " + "; ".join(exc.errors)
+                    ) from None
                 run_doc = scenario_doc(sc)
                 for seed in seeds:
                     specs.append(RunSpec(sc.name, n, seed, params, run_doc, seconds, speed))

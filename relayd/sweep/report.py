@@ -32,7 +32,9 @@ def fmt_ms(ms: tuple[float, float] | None, digits: int = 1) -> str:
 
 def load_series(out: Path, row: dict[str, Any]) -> dict[str, list[float]] | None:
     try:
-        data: dict[str, list[float]] = json.loads((out / row["run_dir"] / "series.json").read_text(encoding="utf-8"))
+        data: dict[str, list[float]] = json.loads(
+            (out / row["run_dir"] / "series.json").read_text(encoding="utf-8")
+        )
     except (OSError, ValueError):
         return None
     return data
@@ -53,7 +55,9 @@ def band(series: Sequence[dict[str, list[float]]]) -> tuple[list[float], list[fl
     return ts, means, sds
 
 
-def cells(rows: Sequence[dict[str, Any]], set_keys: Sequence[str]) -> dict[Cell, list[dict[str, Any]]]:
+def cells(
+    rows: Sequence[dict[str, Any]], set_keys: Sequence[str]
+) -> dict[Cell, list[dict[str, Any]]]:
     out: dict[Cell, list[dict[str, Any]]] = {}
     for r in rows:
         key: Cell = (str(r["scenario"]), tuple((k, r[k]) for k in set_keys))
@@ -69,7 +73,9 @@ def _slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9]+", "-", text).strip("-") or "cell"
 
 
-def plot_cell(out: Path, title: str, by_relays: dict[int, list[dict[str, list[float]]]], path: Path) -> None:
+def plot_cell(
+    out: Path, title: str, by_relays: dict[int, list[dict[str, list[float]]]], path: Path
+) -> None:
     from relayd.sim.plots import plot_throughput_bands
 
     curves = []
@@ -79,21 +85,30 @@ def plot_cell(out: Path, title: str, by_relays: dict[int, list[dict[str, list[fl
     plot_throughput_bands(curves, path, title)
 
 
-def write_report(out: Path, rows: Sequence[dict[str, Any]], set_keys: Sequence[str], plots: bool = True) -> Path:
+def write_report(
+    out: Path, rows: Sequence[dict[str, Any]], set_keys: Sequence[str], plots: bool = True
+) -> Path:
     """Write DIR/report.md (and DIR/plots/) from the runs.csv rows; returns the report's path."""
-    lines = ["# Sweep report", "",
-             f"{len(rows)} runs: {sum(r['status'] == 'ok' for r in rows)} ok, "
-             f"{sum(r['status'] != 'ok' for r in rows)} failed. Values are mean ± sd over the seeds "
-             "that finished; `broken` counts the runs whose link broke, `broken at` averages those runs only. "
-             "Per-run numbers are in runs.csv.", ""]
+    lines = [
+        "# Sweep report",
+        "",
+        f"{len(rows)} runs: {sum(r['status'] == 'ok' for r in rows)} ok, "
+        f"{sum(r['status'] != 'ok' for r in rows)} failed. Values are mean ± sd over the seeds "
+        "that finished; `broken` counts the runs whose link broke, `broken at` averages those runs only. "
+        "Per-run numbers are in runs.csv.",
+        "",
+    ]
     if plots:
         (out / "plots").mkdir(exist_ok=True)
     for (scenario, params), cell_rows in cells(rows, set_keys).items():
         label = scenario + (" (" + ", ".join(f"{k}={v}" for k, v in params) + ")" if params else "")
-        lines += [f"## {label}", "",
-                  "| relays | runs ok/failed | goal reached | broken | broken at (s) | start e2e (Mbps) "
-                  "| min e2e (Mbps) | final e2e (Mbps) | collisions |",
-                  "|---|---|---|---|---|---|---|---|---|"]
+        lines += [
+            f"## {label}",
+            "",
+            "| relays | runs ok/failed | goal reached | broken | broken at (s) | start e2e (Mbps) "
+            "| min e2e (Mbps) | final e2e (Mbps) | collisions |",
+            "|---|---|---|---|---|---|---|---|---|",
+        ]
         by_relays: dict[int, list[dict[str, Any]]] = {}
         for r in cell_rows:
             by_relays.setdefault(int(r["relays"]), []).append(r)
@@ -103,18 +118,22 @@ def write_report(out: Path, rows: Sequence[dict[str, Any]], set_keys: Sequence[s
             ok = [r for r in rs if r["status"] == "ok"]
             goal = sum(str(r["goal_reached"]) == "True" for r in ok)
             broken = _num(rs, "link_broken_at_s")
-            lines.append(f"| {n} | {len(ok)}/{len(rs) - len(ok)} | {goal}/{len(ok)} | {len(broken)}/{len(ok)} "
-                         f"| {fmt_ms(mean_sd(broken))} | {fmt_ms(mean_sd(_num(rs, 'start_e2e_mbps')))} "
-                         f"| {fmt_ms(mean_sd(_num(rs, 'min_e2e_mbps')))} "
-                         f"| {fmt_ms(mean_sd(_num(rs, 'final_e2e_mbps')))} "
-                         f"| {fmt_ms(mean_sd(_num(rs, 'collisions')), 2)} |")
+            lines.append(
+                f"| {n} | {len(ok)}/{len(rs) - len(ok)} | {goal}/{len(ok)} | {len(broken)}/{len(ok)} "
+                f"| {fmt_ms(mean_sd(broken))} | {fmt_ms(mean_sd(_num(rs, 'start_e2e_mbps')))} "
+                f"| {fmt_ms(mean_sd(_num(rs, 'min_e2e_mbps')))} "
+                f"| {fmt_ms(mean_sd(_num(rs, 'final_e2e_mbps')))} "
+                f"| {fmt_ms(mean_sd(_num(rs, 'collisions')), 2)} |"
+            )
             loaded = [s for s in (load_series(out, r) for r in ok) if s is not None]
             if loaded:
                 series[n] = loaded
         failed = [r for r in cell_rows if r["status"] != "ok"]
         for r in failed:
             lines.append("")
-            lines.append(f"- failed: `{r['run_dir']}` after {r['attempts']} attempt(s): {r['error']}")
+            lines.append(
+                f"- failed: `{r['run_dir']}` after {r['attempts']} attempt(s): {r['error']}"
+            )
         if plots and series:
             png = Path("plots") / f"{_slug(label)}.png"
             plot_cell(out, f"{label}: end-to-end throughput, mean ± 1 sd", series, out / png)

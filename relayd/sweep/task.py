@@ -37,14 +37,23 @@ def run_task(payload: dict[str, Any], timeout_s: float) -> dict[str, Any]:
         env.setdefault("PYTHONHASHSEED", "0")
         env["RELAYD_SWEEP_PARENT_PID"] = str(os.getpid())
         try:
-            proc = subprocess.run([sys.executable, "-m", "relayd.sweep.child", str(spec_path), str(out)],
-                                  capture_output=True, text=True, timeout=timeout_s, env=env,
-                                  check=False)
+            proc = subprocess.run(
+                [sys.executable, "-m", "relayd.sweep.child", str(spec_path), str(out)],
+                capture_output=True,
+                text=True,
+                timeout=timeout_s,
+                env=env,
+                check=False,
+            )
         except subprocess.TimeoutExpired:
             raise RunFailed(f"timed out after {timeout_s:g} s wall time (--run-timeout)") from None
         if proc.returncode != 0:
             tail = (proc.stderr or "").strip()[-ERROR_TAIL_CHARS:]
-            how = f"killed by signal {-proc.returncode}" if proc.returncode < 0 else f"exit status {proc.returncode}"
+            how = (
+                f"killed by signal {-proc.returncode}"
+                if proc.returncode < 0
+                else f"exit status {proc.returncode}"
+            )
             raise RunFailed(f"{how}: {tail}" if tail else how)
         result: dict[str, Any] = {
             "summary": json.loads((out / "summary.json").read_text(encoding="utf-8")),

@@ -53,7 +53,9 @@ def window_mean(s: Series, t0: float, t1: float) -> float | None:
 
 
 def first_below(s: Series, mbps: float, after_s: float = 0.0) -> float | None:
-    return next((t for t, e in zip(s["t"], s["e2e_mbps"], strict=True) if t >= after_s and e < mbps), None)
+    return next(
+        (t for t, e in zip(s["t"], s["e2e_mbps"], strict=True) if t >= after_s and e < mbps), None
+    )
 
 
 def leader_corner_s(scenario: str, k: int) -> float:
@@ -64,59 +66,208 @@ def leader_corner_s(scenario: str, k: int) -> float:
 
     sc = load_scenario(scenario)
     wps = sc.leader.waypoints
-    script = LeaderScript([(w.x, w.y, w.pause_s) for w in wps], sc.leader.speed_m_s, sc.leader.start_s)
+    script = LeaderScript(
+        [(w.x, w.y, w.pause_s) for w in wps], sc.leader.speed_m_s, sc.leader.start_s
+    )
     t = sc.leader.start_s
-    for a, b in itertools.pairwise(wps[:k + 1]):
+    for a, b in itertools.pairwise(wps[: k + 1]):
         t += ((b.x - a.x) ** 2 + (b.y - a.y) ** 2) ** 0.5 / sc.leader.speed_m_s + a.pause_s
     return round(min(t, script.end_s), 1)
 
 
 FIGURES: dict[str, tuple[str, str, list[Check]]] = {
-    "6-17": ("corridor", "Indoor corridor, Knoy Hall (fig. 6-17)", [
-        Check("first corner passed (s)", 0, "80-100", "range", (80, 100),
-              lambda r, s: leader_corner_s("corridor", 1)),
-        Check("second corner passed (s)", 0, "180-200", "range", (180, 200),
-              lambda r, s: leader_corner_s("corridor", 2)),
-        Check("start e2e, first 20 s (Mbps)", 0, "highest", "order", (0,), lambda r, s: _f(r, "start_e2e_mbps")),
-        Check("start e2e, first 20 s (Mbps)", 1, "between", "order", (1,), lambda r, s: _f(r, "start_e2e_mbps")),
-        Check("start e2e, first 20 s (Mbps)", 2, "lowest", "order", (2,), lambda r, s: _f(r, "start_e2e_mbps")),
-        Check("link broken at (s)", 0, "~280", "point", (280,), lambda r, s: _f(r, "link_broken_at_s")),
-        Check("first below 5 Mbps at (s), before the break", 0, "< 280", "max", (280,),
-              lambda r, s: first_below(s, 5.0)),
-        Check("runs whose link broke before the goal", 0, "yes", "count", (1,),
-              lambda r, s: 0.0 if str(r["goal_reached"]) == "True" else 1.0),
-        Check("min e2e (Mbps)", 1, ">= 5", "min", (5,), lambda r, s: _f(r, "min_e2e_mbps")),
-        Check("final e2e (Mbps)", 1, "~10", "point", (10,), lambda r, s: _f(r, "final_e2e_mbps")),
-        Check("e2e after the corners, t >= 200 s (Mbps)", 2, "20-25", "range", (20, 25),
-              lambda r, s: window_mean(s, 200, 1e9)),
-        Check("final e2e (Mbps)", 2, "~20", "point", (20,), lambda r, s: _f(r, "final_e2e_mbps")),
-        Check("runs with the link held to the goal", 1, "yes", "count", (1,),
-              lambda r, s: 1.0 if str(r["goal_reached"]) == "True" else 0.0),
-        Check("runs with the link held to the goal", 2, "yes", "count", (1,),
-              lambda r, s: 1.0 if str(r["goal_reached"]) == "True" else 0.0),
-    ]),
-    "6-21": ("outdoor", "Outdoor parking lot (fig. 6-21)", [
-        Check("start e2e, first 40 s (Mbps)", 0, "highest", "order", (0,), lambda r, s: window_mean(s, 0, 40)),
-        Check("start e2e, first 40 s (Mbps)", 1, "between", "order", (1,), lambda r, s: window_mean(s, 0, 40)),
-        Check("start e2e, first 40 s (Mbps)", 2, "lowest", "order", (2,), lambda r, s: window_mean(s, 0, 40)),
-        Check("first below 5 Mbps at (s)", 0, "~280", "point", (280,), lambda r, s: first_below(s, 5.0)),
-        Check("link broken at (s), after the drop below 5 Mbps", 0, "> 280", "min", (280,),
-              lambda r, s: _f(r, "link_broken_at_s")),
-        Check("runs whose link broke before the goal", 0, "yes", "count", (1,),
-              lambda r, s: 0.0 if str(r["goal_reached"]) == "True" else 1.0),
-        Check("distance walked when the link broke (m)", 0, "almost 60", "point", (60,),
-              lambda r, s: None if _f(r, "link_broken_at_s") is None
-              else 0.2 * (float(r["link_broken_at_s"]) - 2.0)),
-        Check("runs with the link held to the goal", 1, "yes", "count", (1,),
-              lambda r, s: 1.0 if str(r["goal_reached"]) == "True" else 0.0),
-        Check("final e2e (Mbps)", 2, "> 10", "min", (10,), lambda r, s: _f(r, "final_e2e_mbps")),
-        Check("runs with the link held to the goal", 2, "yes", "count", (1,),
-              lambda r, s: 1.0 if str(r["goal_reached"]) == "True" else 0.0),
-    ]),
+    "6-17": (
+        "corridor",
+        "Indoor corridor, Knoy Hall (fig. 6-17)",
+        [
+            Check(
+                "first corner passed (s)",
+                0,
+                "80-100",
+                "range",
+                (80, 100),
+                lambda r, s: leader_corner_s("corridor", 1),
+            ),
+            Check(
+                "second corner passed (s)",
+                0,
+                "180-200",
+                "range",
+                (180, 200),
+                lambda r, s: leader_corner_s("corridor", 2),
+            ),
+            Check(
+                "start e2e, first 20 s (Mbps)",
+                0,
+                "highest",
+                "order",
+                (0,),
+                lambda r, s: _f(r, "start_e2e_mbps"),
+            ),
+            Check(
+                "start e2e, first 20 s (Mbps)",
+                1,
+                "between",
+                "order",
+                (1,),
+                lambda r, s: _f(r, "start_e2e_mbps"),
+            ),
+            Check(
+                "start e2e, first 20 s (Mbps)",
+                2,
+                "lowest",
+                "order",
+                (2,),
+                lambda r, s: _f(r, "start_e2e_mbps"),
+            ),
+            Check(
+                "link broken at (s)",
+                0,
+                "~280",
+                "point",
+                (280,),
+                lambda r, s: _f(r, "link_broken_at_s"),
+            ),
+            Check(
+                "first below 5 Mbps at (s), before the break",
+                0,
+                "< 280",
+                "max",
+                (280,),
+                lambda r, s: first_below(s, 5.0),
+            ),
+            Check(
+                "runs whose link broke before the goal",
+                0,
+                "yes",
+                "count",
+                (1,),
+                lambda r, s: 0.0 if str(r["goal_reached"]) == "True" else 1.0,
+            ),
+            Check("min e2e (Mbps)", 1, ">= 5", "min", (5,), lambda r, s: _f(r, "min_e2e_mbps")),
+            Check(
+                "final e2e (Mbps)", 1, "~10", "point", (10,), lambda r, s: _f(r, "final_e2e_mbps")
+            ),
+            Check(
+                "e2e after the corners, t >= 200 s (Mbps)",
+                2,
+                "20-25",
+                "range",
+                (20, 25),
+                lambda r, s: window_mean(s, 200, 1e9),
+            ),
+            Check(
+                "final e2e (Mbps)", 2, "~20", "point", (20,), lambda r, s: _f(r, "final_e2e_mbps")
+            ),
+            Check(
+                "runs with the link held to the goal",
+                1,
+                "yes",
+                "count",
+                (1,),
+                lambda r, s: 1.0 if str(r["goal_reached"]) == "True" else 0.0,
+            ),
+            Check(
+                "runs with the link held to the goal",
+                2,
+                "yes",
+                "count",
+                (1,),
+                lambda r, s: 1.0 if str(r["goal_reached"]) == "True" else 0.0,
+            ),
+        ],
+    ),
+    "6-21": (
+        "outdoor",
+        "Outdoor parking lot (fig. 6-21)",
+        [
+            Check(
+                "start e2e, first 40 s (Mbps)",
+                0,
+                "highest",
+                "order",
+                (0,),
+                lambda r, s: window_mean(s, 0, 40),
+            ),
+            Check(
+                "start e2e, first 40 s (Mbps)",
+                1,
+                "between",
+                "order",
+                (1,),
+                lambda r, s: window_mean(s, 0, 40),
+            ),
+            Check(
+                "start e2e, first 40 s (Mbps)",
+                2,
+                "lowest",
+                "order",
+                (2,),
+                lambda r, s: window_mean(s, 0, 40),
+            ),
+            Check(
+                "first below 5 Mbps at (s)",
+                0,
+                "~280",
+                "point",
+                (280,),
+                lambda r, s: first_below(s, 5.0),
+            ),
+            Check(
+                "link broken at (s), after the drop below 5 Mbps",
+                0,
+                "> 280",
+                "min",
+                (280,),
+                lambda r, s: _f(r, "link_broken_at_s"),
+            ),
+            Check(
+                "runs whose link broke before the goal",
+                0,
+                "yes",
+                "count",
+                (1,),
+                lambda r, s: 0.0 if str(r["goal_reached"]) == "True" else 1.0,
+            ),
+            Check(
+                "distance walked when the link broke (m)",
+                0,
+                "almost 60",
+                "point",
+                (60,),
+                lambda r, s: (
+                    None
+                    if _f(r, "link_broken_at_s") is None
+                    else 0.2 * (float(r["link_broken_at_s"]) - 2.0)
+                ),
+            ),
+            Check(
+                "runs with the link held to the goal",
+                1,
+                "yes",
+                "count",
+                (1,),
+                lambda r, s: 1.0 if str(r["goal_reached"]) == "True" else 0.0,
+            ),
+            Check(
+                "final e2e (Mbps)", 2, "> 10", "min", (10,), lambda r, s: _f(r, "final_e2e_mbps")
+            ),
+            Check(
+                "runs with the link held to the goal",
+                2,
+                "yes",
+                "count",
+                (1,),
+                lambda r, s: 1.0 if str(r["goal_reached"]) == "True" else 0.0,
+            ),
+        ],
+    ),
 }
 
 
-def verdict(check: Check, ms: tuple[float, float] | None, n: int, order_ok: bool | None) -> tuple[str, str]:
+def verdict(
+    check: Check, ms: tuple[float, float] | None, n: int, order_ok: bool | None
+) -> tuple[str, str]:
     """(deviation text, verdict) of one check."""
     if ms is None:
         return "-", "no data"
@@ -138,7 +289,9 @@ def verdict(check: Check, ms: tuple[float, float] | None, n: int, order_ok: bool
     return "-", "met" if order_ok else "OFF"
 
 
-def _values(c: Check, by_n: dict[int, list[dict[str, Any]]], series: dict[int, Series]) -> list[float]:
+def _values(
+    c: Check, by_n: dict[int, list[dict[str, Any]]], series: dict[int, Series]
+) -> list[float]:
     return [v for r in by_n.get(c.relays, []) if (v := c.measure(r, series[id(r)])) is not None]
 
 
@@ -155,22 +308,30 @@ def tables(out: Path) -> tuple[str, dict[str, dict[int, list[Series]]]]:
             by_n.setdefault(int(r["relays"]), []).append(r)
         curves[fig] = {n: [series[id(r)] for r in rs] for n, rs in by_n.items()}
         seeds = sorted({int(r["seed"]) for r in runs})
-        lines += [f"### Fig. {fig}: {title}", "",
-                  f"relayd: {len(seeds)} seeds per relay count (seeds {seeds[0]}-{seeds[-1]})." if seeds else
-                  "relayd: no runs.", "",
-                  "| quantity | relays | paper | relayd mean ± sd | n | deviation | verdict |",
-                  "|---|---|---|---|---|---|---|"]
+        lines += [
+            f"### Fig. {fig}: {title}",
+            "",
+            f"relayd: {len(seeds)} seeds per relay count (seeds {seeds[0]}-{seeds[-1]})."
+            if seeds
+            else "relayd: no runs.",
+            "",
+            "| quantity | relays | paper | relayd mean ± sd | n | deviation | verdict |",
+            "|---|---|---|---|---|---|---|",
+        ]
         measured = {id(c): _values(c, by_n, series) for c in checks}
         # the ordering checks hold together: the means fall from 0 to 1 to 2 relays
         order_means = [mean_sd(measured[id(c)]) for c in checks if c.kind == "order"]
         order_ok = all(m is not None for m in order_means) and all(
-            a[0] > b[0] for a, b in itertools.pairwise(order_means))  # type: ignore[index]
+            a[0] > b[0] for a, b in itertools.pairwise(order_means)
+        )  # type: ignore[index]
         for c in checks:
             vals = measured[id(c)]
             ms = mean_sd(vals)
             shown = f"{int(sum(vals))}/{len(vals)}" if c.kind == "count" else fmt_ms(ms)
             dev, ok = verdict(c, ms, len(vals), order_ok)
-            lines.append(f"| {c.what} | {c.relays} | {c.paper} | {shown} | {len(vals)} | {dev} | {ok} |")
+            lines.append(
+                f"| {c.what} | {c.relays} | {c.paper} | {shown} | {len(vals)} | {dev} | {ok} |"
+            )
         lines.append("")
     return "\n".join(lines), curves
 
@@ -186,10 +347,18 @@ def write_plots(curves: dict[str, dict[int, list[Series]]], docs: Path) -> list[
         for n in sorted(by_n):
             t, mean, sd = band(by_n[n])
             rows.append((f"{n} relay{'s' if n != 1 else ''} ({len(by_n[n])} seeds)", t, mean, sd))
-        marks = [(leader_corner_s(scenario, 1), "corner 1"), (leader_corner_s(scenario, 2), "corner 2")]
+        marks = [
+            (leader_corner_s(scenario, 1), "corner 1"),
+            (leader_corner_s(scenario, 2), "corner 2"),
+        ]
         path = docs / f"validation-fig{fig}.png"
-        plot_throughput_bands(rows, path, f"relayd, {title}: end-to-end throughput, mean ± 1 sd",
-                              marks=marks, hlines=[(5.0, "5 Mbps")])
+        plot_throughput_bands(
+            rows,
+            path,
+            f"relayd, {title}: end-to-end throughput, mean ± 1 sd",
+            marks=marks,
+            hlines=[(5.0, "5 Mbps")],
+        )
         files.append(path)
     return files
 
@@ -197,8 +366,12 @@ def write_plots(curves: dict[str, dict[int, list[Series]]], docs: Path) -> list[
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("sweep_dir", type=Path)
-    p.add_argument("--docs", type=Path, default=None,
-                   help="write the plots here and the tables into DOCS/VALIDATION.md between its markers")
+    p.add_argument(
+        "--docs",
+        type=Path,
+        default=None,
+        help="write the plots here and the tables into DOCS/VALIDATION.md between its markers",
+    )
     args = p.parse_args(argv)
     text, curves = tables(args.sweep_dir)
     if args.docs is None:
