@@ -93,9 +93,9 @@ class CommandParser(argparse.ArgumentParser):
     def is_leaf(self) -> bool:
         return self.module is not None
 
-    def parse_known_args(
+    def parse_known_args(  # type: ignore[override]
         self,
-        args: Sequence[str] | None = None,  # type: ignore[override]
+        args: Sequence[str] | None = None,
         namespace: argparse.Namespace | None = None,
     ) -> tuple[argparse.Namespace, list[str]]:
         self.configure()

@@ -322,8 +322,9 @@ def tables(out: Path) -> tuple[str, dict[str, dict[int, list[Series]]]]:
         # the ordering checks hold together: the means fall from 0 to 1 to 2 relays
         order_means = [mean_sd(measured[id(c)]) for c in checks if c.kind == "order"]
         order_ok = all(m is not None for m in order_means) and all(
-            a[0] > b[0] for a, b in itertools.pairwise(order_means)
-        )  # type: ignore[index]
+            a[0] > b[0]  # type: ignore[index]
+            for a, b in itertools.pairwise(order_means)
+        )
         for c in checks:
             vals = measured[id(c)]
             ms = mean_sd(vals)
