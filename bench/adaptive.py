@@ -112,8 +112,8 @@ def metrics(
 
 
 def run_sim(scenario_name: str, variant: str, control: dict[str, Any], seed: int) -> dict[str, Any]:
-    from relayd import vtime
-    from relayd.logsetup import setup_logging
+    from relayd.runtime import vtime
+    from relayd.runtime.logsetup import setup_logging
     from relayd.sim.runner import SimRunner
 
     setup_logging("error", "console")

@@ -96,7 +96,7 @@ def bench(name: str, past_m: float, seeds: int, seconds: float, escape: bool) ->
 
 def _real_run(name: str, seed: int) -> tuple[SimResult, float]:
     """One `relayd sim` run, flat out on virtual time, and its footprint's least clearance."""
-    from relayd import vtime
+    from relayd.runtime import vtime
     from relayd.sim.runner import SimRunner
 
     runner = SimRunner(load_scenario(name).with_relays(1), speed=None, seed=seed)
@@ -178,7 +178,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     started = time.perf_counter()
     rows = []
     if args.real:
-        from relayd.logsetup import setup_logging
+        from relayd.runtime.logsetup import setup_logging
 
         # The daemons' logs would bury the table: warnings and worse only, and nowhere.
         setup_logging("warning", "json", stream=open(os.devnull, "w"), journal=False)  # noqa: SIM115

@@ -1,6 +1,6 @@
 """A relay's brain in a small kinematic world, on virtual time: the estimator benches' test rig.
 
-`BrainRig` feeds `relayd.brain.Brain` the events its shells would, at the times they
+`BrainRig` feeds `relayd.core.brain.Brain` the events its shells would, at the times they
 would: a SIP every 0.1 s (pose from the wheel commands through the P3-AT's
 DiffConvFactor), a fresh RSSI reading every sample period, and step-mode sweeps timed
 like the scanner's (servo travel at the slew rate, then `settle_s`, then the next RSSI
@@ -17,9 +17,10 @@ from dataclasses import dataclass, field
 
 from drivers.arcos.sip import DIFF_CONV_FACTOR, Sip
 from drivers.wifi.sources import RssiSample
-from relayd.brain import PANTILT, Brain
-from relayd.config import Settings
-from relayd.events import (
+from relayd.config.model import Settings
+from relayd.config.params import brain_params
+from relayd.core.brain import PANTILT, Brain
+from relayd.core.events import (
     DeviceEvent,
     DeviceStatus,
     ModeCommand,
@@ -32,9 +33,8 @@ from relayd.events import (
     SipEvent,
     WheelCommand,
 )
-from relayd.params import brain_params
+from relayd.runtime.state import Mode
 from relayd.sim.radio import Radio, RadioParams, yagi_gain_db
-from relayd.state import Mode
 
 Pattern = Callable[[float], float]
 LeaderPath = Callable[[float], tuple[float, float]]

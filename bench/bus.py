@@ -1,7 +1,7 @@
 """Event bus: the cost of one publish, side by side with 0, 1 and 3 subscribers.
 
 What the control path pays per event on this host. Every configuration runs the same
-brain (`relayd.brain.Brain` handling a real `SipEvent` every publish, so the row also
+brain (`relayd.core.brain.Brain` handling a real `SipEvent` every publish, so the row also
 shows the bus's share next to a whole control step) and a no-op action handler. The
 subscribers are real asyncio readers in their own tasks: "1" is one reader keeping up;
 "3 + slow" adds a reader that keeps up and one that never reads (its bounded queue
@@ -19,9 +19,9 @@ from collections.abc import Sequence
 
 from bench.common import BenchOutput, Result, percentile
 from drivers.arcos.sip import Sip
-from relayd.brain import Brain, BrainParams
-from relayd.bus import Bus, Subscription
-from relayd.events import Action, Event, SipEvent
+from relayd.core.brain import Brain, BrainParams
+from relayd.core.events import Action, Event, SipEvent
+from relayd.runtime.bus import Bus, Subscription
 
 NAME = "bus"
 #: A publish (with the brain's step) is on the SIP -> wheel command path: a tenth of its 2 ms budget.

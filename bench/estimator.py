@@ -1,6 +1,6 @@
 """Estimator: bearing error after 5 scans to a static leader, noise-free and with noise.
 
-Pure code only: `relayd.estimator` (plan_scan, estimate_scan: the WCA the daemon runs)
+Pure code only: `relayd.core.scan.estimator` (plan_scan, estimate_scan: the WCA the daemon runs)
 fed by `relayd.sim.radio` (log-distance path loss, the Yagi's cos^2 pattern floored at
 -20 dB, shadowing, Rician/Rayleigh fast fading averaged over 4 frames). The robot and
 the leader stand still 5 m apart outdoors (L0 -20 dBm, n 2.5); each scan's window is
@@ -32,8 +32,14 @@ from typing import Any
 
 from bench.common import BenchOutput, Result, rms
 from drivers.arcos.sip import DIFF_CONV_FACTOR
-from relayd.controller import wheel_law
-from relayd.estimator import EstimatorParams, ScanSample, estimate_scan, front_readings, plan_scan
+from relayd.core.control.law import wheel_law
+from relayd.core.scan.estimator import (
+    EstimatorParams,
+    ScanSample,
+    estimate_scan,
+    front_readings,
+    plan_scan,
+)
 from relayd.sim.radio import Radio, RadioParams, yagi_gain_db
 
 NAME = "estimator"

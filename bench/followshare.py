@@ -42,7 +42,7 @@ from typing import Any
 from bench.common import Result
 from relayd.calibrate.fit import PathLossFit
 from relayd.calibrate.report import Wanted, thresholds
-from relayd.config import ControlSettings
+from relayd.config.model import ControlSettings
 from relayd.sim.scenario import RelaySpec, Scenario
 
 NAME = "tracking"
@@ -211,8 +211,8 @@ async def _sim(sc: Scenario, seed: int, seconds: float | None) -> list[Share]:
 
 def sim_share(sc: Scenario, seeds: int, seconds: float | None = None) -> list[Share]:
     """Per relay and seed (1..seeds), the `Share` of one scenario."""
-    from relayd import vtime
-    from relayd.logsetup import StdStream, setup_logging
+    from relayd.runtime import vtime
+    from relayd.runtime.logsetup import StdStream, setup_logging
 
     setup_logging("error", "console", StdStream("stderr"))  # the daemons' info lines cost time
     shares: list[Share] = []

@@ -117,11 +117,11 @@ async def _loop_cost(events: int, with_client: bool) -> tuple[float, float, int]
 
     from drivers.arcos.sip import Sip
     from drivers.wifi.sources import RssiSample
-    from relayd.bus import Bus
-    from relayd.config_load import parse_settings
-    from relayd.events import Action, Event, RssiEvent, ScanSampleEvent, SipEvent, Tick
+    from relayd.config.load import parse_settings
+    from relayd.core.events import Action, Event, RssiEvent, ScanSampleEvent, SipEvent, Tick
     from relayd.record.live import SUBPROTOCOL, LiveServer
     from relayd.record.replay import make_brain
+    from relayd.runtime.bus import Bus
 
     class Clock:
         t = 1000.0

@@ -16,7 +16,7 @@ thresholds never change during the run; the obstacle escape is off
 Two measurements of the same cycles. In relayd (the project's definition, "SIP
 received to wheel command written"): the driver times each SIP from its bytes arriving to the
 VEL/RVEL written next, and the daemon keeps the figure when that SIP caused the command
-(relayd.control), into the `relayd_control_latency_seconds` histogram,
+(relayd.runtime.control), into the `relayd_control_latency_seconds` histogram,
 read from /metrics before and after; the p99 is the bucket bound it falls under, and
 the target is judged on the share of cycles at or under 2 ms. End to end, across both
 ptys and the fake's own process: timestamps are taken here, in the fake's process: just before the SIP bytes are

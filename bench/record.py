@@ -46,7 +46,7 @@ async def _latency_rounds(rounds: int, cycles: int) -> list[tuple[bool, dict[str
 
 async def _rig_size(seconds: float) -> tuple[float, float]:
     """(bytes, clock seconds) of one relay's recording at the default settings."""
-    from relayd.config_load import parse_settings
+    from relayd.config.load import parse_settings
     from relayd.daemon import Daemon
     from relayd.fakes.rig import FakeRig
     from relayd.record.reader import read_recording
@@ -72,7 +72,7 @@ async def _rig_size(seconds: float) -> tuple[float, float]:
 
 def _sim_size(seconds: float | None) -> tuple[float, float, int]:
     """(bytes over all relays, simulated seconds, relays) of the convoy recorded."""
-    from relayd import vtime
+    from relayd.runtime import vtime
     from relayd.sim.runner import SimRunner
     from relayd.sim.scenario import load_scenario
 
@@ -140,11 +140,11 @@ async def _loop_cost(events: int) -> tuple[float, float]:
     """
     from drivers.arcos.sip import Sip
     from drivers.wifi.sources import RssiSample
-    from relayd.bus import Bus
-    from relayd.config_load import parse_settings
-    from relayd.events import Action, Event, RssiEvent, ScanSampleEvent, SipEvent, Tick
+    from relayd.config.load import parse_settings
+    from relayd.core.events import Action, Event, RssiEvent, ScanSampleEvent, SipEvent, Tick
     from relayd.record.recorder import Recorder
     from relayd.record.replay import make_brain
+    from relayd.runtime.bus import Bus
 
     class Clock:
         t = 1000.0

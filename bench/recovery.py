@@ -1,4 +1,4 @@
-"""Self-healing (relayd/recovery.py): recovery on vs off, the same scenarios and seeds, one run.
+"""Self-healing (relayd/core/recovery/machine.py): recovery on vs off, the same scenarios and seeds, one run.
 
 For each scenario and seed the simulator runs twice on virtual time (flat out), once
 with every relay's `recovery.enabled = false` (today's behaviour, the baseline) and
@@ -49,7 +49,7 @@ def run_sim(
 ) -> dict[str, Any]:
     """One flat-out virtual-time run; its summary. `scan`: settings laid over the scenario's
     `[scan]` (e.g. the bearing estimator)."""
-    from relayd import vtime
+    from relayd.runtime import vtime
     from relayd.sim.runner import SimRunner
     from relayd.sim.scenario import load_scenario
 

@@ -7,7 +7,7 @@
     python bench/run.py --quick --results /tmp/r.md
 
 These are measurements, not tests: they print figures against the project's
-performance targets and never fail the build. tests/test_bench_smoke.py runs each one in a tiny
+performance targets and never fail the build. tests/bench/test_smoke.py runs each one in a tiny
 configuration so they keep working. A full run of every benchmark writes
 bench/RESULTS.md (machine description, the table, each benchmark's details); the
 hand-written discussion at the end of that file is kept.

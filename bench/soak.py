@@ -33,7 +33,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from relayd.logsetup import StdStream, setup_logging
+from relayd.runtime.logsetup import StdStream, setup_logging
 from relayd.sim.relay import SimRelay
 from relayd.sim.runner import SimRunner
 from relayd.sim.scenario import load_scenario

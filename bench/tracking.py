@@ -2,7 +2,7 @@
 
 Estimators (`scan.estimator` / `scan.window`): "wca/full" (the paper, relayd's old
 behaviour), "lobe/full" and "lobe/adaptive" (docs/CONTROL.md section 10). Every figure
-runs the real `relayd.brain.Brain`:
+runs the real `relayd.core.brain.Brain`:
 
 1. Static error after 5 scans, noise-free: `bench.brainrig` (virtual time, the
    scanner's step timing, 25 samples over the servo's +-90 deg), a relay standing

@@ -27,13 +27,12 @@ import structlog
 from drivers.airos import AirOsClient, AirOsPoller
 from drivers.airos.model import LinkQuality
 from drivers.arcos import ArcosRobot
-from drivers.clock import REAL_CLOCK, Clock
-from drivers.health import DeviceHealth as DriverHealth
 from drivers.pantilt import PanTilt
+from drivers.transport.clock import REAL_CLOCK, Clock
+from drivers.transport.health import DeviceHealth as DriverHealth
 from drivers.wifi import RssiSource
-from relayd.brain import Brain
-from relayd.bus import Bus
-from relayd.config import (
+from relayd.config.checks import api_bind_error
+from relayd.config.model import (
     ApiSettings,
     ConfigError,
     Settings,
@@ -41,17 +40,26 @@ from relayd.config import (
     resolve_secret,
     secret_refs,
 )
-from relayd.config_checks import api_bind_error
-from relayd.control import ControlShell
-from relayd.events import Action, Event, LinkEvent, LinkSide, ScanPlan, ServoTarget, WheelCommand
-from relayd.health import device_health
-from relayd.metrics import Metrics
-from relayd.params import brain_params, control_params, estimator_params
+from relayd.config.params import brain_params, control_params, estimator_params
+from relayd.core.brain import Brain
+from relayd.core.events import (
+    Action,
+    Event,
+    LinkEvent,
+    LinkSide,
+    ScanPlan,
+    ServoTarget,
+    WheelCommand,
+)
 from relayd.record import off_status
-from relayd.scanner import RssiMonitor, Scanner
-from relayd.state import Mode, RelayState
-from relayd.statewriter import StateWriter
-from relayd.supervisor import Supervisor
+from relayd.runtime.bus import Bus
+from relayd.runtime.control import ControlShell
+from relayd.runtime.health import device_health
+from relayd.runtime.metrics import Metrics
+from relayd.runtime.scanner import RssiMonitor, Scanner
+from relayd.runtime.state import Mode, RelayState
+from relayd.runtime.statewriter import StateWriter
+from relayd.runtime.supervisor import Supervisor
 
 if TYPE_CHECKING:
     from relayd.api.server import ApiServer
@@ -83,7 +91,7 @@ class DeviceOverrides:
 
 
 class Notifier(Protocol):
-    """What the daemon tells systemd (relayd.sdnotify.SdNotifier implements it)."""
+    """What the daemon tells systemd (relayd.runtime.sdnotify.SdNotifier implements it)."""
 
     def ready(self) -> None: ...
     def status(self, text: str) -> None: ...

@@ -14,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import inspect
 from collections.abc import AsyncIterator, Iterator
+from pathlib import Path
 
 import pytest
 import pytest_asyncio
@@ -27,37 +28,47 @@ import structlog
 #: worker while the other idles. A stale list costs only wall time; every file not named
 #: runs after these, in their usual order.
 LONGEST_FILES_FIRST = (
-    "test_types.py",  # ~15 s cold (a fresh checkout), CPU: mypy, strict
-    "test_api_flood.py",  # ~22 s, waits: a 13 s flood
-    "test_sweep.py",  # ~25 s, Dask clusters and child processes
-    "test_foxglove_live.py",  # ~19 s, a 6 s stalled-client window, a virtual-time flood
-    "test_offline_install.py",  # ~20 s, pip against the index
-    "test_live_page_ops.py",  # ~18 s, waits: the page's stale timers
-    "test_sim_convoy_corridor.py",  # ~16 s, CPU: four paper scenarios
-    "test_bench_smoke.py",  # ~10 s, its four live benchmarks side by side
-    "test_fuzz_decoders.py",  # ~12 s, CPU: hypothesis
-    "test_linkmodel.py",  # ~12 s of CPU, hypothesis (third longest file on a loaded machine)
-    "test_sim_recovery.py",  # ~11 s, CPU: drift and door, recovery off and on
-    "test_sim_scenarios.py",  # ~10 s, CPU: the obstacle scenarios
-    "test_serial_leaks.py",  # ~10 s, waits: pty hang-ups
-    "test_sigterm.py",
-    "test_api_tls.py",
-    "test_live_page_browser.py",
-    "test_api_schemathesis.py",
-    "test_avoidance.py",
-    "test_airos_model.py",
-    "test_record.py",
-    "test_recovery.py",
-    "test_record_daemon.py",
-    "test_fleet_browser.py",
-    "test_bridge_netns.py",
+    "tests/system/test_types.py",  # ~15 s cold (a fresh checkout), CPU: mypy, strict
+    "tests/api/test_flood.py",  # ~22 s, waits: a 13 s flood
+    "tests/tools/test_sweep.py",  # ~25 s, Dask clusters and child processes
+    "tests/record/test_foxglove.py",  # ~19 s, a 6 s stalled-client window, a virtual-time flood
+    "tests/system/test_offline_install.py",  # ~20 s, pip against the index
+    "tests/api/test_live_page_ops.py",  # ~18 s, waits: the page's stale timers
+    "tests/sim/test_convoy_corridor.py",  # ~16 s, CPU: four paper scenarios
+    "tests/bench/test_smoke.py",  # ~10 s, its four live benchmarks side by side
+    "tests/drivers/test_fuzz_decoders.py",  # ~12 s, CPU: hypothesis
+    "tests/core/link/test_model.py",  # ~12 s of CPU, hypothesis (third longest file on a loaded machine)
+    "tests/sim/test_recovery.py",  # ~11 s, CPU: drift and door, recovery off and on
+    "tests/sim/test_scenarios.py",  # ~10 s, CPU: the obstacle scenarios
+    "tests/drivers/transport/test_serial_leaks.py",  # ~10 s, waits: pty hang-ups
+    "tests/system/test_sigterm.py",
+    "tests/api/test_tls.py",
+    "tests/system/test_live_page_browser.py",
+    "tests/api/test_schemathesis.py",
+    "tests/core/avoid/test_escape.py",
+    "tests/drivers/airos/test_model.py",
+    "tests/record/test_record.py",
+    "tests/core/recovery/test_machine.py",
+    "tests/record/test_record_daemon.py",
+    "tests/system/test_fleet_browser.py",
+    "tests/system/test_bridge_netns.py",
 )
+
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _relative(path: Path) -> str:
+    try:
+        return path.resolve().relative_to(ROOT).as_posix()
+    except ValueError:
+        return path.name
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """Longest files first (see LONGEST_FILES_FIRST); a stable sort keeps each file's order."""
     rank = {name: i for i, name in enumerate(LONGEST_FILES_FIRST)}
-    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
+    items.sort(key=lambda item: rank.get(_relative(item.path), len(rank)))
 
 
 #: Turns of the loop given to things a test has just cancelled or closed, so their
@@ -163,7 +174,7 @@ def _structlog_restored() -> Iterator[None]:
 
 def pytest_asyncio_loop_factories(config: pytest.Config, item: pytest.Item) -> dict[str, object]:
     """A test marked `virtual_time` runs on the jumping loop; every other on a plain one."""
-    from support import VirtualTimeLoop
+    from tests.support import VirtualTimeLoop
 
     if item.get_closest_marker("virtual_time") is not None:
         return {"virtual": VirtualTimeLoop}

@@ -3,7 +3,7 @@
 Tests poll for conditions instead of sleeping: the machines that run CI are shared
 and slow, so every wait has a generous timeout and fails with what it waited for.
 
-Tests marked `virtual_time` run on relayd.vtime's `VirtualTimeLoop` (tests/conftest.py
+Tests marked `virtual_time` run on relayd.runtime.vtime's `VirtualTimeLoop` (tests/conftest.py
 picks the loop): when nothing is ready to run the loop's time jumps to its next timer
 instead of waiting for it, so a 4 s watchdog or a 60 s backoff take no wall time and a
 loaded machine cannot make a timer late. Such a test talks to its fakes over
@@ -28,8 +28,8 @@ from typing import TYPE_CHECKING, Any, NoReturn, Protocol
 
 import pytest
 
-from drivers.clock import Clock
-from relayd.vtime import LoopClock, VirtualTimeLoop
+from drivers.transport.clock import Clock
+from relayd.runtime.vtime import LoopClock, VirtualTimeLoop
 
 if TYPE_CHECKING:
     from relayd.sim.runner import SimResult, SimRunner
@@ -202,7 +202,7 @@ _scenario_runs: dict[tuple[str, int, float | None], tuple[SimResult, SimRunner]]
 def run_scenario(name: str, relays: int, pace: float | None = None) -> tuple[SimResult, SimRunner]:
     """A shipped scenario run once per process on virtual time, with `relays` relays:
     (SimResult, SimRunner). `pace`: paced to that many times wall time (None: flat out)."""
-    from relayd import vtime
+    from relayd.runtime import vtime
     from relayd.sim.runner import SimRunner
     from relayd.sim.scenario import load_scenario
 

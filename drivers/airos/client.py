@@ -39,7 +39,7 @@ from drivers.airos.model import (
     parse_stations,
     parse_status,
 )
-from drivers.clock import REAL_CLOCK, Clock
+from drivers.transport.clock import REAL_CLOCK, Clock
 
 log = structlog.get_logger(__name__)
 

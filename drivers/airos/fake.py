@@ -28,7 +28,7 @@ from aiohttp import web
 
 from drivers.airos.fakedocs import LOGIN_PAGE, load_fixture, rate_text, station_entry
 from drivers.airos.model import RSSI_OFFSET_DB, Station
-from drivers.clock import REAL_CLOCK, Clock
+from drivers.transport.clock import REAL_CLOCK, Clock
 
 log = structlog.get_logger(__name__)
 

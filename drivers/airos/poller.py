@@ -5,7 +5,7 @@ The poller is the long-running task the daemon supervises: `run()` never raises 
 
 * session expired (redirect to login, 401/403, HTML answer): log in again at once, once;
   a second expiry straight after a fresh login backs off like a network error;
-* network error / timeout: capped exponential backoff (drivers.backoff), state "unreachable";
+* network error / timeout: capped exponential backoff (drivers.transport.backoff), state "unreachable";
 * malformed JSON / not a status document: counted, state "bad_data", log in again on the next
   try (an HTML or garbled answer is how an expired session looks, docs/PROTOCOLS.md 4.1:
   log in again once, then back off);
@@ -14,7 +14,7 @@ The poller is the long-running task the daemon supervises: `run()` never raises 
   may be held until it is. Even at the cap that is one login a few seconds apart, which
   airOS does not lock out. The refusal is logged once, then once a minute while it lasts.
 
-The loop itself is the shared `drivers.reconnect.Reconnect.run` (backoff and log
+The loop itself is the shared `drivers.transport.reconnect.Reconnect.run` (backoff and log
 discipline): a connection is a login and a first good poll, serving it is polling at a
 fixed rate until a poll fails. A change of failure class is logged at WARNING as news.
 """
@@ -37,10 +37,10 @@ from drivers.airos.client import (
     Firmware,
 )
 from drivers.airos.model import AirOsDataError, LinkQuality
-from drivers.backoff import Backoff
-from drivers.clock import REAL_CLOCK, Clock
-from drivers.health import DeviceHealth, LinkState
-from drivers.reconnect import Failure, Reconnect
+from drivers.transport.backoff import Backoff
+from drivers.transport.clock import REAL_CLOCK, Clock
+from drivers.transport.health import DeviceHealth, LinkState
+from drivers.transport.reconnect import Failure, Reconnect
 
 log = structlog.get_logger(__name__)
 
@@ -121,7 +121,7 @@ class AirOsPoller:
         return f"AirOsPoller(url={self.url!r}, username={self.client.username!r}, state={self.state!r})"
 
     def health(self) -> DeviceHealth:
-        """The radio link's health now (see drivers.health); `state` keeps the finer story."""
+        """The radio link's health now (see drivers.transport.health); `state` keeps the finer story."""
         if self.state == "ok":
             state = LinkState.UP
         elif self.state == "connecting":

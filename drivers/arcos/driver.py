@@ -5,7 +5,7 @@ docs/ARCHITECTURE.md). One `run()` task keeps a session up: each session
 (`session.py`) does the handshake, state reflection and safe stop over one port
 whose bytes an `ArcosProtocol` (`protocol.py`) decodes and paces. When a session
 ends, the robot's state is unknown at once (`connected` False, `stale` True) and
-`run()` reconnects through the shared loop (`drivers.reconnect`). Cancel or
+`run()` reconnects through the shared loop (`drivers.transport.reconnect`). Cancel or
 `shutdown()` stops the wheels, disables the motors and CLOSEs before the port is
 closed.
 """
@@ -41,11 +41,11 @@ from drivers.arcos.sip import (
     sip_from_raw,
 )
 from drivers.arcos.sonar import SonarRing
-from drivers.backoff import Backoff
-from drivers.clock import REAL_CLOCK, Clock
-from drivers.health import DeviceHealth, LinkState
-from drivers.link import LinkError, open_link
-from drivers.reconnect import Failure, Reconnect, expecting
+from drivers.transport.backoff import Backoff
+from drivers.transport.clock import REAL_CLOCK, Clock
+from drivers.transport.health import DeviceHealth, LinkState
+from drivers.transport.link import LinkError, open_link
+from drivers.transport.reconnect import Failure, Reconnect, expecting
 
 log = structlog.get_logger(__name__)
 
@@ -171,7 +171,7 @@ class ArcosRobot:
         return {**self.decoder.counters(), **self.stats, "reconnects": self._reconnect.reconnects}
 
     def health(self) -> DeviceHealth:
-        """The robot link's health now (see drivers.health)."""
+        """The robot link's health now (see drivers.transport.health)."""
         if self._closing:
             state = LinkState.CLOSED
         elif self.connected:

@@ -44,9 +44,9 @@ from drivers.arcos.sip import (
     encode_identity,
     wheel_to_vel_rvel,
 )
-from drivers.clock import REAL_CLOCK, Clock
-from drivers.fakeio import PtyPort, TcpPort
-from drivers.memlink import LinkFaults, MemoryPort
+from drivers.transport.clock import REAL_CLOCK, Clock
+from drivers.transport.fakeio import PtyPort, TcpPort
+from drivers.transport.memlink import LinkFaults, MemoryPort
 
 log = structlog.get_logger(__name__)
 

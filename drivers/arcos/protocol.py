@@ -19,8 +19,8 @@ from collections.abc import Callable, Iterable
 import structlog
 
 from drivers.arcos.codec import Command, Decoder, Packet
-from drivers.clock import Clock
-from drivers.link import close_link
+from drivers.transport.clock import Clock
+from drivers.transport.link import close_link
 
 log = structlog.get_logger(__name__)
 

@@ -42,7 +42,7 @@ from drivers.arcos.sip import (
     decode_identity,
     wheel_to_vel_rvel,
 )
-from drivers.link import set_baudrate
+from drivers.transport.link import set_baudrate
 
 if TYPE_CHECKING:
     from drivers.arcos.driver import ArcosRobot

@@ -10,12 +10,12 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any, Literal
 
-from drivers.clock import REAL_CLOCK, Clock
 from drivers.pantilt.base import PanTilt
 from drivers.pantilt.calibration import ServoCalibration
 from drivers.pantilt.maestro import MaestroPanTilt
 from drivers.pantilt.session import PanTiltError, ReplyError
 from drivers.pantilt.ssc32 import Ssc32PanTilt
+from drivers.transport.clock import REAL_CLOCK, Clock
 
 PROTOCOLS: dict[str, type[PanTilt]] = {"maestro": MaestroPanTilt, "ssc32": Ssc32PanTilt}
 #: Baud rate when none is configured: the Maestro's USB command port ignores it; the

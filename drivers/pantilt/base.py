@@ -13,10 +13,10 @@ from __future__ import annotations
 import abc
 from collections.abc import Mapping
 
-from drivers.backoff import Backoff
-from drivers.clock import REAL_CLOCK, Clock
 from drivers.pantilt.calibration import ServoCalibration, check_angle, check_speed
 from drivers.pantilt.session import PanTiltError, ServoSession
+from drivers.transport.backoff import Backoff
+from drivers.transport.clock import REAL_CLOCK, Clock
 
 __all__ = ["PanTilt", "ServoCalibration", "check_angle", "check_speed"]
 

@@ -18,12 +18,12 @@ from __future__ import annotations
 import abc
 import os
 
-from drivers.clock import REAL_CLOCK, Clock
-from drivers.fakeio import PtyPort
-from drivers.memlink import LinkFaults, MemoryPort
 from drivers.pantilt import maestro as mc
 from drivers.pantilt import ssc32 as sc
 from drivers.pantilt.slew import SimServo, travelled_us
+from drivers.transport.clock import REAL_CLOCK, Clock
+from drivers.transport.fakeio import PtyPort
+from drivers.transport.memlink import LinkFaults, MemoryPort
 
 __all__ = ["FakeMaestro", "FakeSsc32", "SimServo", "travelled_us"]
 

@@ -14,10 +14,10 @@ from collections.abc import Mapping
 from enum import IntEnum, IntFlag
 from typing import Any
 
-from drivers.clock import REAL_CLOCK, Clock
 from drivers.pantilt.base import PanTilt
 from drivers.pantilt.calibration import ServoCalibration
 from drivers.pantilt.session import PanTiltError, ReplyError
+from drivers.transport.clock import REAL_CLOCK, Clock
 
 #: Largest 14-bit data value.
 MAX_14BIT = 0x3FFF

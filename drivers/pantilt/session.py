@@ -4,7 +4,7 @@
 command goes through one `asyncio.Lock`, a request registers its reply waiter before
 writing, a reply is exactly the length the back-end says, and `max_timeouts`
 unanswered requests in a row turn into a disconnect, so `run()` reconnects with
-backoff (the loop itself is `Reconnect.run`, drivers/reconnect.py). A port given up is closed, bounded,
+backoff (the loop itself is `Reconnect.run`, drivers/transport/reconnect.py). A port given up is closed, bounded,
 before the next one opens (its flock). `health()` reports all of it. What the commands
 mean, servos in degrees, is `PanTilt` (base.py) and the back-ends.
 """
@@ -18,11 +18,11 @@ from typing import ClassVar
 
 import structlog
 
-from drivers.backoff import Backoff
-from drivers.clock import REAL_CLOCK, Clock
-from drivers.health import DeviceHealth, LinkState
-from drivers.link import LinkError, close_link, open_link
-from drivers.reconnect import Failure, Reconnect, expecting
+from drivers.transport.backoff import Backoff
+from drivers.transport.clock import REAL_CLOCK, Clock
+from drivers.transport.health import DeviceHealth, LinkState
+from drivers.transport.link import LinkError, close_link, open_link
+from drivers.transport.reconnect import Failure, Reconnect, expecting
 
 log = structlog.get_logger(__name__)
 
@@ -345,7 +345,7 @@ class ServoSession(abc.ABC):
         return PanTiltError(f"bad reply from {self.url}: {exc}")
 
     def health(self) -> DeviceHealth:
-        """The servo controller's health now (see drivers.health)."""
+        """The servo controller's health now (see drivers.transport.health)."""
         if self._closed:
             state = LinkState.CLOSED
         elif self.connected:

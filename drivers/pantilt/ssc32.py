@@ -15,10 +15,10 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from drivers.clock import REAL_CLOCK, Clock
 from drivers.pantilt.base import PanTilt
 from drivers.pantilt.calibration import ServoCalibration
 from drivers.pantilt.session import PanTiltError, ReplyError
+from drivers.transport.clock import REAL_CLOCK, Clock
 
 MAX_CHANNELS = 32
 MIN_PULSE_US = 500

@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 from typing import Literal
 
-from drivers.clock import REAL_CLOCK, Clock
+from drivers.transport.clock import REAL_CLOCK, Clock
 from drivers.wifi.fake import ProcfsWriter
 from drivers.wifi.nl80211 import Nl80211Source
 from drivers.wifi.parsers import RSSI_MIN_DBM, plausible_rssi_dbm

@@ -14,7 +14,7 @@ from collections.abc import AsyncIterable, Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
-from drivers.clock import REAL_CLOCK, Clock
+from drivers.transport.clock import REAL_CLOCK, Clock
 from drivers.wifi.parsers import RSSI_MIN_DBM
 from drivers.wifi.sources import InterfaceMissing, Observation, RssiSource, SourceError
 

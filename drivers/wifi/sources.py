@@ -26,8 +26,8 @@ from typing import Any, ClassVar
 
 import structlog
 
-from drivers.clock import REAL_CLOCK, Clock
-from drivers.health import DeviceHealth, LinkState
+from drivers.transport.clock import REAL_CLOCK, Clock
+from drivers.transport.health import DeviceHealth, LinkState
 from drivers.wifi.parsers import (
     RSSI_MIN_DBM,
     parse_iw_link,
@@ -112,7 +112,7 @@ class RssiSource(abc.ABC):
         }
 
     def health(self) -> DeviceHealth:
-        """The adapter's health now (see drivers.health).
+        """The adapter's health now (see drivers.transport.health).
 
         UP while the interface is there and associated; STALE when it is there but
         not associated (no level to read); DOWN when reads fail.

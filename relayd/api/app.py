@@ -22,15 +22,15 @@ from aiohttp import web
 from prometheus_client.aiohttp import make_aiohttp_handler
 from pydantic import BaseModel, ValidationError
 
-from drivers.clock import Clock
+from drivers.transport.clock import Clock
 from relayd.api.history import History
 from relayd.api.history import install as install_history
 from relayd.api.models import DriveRequest, ModeRequest
 from relayd.api.openapi import build_openapi
 from relayd.api.server import start_api
-from relayd.metrics import Metrics
-from relayd.ratelimit import LogRateLimit
-from relayd.state import Controls, ModeError, RelayState
+from relayd.runtime.metrics import Metrics
+from relayd.runtime.ratelimit import LogRateLimit
+from relayd.runtime.state import Controls, ModeError, RelayState
 
 log = structlog.get_logger(__name__)
 _M = TypeVar("_M", bound=BaseModel)

@@ -1,7 +1,7 @@
 """Serve the API and live page on a plausible, moving `RelayState` without any device.
 
 `python -m relayd.api.demo --host 127.0.0.1 --port 8080 [--token T]` is for working on
-the live page's layout; `populate` gives unit tests (tests/test_api.py) a full state.
+the live page's layout; `populate` gives unit tests (tests/api/test_app.py) a full state.
 The state is synthetic and says so in `reason`; nothing here is used by the daemon.
 For the real thing without hardware: `relayd fake rig` and `relayd run -c` on its config.
 """
@@ -16,10 +16,10 @@ import random
 
 import structlog
 
-from drivers.clock import REAL_CLOCK, Clock
+from drivers.transport.clock import REAL_CLOCK, Clock
 from relayd.api.app import make_app
 from relayd.api.server import start_api
-from relayd.state import DriveState, LinkInfo, Mode, ModeError, RelayState, ScanRecord
+from relayd.runtime.state import DriveState, LinkInfo, Mode, ModeError, RelayState, ScanRecord
 
 log = structlog.get_logger(__name__)
 

@@ -39,7 +39,7 @@ from typing import Any, cast
 import structlog
 from aiohttp import web
 
-from relayd.ratelimit import LogRateLimit
+from relayd.runtime.ratelimit import LogRateLimit
 
 log = structlog.get_logger(__name__)
 

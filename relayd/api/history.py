@@ -23,7 +23,7 @@ from typing import Any
 import structlog
 from aiohttp import web
 
-from drivers.clock import Clock
+from drivers.transport.clock import Clock
 
 log = structlog.get_logger(__name__)
 

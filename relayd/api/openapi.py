@@ -3,7 +3,7 @@
 The /status schema is generated from its typed model (`relayd.api.status`), translated
 to OpenAPI 3.0's `nullable: true`. The request schemas are hand-written and must agree
 with the pydantic models in `relayd.api.models`;
-tests/test_api.py checks both against the same inputs, and schemathesis checks every
+tests/api/test_app.py checks both against the same inputs, and schemathesis checks every
 response against this document.
 """
 
@@ -13,7 +13,7 @@ from typing import Any
 
 from relayd import __version__
 from relayd.api.status import Status, openapi_schema
-from relayd.state import DriveState, Mode
+from relayd.runtime.state import DriveState, Mode
 
 
 def _num(nullable: bool = True, **extra: Any) -> dict[str, Any]:

@@ -18,10 +18,10 @@ from typing import Any
 import structlog
 from aiohttp import web
 
-from drivers.loopreports import add_report_filter
+from drivers.transport.loopreports import add_report_filter
 from relayd.api.guard import LOG_EVERY_S, GuardedServer
-from relayd.config import ApiSettings, ConfigError
-from relayd.ratelimit import LogRateLimit
+from relayd.config.model import ApiSettings, ConfigError
+from relayd.runtime.ratelimit import LogRateLimit
 
 log = structlog.get_logger(__name__)
 
@@ -45,7 +45,7 @@ class ApiServer:
 
 
 class _AcceptErrorLimit:
-    """A drivers.loopreports filter: asyncio's accept-resource reports, rate-limited."""
+    """A drivers.transport.loopreports filter: asyncio's accept-resource reports, rate-limited."""
 
     def __init__(self) -> None:
         self._limit = LogRateLimit(LOG_EVERY_S)

@@ -5,7 +5,7 @@
 dialect (`nullable: true` instead of JSON Schema's `anyOf [.., null]`, no `$ref`s or
 titles). `RelayState.snapshot()` still builds the dict itself, by hand, because it runs
 on every request of a 1000 req/s client and a model round trip would cost a good
-share of that; `tests/test_status_model.py` checks that every snapshot validates
+share of that; `tests/api/test_status_model.py` checks that every snapshot validates
 against `Status` (strict, no extra keys) and that each field of the model appears.
 """
 
@@ -15,7 +15,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from relayd.state import SONAR_COUNT, DriveState, Mode
+from relayd.runtime.state import SONAR_COUNT, DriveState, Mode
 
 
 class _Model(BaseModel):

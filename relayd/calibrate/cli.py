@@ -36,8 +36,8 @@ from relayd.calibrate.sources import (
     readings_from_recording,
     sample_live,
 )
-from relayd.commands.argtypes import positive_float
-from relayd.ratetables import RATE_TABLES
+from relayd.cli.argtypes import positive_float
+from relayd.core.link.rates import RATE_TABLES
 
 #: --drive never goes faster than this (mm/s): a calibration is a slow, watched drive.
 MAX_DRIVE_MM_S = 300.0

@@ -45,7 +45,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from statistics import NormalDist
 
-from relayd.ratetables import RATE_TABLES
+from relayd.core.link.rates import RATE_TABLES
 
 HUBER_K = 1.345
 BISQUARE_C = 4.685

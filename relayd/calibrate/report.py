@@ -14,7 +14,7 @@ from relayd.calibrate.fit import (
     threshold_for_throughput,
 )
 from relayd.calibrate.sources import Reading
-from relayd.linkmodel import LinkModel, LinkPolicyParams, LinkSample
+from relayd.core.link.model import LinkModel, LinkPolicyParams, LinkSample
 
 #: Polls needed on each side of the target (meeting it, missing it) for a measured threshold.
 MIN_VERDICTS = 5

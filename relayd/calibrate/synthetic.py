@@ -22,7 +22,7 @@ from typing import Any
 
 from drivers.airos.model import LinkQuality, Station
 from drivers.arcos.sip import Sip
-from relayd.ratetables import RATE_TABLES
+from relayd.core.link.rates import RATE_TABLES
 
 
 def _rate(power_dbm: float) -> float:

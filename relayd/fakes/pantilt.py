@@ -10,8 +10,8 @@ import argparse
 import asyncio
 import sys
 
-from drivers.clock import Clock
 from drivers.pantilt.fake import FakeMaestro, FakeSsc32
+from drivers.transport.clock import Clock
 
 
 def configure(parser: argparse.ArgumentParser) -> None:

@@ -28,11 +28,11 @@ from typing import Any, Literal
 
 from drivers.airos.fake import FakeAirOs
 from drivers.arcos.fake import FakeRobot
-from drivers.clock import REAL_CLOCK, Clock
 from drivers.pantilt.fake import FakeMaestro
+from drivers.transport.clock import REAL_CLOCK, Clock
 from drivers.wifi.fake import ProcfsWriter
-from relayd.config import Settings
-from relayd.config_toml import dump_toml
+from relayd.config.model import Settings
+from relayd.config.tomlwriter import dump_toml
 from relayd.sim.radio import yagi_gain_db
 
 #: Servo calibration shared by the fake and the generated config.
@@ -67,7 +67,7 @@ class FakeRig:
         self.work = Path(work)
         #: "pty": the base and the servo controller on pseudo-terminals (what `relayd run`
         #: in another process needs); "memory": on in-process memory:// links, for a
-        #: daemon in this process, on virtual time (`relayd.vtime`).
+        #: daemon in this process, on virtual time (`relayd.runtime.vtime`).
         self.links = links
         self.clock = clock
         self.leader_xy_m = leader_xy_m

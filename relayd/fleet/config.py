@@ -13,7 +13,7 @@
     origin = [0.0, 0.0, 0.0]  # where its odometry started: x_m, y_m, heading_deg on a shared map
 
 Other sections of the file are ignored, so one site file may carry both a robot's
-config and the fleet's. Unknown keys inside `[fleet]` are errors, as in relayd.config.
+config and the fleet's. Unknown keys inside `[fleet]` are errors, as in relayd.config.model.
 """
 
 from __future__ import annotations
@@ -28,8 +28,8 @@ from urllib.parse import urlsplit
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from relayd.config import ConfigError, SecretRef, resolve_secret
-from relayd.config_checks import validation_messages
+from relayd.config.checks import validation_messages
+from relayd.config.model import ConfigError, SecretRef, resolve_secret
 
 DEFAULT_PORT = 8090
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]

@@ -20,7 +20,7 @@ from typing import Any
 import aiohttp
 import structlog
 
-from drivers.clock import REAL_CLOCK, Clock
+from drivers.transport.clock import REAL_CLOCK, Clock
 from relayd.fleet.config import Relay
 
 log = structlog.get_logger(__name__)

@@ -21,7 +21,7 @@ import aiohttp
 import structlog
 from aiohttp import web
 
-from drivers.clock import REAL_CLOCK, Clock
+from drivers.transport.clock import REAL_CLOCK, Clock
 from relayd.fleet.chain import fleet_document
 from relayd.fleet.config import FleetSettings, Relay
 from relayd.fleet.poller import Fleet, short_error

@@ -14,8 +14,8 @@ import json
 import sys
 from collections.abc import Callable
 
-from drivers.link import LinkError
 from drivers.pantilt import PROTOCOLS, MaestroPanTilt, PanTiltError, ServoCalibration, make_pantilt
+from drivers.transport.link import LinkError
 from relayd.probe import emit, warnings_to_stderr
 
 

@@ -13,7 +13,7 @@ import json
 import sys
 
 from drivers.arcos import ArcosRobot, HandshakeError, Sip
-from drivers.link import LinkError
+from drivers.transport.link import LinkError
 from relayd.probe import emit, warnings_to_stderr
 
 

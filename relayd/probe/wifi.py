@@ -15,7 +15,7 @@ import json
 import shutil
 import sys
 
-from drivers.clock import REAL_CLOCK
+from drivers.transport.clock import REAL_CLOCK
 from drivers.wifi import SOURCE_KINDS, make_source
 from relayd.probe import emit, warnings_to_stderr
 

@@ -1,7 +1,7 @@
 """JSON for the bus vocabulary: every event and action to a dict and back, and its JSON schema.
 
 The codec is generic over frozen dataclasses: it reads each class's type hints once,
-so a new event or action type added to `relayd.events` is recorded, validated and
+so a new event or action type added to `relayd.core.events` is recorded, validated and
 replayed without a line here (its channel is `/event/<Name>` or `/action/<Name>`
 until it gets a name in `TOPICS`). Decisions:
 
@@ -25,7 +25,7 @@ from enum import Enum
 from functools import cache
 from typing import Any
 
-from relayd.events import Action, Event
+from relayd.core.events import Action, Event
 
 #: Recording format: bumped when a message layout changes incompatibly.
 FORMAT = 1

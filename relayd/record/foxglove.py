@@ -19,7 +19,15 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
-from relayd.events import Action, Decision, DeviceEvent, DeviceStatus, Event, ModeCommand, SipEvent
+from relayd.core.events import (
+    Action,
+    Decision,
+    DeviceEvent,
+    DeviceStatus,
+    Event,
+    ModeCommand,
+    SipEvent,
+)
 
 _TIME: dict[str, Any] = {
     "type": "object",
@@ -147,7 +155,7 @@ class Views:
                         level,
                         f"device {event.device} {event.status}{detail}",
                         self.name,
-                        "relayd.control",
+                        "relayd.runtime.control",
                     ),
                 )
             )
@@ -179,7 +187,7 @@ class Views:
                             f"drive_state {action.state} ({action.reason}) wheels "
                             f"{action.left_mm_s:.0f}/{action.right_mm_s:.0f} mm/s",
                             self.name,
-                            "relayd.brain",
+                            "relayd.core.brain",
                         ),
                     )
                 )

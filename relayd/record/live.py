@@ -32,9 +32,9 @@ from typing import TYPE_CHECKING, Any
 
 import structlog
 
-from drivers.clock import Clock
-from relayd.config import Settings
-from relayd.events import Decision
+from drivers.transport.clock import Clock
+from relayd.config.model import Settings
+from relayd.core.events import Decision
 from relayd.record import codec
 from relayd.record.foxglove import VIEWS, Views, log_line
 from relayd.record.recorder import Routed, RoutedBus

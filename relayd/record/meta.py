@@ -23,7 +23,7 @@ from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
 from relayd import __version__
-from relayd.config import Settings
+from relayd.config.model import Settings
 from relayd.record.codec import FORMAT
 
 

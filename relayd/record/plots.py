@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from relayd.events import Decision, RearLink, ScanResult, SipEvent
+from relayd.core.events import Decision, RearLink, ScanResult, SipEvent
 from relayd.record.reader import Recording
 from relayd.sim import plots as sim_plots
 

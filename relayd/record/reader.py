@@ -20,7 +20,7 @@ from mcap.exceptions import EndOfFile, InvalidMagic
 from mcap.records import Channel, Chunk, Footer, McapRecord, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 
-from relayd.events import Action, Event
+from relayd.core.events import Action, Event
 from relayd.record import codec
 from relayd.record.meta import RunInfo
 

@@ -31,10 +31,9 @@ from typing import Any, BinaryIO, Protocol
 import structlog
 
 from drivers.arcos.sip import RobotIdentity
-from drivers.clock import Clock
-from relayd.bus import Subscription
-from relayd.config import Settings
-from relayd.events import Action, DeviceEvent, DeviceStatus, Event
+from drivers.transport.clock import Clock
+from relayd.config.model import Settings
+from relayd.core.events import Action, DeviceEvent, DeviceStatus, Event
 from relayd.record import RecordingStatus, codec
 from relayd.record import off_status as off_status  # here since the daemon may skip this module
 from relayd.record import writer as file_writer
@@ -48,6 +47,7 @@ from relayd.record.writer import (
     WriterThread,
     channel_spec,
 )
+from relayd.runtime.bus import Subscription
 
 log = structlog.get_logger(__name__)
 

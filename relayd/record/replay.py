@@ -3,7 +3,7 @@
 The brain reads no clock (the time is in each event), so replay is virtual time at
 its simplest: the recorded events, control ticks included, are handed to
 `Brain.handle` in their recorded order, as fast as it goes. The brain is built from
-the recorded config exactly as the daemon builds it (`relayd.params.brain_params`),
+the recorded config exactly as the daemon builds it (`relayd.config.params.brain_params`),
 so a faithful replay returns, event for event, the very actions that were recorded;
 any difference is a *divergence* (a bug in determinism, a lost event, or a brain
 changed since the recording).
@@ -22,13 +22,13 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from relayd.brain import Brain
-from relayd.config import Settings
-from relayd.config_load import parse_settings
-from relayd.events import Action, Decision, ScanResult
-from relayd.params import brain_params
+from relayd.config.load import parse_settings
+from relayd.config.model import Settings
+from relayd.config.params import brain_params
+from relayd.core.brain import Brain
+from relayd.core.events import Action, Decision, ScanResult
 from relayd.record.reader import Recording, action_doc
-from relayd.state import Mode
+from relayd.runtime.state import Mode
 
 
 class OverrideError(ValueError):
@@ -63,7 +63,7 @@ def apply_overrides(config: Mapping[str, Any], overrides: Sequence[tuple[str, An
         if parts[-1] not in node:
             raise OverrideError(f"{key}: no key {parts[-1]!r} in [{'.'.join(parts[:-1])}]")
         node[parts[-1]] = value
-    from relayd.config import ConfigError
+    from relayd.config.model import ConfigError
 
     try:
         return parse_settings(doc)

@@ -302,7 +302,7 @@ def cone_range(
         # Each segment clipped to both edges' half-planes, then its distance from the apex:
         # _clip_to_half_plane twice and point_segment_distance, written out because a
         # sonar ring runs this 80 times a second per robot (the same operations in the same
-        # order, so the same floats; tests/test_sim_shortcuts.py checks it against them).
+        # order, so the same floats; tests/sim/test_shortcuts.py checks it against them).
         px, py, qx, qy = s.x1 - ox, s.y1 - oy, s.x2 - ox, s.y2 - oy
         dp, dq = nlx * px + nly * py, nlx * qx + nly * qy
         if dp < 0.0 and dq < 0.0:

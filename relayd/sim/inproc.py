@@ -2,7 +2,7 @@
 
 The simulator on virtual time needs every byte of device I/O to be a loop callback,
 so that the same scenario and seed give the same run. The base and the servo
-controller already have in-memory links (`drivers.memlink`); these cover the rest:
+controller already have in-memory links (`drivers.transport.memlink`); these cover the rest:
 
 - `MemoryRssi`: the Yagi adapter's RSSI as a real `drivers.wifi.RssiSource` (the same
   freshness and plausibility rules as the procfs source), fed by the world;
@@ -20,7 +20,7 @@ from typing import Any
 from drivers.airos.client import AirOsClient
 from drivers.airos.fake import FakeAirOs
 from drivers.airos.model import Station, parse_stations
-from drivers.clock import Clock
+from drivers.transport.clock import Clock
 from drivers.wifi.sources import Observation, RssiSource
 
 

@@ -4,7 +4,7 @@ For the avoidance bench and property tests: thousands of control steps a second,
 deterministic for a seed, no daemons, ptys or clocks. It keeps what matters for getting
 past obstacles and drops the rest:
 
-- the real controller (`relayd.controller.control_step`) on every 100 ms SIP, with the
+- the real controller (`relayd.core.control.law.control_step`) on every 100 ms SIP, with the
   world's truthful sonar (`World.sonar_mm`) refreshed 8 sonars per SIP in the
   FakeRobot's firing order, as the P3-AT reports them;
 - the command as the wire carries it (integer VEL mm/s, RVEL deg/s, the driver's
@@ -27,19 +27,19 @@ from dataclasses import dataclass, field, replace
 
 from drivers.arcos.fakebody import FIRING_ORDER
 from drivers.arcos.sip import wheel_to_vel_rvel
-from relayd.controller import (
+from relayd.core.avoid.ring import rear_readings
+from relayd.core.control.law import (
     ControlInputs,
     ControlMemory,
     ControlOutput,
     ControlParams,
     control_step,
 )
-from relayd.estimator import front_readings
-from relayd.ring import rear_readings
+from relayd.core.scan.estimator import front_readings
+from relayd.runtime.state import Mode
 from relayd.sim.geometry import Segment, point_segment_distance, segments_intersect
 from relayd.sim.scenario import Scenario
 from relayd.sim.world import ROBOT_LENGTH_M, World
-from relayd.state import Mode
 
 SIP_PERIOD_S = 0.1
 SONARS_PER_SIP = 8

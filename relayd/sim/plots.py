@@ -83,7 +83,7 @@ def spans(records: Sequence[dict[str, Any]], i: int, key: str) -> list[tuple[flo
 def relay_thresholds(world: World, i: int) -> tuple[float, float]:
     """Relay i's threshold_l and threshold_b (dBm): the scenario's [control], its own
     overrides, else the daemon's defaults."""
-    from relayd.config import ControlSettings
+    from relayd.config.model import ControlSettings
 
     control = dict(world.scenario.control)
     control.update(world.scenario.relay[i].control)

@@ -24,7 +24,7 @@ import random
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
-from relayd.ratetables import RATE_TABLE_80211G, RATE_TABLE_80211N_1X1, RATE_TABLES  # noqa: F401 (re-exported)
+from relayd.core.link.rates import RATE_TABLE_80211G, RATE_TABLE_80211N_1X1, RATE_TABLES  # noqa: F401 (re-exported)
 from relayd.sim.geometry import Point, Segment, crossings
 from relayd.sim.zones import PathEnvironment, RadioZone, path_environment
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from drivers.clock import Clock
+from drivers.transport.clock import Clock
 from relayd.sim.scenario import Scenario
 from relayd.sim.world import World
 
@@ -125,7 +125,7 @@ async def start_relay(
     from drivers.arcos.fake import FakeRobot
     from drivers.pantilt.fake import FakeMaestro
     from drivers.wifi.fake import ProcfsWriter
-    from relayd.config import Settings
+    from relayd.config.model import Settings
     from relayd.daemon import Daemon, DeviceOverrides
     from relayd.sim.inproc import InProcessAirOs, MemoryRssi
 

@@ -8,7 +8,7 @@ each relay; this module runs them and the world).
 
 Two modes, chosen by the loop it runs on:
 
-- virtual time (`relayd.vtime.VirtualTimeLoop`, what `relayd sim` uses): the devices
+- virtual time (`relayd.runtime.vtime.VirtualTimeLoop`, what `relayd sim` uses): the devices
   are in-process (memory:// links for the base and the servo controller, a
   `MemoryRssi`, `InProcessAirOs` clients), every event is a loop callback at its
   virtual time, and the same scenario and seed give byte-identical summary.json and
@@ -41,12 +41,12 @@ from typing import Any
 
 import structlog
 
-from drivers.clock import Clock
+from drivers.transport.clock import Clock
+from relayd.runtime.vtime import LoopClock, VirtualTimeLoop
 from relayd.sim.relay import SimRelay, pulse_to_deg, start_relay
 from relayd.sim.scenario import Scenario
 from relayd.sim.summary import summarize, unapplied_command_s
 from relayd.sim.world import World
-from relayd.vtime import LoopClock, VirtualTimeLoop
 
 __all__ = ["SimResult", "SimRunner", "summarize", "unapplied_command_s"]
 

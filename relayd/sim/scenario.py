@@ -315,7 +315,7 @@ def scenario_problems(data: dict[str, Any]) -> list[str]:
 
 def _daemon_sections(data: dict[str, Any]) -> list[str]:
     """`control`, `scan` and `recovery` tables (and each relay's `control`) checked as the daemon will check them."""
-    from relayd.config import ControlSettings, RecoverySettings, ScanSettings
+    from relayd.config.model import ControlSettings, RecoverySettings, ScanSettings
 
     out: list[str] = []
     base = _dict(data.get("control"))
@@ -375,7 +375,7 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         try:
             text = raw.decode("utf-8")
         except UnicodeDecodeError as exc:
-            from relayd.config_checks import undecodable
+            from relayd.config.checks import undecodable
 
             raise ScenarioError([undecodable(raw, exc)]) from None
     else:

@@ -16,7 +16,7 @@ Decisions:
   spread costs the receiver SNR margin (inter-symbol interference, retries) that
   RSSI does not show. The hop's rate is chosen from the local mean minus this
   penalty; the RSSI reported is not lowered. This is what a relay can only learn
-  from its radio's rates (relayd/linkmodel.py), never from RSSI alone.
+  from its radio's rates (relayd/core/link/model.py), never from RSSI alone.
 - **Fading** per zone is the Rician K on a line-of-sight path (lower K: deeper
   fades); a path through walls is Rayleigh everywhere, as before.
 """

@@ -47,9 +47,9 @@ def series_1hz(records: Sequence[dict[str, Any]]) -> dict[str, list[float]]:
 
 
 def run(spec: dict[str, Any], out: Path) -> dict[str, Any]:
-    from relayd import vtime
-    from relayd.commands.sim import SimLogFields
-    from relayd.logsetup import setup_logging
+    from relayd.cli.sim import SimLogFields
+    from relayd.runtime import vtime
+    from relayd.runtime.logsetup import setup_logging
     from relayd.sim.runner import SimRunner
     from relayd.sim.scenario import parse_scenario
 

@@ -114,7 +114,7 @@ def parse_value(text: str) -> Any:
 
 
 def _config_sections() -> dict[str, set[str]]:
-    from relayd.config import ControlSettings, ScanSettings
+    from relayd.config.model import ControlSettings, ScanSettings
 
     return {"control": set(ControlSettings.model_fields), "scan": set(ScanSettings.model_fields)}
 

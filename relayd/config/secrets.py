@@ -1,0 +1,107 @@
+"""Secrets in relayd's settings: where each comes from (an environment variable or a
+file, never the TOML), reading it at start-up, and the API token's minimum length.
+
+Apart from relayd.config.model's models so that each room stays readable; relayd.config.model
+re-exports every name here.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from relayd.config.checks import ConfigError
+
+if TYPE_CHECKING:
+    from relayd.config.model import Settings
+
+
+def secret_file_errors(settings: Settings) -> list[str]:
+    """Secret and TLS files that cannot be used now (check-config: `relayd run` would refuse
+    to start): unreadable, an API token too short, a certificate that is not one."""
+    errors = []
+    for owner, ref in secret_refs(settings).items():
+        if ref.file is not None:
+            try:
+                value = resolve_secret(ref, {})
+                if owner == "api" and value is not None:
+                    check_api_token(ref, value)
+            except ConfigError as exc:
+                errors.extend(exc.errors)
+    if settings.api.enabled:
+        from relayd.api.server import tls_context  # here: the server module imports this one
+
+        try:
+            tls_context(settings.api)
+        except ConfigError as exc:
+            errors.extend(exc.errors)
+    return errors
+
+
+@dataclass(frozen=True, slots=True)
+class SecretRef:
+    """Where a secret comes from; `describe()` says so without ever showing it."""
+
+    key: str
+    env: str | None
+    file: str | None
+
+    def describe(self, environ: Mapping[str, str]) -> str:
+        if self.env is not None:
+            return f"env {self.env} ({'set' if environ.get(self.env) else 'NOT SET'})"
+        if self.file is not None:
+            return f"file {self.file} ({'readable' if os.access(self.file, os.R_OK) else 'NOT READABLE'})"
+        return "none"
+
+
+def resolve_secret(ref: SecretRef, environ: Mapping[str, str]) -> str | None:
+    """The secret's value, or None when it is not configured; ConfigError if configured but missing."""
+    if ref.env is not None:
+        value = environ.get(ref.env)
+        if not value:
+            raise ConfigError([f"{ref.key}: environment variable {ref.env} is not set"])
+        return value
+    if ref.file is not None:
+        try:
+            value = Path(ref.file).read_text(encoding="utf-8").strip()
+        except OSError as exc:
+            raise ConfigError(
+                [f"{ref.key}: cannot read {ref.file}: {exc.strerror or exc}"]
+            ) from None
+        if not value:
+            raise ConfigError([f"{ref.key}: {ref.file} is empty"])
+        return value
+    return None
+
+
+#: The API token guards the wheels; anything shorter is guessable across the bridge.
+MIN_API_TOKEN_CHARS = 16
+
+
+def check_api_token(ref: SecretRef, token: str) -> str:
+    """The token, or ConfigError naming its key when it is too short to be a secret."""
+    if len(token) < MIN_API_TOKEN_CHARS:
+        raise ConfigError(
+            [
+                f"{ref.key}: the API token has {len(token)} characters; "
+                f"at least {MIN_API_TOKEN_CHARS} are needed (e.g. `openssl rand -hex 16`)"
+            ]
+        )
+    return token
+
+
+def secret_refs(settings: Settings) -> dict[str, SecretRef]:
+    """Where each secret in use comes from, by owner: "ap.rear", "ap.front", "api"."""
+    refs: dict[str, SecretRef] = {}
+    for name, ap in (("rear", settings.ap.rear), ("front", settings.ap.front)):
+        if ap is not None and ap.enabled:
+            key = f"ap.{name}.password_file" if ap.password_file else f"ap.{name}.password_env"
+            refs[f"ap.{name}"] = SecretRef(key, ap.password_env, ap.password_file)
+    api = settings.api
+    if api.enabled:
+        key = "api.token_file" if api.token_file else "api.token_env"
+        refs["api"] = SecretRef(key, api.token_env, api.token_file)
+    return refs

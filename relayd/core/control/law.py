@@ -1,0 +1,416 @@
+"""How should the wheels turn? The pure control core (docs/CONTROL.md sections 3-6).
+
+`control_step` takes one snapshot of what the robot knows (`ControlInputs`), the
+settings and a small memory from the previous step, and returns the wheel speeds,
+the drive state, a short reason and the new memory. The control task calls it on
+every SIP; nothing here does I/O, reads a clock or logs.
+
+Order of decisions, first match wins:
+1. Fail-safes, in every mode: no SIP yet or older than sip_timeout_s -> FAULT "no_sip".
+   In follow mode also: RSSI older than rssi_timeout_s -> "rssi_stale"; scan servo not
+   answering -> "scan_servo"; rear link required and RSSI^b missing or older than
+   rear_timeout_s -> "rear_link_stale". Wheels zero; everything resumes by itself when
+   the data is fresh again (this function keeps no fault state).
+2. hold -> STOPPED "hold".
+3. manual -> the manual command, each wheel clamped to +-v_max, while it is younger
+   than manual_deadman_s, else zero "deadman". Decision: a guarded teleop, as ARIA's
+   is: when a forward sonar sees something closer than stop_distance, the forward
+   part of the command is dropped (turning and backing off stay) with reason
+   "obstacle". Otherwise reason "manual"; state DRIVING when a wheel moves.
+4. follow: leader_lost -> LEADER_LOST, wheels zero, or turning in place toward where
+   the leader was last seen when that is beyond the scan servo's reach, reason
+   "leader_search" (relayd/core/control/search.py; hold, manual and the fail-safes end a search); no bearing or RSSI^l yet -> STOPPED
+   "no_scan_yet"; the link rule says stop -> STOPPED "leader_near"/"rear_weak", unless
+   the sonar floor overrules "leader_near" (below) -> DRIVING "leader_far_sonar";
+   situation 1 -> AVOIDING "obstacle"; else DRIVING "driving". Then, given the time
+   and odometry, the escape (relayd/core/avoid/escape.py, docs/AVOIDANCE.md) may take over:
+   AVOIDING "avoiding"/"rejoining", or STOPPED "blocked" past its limits. Every
+   follow-mode command is rounded to what VEL/RVEL can say (relayd/core/control/actuator.py) and
+   passes the guard (relayd/core/avoid/ring.py).
+
+Link rule (the paper's eq. 6-12 resolved, with hysteresis; docs/CONTROL.md section 5): while driving, stop when RSSI^l >= threshold_l
+("leader_near") or RSSI^b <= threshold_b ("rear_weak"); while stopped, resume only
+when RSSI^l < threshold_l - hysteresis AND RSSI^b > threshold_b + hysteresis. RSSI^b
+is ignored when rear_link_required is False (rear_link = "ignore"). The latch starts
+False, so a robot starts only from inside the band's safe side. The latch in
+`ControlMemory` changes only through the link rule: faults, hold and manual leave it.
+
+Sonar release (docs/CONTROL.md section 5.3; off unless leader_gap_max_m > 0): when the
+rule says "leader_near" but the front sonars covering the leader's bearing put it at
+least leader_gap_max_m away (`ControlInputs.leader_floor_m`, relayd/core/control/rangecue.py),
+RSSI^l is less than 10 dB above threshold_l, and the rear half of the rule alone
+allows driving, the robot keeps following at the speed
+law's speed at threshold_l, reason "leader_far_sonar", until the floor falls 0.3 m below
+the limit. "rear_weak" always wins; everything after the link rule applies as usual.
+
+Situation 1 (d_min < threshold_o): the steering angle is the sonar avoidance
+centroid; forward speed is the background speed scaled linearly from 1 at
+threshold_o to 0 at stop_distance; below stop_distance the robot only turns (the PD
+term still turns it in place toward the open side). The D term uses the previous
+avoidance steering angle, kept in `ControlMemory.prev_steer_deg`, which is cleared
+whenever the robot is not avoiding so a stale angle never kicks the D term.
+Situations 0 and 2 steer by the scan bearing (already PRSSI-aware from the
+estimator) with the scan before as B'.
+
+Wheel law (the paper's eq. 6-9 and 6-11 in the ccw convention; docs/CONTROL.md section 4): v = clamp(-w1*RSSI^l - w2, 0, v_max);
+V_L = v - kp*B - kd*(B - B'), V_R = v + kp*B + kd*(B - B'); each wheel clamped to
++-v_max. Positive B (leader to the left) gives V_R > V_L: a left turn.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+from relayd.core.avoid.escape import avoid_step
+from relayd.core.avoid.ring import guard
+from relayd.core.avoid.state import AvoidParams, AvoidState, Sense
+from relayd.core.control.actuator import Actuator
+from relayd.core.control.rangecue import far_by_sonar, release_speed_mm_s
+from relayd.core.control.search import SearchParams, SearchState, search_step, search_wheels
+from relayd.core.scan.estimator import (
+    SonarReading,
+    avoidance_bearing,
+    classify_situation,
+    nearest_front_m,
+)
+from relayd.runtime.state import DriveState, Mode
+
+
+@dataclass(frozen=True, slots=True)
+class ControlParams:
+    """Controller settings; defaults as in docs/CONTROL.md section 8."""
+
+    kp: float = 1.0
+    kd: float = 0.3
+    w1: float = 10.0
+    w2: float = 150.0
+    v_max_mm_s: float = 400.0
+    threshold_l_dbm: float = -30.0
+    threshold_b_dbm: float = -60.0
+    hysteresis_db: float = 2.0
+    rear_link_required: bool = True
+    threshold_o_m: float = 0.8
+    stop_distance_m: float = 0.3
+    detect_range_m: float = 3.0
+    gamma_o_m: float = 1.0
+    sip_timeout_s: float = 0.5  # robot.lost_after_s
+    #: No fresh RSSI sample for this long is a fault. The daemon sets max(0.5 s, 5 sample
+    #: periods) from wifi.sample_hz (relayd/config/params.py): 0.5 s at the default 20 Hz.
+    rssi_timeout_s: float = 0.5
+    rear_timeout_s: float = 3.0  # RSSI^b older than this is stale
+    manual_deadman_s: float = 0.5
+    #: False: the paper's obstacle rule alone, no escape (config `control.escape`).
+    escape: bool = True
+    #: "leader_near" is overruled while the sonar floor says the leader is at least this
+    #: far (m); 0 = off, the paper's rule alone (relayd/core/control/rangecue.py, docs/CONTROL.md 5.3).
+    leader_gap_max_m: float = 0.0
+    #: The escape when forward motion is blocked (relayd/core/avoid/escape.py); its stop
+    #: distance and threshold_o are taken from the two fields above.
+    avoid: AvoidParams = field(default_factory=AvoidParams)
+    #: What VEL/RVEL can express; every follow-mode command is rounded to it here.
+    actuator: Actuator = field(default_factory=Actuator)
+    #: The turn toward a lost leader beyond the servo's reach (relayd/core/control/search.py).
+    search: SearchParams = field(default_factory=SearchParams)
+
+
+@dataclass(frozen=True, slots=True)
+class ControlInputs:
+    """One snapshot of everything the controller looks at."""
+
+    mode: Mode
+    sip_age_s: float | None  # None: no SIP yet
+    rssi_age_s: float | None  # age of the newest fresh RSSI sample; None: none yet
+    scan_servo_ok: bool
+    # Latest scan bearing, already corrected into the current robot frame; None before the first scan.
+    bearing_deg: float | None
+    prev_bearing_deg: float | None  # the scan before (B'), same frame
+    rssi_leader_dbm: float | None
+    rssi_behind_dbm: float | None
+    rear_age_s: float | None  # age of RSSI^b; None: never received
+    front_sonar: tuple[SonarReading, ...]
+    leader_lost: bool
+    manual_left_mm_s: float | None = None
+    manual_right_mm_s: float | None = None
+    manual_age_s: float | None = None
+    #: Time of this step (s, the caller's clock) and the odometry pose (mm, mm, deg):
+    #: the escape's progress watchdog and limits need them; None disables the escape.
+    t_s: float | None = None
+    odom: tuple[float, float, float] | None = None
+    #: The backward-looking rear sonars (`ring.rear_readings`): the escape backs off
+    #: only when they show room behind.
+    rear_sonar: tuple[SonarReading, ...] = ()
+    #: The least distance (m) the front sonars allow the leader (`rangecue.leader_floor_m`);
+    #: None: no floor (bearing off the nose, unsure, ring not read).
+    leader_floor_m: float | None = None
+    #: While the leader is lost: where the scans last put it, in this frame (None: nowhere).
+    search_bearing_deg: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class ControlMemory:
+    """What one control step hands to the next."""
+
+    #: Stop-rule latch: True while the link rule allows driving (hysteresis).
+    link_drive: bool = False
+    #: Previous steering angle used for the D term in situation 1.
+    prev_steer_deg: float | None = None
+    #: The escape state machine (relayd/core/avoid/escape.py); reset whenever the robot may not drive.
+    avoid: AvoidState = field(default_factory=AvoidState)
+    #: True while the sonar floor overrules "leader_near" (its hysteresis).
+    sonar_release: bool = False
+    #: The lost leader's search (relayd/core/control/search.py); reset once the leader is found, and by
+    #: hold, manual and every fault.
+    search: SearchState = field(default_factory=SearchState)
+
+
+@dataclass(frozen=True, slots=True)
+class ControlOutput:
+    """The wheel command of one step and why."""
+
+    left_mm_s: float
+    right_mm_s: float
+    state: DriveState
+    reason: str  # short snake_case cause
+    situation: int
+    memory: ControlMemory
+
+
+def _clamp(value: float, low: float, high: float) -> float:
+    return min(max(value, low), high)
+
+
+def background_speed(rssi_leader_dbm: float, w1: float, w2: float, v_max_mm_s: float) -> float:
+    """v = -w1 * RSSI^l - w2, clamped to [0, v_max]: faster the fainter the leader."""
+    return _clamp(-w1 * rssi_leader_dbm - w2, 0.0, v_max_mm_s)
+
+
+def wheel_law(
+    v_mm_s: float,
+    bearing_deg: float,
+    prev_bearing_deg: float | None,
+    kp: float,
+    kd: float,
+    v_max_mm_s: float,
+) -> tuple[float, float]:
+    """(V_L, V_R) from the PD law on the bearing; positive bearing turns left."""
+    derivative = 0.0 if prev_bearing_deg is None else bearing_deg - prev_bearing_deg
+    turn = kp * bearing_deg + kd * derivative
+    return (
+        _clamp(v_mm_s - turn, -v_max_mm_s, v_max_mm_s),
+        _clamp(v_mm_s + turn, -v_max_mm_s, v_max_mm_s),
+    )
+
+
+def link_rule(
+    rssi_leader_dbm: float | None,
+    rssi_behind_dbm: float | None,
+    params: ControlParams,
+    was_driving: bool,
+    rear_required: bool,
+) -> tuple[bool, str]:
+    """(may drive, reason): the stop rule (docs/CONTROL.md section 5) with a hysteresis band around both thresholds."""
+    if rssi_leader_dbm is None or math.isnan(rssi_leader_dbm):
+        return False, "no_scan_yet"
+    if rear_required and (rssi_behind_dbm is None or math.isnan(rssi_behind_dbm)):
+        return False, "rear_link_stale"
+    # While stopped, both thresholds move by the band towards "keep standing".
+    margin = 0.0 if was_driving else params.hysteresis_db
+    if rssi_leader_dbm >= params.threshold_l_dbm - margin:
+        return False, "leader_near"
+    # rear_required with no rear reading returned "rear_link_stale" above.
+    if (
+        rear_required
+        and rssi_behind_dbm is not None
+        and rssi_behind_dbm <= params.threshold_b_dbm + margin
+    ):
+        return False, "rear_weak"
+    return True, "driving"
+
+
+def speed_scale(d_min_m: float, threshold_o_m: float, stop_distance_m: float) -> float:
+    """1 at threshold_o (and beyond), falling linearly to 0 at stop_distance (and below)."""
+    span = threshold_o_m - stop_distance_m
+    if span <= 0:
+        return 1.0 if d_min_m >= threshold_o_m else 0.0
+    return _clamp((d_min_m - stop_distance_m) / span, 0.0, 1.0)
+
+
+def _stopped(
+    state: DriveState, reason: str, situation: int, memory: ControlMemory
+) -> ControlOutput:
+    return ControlOutput(0.0, 0.0, state, reason, situation, _not_driving(memory))
+
+
+def _not_driving(memory: ControlMemory) -> ControlMemory:
+    """The memory of a step that did not follow: no D-term angle, no escape, no release."""
+    return replace(memory, prev_steer_deg=None, avoid=AvoidState(), sonar_release=False)
+
+
+def _lost(
+    inputs: ControlInputs, params: ControlParams, situation: int, memory: ControlMemory
+) -> ControlOutput:
+    """Leader lost: stand, or turn toward where it was last seen beyond the servo's reach."""
+    heading = inputs.odom[2] if inputs.odom is not None else None
+    search, rvel = search_step(
+        memory.search, inputs.search_bearing_deg, heading, inputs.t_s, params.search
+    )
+    memory = replace(memory, search=search)
+    left, right = search_wheels(
+        rvel,
+        params.actuator,
+        inputs.front_sonar,
+        inputs.rear_sonar,
+        params.stop_distance_m,
+        params.v_max_mm_s,
+    )
+    if left == 0.0 and right == 0.0:
+        return _stopped(DriveState.LEADER_LOST, "leader_lost", situation, memory)
+    return ControlOutput(
+        left, right, DriveState.LEADER_LOST, "leader_search", situation, _not_driving(memory)
+    )
+
+
+def _stale(age_s: float | None, timeout_s: float) -> bool:
+    return age_s is None or math.isnan(age_s) or age_s > timeout_s
+
+
+def _manual(
+    inputs: ControlInputs, params: ControlParams, situation: int, memory: ControlMemory
+) -> ControlOutput:
+    left, right = inputs.manual_left_mm_s, inputs.manual_right_mm_s
+    if (
+        left is None
+        or right is None
+        or not (math.isfinite(left) and math.isfinite(right))
+        or _stale(inputs.manual_age_s, params.manual_deadman_s)
+    ):
+        return _stopped(DriveState.STOPPED, "deadman", situation, memory)
+    v_max = params.v_max_mm_s
+    left, right = _clamp(left, -v_max, v_max), _clamp(right, -v_max, v_max)
+    reason = "manual"
+    d_min = nearest_front_m(inputs.front_sonar)
+    forward = (left + right) / 2.0
+    if d_min is not None and d_min < params.stop_distance_m and forward > 0:
+        # Keep the turn and any backing off, drop only the part that drives into the object.
+        left, right = left - forward, right - forward
+        reason = "obstacle"
+    state = DriveState.DRIVING if (left != 0.0 or right != 0.0) else DriveState.STOPPED
+    return ControlOutput(
+        left, right, state, reason, situation, replace(memory, prev_steer_deg=None)
+    )
+
+
+def control_step(
+    inputs: ControlInputs, params: ControlParams, memory: ControlMemory
+) -> ControlOutput:
+    """One control decision; see the module docstring for the order of rules."""
+    situation = classify_situation(inputs.front_sonar, params.threshold_o_m, params.detect_range_m)
+
+    # Hold, manual and the fail-safes end a search episode: its heading and time bookkeeping
+    # mean nothing after them (the operator may have moved the robot); a relay still lost
+    # afterwards searches afresh, on evidence still recent (docs/CONTROL.md 6.1).
+    halted = replace(memory, search=SearchState())
+    if _stale(inputs.sip_age_s, params.sip_timeout_s):
+        return _stopped(DriveState.FAULT, "no_sip", situation, halted)
+    if inputs.mode is Mode.FOLLOW:
+        if _stale(inputs.rssi_age_s, params.rssi_timeout_s):
+            return _stopped(DriveState.FAULT, "rssi_stale", situation, halted)
+        if not inputs.scan_servo_ok:
+            return _stopped(DriveState.FAULT, "scan_servo", situation, halted)
+        if params.rear_link_required and (
+            _stale(inputs.rear_age_s, params.rear_timeout_s) or inputs.rssi_behind_dbm is None
+        ):
+            return _stopped(DriveState.FAULT, "rear_link_stale", situation, halted)
+
+    if inputs.mode is Mode.HOLD:
+        return _stopped(DriveState.STOPPED, "hold", situation, halted)
+    if inputs.mode is Mode.MANUAL:
+        return _manual(inputs, params, situation, halted)
+
+    if inputs.leader_lost:
+        return _lost(inputs, params, situation, memory)
+    if memory.search != SearchState():
+        memory = replace(memory, search=SearchState())  # found: the next loss searches afresh
+    bearing, rssi_l = inputs.bearing_deg, inputs.rssi_leader_dbm
+    if bearing is None or rssi_l is None or not (math.isfinite(bearing) and math.isfinite(rssi_l)):
+        return _stopped(DriveState.STOPPED, "no_scan_yet", situation, memory)
+    prev = inputs.prev_bearing_deg
+    if prev is not None and not math.isfinite(prev):
+        prev = None  # a broken B' only loses the D term for one scan
+
+    drive, reason = link_rule(
+        rssi_l, inputs.rssi_behind_dbm, params, memory.link_drive, params.rear_link_required
+    )
+    released = False
+    if reason == "leader_near" and far_by_sonar(
+        inputs.leader_floor_m,
+        params.leader_gap_max_m,
+        memory.sonar_release,
+        rssi_l,
+        params.threshold_l_dbm,
+    ):
+        # The sonars put the leader beyond the gap limit: only the rear half of the rule
+        # (the rule run without the leader's term) may still hold the robot.
+        released, reason = link_rule(
+            -math.inf, inputs.rssi_behind_dbm, params, memory.link_drive, params.rear_link_required
+        )
+    memory = replace(memory, link_drive=drive or released, sonar_release=released)
+    if not (drive or released):
+        return _stopped(DriveState.STOPPED, reason, situation, memory)
+
+    v = (
+        release_speed_mm_s(params.threshold_l_dbm, params.w1, params.w2, params.v_max_mm_s)
+        if released
+        else background_speed(rssi_l, params.w1, params.w2, params.v_max_mm_s)
+    )
+    # Situation 1 means a forward sonar echoed inside the detection range: d_min is set.
+    d_min = nearest_front_m(inputs.front_sonar) if situation == 1 else None
+    if d_min is not None:
+        steer = avoidance_bearing(inputs.front_sonar, params.gamma_o_m)
+        v *= speed_scale(d_min, params.threshold_o_m, params.stop_distance_m)
+        left, right = wheel_law(
+            v, steer, memory.prev_steer_deg, params.kp, params.kd, params.v_max_mm_s
+        )
+        state, reason, memory = (
+            DriveState.AVOIDING,
+            "obstacle",
+            replace(memory, prev_steer_deg=steer),
+        )
+    else:
+        left, right = wheel_law(v, bearing, prev, params.kp, params.kd, params.v_max_mm_s)
+        state, memory = DriveState.DRIVING, replace(memory, prev_steer_deg=None)
+        reason = "leader_far_sonar" if released else "driving"
+
+    act = params.actuator
+    if (
+        params.escape
+        and inputs.t_s is not None
+        and inputs.odom is not None
+        and math.isfinite(inputs.t_s)
+    ):
+        sense = Sense(inputs.t_s, inputs.odom, inputs.front_sonar, bearing, inputs.rear_sonar)
+        aparams = replace(
+            params.avoid, stop_distance_m=params.stop_distance_m, threshold_o_m=params.threshold_o_m
+        )
+        avoid, cmd = avoid_step(memory.avoid, sense, aparams, act)
+        memory = replace(memory, avoid=avoid)
+        if not cmd.follow:
+            left, right = act.wheels(cmd.vel_mm_s, cmd.rvel_deg_s)
+            moving = cmd.vel_mm_s != 0 or cmd.rvel_deg_s != 0
+            state = DriveState.AVOIDING if moving else DriveState.STOPPED
+            # The escape's command (its "blocked" stop too) ends a sonar release: it must be
+            # earned again at the full limit once the paper's law drives again.
+            return ControlOutput(
+                left,
+                right,
+                state,
+                cmd.reason,
+                situation,
+                replace(memory, prev_steer_deg=None, sonar_release=False),
+            )
+    # The paper's command, as the wire will carry it, never into a near echo.
+    vel, rvel = act.within(*act.express(*act.vel_rvel(left, right)), params.v_max_mm_s)
+    vel, rvel = guard(vel, rvel, inputs.front_sonar, params.stop_distance_m)
+    left, right = act.wheels(vel, rvel)
+    return ControlOutput(left, right, state, reason, situation, memory)

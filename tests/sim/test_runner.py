@@ -1,0 +1,390 @@
+"""Tests of the simulation runner's pure helpers and of `relayd sim` end to end (short runs)."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+from pathlib import Path
+
+import pytest
+
+from relayd.cli import main
+from relayd.cli.sim import format_summary
+from relayd.sim.progress import ProgressLine, progress_text
+from relayd.sim.relay import PULSE_US, pulse_to_deg, relay_settings
+from relayd.sim.runner import summarize
+
+
+def test_pulse_to_deg_inverts_the_default_calibration() -> None:
+    assert pulse_to_deg(1500) == 0.0
+    assert pulse_to_deg(2000) == 90.0
+    assert pulse_to_deg(1000) == -90.0
+    assert pulse_to_deg(1750) == 45.0
+    assert pulse_to_deg(1250) == -45.0
+    # an upside-down servo (decreasing pulses) turns the other way
+    assert pulse_to_deg(1000, (2000, 1500, 1000)) == 90.0
+    assert pulse_to_deg(1800, (2000, 1500, 1000)) == pytest.approx(-54.0)
+
+
+def test_generated_settings_validate() -> None:
+    from relayd.config.model import Settings
+
+    doc = relay_settings(
+        robot_port="/tmp/x-base",
+        servo_port="/tmp/x-servo",
+        procfs_path="/tmp/x-wl",
+        rear_url="http://127.0.0.1:1",
+        front_url="http://127.0.0.1:2",
+        control={"threshold_l_dbm": -30},
+        scan={},
+    )
+    s = Settings.model_validate(doc)
+    assert s.robot.port == "/tmp/x-base"
+    assert s.pantilt.protocol == "maestro"
+    assert tuple(s.pantilt.scan_pulse_us) == tuple(int(p) for p in PULSE_US)
+    assert s.wifi.source == "procfs"
+    assert s.api.port == 0 and s.api.bind == "127.0.0.1"
+    assert s.ap.rear is not None and s.ap.rear.password_env
+
+
+def _rec(
+    t: float, lx: float, e2e: float, broken: bool, gaps: list[float], state: str = "driving"
+) -> dict:
+    return {
+        "t": t,
+        "leader": {"x": lx, "y": 0.0, "moving": True},
+        "e2e_mbps": e2e,
+        "broken": broken,
+        "relays": [
+            {"name": f"r{i}", "gap_m": g, "state": state, "reason": "why", "rssi_l_dbm": -40.0}
+            for i, g in enumerate(gaps)
+        ],
+    }
+
+
+def test_summarize_reached_and_broken() -> None:
+    recs = [
+        _rec(0, 0, 27, False, [2.0]),
+        _rec(1, 5, 12, False, [4.0]),
+        _rec(2, 10, 6, False, [3.0]),
+    ]
+    f = [{"name": "r0", "collisions": 0, "travelled_m": 3.0}]
+    s = summarize(
+        recs, scenario="x", relays=1, goal=(10, 0), goal_radius_m=0.5, collisions=0, followers=f
+    )
+    assert s["goal_reached"] is True and s["link_broken_at_s"] is None
+    assert s["min_e2e_mbps"] == 6 and s["final_e2e_mbps"] == 6
+    assert s["followers"][0]["max_gap_m"] == 4.0 and s["followers"][0]["stopped_reason"] == "why"
+    for key in (
+        "scenario",
+        "relays",
+        "sim_seconds",
+        "goal_reached",
+        "link_broken_at_s",
+        "min_e2e_mbps",
+        "final_e2e_mbps",
+        "collisions",
+        "followers",
+    ):
+        assert key in s
+    recs[1]["broken"] = True
+    recs[1]["e2e_mbps"] = 0
+    s = summarize(
+        recs, scenario="x", relays=1, goal=(10, 0), goal_radius_m=0.5, collisions=0, followers=f
+    )
+    assert s["goal_reached"] is False and s["link_broken_at_s"] == 1 and s["min_e2e_mbps"] == 0
+    # never got there
+    s = summarize(
+        recs[:2], scenario="x", relays=1, goal=(10, 0), goal_radius_m=0.5, collisions=0, followers=f
+    )
+    assert s["goal_reached"] is False and s["goal_reached_at_s"] is None
+    assert "goal NOT reached" in format_summary(
+        s
+        | {
+            "followers": [
+                {
+                    "name": "r0",
+                    "max_gap_m": 4.0,
+                    "final_gap_m": 3.0,
+                    "travelled_m": 3.0,
+                    "final_state": "stopped",
+                    "stopped_reason": "rear_weak",
+                }
+            ]
+        }
+    )
+
+
+def test_unapplied_command_time() -> None:
+    from relayd.sim.runner import unapplied_command_s
+
+    def rec(t: float, wheels: list[int], v: int) -> dict:
+        return {"t": t, "relays": [{"wheels": wheels, "v_mm_s": v, "w_deg_s": 0.0}]}
+
+    recs = [rec(0.1 * k, [200, 200], 0) for k in range(31)]  # 3 s commanded, never moving
+    assert unapplied_command_s(recs, 0) == pytest.approx(2.0, abs=0.15)
+    moving = [rec(0.1 * k, [200, 200], 0 if k < 3 else 150) for k in range(31)]
+    assert unapplied_command_s(moving, 0) == 0.0
+    idle = [rec(0.1 * k, [0, 0], 0) for k in range(31)]
+    assert unapplied_command_s(idle, 0) == 0.0
+
+
+def test_progress_line_only_on_a_terminal() -> None:
+    rec = _rec(12.5, 3, 18, False, [2.5])
+    assert "t=12.5/100s" in progress_text(rec, 100) and "r0:driving/-40dBm" in progress_text(
+        rec, 100
+    )
+    buf = io.StringIO()
+    p = ProgressLine(100, stream=buf)
+    p(rec)
+    p.close()
+    assert buf.getvalue() == ""
+    p = ProgressLine(100, stream=buf, every_s=0.0, enabled=True)
+    p(rec)
+    p(rec)
+    p.close()
+    assert buf.getvalue().count("\r") == 2 and buf.getvalue().endswith("\n")
+
+
+def test_cli_bad_scenario_and_bad_relays(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["sim", "--scenario", "atlantis", "--out", str(tmp_path)]) == 2
+    assert "no scenario named" in capsys.readouterr().err
+    assert main(["sim", "--scenario", "corridor", "--relays", "7", "--out", str(tmp_path)]) == 2
+    with pytest.raises(SystemExit):
+        main(["sim", "--relays", "many"])
+    with pytest.raises(SystemExit):
+        main(["sim", "--speed", "0"])
+
+
+def test_cli_corridor_without_relays_writes_every_output(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # No daemons: the world alone.
+    out = tmp_path / "o"
+    assert (
+        main(
+            ["sim", "--scenario", "corridor", "--relays", "0", "--speed", "max", "--out", str(out)]
+        )
+        == 0
+    )
+    text = capsys.readouterr().out
+    assert "link broke at" in text and "goal NOT reached" in text
+    s = json.loads((out / "summary.json").read_text())
+    assert s["relays"] == 0 and s["goal_reached"] is False and s["link_broken_at_s"] is not None
+    lines = (out / "trace.jsonl").read_text().splitlines()
+    assert len(lines) > 100
+    first = json.loads(lines[0])
+    assert {"t", "leader", "relays", "hops", "e2e_mbps", "broken"} <= first.keys()
+    for png in ("map.png", "throughput.png"):
+        assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+TINY = """
+name = "tiny"
+environment = "outdoor"
+duration_s = 8
+relays = 1
+[command_center]
+x = -3.0
+y = 0.0
+[leader]
+kind = "robot"
+start_s = 1.0
+waypoints = [{ x = 0.0, y = 0.0 }, { x = 1.0, y = 0.0 }]
+[[relay]]
+name = "solo"
+x = -1.5
+y = 0.0
+"""
+
+
+@pytest.mark.slow
+def test_cli_relays_all_runs_each_count_with_real_daemons(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    scen = tmp_path / "tiny.toml"
+    scen.write_text(TINY)
+    out = tmp_path / "o"
+    assert (
+        main(
+            ["sim", "--scenario", str(scen), "--relays", "all", "--speed", "max", "--out", str(out)]
+        )
+        == 0
+    )
+    text = capsys.readouterr().out
+    assert "solo: API and live page at http://127.0.0.1:" in text
+    top = json.loads((out / "summary.json").read_text())
+    assert [r["relays"] for r in top["runs"]] == [0, 1]
+    one = json.loads((out / "relays-1" / "summary.json").read_text())
+    assert one["followers"][0]["name"] == "solo"
+    ports = json.loads((out / "relays-1" / "ports.json").read_text())
+    assert ports["solo"] > 0
+    recs = [json.loads(x) for x in (out / "relays-1" / "trace.jsonl").read_text().splitlines()]
+    # the daemon really ran: it scanned and reported a bearing and RSSI^l
+    assert any(r["relays"][0]["rssi_l_dbm"] is not None for r in recs)
+    assert (out / "throughput.png").exists() and (out / "relays-1" / "rssi_bearing.png").exists()
+
+
+@pytest.mark.slow
+def test_each_relay_serves_its_api_while_the_sim_runs(tmp_path: Path) -> None:
+    """On virtual time too: the loop polls the real API socket on every turn."""
+    import asyncio
+
+    import aiohttp
+
+    from relayd.runtime import vtime
+    from relayd.sim.runner import SimRunner
+    from relayd.sim.scenario import load_scenario
+
+    scen = tmp_path / "tiny.toml"
+    scen.write_text(TINY)
+    seen: dict[str, dict] = {}
+    tasks: list[asyncio.Task[None]] = []
+
+    async def fetch(name: str, port: int) -> None:
+        await asyncio.sleep(0.3)
+        async with (
+            aiohttp.ClientSession() as http,
+            http.get(f"http://127.0.0.1:{port}/status") as resp,
+        ):
+            assert resp.status == 200
+            seen[name] = await resp.json()
+
+    def ready(ports: dict[str, int | None]) -> None:
+        for name, port in ports.items():
+            assert port is not None
+            tasks.append(asyncio.create_task(fetch(name, port)))
+
+    async def main() -> None:
+        runner = SimRunner(
+            load_scenario(scen), speed=4, seconds=4, on_ready=ready, out_dir=tmp_path / "o"
+        )
+        await runner.run()
+        await asyncio.gather(*tasks)
+
+    vtime.run(main(), speed=4)
+    assert set(seen) == {"solo"}
+    assert seen["solo"]["mode"] == "follow"
+    assert (tmp_path / "o" / "summary.json").exists()
+
+
+def test_same_scenario_and_seed_give_byte_identical_summary_and_trace(tmp_path: Path) -> None:
+    """The simulator runs on virtual time with in-process devices: a run is reproducible."""
+
+    def sim(name: str, seed: int) -> tuple[bytes, bytes]:
+        out = tmp_path / name
+        assert (
+            main(
+                [
+                    "sim",
+                    "--scenario",
+                    "convoy",
+                    "--seconds",
+                    "12",
+                    "--speed",
+                    "max",
+                    "--seed",
+                    str(seed),
+                    "--no-plots",
+                    "--out",
+                    str(out),
+                ]
+            )
+            == 0
+        )
+        return (out / "summary.json").read_bytes(), (out / "trace.jsonl").read_bytes()
+
+    first, second = sim("a", 1), sim("b", 1)
+    assert first[0] == second[0]
+    assert first[1] == second[1]
+    assert len(first[1].splitlines()) >= 100  # 12 s of trace at 10 Hz
+    # ...and the comparison can fail: another seed is another world (fading, sonar noise).
+    other = sim("c", 2)
+    assert other[1] != first[1]
+
+
+@pytest.mark.slow
+def test_sim_log_is_plain_json_with_relay_and_sim_time(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    scen = tmp_path / "tiny.toml"
+    scen.write_text(TINY)
+    out = tmp_path / "o"
+    assert (
+        main(
+            [
+                "sim",
+                "--scenario",
+                str(scen),
+                "--relays",
+                "1",
+                "--speed",
+                "4",
+                "--seconds",
+                "8",
+                "--no-plots",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
+    capsys.readouterr()
+    lines = (out / "sim.log").read_text().splitlines()
+    assert lines, "sim.log is empty at the default level"
+    docs = [json.loads(line) for line in lines]  # no "<6>" priority prefix: each line parses
+    assert all("relay" in d and isinstance(d["t"], float) for d in docs), docs[:3]
+    mine = [d for d in docs if d["relay"] == "solo"]
+    assert mine, "no line names the relay"
+    # The daemon's own start-up and its devices connecting are there, at info level.
+    assert any(d["event"] == "drive_state" and d["level"] == "info" for d in mine)
+    ts = [d["t"] for d in docs]
+    assert min(ts) >= 0.0 and max(ts) <= 8.0 + 2.0
+    assert any(t > 0 for t in ts), "simulation time never advanced in the log"
+
+
+@pytest.mark.parametrize("columns", [80, 60])
+def test_progress_line_never_wraps_on_the_terminal(columns: int) -> None:
+    import fcntl
+    import pty
+    import struct
+    import termios
+
+    master, slave = pty.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, columns, 0, 0))
+    with os.fdopen(slave, "w", encoding="utf-8") as tty:
+        p = ProgressLine(600, stream=tty, every_s=0.0)
+        assert p.enabled
+        for t, relays in ((1.0, [1.5]), (2.0, [2.5, 3.0, 3.5, 4.0, 5.5]), (1234.5, [12.5] * 8)):
+            rec = _rec(t, -123.4, 54.0, True, relays, state="hold_rear")
+            p(rec)
+            full = progress_text(rec, 600)
+            assert len(full) > columns or len(relays) == 1  # the case under test: too long to fit
+        p.close()
+    written = b""
+    while True:
+        try:
+            chunk = os.read(master, 65536)
+        except OSError:
+            break
+        if not chunk:
+            break
+        written += chunk
+    os.close(master)
+    segments = [s for s in written.decode().replace("\r\n", "\n").split("\r") if s.strip()]
+    assert len(segments) == 3
+    for seg in segments:
+        assert len(seg.rstrip("\n")) < columns, seg
+    assert segments[-1].rstrip().endswith(("+8", "+7", "+6")) and "t=1234.5/600s" in segments[-1]
+    if columns >= 80:  # the usual terminal shows at least the first relay
+        assert "r0:hold_rear/-40dBm/2.5m" in segments[1]
+
+
+def test_progress_text_keeps_every_relay_when_it_fits() -> None:
+    rec = _rec(1.0, 0.0, 10.0, False, [1.0, 2.0])
+    assert progress_text(rec, 60, width=200) == progress_text(rec, 60)
+    assert "r1:" in progress_text(rec, 60, width=200)
+    assert len(progress_text(rec, 60, width=30)) <= 30
