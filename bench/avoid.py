@@ -39,9 +39,9 @@ from typing import TYPE_CHECKING, Any
 if __package__ in (None, ""):  # run as a script: make `relayd` importable
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from relayd.core.geometry import ROBOT_LENGTH_M
 from relayd.sim.model import clearance_m, run_model
 from relayd.sim.scenario import load_scenario
-from relayd.sim.world import ROBOT_LENGTH_M
 
 if TYPE_CHECKING:
     from relayd.sim.runner import SimResult

@@ -16,7 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from drivers.arcos.sip import DIFF_CONV_FACTOR, Sip
-from drivers.wifi.sources import RssiSample
+from drivers.wifi.records import RssiSample
 from relayd.config.model import Settings
 from relayd.config.params import brain_params
 from relayd.core.brain import PANTILT, Brain
@@ -33,7 +33,7 @@ from relayd.core.events import (
     SipEvent,
     WheelCommand,
 )
-from relayd.runtime.state import Mode
+from relayd.core.vocab import Mode
 from relayd.sim.radio import Radio, RadioParams, yagi_gain_db
 
 Pattern = Callable[[float], float]

@@ -116,7 +116,7 @@ async def _loop_cost(events: int, with_client: bool) -> tuple[float, float, int]
     import aiohttp
 
     from drivers.arcos.sip import Sip
-    from drivers.wifi.sources import RssiSample
+    from drivers.wifi.records import RssiSample
     from relayd.config.load import parse_settings
     from relayd.core.events import Action, Event, RssiEvent, ScanSampleEvent, SipEvent, Tick
     from relayd.record.live import SUBPROTOCOL, LiveServer

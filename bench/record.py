@@ -139,7 +139,7 @@ async def _loop_cost(events: int) -> tuple[float, float]:
     the event and its actions, the Foxglove views, batching) is timed per event.
     """
     from drivers.arcos.sip import Sip
-    from drivers.wifi.sources import RssiSample
+    from drivers.wifi.records import RssiSample
     from relayd.config.load import parse_settings
     from relayd.core.events import Action, Event, RssiEvent, ScanSampleEvent, SipEvent, Tick
     from relayd.record.recorder import Recorder

@@ -51,13 +51,14 @@ from relayd.core.events import (
     ServoTarget,
     WheelCommand,
 )
+from relayd.core.vocab import Mode
 from relayd.record import off_status
 from relayd.runtime.bus import Bus
 from relayd.runtime.control import ControlShell
 from relayd.runtime.health import device_health
 from relayd.runtime.metrics import Metrics
 from relayd.runtime.scanner import RssiMonitor, Scanner
-from relayd.runtime.state import Mode, RelayState
+from relayd.runtime.state import RelayState
 from relayd.runtime.statewriter import StateWriter
 from relayd.runtime.supervisor import Supervisor
 

@@ -7,40 +7,39 @@ controllers' side of the wire for tests and the simulator.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any, Literal
+import importlib
+from typing import TYPE_CHECKING, Any
 
-from drivers.pantilt.base import PanTilt
-from drivers.pantilt.calibration import ServoCalibration
-from drivers.pantilt.maestro import MaestroPanTilt
-from drivers.pantilt.session import PanTiltError, ReplyError
-from drivers.pantilt.ssc32 import Ssc32PanTilt
-from drivers.transport.clock import REAL_CLOCK, Clock
+if TYPE_CHECKING:
+    from drivers.pantilt.base import PanTilt
+    from drivers.pantilt.calibration import ServoCalibration
+    from drivers.pantilt.factory import DEFAULT_BAUD, PROTOCOLS, make_pantilt
+    from drivers.pantilt.maestro import MaestroPanTilt
+    from drivers.pantilt.session import PanTiltError, ReplyError
+    from drivers.pantilt.ssc32 import Ssc32PanTilt
 
-PROTOCOLS: dict[str, type[PanTilt]] = {"maestro": MaestroPanTilt, "ssc32": Ssc32PanTilt}
-#: Baud rate when none is configured: the Maestro's USB command port ignores it; the
-#: SSC-32U ships at 9600.
-DEFAULT_BAUD: dict[str, int] = {"maestro": 115200, "ssc32": 9600}
+# Names load on first use (PEP 562): importing a pure record such as
+# drivers.arcos.sip must not load the I/O driver, asyncio or serial with it,
+# since the decision core imports those records (docs/ARCHITECTURE.md).
+_WHERE: dict[str, str] = {
+    "DEFAULT_BAUD": "drivers.pantilt.factory",
+    "MaestroPanTilt": "drivers.pantilt.maestro",
+    "PROTOCOLS": "drivers.pantilt.factory",
+    "PanTilt": "drivers.pantilt.base",
+    "PanTiltError": "drivers.pantilt.session",
+    "ReplyError": "drivers.pantilt.session",
+    "ServoCalibration": "drivers.pantilt.calibration",
+    "Ssc32PanTilt": "drivers.pantilt.ssc32",
+    "make_pantilt": "drivers.pantilt.factory",
+}
 
 
-def make_pantilt(
-    protocol: Literal["maestro", "ssc32"] | str,
-    url: str,
-    baud: int | None,
-    calibrations: Mapping[int, ServoCalibration],
-    *,
-    clock: Clock = REAL_CLOCK,
-    **options: Any,
-) -> PanTilt:
-    """A pan-tilt driver for `protocol` on `url`; `options` go to the driver
-    (reply_timeout_s, max_timeouts, poll_s)."""
+def __getattr__(name: str) -> Any:
     try:
-        cls = PROTOCOLS[protocol]
+        module = _WHERE[name]
     except KeyError:
-        raise ValueError(
-            f"unknown pan-tilt protocol {protocol!r}; expected one of {sorted(PROTOCOLS)}"
-        ) from None
-    return cls(url, baud or DEFAULT_BAUD[protocol], calibrations, clock=clock, **options)
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
+    return getattr(importlib.import_module(module), name)
 
 
 __all__ = [

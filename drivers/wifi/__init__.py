@@ -8,52 +8,47 @@ the simulator.
 
 from __future__ import annotations
 
-import os
-from typing import Literal
+import importlib
+from typing import TYPE_CHECKING, Any
 
-from drivers.transport.clock import REAL_CLOCK, Clock
-from drivers.wifi.fake import ProcfsWriter
-from drivers.wifi.nl80211 import Nl80211Source
-from drivers.wifi.parsers import RSSI_MIN_DBM, plausible_rssi_dbm
-from drivers.wifi.sources import (
-    PROC_NET_WIRELESS,
-    IwSource,
-    ProcfsSource,
-    RssiSample,
-    RssiSource,
-)
+if TYPE_CHECKING:
+    from drivers.wifi.factory import SOURCE_KINDS, SourceKind, make_source
+    from drivers.wifi.fake import ProcfsWriter
+    from drivers.wifi.nl80211 import Nl80211Source
+    from drivers.wifi.parsers import RSSI_MIN_DBM, plausible_rssi_dbm
+    from drivers.wifi.records import RssiSample
+    from drivers.wifi.sources import (
+        PROC_NET_WIRELESS,
+        IwSource,
+        ProcfsSource,
+        RssiSource,
+    )
 
-SourceKind = Literal["nl80211", "procfs", "iw"]
-SOURCE_KINDS: tuple[str, ...] = ("nl80211", "procfs", "iw")
+# Names load on first use (PEP 562): importing a pure record such as
+# drivers.arcos.sip must not load the I/O driver, asyncio or serial with it,
+# since the decision core imports those records (docs/ARCHITECTURE.md).
+_WHERE: dict[str, str] = {
+    "IwSource": "drivers.wifi.sources",
+    "Nl80211Source": "drivers.wifi.nl80211",
+    "PROC_NET_WIRELESS": "drivers.wifi.sources",
+    "ProcfsSource": "drivers.wifi.sources",
+    "ProcfsWriter": "drivers.wifi.fake",
+    "RSSI_MIN_DBM": "drivers.wifi.parsers",
+    "RssiSample": "drivers.wifi.records",
+    "RssiSource": "drivers.wifi.sources",
+    "SOURCE_KINDS": "drivers.wifi.factory",
+    "SourceKind": "drivers.wifi.factory",
+    "make_source": "drivers.wifi.factory",
+    "plausible_rssi_dbm": "drivers.wifi.parsers",
+}
 
 
-def make_source(
-    kind: str,
-    interface: str,
-    *,
-    path: str | os.PathLike[str] | None = None,
-    clock: Clock = REAL_CLOCK,
-    min_dbm: float = RSSI_MIN_DBM,
-    iw_path: str = "iw",
-) -> RssiSource:
-    """The RSSI source of `kind` for `interface`.
-
-    `path` is the /proc/net/wireless-format file of the "procfs" source (default the
-    kernel's); the other kinds ignore it, so a daemon can pass `[wifi] procfs_path`
-    whatever the source. `iw_path` is the `iw` binary of the "iw" source.
-    """
-    if kind == "nl80211":
-        return Nl80211Source(interface, clock=clock, min_dbm=min_dbm)
-    if kind == "procfs":
-        return ProcfsSource(
-            interface,
-            path=PROC_NET_WIRELESS if path is None else path,
-            clock=clock,
-            min_dbm=min_dbm,
-        )
-    if kind == "iw":
-        return IwSource(interface, clock=clock, min_dbm=min_dbm, iw_path=iw_path)
-    raise ValueError(f"unknown RSSI source {kind!r}; expected one of {', '.join(SOURCE_KINDS)}")
+def __getattr__(name: str) -> Any:
+    try:
+        module = _WHERE[name]
+    except KeyError:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
+    return getattr(importlib.import_module(module), name)
 
 
 __all__ = [

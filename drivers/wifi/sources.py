@@ -36,19 +36,11 @@ from drivers.wifi.parsers import (
     plausible_rssi_dbm,
     wrap_u8_dbm,
 )
+from drivers.wifi.records import RssiSample
 
 log = structlog.get_logger(__name__)
 
 PROC_NET_WIRELESS = "/proc/net/wireless"
-
-
-@dataclass(frozen=True, slots=True)
-class RssiSample:
-    """One RSSI reading: clock seconds, dBm (None when there is no believable value)."""
-
-    t: float
-    rssi_dbm: float | None
-    fresh: bool
 
 
 class InterfaceMissing(Exception):

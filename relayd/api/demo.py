@@ -19,7 +19,8 @@ import structlog
 from drivers.transport.clock import REAL_CLOCK, Clock
 from relayd.api.app import make_app
 from relayd.api.server import start_api
-from relayd.runtime.state import DriveState, LinkInfo, Mode, ModeError, RelayState, ScanRecord
+from relayd.core.vocab import DriveState, Mode, ScanRecord
+from relayd.runtime.state import LinkInfo, ModeError, RelayState
 
 log = structlog.get_logger(__name__)
 

@@ -11,7 +11,7 @@ from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from relayd.runtime.state import Mode
+from relayd.core.vocab import Mode
 
 _StrictFloat = Annotated[float, Field(strict=True)]
 

@@ -13,7 +13,7 @@ from typing import Any
 
 from relayd import __version__
 from relayd.api.status import Status, openapi_schema
-from relayd.runtime.state import DriveState, Mode
+from relayd.core.vocab import DriveState, Mode
 
 
 def _num(nullable: bool = True, **extra: Any) -> dict[str, Any]:

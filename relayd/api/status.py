@@ -15,7 +15,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from relayd.runtime.state import SONAR_COUNT, DriveState, Mode
+from relayd.core.geometry import SONAR_COUNT
+from relayd.core.vocab import DriveState, Mode
 
 
 class _Model(BaseModel):

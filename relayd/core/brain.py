@@ -81,7 +81,7 @@ from relayd.core.scan.estimator import EstimatorParams, front_readings
 from relayd.core.scan.leader import LeaderParams
 from relayd.core.scan.memory import ScanMemory
 from relayd.core.scan.plan import ScanParams
-from relayd.runtime.state import DriveState, Mode
+from relayd.core.vocab import DriveState, Mode
 
 SONAR_COUNT = 16
 #: Device names the brain listens to in `DeviceEvent`s.

@@ -18,11 +18,11 @@ from enum import StrEnum
 
 from drivers.airos.model import LinkQuality
 from drivers.arcos.sip import Sip
-from drivers.wifi.sources import RssiSample
+from drivers.wifi.records import RssiSample
 from relayd.core.link.model import LinkModelStatus
 from relayd.core.recovery.machine import RecoveryView
 from relayd.core.scan.estimator import ScanEstimate
-from relayd.runtime.state import DriveState, Mode, ScanRecord
+from relayd.core.vocab import DriveState, Mode, ScanRecord
 
 # -- events ----------------------------------------------------------------------------
 

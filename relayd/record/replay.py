@@ -27,8 +27,9 @@ from relayd.config.model import Settings
 from relayd.config.params import brain_params
 from relayd.core.brain import Brain
 from relayd.core.events import Action, Decision, ScanResult
+from relayd.core.geometry import wrap_deg
+from relayd.core.vocab import Mode
 from relayd.record.reader import Recording, action_doc
-from relayd.runtime.state import Mode
 
 
 class OverrideError(ValueError):
@@ -111,7 +112,7 @@ def _diff(a: float, b: float) -> float:
 
 
 def _angle_diff(a: float, b: float) -> float:
-    return _diff(0.0, (a - b + 180.0) % 360.0 - 180.0)
+    return _diff(0.0, wrap_deg(a - b))
 
 
 def compare(recording: Recording, brain: Brain) -> Comparison:

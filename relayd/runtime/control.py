@@ -39,8 +39,9 @@ from relayd.core.events import (
     Tick,
     WheelCommand,
 )
+from relayd.core.vocab import Mode
 from relayd.runtime.health import device_status
-from relayd.runtime.state import Mode, ModeError
+from relayd.runtime.state import ModeError
 
 #: Bytes in to SIP decoded: the driver's latency starts this much before the SIP's `t`.
 DECODE_SLACK_S = 0.005

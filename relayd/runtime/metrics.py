@@ -29,7 +29,8 @@ from prometheus_client.registry import Collector
 
 from drivers.transport.clock import Clock
 from relayd import __version__
-from relayd.runtime.state import DriveState, Mode, RelayState
+from relayd.core.vocab import DriveState, Mode
+from relayd.runtime.state import RelayState
 
 #: SIP received -> wheel command written: sub-millisecond on a healthy loop, 2 ms is the target p99.
 CONTROL_LATENCY_BUCKETS_S = (

@@ -30,7 +30,7 @@ from typing import Protocol, TypeVar
 import structlog
 
 from drivers.transport.clock import REAL_CLOCK, Clock
-from drivers.wifi.sources import RssiSample
+from drivers.wifi.records import RssiSample
 from relayd.core.events import (
     Event,
     RssiEvent,

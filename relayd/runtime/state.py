@@ -13,33 +13,16 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from enum import StrEnum
 from typing import TYPE_CHECKING, Any, Protocol
 
 from relayd import __version__
+from relayd.core.geometry import SONAR_COUNT
+from relayd.core.vocab import DriveState, Mode, ScanRecord
 
 if TYPE_CHECKING:
     from relayd.core.link.model import LinkModelStatus
     from relayd.core.recovery.machine import RecoveryView
     from relayd.record import RecordingStatus
-
-SONAR_COUNT = 16
-
-
-class Mode(StrEnum):
-    FOLLOW = "follow"
-    HOLD = "hold"
-    MANUAL = "manual"
-
-
-class DriveState(StrEnum):
-    DRIVING = "driving"
-    STOPPED = "stopped"
-    AVOIDING = "avoiding"
-    LEADER_LOST = "leader_lost"
-    #: Self-healing a broken link (relayd.core.recovery.machine): backing along the breadcrumb trail.
-    RECOVERING = "recovering"
-    FAULT = "fault"
 
 
 @dataclass(slots=True)
@@ -54,19 +37,6 @@ class DeviceHealth:
 
     def age_s(self, now: float) -> float | None:
         return None if self.last_data_t is None else max(0.0, now - self.last_data_t)
-
-
-@dataclass(frozen=True, slots=True)
-class ScanRecord:
-    """One finished scan: what the Yagi heard where, and what the estimator made of it."""
-
-    t: float
-    angles_deg: tuple[float, ...]
-    rssi_dbm: tuple[float, ...]
-    bearing_deg: float
-    rssi_leader_dbm: float
-    situation: int
-    period_s: float | None = None
 
 
 @dataclass(frozen=True, slots=True)

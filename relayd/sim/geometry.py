@@ -12,6 +12,8 @@ import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
+from relayd.core.geometry import wrap_deg
+
 Point = tuple[float, float]
 Polygon = tuple[Point, ...]
 
@@ -253,16 +255,6 @@ def point_segment_distance(p: Point, a: Point, b: Point) -> float:
     return math.hypot(p[0] - a[0] - t * ex, p[1] - a[1] - t * ey)
 
 
-def wrap_deg(a: float) -> float:
-    """An angle in degrees wrapped to (-180, 180]."""
-    a = math.fmod(a, 360.0)
-    if a > 180.0:
-        a -= 360.0
-    elif a <= -180.0:
-        a += 360.0
-    return a
-
-
 def _clip_to_half_plane(p: Point, q: Point, nx: float, ny: float) -> tuple[Point, Point] | None:
     """The part of segment p-q where n . x >= 0, or None."""
     dp, dq = nx * p[0] + ny * p[1], nx * q[0] + ny * q[1]
@@ -349,3 +341,6 @@ def cone_range(
             if d <= best:
                 best, hit = d, True
     return best if hit else None
+
+
+__all__ = ["wrap_deg"]  # re-exported: the simulator's callers name it here

@@ -35,11 +35,12 @@ from relayd.core.control.law import (
     ControlParams,
     control_step,
 )
+from relayd.core.geometry import ROBOT_LENGTH_M, wrap_deg
 from relayd.core.scan.estimator import front_readings
-from relayd.runtime.state import Mode
+from relayd.core.vocab import Mode
 from relayd.sim.geometry import Segment, point_segment_distance, segments_intersect
 from relayd.sim.scenario import Scenario
-from relayd.sim.world import ROBOT_LENGTH_M, World
+from relayd.sim.world import World
 
 SIP_PERIOD_S = 0.1
 SONARS_PER_SIP = 8
@@ -78,7 +79,7 @@ def _now_frame(bearing: float | None, heading_then: float, heading_now: float) -
     """A scan bearing seen from the heading now, as control.py corrects it by odometry."""
     if bearing is None:
         return None
-    return (bearing - (heading_now - heading_then) + 180.0) % 360.0 - 180.0
+    return wrap_deg(bearing - (heading_now - heading_then))
 
 
 def clearance_m(poly: tuple[tuple[float, float], ...], segments: list[Segment]) -> float:
@@ -181,7 +182,7 @@ def run_model(
             dth = rvel * dt
             mid = math.radians(th + dth / 2.0)
             nx, ny = x + vel * dt * math.cos(mid), y + vel * dt * math.sin(mid)
-            nth = (th + dth + 180.0) % 360.0 - 180.0
+            nth = wrap_deg(th + dth)
             if world.motion_ok(0, nx, ny, nth, (x, y, th)):
                 x, y, th = nx, ny, nth
             else:

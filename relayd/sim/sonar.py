@@ -13,31 +13,12 @@ import random
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, overload
 
+from relayd.core.geometry import SONAR_POSES
 from relayd.sim.geometry import cone_range, polygon_segments
 
 if TYPE_CHECKING:
     from relayd.sim.scenario import SonarSpec
     from relayd.sim.world import World
-
-#: P3-AT sonar ring (docs/PROTOCOLS.md 1.11): x forward, y left (mm), heading (deg, ccw).
-SONAR_POSES: tuple[tuple[float, float, float], ...] = (
-    (147, 136, 90),
-    (193, 119, 50),
-    (227, 79, 30),
-    (245, 27, 10),
-    (245, -27, -10),
-    (227, -79, -30),
-    (193, -119, -50),
-    (147, -136, -90),
-    (-144, -136, -90),
-    (-189, -119, -130),
-    (-223, -79, -150),
-    (-241, -27, -170),
-    (-241, 27, 170),
-    (-223, 79, 150),
-    (-189, 119, 130),
-    (-144, 136, 90),
-)
 
 
 class SonarReadings(Sequence[int]):
@@ -113,7 +94,8 @@ class SonarReadings(Sequence[int]):
 
     def _range_mm(self, k: int) -> int:
         cfg, c, s = self._cfg, self._c, self._s
-        sx, sy, sh = SONAR_POSES[k]
+        pose = SONAR_POSES[k]
+        sx, sy, sh = pose.x_mm, pose.y_mm, pose.heading_deg
         ox = self._x + (c * sx - s * sy) / 1000.0
         oy = self._y + (s * sx + c * sy) / 1000.0
         best = cone_range(

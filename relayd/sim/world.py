@@ -21,6 +21,7 @@ import random
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+from relayd.core.geometry import ROBOT_LENGTH_M, ROBOT_RADIUS_M, ROBOT_WIDTH_M, wrap_deg
 from relayd.sim.geometry import (
     Point,
     Polygon,
@@ -29,7 +30,6 @@ from relayd.sim.geometry import (
     polygon_hits_circle,
     polygon_hits_segment,
     polygons_overlap,
-    wrap_deg,
 )
 from relayd.sim.leader_script import LeaderScript
 from relayd.sim.radio import (
@@ -46,10 +46,7 @@ from relayd.sim.scenario import Scenario
 from relayd.sim.sonar import SonarReadings
 
 #: P3-AT body (docs/PROTOCOLS.md 1.11, from ARIA's p3at.p: RobotLength 626 mm, RobotWidth 505 mm).
-ROBOT_LENGTH_M = 0.626
-ROBOT_WIDTH_M = 0.505
 #: The P3-AT footprint's circumradius: no part of the body is farther from its centre.
-ROBOT_RADIUS_M = math.hypot(ROBOT_LENGTH_M, ROBOT_WIDTH_M) / 2.0
 #: Slack of the collision check's bounding-box pre-test (far above float rounding).
 BODY_SLACK_M = 1e-6
 #: How close to a doorway a robot holds a timed door open (see World._blocked).

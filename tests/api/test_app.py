@@ -15,8 +15,9 @@ from prometheus_client.parser import text_string_to_metric_families
 
 from relayd.api import make_app, start_api
 from relayd.api.demo import populate
+from relayd.core.vocab import DriveState, Mode
 from relayd.runtime.metrics import Metrics
-from relayd.runtime.state import DeviceHealth, DriveState, Mode, ModeError, RelayState
+from relayd.runtime.state import DeviceHealth, ModeError, RelayState
 from tests.support import ManualClock
 
 TOKEN = "s3cr3t-token-do-not-leak"

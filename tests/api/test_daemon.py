@@ -34,9 +34,9 @@ from drivers.arcos.codec import Command
 from drivers.arcos.sip import wheel_to_vel_rvel
 from relayd import __version__
 from relayd.config.load import parse_settings
+from relayd.core.vocab import Mode
 from relayd.daemon import Daemon
 from relayd.fakes.rig import API_TOKEN_ENV, FakeRig
-from relayd.runtime.state import Mode
 from relayd.runtime.vtime import LoopClock
 from tests.support import running as run_daemon
 

@@ -11,7 +11,8 @@ from aiohttp.test_utils import TestClient, TestServer
 from relayd.api import make_app
 from relayd.api.demo import DemoControls, populate
 from relayd.api.history import FIELDS, History, parse_after
-from relayd.runtime.state import DriveState, RelayState
+from relayd.core.vocab import DriveState
+from relayd.runtime.state import RelayState
 from tests.support import ManualClock, until
 
 

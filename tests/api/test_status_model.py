@@ -12,7 +12,8 @@ from drivers.transport.clock import Clock
 from relayd.api.demo import populate
 from relayd.api.openapi import STATUS_SCHEMA
 from relayd.api.status import Status
-from relayd.runtime.state import DeviceHealth, LinkInfo, RelayState, ScanRecord
+from relayd.core.vocab import ScanRecord
+from relayd.runtime.state import DeviceHealth, LinkInfo, RelayState
 
 
 def _validate(doc: dict[str, object]) -> Status:

@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 
 from drivers.airos.model import LinkQuality
 from drivers.arcos.sip import Sip
-from drivers.wifi.sources import RssiSample
+from drivers.wifi.records import RssiSample
 from relayd.config.model import Settings
 from relayd.config.params import brain_params, nominal_scan_period_s
 from relayd.core.brain import PANTILT, Brain
@@ -40,7 +40,7 @@ from relayd.core.events import (
     Tick,
     WheelCommand,
 )
-from relayd.runtime.state import Mode
+from relayd.core.vocab import Mode
 from tests.support import ManualClock
 
 SIP_S = 0.1

@@ -8,7 +8,7 @@ import pytest
 
 from drivers.airos.model import LinkQuality
 from drivers.arcos.sip import Sip
-from drivers.wifi.sources import RssiSample
+from drivers.wifi.records import RssiSample
 from relayd.config.model import Settings
 from relayd.config.params import brain_params
 from relayd.core.brain import PANTILT, Brain
@@ -28,7 +28,7 @@ from relayd.core.events import (
     SipEvent,
 )
 from relayd.core.recovery.machine import Phase
-from relayd.runtime.state import DriveState
+from relayd.core.vocab import DriveState
 
 
 @dataclass

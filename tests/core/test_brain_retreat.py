@@ -10,7 +10,7 @@ import pytest
 
 from drivers.airos.model import LinkQuality, Station
 from drivers.arcos.sip import Sip
-from drivers.wifi.sources import RssiSample
+from drivers.wifi.records import RssiSample
 from relayd.config.model import Settings
 from relayd.config.params import brain_params
 from relayd.core.brain import PANTILT, Brain

@@ -20,7 +20,8 @@ from relayd.api.reasons import MINUS, comparison, describe, fmt_db, phrasebook
 from relayd.core.control.law import ControlInputs, ControlMemory, ControlParams, control_step
 from relayd.core.recovery import machine as recovery
 from relayd.core.scan.estimator import SonarReading
-from relayd.runtime.state import Mode, RelayState
+from relayd.core.vocab import Mode
+from relayd.runtime.state import RelayState
 
 RELAYD = Path(recovery.__file__).resolve().parents[2]
 

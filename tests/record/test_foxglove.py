@@ -36,12 +36,12 @@ import pytest
 from drivers.arcos.codec import Command
 from relayd.config.load import parse_settings
 from relayd.config.model import ConfigError, FoxgloveSettings
+from relayd.core.vocab import DriveState
 from relayd.daemon import Daemon
 from relayd.fakes.rig import FakeRig
 from relayd.record import codec
 from relayd.record.live import CLIENT_BACKLOG, SUBPROTOCOL, channel_specs
 from relayd.record.recorder import Recorder
-from relayd.runtime.state import DriveState
 from relayd.runtime.vtime import LoopClock
 from tests.support import running, until
 

@@ -24,7 +24,7 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 
 from drivers.airos.model import LinkQuality, Station
 from drivers.arcos.sip import Sip
-from drivers.wifi.sources import RssiSample
+from drivers.wifi.records import RssiSample
 from relayd import cli
 from relayd.config.load import parse_settings
 from relayd.config.model import ConfigError, Settings
@@ -57,6 +57,7 @@ from relayd.core.events import (
 from relayd.core.link.model import LinkModelStatus
 from relayd.core.recovery.machine import Kind, Phase, RecoveryView
 from relayd.core.scan.estimator import ScanEstimate
+from relayd.core.vocab import DriveState, Mode, ScanRecord
 from relayd.record import codec, writer
 from relayd.record.foxglove import VIEWS
 from relayd.record.meta import recordable_config, strip_userinfo
@@ -64,7 +65,6 @@ from relayd.record.reader import RecordingError, join_parts, read_recording
 from relayd.record.recorder import Recorder
 from relayd.record.replay import apply_overrides, compare, make_brain, parse_override
 from relayd.runtime.bus import Bus
-from relayd.runtime.state import DriveState, Mode, ScanRecord
 from tests.support import ManualClock, until
 
 

@@ -35,11 +35,11 @@ from drivers.arcos.codec import Command
 from relayd import cli
 from relayd.config.load import parse_settings
 from relayd.core.events import ScanResult, Shutdown, WheelCommand
+from relayd.core.vocab import DriveState
 from relayd.daemon import Daemon
 from relayd.fakes.rig import FakeRig
 from relayd.record import writer
 from relayd.record.reader import RecordingError, read_recording
-from relayd.runtime.state import DriveState
 from relayd.runtime.vtime import LoopClock
 from tests.record.test_record import FullDisk
 from tests.support import running, until

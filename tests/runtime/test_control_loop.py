@@ -21,7 +21,7 @@ from drivers.arcos.sip import Sip as ArcosSip
 from drivers.transport.clock import Clock
 from drivers.transport.health import DeviceHealth as DriverHealth
 from drivers.transport.health import LinkState
-from drivers.wifi.sources import RssiSample
+from drivers.wifi.records import RssiSample
 from relayd.core.brain import PANTILT, Brain, BrainParams
 from relayd.core.control.law import ControlOutput, ControlParams
 from relayd.core.events import (
@@ -36,9 +36,10 @@ from relayd.core.events import (
     Tick,
     WheelCommand,
 )
+from relayd.core.vocab import DriveState, Mode
 from relayd.runtime.bus import Bus
 from relayd.runtime.control import ControlShell
-from relayd.runtime.state import DriveState, Mode, ModeError, RelayState
+from relayd.runtime.state import ModeError, RelayState
 from relayd.runtime.statewriter import StateWriter
 from tests.support import LoopClock, ManualClock, until
 

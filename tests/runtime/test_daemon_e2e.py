@@ -25,9 +25,9 @@ from typing import Any
 import pytest
 
 from relayd.config.load import parse_settings
+from relayd.core.vocab import DriveState, Mode
 from relayd.daemon import Daemon, control_params
 from relayd.fakes.rig import FakeRig
-from relayd.runtime.state import DriveState, Mode
 from relayd.runtime.vtime import LoopClock
 from tests.support import running, until
 

@@ -9,8 +9,9 @@ from hypothesis import strategies as st
 from prometheus_client import generate_latest
 from prometheus_client.parser import text_string_to_metric_families
 
+from relayd.core.vocab import DriveState, Mode
 from relayd.runtime.metrics import Metrics
-from relayd.runtime.state import DeviceHealth, DriveState, LinkInfo, Mode, RelayState
+from relayd.runtime.state import DeviceHealth, LinkInfo, RelayState
 from tests.support import ManualClock
 
 

@@ -24,7 +24,7 @@ from drivers.pantilt import PanTilt, ServoCalibration, make_pantilt
 from drivers.pantilt.fake import FakeMaestro
 from drivers.transport.backoff import Backoff
 from drivers.transport.clock import Clock
-from drivers.wifi.sources import RssiSample
+from drivers.wifi.records import RssiSample
 from relayd.core.brain import PANTILT, Brain, BrainParams
 from relayd.core.events import (
     Action,

@@ -8,12 +8,13 @@ from typing import Any
 
 import pytest
 
+from relayd.core.geometry import ROBOT_LENGTH_M
 from relayd.runtime import vtime
 from relayd.sim.leader_script import LeaderScript
 from relayd.sim.outcomes import downtime_s, link_breaks, recovery_episodes
 from relayd.sim.runner import SimRunner
 from relayd.sim.scenario import ScenarioError, load_scenario, parse_scenario
-from relayd.sim.world import DOOR_CLEAR_M, ROBOT_LENGTH_M, World
+from relayd.sim.world import DOOR_CLEAR_M, World
 
 
 def doc(**extra: Any) -> dict[str, Any]:

@@ -17,6 +17,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from relayd.core.geometry import ROBOT_LENGTH_M, ROBOT_WIDTH_M
 from relayd.runtime import vtime
 from relayd.sim.geometry import (
     Segment,
@@ -36,7 +37,7 @@ from relayd.sim.geometry import (
 from relayd.sim.radio import MEMO_MAX_ENTRIES, Radio, RadioParams, ShadowField
 from relayd.sim.scenario import load_scenario
 from relayd.sim.sonar import SONAR_POSES
-from relayd.sim.world import CONTACT_CLEAR_M, ROBOT_LENGTH_M, ROBOT_WIDTH_M, World
+from relayd.sim.world import CONTACT_CLEAR_M, World
 from relayd.sim.zones import PATH_SAMPLES, RadioZone, path_environment
 
 

@@ -9,6 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from relayd.core.geometry import wrap_deg
 from relayd.sim.geometry import (
     Box,
     Segment,
@@ -18,7 +19,6 @@ from relayd.sim.geometry import (
     polygon_hits_segment,
     polygons_overlap,
     ray_circle_distance,
-    wrap_deg,
 )
 from relayd.sim.leader_script import LeaderScript
 from relayd.sim.radio import (

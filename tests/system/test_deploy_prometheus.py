@@ -23,8 +23,9 @@ from prometheus_client import generate_latest
 from prometheus_client.parser import text_string_to_metric_families
 
 from drivers.transport.clock import Clock
+from relayd.core.vocab import DriveState, Mode, ScanRecord
 from relayd.runtime.metrics import Metrics
-from relayd.runtime.state import DeviceHealth, DriveState, LinkInfo, Mode, RelayState, ScanRecord
+from relayd.runtime.state import DeviceHealth, LinkInfo, RelayState
 from tests.support import skip_or_fail
 
 ROOT = Path(__file__).resolve().parents[2]

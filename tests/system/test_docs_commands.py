@@ -36,7 +36,8 @@ from aiohttp.test_utils import TestClient, TestServer
 from drivers.transport.clock import REAL_CLOCK
 from relayd.api.app import make_app
 from relayd.cli import build_parser
-from relayd.runtime.state import Mode, ModeError, RelayState
+from relayd.core.vocab import Mode
+from relayd.runtime.state import ModeError, RelayState
 
 ROOT = Path(__file__).resolve().parents[2]
 DOCS = ("README.md", "docs/DEPLOY.md")

@@ -18,11 +18,11 @@ import pytest
 
 from relayd.api.app import start_api
 from relayd.config.load import parse_settings
+from relayd.core.vocab import Mode
 from relayd.daemon import Daemon
 from relayd.fakes.rig import FakeRig
 from relayd.fleet.config import FleetSettings, Relay
 from relayd.fleet.server import make_fleet_app
-from relayd.runtime.state import Mode
 from tests.api.test_live_page_ops import PANTILT, SCAN, free_port, wait_http
 from tests.support import running, until
 from tests.system.test_live_page_browser import CHROMIUM_ARGS, _require_chromium

@@ -22,11 +22,12 @@ from relayd.api import make_app, start_api
 from relayd.api.demo import DemoControls, populate
 from relayd.cli.fleet import settings_from_args
 from relayd.config.model import ConfigError
+from relayd.core.vocab import Mode
 from relayd.fleet.chain import fleet_document, hops, link_status
 from relayd.fleet.config import Relay, normalise_url, parse_fleet, relay_from_arg
 from relayd.fleet.poller import Fleet, RelayView
 from relayd.fleet.server import hold_one
-from relayd.runtime.state import Mode, RelayState
+from relayd.runtime.state import RelayState
 from tests.support import until
 
 TOKEN = "fleet-test-token-0123456789"

@@ -39,7 +39,6 @@ import math
 from dataclasses import replace
 
 from relayd.core.avoid.ring import (
-    HALF_WIDTH_M,
     LATERAL_M,
     REAR_M,
     boundary_echo_m,
@@ -64,7 +63,8 @@ from relayd.core.avoid.state import (
     turn_cmd,
 )
 from relayd.core.control.actuator import Actuator
-from relayd.core.scan.estimator import SONAR_MAX_RANGE_M, wrap_deg
+from relayd.core.geometry import HALF_WIDTH_M, wrap_deg
+from relayd.core.scan.estimator import SONAR_MAX_RANGE_M
 
 
 def _proj_m(pose: tuple[float, float, float], goal_deg: float) -> float:

@@ -12,8 +12,14 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from drivers.arcos.sonar import SONAR_POSES
-from relayd.core.scan.estimator import SONAR_HEADINGS_DEG, SONAR_MAX_RANGE_M, SonarReading, wrap_deg
+from relayd.core.geometry import (
+    HALF_LENGTH_M,
+    HALF_WIDTH_M,
+    SONAR_HEADINGS_DEG,
+    SONAR_POSES,
+    wrap_deg,
+)
+from relayd.core.scan.estimator import SONAR_MAX_RANGE_M, SonarReading
 
 #: Lateral offset (m) of each front-ring transducer from the centreline, by heading.
 LATERAL_M: dict[float, float] = {p.heading_deg: abs(p.y_mm) / 1000.0 for p in SONAR_POSES[:8]}
@@ -21,10 +27,8 @@ LATERAL_M: dict[float, float] = {p.heading_deg: abs(p.y_mm) / 1000.0 for p in SO
 POSE_M: dict[float, tuple[float, float]] = {
     p.heading_deg: (p.x_mm / 1000.0, p.y_mm / 1000.0) for p in SONAR_POSES[:8]
 }
-#: Half the P3-AT's width (505 mm): footprint side to centreline.
-HALF_WIDTH_M = 0.2525
-#: From the centre of rotation back to the rear corners (the footprint is 0.626 m long).
-REAR_M = 0.313
+#: From the centre of rotation back to the rear corners.
+REAR_M = HALF_LENGTH_M
 #: Clearance kept between the swept circle of a turn in place and any echo.
 TURN_MARGIN_M = 0.085
 

@@ -74,7 +74,7 @@ from relayd.core.scan.estimator import (
     classify_situation,
     nearest_front_m,
 )
-from relayd.runtime.state import DriveState, Mode
+from relayd.core.vocab import DriveState, Mode
 
 
 @dataclass(frozen=True, slots=True)

@@ -56,14 +56,8 @@ import math
 from collections.abc import Sequence
 from functools import cache
 
-from drivers.arcos.sonar import SONAR_POSES
-from relayd.core.scan.estimator import (
-    FRONT_RING,
-    SONAR_HEADINGS_DEG,
-    SONAR_MAX_RANGE_M,
-    SonarReading,
-    wrap_deg,
-)
+from relayd.core.geometry import SONAR_HEADINGS_DEG, SONAR_POSES, wrap_deg
+from relayd.core.scan.estimator import FRONT_RING, SONAR_MAX_RANGE_M, SonarReading
 
 #: Half the beam of a P3-AT sonar (30 degrees wide): as the estimator's PRSSI uses it.
 HALF_BEAM_DEG = 15.0

@@ -33,7 +33,8 @@ from dataclasses import dataclass
 
 from relayd.core.avoid.ring import guard
 from relayd.core.control.actuator import Actuator
-from relayd.core.scan.estimator import SonarReading, wrap_deg
+from relayd.core.geometry import wrap_deg
+from relayd.core.scan.estimator import SonarReading
 
 
 @dataclass(frozen=True, slots=True)

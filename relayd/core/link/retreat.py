@@ -54,7 +54,7 @@ from dataclasses import dataclass, replace
 
 from relayd.core.control.law import ControlInputs, ControlOutput, ControlParams
 from relayd.core.recovery.trail import REAR_SONARS, Crumb, reverse_toward
-from relayd.runtime.state import DriveState, Mode
+from relayd.core.vocab import DriveState, Mode
 
 #: Rear polls in a row below the target, standing at the rear limit, before it steps back.
 BELOW_POLLS = 3

@@ -43,7 +43,7 @@ from dataclasses import dataclass, replace
 from enum import StrEnum
 
 from relayd.core.recovery.trail import Crumb, add_crumb, leader_target, reverse_toward
-from relayd.runtime.state import DriveState
+from relayd.core.vocab import DriveState
 
 #: Reverse speed is capped at (distance left) / TAPER_S.
 TAPER_S = 1.0

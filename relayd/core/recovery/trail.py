@@ -18,6 +18,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from relayd.core.geometry import wrap_deg
+
 #: Rear sonars that guard reversing: headings -130, -150, -170, 170, 150, 130 (P3-AT 9..14).
 REAR_SONARS: tuple[int, ...] = (9, 10, 11, 12, 13, 14)
 #: Their headings relative to the robot's rear (ccw +), sonar 9 first.
@@ -85,10 +87,6 @@ def _rear_avoid_deg(ranges: list[float | None], gamma_o_m: float) -> float:
     return float(sum(wi * a for wi, a in zip(w, REAR_RELATIVE_DEG, strict=True)) / sum(w))
 
 
-def _wrap(a: float) -> float:
-    return (a + 180.0) % 360.0 - 180.0
-
-
 def reverse_toward(
     pose: tuple[float, float, float],
     target: Crumb,
@@ -103,7 +101,7 @@ def reverse_toward(
     """(left, right, reason) reversing toward a crumb, the rear sonars guarding the way."""
     x, y, th = pose
     want = math.degrees(math.atan2(target.y_mm - y, target.x_mm - x))
-    alpha = _wrap(want - (th + 180.0))  # target off the rear axis, ccw +
+    alpha = wrap_deg(want - (th + 180.0))  # target off the rear axis, ccw +
     ranges = _rear_clearance_m(sonar_mm)
     echoes = [r for r in ranges if r is not None]
     d_min = min(echoes) if echoes else None

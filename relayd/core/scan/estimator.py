@@ -43,14 +43,10 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from relayd.core.geometry import SONAR_HEADINGS_DEG, SONAR_MAX_RANGE_MM, wrap_deg
+
 #: Scans in a row with RSSI^l below lost_rssi before the leader counts as lost (docs/CONTROL.md section 6).
 LOST_AFTER_SCANS = 3
-
-#: The 16 P3-AT sonar headings (docs/PROTOCOLS.md 1.11), index order, ccw +.
-SONAR_HEADINGS_DEG: tuple[float, ...] = (
-    90.0, 50.0, 30.0, 10.0, -10.0, -30.0, -50.0, -90.0,
-    -90.0, -130.0, -150.0, -170.0, 170.0, 150.0, 130.0, 90.0,
-)  # fmt: skip
 
 #: Sonars that count for d_min and the avoidance centroid (see the module docstring).
 FRONT_SONARS: tuple[int, ...] = (1, 2, 3, 4, 5, 6)
@@ -58,8 +54,6 @@ FRONT_SONARS: tuple[int, ...] = (1, 2, 3, 4, 5, 6)
 #: The whole front ring, left side to right side: what PRSSI and `front_readings` use.
 FRONT_RING: tuple[int, ...] = (0, 1, 2, 3, 4, 5, 6, 7)
 
-#: The P3-AT sonar's reach; a reading at or beyond it is treated as "no echo".
-SONAR_MAX_RANGE_MM = 5000
 SONAR_MAX_RANGE_M = SONAR_MAX_RANGE_MM / 1000.0
 
 #: A reading looks sideways (not "front") from this absolute heading on.
@@ -109,16 +103,6 @@ class ScanEstimate:
     nrssi_dbm: tuple[float, ...]  # after the PRSSI penalty (== raw when situation != 2)
     #: The bearing's standard deviation when a tracking filter made it (None: the WCA has none).
     bearing_sd_deg: float | None = None
-
-
-def wrap_deg(angle_deg: float) -> float:
-    """Wrap an angle to (-180, 180]."""
-    wrapped = math.fmod(angle_deg, 360.0)
-    if wrapped <= -180.0:
-        wrapped += 360.0
-    elif wrapped > 180.0:
-        wrapped -= 360.0
-    return wrapped
 
 
 def _finite(name: str, value: float) -> None:

@@ -28,7 +28,7 @@ from relayd.core.scan.estimator import (
 )
 from relayd.core.scan.leader import LeaderParams, make_model
 from relayd.core.scan.plan import ScanParams, full_window, in_current_frame, next_window, sweep_plan
-from relayd.runtime.state import ScanRecord
+from relayd.core.vocab import ScanRecord
 
 
 class ScanMemory:

@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from relayd.core.events import ScanPlan
+from relayd.core.geometry import wrap_deg
 from relayd.core.scan.estimator import plan_scan
 from relayd.core.scan.window import Window
 
@@ -38,7 +39,7 @@ def in_current_frame(
     if heading_then is None or heading_now is None:
         return bearing
     b = bearing - (heading_now - heading_then)
-    return (b + 180.0) % 360.0 - 180.0
+    return wrap_deg(b)
 
 
 def full_window(sp: ScanParams) -> Window:

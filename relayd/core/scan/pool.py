@@ -14,6 +14,7 @@ import math
 from collections import deque
 from dataclasses import dataclass, replace
 
+from relayd.core.geometry import wrap_deg
 from relayd.core.scan.bearing import LobeFit, LobeParams, fit_main_lobe
 from relayd.core.scan.tracker import Track
 
@@ -91,8 +92,10 @@ class ScanPool:
         for s in reversed(self._scans):
             if track.rate_sd_deg_s * abs(newest.t - s.t) > p.max_shift_sd_deg:
                 break
-            shift = track.rate_deg_s * (newest.t - s.t) - _wrap(newest.heading_deg - s.heading_deg)
-            gap = abs(_wrap(s.fit.bearing_deg + shift - newest.fit.bearing_deg))
+            shift = track.rate_deg_s * (newest.t - s.t) - wrap_deg(
+                newest.heading_deg - s.heading_deg
+            )
+            gap = abs(wrap_deg(s.fit.bearing_deg + shift - newest.fit.bearing_deg))
             if gap > p.agree_sigma * math.hypot(s.fit.sd_deg, newest.fit.sd_deg):
                 break
             used.append((s, shift))
@@ -111,14 +114,10 @@ class ScanPool:
         )
         if pooled is None:
             return None
-        gap = abs(_wrap(pooled.bearing_deg - newest.fit.bearing_deg))
+        gap = abs(wrap_deg(pooled.bearing_deg - newest.fit.bearing_deg))
         if gap > p.agree_sigma * math.hypot(newest.fit.sd_deg, pooled.sd_deg):
             return None
         # Trusted no more than the scans' own fits averaged: pooling is there to take the
         # bias out of cut lobes, and a few faded scans fitted together must not look certain.
         averaged_sd = sum(s.fit.sd_deg**-2 for s, _ in [*used, (newest, 0.0)]) ** -0.5
         return replace(pooled, sd_deg=max(pooled.sd_deg, averaged_sd)), used[0][0].before
-
-
-def _wrap(angle_deg: float) -> float:
-    return (angle_deg + 180.0) % 360.0 - 180.0

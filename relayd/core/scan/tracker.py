@@ -59,6 +59,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
+from relayd.core.geometry import wrap_deg
+
 
 @dataclass(frozen=True, slots=True)
 class TrackerParams:
@@ -116,10 +118,6 @@ class Track:
         return math.sqrt(max(self.p_ww, 0.0))
 
 
-def _wrap(angle_deg: float) -> float:
-    return (angle_deg + 180.0) % 360.0 - 180.0
-
-
 def _check(**values: float) -> None:
     for name, v in values.items():
         if not math.isfinite(v):
@@ -135,7 +133,7 @@ def start(
     return Track(
         t,
         heading_deg,
-        _wrap(bearing_deg),
+        wrap_deg(bearing_deg),
         0.0,
         sd * sd,
         0.0,
@@ -150,9 +148,9 @@ def predict(
     """The track moved to time `t` and the robot frame of `heading_deg` (t before the track's: no time passes)."""
     _check(t=t, heading_deg=heading_deg)
     dt = max(0.0, t - track.t)
-    dh = _wrap(heading_deg - track.heading_deg)  # odometry headings wrap at +-180
+    dh = wrap_deg(heading_deg - track.heading_deg)  # odometry headings wrap at +-180
     q = params.accel_q if accel_q is None else accel_q
-    b = _wrap(track.bearing_deg + track.rate_deg_s * dt - dh)
+    b = wrap_deg(track.bearing_deg + track.rate_deg_s * dt - dh)
     p_bb = (
         track.p_bb
         + 2.0 * dt * track.p_bw
@@ -187,7 +185,7 @@ def update(
         return start(t, heading_deg, bearing_deg, sd_deg, params), True
     prior = predict(track, t, heading_deg, params)
     r = max(sd_deg, params.min_meas_sd_deg) ** 2
-    innovation = _wrap(bearing_deg - prior.bearing_deg)
+    innovation = wrap_deg(bearing_deg - prior.bearing_deg)
     s = prior.p_bb + r
     # An unusable fit counts in the test as the least sure usable one would: with its own
     # r, a fit 100 deg off with an sd of 120 says z ~0.8, however many agree on its side.
@@ -209,14 +207,14 @@ def update(
         # variance until the newest innovation is one sigma, so the newest fit pulls it over.
         # The rate is kept: a lagging filter (a leader crossing ever faster) needs more of it.
         prior = predict(track, t, heading_deg, params, accel_q=params.manoeuvre_q)
-        innovation = _wrap(bearing_deg - prior.bearing_deg)
+        innovation = wrap_deg(bearing_deg - prior.bearing_deg)
         prior = replace(prior, p_bb=max(prior.p_bb, innovation * innovation - r))
         s = prior.p_bb + r
     elif innovation * innovation > params.manoeuvre_sigma**2 * s:
         # The leader turned or sped up: predict again with the manoeuvring process noise,
         # so the filter follows within a scan or two instead of averaging the turn away.
         prior = predict(track, t, heading_deg, params, accel_q=params.manoeuvre_q)
-        innovation = _wrap(bearing_deg - prior.bearing_deg)
+        innovation = wrap_deg(bearing_deg - prior.bearing_deg)
         s = prior.p_bb + r
     if innovation * innovation > params.gate_sigma**2 * s:
         rejects = prior.rejects + 1
@@ -232,7 +230,7 @@ def update(
         )
         return replace(held, rejects=rejects, recent_z=recent), False
     k_b, k_w = prior.p_bb / s, prior.p_bw / s
-    b = _wrap(prior.bearing_deg + k_b * innovation)
+    b = wrap_deg(prior.bearing_deg + k_b * innovation)
     w = prior.rate_deg_s + k_w * innovation
     w = min(max(w, -params.max_rate_deg_s), params.max_rate_deg_s)
     # Joseph-free form is fine here: 2x2, and the result is re-symmetrised by construction.

@@ -18,7 +18,7 @@ from relayd.core.avoid.state import AvoidMode, AvoidParams, AvoidState, Sense
 from relayd.core.control.actuator import Actuator
 from relayd.core.control.law import ControlInputs, ControlMemory, ControlParams, control_step
 from relayd.core.scan.estimator import front_readings
-from relayd.runtime.state import DriveState, Mode
+from relayd.core.vocab import DriveState, Mode
 from relayd.sim.model import Step, run_model
 from relayd.sim.scenario import Scenario, load_scenario, parse_scenario
 

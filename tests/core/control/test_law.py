@@ -23,7 +23,7 @@ from relayd.core.control.law import (
     wheel_law,
 )
 from relayd.core.scan.estimator import avoidance_bearing, front_readings
-from relayd.runtime.state import DriveState, Mode
+from relayd.core.vocab import DriveState, Mode
 
 P = ControlParams()
 DRIVING = ControlMemory(link_drive=True)

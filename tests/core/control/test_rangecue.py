@@ -43,7 +43,7 @@ from relayd.core.control.rangecue import (
     release_speed_mm_s,
 )
 from relayd.core.scan.estimator import FRONT_RING, SONAR_MAX_RANGE_M, SonarReading, front_readings
-from relayd.runtime.state import DriveState, Mode
+from relayd.core.vocab import DriveState, Mode
 from relayd.sim.geometry import cone_range
 
 NO_ECHO = tuple(SonarReading(SONAR_POSES[i].heading_deg, None, index=i) for i in FRONT_RING)

@@ -16,7 +16,7 @@ from relayd.core.control.actuator import Actuator
 from relayd.core.control.law import ControlInputs, ControlMemory, ControlParams, control_step
 from relayd.core.control.search import SearchParams, SearchState, search_step, search_wheels
 from relayd.core.scan.estimator import front_readings
-from relayd.runtime.state import DriveState, Mode
+from relayd.core.vocab import DriveState, Mode
 
 P = SearchParams()
 

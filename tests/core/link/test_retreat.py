@@ -28,7 +28,7 @@ from relayd.core.link.retreat import (
     retreat_target,
 )
 from relayd.core.recovery.trail import REAR_SONARS
-from relayd.runtime.state import DriveState, Mode
+from relayd.core.vocab import DriveState, Mode
 from tests.support import diff_drive
 
 P = ControlParams(threshold_b_dbm=-72.0)

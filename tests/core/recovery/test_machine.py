@@ -23,7 +23,7 @@ from relayd.core.recovery.machine import (
     recovery_view,
 )
 from relayd.core.recovery.trail import Crumb, add_crumb, leader_target
-from relayd.runtime.state import DriveState
+from relayd.core.vocab import DriveState
 from tests.support import diff_drive
 
 P = RecoveryParams(enabled=True, rssi_timeout_s=0.5, rear_timeout_s=3.0, scan_timeout_s=7.0)

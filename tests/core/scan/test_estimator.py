@@ -9,11 +9,11 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
+from relayd.core.geometry import SONAR_HEADINGS_DEG, wrap_deg
 from relayd.core.scan.estimator import (
     FRONT_RING,
     FRONT_SONARS,
     LOST_AFTER_SCANS,
-    SONAR_HEADINGS_DEG,
     EstimatorParams,
     ScanSample,
     SonarReading,
@@ -27,7 +27,6 @@ from relayd.core.scan.estimator import (
     to_robot_frame,
     update_lost_count,
     wca_bearing,
-    wrap_deg,
 )
 
 LIMITS = (-90.0, 90.0)

@@ -23,7 +23,8 @@ from relayd.core.scan.estimator import ScanEstimate
 from relayd.core.scan.leader import LeaderParams, TrackingModel, make_model
 from relayd.core.scan.pool import PooledScan, PoolParams, ScanPool
 from relayd.core.scan.window import Window
-from relayd.runtime.state import DriveState, Mode, RelayState
+from relayd.core.vocab import DriveState, Mode
+from relayd.runtime.state import RelayState
 
 
 def leader_at(bearing_deg: float, distance_m: float = 5.0) -> tuple[float, float]:

@@ -1,0 +1,58 @@
+"""Domain facts about angles and the P3-AT's body, each defined once.
+
+- `wrap_deg`: the one angle-wrap convention, (-180, 180]. It returns an angle already in
+  range unchanged, bit for bit, which `(a + 180) % 360 - 180` does not.
+- The sonar ring: the mounting poses are the device's own fact and live with its driver
+  (drivers.arcos.sonar, which decodes the SIP's sonar readings); here they are re-exported
+  with what the core, the drivers' fake and the simulator derive from them.
+- The footprint: the P3-AT's length and width, and the radii the simulator and the
+  escape build on.
+"""
+
+from __future__ import annotations
+
+import math
+
+from drivers.arcos.sonar import SONAR_POSES, SonarPose
+
+
+def wrap_deg(angle_deg: float) -> float:
+    """An angle in degrees wrapped to (-180, 180]."""
+    wrapped = math.fmod(angle_deg, 360.0)
+    if wrapped <= -180.0:
+        wrapped += 360.0
+    elif wrapped > 180.0:
+        wrapped -= 360.0
+    return wrapped
+
+
+#: The ring's 16 transducers, in the SIP's index order (docs/PROTOCOLS.md 1.11).
+SONAR_COUNT = len(SONAR_POSES)
+#: Their headings in the robot frame, ccw +.
+SONAR_HEADINGS_DEG: tuple[float, ...] = tuple(float(p.heading_deg) for p in SONAR_POSES)
+#: The sonar's reach; a reading at or beyond it is "no echo".
+SONAR_MAX_RANGE_MM = 5000
+
+#: The P3-AT's footprint (m): 626 mm long, 505 mm wide.
+ROBOT_LENGTH_M = 0.626
+ROBOT_WIDTH_M = 0.505
+#: Half the width: footprint side to centreline.
+HALF_WIDTH_M = ROBOT_WIDTH_M / 2.0
+#: Half the length: the centre of rotation to the front or rear edge.
+HALF_LENGTH_M = ROBOT_LENGTH_M / 2.0
+#: The circle a turn in place sweeps.
+ROBOT_RADIUS_M = math.hypot(ROBOT_LENGTH_M, ROBOT_WIDTH_M) / 2.0
+
+__all__ = [
+    "HALF_LENGTH_M",
+    "HALF_WIDTH_M",
+    "ROBOT_LENGTH_M",
+    "ROBOT_RADIUS_M",
+    "ROBOT_WIDTH_M",
+    "SONAR_COUNT",
+    "SONAR_HEADINGS_DEG",
+    "SONAR_MAX_RANGE_MM",
+    "SONAR_POSES",
+    "SonarPose",
+    "wrap_deg",
+]
