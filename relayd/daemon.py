@@ -133,7 +133,7 @@ class Daemon:
         )
         if self._token is not None and token_ref is not None:
             check_api_token(token_ref, self._token)
-        from relayd.api.server import tls_context
+        from relayd.config.tls import tls_context
 
         self._tls = tls_context(settings.api)
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from drivers.arcos.sip import NO_ECHO_MM
 
 SONAR_COUNT = 16
-FRONT_SONARS = range(0, 8)
+FRONT_SONARS = range(8)
 REAR_SONARS = range(8, 16)
 
 

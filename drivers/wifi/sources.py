@@ -129,7 +129,7 @@ class RssiSource(abc.ABC):
 
     async def close(self) -> None:
         """Release resources (sockets); the source can still be read afterwards."""
-        return None
+        return
 
     async def read(self) -> RssiSample:
         """One sample now. Never raises except on cancellation."""

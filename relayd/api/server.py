@@ -2,9 +2,8 @@
 
 `start_api` binds the socket, builds aiohttp's runner and hands the socket to the
 `GuardedServer` (relayd/api/guard.py: connection cap, idle deadline, descriptor
-reserve), whose middleware marks requests in progress. `tls_context` turns the
-`[api]` certificate and key into a server context or a ConfigError naming the key;
-`install_accept_error_limit` rate-limits asyncio's own accept-error reports, for any
+reserve), whose middleware marks requests in progress; the TLS context comes from
+relayd.config.tls. `install_accept_error_limit` rate-limits asyncio's own accept-error reports, for any
 other server in the process.
 """
 
@@ -20,7 +19,6 @@ from aiohttp import web
 
 from drivers.transport.loopreports import add_report_filter
 from relayd.api.guard import LOG_EVERY_S, GuardedServer
-from relayd.config.model import ApiSettings, ConfigError
 from relayd.runtime.ratelimit import LogRateLimit
 
 log = structlog.get_logger(__name__)
@@ -72,34 +70,6 @@ def install_accept_error_limit(loop: asyncio.AbstractEventLoop) -> None:
     of thousands of lines a minute. Other reports go to the previous handler unchanged.
     """
     add_report_filter(loop, "accept_limit", _AcceptErrorLimit())
-
-
-def tls_context(api: ApiSettings) -> ssl.SSLContext | None:
-    """The server TLS context of `api.tls_cert`/`api.tls_key`; None without them.
-
-    ConfigError names the key whose file cannot be read or used, so `relayd run` exits 2
-    before any device moves (the token would otherwise cross the radio in clear text).
-    """
-    if api.tls_cert is None or api.tls_key is None:
-        return None
-    for key, path in (("api.tls_cert", api.tls_cert), ("api.tls_key", api.tls_key)):
-        try:
-            with open(path, "rb") as f:
-                f.read(1)
-        except OSError as exc:
-            raise ConfigError([f"{key}: cannot read {path}: {exc.strerror or exc}"]) from None
-    ctx = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
-    ctx.minimum_version = ssl.TLSVersion.TLSv1_2
-    try:
-        ctx.load_cert_chain(api.tls_cert, api.tls_key)
-    except ssl.SSLError as exc:
-        raise ConfigError(
-            [
-                f"api.tls_cert, api.tls_key: {api.tls_cert} and {api.tls_key} are not a "
-                f"PEM certificate and its private key: {exc.reason or exc}"
-            ]
-        ) from None
-    return ctx
 
 
 def listen_socket(host: str, port: int) -> socket.socket:

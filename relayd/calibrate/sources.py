@@ -222,7 +222,8 @@ DRIVE_RESEND_S = 0.2
 STOP_REASONS = ("obstacle", "no_sip", "deadman", "shutdown")
 
 
-async def sample_live(opts: LiveOptions, *, progress: Any = None) -> tuple[list[Reading], str]:
+# Complexity: one polling loop with its stop conditions (distance, time, a lost daemon, a stall) side by side.
+async def sample_live(opts: LiveOptions, *, progress: Any = None) -> tuple[list[Reading], str]:  # noqa: C901
     """Poll a running relayd (and with `drive`, move it) until the distance or time is reached.
 
     Returns the readings and why sampling ended. The daemon is left in hold mode after

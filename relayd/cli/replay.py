@@ -142,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
             "max_bearing_diff_deg": round(w.max_bearing_diff_deg, 3),
         }
     if args.plot is not None:
-        from relayd.record.plots import plot_recording
+        from relayd.cli.replay_plots import plot_recording
         from relayd.sim import plots as sim_plots
 
         if not sim_plots.available():

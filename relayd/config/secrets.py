@@ -32,7 +32,7 @@ def secret_file_errors(settings: Settings) -> list[str]:
             except ConfigError as exc:
                 errors.extend(exc.errors)
     if settings.api.enabled:
-        from relayd.api.server import tls_context  # here: the server module imports this one
+        from relayd.config.tls import tls_context
 
         try:
             tls_context(settings.api)

@@ -6,26 +6,14 @@ that read it back (docs/RECORDING.md).
 - `meta`: the file's metadata, `reader`: reading a file with errors that say where,
 - `replay`: the recorded inputs through a new brain, compared with the recorded actions.
 
-`off_status` is here, not in `recorder`: a daemon that does not record never imports the
+`RecordingStatus` (the shape /status shows) is defined with the state it is part of,
+relayd.runtime.state. `off_status` is here, not in `recorder`: a daemon that does not record never imports the
 recorder and its MCAP writer (about 1 MB of resident memory).
 """
 
 from __future__ import annotations
 
-from typing import TypedDict
-
-
-class RecordingStatus(TypedDict):
-    """/status's `recording` object."""
-
-    enabled: bool
-    state: str  # off, recording, stopped, failed
-    path: str | None
-    files: int
-    bytes: int
-    events: int
-    dropped: int
-    error: str | None
+from relayd.runtime.state import RecordingStatus
 
 
 def off_status() -> RecordingStatus:
@@ -40,3 +28,6 @@ def off_status() -> RecordingStatus:
         "dropped": 0,
         "error": None,
     }
+
+
+__all__ = ["RecordingStatus", "off_status"]

@@ -68,7 +68,8 @@ class _StateCollector(Collector):
         # Returning nothing keeps registration from calling collect() before the daemon runs.
         return ()
 
-    def collect(self) -> Iterator[Metric]:
+    # Complexity: one metric family after another; each `if` is a value that may be unknown.
+    def collect(self) -> Iterator[Metric]:  # noqa: C901
         st = self._state
         now = self._clock.now()
 

@@ -259,6 +259,10 @@ class Scanner:
         if target is not None:
             await self._point(target)
 
+    def _take_plan(self) -> ScanPlan | None:
+        plan, self._plan = self._plan, None
+        return plan
+
     async def next_plan(self) -> ScanPlan:
         """Point the link antenna if asked, then ask the brain for the next sweep's plan."""
         await self.point_pending_link()
@@ -267,7 +271,9 @@ class Scanner:
         # as soon as it does.
         self._bus.publish(ScanReady(self._clock.now()))
         while True:
-            plan, self._plan = self._plan, None
+            plan = (
+                self._take_plan()
+            )  # set by the brain meanwhile (a method: mypy narrows attributes)
             if plan is not None:
                 return plan
             self._wake.clear()

@@ -13,7 +13,7 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, TypedDict
 
 from relayd import __version__
 from relayd.core.geometry import SONAR_COUNT
@@ -22,7 +22,19 @@ from relayd.core.vocab import DriveState, Mode, ScanRecord
 if TYPE_CHECKING:
     from relayd.core.link.model import LinkModelStatus
     from relayd.core.recovery.machine import RecoveryView
-    from relayd.record import RecordingStatus
+
+
+class RecordingStatus(TypedDict):
+    """/status's `recording` object."""
+
+    enabled: bool
+    state: str  # off, recording, stopped, failed
+    path: str | None
+    files: int
+    bytes: int
+    events: int
+    dropped: int
+    error: str | None
 
 
 @dataclass(slots=True)

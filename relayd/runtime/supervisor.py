@@ -54,6 +54,10 @@ class Supervisor:
         self._entries: list[_Entry] = []
         self._stopping = False
 
+    def stopping(self) -> bool:
+        """Whether stop() has begun (read after an await: another task may have called it)."""
+        return self._stopping
+
     def add(
         self, name: str, factory: Callable[[], Awaitable[None]], *, device: str | None = None
     ) -> None:
@@ -80,12 +84,12 @@ class Supervisor:
             except asyncio.CancelledError:
                 raise
             except Exception as exc:
-                if self._stopping:
+                if self.stopping():
                     return
                 self._record_failure(entry, f"{type(exc).__name__}: {exc}")
                 log.exception("task_failed", task=entry.name, restarts=entry.restarts)
             else:
-                if self._stopping:
+                if self.stopping():
                     return  # e.g. the robot driver ending run() after its safe stop
                 # Long-lived tasks do not return; one that does is restarted like a failure.
                 self._record_failure(entry, "task returned")

@@ -267,7 +267,8 @@ def _clip_to_half_plane(p: Point, q: Point, nx: float, ny: float) -> tuple[Point
     return (p, m) if dp >= 0.0 else (m, q)
 
 
-def cone_range(
+# Complexity: a hot geometric kernel kept in one piece for speed (bench/simspeed.py).
+def cone_range(  # noqa: C901
     ox: float,
     oy: float,
     heading_deg: float,

@@ -272,7 +272,8 @@ def _start_client(opts: SweepOptions) -> tuple[Any, Any]:
         return Client(cluster), cluster
 
 
-def run_sweep(
+# Complexity: the sweep's one sequence: cluster, submit, collect, fail cleanly at each step.
+def run_sweep(  # noqa: C901
     specs: list[RunSpec],
     set_keys: list[str],
     opts: SweepOptions,

@@ -301,7 +301,7 @@ async def test_openapi_lists_every_route(client: TestClient[Any, Any]) -> None:
 
 
 @pytest.mark.parametrize(
-    "path,body",
+    ("path", "body"),
     [("/api/mode", {"mode": "hold"}), ("/api/drive", {"left_mm_s": 0, "right_mm_s": 0})],
 )
 async def test_control_disabled_without_token(
@@ -315,7 +315,7 @@ async def test_control_disabled_without_token(
 
 
 @pytest.mark.parametrize(
-    "path,body",
+    ("path", "body"),
     [("/api/mode", {"mode": "hold"}), ("/api/drive", {"left_mm_s": 0, "right_mm_s": 0})],
 )
 @pytest.mark.parametrize(
@@ -357,7 +357,7 @@ BAD_MODE_BODIES: list[tuple[str, str | None]] = [
 ]
 
 
-@pytest.mark.parametrize("body,field", BAD_MODE_BODIES)
+@pytest.mark.parametrize(("body", "field"), BAD_MODE_BODIES)
 async def test_mode_bad_input_is_400_naming_the_field(
     client: TestClient[Any, Any], controls: FakeControls, body: str, field: str | None
 ) -> None:
@@ -389,7 +389,7 @@ BAD_DRIVE_BODIES: list[tuple[str, str | None]] = [
 ]
 
 
-@pytest.mark.parametrize("body,field", BAD_DRIVE_BODIES)
+@pytest.mark.parametrize(("body", "field"), BAD_DRIVE_BODIES)
 async def test_drive_bad_input_is_400_naming_the_field(
     client: TestClient[Any, Any],
     controls: FakeControls,

@@ -391,7 +391,7 @@ async def test_openapi_describes_the_daemons_routes(relay: Relay) -> None:
 
 
 @pytest.mark.parametrize(
-    "path,body",
+    ("path", "body"),
     [("/api/mode", {"mode": "manual"}), ("/api/drive", {"left_mm_s": 300, "right_mm_s": 300})],
 )
 @pytest.mark.parametrize("token", [None, "wrong-token"])
@@ -407,7 +407,7 @@ async def test_control_without_the_right_token_is_401(
 
 
 @pytest.mark.parametrize(
-    "path,body,field",
+    ("path", "body", "field"),
     [
         ("/api/mode", {"mode": "sideways"}, "mode"),
         ("/api/mode", {}, "mode"),

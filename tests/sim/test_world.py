@@ -413,7 +413,7 @@ def test_yagi_hears_best_towards_the_leader() -> None:
 def test_corridor_without_relays_breaks_before_the_goal() -> None:
     w = World(load_scenario("corridor").with_relays(0), seed=1)
     broke = None
-    for t in range(0, int(w.leader_script.end_s) + 1):
+    for t in range(int(w.leader_script.end_s) + 1):
         w.advance(float(t))
         if w.links().broken:
             broke = t

@@ -271,7 +271,8 @@ def _zero(state: DriveState, reason: str) -> RecoveryCommand:
     return RecoveryCommand(0.0, 0.0, state, reason)
 
 
-def recovery_step(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> RecoveryOutput:
+# Complexity: the override order of the recovery's inputs, read top to bottom (docs/CONTROL.md 8).
+def recovery_step(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> RecoveryOutput:  # noqa: C901
     """One decision; see the module docstring."""
     if not p.enabled:
         return RecoveryOutput(None, m)
