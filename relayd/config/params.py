@@ -21,7 +21,7 @@ from relayd.core.control.actuator import Actuator
 from relayd.core.control.law import ControlParams
 from relayd.core.control.search import SearchParams
 from relayd.core.link.model import LinkPolicyParams
-from relayd.core.recovery.machine import RecoveryParams
+from relayd.core.recovery.state import RecoveryParams
 from relayd.core.scan.estimator import EstimatorParams
 from relayd.core.scan.leader import LeaderParams
 from relayd.core.scan.plan import ScanParams

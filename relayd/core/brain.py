@@ -69,15 +69,14 @@ from relayd.core.events import (
 )
 from relayd.core.link.model import LinkModel, LinkPolicyParams, LinkSample
 from relayd.core.link.retreat import RetreatMemory, held_limit, record_poll, retreat_step
-from relayd.core.recovery.machine import (
+from relayd.core.recovery.machine import recovery_step
+from relayd.core.recovery.state import (
     RecoveryInputs,
     RecoveryMemory,
     RecoveryOutput,
     RecoveryParams,
-    RecoveryView,
-    recovery_step,
-    recovery_view,
 )
+from relayd.core.recovery.view import RecoveryView, recovery_view
 from relayd.core.scan.estimator import EstimatorParams, front_readings
 from relayd.core.scan.leader import LeaderParams
 from relayd.core.scan.memory import ScanMemory

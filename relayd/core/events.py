@@ -20,7 +20,7 @@ from drivers.airos.model import LinkQuality
 from drivers.arcos.sip import Sip
 from drivers.wifi.records import RssiSample
 from relayd.core.link.model import LinkModelStatus
-from relayd.core.recovery.machine import RecoveryView
+from relayd.core.recovery.view import RecoveryView
 from relayd.core.scan.estimator import ScanEstimate
 from relayd.core.vocab import DriveState, Mode, ScanRecord
 

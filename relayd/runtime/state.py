@@ -21,7 +21,7 @@ from relayd.core.vocab import DriveState, Mode, ScanRecord
 
 if TYPE_CHECKING:
     from relayd.core.link.model import LinkModelStatus
-    from relayd.core.recovery.machine import RecoveryView
+    from relayd.core.recovery.view import RecoveryView
 
 
 class RecordingStatus(TypedDict):

@@ -27,7 +27,7 @@ from relayd.core.events import (
     ScanSampleEvent,
     SipEvent,
 )
-from relayd.core.recovery.machine import Phase
+from relayd.core.recovery.state import Phase
 from relayd.core.vocab import DriveState
 
 

@@ -19,8 +19,9 @@ from hypothesis import strategies as st
 from relayd.api.reasons import MINUS, comparison, describe, fmt_db, phrasebook
 from relayd.core.control.law import ControlInputs, ControlMemory, ControlParams, control_step
 from relayd.core.recovery import machine as recovery
+from relayd.core.recovery import state as recovery_state
 from relayd.core.scan.estimator import SonarReading
-from relayd.core.vocab import Mode
+from relayd.core.vocab import Mode, Reason
 from relayd.runtime.state import RelayState
 
 RELAYD = Path(recovery.__file__).resolve().parents[2]
@@ -116,8 +117,17 @@ def source_reason_codes() -> set[str]:
     """Every reason code in relayd's source, plus every reason of relayd/core/recovery/machine.py
     (`recovery.REASONS`, which tests/core/recovery/test_machine.py checks the state machine against)."""
     files = sorted(RELAYD.rglob("*.py"))
-    trees = [ast.parse(p.read_text(encoding="utf-8")) for p in files]
-    return set(recovery.REASONS) | reason_literals(trees)
+    trees = [_ReasonMembers().visit(ast.parse(p.read_text(encoding="utf-8"))) for p in files]
+    return set(recovery_state.REASONS) | reason_literals(trees)
+
+
+class _ReasonMembers(ast.NodeTransformer):
+    """`Reason.BLOCKED` read as the literal it stands for, so the scan sees both spellings."""
+
+    def visit_Attribute(self, node: ast.Attribute) -> ast.AST:
+        if isinstance(node.value, ast.Name) and node.value.id == "Reason":
+            return ast.copy_location(ast.Constant(Reason[node.attr].value), node)
+        return self.generic_visit(node)
 
 
 def test_the_source_scan_finds_the_controller_reasons() -> None:

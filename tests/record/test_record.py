@@ -55,7 +55,8 @@ from relayd.core.events import (
     WheelCommand,
 )
 from relayd.core.link.model import LinkModelStatus
-from relayd.core.recovery.machine import Kind, Phase, RecoveryView
+from relayd.core.recovery.state import Kind, Phase
+from relayd.core.recovery.view import RecoveryView
 from relayd.core.scan.estimator import ScanEstimate
 from relayd.core.vocab import DriveState, Mode, ScanRecord
 from relayd.record import codec, writer

@@ -17,7 +17,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from relayd.core.geometry import ROBOT_LENGTH_M, ROBOT_WIDTH_M
+from relayd.core.geometry import ROBOT_LENGTH_M, ROBOT_WIDTH_M, SONAR_POSES
 from relayd.runtime import vtime
 from relayd.sim.geometry import (
     Segment,
@@ -36,7 +36,6 @@ from relayd.sim.geometry import (
 )
 from relayd.sim.radio import MEMO_MAX_ENTRIES, Radio, RadioParams, ShadowField
 from relayd.sim.scenario import load_scenario
-from relayd.sim.sonar import SONAR_POSES
 from relayd.sim.world import CONTACT_CLEAR_M, World
 from relayd.sim.zones import PATH_SAMPLES, RadioZone, path_environment
 
@@ -376,7 +375,7 @@ def sonar_by_definition(
             segs.extend(polygon_segments(other.polygon()))
     c, s = math.cos(math.radians(theta_deg)), math.sin(math.radians(theta_deg))
     out = []
-    for sx, sy, sh in SONAR_POSES:
+    for sx, sy, sh in ((p.x_mm, p.y_mm, p.heading_deg) for p in SONAR_POSES):
         best = cone_range(
             x + (c * sx - s * sy) / 1000.0,
             y + (s * sx + c * sy) / 1000.0,

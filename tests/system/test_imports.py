@@ -1,6 +1,6 @@
 """The pure core imports only pure things: checked in a fresh interpreter.
 
-As aioesphomeapi's tests/test_lazy_imports.py does: importing the decision core must not
+As aioesphomeapi's own lazy-import test does: importing the decision core must not
 load an event loop, an HTTP stack, a serial port, a validation library or the logger, so
 the core can be read, tested and reused without them (docs/ARCHITECTURE.md).
 """

@@ -141,7 +141,7 @@ async def test_run_drives_and_sigterm_zeroes_wheels_disables_and_closes(tmp_path
             await until(
                 lambda: any(
                     e.get("event") == "drive_state" and e.get("state") == "driving"
-                    for e in relayd.core.events()
+                    for e in relayd.events()
                 ),
                 "a drive_state=driving log line",
             )
@@ -189,7 +189,7 @@ async def test_run_drives_and_sigterm_zeroes_wheels_disables_and_closes(tmp_path
         assert close_s <= CLOSE_LIMIT_S, f"CLOSE {close_s:.3f} s after SIGTERM"
         assert exit_s <= 10.0
         # A clean shutdown is not reported as a failure.
-        events = relayd.core.events()
+        events = relayd.events()
         names = [e.get("event") for e in events]
         assert "robot_safe_stop" in names and names[-1] == "stopped", names[-10:]
         shutdown = names.index("shutting_down")

@@ -137,6 +137,22 @@ class AvoidCommand:
     reason: str = "driving"
 
 
+@dataclass(frozen=True, slots=True)
+class StepView:
+    """One step's inputs and what every handler derives from them."""
+
+    s: Sense
+    p: AvoidParams
+    act: Actuator
+    r: dict[float, float]  # the front ring by heading (m)
+    d_min_m: float  # nearest forward echo
+    t: float
+
+
+#: A handler's verdict: the command, or the handler that decides this same step instead.
+Verdict = tuple[AvoidState, "AvoidCommand | AvoidMode"]
+
+
 def enter(st: AvoidState, mode: AvoidMode, t: float, **changes: object) -> AvoidState:
     """`st` in `mode` from time `t`, with `changes` to its other fields."""
     return replace(st, mode=mode, mode_t=t, **changes)  # type: ignore[arg-type]

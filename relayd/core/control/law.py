@@ -1,60 +1,12 @@
-"""How should the wheels turn? The pure control core (docs/CONTROL.md sections 3-6).
+"""How should the wheels turn? The paper's control law, pure (docs/CONTROL.md sections 3-6).
 
-`control_step` takes one snapshot of what the robot knows (`ControlInputs`), the
-settings and a small memory from the previous step, and returns the wheel speeds,
-the drive state, a short reason and the new memory. The control task calls it on
-every SIP; nothing here does I/O, reads a clock or logs.
-
-Order of decisions, first match wins:
-1. Fail-safes, in every mode: no SIP yet or older than sip_timeout_s -> FAULT "no_sip".
-   In follow mode also: RSSI older than rssi_timeout_s -> "rssi_stale"; scan servo not
-   answering -> "scan_servo"; rear link required and RSSI^b missing or older than
-   rear_timeout_s -> "rear_link_stale". Wheels zero; everything resumes by itself when
-   the data is fresh again (this function keeps no fault state).
-2. hold -> STOPPED "hold".
-3. manual -> the manual command, each wheel clamped to +-v_max, while it is younger
-   than manual_deadman_s, else zero "deadman". Decision: a guarded teleop, as ARIA's
-   is: when a forward sonar sees something closer than stop_distance, the forward
-   part of the command is dropped (turning and backing off stay) with reason
-   "obstacle". Otherwise reason "manual"; state DRIVING when a wheel moves.
-4. follow: leader_lost -> LEADER_LOST, wheels zero, or turning in place toward where
-   the leader was last seen when that is beyond the scan servo's reach, reason
-   "leader_search" (relayd/core/control/search.py; hold, manual and the fail-safes end a search); no bearing or RSSI^l yet -> STOPPED
-   "no_scan_yet"; the link rule says stop -> STOPPED "leader_near"/"rear_weak", unless
-   the sonar floor overrules "leader_near" (below) -> DRIVING "leader_far_sonar";
-   situation 1 -> AVOIDING "obstacle"; else DRIVING "driving". Then, given the time
-   and odometry, the escape (relayd/core/avoid/escape.py, docs/AVOIDANCE.md) may take over:
-   AVOIDING "avoiding"/"rejoining", or STOPPED "blocked" past its limits. Every
-   follow-mode command is rounded to what VEL/RVEL can say (relayd/core/control/actuator.py) and
-   passes the guard (relayd/core/avoid/ring.py).
-
-Link rule (the paper's eq. 6-12 resolved, with hysteresis; docs/CONTROL.md section 5): while driving, stop when RSSI^l >= threshold_l
-("leader_near") or RSSI^b <= threshold_b ("rear_weak"); while stopped, resume only
-when RSSI^l < threshold_l - hysteresis AND RSSI^b > threshold_b + hysteresis. RSSI^b
-is ignored when rear_link_required is False (rear_link = "ignore"). The latch starts
-False, so a robot starts only from inside the band's safe side. The latch in
-`ControlMemory` changes only through the link rule: faults, hold and manual leave it.
-
-Sonar release (docs/CONTROL.md section 5.3; off unless leader_gap_max_m > 0): when the
-rule says "leader_near" but the front sonars covering the leader's bearing put it at
-least leader_gap_max_m away (`ControlInputs.leader_floor_m`, relayd/core/control/rangecue.py),
-RSSI^l is less than 10 dB above threshold_l, and the rear half of the rule alone
-allows driving, the robot keeps following at the speed
-law's speed at threshold_l, reason "leader_far_sonar", until the floor falls 0.3 m below
-the limit. "rear_weak" always wins; everything after the link rule applies as usual.
-
-Situation 1 (d_min < threshold_o): the steering angle is the sonar avoidance
-centroid; forward speed is the background speed scaled linearly from 1 at
-threshold_o to 0 at stop_distance; below stop_distance the robot only turns (the PD
-term still turns it in place toward the open side). The D term uses the previous
-avoidance steering angle, kept in `ControlMemory.prev_steer_deg`, which is cleared
-whenever the robot is not avoiding so a stale angle never kicks the D term.
-Situations 0 and 2 steer by the scan bearing (already PRSSI-aware from the
-estimator) with the scan before as B'.
-
-Wheel law (the paper's eq. 6-9 and 6-11 in the ccw convention; docs/CONTROL.md section 4): v = clamp(-w1*RSSI^l - w2, 0, v_max);
-V_L = v - kp*B - kd*(B - B'), V_R = v + kp*B + kd*(B - B'); each wheel clamped to
-+-v_max. Positive B (leader to the left) gives V_R > V_L: a left turn.
+`control_step(inputs, params, memory)` takes one snapshot of what the robot knows, the
+settings and the previous step's memory, and returns the wheel speeds, the drive state,
+the reason (a `relayd.core.vocab.Reason`) and the new memory. It promises: the first
+matching rule of docs/CONTROL.md section 6's order decides (fail-safes first, then hold,
+manual, follow); every follow-mode command is rounded by the actuator, bounded by v_max
+and passes the sonar guard; the link rule's latch changes only through the link rule. No
+I/O, no clock, no logging.
 """
 
 from __future__ import annotations

@@ -1,57 +1,12 @@
 """The adaptive rear-link policy: what the hop behind delivers at which RSSI^b, learned online.
 
-With `control.link_policy = "adaptive"` a relay does not stop at one fixed
-`threshold_b_dbm` everywhere. It learns, from its own rear AP, how likely the hop
-behind is to carry `control.target_hop_mbps` at a given RSSI^b, and stops where that
-likelihood falls to 1 - `control.outage` (docs/CONTROL.md section 5.1).
-
-Model. Each rear-AP poll gives one sample: RSSI^b (dBm) and what the radio delivers,
-`min(tx, rx) x CCQ x mac_efficiency` (the airOS PHY rates discounted by the share of
-frames that went through first time, and by the MAC overhead). The sample "meets the
-target" when that is >= target_hop_mbps. The probability of meeting it is modelled as
-
-    P(ok | r) = Phi((r - mu) / s)
-
-mu: the RSSI^b at which the hop meets the target half of the time (it moves up with
-multipath, which costs rate at the same signal level); s: how sharply, in dB (it grows
-with fading, which makes one RSSI^b reading a poor predictor). (mu, s) get a grid
-posterior: a prior centred so that, with no evidence, the threshold is the configured
-`threshold_b_dbm` (an adaptive relay starts as a fixed one), and every sample's
-likelihood added with exponential forgetting (`half_life_samples`), so the model
-follows the relay into another kind of space. A small lapse rate keeps one glitched
-poll from moving it far. The threshold is the r where the posterior predictive
-P(ok | r) equals 1 - outage, clamped to the configured bounds: strong fading (wide s)
-or multipath (high mu) tighten it, a clean open space relaxes it.
-
-Rate ladder. A yes/no verdict says nothing about where the target's edge is until the
-relay has crossed it, and a relay backs up only out of a shadow (relayd/core/link/retreat.py).
-So a poll whose rate is on the 802.11g or one-stream 802.11n ladder
-(relayd/core/link/rates.py) is read as an ordered probit: the radio chose rate i, so
-RSSI^b - mu lay in rate i's band, [sens_i - sens_t, sens_(i-1) - sens_t) with sens_t
-the sensitivity of the slowest rate that meets the target at this poll's CCQ. Only
-the standard's sensitivity differences are assumed; the level is mu's. Every step
-passed on the way out says where the target's step is.
-
-Ground covered. Each poll carries how far the relay drove since the previous one; it
-counts (in the likelihood and in the forgetting) in full from MOVE_REF_M, and only
-STANDING_WEIGHT standing still, so a relay standing at its limit does not forget what
-the rate steps said on the way out. A standing poll may tighten the limit, never relax
-it: it says nothing of the ground beyond, and the relay would go there on extrapolation.
-
-Evidence floor. The limit never goes more than `EXTRAPOLATE_DB` below the weakest
-RSSI^b at which one of the last `half_life_samples` polls met the target (when any
-did): the probit
-curve says what happens a few dB below what was seen only by extrapolation, and a
-relay that walks from a clean hall into a corridor must not trust its hall-learned
-curve where it has not been. So the limit relaxes as far as the evidence reaches,
-and follows it as the robot moves on.
-
-Staleness. The model changes only on fresh samples: a sample older than `stale_s`
-when it arrives, or not newer than the last one, is refused and counted; with no fresh
-sample the threshold holds. So it never relaxes on stale data (the controller already
-stops on a stale rear link; this keeps a late poll from opening the limit after it).
-
-Pure: no I/O, no clock (every call gets the time), deterministic, bounded work per sample.
+With `control.link_policy = "adaptive"`, each rear-AP poll is a sample of RSSI^b and the
+rate the radio delivers; a probit model of meeting `control.target_hop_mbps` gets a grid
+posterior with exponential forgetting, read as an ordered probit on the 802.11 rate ladder
+(relayd.core.link.rates). The rear limit is the RSSI^b where meeting the target falls to
+1 - `control.outage`, clamped to its bounds; with no evidence it is the configured
+threshold_b_dbm. docs/CONTROL.md section 5.1 has the model, its prior and its checks.
+Pure: each poll carries its time.
 """
 
 from __future__ import annotations

@@ -1,57 +1,12 @@
-"""Tracking the leader's bearing between and across scans: a Kalman filter that knows when it is lost.
+"""The leader's bearing between and across scans: a Kalman filter that knows when it is lost.
 
-State: the leader's bearing b (deg, robot frame) and its rate w (deg/s, the part of the
-bearing's change that comes from the two robots moving, not from the relay turning).
-Between updates the model is a constant rate, driven by white-noise acceleration
-(q small while the innovations are small, so consecutive scans average; q large for
-the update in which an innovation exceeds `manoeuvre_sigma`, so a turning leader is
-followed: a two-level adaptive process noise, simpler than an IMM and enough here):
-
-    b' = b + w dt - dheading        w' = w
-    Q  = q [[dt^3/3, dt^2/2], [dt^2/2, dt]]  +  (heading_noise * dheading)^2 on b
-
-`dheading`, the odometry heading change, is the control input: a relay turning toward
-its leader moves the bearing by exactly that much, and the filter does not have to
-learn it as a rate. A measurement is one scan's lobe fit (`relayd.core.scan.bearing`): its
-bearing, in the robot frame at the scan's end, at the moment the beam crossed the
-leader, with the fit's standard deviation as its noise.
-
-A Kalman filter and not something fancier: the state is two numbers, the motion model
-is linear, the lobe fit's errors are close to Gaussian once gated, and a 2x2 filter
-can be checked by hand; a particle filter would add CPU and randomness to the control
-loop for multimodality we avoid by gating instead.
-
-Trust:
-- Gate: a measurement whose innovation is more than `gate_sigma` standard deviations
-  off is rejected (a reflection, a fading dip on the true lobe); `reacquire_after`
-  rejections in a row mean the leader really is elsewhere, and the filter restarts on
-  the newest measurement. 5 sigma, not 4: a filter lagging a leader that just sped up
-  sees it 4-5 sigma off, and rejecting those scans (which also forgets the rate) lost
-  crossing leaders (docs/CONTROL.md section 10.3).
-- Lost: after `lost_after_misses` scans in a row with no usable lobe, or once the
-  bearing's standard deviation exceeds `lost_sd_deg` (no update for too long: the
-  variance grows with time), the track is lost. A lost track gives no bearing; the
-  next good scan starts a new one.
-- Confident: sd <= `confident_sd_deg`; the scan window may then narrow around the
-  predicted bearing (`relayd.core.brain`).
-- Unusable: a measurement less sure than `lost_sd_deg` is a miss, not an update. It
-  could not start a track (one that sure is already lost), so it cannot hold one
-  either: each such fit gets a tiny gain and passes the gate (s includes its own huge
-  r), and a run of them reset `misses` while the truth swung away behind the relay.
-- Disagreeing: each scan's normalized innovation z = innovation / sqrt(s) (against the
-  steady prediction, clipped at +-`bias_clip`) is kept for the last `bias_scans` scans
-  that fitted a lobe, usable or not. When their sum over sqrt(n) exceeds `bias_sigma`,
-  the scans agree with each other that the prediction is off to one side, however
-  unsure each one is: the prediction is not trusted (rate forgotten, bearing variance
-  raised so the newest innovation is one sigma) and the newest usable fit pulls the
-  track over; an unusable one leaves it lost. Gating cannot see this (every z is small
-  when r is large), and a single reflection cannot trigger it (the clip). An unusable
-  fit's z is taken with r at the usable limit (`lost_sd_deg`): with its own r it would
-  be ~0.7 however far off it is, and two such scans with a usable, disagreeing one
-  between them (its accepted tiny gain resetting the misses) held a wrong track for
-  four scans and more.
-
-Pure: every call gets the time and the heading; `Track` is immutable.
+Two states, the bearing (deg, robot frame) and its rate, with the odometry heading change
+as the control input; each scan's lobe fit (relayd.core.scan.bearing) is a measurement
+with its own standard deviation; gated, with a two-level process noise for a turning
+leader (docs/CONTROL.md section 10.3 has the model and why a Kalman filter). It promises
+a bearing with an honest standard deviation, which the adaptive window and the stop rule
+use, or no track: unusable fits count as misses and a run of fits on one side ends a
+wrong track. Pure: time comes from the scans.
 """
 
 from __future__ import annotations

@@ -10,7 +10,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from relayd.api.reasons import phrasebook
-from relayd.core.recovery.machine import (
+from relayd.core.recovery.machine import recovery_step
+from relayd.core.recovery.state import (
     REAR_LOST_POLLS,
     REASONS,
     Kind,
@@ -19,10 +20,9 @@ from relayd.core.recovery.machine import (
     RecoveryMemory,
     RecoveryParams,
     inputs_stale,
-    recovery_step,
-    recovery_view,
 )
 from relayd.core.recovery.trail import Crumb, add_crumb, leader_target
+from relayd.core.recovery.view import recovery_view
 from relayd.core.vocab import DriveState
 from tests.support import diff_drive
 
