@@ -14,33 +14,21 @@ with logic of its own lives in its own pure module (the scans, the controller, t
 estimator, the tracking filter and its scan windows, recovery, the rear-link model, the
 step back out of a shadow), each the only writer of its own memory.
 
-Decisions:
-- Stale RSSI is judged on the sample stream: no fresh sample for `rssi_timeout_s`
-  (the daemon sets max(0.5 s, 5 sample periods)) stops the wheels with reason
-  "rssi_stale", whatever the scan settings. A second rule covers a scan that stops
-  completing while samples still flow (a servo that answers but never finishes a
-  sweep): no completed scan for `scan_timeout_s` (2 nominal scan periods) once a
-  bearing exists stops them with reason "scan_stale".
-- A robot that reports itself down (session ended, silent) counts as having no SIP
-  until the next SIP, so the wheels go to zero at the next step, not at the SIP
-  timeout.
-- Only the step a SIP caused carries that SIP's time on its wheel command
-  (`WheelCommand.sip_t`): the control latency is measured on those alone.
+The decisions the brain itself makes (stale RSSI and scans, a robot that reports itself
+down, which step carries a SIP's time) are in docs/CONTROL.md section 6.2.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
-from typing import assert_never
+from collections.abc import Callable
+from typing import NamedTuple, assert_never
 
-from drivers.airos.model import Station
 from relayd.core.avoid.ring import rear_readings
 from relayd.core.control.law import (
     ControlInputs,
     ControlMemory,
     ControlOutput,
-    ControlParams,
     control_step,
 )
 from relayd.core.control.rangecue import known_front, leader_floor_m
@@ -52,10 +40,8 @@ from relayd.core.events import (
     DriveCommand,
     Event,
     LinkEvent,
-    LinkModelView,
     LinkSide,
     ModeCommand,
-    RearLink,
     RecoveryReport,
     RssiEvent,
     ScanDone,
@@ -67,8 +53,11 @@ from relayd.core.events import (
     Tick,
     WheelCommand,
 )
-from relayd.core.link.model import LinkModel, LinkPolicyParams, LinkSample
-from relayd.core.link.retreat import RetreatMemory, held_limit, record_poll, retreat_step
+from relayd.core.geometry import SONAR_COUNT
+from relayd.core.link.model import LinkModel
+from relayd.core.link.rear import RearLinkMemory
+from relayd.core.link.retreat import RetreatMemory
+from relayd.core.params import BrainParams
 from relayd.core.recovery.machine import recovery_step
 from relayd.core.recovery.state import (
     RecoveryInputs,
@@ -77,35 +66,12 @@ from relayd.core.recovery.state import (
     RecoveryParams,
 )
 from relayd.core.recovery.view import RecoveryView, recovery_view
-from relayd.core.scan.estimator import EstimatorParams, front_readings
-from relayd.core.scan.leader import LeaderParams
+from relayd.core.scan.estimator import front_readings
 from relayd.core.scan.memory import ScanMemory
-from relayd.core.scan.plan import ScanParams
-from relayd.core.vocab import DriveState, Mode
+from relayd.core.vocab import DriveState, Mode, Reason
 
-SONAR_COUNT = 16
 #: Device names the brain listens to in `DeviceEvent`s.
 ROBOT, PANTILT = "robot", "pantilt"
-
-
-@dataclass(frozen=True, slots=True)
-class BrainParams:
-    """Everything the brain is configured with (built from the config by `relayd.config.params`)."""
-
-    control: ControlParams = field(default_factory=ControlParams)
-    estimator: EstimatorParams = field(default_factory=EstimatorParams)
-    scan: ScanParams = field(default_factory=ScanParams)
-    #: Which bearing estimator and scan window (`relayd.core.scan.leader`); built from the config, whose
-    #: default is "lobe"/"adaptive" (this bare default, "wca"/"full", is the paper's).
-    leader: LeaderParams = field(default_factory=LeaderParams)
-    #: A scan servo is configured: until it answers, follow mode stops on "scan_servo".
-    has_scanner: bool = True
-    #: RSSI^b from this station of the rear AP; None: the strongest station heard.
-    rear_station_mac: str | None = None
-    #: The rear-link model; with `adaptive` its threshold replaces control.threshold_b_dbm.
-    link: LinkPolicyParams = field(default_factory=LinkPolicyParams)
-    #: Self-healing of broken links (relayd.core.recovery.machine); disabled by default.
-    recovery: RecoveryParams = field(default_factory=RecoveryParams)
 
 
 class Brain:
@@ -124,32 +90,29 @@ class Brain:
         #: Odometry pose of the latest SIP (mm, mm, deg): the obstacle escape's progress
         #: watchdog and limits (relayd/core/avoid/escape.py) and the recovery's breadcrumbs.
         self._pose: tuple[float, float, float] | None = None
-        #: ... and at the last rear poll the link model learned from (how far it moved between polls).
-        self._rear_pose: tuple[float, float, float] | None = None
         # RSSI and scans.
         self._rssi_fresh_t: float | None = None
         self._servo_ok = not params.has_scanner
         #: The sweep in progress, the bearing memory of the scans, leader-lost (relayd/core/scan/memory.py).
         self.scans = ScanMemory(params.scan, params.estimator, params.leader)
-        # The link behind.
-        self._rear_dbm: float | None = None
-        self._rear_t: float | None = None
-        self._rear_shown: float | None = None
-        # The rear-link model learns in both policies (fixed: advice shown on /status only).
-        self.link_model = LinkModel(params.link)
-        self._control = self._with_rear_limit()
+        #: The link behind: RSSI^b, the link model, the retreat, the limit in force (core/link/rear.py).
+        self.rear = RearLinkMemory(params.control, params.link, params.rear_station_mac)
         # The controller's memory and last word.
         self._memory = ControlMemory()
         self.last_output: ControlOutput | None = None
         # Breadcrumbs and the recovery episode (relayd.core.recovery.machine).
-        self._rear_polls = 0
         self.recovery = RecoveryMemory()
-        self.retreat = (
-            RetreatMemory()
-        )  # stepping back out of a shadow (relayd.core.link.retreat, adaptive only)
         self._recovery_shown: RecoveryView | None = None
 
     # -- read-only views (the API's shell checks a drive command against the mode) ------
+
+    @property
+    def link_model(self) -> LinkModel:
+        return self.rear.model
+
+    @property
+    def retreat(self) -> RetreatMemory:
+        return self.rear.retreat
 
     @property
     def mode(self) -> Mode:
@@ -170,7 +133,7 @@ class Brain:
             case SipEvent():
                 return self._on_sip(event)
             case Tick():
-                return self._rear_view(event.t) + self._step(event.t, None)
+                return self.rear.view(event.t) + self._step(event.t, None)
             case RssiEvent():
                 s = event.sample
                 if s.fresh and s.rssi_dbm is not None and math.isfinite(s.rssi_dbm):
@@ -240,78 +203,7 @@ class Brain:
     def _on_link(self, ev: LinkEvent) -> list[Action]:
         if ev.side is not LinkSide.REAR:
             return []
-        q, mac = ev.quality, self.params.rear_station_mac
-        peer: Station | None
-        if mac is not None:
-            value = q.station_signal_dbm(mac)
-            peer = next(
-                (
-                    s
-                    for s in q.stations
-                    if s.mac is not None
-                    and s.signal_dbm == value
-                    and s.mac.lower().replace("-", ":") == mac.lower().replace("-", ":")
-                ),
-                None,
-            )
-        else:
-            # A rear radio in station mode has no station list: its own signal is the link's.
-            peer = q.best_station
-            value = peer.signal_dbm if peer is not None else q.signal_dbm
-        self._rear_dbm, self._rear_t = value, ev.t
-        self._rear_polls += 1
-        return self._rear_view(ev.t) + self._learn_rear(ev, value, peer)
-
-    def _learn_rear(
-        self, ev: LinkEvent, rssi_dbm: float | None, peer: Station | None
-    ) -> list[Action]:
-        """Feed the rear-link model one poll; in adaptive mode its limit becomes the controller's."""
-        if rssi_dbm is None:
-            return []
-        q = ev.quality
-        tx, rx, ccq = (
-            (peer.tx_mbps, peer.rx_mbps, peer.ccq_pct)
-            if peer is not None
-            else (q.tx_mbps, q.rx_mbps, q.ccq_pct)
-        )
-        moved = None
-        if self._pose is not None and self._rear_pose is not None:
-            moved = (
-                math.hypot(self._pose[0] - self._rear_pose[0], self._pose[1] - self._rear_pose[1])
-                / 1000.0
-            )
-        sample = LinkSample(q.t if math.isfinite(q.t) else ev.t, rssi_dbm, tx, rx, ccq, moved)
-        if not self.link_model.observe(sample, ev.t):
-            return []
-        self._rear_pose = self._pose
-        delivered = self.link_model.last_delivered_mbps
-        self.retreat = record_poll(
-            self.retreat,
-            self._pose,
-            rssi_dbm,
-            delivered is not None and delivered >= self.params.link.target_hop_mbps,
-        )
-        self._control = self._with_rear_limit()
-        return [LinkModelView(self._in_force().threshold_b_dbm, self.link_model.status(ev.t))]
-
-    def _with_rear_limit(self) -> ControlParams:
-        if not self.params.link.adaptive:
-            return self.params.control
-        return replace(self.params.control, threshold_b_dbm=self.link_model.threshold_dbm)
-
-    def _in_force(self) -> ControlParams:
-        """The controller's params: the rear limit, raised while holding after a retreat (relayd.core.link.retreat)."""
-        return held_limit(self._control, self.retreat, self.params.link.bounds_dbm[1])
-
-    def _rear_view(self, now: float) -> list[Action]:
-        """RSSI^b as /status may show it: not a value the controller already refuses as stale."""
-        value = self._rear_dbm
-        if self._rear_t is None or now - self._rear_t > self.params.control.rear_timeout_s:
-            value = None
-        if value == self._rear_shown:
-            return []
-        self._rear_shown = value
-        return [RearLink(value)]
+        return self.rear.on_poll(ev, self._pose)
 
     # -- the control step -----------------------------------------------------------------
 
@@ -339,8 +231,8 @@ class Brain:
             bearing_deg=bearing,
             prev_bearing_deg=self.scans.prev_bearing_now(heading),
             rssi_leader_dbm=self.scans.rssi_leader_dbm,
-            rssi_behind_dbm=self._rear_dbm,
-            rear_age_s=None if self._rear_t is None else now - self._rear_t,
+            rssi_behind_dbm=self.rear.dbm,
+            rear_age_s=None if self.rear.t is None else now - self.rear.t,
             front_sonar=front_readings(self._sonar),
             leader_lost=self.scans.lost(now, heading, self._mode is Mode.FOLLOW),
             manual_left_mm_s=manual_l,
@@ -354,52 +246,39 @@ class Brain:
         )
 
     def _decide(self, now: float) -> ControlOutput:
+        """The override order (OVERRIDE_ORDER): each stage may replace the command before it."""
         situation = self.last_output.situation if self.last_output is not None else 0
         if self._halted:
             return ControlOutput(0.0, 0.0, DriveState.STOPPED, "shutdown", situation, self._memory)
-        try:
-            ci = self.inputs(now)
-            out = control_step(ci, self._in_force(), self._memory)
-            out, self.retreat = retreat_step(
-                ci,
-                tuple(self._sonar),
-                out,
-                self._control,
-                self.retreat,
-                enabled=self.params.link.adaptive,
-            )
-        except Exception as exc:  # noqa: BLE001 - a bug or bad data in the brain stops the robot
-            return ControlOutput(
-                0.0,
-                0.0,
-                DriveState.FAULT,
-                f"controller_error: {type(exc).__name__}",
-                situation,
-                self._memory,
-            )
-        out = self._recover(now, out)
-        if (out.left_mm_s or out.right_mm_s) and self.scans.stale(now, self._mode is Mode.FOLLOW):
-            return ControlOutput(
-                0.0, 0.0, DriveState.FAULT, "scan_stale", out.situation, out.memory
-            )
+        out: ControlOutput | None = None
+        for stage, error in OVERRIDE_ORDER:
+            try:
+                out = stage(self, now, out)
+            except Exception as exc:  # noqa: BLE001 - a bug or bad data in the brain stops the robot
+                return ControlOutput(
+                    0.0,
+                    0.0,
+                    DriveState.FAULT,
+                    f"{error}: {type(exc).__name__}",
+                    situation if out is None else out.situation,
+                    self._memory if out is None else out.memory,
+                )
+        assert out is not None  # OVERRIDE_ORDER starts with the control law
         return out
 
-    def _recover(self, now: float, out: ControlOutput) -> ControlOutput:
+    def stage_control(self, now: float, _: ControlOutput | None) -> ControlOutput:
+        """The paper's law, then the retreat to where the link held (relayd.core.link.retreat)."""
+        ci = self.inputs(now)
+        out = control_step(ci, self.rear.in_force(), self._memory)
+        return self.rear.retreat_step(ci, tuple(self._sonar), out)
+
+    def stage_recovery(self, now: float, out: ControlOutput | None) -> ControlOutput:
         """The recovery seam: an episode's command replaces the follow controller's (never a fault)."""
+        assert out is not None
         rp = self.params.recovery
         if not rp.enabled:
             return out
-        try:
-            res = self._recovery_step(now, rp, (out.left_mm_s + out.right_mm_s) / 2.0)
-        except Exception as exc:  # noqa: BLE001 - a bug or bad data in recovery stops the robot
-            return ControlOutput(
-                0.0,
-                0.0,
-                DriveState.FAULT,
-                f"recovery_error: {type(exc).__name__}",
-                out.situation,
-                out.memory,
-            )
+        res = self._recovery_step(now, rp, (out.left_mm_s + out.right_mm_s) / 2.0)
         self.recovery = res.memory
         cmd = res.command
         if cmd is None or out.state is DriveState.FAULT:
@@ -407,6 +286,15 @@ class Brain:
         return ControlOutput(
             cmd.left_mm_s, cmd.right_mm_s, cmd.state, cmd.reason, out.situation, out.memory
         )
+
+    def stage_fail_safes(self, now: float, out: ControlOutput | None) -> ControlOutput:
+        """No wheel moves on a scan that stopped arriving (the servo or the RSSI stream died)."""
+        assert out is not None
+        if (out.left_mm_s or out.right_mm_s) and self.scans.stale(now, self._mode is Mode.FOLLOW):
+            return ControlOutput(
+                0.0, 0.0, DriveState.FAULT, "scan_stale", out.situation, out.memory
+            )
+        return out
 
     def _recovery_step(self, now: float, rp: RecoveryParams, forward_mm_s: float) -> RecoveryOutput:
         return recovery_step(
@@ -416,14 +304,14 @@ class Brain:
                 sip_age_s=None if self._sip_t is None or self._robot_down else now - self._sip_t,
                 rssi_age_s=None if self._rssi_fresh_t is None else now - self._rssi_fresh_t,
                 scan_age_s=None if self.scans.last_scan_t is None else now - self.scans.last_scan_t,
-                rear_age_s=None if self._rear_t is None else now - self._rear_t,
+                rear_age_s=None if self.rear.t is None else now - self.rear.t,
                 leader_lost=self.leader_lost,
                 rssi_leader_dbm=self.scans.rssi_leader_dbm,
-                rssi_behind_dbm=self._rear_dbm,
+                rssi_behind_dbm=self.rear.dbm,
                 scan_count=self.scans.count,
                 sonar_mm=tuple(self._sonar),
                 now_s=now,
-                rear_polls=self._rear_polls,
+                rear_polls=self.rear.polls,
                 forward_mm_s=forward_mm_s,
             ),
             rp,
@@ -467,3 +355,24 @@ class Brain:
         )
         actions.extend(self._recovery_report(now))
         return actions
+
+
+#: One stage of the override order: the brain, the time, the command so far -> the command.
+Stage = Callable[["Brain", float, "ControlOutput | None"], "ControlOutput"]
+
+
+#: Who decides the wheels, in order: each stage may replace the command of the ones before
+#: it, and a stage that raises stops the wheels with its error reason. The fail-safes come
+#: last, so nothing overrides them (docs/CONTROL.md section 6).
+class StageRow(NamedTuple):
+    stage: Stage
+    reason: Reason  # the fault's reason when the stage raises
+
+
+OVERRIDE_ORDER: tuple[StageRow, ...] = (
+    StageRow(Brain.stage_control, Reason.CONTROLLER_ERROR),  # the paper's law, then the retreat
+    StageRow(Brain.stage_recovery, Reason.RECOVERY_ERROR),  # a recovery episode replaces it
+    StageRow(Brain.stage_fail_safes, Reason.CONTROLLER_ERROR),  # a stale scan stops every motion
+)
+
+__all__ = ["OVERRIDE_ORDER", "PANTILT", "ROBOT", "Brain", "BrainParams", "Stage", "StageRow"]

@@ -308,7 +308,7 @@ def test_brain_sets_the_controllers_rear_limit_only_when_adaptive(adaptive: bool
     assert views and views[-1].model.policy == ("adaptive" if adaptive else "fixed")
     learned = brain.link_model.threshold_dbm
     assert learned < -70.0  # a clean hop: the model would relax
-    in_force = brain._control.threshold_b_dbm
+    in_force = brain.rear.control.threshold_b_dbm
     assert in_force == (pytest.approx(learned) if adaptive else -66.0)
     assert views[-1].threshold_b_dbm == in_force
 
@@ -327,7 +327,7 @@ def test_brain_tells_the_model_how_far_the_relay_moved_between_rear_polls() -> N
     brain = Brain(
         BrainParams(control=ControlParams(threshold_b_dbm=-66.0), link=params(min_samples=1.0))
     )
-    brain.link_model = Spy(brain.link_model.params)
+    brain.rear.model = Spy(brain.link_model.params)
     for i, x_mm in enumerate((0.0, 300.0, 300.0)):
         sip = Sip(
             t=float(i),
