@@ -124,10 +124,6 @@ class FakeRobot(FakeBody):
     # ------------------------------------------------------------------ serving
 
     @property
-    def port_path(self) -> str | None:
-        return self._pty.path if self._pty is not None else None
-
-    @property
     def url(self) -> str | None:
         return self._tcp.url if self._tcp is not None else None
 

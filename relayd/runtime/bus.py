@@ -124,10 +124,6 @@ class Bus(Generic[E, A]):
             self._routed.remove(sub)  # type: ignore[arg-type]
         sub.close()
 
-    @property
-    def subscriptions(self) -> tuple[Subscription[E], ...]:
-        return tuple(self._subs)
-
     def publish(self, event: E) -> None:
         self._pending.append(event)
         if self._dispatching:

@@ -119,10 +119,6 @@ class RssiMonitor:
         self._arrived.set()
         self._arrived = asyncio.Event()
 
-    def add_sample(self, t: float, rssi_dbm: float) -> None:
-        """Feed a sample directly (tests, or a push-style source)."""
-        self._add(TimedRssi(t, rssi_dbm))
-
     def age_s(self, now: float) -> float | None:
         return None if self.last_fresh_t is None else now - self.last_fresh_t
 

@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 import random
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 from drivers.arcos.fakebody import FIRING_ORDER
 from drivers.arcos.sip import wheel_to_vel_rvel
@@ -200,8 +200,3 @@ def run_model(
     outcome.collisions = world.collisions()
     outcome.x_m, outcome.y_m = x / 1000.0, y / 1000.0
     return outcome
-
-
-def with_params(params: ControlParams, **avoid: float) -> ControlParams:
-    """ControlParams with some AvoidParams fields changed (for sweeps)."""
-    return replace(params, avoid=replace(params.avoid, **avoid))

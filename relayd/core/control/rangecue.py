@@ -102,12 +102,6 @@ def _transducer_m(index: int) -> tuple[float, float, float]:
     return pose.x_mm / 1000.0, pose.y_mm / 1000.0, pose.heading_deg
 
 
-def _seen_from(tx: float, ty: float, bearing_deg: float, dist_m: float) -> float:
-    """The direction (deg) from a transducer at (tx, ty) of the point at this bearing and distance."""
-    b = math.radians(bearing_deg)
-    return math.degrees(math.atan2(dist_m * math.sin(b) - ty, dist_m * math.cos(b) - tx))
-
-
 def _bearing_at(tx: float, ty: float, dir_deg: float, dist_m: float) -> float | None:
     """The bearing (deg, from the robot's centre) of the point `dist_m` from the centre that the
     transducer at (tx, ty) sees in direction `dir_deg`; None if that ray misses the circle."""
