@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import replace
 from typing import NamedTuple, assert_never
 
 from relayd.core.avoid.ring import rear_readings
@@ -278,6 +279,10 @@ class Brain:
         rp = self.params.recovery
         if not rp.enabled:
             return out
+        if rp.threshold_b_dbm != self.rear.control.threshold_b_dbm:
+            # One rear limit: "restored" is judged against the limit the controller drives by
+            # (the adaptive one when it is learned), so a backup ends where following resumes.
+            rp = replace(rp, threshold_b_dbm=self.rear.control.threshold_b_dbm)
         res = self._recovery_step(now, rp, (out.left_mm_s + out.right_mm_s) / 2.0)
         self.recovery = res.memory
         cmd = res.command

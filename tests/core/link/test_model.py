@@ -455,3 +455,41 @@ def test_relayd_status_prints_the_model() -> None:
     )
     line = next(row for row in text.splitlines() if row.startswith("rear limit model"))
     assert "in force" in line and "mu" in line and "1 polls" in line
+
+
+def test_recovery_judges_restored_against_the_limit_the_controller_drives_by(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """In adaptive mode the brain's rear limit is learned; recovery's "restored" check takes
+    the same value, not the configured one (one rear limit; docs/CONTROL.md section 9)."""
+    import relayd.core.brain as brain_module
+    from relayd.core.events import ModeCommand, Tick
+    from relayd.core.recovery.state import RecoveryParams
+    from relayd.core.vocab import Mode
+
+    seen: list[float] = []
+    real = brain_module.recovery_step
+
+    def spy(inp, p, m):  # type: ignore[no-untyped-def]
+        seen.append(p.threshold_b_dbm)
+        return real(inp, p, m)
+
+    monkeypatch.setattr(brain_module, "recovery_step", spy)
+    brain = Brain(
+        BrainParams(
+            control=ControlParams(threshold_b_dbm=-66.0),
+            link=params(adaptive=True, min_samples=5.0),
+            recovery=RecoveryParams(enabled=True, threshold_b_dbm=-66.0),
+            has_scanner=False,
+        )
+    )
+    rng = random.Random(3)
+    for i in range(200):
+        mean = -55.0 - 20.0 * i / 200
+        brain.handle(rear_poll(float(i), round(mean + rng.gauss(0, 1.0)), phy_rate_mbps(mean)))
+    learned = brain.rear.control.threshold_b_dbm
+    assert learned < -70.0  # the model relaxed the limit: the two now differ
+    brain.handle(ModeCommand(200.0, Mode.FOLLOW))
+    brain.handle(Tick(200.1))
+    assert seen, "recovery never ran"
+    assert seen[-1] == pytest.approx(learned)
