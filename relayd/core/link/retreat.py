@@ -53,7 +53,7 @@ import math
 from dataclasses import dataclass, replace
 
 from relayd.core.control.law import ControlInputs, ControlOutput, ControlParams
-from relayd.core.recovery.trail import REAR_SONARS, Crumb, reverse_toward
+from relayd.core.recovery.trail import REAR_SONARS, TrailPoint, reverse_toward
 from relayd.core.vocab import DriveState, Mode
 
 #: Rear polls in a row below the target, standing at the rear limit, before it steps back.
@@ -70,7 +70,7 @@ MAX_TIME_S = 30.0
 #: Reverse speed (mm/s), at most (distance left) / TAPER_S.
 SPEED_MM_S = 150.0
 TAPER_S = 1.0
-#: Spot spacing along the trail (m), how close counts as arrived (m), trail length (spots).
+#: TrailPoint spacing along the trail (m), how close counts as arrived (m), trail length (spots).
 SPACING_M = 0.1
 REACH_M = 0.1
 KEEP = 120
@@ -85,18 +85,8 @@ REAR_WEAK = "rear_weak"
 
 
 @dataclass(frozen=True, slots=True)
-class Spot:
-    """A point of the trail (odometry mm); polls carry their RSSI^b and verdict."""
-
-    x_mm: float
-    y_mm: float
-    rssi_b_dbm: float | None = None
-    met: bool | None = None  # None: a path spot, no poll taken here
-
-
-@dataclass(frozen=True, slots=True)
 class RetreatMemory:
-    trail: tuple[Spot, ...] = ()
+    trail: tuple[TrailPoint, ...] = ()
     #: The last step's controller held the relay at its rear limit (standing).
     rear_stopped: bool = False
     #: Polls in a row that missed the target while standing at the rear limit.
@@ -129,7 +119,7 @@ def record_poll(
         return replace(m, below=0, edge=False)  # a move runs: its trail's indices must hold still
     if not _pose_ok(pose) or not math.isfinite(rssi_b_dbm) or pose is None:
         return replace(m, below=below, edge=False)
-    spot = Spot(pose[0], pose[1], rssi_b_dbm, met)
+    spot = TrailPoint(pose[0], pose[1], rssi_b_dbm=rssi_b_dbm, met=met)
     trail = m.trail
     edge = not met and is_edge(trail, spot)
     last = trail[-1] if trail else None
@@ -144,7 +134,7 @@ def record_poll(
     return replace(m, trail=trail, below=below, edge=edge)
 
 
-def is_edge(trail: tuple[Spot, ...], spot: Spot) -> bool:
+def is_edge(trail: tuple[TrailPoint, ...], spot: TrailPoint) -> bool:
     """The poll at `spot` fell EDGE_DROP_DB below the previous poll, which met the target,
     within EDGE_M of travel (and not standing: a drop that comes to a standing relay is
     the node behind or something between, which stepping back need not cure)."""
@@ -159,10 +149,12 @@ def _lay(m: RetreatMemory, x: float, y: float) -> RetreatMemory:
     last = m.trail[-1] if m.trail else None
     if last is not None and math.hypot(x - last.x_mm, y - last.y_mm) < SPACING_M * 1000.0:
         return m
-    return replace(m, trail=(*m.trail, Spot(x, y))[-KEEP:])
+    return replace(m, trail=(*m.trail, TrailPoint(x, y))[-KEEP:])
 
 
-def retreat_target(trail: tuple[Spot, ...], x: float, y: float, budget_m: float) -> int | None:
+def retreat_target(
+    trail: tuple[TrailPoint, ...], x: float, y: float, budget_m: float
+) -> int | None:
     """Where a step back goes, within budget_m of path: the poll before the newest spot more
     than REACH_M away whose poll met the target, if that poll met it too; else that newest spot."""
     path_m, px, py = 0.0, x, y
@@ -298,7 +290,7 @@ def retreat_step(
     speed = min(SPEED_MM_S, remaining_m * 1000.0 / TAPER_S)
     left, right, why = reverse_toward(
         ci.odom,
-        Crumb(nxt.x_mm, nxt.y_mm, None, None),
+        nxt,
         speed,
         sonar_mm,
         threshold_o_m=p.threshold_o_m,

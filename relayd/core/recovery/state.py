@@ -10,7 +10,7 @@ import math
 from dataclasses import dataclass, replace
 from enum import StrEnum
 
-from relayd.core.recovery.trail import Crumb
+from relayd.core.recovery.trail import TrailPoint
 from relayd.core.vocab import DriveState
 
 #: Reverse speed is capped at (distance left) / TAPER_S.
@@ -115,7 +115,7 @@ class RecoveryInputs:
 
 @dataclass(frozen=True, slots=True)
 class RecoveryMemory:
-    trail: tuple[Crumb, ...] = ()
+    trail: tuple[TrailPoint, ...] = ()
     phase: Phase = Phase.IDLE
     kind: Kind | None = None
     episodes: int = 0

@@ -31,15 +31,20 @@ NO_ECHO_MM = 5000
 
 
 @dataclass(frozen=True, slots=True)
-class Crumb:
+class TrailPoint:
+    """A point the relay drove through (odometry mm) and what it heard there: the one trail
+    type of recovery's breadcrumbs and the retreat's spots."""
+
     x_mm: float
     y_mm: float
-    rssi_l_dbm: float | None
-    rssi_b_dbm: float | None
+    rssi_l_dbm: float | None = None
+    rssi_b_dbm: float | None = None
+    #: The retreat's verdict of a rear poll taken here: the hop met its target (None: no poll).
+    met: bool | None = None
 
 
 def add_crumb(
-    trail: tuple[Crumb, ...],
+    trail: tuple[TrailPoint, ...],
     x_mm: float,
     y_mm: float,
     rssi_l: float | None,
@@ -47,17 +52,17 @@ def add_crumb(
     *,
     spacing_m: float,
     keep: int,
-) -> tuple[Crumb, ...]:
+) -> tuple[TrailPoint, ...]:
     """The trail with a crumb here if the relay moved crumb_spacing_m from the newest one."""
     if trail:
         last = trail[-1]
         if math.hypot(x_mm - last.x_mm, y_mm - last.y_mm) < spacing_m * 1000.0:
             return trail
-    trail = (*trail, Crumb(x_mm, y_mm, rssi_l, rssi_b))
+    trail = (*trail, TrailPoint(x_mm, y_mm, rssi_l, rssi_b))
     return trail[-keep:] if len(trail) > keep else trail
 
 
-def leader_target(trail: tuple[Crumb, ...], threshold_l_dbm: float) -> int | None:
+def leader_target(trail: tuple[TrailPoint, ...], threshold_l_dbm: float) -> int | None:
     """The newest crumb where the leader was heard at or above threshold_l; else the best one."""
     best: int | None = None
     for i in range(len(trail) - 1, -1, -1):
@@ -89,7 +94,7 @@ def _rear_avoid_deg(ranges: list[float | None], gamma_o_m: float) -> float:
 
 def reverse_toward(
     pose: tuple[float, float, float],
-    target: Crumb,
+    target: TrailPoint,
     speed_mm_s: float,
     sonar_mm: tuple[int | None, ...],
     *,

@@ -20,14 +20,13 @@ from relayd.core.link.retreat import (
     MAX_RETREAT_M,
     REACH_M,
     RetreatMemory,
-    Spot,
     held_limit,
     is_edge,
     record_poll,
     retreat_step,
     retreat_target,
 )
-from relayd.core.recovery.trail import REAR_SONARS
+from relayd.core.recovery.trail import REAR_SONARS, TrailPoint
 from relayd.core.vocab import DriveState, Mode
 from tests.support import diff_drive
 
@@ -201,24 +200,24 @@ def test_an_edge_waits_for_the_controller_to_stop_it() -> None:
     ],
 )
 def test_what_counts_as_an_edge(drop_db: float, moved_mm: float, edge: bool) -> None:
-    trail = (Spot(0.0, 0.0, -66.0, True), Spot(50.0, 0.0))
-    assert is_edge(trail, Spot(moved_mm, 0.0, -66.0 - drop_db, False)) is edge
+    trail = (TrailPoint(0.0, 0.0, rssi_b_dbm=-66.0, met=True), TrailPoint(50.0, 0.0))
+    assert is_edge(trail, TrailPoint(moved_mm, 0.0, rssi_b_dbm=-66.0 - drop_db, met=False)) is edge
     # The poll before must have met the target.
-    missed = (Spot(0.0, 0.0, -66.0, False),)
-    assert not is_edge(missed, Spot(moved_mm, 0.0, -66.0 - drop_db, False))
+    missed = (TrailPoint(0.0, 0.0, rssi_b_dbm=-66.0, met=False),)
+    assert not is_edge(missed, TrailPoint(moved_mm, 0.0, rssi_b_dbm=-66.0 - drop_db, met=False))
 
 
 def test_retreat_target_prefers_the_poll_before_the_newest_that_met() -> None:
     trail = (
-        Spot(0.0, 0.0, -65.0, True),
-        Spot(100.0, 0.0),
-        Spot(200.0, 0.0, -66.0, True),
-        Spot(300.0, 0.0),
-        Spot(400.0, 0.0, -80.0, False),
+        TrailPoint(0.0, 0.0, rssi_b_dbm=-65.0, met=True),
+        TrailPoint(100.0, 0.0),
+        TrailPoint(200.0, 0.0, rssi_b_dbm=-66.0, met=True),
+        TrailPoint(300.0, 0.0),
+        TrailPoint(400.0, 0.0, rssi_b_dbm=-80.0, met=False),
     )
     assert retreat_target(trail, 400.0, 0.0, MAX_RETREAT_M) == 0
     # The poll before the newest that met missed: the newest that met it is the goal.
-    trail2 = (Spot(0.0, 0.0, -80.0, False), *trail[1:])
+    trail2 = (TrailPoint(0.0, 0.0, rssi_b_dbm=-80.0, met=False), *trail[1:])
     assert retreat_target(trail2, 400.0, 0.0, MAX_RETREAT_M) == 2
     # The older one beyond the budget: the newest that met it.
     assert retreat_target(trail, 400.0, 0.0, 0.3) == 2
@@ -234,10 +233,10 @@ def test_no_spot_within_the_bound_means_it_stays() -> None:
 def test_retreat_target_counts_path_not_straight_line() -> None:
     # A U-shaped trail: the met spot is 0.5 m away in a straight line but 4.5 m of path.
     trail = (
-        Spot(0.0, 500.0, -60.0, True),
-        Spot(2000.0, 500.0),
-        Spot(2000.0, 0.0),
-        Spot(0.0, 0.0, -80.0, False),
+        TrailPoint(0.0, 500.0, rssi_b_dbm=-60.0, met=True),
+        TrailPoint(2000.0, 500.0),
+        TrailPoint(2000.0, 0.0),
+        TrailPoint(0.0, 0.0, rssi_b_dbm=-80.0, met=False),
     )
     assert retreat_target(trail, 0.0, 0.0, MAX_RETREAT_M) is None
     assert retreat_target(trail, 0.0, 0.0, 5.0) == 0
@@ -407,7 +406,10 @@ def test_a_controller_fault_passes_through() -> None:
 def test_a_move_that_runs_longer_than_planned_stops_at_the_bound(left_m: float, dt: float) -> None:
     """Wheel slip or a detour round an echo can make the path longer than the trail said:
     the move still ends within MAX_RETREAT_M with any control period up to TAPER_S."""
-    trail = (Spot(0.0, 0.0, -66.0, True), Spot(5000.0, 0.0, -80.0, False))
+    trail = (
+        TrailPoint(0.0, 0.0, rssi_b_dbm=-66.0, met=True),
+        TrailPoint(5000.0, 0.0, rssi_b_dbm=-80.0, met=False),
+    )
     m = RetreatMemory(trail=trail, target=0, started_t=0.0, spent_m=MAX_RETREAT_M - left_m)
     pose = (5000.0, 0.0, 0.0)
     m = replace(m, last_pose=pose[:2])

@@ -21,7 +21,7 @@ from relayd.core.recovery.state import (
     RecoveryParams,
     inputs_stale,
 )
-from relayd.core.recovery.trail import Crumb, add_crumb, leader_target
+from relayd.core.recovery.trail import TrailPoint, add_crumb, leader_target
 from relayd.core.recovery.view import recovery_view
 from relayd.core.vocab import DriveState
 from tests.support import diff_drive
@@ -49,9 +49,9 @@ def inputs(**kw: object) -> RecoveryInputs:
     return RecoveryInputs(**base)  # type: ignore[arg-type]
 
 
-def straight_trail(n: int, step_mm: float = 250.0) -> tuple[Crumb, ...]:
+def straight_trail(n: int, step_mm: float = 250.0) -> tuple[TrailPoint, ...]:
     """Crumbs along +x from 0, the newest last; the leader fainter at each (a relay falling behind)."""
-    return tuple(Crumb(i * step_mm, 0.0, -35.0 - i, -55.0) for i in range(n))
+    return tuple(TrailPoint(i * step_mm, 0.0, -35.0 - i, -55.0) for i in range(n))
 
 
 def test_every_recovery_reason_has_a_phrase() -> None:
@@ -63,12 +63,12 @@ def test_every_recovery_reason_has_a_phrase() -> None:
 
 
 def test_crumbs_follow_the_spacing_and_the_trail_is_bounded() -> None:
-    trail: tuple[Crumb, ...] = ()
+    trail: tuple[TrailPoint, ...] = ()
     for x in range(0, 3000, 50):
         trail = add_crumb(trail, float(x), 0.0, -40.0, -50.0, spacing_m=0.25, keep=5)
     assert len(trail) == 5
     assert [c.x_mm for c in trail] == [1750.0, 2000.0, 2250.0, 2500.0, 2750.0]
-    assert trail[-1] == Crumb(2750.0, 0.0, -40.0, -50.0)
+    assert trail[-1] == TrailPoint(2750.0, 0.0, -40.0, -50.0)
 
 
 def test_idle_relay_lays_crumbs_with_its_rssi_and_leaves_the_controller_alone() -> None:
@@ -91,13 +91,17 @@ def test_disabled_is_inert() -> None:
 
 def test_leader_target_is_the_newest_crumb_above_threshold_else_the_best() -> None:
     trail = (
-        Crumb(0, 0, -25.0, None),
-        Crumb(1, 0, -28.0, None),
-        Crumb(2, 0, -60.0, None),
-        Crumb(3, 0, None, None),
+        TrailPoint(0, 0, -25.0, None),
+        TrailPoint(1, 0, -28.0, None),
+        TrailPoint(2, 0, -60.0, None),
+        TrailPoint(3, 0, None, None),
     )
     assert leader_target(trail, -30.0) == 1
-    weak = (Crumb(0, 0, -70.0, None), Crumb(1, 0, -50.0, None), Crumb(2, 0, -80.0, None))
+    weak = (
+        TrailPoint(0, 0, -70.0, None),
+        TrailPoint(1, 0, -50.0, None),
+        TrailPoint(2, 0, -80.0, None),
+    )
     assert leader_target(weak, -30.0) == 1
     assert leader_target((), -30.0) is None
 
@@ -131,7 +135,7 @@ def test_leader_lost_widens_first_then_reverses_along_the_trail_then_resumes_whe
 
 
 def test_retrace_stops_at_the_crumb_where_the_leader_was_strong() -> None:
-    trail = tuple(Crumb(i * 250.0, 0.0, -25.0 if i == 4 else -60.0, -55.0) for i in range(12))
+    trail = tuple(TrailPoint(i * 250.0, 0.0, -25.0 if i == 4 else -60.0, -55.0) for i in range(12))
     m = replace(
         RecoveryMemory(trail=trail),
         phase=Phase.RETRACE,
@@ -372,7 +376,7 @@ sonars = st.lists(st.one_of(st.none(), st.integers(100, 6000)), min_size=16, max
 def memories(draw: st.DrawFn) -> RecoveryMemory:
     n = draw(st.integers(0, 30))
     trail = tuple(
-        Crumb(draw(st.floats(-5e3, 5e3)), draw(st.floats(-5e3, 5e3)), draw(dbm), draw(dbm))
+        TrailPoint(draw(st.floats(-5e3, 5e3)), draw(st.floats(-5e3, 5e3)), draw(dbm), draw(dbm))
         for _ in range(n)
     )
     phase = draw(st.sampled_from(list(Phase)))
@@ -468,7 +472,7 @@ def test_property_never_exceeds_its_distance_or_time_limit(
 ) -> None:
     p = replace(P, max_distance_m=max_d, max_time_s=max_t, widen_scans=0)
     # A winding trail laid by the relay itself, then the link breaks at its end.
-    trail: tuple[Crumb, ...] = ()
+    trail: tuple[TrailPoint, ...] = ()
     x = y = 0.0
     for i in range(n):
         a = math.radians(heading + wiggle[i] / 10.0)
@@ -521,7 +525,8 @@ def test_reverse_pursuit_follows_a_turning_trail_back_around_the_corner() -> Non
     # The relay drove east 2 m, then north 2 m (a corner); it backs the same way round.
     pts = [(x, 0.0) for x in range(0, 2001, 250)] + [(2000.0, y) for y in range(250, 2001, 250)]
     trail = tuple(
-        Crumb(float(x), float(y), -25.0 if (x, y) == (0, 0.0) else -60.0, -55.0) for x, y in pts
+        TrailPoint(float(x), float(y), -25.0 if (x, y) == (0, 0.0) else -60.0, -55.0)
+        for x, y in pts
     )
     m = replace(
         RecoveryMemory(trail=trail),
