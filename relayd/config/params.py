@@ -136,10 +136,7 @@ def recovery_params(
         settings.control,
         retrace_speed_mm_s=min(r.retrace_speed_mm_s, control.v_max_mm_s),
         backup_speed_mm_s=min(r.backup_speed_mm_s, control.v_max_mm_s),
-        rear_required=control.rear_link_required,
-        sip_timeout_s=control.sip_timeout_s,
-        rssi_timeout_s=control.rssi_timeout_s,
-        rear_timeout_s=control.rear_timeout_s,
+        control=control,
         scan_timeout_s=scan_timeout_s,
     )
 

@@ -279,10 +279,10 @@ class Brain:
         rp = self.params.recovery
         if not rp.enabled:
             return out
-        if rp.threshold_b_dbm != self.rear.control.threshold_b_dbm:
-            # One rear limit: "restored" is judged against the limit the controller drives by
-            # (the adaptive one when it is learned), so a backup ends where following resumes.
-            rp = replace(rp, threshold_b_dbm=self.rear.control.threshold_b_dbm)
+        if rp.control is not self.rear.control:
+            # One rear limit: recovery judges by the params the controller drives by (the
+            # adaptive limit once learned), so a backup ends where following may resume.
+            rp = replace(rp, control=self.rear.control)
         res = self._recovery_step(now, rp, (out.left_mm_s + out.right_mm_s) / 2.0)
         self.recovery = res.memory
         cmd = res.command

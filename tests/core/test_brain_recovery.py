@@ -221,7 +221,7 @@ def test_recovery_config_is_strict_and_reaches_the_brain() -> None:
     p = brain_params(cfg).recovery
     assert p.enabled and p.max_distance_m == 5.0 and p.lost_rssi_dbm == -80.0
     assert p.retrace_speed_mm_s == p.backup_speed_mm_s == 120.0  # never above v_max
-    assert p.rear_required and p.rear_timeout_s == 3.0
+    assert p.control.rear_link_required and p.control.rear_timeout_s == 3.0
     assert not brain_params(parse_settings({"ap": rear})).recovery.enabled
 
 

@@ -37,7 +37,7 @@ def fenced(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> Recover
         return RecoveryOutput(None, m)
     rb = inp.rssi_behind_dbm
     if inp.now_s - m.fence_t > FENCE_S or (
-        rb is not None and rb > p.threshold_b_dbm + p.hysteresis_db + FENCE_CLEAR_DB
+        rb is not None and rb > p.control.threshold_b_dbm + p.control.hysteresis_db + FENCE_CLEAR_DB
     ):
         return RecoveryOutput(None, replace(m, fence=None, fence_t=None))
     if (
@@ -73,7 +73,9 @@ def run_episode(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> Re
     if m.phase is Phase.WIDEN:
         if inp.scan_count - m.start_scans < p.widen_scans:
             return RecoveryOutput(zero(DriveState.LEADER_LOST, "widen"), m)
-        m = replace(m, phase=Phase.RETRACE, target=leader_target(m.trail, p.threshold_l_dbm))
+        m = replace(
+            m, phase=Phase.RETRACE, target=leader_target(m.trail, p.control.threshold_l_dbm)
+        )
 
     # Drop the crumbs already reached (the newest first); the trail is consumed going back.
     if inp.pose is None:  # inputs_stale checks it; no pose is never a reason to move
@@ -103,9 +105,9 @@ def run_episode(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> Re
         trail[-1],
         speed,
         inp.sonar_mm,
-        threshold_o_m=p.threshold_o_m,
-        stop_distance_m=p.stop_distance_m,
-        gamma_o_m=p.gamma_o_m,
+        threshold_o_m=p.control.threshold_o_m,
+        stop_distance_m=p.control.stop_distance_m,
+        gamma_o_m=p.control.gamma_o_m,
         turn_gain_mm_s_deg=p.turn_gain_mm_s_deg,
     )
     reason = ("backup" if rear else "retrace") if why == "retrace" else why

@@ -86,7 +86,7 @@ def _count_rear(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> Re
         return m
     v = inp.rssi_behind_dbm
     low = v is not None and v < p.lost_rssi_dbm
-    high = v is not None and v > p.threshold_b_dbm + p.hysteresis_db
+    high = v is not None and v > p.control.threshold_b_dbm + p.control.hysteresis_db
     return replace(
         m,
         rear_seen=inp.rear_polls,
@@ -97,9 +97,9 @@ def _count_rear(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> Re
 
 def _rear_broken(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> bool:
     return (
-        p.rear_required
+        p.control.rear_link_required
         and inp.rssi_behind_dbm is not None
-        and not stale(inp.rear_age_s, p.rear_timeout_s)
+        and not stale(inp.rear_age_s, p.control.rear_timeout_s)
         and inp.rssi_behind_dbm < p.lost_rssi_dbm
         and m.rear_low >= REAR_LOST_POLLS
     )
@@ -108,7 +108,7 @@ def _rear_broken(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> b
 def _rear_restored(inp: RecoveryInputs, p: RecoveryParams, m: RecoveryMemory) -> bool:
     return (
         inp.rssi_behind_dbm is not None
-        and inp.rssi_behind_dbm > p.threshold_b_dbm + p.hysteresis_db
+        and inp.rssi_behind_dbm > p.control.threshold_b_dbm + p.control.hysteresis_db
         and m.rear_high >= REAR_RESTORED_POLLS
     )
 

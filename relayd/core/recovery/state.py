@@ -7,9 +7,10 @@ a running episode does) read and write these; docs/CONTROL.md section 9 has the 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from enum import StrEnum
 
+from relayd.core.control.law import ControlParams
 from relayd.core.recovery.trail import TrailPoint
 from relayd.core.vocab import DriveState
 
@@ -76,18 +77,10 @@ class RecoveryParams:
     trail_len: int = 200
     reach_m: float = 0.3
     turn_gain_mm_s_deg: float = 3.0
-    # From [control] (the brain's params module fills them in).
-    threshold_l_dbm: float = -30.0
-    threshold_b_dbm: float = -60.0
-    hysteresis_db: float = 2.0
+    #: The controller's params, the same value the law drives by: its thresholds, stop
+    #: distances and staleness limits (the brain hands in the rear limit in force).
+    control: ControlParams = field(default_factory=ControlParams)
     lost_rssi_dbm: float = -85.0
-    threshold_o_m: float = 0.8
-    stop_distance_m: float = 0.3
-    gamma_o_m: float = 1.0
-    rear_required: bool = True
-    sip_timeout_s: float = 0.5
-    rssi_timeout_s: float = 0.5
-    rear_timeout_s: float = 3.0
     scan_timeout_s: float | None = None
 
 
@@ -159,7 +152,9 @@ def inputs_stale(inp: RecoveryInputs, p: RecoveryParams, *, need_rear: bool) -> 
     """Any input the episode relies on older than its limit (or missing)."""
     if inp.pose is None or not all(math.isfinite(v) for v in inp.pose):
         return True
-    if stale(inp.sip_age_s, p.sip_timeout_s) or stale(inp.rssi_age_s, p.rssi_timeout_s):
+    if stale(inp.sip_age_s, p.control.sip_timeout_s) or stale(
+        inp.rssi_age_s, p.control.rssi_timeout_s
+    ):
         return True
     # `not <=` so that a NaN age is stale too (a broken clock is no reason to move).
     if (
@@ -168,8 +163,10 @@ def inputs_stale(inp: RecoveryInputs, p: RecoveryParams, *, need_rear: bool) -> 
         and not inp.scan_age_s <= p.scan_timeout_s
     ):
         return True
-    rear_needed = need_rear or p.rear_required
-    return rear_needed and (stale(inp.rear_age_s, p.rear_timeout_s) or inp.rssi_behind_dbm is None)
+    rear_needed = need_rear or p.control.rear_link_required
+    return rear_needed and (
+        stale(inp.rear_age_s, p.control.rear_timeout_s) or inp.rssi_behind_dbm is None
+    )
 
 
 def close(m: RecoveryMemory, phase: Phase, outcome: str) -> RecoveryMemory:

@@ -471,7 +471,7 @@ def test_recovery_judges_restored_against_the_limit_the_controller_drives_by(
     real = brain_module.recovery_step
 
     def spy(inp, p, m):  # type: ignore[no-untyped-def]
-        seen.append(p.threshold_b_dbm)
+        seen.append(p.control.threshold_b_dbm)
         return real(inp, p, m)
 
     monkeypatch.setattr(brain_module, "recovery_step", spy)
@@ -479,7 +479,7 @@ def test_recovery_judges_restored_against_the_limit_the_controller_drives_by(
         BrainParams(
             control=ControlParams(threshold_b_dbm=-66.0),
             link=params(adaptive=True, min_samples=5.0),
-            recovery=RecoveryParams(enabled=True, threshold_b_dbm=-66.0),
+            recovery=RecoveryParams(enabled=True, control=ControlParams(threshold_b_dbm=-66.0)),
             has_scanner=False,
         )
     )

@@ -10,6 +10,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from relayd.api.reasons import phrasebook
+from relayd.core.control.law import ControlParams
 from relayd.core.recovery.machine import recovery_step
 from relayd.core.recovery.state import (
     REAR_LOST_POLLS,
@@ -26,7 +27,11 @@ from relayd.core.recovery.view import recovery_view
 from relayd.core.vocab import DriveState
 from tests.support import diff_drive
 
-P = RecoveryParams(enabled=True, rssi_timeout_s=0.5, rear_timeout_s=3.0, scan_timeout_s=7.0)
+P = RecoveryParams(
+    enabled=True,
+    control=ControlParams(rssi_timeout_s=0.5, rear_timeout_s=3.0),
+    scan_timeout_s=7.0,
+)
 OPEN = (5000,) * 16
 
 

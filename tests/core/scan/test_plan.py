@@ -33,7 +33,7 @@ def test_a_bearing_seen_from_a_new_heading_is_wrapped_and_turned_back(
     b: float, h0: float, h1: float
 ) -> None:
     now = in_current_frame(b, h0, h1)
-    assert now is not None and -180.0 <= now < 180.0
+    assert now is not None and -180.0 < now <= 180.0  # the one convention (core.geometry)
     diff = (now - (b - (h1 - h0))) % 360.0
     assert min(diff, 360.0 - diff) < 1e-6
 
