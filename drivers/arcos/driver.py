@@ -29,6 +29,8 @@ from drivers.arcos.session import (
     ArcosSession,
     HandshakeError,
     NotConnected,
+    SessionConfig,
+    SessionInfo,
     SessionLost,
 )
 from drivers.arcos.sip import (
@@ -95,7 +97,8 @@ class ArcosRobot:
         self.max_misses = max_misses
         self.backoff = backoff or Backoff(initial_s=0.2, maximum_s=5.0)
 
-        # What the driver knows of the robot (written by the session).
+        # What the driver knows of the robot: its one writer is this class (a session
+        # reports what it learns through SessionInfo and the session_* callbacks).
         self._connected = False
         self._stale = True
         self.identity: RobotIdentity | None = None
@@ -143,19 +146,11 @@ class ArcosRobot:
         self._notice_dead_link()
         return self._connected
 
-    @connected.setter
-    def connected(self, value: bool) -> None:
-        self._connected = value
-
     @property
     def stale(self) -> bool:
         """No SIP within `lost_after_s`, or no session, or its port died: doubt the robot."""
         self._notice_dead_link()
         return self._stale
-
-    @stale.setter
-    def stale(self, value: bool) -> None:
-        self._stale = value
 
     def _notice_dead_link(self) -> None:
         # A serial transport that failed a read or write closes itself at once but
@@ -245,20 +240,39 @@ class ArcosRobot:
         old = self._session
         if old is not None and old.opened and self.identity is not None and not old.lost.is_set():
             return self.identity
-        session = ArcosSession(self)
-        session.proto.on_command_latency = self._command_latency
+        session = ArcosSession(
+            SessionConfig(
+                url=self.url,
+                baud=self.baud,
+                good_baud=self.good_baud,
+                max_misses=self.max_misses,
+                sync_timeout_s=self.sync_timeout_s,
+                lost_after_s=self.lost_after_s,
+                drop_after_s=self.drop_after_s,
+                subclass_override=self.subclass_override,
+            ),
+            self,
+            clock=self.clock,
+            decoder=self.decoder,
+            counters=self.stats,
+            on_command_latency=self._command_latency,
+        )
         self.decoder.reset()
         self._session = session
         await open_link(self.url, self.baud, lambda: session.proto)
         self.current_baud = self.baud
         try:
-            identity = await session.handshake()
-            await session.open(identity)
+            info = await session.handshake()
+            self.current_baud = self.good_baud = info.baud
+            info = await session.open(info, on_open=self._on_open)
         except BaseException:
             # Cancelled after OPEN went out: the robot must still hear ENABLE 0 and CLOSE.
+            self.current_baud = session.baud
             await self._safe_stop()
             raise
-        return identity
+        self.config = info.config
+        self._connected = True
+        return info.identity
 
     async def run(self) -> None:
         """Keep a session up until cancelled or shut down. Never raises but CancelledError."""
@@ -284,6 +298,22 @@ class ArcosRobot:
 
     # ------------------------------------------------------------------ internals
 
+    def _on_open(self, info: SessionInfo) -> None:
+        """The session is about to OPEN: SIPs may follow, decoded with these factors."""
+        self.identity = info.identity
+        self.factors = info.factors
+        self.odometry.new_session()
+
+    def session_quiet(self, silent_s: float) -> None:
+        """The session heard no SIP for lost_after_s: doubt the robot."""
+        self._stale = True
+
+    def session_ended(self, reason: ArcosError) -> None:
+        """The session is over: from now on nobody knows what the robot does."""
+        self.last_error = str(reason)
+        self._connected = False
+        self._stale = True
+
     def handle_sip(self, pkt: Packet, rx_perf: float) -> float | None:
         """Decode a SIP, update odometry and sonar, call the listeners; its clock time."""
         try:
@@ -302,7 +332,7 @@ class ArcosRobot:
         self.last_sip = sip
         if self.stale and self.connected:
             log.info("robot_fresh", url=self.url)
-        self.stale = False
+        self._stale = False
         self.stats["sips"] += 1
         self._in_sip = rx_perf
         try:
@@ -329,8 +359,8 @@ class ArcosRobot:
 
     async def _after_loss(self) -> None:
         # Not on cancel or shutdown: the port stays open for the safe stop.
-        self.connected = False
-        self.stale = True
+        self._connected = False
+        self._stale = True
         if self._session is not None:
             await self._session.close()
 
@@ -348,5 +378,5 @@ class ArcosRobot:
         session = self._session
         if session is not None:
             await session.safe_stop()
-        self.connected = False
-        self.stale = True
+        self._connected = False
+        self._stale = True

@@ -9,8 +9,11 @@ It ends on EOF, a device or write error, a controller reset or long silence, and
 robot's state is unknown from that moment. The safe stop (wheels 0, ENABLE 0, CLOSE)
 owns the line: nothing queued may slip in between its packets.
 
-The session writes what it learns (identity, configuration, connected, stale) into
-its `ArcosRobot`, whose public attributes are the driver's interface.
+The session writes none of the driver's state. It gets a frozen `SessionConfig`, reads
+its owner's wishes (motors, wheels), hands each SIP to the owner, returns what the
+handshake and OPEN learned as a `SessionInfo`, and reports through two callbacks: the
+robot went quiet, and the session ended. The driver (`ArcosRobot`) is the one writer
+of what it knows of the robot.
 """
 
 from __future__ import annotations
@@ -18,7 +21,9 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
-from typing import TYPE_CHECKING
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Protocol
 
 import structlog
 
@@ -30,22 +35,23 @@ from drivers.arcos.codec import (
     SIP_TYPES,
     CodecError,
     Command,
+    Decoder,
     Packet,
     PacketType,
     encode_command,
 )
 from drivers.arcos.protocol import CMD_SPACING_S, ArcosProtocol
 from drivers.arcos.sip import (
+    ConvFactors,
+    RobotConfig,
     RobotIdentity,
     conv_factors,
     decode_config,
     decode_identity,
     wheel_to_vel_rvel,
 )
+from drivers.transport.clock import Clock
 from drivers.transport.link import set_baudrate
-
-if TYPE_CHECKING:
-    from drivers.arcos.driver import ArcosRobot
 
 log = structlog.get_logger("drivers.arcos.driver")
 
@@ -85,16 +91,73 @@ class NotConnected(ArcosError):
     """An operation needs an open session."""
 
 
+@dataclass(frozen=True, slots=True)
+class SessionConfig:
+    """What a session is told: where, how fast, and its patience."""
+
+    url: str
+    baud: int
+    #: The rate the last handshake succeeded at, tried early.
+    good_baud: int | None
+    max_misses: int
+    sync_timeout_s: float
+    lost_after_s: float
+    drop_after_s: float
+    subclass_override: str | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class SessionInfo:
+    """What the handshake (identity, the rate that answered) and OPEN (CONFIG) learned."""
+
+    identity: RobotIdentity
+    baud: int
+    factors: ConvFactors | None = None
+    config: RobotConfig | None = None
+
+
+class SessionOwner(Protocol):
+    """The driver, as a session sees it: wishes to reflect, and where SIPs and news go."""
+
+    @property
+    def motors_wish(self) -> bool: ...
+
+    @property
+    def wheels_wish(self) -> tuple[float, float]: ...
+
+    def handle_sip(self, pkt: Packet, rx_perf: float) -> float | None: ...
+
+    def session_quiet(self, silent_s: float) -> None: ...
+
+    def session_ended(self, reason: ArcosError) -> None: ...
+
+
 class ArcosSession:
     """The life of one connection to the robot, from SYNC0 to CLOSE."""
 
-    def __init__(self, robot: ArcosRobot) -> None:
-        self.robot = robot
-        self.clock = robot.clock
-        self.url = robot.url
+    def __init__(
+        self,
+        cfg: SessionConfig,
+        owner: SessionOwner,
+        *,
+        clock: Clock,
+        decoder: Decoder,
+        counters: dict[str, int],
+        on_command_latency: Callable[[float], None] | None = None,
+    ) -> None:
+        self.cfg = cfg
+        self.owner = owner
+        self.clock = clock
+        self.url = cfg.url
+        #: The driver's counters, lent to count into (the session writes no other state of it).
+        self.counters = counters
         self.proto = ArcosProtocol(
-            robot.clock, self.on_packet, self.on_link_lost, decoder=robot.decoder, stats=robot.stats
+            clock, self.on_packet, self.on_link_lost, decoder=decoder, stats=counters
         )
+        self.proto.on_command_latency = on_command_latency
+        #: The rate the port is at now (the handshake cycles it on a silent serial port).
+        self.baud = cfg.baud
+        self.quiet = False
         #: OPEN was sent: the robot is in a session that must be CLOSEd.
         self.opened = False
         self.opened_t = 0.0
@@ -108,13 +171,13 @@ class ArcosSession:
 
     # ------------------------------------------------------------------ handshake
 
-    async def handshake(self) -> RobotIdentity:
-        robot, proto = self.robot, self.proto
+    async def handshake(self) -> SessionInfo:
+        cfg, proto = self.cfg, self.proto
         is_serial = not self.url.startswith(("socket://", "rfc2217://", "memory://"))
         # The configured rate first, then the last rate that worked, then the standard ones.
-        good = robot.good_baud
-        first = [robot.baud] if good in (None, robot.baud) else [robot.baud, good]
-        bauds = first + [b for b in STANDARD_BAUDS if b not in first] if is_serial else [robot.baud]
+        good = cfg.good_baud
+        first = [cfg.baud] if good in (None, cfg.baud) else [cfg.baud, good]
+        bauds = first + [b for b in STANDARD_BAUDS if b not in first] if is_serial else [cfg.baud]
         baud_i = 0
         misses = misses_here = sent = 0
         state = 0
@@ -122,19 +185,19 @@ class ArcosSession:
         try:
             while True:
                 sent += 1
-                if sent > 6 * robot.max_misses:
+                if sent > 6 * cfg.max_misses:
                     raise HandshakeError(
                         f"robot at {self.url}: no handshake after {sent - 1} SYNC packets"
                     )
                 proto.clear_rx()
                 proto.write(encode_command(state))
                 try:
-                    pkt = await proto.next_packet(robot.sync_timeout_s)
+                    pkt = await proto.next_packet(cfg.sync_timeout_s)
                 except TimeoutError:
                     misses += 1
                     misses_here += 1
-                    if misses >= robot.max_misses:
-                        robot.stats["handshake_failures"] += 1
+                    if misses >= cfg.max_misses:
+                        self.counters["handshake_failures"] += 1
                         tried = ", ".join(str(b) for b in bauds) if is_serial else "tcp"
                         raise HandshakeError(
                             f"robot at {self.url} never answered SYNC{state} "
@@ -144,7 +207,7 @@ class ArcosSession:
                         baud_i = (baud_i + 1) % len(bauds)
                         misses_here = 0
                         set_baudrate(proto.transport, bauds[baud_i])
-                        robot.current_baud = bauds[baud_i]
+                        self.baud = bauds[baud_i]
                         log.info("robot_baud_cycle", url=self.url, baud=bauds[baud_i])
                     state = 0
                     continue
@@ -158,11 +221,10 @@ class ArcosSession:
                         log.warning("robot_bad_sync2", url=self.url, error=str(exc))
                         state = 0
                         continue
-                    robot.good_baud = bauds[baud_i]
-                    return identity
+                    return SessionInfo(identity, bauds[baud_i])
                 if pkt.ptype in SIP_TYPES:
                     # Still in a session someone never closed: CLOSE it, then start over.
-                    robot.stats["old_sessions"] += 1
+                    self.counters["old_sessions"] += 1
                     log.info("robot_old_session", url=self.url)
                     await self._close_old_session()
                 else:
@@ -186,19 +248,25 @@ class ArcosSession:
                 closes += 1
         await self.clock.sleep(SIP_CYCLE_S)
 
-    async def open(self, identity: RobotIdentity) -> None:
-        """OPEN, CONFIG (its reply read if it comes), SONAR, and ENABLE if wished."""
-        robot, proto = self.robot, self.proto
-        robot.identity = identity
-        subclass = robot.subclass_override or identity.subclass
-        robot.factors = conv_factors(subclass)
+    async def open(
+        self, info: SessionInfo, *, on_open: Callable[[SessionInfo], None]
+    ) -> SessionInfo:
+        """OPEN, CONFIG (its reply read if it comes), SONAR, and ENABLE if wished.
+
+        `on_open` gets the identity and odometry factors just before OPEN goes out, so the
+        owner can decode the SIPs that follow; the returned info adds the CONFIG reply."""
+        proto = self.proto
+        identity = info.identity
+        subclass = self.cfg.subclass_override or identity.subclass
+        info = SessionInfo(identity, info.baud, conv_factors(subclass))
         await self.clock.sleep(SIP_CYCLE_S)
-        robot.odometry.new_session()
+        on_open(info)
         self.last_sip_t = None
         self.opened = True
         self.opened_t = self.clock.now()
         self._sent_motion = None
         await proto.send_paced(encode_command(OPEN, 1))
+        config: RobotConfig | None = None
         proto.want_packets = True
         try:
             await proto.send_paced(encode_command(Command.CONFIG, 1))
@@ -210,17 +278,16 @@ class ArcosSession:
                     break
                 if pkt.ptype == PacketType.CONFIG:
                     try:
-                        robot.config = decode_config(pkt.payload)
+                        config = decode_config(pkt.payload)
                     except CodecError as exc:
                         log.warning("robot_bad_config", error=str(exc))
                     break
         finally:
             proto.want_packets = False
         await proto.send_paced(encode_command(Command.SONAR, 1))
-        if robot.motors_wish:
+        if self.owner.motors_wish:
             await proto.send_paced(encode_command(Command.ENABLE, 1))
-        robot.connected = True
-        robot.stats["sessions"] += 1
+        self.counters["sessions"] += 1
         log.info(
             "robot_connected",
             url=self.url,
@@ -228,10 +295,11 @@ class ArcosSession:
             robot_class=identity.robot_class,
             subclass=identity.subclass,
             odometry_subclass=subclass,
-            baud=robot.current_baud,
-            motors=robot.motors_wish,
-            watchdog_ms=robot.config.watchdog_ms if robot.config else None,
+            baud=self.baud,
+            motors=self.owner.motors_wish,
+            watchdog_ms=config.watchdog_ms if config else None,
         )
+        return SessionInfo(identity, info.baud, info.factors, config)
 
     # ------------------------------------------------------------------ serving
 
@@ -258,26 +326,27 @@ class ArcosSession:
         dropped, VEL/RVEL or PULSE must be re-sent) or until woken by a new wish,
         instead of ticking: at 10 Hz SIPs that is a few wake-ups a second, not twenty.
         """
-        robot = self.robot
+        cfg = self.cfg
         while True:
             self.proto.check_alive()
             now = self.clock.now()
             since_t = self.last_sip_t if self.last_sip_t is not None else self.opened_t
             since = now - since_t
-            if since > robot.lost_after_s and not robot.stale:
-                robot.stale = True
+            if since > cfg.lost_after_s and not self.quiet:
+                self.quiet = True
                 log.warning("robot_stale", url=self.url, silent_s=round(since, 3))
-            if since > robot.drop_after_s:
-                self.end(SessionLost(f"no SIP from {self.url} for {robot.drop_after_s:g} s"))
+                self.owner.session_quiet(since)
+            if since > cfg.drop_after_s:
+                self.end(SessionLost(f"no SIP from {self.url} for {cfg.drop_after_s:g} s"))
                 return
             self.reflect(now)
-            due = min(since_t + robot.drop_after_s, self._next_reflection_t())
-            if not robot.stale:
-                due = min(due, since_t + robot.lost_after_s)
+            due = min(since_t + cfg.drop_after_s, self._next_reflection_t())
+            if not self.quiet:
+                due = min(due, since_t + cfg.lost_after_s)
             # Just past the deadline (the checks are strict), never sooner than a
             # command spacing (a PULSE waiting for a busy queue), never later than
             # lost_after_s (a bound on any missed wake-up).
-            delay = min(max(due - now + DEADLINE_EPS_S, CMD_SPACING_S), robot.lost_after_s)
+            delay = min(max(due - now + DEADLINE_EPS_S, CMD_SPACING_S), cfg.lost_after_s)
             await self._sleep(delay)
 
     def _next_reflection_t(self) -> float:
@@ -305,7 +374,7 @@ class ArcosSession:
         proto = self.proto
         if proto.held:
             return
-        motion = wheel_to_vel_rvel(*self.robot.wheels_wish)
+        motion = wheel_to_vel_rvel(*self.owner.wheels_wish)
         due = now - self._motion_t >= REFRESH_S
         if motion != self._sent_motion or (motion != (0, 0) and due):
             proto.drop_queued((Command.VEL, Command.RVEL, PULSE))
@@ -363,9 +432,10 @@ class ArcosSession:
             self.end(SessionLost(f"controller reset (packet type 0x{pkt.ptype:02X})"))
             return
         if self.opened and pkt.ptype in SIP_TYPES:
-            t = self.robot.handle_sip(pkt, self.proto.rx_perf)
+            t = self.owner.handle_sip(pkt, self.proto.rx_perf)
             if t is not None:
                 self.last_sip_t = t
+                self.quiet = False
             if not self.proto.want_packets:
                 return
         if self.proto.want_packets:
@@ -381,11 +451,9 @@ class ArcosSession:
         self.reason = reason
         self.lost.set()
         self.proto.fail_waiters(reason)
-        self.robot.last_error = str(reason)
-        # At once, not when the run loop gets its turn: a controller reading
+        # At once, not when the run loop gets its turn: a controller reading the driver's
         # `connected`/`stale` must stop the wheels now.
-        self.robot.connected = False
-        self.robot.stale = True
+        self.owner.session_ended(reason)
 
     # ------------------------------------------------------------------ safe stop
 
@@ -408,8 +476,6 @@ class ArcosSession:
                         await self.clock.sleep(CMD_SPACING_S)
             log.info("robot_safe_stop", url=self.url)
         self.opened = False
-        self.robot.connected = False
-        self.robot.stale = True
         await proto.close()
 
     async def close(self) -> None:
