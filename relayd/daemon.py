@@ -30,6 +30,7 @@ from drivers.airos.model import LinkQuality
 from drivers.arcos import ArcosRobot
 from drivers.clock import REAL_CLOCK, Clock
 from drivers.health import DeviceHealth as DriverHealth
+from drivers.link import held_ports
 from drivers.pantilt import PanTilt
 from drivers.wifi import RssiSource
 from relayd.brain import Brain
@@ -342,6 +343,13 @@ class Daemon:
 
     async def start(self) -> None:
         s = self.settings
+        # A port another process holds is a start error (exit 2) before anything is
+        # touched, not a wait: the driver would retry it and take the robot over the
+        # moment the other relayd stopped.
+        ports = [("robot.port", s.robot.port, s.robot.enabled)]
+        ports.append(("pantilt.port", s.pantilt.port, s.pantilt.enabled))
+        if held := held_ports([(key, url) for key, url, on in ports if on]):
+            raise ConfigError(held)
         if s.api.enabled:
             from relayd.api import make_app, start_api
 
