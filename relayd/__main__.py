@@ -1,5 +1,9 @@
 import sys
 
-from relayd.cli import main
+try:
+    from relayd.cli import main
 
-sys.exit(main())
+    code = main()
+except KeyboardInterrupt:  # Ctrl-C while the command line itself is still being imported
+    code = 130
+sys.exit(code)

@@ -6,7 +6,8 @@ error, before any device is touched), drivers constructed, tasks started under t
 supervisor, API bound, then READY to systemd. Devices may still be connecting when
 READY is sent; /status says so.
 
-Shutdown (SIGTERM/SIGINT cancel `run()`): the control tick stops and the wheels are
+Shutdown (any catchable fatal signal cancels `run()`, as does a task dying beyond its
+keeper): the control tick stops and the wheels are
 zeroed at once, the robot driver disables the motors and sends CLOSE, the servo and
 poll tasks are cancelled, the API closes. The robot's safe stop is bounded so the
 whole sequence fits in 0.5 s (docs/CONTROL.md 6, "Shutdown").
@@ -30,6 +31,7 @@ from drivers.arcos import ArcosRobot
 from drivers.pantilt import PanTilt
 from drivers.transport.clock import REAL_CLOCK, Clock
 from drivers.transport.health import DeviceHealth as DriverHealth
+from drivers.transport.link import held_ports
 from drivers.wifi import RssiSource
 from relayd.config.checks import api_bind_error
 from relayd.config.model import (
@@ -350,6 +352,13 @@ class Daemon:
 
     async def start(self) -> None:
         s = self.settings
+        # A port another process holds is a start error (exit 2) before anything is
+        # touched, not a wait: the driver would retry it and take the robot over the
+        # moment the other relayd stopped.
+        ports = [("robot.port", s.robot.port, s.robot.enabled)]
+        ports.append(("pantilt.port", s.pantilt.port, s.pantilt.enabled))
+        if held := held_ports([(key, url) for key, url, on in ports if on]):
+            raise ConfigError(held)
         if s.api.enabled:
             from relayd.api import make_app, start_api
 
@@ -395,21 +404,28 @@ class Daemon:
             self.notifier.status("running; devices connecting")
 
     async def run(self) -> None:
+        """Until cancelled, or until a task dies beyond its keeper (raises TaskDied)."""
         try:
             await self.start()
-            await asyncio.Event().wait()
+            await self.supervisor.wait_fatal()
         finally:
             await self.shutdown()
 
     async def shutdown(self) -> None:
+        # Nothing before the robot's safe stop may keep it from running: each step that
+        # could fail (a bug, a subscriber raising) is contained.
         if self.notifier is not None:
-            self.notifier.stopping()
+            with contextlib.suppress(Exception):
+                self.notifier.stopping()
         log.info("shutting_down")
         # The robot's run() returns after its safe stop below: not a failure to restart.
         self.supervisor.begin_stop()
         # The controller first, synchronously: a SIP handled during the safe stop must not
         # put a non-zero VEL between the stop's VEL 0 and its ENABLE 0.
-        self.control.halt()
+        try:
+            self.control.halt()
+        except Exception:
+            log.exception("halt_failed")
         if self.robot is not None:
             self.robot.stop()
             with contextlib.suppress(Exception):

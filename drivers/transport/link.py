@@ -132,6 +132,61 @@ def _close_opened(fut: asyncio.Future[LockedSerial]) -> None:
         log.info("serial_open_cancelled_closed", port=fut.result().port)
 
 
+#: The kernel's table of file locks: flock(2) holders, with their PID and inode.
+PROC_LOCKS = "/proc/locks"
+
+
+def lock_holder(url: str, proc_locks: str = PROC_LOCKS) -> int | None:
+    """The PID that holds `url`'s flock now (0: held, PID not visible here), or None.
+
+    Read from /proc/locks, without opening the port: opening a tty is already touching
+    the device (DTR rises), which a check before start must not do. None as well when
+    `url` is not a device path (socket://, memory://), is missing, or the table cannot
+    be read (not Linux): the open itself still refuses a locked port then.
+    """
+    if not url or "://" in url:
+        return None
+    try:
+        st = os.stat(url)
+        with open(proc_locks, encoding="ascii", errors="replace") as table:
+            lines = table.read().splitlines()
+    except OSError:
+        return None
+    inode = f"{os.major(st.st_dev):02x}:{os.minor(st.st_dev):02x}:{st.st_ino}"
+    for line in lines:
+        # "1: FLOCK  ADVISORY  WRITE 1234 00:19:567 0 EOF"; waiters ("1: -> FLOCK ...") hold nothing.
+        fields = line.split()
+        if len(fields) < 6 or fields[1] != "FLOCK" or fields[5] != inode:
+            continue
+        try:
+            return int(fields[4])
+        except ValueError:
+            return 0
+    return None
+
+
+def holder_text(pid: int) -> str:
+    """`PID 1234 (relayd run -c /etc/relayd/relayd.toml)`, as much as can be read."""
+    if pid <= 0:
+        return "a process whose PID is not visible here"
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            cmdline = f.read(512).replace(b"\0", b" ").decode(errors="replace").strip()
+    except OSError:
+        cmdline = ""
+    return f"PID {pid} ({cmdline})" if cmdline else f"PID {pid}"
+
+
+def held_ports(ports: list[tuple[str, str]]) -> list[str]:
+    """One line per (key, url) whose port another process holds, naming it and its holder."""
+    return [
+        f"{key}: {url} is in use by {holder_text(pid)}; stop that process first "
+        "(two programs must never share a device)"
+        for key, url in ports
+        if (pid := lock_holder(url)) is not None
+    ]
+
+
 def serial_port(transport: asyncio.BaseTransport | None) -> serial.Serial | None:
     """The OS serial port under a serial transport (None for TCP and memory links)."""
     if isinstance(transport, serial_asyncio_fast.SerialTransport):

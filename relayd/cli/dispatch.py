@@ -176,6 +176,15 @@ def _keep_rich_out() -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    # Ctrl-C before a command has its own handlers (while the imports and the config load,
+    # the first 0.2 s) is the shell's 130 too, without a traceback.
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        return 130
+
+
+def _main(argv: Sequence[str] | None) -> int:
     if argv is None:
         _keep_rich_out()
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -186,14 +195,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     from relayd.runtime.logsetup import StdStream, setup_logging
 
     setup_logging("info", "console", stream=StdStream("stderr"))
-    try:
-        code = (
-            asyncio.run(_until_signal(runner(args)))
-            if inspect.iscoroutinefunction(runner)
-            else runner(args)
-        )
-    except KeyboardInterrupt:
-        code = 130
+    code = (
+        asyncio.run(_until_signal(runner(args)))
+        if inspect.iscoroutinefunction(runner)
+        else runner(args)
+    )
     return int(code or 0)
 
 
@@ -202,7 +208,7 @@ async def _until_signal(command: Coroutine[Any, Any, int | None]) -> int | None:
 
     Without this SIGTERM kills a fake outright and leaves its pty symlinks behind.
     SIGTERM is a normal stop (exit 0), Ctrl-C keeps the shell's 130. `relayd run`
-    installs its own handlers, which replace these.
+    installs its own handlers for every catchable fatal signal, which replace these.
     """
     loop = asyncio.get_running_loop()
     task = asyncio.ensure_future(command)

@@ -35,6 +35,38 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
 
 
+#: The signals that end relayd with the safe stop (wheels 0, ENABLE 0, CLOSE), as SIGTERM does:
+#: every signal whose default action ends the process and that a handler can catch. Left out:
+#: SIGPIPE and SIGXFSZ, which Python ignores (a closed log pipe or a full disk gives an error
+#: on that write, and the robot keeps its control loop); the synchronous faults (SIGSEGV,
+#: SIGBUS, SIGFPE, SIGILL, SIGABRT, SIGTRAP, SIGSYS), after which the interpreter itself is in
+#: doubt; SIGKILL and SIGSTOP, which no process can catch. For those the P3-AT's own
+#: watchdog stops the wheels (docs/DEPLOY.md, "Signals").
+STOP_SIGNALS: tuple[signal.Signals, ...] = tuple(
+    getattr(signal, name)
+    for name in (
+        "SIGTERM",
+        "SIGINT",
+        "SIGHUP",
+        "SIGQUIT",
+        "SIGUSR1",
+        "SIGUSR2",
+        "SIGALRM",
+        "SIGVTALRM",
+        "SIGPROF",
+        "SIGXCPU",
+        "SIGIO",
+        "SIGPWR",
+    )
+    if hasattr(signal, name)
+)
+
+
+def exit_code(sig: signal.Signals) -> int:
+    """SIGTERM is systemd's normal stop (0); any other signal the shell's 128 + its number."""
+    return 0 if sig == signal.SIGTERM else 128 + int(sig)
+
+
 def _config_error(path: str, exc: ConfigError) -> int:
     print(f"{path}: {len(exc.errors)} error(s)", file=sys.stderr)
     for line in exc.errors:
@@ -43,6 +75,34 @@ def _config_error(path: str, exc: ConfigError) -> int:
 
 
 async def run(args: argparse.Namespace) -> int:
+    main = asyncio.current_task()
+    if main is None:
+        raise RuntimeError("relayd run must be called from a task")
+    loop = asyncio.get_running_loop()
+    received: list[signal.Signals] = []
+
+    def _stop(sig: signal.Signals) -> None:
+        # Cancel once: a second signal (Ctrl-C twice, SIGHUP then SIGTERM) must not
+        # interrupt the safe stop the first one started.
+        received.append(sig)
+        if len(received) == 1:
+            main.cancel()
+        structlog.get_logger("relayd").info("signal", signal=sig.name, stopping=len(received) == 1)
+
+    # Before anything else: a signal while the config loads must stop us quietly, and one
+    # while driving must end in the safe stop, whichever catchable signal it is.
+    for sig in STOP_SIGNALS:
+        loop.add_signal_handler(sig, _stop, sig)
+    try:
+        return await _run(args)
+    except asyncio.CancelledError:
+        if not received:
+            raise
+        main.uncancel()
+        return exit_code(received[0])
+
+
+async def _run(args: argparse.Namespace) -> int:
     try:
         settings = load_settings(args.config)
     except ConfigError as exc:
@@ -71,23 +131,13 @@ async def run(args: argparse.Namespace) -> int:
     # collector's generations, they are not rescanned by full collections, which would
     # otherwise land as multi-millisecond pauses in the SIP -> wheel command path.
     gc.freeze()
-    main = asyncio.current_task()
-    if main is None:
-        raise RuntimeError("relayd run must be called from a task")
-    loop = asyncio.get_running_loop()
-    task = asyncio.create_task(daemon.run(), name="relayd:daemon")
-
-    def _stop(signame: str) -> None:
-        log.info("signal", signal=signame)
-        task.cancel()
-
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        loop.add_signal_handler(sig, _stop, sig.name)
     try:
-        await task
-    except asyncio.CancelledError:
-        pass
+        await daemon.run()
     except ConfigError as exc:
-        # Found only at start (the API cannot bind): the devices were never touched.
+        # Found only at start (a device locked, the API cannot bind): no device was touched.
         return _config_error(args.config, exc)
+    except Exception:
+        # The daemon's own `finally` has already stopped the robot (wheels 0, ENABLE 0, CLOSE).
+        log.exception("crashed")
+        return 1
     return 0

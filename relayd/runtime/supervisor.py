@@ -7,12 +7,18 @@ task after a capped backoff, leaving the others alone; a device's task failing i
 reported to `on_fault` (the daemon publishes it as the device's FAULT). Shutdown cancels tasks in the
 reverse of the order they were added, waiting for each, so the robot driver (added
 first) is the last to go and its safe stop still has a controller-free port.
+
+A keeper ends only by cancellation; one that ends otherwise (a BaseException the keeper
+does not catch: SystemExit, a library's own BaseException subclass) has left its task
+dead for good, with nothing to restart it. `wait_fatal()` raises then, so the daemon
+shuts down with the safe stop instead of driving on with a dead control loop.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 
@@ -26,6 +32,10 @@ log = structlog.get_logger(__name__)
 
 #: A task that ran this long before failing counts as healthy: its backoff restarts small.
 HEALTHY_AFTER_S = 10.0
+
+
+class TaskDied(RuntimeError):
+    """A supervised task ended in a way its keeper cannot restart from."""
 
 
 @dataclass(slots=True)
@@ -53,6 +63,7 @@ class Supervisor:
         self._on_fault = on_fault
         self._entries: list[_Entry] = []
         self._stopping = False
+        self._fatal: asyncio.Future[None] | None = None
 
     def stopping(self) -> bool:
         """Whether stop() has begun (read after an await: another task may have called it)."""
@@ -75,6 +86,25 @@ class Supervisor:
         for entry in self._entries:
             if entry.task is None:
                 entry.task = asyncio.create_task(self._keep(entry), name=f"relayd:{entry.name}")
+                entry.task.add_done_callback(functools.partial(self._ended, entry))
+
+    async def wait_fatal(self) -> None:
+        """Wait until a keeper dies (raises TaskDied from its exception); else forever."""
+        if self._fatal is None:
+            self._fatal = asyncio.get_running_loop().create_future()
+        await asyncio.shield(self._fatal)
+
+    def _ended(self, entry: _Entry, task: asyncio.Task[None]) -> None:
+        if task.cancelled() or self._stopping:
+            return
+        exc = task.exception()
+        died = TaskDied(f"task {entry.name} died: {exc!r}")
+        died.__cause__ = exc
+        log.critical("task_died", task=entry.name, error=repr(exc))
+        if self._fatal is None:
+            self._fatal = task.get_loop().create_future()
+        if not self._fatal.done():
+            self._fatal.set_exception(died)
 
     async def _keep(self, entry: _Entry) -> None:
         while not self._stopping:

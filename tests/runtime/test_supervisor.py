@@ -78,3 +78,41 @@ async def test_returning_task_is_restarted() -> None:
     sup.start()
     await until(lambda: runs >= 3, "the third run of the returning task")
     await sup.stop()
+
+
+class _Injected(BaseException):
+    """Not an Exception: the keeper lets it through, so the task is dead for good."""
+
+
+async def test_a_task_dead_beyond_its_keeper_is_fatal() -> None:
+    from relayd.runtime.supervisor import TaskDied
+
+    sup = Supervisor(RelayState(), LoopClock())
+
+    async def dies() -> None:
+        await asyncio.sleep(0)
+        raise _Injected("boom")
+
+    sup.add("dies", dies)
+    sup.start()
+    with pytest.raises(TaskDied, match="dies") as info:
+        async with asyncio.timeout(5):
+            await sup.wait_fatal()
+    assert isinstance(info.value.__cause__, _Injected)
+    await sup.stop()
+
+
+async def test_no_task_dying_keeps_wait_fatal_waiting_and_a_stop_is_not_fatal() -> None:
+    sup = Supervisor(RelayState(), LoopClock())
+
+    async def forever() -> None:
+        await asyncio.Event().wait()
+
+    sup.add("forever", forever)
+    sup.start()
+    waiter = asyncio.ensure_future(sup.wait_fatal())
+    await asyncio.sleep(0.05)
+    await sup.stop()
+    await asyncio.sleep(0)
+    assert not waiter.done()
+    waiter.cancel()
