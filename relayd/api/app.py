@@ -3,7 +3,12 @@
 The app only reads `RelayState` and calls `Controls`; every handler answers from
 memory without waiting on a device, so /status stays fast while the control loop runs.
 Control endpoints need the configured bearer token: none configured means disabled
-(403), never open. No secret is ever put in a response or a log line.
+(403), never open. The one exception is a stop: `POST /api/mode {"mode": "hold"}` needs
+no token, because stopping is always safe and anyone who can see the robot may stop it
+(the e-stop rule; docs/DEPLOY.md). Failed authentication backs a client off (429), and
+event streams are capped per client and in total, below the connection cap, so the
+status and control routes always have room. No secret is ever put in a response or a
+log line.
 """
 
 from __future__ import annotations
@@ -28,6 +33,7 @@ from relayd.api.history import install as install_history
 from relayd.api.models import DriveRequest, ModeRequest
 from relayd.api.openapi import build_openapi
 from relayd.api.server import start_api
+from relayd.core.vocab import Mode
 from relayd.runtime.metrics import Metrics
 from relayd.runtime.ratelimit import LogRateLimit
 from relayd.runtime.state import Controls, ModeError, RelayState
@@ -40,6 +46,19 @@ _M = TypeVar("_M", bound=BaseModel)
 DEFAULT_MAX_DRIVE_MM_S = 1200.0
 #: Control bodies are a few dozen bytes; anything large is a mistake or an attack.
 MAX_BODY_BYTES = 16 * 1024
+#: Event streams in all and per client; the guard admits MAX_CONNECTIONS (100).
+MAX_STREAMS = 32
+MAX_STREAMS_PER_CLIENT = 4
+#: After a failed authentication a client is refused for AUTH_BACKOFF_S * 2^(n-1) s, up to
+#: AUTH_BACKOFF_MAX_S: a guess costs a dictionary look-up, and 3,970 guesses a second
+#: become a few a minute.
+AUTH_BACKOFF_S = 0.5
+AUTH_BACKOFF_MAX_S = 30.0
+#: Failures in a row a client may make before the backoff starts (a mistyped token).
+AUTH_FREE_FAILURES = 5
+#: Clients whose failures are remembered; beyond it the oldest is forgotten.
+AUTH_BACKOFF_CLIENTS = 1024
+
 #: Refused-token warnings: at most one per client and this many seconds, with a count.
 AUTH_LOG_EVERY_S = 60.0
 STATIC_DIR = Path(str(resources.files("relayd.api") / "static"))
@@ -62,6 +81,15 @@ class ApiContext:
     index_body: bytes
     sse_tasks: set[asyncio.Task[Any]] = field(default_factory=set)
     auth_log_limit: LogRateLimit = field(default_factory=lambda: LogRateLimit(AUTH_LOG_EVERY_S))
+    #: Unauthenticated stops are logged at most once per client and this period.
+    stop_log_limit: LogRateLimit = field(default_factory=lambda: LogRateLimit(AUTH_LOG_EVERY_S))
+    #: Event streams: at most this many in all and per client (below the guard's connection
+    #: cap, so /healthz, /status and the control routes always find room).
+    max_streams: int = MAX_STREAMS
+    max_streams_per_client: int = MAX_STREAMS_PER_CLIENT
+    streams_by_client: dict[str, int] = field(default_factory=dict)
+    #: Failed authentications per client: (failures in a row, refused until clock time).
+    auth_backoff: dict[str, tuple[int, float]] = field(default_factory=dict)
     #: The last /status body and what it was rendered for: (state revision, clock time).
     status_cache: tuple[int, float, str] | None = None
 
@@ -141,21 +169,45 @@ def _auth_warning(ctx: ApiContext, event: str, request: web.Request) -> None:
 
 
 def _authorize(ctx: ApiContext, request: web.Request) -> web.Response | None:
-    """None when the bearer token matches; otherwise the 401/403 to send."""
+    """None when the bearer token matches; otherwise the 401/403/429 to send."""
     if not ctx.token:
         return _error(403, "control endpoints are disabled: no API token is configured")
+    client = request.remote or "?"
+    now = ctx.clock.now()
+    failures, until_t = ctx.auth_backoff.get(client, (0, 0.0))
+    if now < until_t:
+        wait_s = math.ceil(until_t - now)
+        message = f"too many failed authentications: retry in {wait_s} s"
+        return web.json_response(
+            {"error": message}, status=429, headers={"Retry-After": str(wait_s)}, dumps=dumps
+        )
     scheme, _, presented = request.headers.get("Authorization", "").partition(" ")
     presented = presented.strip()
     if scheme.lower() != "bearer" or not presented:
         _auth_warning(ctx, "api_auth_missing", request)
+        _auth_failed(ctx, client, failures, now)
         return _error(401, "missing bearer token")
     # Compare bytes: compare_digest refuses non-ASCII str, and a header may hold anything.
     if not hmac.compare_digest(
         presented.encode("utf-8", "backslashreplace"), ctx.token.encode("utf-8")
     ):
         _auth_warning(ctx, "api_auth_failed", request)
+        _auth_failed(ctx, client, failures, now)
         return _error(401, "wrong bearer token")
+    ctx.auth_backoff.pop(client, None)
     return None
+
+
+def _auth_failed(ctx: ApiContext, client: str, failures: int, now: float) -> None:
+    failures += 1
+    over = failures - AUTH_FREE_FAILURES
+    until_t = (
+        now + min(AUTH_BACKOFF_MAX_S, AUTH_BACKOFF_S * 2.0 ** min(over, 16)) if over > 0 else 0.0
+    )
+    ctx.auth_backoff.pop(client, None)  # re-inserted last: the dict's order is its age
+    ctx.auth_backoff[client] = (failures, until_t)
+    while len(ctx.auth_backoff) > AUTH_BACKOFF_CLIENTS:
+        del ctx.auth_backoff[next(iter(ctx.auth_backoff))]
 
 
 #: How long a rendered /status body is served again while the state has not changed (s).
@@ -222,13 +274,21 @@ async def handle_index(request: web.Request) -> web.Response:
 
 async def handle_mode(request: web.Request) -> web.Response:
     ctx = request.app[CONTEXT]
-    denied = _authorize(ctx, request)
-    if denied is not None:
-        return denied
     try:
         req = await _parse_body(request, ModeRequest)
     except _BadRequest as exc:
-        return _error(400, str(exc), exc.field_name)
+        # A malformed body costs the sender nothing more than its 400, token or not.
+        denied = _authorize(ctx, request)
+        return denied if denied is not None else _error(400, str(exc), exc.field_name)
+    if req.mode is not Mode.HOLD:
+        denied = _authorize(ctx, request)
+        if denied is not None:
+            return denied
+    elif "Authorization" not in request.headers:
+        # A stop needs no token; it is logged, at a rate no script can flood.
+        count = ctx.stop_log_limit.hit(f"stop:{request.remote}", ctx.clock.now())
+        if count:
+            log.warning("api_stop_without_token", peer=request.remote, count=count)
     try:
         ctx.controls.set_mode(req.mode)
     except ModeError as exc:
@@ -274,9 +334,18 @@ async def handle_events(request: web.Request) -> web.StreamResponse:
             "X-Accel-Buffering": "no",
         }
     )
+    client = request.remote or "?"
+    mine = ctx.streams_by_client.get(client, 0)
+    if len(ctx.sse_tasks) >= ctx.max_streams or mine >= ctx.max_streams_per_client:
+        return web.json_response(
+            {"error": "too many event streams: poll /status instead, or retry later"},
+            status=503,
+            headers={"Retry-After": "5"},
+        )
     task = asyncio.current_task()
     if task is not None:
         ctx.sse_tasks.add(task)
+    ctx.streams_by_client[client] = mine + 1
     try:
         await resp.prepare(request)
         # Clients reconnect after 2 s if the robot restarts.
@@ -305,6 +374,11 @@ async def handle_events(request: web.Request) -> web.StreamResponse:
     finally:
         if task is not None:
             ctx.sse_tasks.discard(task)
+        left = ctx.streams_by_client.get(client, 1) - 1
+        if left > 0:
+            ctx.streams_by_client[client] = left
+        else:
+            ctx.streams_by_client.pop(client, None)
     return resp
 
 

@@ -89,6 +89,7 @@ def build_openapi(max_drive_mm_s: float) -> dict[str, Any]:
         "401": _error("no or wrong bearer token"),
         "403": _error("no API token is configured: control endpoints are disabled"),
         "409": _error("the current mode does not allow this request"),
+        "429": _error("too many failed authentications from this client: wait Retry-After s"),
         "413": {"description": "request body too large"},
     }
     return {
@@ -160,7 +161,10 @@ def build_openapi(max_drive_mm_s: float) -> dict[str, Any]:
                         "200": {
                             "description": "an endless event stream",
                             "content": {"text/event-stream": {"schema": {"type": "string"}}},
-                        }
+                        },
+                        "503": _error(
+                            "too many event streams (in all or from this client): poll /status"
+                        ),
                     },
                 }
             },
@@ -190,9 +194,10 @@ def build_openapi(max_drive_mm_s: float) -> dict[str, Any]:
             },
             "/api/mode": {
                 "post": {
-                    "summary": "Change the operating mode",
+                    "summary": "Change the operating mode (hold needs no token: a stop is "
+                    "always allowed; follow and manual need the bearer token)",
                     "operationId": "setMode",
-                    "security": secured,
+                    "security": [*secured, {}],
                     "requestBody": {
                         "required": True,
                         "content": {

@@ -302,7 +302,8 @@ async def test_openapi_lists_every_route(client: TestClient[Any, Any]) -> None:
 
 @pytest.mark.parametrize(
     ("path", "body"),
-    [("/api/mode", {"mode": "hold"}), ("/api/drive", {"left_mm_s": 0, "right_mm_s": 0})],
+    # Anything but a stop: "hold" needs no token (test_a_stop_needs_no_token).
+    [("/api/mode", {"mode": "follow"}), ("/api/drive", {"left_mm_s": 0, "right_mm_s": 0})],
 )
 async def test_control_disabled_without_token(
     open_client: TestClient[Any, Any], path: str, body: dict[str, Any], controls: FakeControls
@@ -316,7 +317,8 @@ async def test_control_disabled_without_token(
 
 @pytest.mark.parametrize(
     ("path", "body"),
-    [("/api/mode", {"mode": "hold"}), ("/api/drive", {"left_mm_s": 0, "right_mm_s": 0})],
+    # Anything but a stop: "hold" needs no token (test_a_stop_needs_no_token).
+    [("/api/mode", {"mode": "follow"}), ("/api/drive", {"left_mm_s": 0, "right_mm_s": 0})],
 )
 @pytest.mark.parametrize(
     "header",
@@ -535,3 +537,59 @@ async def test_live_page_and_assets_are_served(client: TestClient[Any, Any]) -> 
         assert r.status == 200 and ctype in r.content_type
         text = await r.text()
         assert "https://" not in text
+
+
+@pytest.mark.parametrize("header", [None, "Bearer wrong"])
+async def test_a_stop_needs_no_token(
+    client: TestClient[Any, Any],
+    open_client: TestClient[Any, Any],
+    controls: FakeControls,
+    header: str | None,
+) -> None:
+    """Stopping is always safe: hold is one click, with a token or without, configured or not."""
+    headers = {} if header is None else {"Authorization": header}
+    for c in (client, open_client):
+        resp = await c.post("/api/mode", json={"mode": "hold"}, headers=headers)
+        assert resp.status == 200, await resp.text()
+    assert controls.modes and all(str(m) == "hold" for m in controls.modes)
+    # ... and nothing that makes it move does.
+    for body in ({"mode": "follow"}, {"mode": "manual"}):
+        resp = await client.post("/api/mode", json=body, headers=headers)
+        assert resp.status == 401
+
+
+async def test_failed_authentication_backs_the_client_off(
+    client: TestClient[Any, Any], controls: FakeControls
+) -> None:
+    from relayd.api.app import AUTH_FREE_FAILURES
+
+    wrong = {"Authorization": "Bearer wrong"}
+    codes = [
+        (await client.post("/api/mode", json={"mode": "follow"}, headers=wrong)).status
+        for _ in range(AUTH_FREE_FAILURES + 3)
+    ]
+    assert codes[:AUTH_FREE_FAILURES] == [401] * AUTH_FREE_FAILURES
+    assert 429 in codes[AUTH_FREE_FAILURES:]
+    # While backed off even the right token is refused, without a comparison: guessing is
+    # slowed to the backoff's pace, whatever the guesser does.
+    resp = await client.post("/api/mode", json={"mode": "follow"}, headers=AUTH)
+    assert resp.status == 429 and int(resp.headers["Retry-After"]) >= 1
+    assert [str(m) for m in controls.modes] == []
+
+
+async def test_event_streams_are_capped_and_status_keeps_its_room(
+    client: TestClient[Any, Any],
+) -> None:
+    from relayd.api.app import CONTEXT
+
+    ctx = client.server.app[CONTEXT]
+    ctx.max_streams_per_client, ctx.max_streams = 2, 3
+    held = [await client.get("/events") for _ in range(2)]
+    assert [r.status for r in held] == [200, 200]
+    refused = await client.get("/events")
+    assert refused.status == 503 and refused.headers["Retry-After"]
+    assert "too many event streams" in (await refused.json())["error"]
+    assert (await client.get("/status")).status == 200
+    assert (await client.post("/api/mode", json={"mode": "hold"})).status == 200
+    for r in held:
+        r.close()

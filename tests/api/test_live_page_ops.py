@@ -283,13 +283,21 @@ async def test_controls_reasons_history_and_layout(
                 == "stopped: hold mode (an operator asked it to stand still)"
             )
 
-            # No token yet: nothing is sent, and the page says why.
+            # No token yet: a stop is still one click, and the robot accepts it ...
             await page.click("#btn-hold")
+            await page.wait_for_function(
+                "() => /hold: accepted by the robot/.test(document.getElementById('control-result').textContent)",
+                timeout=10_000,
+            )
+            # ... while follow is not sent, and the page says why.
+            await page.click("#btn-follow")
+            await page.click("#confirm-yes")
             assert "enter the API token first" in (await page.text_content("#control-result") or "")
             # A wrong token: the API's 401 is shown.
             await page.fill("#token-input", "not-the-token")
             await page.click("#token-form button[type=submit]")
-            await page.click("#btn-hold")
+            await page.click("#btn-follow")
+            await page.click("#confirm-yes")
             await page.wait_for_function(
                 "() => /HTTP 401 wrong bearer token/.test(document.getElementById('control-result').textContent)",
                 timeout=10_000,

@@ -31,7 +31,8 @@ const Control = (() => {
 
   async function send(mode) {
     const tok = token();
-    if (!tok) {
+    // A stop needs no token (stopping is always safe): it is sent at once, token or not.
+    if (!tok && mode !== "hold") {
       result(`${mode}: not sent, enter the API token first`, "bad");
       $("token-input").focus();
       return;
@@ -44,7 +45,9 @@ const Control = (() => {
     try {
       resp = await fetch("/api/mode", {
         method: "POST", signal: abort.signal, cache: "no-store",
-        headers: { "Content-Type": "application/json", Authorization: `Bearer ${tok}` },
+        headers: tok
+          ? { "Content-Type": "application/json", Authorization: `Bearer ${tok}` }
+          : { "Content-Type": "application/json" },
         body: JSON.stringify({ mode }),
       });
     } catch (err) {
