@@ -1,0 +1,111 @@
+"""The brain's memory of the leader's trail: its one writer (pure).
+
+`TrailKeeper.scan` takes each finished scan (its time, the relay's odometry pose, the
+bearing in the robot frame and its sd, RSSI^l, the sonar floor) and updates the leader
+estimate (`estimate`) and the trail (`polyline`) behind it; `steer` prunes the trail
+behind the relay and asks `pursuit` where to go. `view` is what /status and the trace
+show. An estimate less sure than `max_sigma_m` puts nothing on the trail (its source
+is then "bearing": the law steers by the scan bearing as the paper's relays did).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+from relayd.core.scan.estimator import SonarReading
+from relayd.core.trail.estimate import EstimateParams, LeaderEstimate, observe
+from relayd.core.trail.polyline import Trail, TrailPoint, add_point, prune
+from relayd.core.trail.pursuit import Pursuit, PursuitParams, pursue
+
+#: Where the trail came from, as /status names it.
+SOURCE_ESTIMATE, SOURCE_BEARING = "estimate", "bearing"
+
+
+@dataclass(frozen=True, slots=True)
+class TrailParams:
+    #: "trail": steer along the leader's trail; "bearing": the paper's direct pursuit.
+    pursuit: str = "bearing"
+    estimate: EstimateParams = field(default_factory=EstimateParams)
+    pursue: PursuitParams = field(default_factory=PursuitParams)
+    spacing_m: float = 0.4
+    keep: int = 400
+    reach_m: float = 0.4
+    prune_window: int = 8
+    #: A position this unsure (1-sigma radius, m) is not laid on the trail.
+    max_sigma_m: float = 2.5
+
+
+@dataclass(frozen=True, slots=True)
+class TrailView:
+    """What /status shows of the trail (odometry frame, metres)."""
+
+    source: str
+    leader_xy_m: tuple[float, float] | None
+    leader_sigma_m: float | None
+    points: tuple[tuple[float, float], ...]
+    steer_deg: float | None
+    caught_up: bool
+
+
+class TrailKeeper:
+    def __init__(self, params: TrailParams) -> None:
+        self.params = params
+        self.estimate: LeaderEstimate | None = None
+        self.trail: Trail = ()
+        self.last: Pursuit | None = None
+
+    def scan(
+        self,
+        t_s: float,
+        pose_mm_deg: tuple[float, float, float] | None,
+        bearing_deg: float | None,
+        bearing_sd_deg: float | None,
+        rssi_dbm: float | None,
+        floor_m: float | None,
+    ) -> None:
+        """One finished scan seen from this pose (robot-frame bearing)."""
+        if pose_mm_deg is None or not math.isfinite(t_s):
+            return
+        if bearing_deg is not None and not math.isfinite(bearing_deg):
+            bearing_deg = None
+        if rssi_dbm is not None and not math.isfinite(rssi_dbm):
+            rssi_dbm = None
+        xy = (pose_mm_deg[0] / 1000.0, pose_mm_deg[1] / 1000.0)
+        world = None if bearing_deg is None else pose_mm_deg[2] + bearing_deg
+        self.estimate = observe(
+            self.estimate, t_s, xy, world, bearing_sd_deg, rssi_dbm, floor_m, self.params.estimate
+        )
+        est = self.estimate
+        if est is None or est.sigma_m > self.params.max_sigma_m:
+            return
+        p = self.params
+        point = TrailPoint(t_s, est.x[0], est.x[1], est.sigma_m)
+        self.trail = add_point(self.trail, point, spacing_m=p.spacing_m, keep=p.keep)
+
+    def steer(
+        self, pose_mm_deg: tuple[float, float, float] | None, front: Sequence[SonarReading]
+    ) -> Pursuit | None:
+        """Where pursuit steers from this pose (None: no trail, steer by the bearing)."""
+        if pose_mm_deg is None:
+            self.last = None
+            return None
+        x, y, th = pose_mm_deg[0] / 1000.0, pose_mm_deg[1] / 1000.0, pose_mm_deg[2]
+        p = self.params
+        self.trail = prune(self.trail, (x, y), reach_m=p.reach_m, window=p.prune_window)
+        self.last = pursue(self.trail, (x, y, th), front, p.pursue)
+        return self.last
+
+    def view(self) -> TrailView:
+        est = self.estimate
+        src = SOURCE_ESTIMATE if self.trail else SOURCE_BEARING
+        last = self.last
+        return TrailView(
+            src,
+            None if est is None else (round(est.x[0], 3), round(est.x[1], 3)),
+            None if est is None else round(est.sigma_m, 3),
+            tuple((round(p.x_m, 3), round(p.y_m, 3)) for p in self.trail),
+            None if last is None or last.steer_deg is None else round(last.steer_deg, 1),
+            last is not None and last.caught_up,
+        )
