@@ -26,6 +26,8 @@ from relayd.core.scan.estimator import EstimatorParams
 from relayd.core.scan.leader import LeaderParams
 from relayd.core.scan.plan import ScanParams
 from relayd.core.scan.window import WindowParams
+from relayd.core.trail.estimate import EstimateParams, RangeModel
+from relayd.core.trail.keeper import TrailParams
 
 P = TypeVar("P")
 
@@ -182,4 +184,12 @@ def brain_params(settings: Settings) -> BrainParams:
         has_scanner=scanning,
         rear_station_mac=rear.station_mac if rear is not None else None,
         link=link_policy_params(settings),
+        trail=trail_params(settings),
     )
+
+
+def trail_params(settings: Settings) -> TrailParams:
+    """The leader's trail (relayd/core/trail): the pursuit and the path-loss model."""
+    c = settings.control
+    model = RangeModel(c.pathloss_l0_dbm, c.pathloss_exponent, c.pathloss_sigma_db)
+    return TrailParams(pursuit=c.pursuit, estimate=EstimateParams(range_model=model))

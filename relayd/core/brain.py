@@ -81,6 +81,7 @@ from relayd.core.scan.estimator import EstimatorParams, front_readings
 from relayd.core.scan.leader import LeaderParams
 from relayd.core.scan.memory import ScanMemory
 from relayd.core.scan.plan import ScanParams
+from relayd.core.trail.keeper import TrailKeeper, TrailParams
 from relayd.runtime.state import DriveState, Mode
 
 SONAR_COUNT = 16
@@ -106,6 +107,8 @@ class BrainParams:
     link: LinkPolicyParams = field(default_factory=LinkPolicyParams)
     #: Self-healing of broken links (relayd.core.recovery.machine); disabled by default.
     recovery: RecoveryParams = field(default_factory=RecoveryParams)
+    #: The leader's trail and the pursuit along it (relayd/core/trail, issue 26).
+    trail: TrailParams = field(default_factory=TrailParams)
 
 
 class Brain:
@@ -148,6 +151,8 @@ class Brain:
             RetreatMemory()
         )  # stepping back out of a shadow (relayd.core.link.retreat, adaptive only)
         self._recovery_shown: RecoveryView | None = None
+        #: The leader's estimated position and trail (relayd/core/trail), fed by each scan.
+        self.trail = TrailKeeper(params.trail)
 
     # -- read-only views (the API's shell checks a drive command against the mode) ------
 
@@ -184,7 +189,11 @@ class Brain:
                 self.scans.sample(event, self._heading)
                 return []
             case ScanDone():
-                return self.scans.done(event, self._heading, self._sonar)
+                count = self.scans.count
+                actions = self.scans.done(event, self._heading, self._sonar)
+                if self.scans.count != count:
+                    self._trail_scan(event.t)
+                return actions
             case LinkEvent():
                 return self._on_link(event)
             case DeviceEvent():
@@ -311,6 +320,15 @@ class Brain:
         self._rear_shown = value
         return [RearLink(value)]
 
+    def _trail_scan(self, now: float) -> None:
+        """A finished scan into the leader estimate and its trail (issue 26)."""
+        bearing = self.scans.bearing_now(now, self._heading)
+        sd = self.scans.model.sd_deg(now, self._heading)
+        floor = (
+            leader_floor_m(known_front(self._sonar), bearing, sd) if bearing is not None else None
+        )
+        self.trail.scan(now, self._pose, bearing, sd, self.scans.rssi_leader_dbm, floor)
+
     # -- the control step -----------------------------------------------------------------
 
     def inputs(self, now: float) -> ControlInputs:
@@ -327,6 +345,11 @@ class Brain:
         floor = (
             leader_floor_m(known_front(self._sonar), bearing, self.scans.model.sd_deg(now, heading))
             if p.leader_gap_max_m > 0
+            else None
+        )
+        pursuit = (
+            self.trail.steer(now, self._pose, front_readings(self._sonar))
+            if self.params.trail.pursuit == "trail"
             else None
         )
         return ControlInputs(
@@ -349,6 +372,8 @@ class Brain:
             rear_sonar=rear_readings(self._sonar),
             leader_floor_m=floor,
             search_bearing_deg=self.scans.model.search_bearing(now, heading),
+            trail_steer_deg=None if pursuit is None else pursuit.steer_deg,
+            trail_caught_up=pursuit is not None and pursuit.caught_up,
         )
 
     def _decide(self, now: float) -> ControlOutput:

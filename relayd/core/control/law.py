@@ -112,6 +112,9 @@ class ControlParams:
     actuator: Actuator = field(default_factory=Actuator)
     #: The turn toward a lost leader beyond the servo's reach (relayd/core/control/search.py).
     search: SearchParams = field(default_factory=SearchParams)
+    #: "bearing": steer at the scan bearing (the paper's); "trail": along the leader's trail
+    #: (relayd/core/trail), from `ControlInputs.trail_steer_deg`.
+    pursuit: str = "bearing"
 
 
 @dataclass(frozen=True, slots=True)
@@ -145,6 +148,11 @@ class ControlInputs:
     leader_floor_m: float | None = None
     #: While the leader is lost: where the scans last put it, in this frame (None: nowhere).
     search_bearing_deg: float | None = None
+    #: Trail pursuit (issue 26): the bearing of the pursuit's target on the trail, in this
+    #: frame (None: no trail, steer by the scan bearing), and whether the relay has caught
+    #: up with the trail's head (it then holds and scans).
+    trail_steer_deg: float | None = None
+    trail_caught_up: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -359,6 +367,15 @@ def control_step(
     if not (drive or released):
         return _stopped(DriveState.STOPPED, reason, situation, memory)
 
+    # -- trail pursuit hook (issue 26) --: the stop rule above is unchanged; the trail's
+    # direction replaces the scan bearing for the wheel law and for the escape, which so
+    # steers back onto the trail, not toward a bearing through a wall.
+    if params.pursuit == "trail":
+        if inputs.trail_caught_up:
+            return _stopped(DriveState.STOPPED, "trail_head", situation, memory)
+        steer = inputs.trail_steer_deg
+        if steer is not None and math.isfinite(steer):
+            bearing, prev = steer, None
     v = (
         release_speed_mm_s(params.threshold_l_dbm, params.w1, params.w2, params.v_max_mm_s)
         if released
@@ -396,7 +413,8 @@ def control_step(
         avoid, cmd = avoid_step(memory.avoid, sense, aparams, act)
         memory = replace(memory, avoid=avoid)
         if not cmd.follow:
-            left, right = act.wheels(cmd.vel_mm_s, cmd.rvel_deg_s)
+            # The escape's turn rates are fixed; a v_max below them still bounds every wheel.
+            left, right = act.wheels(*act.within(cmd.vel_mm_s, cmd.rvel_deg_s, params.v_max_mm_s))
             moving = cmd.vel_mm_s != 0 or cmd.rvel_deg_s != 0
             state = DriveState.AVOIDING if moving else DriveState.STOPPED
             # The escape's command (its "blocked" stop too) ends a sonar release: it must be

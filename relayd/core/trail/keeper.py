@@ -34,7 +34,10 @@ class TrailParams:
     reach_m: float = 0.4
     prune_window: int = 8
     #: A position this unsure (1-sigma radius, m) is not laid on the trail.
-    max_sigma_m: float = 2.5
+    max_sigma_m: float = 4.0
+    #: Caught up with the head: hold and scan this long (s), then steer by the bearing until
+    #: the trail has a new point (a head that no longer moves may be an estimate gone stale).
+    hold_s: float = 6.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -55,6 +58,8 @@ class TrailKeeper:
         self.estimate: LeaderEstimate | None = None
         self.trail: Trail = ()
         self.last: Pursuit | None = None
+        self._held_since: float | None = None
+        self._held_head: TrailPoint | None = None
 
     def scan(
         self,
@@ -82,10 +87,15 @@ class TrailKeeper:
             return
         p = self.params
         point = TrailPoint(t_s, est.x[0], est.x[1], est.sigma_m)
-        self.trail = add_point(self.trail, point, spacing_m=p.spacing_m, keep=p.keep)
+        # An estimate jitters within its sigma: only a move beyond half of it is the leader's.
+        spacing = max(p.spacing_m, 0.5 * est.sigma_m)
+        self.trail = add_point(self.trail, point, spacing_m=spacing, keep=p.keep)
 
     def steer(
-        self, pose_mm_deg: tuple[float, float, float] | None, front: Sequence[SonarReading]
+        self,
+        now_s: float,
+        pose_mm_deg: tuple[float, float, float] | None,
+        front: Sequence[SonarReading],
     ) -> Pursuit | None:
         """Where pursuit steers from this pose (None: no trail, steer by the bearing)."""
         if pose_mm_deg is None:
@@ -94,8 +104,18 @@ class TrailKeeper:
         x, y, th = pose_mm_deg[0] / 1000.0, pose_mm_deg[1] / 1000.0, pose_mm_deg[2]
         p = self.params
         self.trail = prune(self.trail, (x, y), reach_m=p.reach_m, window=p.prune_window)
-        self.last = pursue(self.trail, (x, y, th), front, p.pursue)
-        return self.last
+        got = pursue(self.trail, (x, y, th), front, p.pursue)
+        if got is not None and got.caught_up:
+            # The last committed point: a head that only jitters on its estimate is no news.
+            head = self.trail[-2] if len(self.trail) >= 2 else self.trail[0]
+            if self._held_head is None or head.t_s != self._held_head.t_s:
+                self._held_since, self._held_head = now_s, head
+            if now_s - (self._held_since or now_s) > p.hold_s:
+                got = None  # held long enough on a head that does not move: the bearing
+        else:
+            self._held_since = self._held_head = None
+        self.last = got
+        return got
 
     def view(self) -> TrailView:
         est = self.estimate

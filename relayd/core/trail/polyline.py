@@ -1,8 +1,8 @@
 """The leader's trail: the positions it passed through, thinned, with times (pure).
 
 A trail is a tuple of `TrailPoint`s, oldest first, in the relay's odometry frame (m).
-The last point is the head: it follows the newest estimate until the leader has moved
-`spacing_m` from the point before it, when it is committed and a new head starts, so a
+The first point stays where the trail began; the last is the head: it follows the newest estimate until it is `spacing_m`
+from the point before it, when it is committed and the next estimate starts a new head, so a
 leader that stops adds nothing and one that walks adds a point every `spacing_m`.
 Points the relay has reached are dropped from the tail (`prune`); the search for the
 nearest point looks only a few points ahead, so a trail that doubles back (a leader
@@ -34,10 +34,8 @@ Trail = tuple[TrailPoint, ...]
 
 def add_point(trail: Trail, point: TrailPoint, *, spacing_m: float, keep: int) -> Trail:
     """The trail with this newest position as its head (see the module docstring)."""
-    if len(trail) >= 2 and math.dist(trail[-2].xy, point.xy) < spacing_m:
-        out = (*trail[:-1], point)
-    elif len(trail) == 1 and math.dist(trail[0].xy, point.xy) < spacing_m:
-        out = (point,)
+    if len(trail) >= 2 and math.dist(trail[-2].xy, trail[-1].xy) < spacing_m:
+        out = (*trail[:-1], point)  # the head has not yet got spacing_m away: it moves on
     else:
         out = (*trail, point)
     return out[-keep:] if len(out) > keep else out
