@@ -374,6 +374,7 @@ class Brain:
             search_bearing_deg=self.scans.model.search_bearing(now, heading),
             trail_steer_deg=None if pursuit is None else pursuit.steer_deg,
             trail_caught_up=pursuit is not None and pursuit.caught_up,
+            trail_remaining_m=None if pursuit is None else self.trail.remaining_m(self._pose),
         )
 
     def _decide(self, now: float) -> ControlOutput:

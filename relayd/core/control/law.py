@@ -74,6 +74,7 @@ from relayd.core.scan.estimator import (
     classify_situation,
     nearest_front_m,
 )
+from relayd.core.trail.blocked import BlockedParams, BlockedState, blocked_step, waiting
 from relayd.runtime.state import DriveState, Mode
 
 
@@ -115,6 +116,9 @@ class ControlParams:
     #: "bearing": steer at the scan bearing (the paper's); "trail": along the leader's trail
     #: (relayd/core/trail), from `ControlInputs.trail_steer_deg`.
     pursuit: str = "bearing"
+    #: With pursuit "trail": an escape that gets no nearer the trail's head stops on
+    #: "trail_blocked" and retries on a backoff (relayd/core/trail/blocked.py).
+    trail_blocked: BlockedParams = field(default_factory=BlockedParams)
 
 
 @dataclass(frozen=True, slots=True)
@@ -153,6 +157,8 @@ class ControlInputs:
     #: up with the trail's head (it then holds and scans).
     trail_steer_deg: float | None = None
     trail_caught_up: bool = False
+    #: How far along the trail the head still is (m; else to the leader's estimate).
+    trail_remaining_m: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -170,6 +176,8 @@ class ControlMemory:
     #: The lost leader's search (relayd/core/control/search.py); reset once the leader is found, and by
     #: hold, manual and every fault.
     search: SearchState = field(default_factory=SearchState)
+    #: The "trail_blocked" guard (pursuit "trail" only).
+    trail_block: BlockedState = field(default_factory=BlockedState)
 
 
 @dataclass(frozen=True, slots=True)
@@ -371,6 +379,8 @@ def control_step(
     # direction replaces the scan bearing for the wheel law and for the escape, which so
     # steers back onto the trail, not toward a bearing through a wall.
     if params.pursuit == "trail":
+        if inputs.t_s is not None and waiting(memory.trail_block, inputs.t_s):
+            return _stopped(DriveState.STOPPED, "trail_blocked", situation, memory)
         if inputs.trail_caught_up:
             return _stopped(DriveState.STOPPED, "trail_head", situation, memory)
         steer = inputs.trail_steer_deg
@@ -412,6 +422,18 @@ def control_step(
         )
         avoid, cmd = avoid_step(memory.avoid, sense, aparams, act)
         memory = replace(memory, avoid=avoid)
+        if params.pursuit == "trail":
+            moving = not cmd.follow and (cmd.vel_mm_s != 0 or cmd.rvel_deg_s != 0)
+            block, stop = blocked_step(
+                memory.trail_block,
+                inputs.t_s,
+                moving,
+                inputs.trail_remaining_m,
+                params.trail_blocked,
+            )
+            memory = replace(memory, trail_block=block)
+            if stop:  # _stopped clears the escape: it starts afresh after the wait
+                return _stopped(DriveState.STOPPED, "trail_blocked", situation, memory)
         if not cmd.follow:
             # The escape's turn rates are fixed; a v_max below them still bounds every wheel.
             left, right = act.wheels(*act.within(cmd.vel_mm_s, cmd.rvel_deg_s, params.v_max_mm_s))

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 from relayd.core.scan.estimator import SonarReading
 from relayd.core.trail.estimate import EstimateParams, LeaderEstimate, observe
-from relayd.core.trail.polyline import Trail, TrailPoint, add_point, prune
+from relayd.core.trail.polyline import Trail, TrailPoint, add_point, prune, remaining_m
 from relayd.core.trail.pursuit import Pursuit, PursuitParams, pursue
 
 #: Where the trail came from, as /status names it.
@@ -116,6 +116,17 @@ class TrailKeeper:
             self._held_since = self._held_head = None
         self.last = got
         return got
+
+    def remaining_m(self, pose_mm_deg: tuple[float, float, float] | None) -> float | None:
+        """How far the relay still has to go: along the trail to its head, else to the estimate."""
+        if pose_mm_deg is None:
+            return None
+        xy = (pose_mm_deg[0] / 1000.0, pose_mm_deg[1] / 1000.0)
+        if self.trail:
+            return remaining_m(self.trail, xy)
+        if self.estimate is not None:
+            return math.dist(xy, self.estimate.xy_m)
+        return None
 
     def view(self) -> TrailView:
         est = self.estimate
