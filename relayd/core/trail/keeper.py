@@ -51,6 +51,21 @@ class TrailView:
     steer_deg: float | None
     caught_up: bool
 
+    def to_json(self) -> dict[str, object]:
+        """/status's `trail` (the newest MAX_SHOWN points of it)."""
+        return {
+            "source": self.source,
+            "leader_xy_m": None if self.leader_xy_m is None else list(self.leader_xy_m),
+            "leader_sigma_m": self.leader_sigma_m,
+            "points_m": [list(p) for p in self.points[-MAX_SHOWN:]],
+            "steer_deg": self.steer_deg,
+            "caught_up": self.caught_up,
+        }
+
+
+#: /status shows at most this many of the trail's newest points.
+MAX_SHOWN = 100
+
 
 class TrailKeeper:
     def __init__(self, params: TrailParams) -> None:
@@ -130,7 +145,8 @@ class TrailKeeper:
 
     def view(self) -> TrailView:
         est = self.estimate
-        src = SOURCE_ESTIMATE if self.trail else SOURCE_BEARING
+        steering = self.params.pursuit == "trail" and self.last is not None
+        src = SOURCE_ESTIMATE if steering else SOURCE_BEARING
         last = self.last
         return TrailView(
             src,
