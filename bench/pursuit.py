@@ -135,12 +135,41 @@ def table(endings: Sequence[Ending]) -> str:
     return "\n".join(lines)
 
 
+def convoy_share(seeds: int, pursuit: str) -> float:
+    """bench/followshare.py's convoy figure (the "within 5 m" close-following policy, the
+    default estimator and window) with this pursuit: the mean share of time within 5 m."""
+    from bench.followshare import POLICIES, policy_scenario, relay_shares, scenario_fit
+    from relayd.runtime import vtime
+    from relayd.runtime.logsetup import StdStream, setup_logging
+    from relayd.sim.runner import SimRunner
+
+    del scenario_fit  # the policy calibrates itself; imported to fail loudly if it moves
+    setup_logging("error", "console", StdStream("stderr"))
+    sc = policy_scenario("convoy", POLICIES[2], {"estimator": "lobe", "window": "adaptive"})
+    sc = sc.model_copy(update={"control": {**sc.control, **calibrated(sc), "pursuit": pursuit}})
+    shares = []
+    for seed in range(1, seeds + 1):
+        result = vtime.run(SimRunner(sc, speed=None, seed=seed).run())
+        shares += [s.within for s in relay_shares(result.records)]
+    return sum(shares) / len(shares)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenarios", nargs="*", default=None)
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--per-run", action="store_true", help="also print every relay-run")
+    ap.add_argument(
+        "--convoy-share",
+        action="store_true",
+        help="instead: bench/followshare.py's convoy share within 5 m, both pursuits",
+    )
     args = ap.parse_args(argv)
+    if args.convoy_share:
+        for pursuit in PURSUITS:
+            share = convoy_share(args.seeds, pursuit)
+            print(f"convoy within 5 m, {pursuit}: {100 * share:.2f} % ({args.seeds} seeds)")
+        return 0
     endings = run(args.scenarios or shipped(), args.seeds)
     print(table(endings))
     if args.per_run:
