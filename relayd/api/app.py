@@ -179,6 +179,13 @@ async def handle_status(request: web.Request) -> web.Response:
     return web.Response(text=cached[2], content_type="application/json")
 
 
+async def handle_path(request: web.Request) -> web.Response:
+    """This relay's odometry pose and path, for a relay that follows it (read-only)."""
+    source = request.app[CONTEXT].state.path_source
+    doc = {"pose": None, "points": []} if source is None else source()
+    return web.Response(text=dumps(doc), content_type="application/json")
+
+
 async def handle_healthz(request: web.Request) -> web.Response:
     ctx = request.app[CONTEXT]
     st = ctx.state
@@ -358,6 +365,7 @@ def make_app(
     app.router.add_get("/", handle_index)
     app.router.add_get("/status", handle_status)
     app.router.add_get("/healthz", handle_healthz)
+    app.router.add_get("/path", handle_path)
     app.router.add_get("/metrics", make_aiohttp_handler(metrics.registry))
     app.router.add_get("/openapi.json", handle_openapi)
     app.router.add_get("/events", handle_events)

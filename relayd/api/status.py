@@ -140,6 +140,23 @@ class Trail(_Model):
     caught_up: bool = Field(description="the relay is at the trail's head (it holds and scans)")
 
 
+class PathPose(_Model):
+    t: float = Field(description="the SIP's time (s, the daemon's clock)")
+    x_m: float
+    y_m: float
+    theta_deg: float
+
+
+class OwnPath(_Model):
+    """GET /path: this relay's odometry pose and the path it drove (a relay following it
+    follows this path, issue 26), odometry frame, oldest first."""
+
+    pose: PathPose | None = Field(description="the newest pose; null before the first SIP")
+    points: list[Annotated[list[float], Field(min_length=3, max_length=3)]] = Field(
+        description="[t, x_m, y_m]: a point each 0.1 m, the newest 600"
+    )
+
+
 class Status(_Model):
     version: str
     robot: str | None = Field(description="name the base reports (ARCOS SYNC2)")

@@ -222,6 +222,7 @@ class Brain:
         self._sip_t = ev.t
         self._heading = ev.sip.theta_deg
         self._pose = (ev.sip.x_mm, ev.sip.y_mm, ev.sip.theta_deg)
+        self.trail.own_pose(ev.t, self._pose)
         self._robot_down = False
         if len(ev.sonar_mm) == SONAR_COUNT:
             self._sonar = list(ev.sonar_mm)

@@ -138,6 +138,8 @@ class RelayState:
     recovery: RecoveryView | None = None
     #: The leader's trail (relayd/core/trail) as /status shows it, read at snapshot time.
     trail_source: Callable[[], dict[str, Any]] | None = field(default=None, repr=False)
+    #: This relay's own odometry pose and path (GET /path), read at request time.
+    path_source: Callable[[], dict[str, Any]] | None = field(default=None, repr=False)
     #: Bumped on every change a live view cares about; `changed` is set with it.
     revision: int = 0
     changed: asyncio.Event = field(default_factory=asyncio.Event, repr=False)

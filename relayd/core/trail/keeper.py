@@ -19,6 +19,9 @@ from relayd.core.trail.estimate import EstimateParams, LeaderEstimate, observe
 from relayd.core.trail.polyline import Trail, TrailPoint, add_point, prune, remaining_m
 from relayd.core.trail.pursuit import Pursuit, PursuitParams, pursue
 
+#: This relay's own path: a point each 0.1 m (the centimetre a follower wants is in the
+#: feed's poses between them), the newest 600 (60 m).
+OWN_SPACING_M, OWN_KEEP = 0.1, 600
 #: Where the trail came from, as /status names it.
 SOURCE_ESTIMATE, SOURCE_BEARING = "estimate", "bearing"
 
@@ -73,8 +76,36 @@ class TrailKeeper:
         self.estimate: LeaderEstimate | None = None
         self.trail: Trail = ()
         self.last: Pursuit | None = None
+        #: This relay's own path (odometry, thinned): what a relay following it follows
+        #: (GET /path), and the pose with its time.
+        self.own_path: Trail = ()
+        self.own: tuple[float, float, float, float] | None = None
         self._held_since: float | None = None
         self._held_head: TrailPoint | None = None
+
+    def own_pose(self, t_s: float, pose_mm_deg: tuple[float, float, float]) -> None:
+        """This relay's odometry pose of a SIP, onto its own published path."""
+        x, y = pose_mm_deg[0] / 1000.0, pose_mm_deg[1] / 1000.0
+        self.own = (t_s, x, y, pose_mm_deg[2])
+        if self.own_path and math.dist(self.own_path[-1].xy, (x, y)) < OWN_SPACING_M:
+            return
+        point = TrailPoint(t_s, x, y)
+        self.own_path = (*self.own_path, point)[-OWN_KEEP:]
+
+    def path_json(self) -> dict[str, object]:
+        """GET /path: the pose and the path, odometry frame (m, deg; times on the daemon's clock)."""
+        own = self.own
+        return {
+            "pose": None
+            if own is None
+            else {
+                "t": own[0],
+                "x_m": round(own[1], 3),
+                "y_m": round(own[2], 3),
+                "theta_deg": own[3],
+            },
+            "points": [[p.t_s, round(p.x_m, 3), round(p.y_m, 3)] for p in self.own_path],
+        }
 
     def scan(
         self,
