@@ -55,7 +55,7 @@ MAX_STREAMS_PER_CLIENT = 4
 AUTH_BACKOFF_S = 0.5
 AUTH_BACKOFF_MAX_S = 30.0
 #: Failures in a row a client may make before the backoff starts (a mistyped token).
-AUTH_FREE_FAILURES = 5
+AUTH_FREE_FAILURES = 10
 #: Clients whose failures are remembered; beyond it the oldest is forgotten.
 AUTH_BACKOFF_CLIENTS = 1024
 
@@ -229,6 +229,13 @@ async def handle_status(request: web.Request) -> web.Response:
         cached = (ctx.state.revision, now, dumps(ctx.state.snapshot(now)))
         ctx.status_cache = cached
     return web.Response(text=cached[2], content_type="application/json")
+
+
+async def handle_path(request: web.Request) -> web.Response:
+    """This relay's odometry pose and path, for a relay that follows it (read-only)."""
+    source = request.app[CONTEXT].state.path_source
+    doc = {"pose": None, "points": []} if source is None else source()
+    return web.Response(text=dumps(doc), content_type="application/json")
 
 
 async def handle_healthz(request: web.Request) -> web.Response:
@@ -432,6 +439,7 @@ def make_app(
     app.router.add_get("/", handle_index)
     app.router.add_get("/status", handle_status)
     app.router.add_get("/healthz", handle_healthz)
+    app.router.add_get("/path", handle_path)
     app.router.add_get("/metrics", make_aiohttp_handler(metrics.registry))
     app.router.add_get("/openapi.json", handle_openapi)
     app.router.add_get("/events", handle_events)

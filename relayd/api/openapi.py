@@ -12,7 +12,7 @@ from __future__ import annotations
 from typing import Any
 
 from relayd import __version__
-from relayd.api.status import Status, openapi_schema
+from relayd.api.status import OwnPath, Status, openapi_schema
 from relayd.core.vocab import DriveState, Mode
 
 
@@ -45,6 +45,7 @@ def _json(description: str, ref: str) -> dict[str, Any]:
 
 #: Generated from the typed model of the document (relayd.api.status.Status).
 STATUS_SCHEMA: dict[str, Any] = openapi_schema(Status)
+PATH_SCHEMA: dict[str, Any] = openapi_schema(OwnPath)
 
 
 def _column(items: dict[str, Any]) -> dict[str, Any]:
@@ -105,6 +106,14 @@ def build_openapi(max_drive_mm_s: float) -> dict[str, Any]:
                     "summary": "Everything the robot knows right now",
                     "operationId": "getStatus",
                     "responses": {"200": _json("the status document", "Status")},
+                }
+            },
+            "/path": {
+                "get": {
+                    "summary": "This relay's odometry pose and the path it drove, for a relay "
+                    "that follows it (read-only; issue 26)",
+                    "operationId": "getPath",
+                    "responses": {"200": _json("the pose and the path", "Path")},
                 }
             },
             "/healthz": {
@@ -233,6 +242,7 @@ def build_openapi(max_drive_mm_s: float) -> dict[str, Any]:
             "securitySchemes": {"bearer": {"type": "http", "scheme": "bearer"}},
             "schemas": {
                 "Status": STATUS_SCHEMA,
+                "Path": PATH_SCHEMA,
                 "History": HISTORY_SCHEMA,
                 "Health": {
                     "type": "object",

@@ -120,6 +120,44 @@ class Recovery(_Model):
     )
 
 
+class Trail(_Model):
+    """The leader's trail in this relay's odometry frame (relayd/core/trail, issue 26)."""
+
+    source: Literal["estimate", "bearing"] = Field(
+        description="what the pursuit steers by: the estimated trail, or the scan bearing (no trail yet)"
+    )
+    leader_xy_m: list[float] | None = Field(
+        description="the estimated leader position [x, y] (m, odometry frame); null before a scan"
+    )
+    leader_sigma_m: float | None = Field(
+        description="its 1-sigma radius (m): the covariance's largest eigenvalue, square-rooted"
+    )
+    points_m: list[list[float]] = Field(
+        description="the trail's newest points [x, y] (m), oldest first"
+    )
+    steer_deg: float | None = Field(
+        description="the pursuit target's bearing (robot frame, ccw +); null: not steering by the trail"
+    )
+    caught_up: bool = Field(description="the relay is at the trail's head (it holds and scans)")
+
+
+class PathPose(_Model):
+    t: float = Field(description="the SIP's time (s, the daemon's clock)")
+    x_m: float
+    y_m: float
+    theta_deg: float
+
+
+class OwnPath(_Model):
+    """GET /path: this relay's odometry pose and the path it drove (a relay following it
+    follows this path, issue 26), odometry frame, oldest first."""
+
+    pose: PathPose | None = Field(description="the newest pose; null before the first SIP")
+    points: list[Annotated[list[float], Field(min_length=3, max_length=3)]] = Field(
+        description="[t, x_m, y_m]: a point each 0.1 m, the newest 600"
+    )
+
+
 class Status(_Model):
     version: str
     robot: str | None = Field(description="name the base reports (ARCOS SYNC2)")
@@ -153,6 +191,9 @@ class Status(_Model):
     link_model: LinkModel | None
     recording: Recording | None
     recovery: Recovery | None = Field(description="self-healing state machine; null while disabled")
+    trail: Trail | None = Field(
+        default=None, description="the leader's trail (control.pursuit); null when not wired"
+    )
 
 
 _DROP = {"title", "default"}

@@ -237,6 +237,14 @@ class ControlSettings(_Section):
     search_turn: bool = True
     #: ... at this rate (deg/s): a full-range sweep while turning must still fit a lobe.
     search_turn_deg_s: Annotated[float, Field(ge=5, le=90, allow_inf_nan=False)] = 25.0
+    #: Issue 26 (relayd/core/trail): "trail" steers along the leader's estimated trail (pure
+    #: pursuit), "bearing" at the scan bearing as the paper's relays did.
+    pursuit: Literal["trail", "bearing"] = "bearing"
+    #: The path-loss model the leader's range is estimated with (`relayd calibrate` fits
+    #: them): RSSI = L0 - 10 n log10(d) + N(0, sigma).
+    pathloss_l0_dbm: Dbm = -15.0
+    pathloss_exponent: Annotated[float, Field(ge=1.0, le=6.0, allow_inf_nan=False)] = 2.0
+    pathloss_sigma_db: Annotated[float, Field(gt=0, le=20, allow_inf_nan=False)] = 6.0
 
     @model_validator(mode="after")
     def _cross_key_rules(self) -> ControlSettings:

@@ -16,16 +16,18 @@ from pydantic import BaseModel
 
 from relayd.config.model import Settings
 from relayd.core.avoid.state import AvoidParams
-from relayd.core.brain import BrainParams
 from relayd.core.control.actuator import Actuator
 from relayd.core.control.law import ControlParams
 from relayd.core.control.search import SearchParams
 from relayd.core.link.model import LinkPolicyParams
+from relayd.core.params import BrainParams
 from relayd.core.recovery.state import RecoveryParams
 from relayd.core.scan.estimator import EstimatorParams
 from relayd.core.scan.leader import LeaderParams
 from relayd.core.scan.plan import ScanParams
 from relayd.core.scan.window import WindowParams
+from relayd.core.trail.estimate import EstimateParams, RangeModel
+from relayd.core.trail.keeper import TrailParams
 
 P = TypeVar("P")
 
@@ -179,4 +181,12 @@ def brain_params(settings: Settings) -> BrainParams:
         has_scanner=scanning,
         rear_station_mac=rear.station_mac if rear is not None else None,
         link=link_policy_params(settings),
+        trail=trail_params(settings),
     )
+
+
+def trail_params(settings: Settings) -> TrailParams:
+    """The leader's trail (relayd/core/trail): the pursuit and the path-loss model."""
+    c = settings.control
+    model = RangeModel(c.pathloss_l0_dbm, c.pathloss_exponent, c.pathloss_sigma_db)
+    return TrailParams(pursuit=c.pursuit, estimate=EstimateParams(range_model=model))

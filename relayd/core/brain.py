@@ -1,21 +1,12 @@
 """The relay brain: one pure state machine from events to actions (sans-IO, like h11).
 
-`Brain.handle(event) -> list[Action]` is the whole decision core of a relay: it keeps
-what the robot knows (last SIP, sonar ring, RSSI freshness, RSSI^b, the mode and the
-operator's command), runs the fail-safes and the pure controller
-(`relayd.core.control.law.control_step`) on every SIP and every timer tick, and hands the
-scans to its scan memory (`relayd.core.scan.memory`: each finished scan's estimate, the
-bearing memory, leader-lost, the next sweep). It does no I/O and reads no clock: the
-time is in each event, so the same events give the same actions, on a robot, in the
-simulator and in a test.
-
-What is left here is the routing and the memory of one state machine: every concern
-with logic of its own lives in its own pure module (the scans, the controller, the
-estimator, the tracking filter and its scan windows, recovery, the rear-link model, the
-step back out of a shadow), each the only writer of its own memory.
-
-The decisions the brain itself makes (stale RSSI and scans, a robot that reports itself
-down, which step carries a SIP's time) are in docs/CONTROL.md section 6.2.
+`Brain.handle(event) -> list[Action]` is the whole decision core of a relay: it keeps what
+the robot knows, runs the stages of OVERRIDE_ORDER (the law, the retreat, recovery, the
+fail-safes) on every SIP and timer tick, and hands scans, the link behind and the trail to
+their own rooms (core/scan/memory.py, core/link/rear.py, core/trail), each the one writer
+of its memory. No I/O, no clock: the time is in each event, so the same events give the
+same actions on a robot, in the simulator and in a test. Its own decisions (stale inputs,
+a robot that reports itself down) are in docs/CONTROL.md section 6.2.
 """
 
 from __future__ import annotations
@@ -69,6 +60,7 @@ from relayd.core.recovery.state import (
 from relayd.core.recovery.view import RecoveryView, recovery_view
 from relayd.core.scan.estimator import front_readings
 from relayd.core.scan.memory import ScanMemory
+from relayd.core.trail.keeper import TrailKeeper
 from relayd.core.vocab import DriveState, Mode, Reason
 
 #: Device names the brain listens to in `DeviceEvent`s.
@@ -104,6 +96,8 @@ class Brain:
         # Breadcrumbs and the recovery episode (relayd.core.recovery.machine).
         self.recovery = RecoveryMemory()
         self._recovery_shown: RecoveryView | None = None
+        #: The leader's estimated position and trail (relayd/core/trail), fed by each scan.
+        self.trail = TrailKeeper(params.trail)
 
     # -- read-only views (the API's shell checks a drive command against the mode) ------
 
@@ -129,7 +123,8 @@ class Brain:
 
     # -- the one entry point ------------------------------------------------------------
 
-    def handle(self, event: Event) -> list[Action]:
+    # Complexity: one case per event type of the union (a type switch, exhaustive by assert_never).
+    def handle(self, event: Event) -> list[Action]:  # noqa: C901
         match event:
             case SipEvent():
                 return self._on_sip(event)
@@ -148,7 +143,11 @@ class Brain:
                 self.scans.sample(event, self._heading)
                 return []
             case ScanDone():
-                return self.scans.done(event, self._heading, self._sonar)
+                count = self.scans.count
+                actions = self.scans.done(event, self._heading, self._sonar)
+                if self.scans.count != count:
+                    self._trail_scan(event.t)
+                return actions
             case LinkEvent():
                 return self._on_link(event)
             case DeviceEvent():
@@ -179,6 +178,7 @@ class Brain:
         self._sip_t = ev.t
         self._heading = ev.sip.theta_deg
         self._pose = (ev.sip.x_mm, ev.sip.y_mm, ev.sip.theta_deg)
+        self.trail.own_pose(ev.t, self._pose)
         self._robot_down = False
         if len(ev.sonar_mm) == SONAR_COUNT:
             self._sonar = list(ev.sonar_mm)
@@ -206,6 +206,15 @@ class Brain:
             return []
         return self.rear.on_poll(ev, self._pose)
 
+    def _trail_scan(self, now: float) -> None:
+        """A finished scan into the leader estimate and its trail (issue 26)."""
+        bearing = self.scans.bearing_now(now, self._heading)
+        sd = self.scans.model.sd_deg(now, self._heading)
+        floor = (
+            leader_floor_m(known_front(self._sonar), bearing, sd) if bearing is not None else None
+        )
+        self.trail.scan(now, self._pose, bearing, sd, self.scans.rssi_leader_dbm, floor)
+
     # -- the control step -----------------------------------------------------------------
 
     def inputs(self, now: float) -> ControlInputs:
@@ -222,6 +231,11 @@ class Brain:
         floor = (
             leader_floor_m(known_front(self._sonar), bearing, self.scans.model.sd_deg(now, heading))
             if p.leader_gap_max_m > 0
+            else None
+        )
+        pursuit = (
+            self.trail.steer(now, self._pose, front_readings(self._sonar))
+            if self.params.trail.pursuit == "trail"
             else None
         )
         return ControlInputs(
@@ -244,6 +258,9 @@ class Brain:
             rear_sonar=rear_readings(self._sonar),
             leader_floor_m=floor,
             search_bearing_deg=self.scans.model.search_bearing(now, heading),
+            trail_steer_deg=None if pursuit is None else pursuit.steer_deg,
+            trail_caught_up=pursuit is not None and pursuit.caught_up,
+            trail_remaining_m=None if pursuit is None else self.trail.remaining_m(self._pose),
         )
 
     def _decide(self, now: float) -> ControlOutput:

@@ -10,6 +10,7 @@ from relayd.core.recovery.state import RecoveryParams
 from relayd.core.scan.estimator import EstimatorParams
 from relayd.core.scan.leader import LeaderParams
 from relayd.core.scan.plan import ScanParams
+from relayd.core.trail.keeper import TrailParams
 
 
 @dataclass(frozen=True, slots=True)
@@ -30,3 +31,5 @@ class BrainParams:
     link: LinkPolicyParams = field(default_factory=LinkPolicyParams)
     #: Self-healing of broken links (relayd.core.recovery.machine); disabled by default.
     recovery: RecoveryParams = field(default_factory=RecoveryParams)
+    #: The leader's trail and the pursuit along it (relayd/core/trail; docs/CONTROL.md 7.1).
+    trail: TrailParams = field(default_factory=TrailParams)

@@ -47,6 +47,9 @@ class Reason(StrEnum):
     LEADER_SEARCH = "leader_search"
     REAR_WEAK = "rear_weak"
     WIDEN = "widen"
+    # trail pursuit (relayd.core.trail)
+    TRAIL_HEAD = "trail_head"
+    TRAIL_BLOCKED = "trail_blocked"
     # operator
     HOLD = "hold"
     MANUAL = "manual"

@@ -118,6 +118,10 @@ class RelayState:
     link_model: LinkModelStatus | None = None
     #: The recovery state machine as /status shows it; None while recovery is disabled.
     recovery: RecoveryView | None = None
+    #: The leader's trail (relayd/core/trail) as /status shows it, read at snapshot time.
+    trail_source: Callable[[], dict[str, Any]] | None = field(default=None, repr=False)
+    #: This relay's own odometry pose and path (GET /path), read at request time.
+    path_source: Callable[[], dict[str, Any]] | None = field(default=None, repr=False)
     #: Bumped on every change a live view cares about; `changed` is set with it.
     revision: int = 0
     changed: asyncio.Event = field(default_factory=asyncio.Event, repr=False)
@@ -204,6 +208,7 @@ class RelayState:
             "link_model": None if self.link_model is None else self.link_model.to_json(),
             "recording": None if self.recording_source is None else self.recording_source(),
             "recovery": None if self.recovery is None else self.recovery.to_json(),
+            "trail": None if self.trail_source is None else self.trail_source(),
         }
 
 

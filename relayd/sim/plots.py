@@ -125,6 +125,22 @@ def plot_map(world: World, records: Sequence[dict[str, Any]], path: Path) -> Non
             ax.plot(xs, ys, color=c, lw=1.5, label=body.name)
             ax.plot(xs[0], ys[0], marker="o", color=c, ms=8, ls="")
             ax.plot(xs[-1], ys[-1], marker="D", color=c, ms=7, ls="")
+            # Pursuit "trail" (issue 26): where this relay estimated its leader (the sim's
+            # odometry starts at the body's world pose, so its frame is the world's).
+            est = [
+                t["leader_xy_m"]
+                for r in records
+                if (t := r["relays"][i].get("trail")) is not None and t["leader_xy_m"] is not None
+            ]
+            if est:
+                ax.plot(
+                    [p[0] for p in est],
+                    [p[1] for p in est],
+                    color=c,
+                    lw=0.8,
+                    ls=":",
+                    label=f"{body.name}'s leader estimate",
+                )
         # A body standing still gets one label (its first time there), not a pile of them.
         last_labelled: dict[int, tuple[float, float]] = {}
         for r in marks_every(records):

@@ -219,6 +219,8 @@ class SimRunner:
                     "rssi_l_mean_dbm": round(w.radio.mean_power_dbm(body.pos, w.node_pos(i))[0], 1),
                     "situation": st.situation,
                     "threshold_b_dbm": st.thresholds.get("threshold_b_dbm"),
+                    # Pursuit "trail" only (issue 26), so a "bearing" run's trace stays as it was.
+                    **self._trail_record(r),
                     "recovery": None
                     if (rv := st.recovery) is None
                     else {
@@ -246,6 +248,22 @@ class SimRunner:
             ],
             "e2e_mbps": links.e2e_mbps,
             "broken": links.broken,
+        }
+
+    @staticmethod
+    def _trail_record(relay: SimRelay) -> dict[str, Any]:
+        """The relay's trail source and leader estimate (odometry frame = the world's here)."""
+        trail = relay.daemon.brain.trail
+        if trail.params.pursuit != "trail":
+            return {}
+        v = trail.view()
+        return {
+            "trail": {
+                "source": v.source,
+                "leader_xy_m": None if v.leader_xy_m is None else list(v.leader_xy_m),
+                "leader_sigma_m": v.leader_sigma_m,
+                "caught_up": v.caught_up,
+            }
         }
 
     async def _world_loop(self) -> None:

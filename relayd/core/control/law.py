@@ -1,12 +1,8 @@
-"""How should the wheels turn? The paper's control law, pure (docs/CONTROL.md sections 3-6).
+"""How should the wheels turn? The paper's control law, pure (docs/CONTROL.md sections 3-7).
 
-`control_step(inputs, params, memory)` takes one snapshot of what the robot knows, the
-settings and the previous step's memory, and returns the wheel speeds, the drive state,
-the reason (a `relayd.core.vocab.Reason`) and the new memory. It promises: the first
-matching rule of docs/CONTROL.md section 6's order decides (fail-safes first, then hold,
-manual, follow); every follow-mode command is rounded by the actuator, bounded by v_max
-and passes the sonar guard; the link rule's latch changes only through the link rule. No
-I/O, no clock, no logging.
+`control_step(inputs, params, memory)` gives the wheels, drive state, reason and new memory:
+the first rule of section 6's order decides; a follow-mode command is rounded by the
+actuator, bounded by v_max and passes the sonar guard; only the link rule moves its latch.
 """
 
 from __future__ import annotations
@@ -26,6 +22,7 @@ from relayd.core.scan.estimator import (
     classify_situation,
     nearest_front_m,
 )
+from relayd.core.trail.blocked import BlockedParams, BlockedState, blocked_step, waiting
 from relayd.core.vocab import DriveState, Mode
 
 
@@ -64,6 +61,10 @@ class ControlParams:
     actuator: Actuator = field(default_factory=Actuator)
     #: The turn toward a lost leader beyond the servo's reach (relayd/core/control/search.py).
     search: SearchParams = field(default_factory=SearchParams)
+    #: "bearing": at the scan bearing (the paper's); "trail": along the trail (docs 7.1).
+    pursuit: str = "bearing"
+    #: An escape no nearer the trail's head stops on "trail_blocked" (core/trail/blocked.py).
+    trail_blocked: BlockedParams = field(default_factory=BlockedParams)
 
 
 @dataclass(frozen=True, slots=True)
@@ -97,6 +98,12 @@ class ControlInputs:
     leader_floor_m: float | None = None
     #: While the leader is lost: where the scans last put it, in this frame (None: nowhere).
     search_bearing_deg: float | None = None
+    #: Trail pursuit: the target's bearing on the trail (None: steer by the scan bearing),
+    #: and whether the relay caught up with the trail's head (it then holds and scans).
+    trail_steer_deg: float | None = None
+    trail_caught_up: bool = False
+    #: How far along the trail the head still is (m; else to the leader's estimate).
+    trail_remaining_m: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -114,6 +121,7 @@ class ControlMemory:
     #: The lost leader's search (relayd/core/control/search.py); reset once the leader is found, and by
     #: hold, manual and every fault.
     search: SearchState = field(default_factory=SearchState)
+    trail_block: BlockedState = field(default_factory=BlockedState)
 
 
 @dataclass(frozen=True, slots=True)
@@ -312,6 +320,16 @@ def control_step(  # noqa: C901
     if not (drive or released):
         return _stopped(DriveState.STOPPED, reason, situation, memory)
 
+    # Trail pursuit: the stop rule above stands; the trail's direction replaces the scan
+    # bearing for the wheel law and the escape (back onto the trail, not through a wall).
+    if params.pursuit == "trail":
+        if inputs.t_s is not None and waiting(memory.trail_block, inputs.t_s):
+            return _stopped(DriveState.STOPPED, "trail_blocked", situation, memory)
+        if inputs.trail_caught_up:
+            return _stopped(DriveState.STOPPED, "trail_head", situation, memory)
+        steer = inputs.trail_steer_deg
+        if steer is not None and math.isfinite(steer):
+            bearing, prev = steer, None
     v = (
         release_speed_mm_s(params.threshold_l_dbm, params.w1, params.w2, params.v_max_mm_s)
         if released
@@ -348,8 +366,21 @@ def control_step(  # noqa: C901
         )
         avoid, cmd = avoid_step(memory.avoid, sense, aparams, act)
         memory = replace(memory, avoid=avoid)
+        if params.pursuit == "trail":
+            moving = not cmd.follow and (cmd.vel_mm_s != 0 or cmd.rvel_deg_s != 0)
+            block, stop = blocked_step(
+                memory.trail_block,
+                inputs.t_s,
+                moving,
+                inputs.trail_remaining_m,
+                params.trail_blocked,
+            )
+            memory = replace(memory, trail_block=block)
+            if stop:  # _stopped clears the escape: it starts afresh after the wait
+                return _stopped(DriveState.STOPPED, "trail_blocked", situation, memory)
         if not cmd.follow:
-            left, right = act.wheels(cmd.vel_mm_s, cmd.rvel_deg_s)
+            # The escape's turn rates are fixed; a v_max below them still bounds every wheel.
+            left, right = act.wheels(*act.within(cmd.vel_mm_s, cmd.rvel_deg_s, params.v_max_mm_s))
             moving = cmd.vel_mm_s != 0 or cmd.rvel_deg_s != 0
             state = DriveState.AVOIDING if moving else DriveState.STOPPED
             # The escape's command (its "blocked" stop too) ends a sonar release: it must be
