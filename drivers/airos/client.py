@@ -39,6 +39,7 @@ from drivers.airos.model import (
     parse_stations,
     parse_status,
 )
+from drivers.transport.bounded import BodyTooLarge, read_bounded
 from drivers.transport.clock import REAL_CLOCK, Clock
 
 log = structlog.get_logger(__name__)
@@ -212,11 +213,10 @@ class AirOsClient:
                 timeout=timeout,
                 ssl=self._ssl if self._ssl is not None else True,
             ) as resp:
-                if (resp.content_length or 0) > MAX_BODY_BYTES:
-                    raise AirOsDataError(f"{method} {path}: answer of {resp.content_length} bytes")
-                body = await resp.read()
-                if len(body) > MAX_BODY_BYTES:  # chunked answers carry no Content-Length
-                    raise AirOsDataError(f"{method} {path}: answer of {len(body)} bytes")
+                try:  # in pieces: a chunked answer carries no Content-Length
+                    body = await read_bounded(resp, MAX_BODY_BYTES)
+                except BodyTooLarge as exc:
+                    raise AirOsDataError(f"{method} {path}: {exc}") from None
                 for name, morsel in resp.cookies.items():
                     if name.upper().startswith("AIROS"):
                         self._cookie = (name, morsel.value)

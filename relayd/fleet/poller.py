@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import math
 from collections import deque
 from dataclasses import dataclass, field
@@ -20,10 +21,15 @@ from typing import Any
 import aiohttp
 import structlog
 
+from drivers.transport.bounded import read_bounded
 from drivers.transport.clock import REAL_CLOCK, Clock
 from relayd.fleet.config import Relay
 
 log = structlog.get_logger(__name__)
+
+#: A relay's /status is a few kB; a peer streaming more is refused (it would take the
+#: fleet server's memory with it).
+MAX_STATUS_BYTES = 1 << 20
 
 #: One pose a second for five minutes: the trail on the fleet map.
 TRAIL_PERIOD_S = 1.0
@@ -75,7 +81,7 @@ class RelayPoller:
             ):
                 if resp.status != 200:
                     raise RuntimeError(f"HTTP {resp.status}")
-                doc = await resp.json(content_type=None)
+                doc = json.loads(await read_bounded(resp, MAX_STATUS_BYTES))
             if not isinstance(doc, dict) or "state" not in doc:
                 raise RuntimeError("not a relayd status document")
         except TimeoutError:
