@@ -31,7 +31,10 @@ def fmt_db(value: float) -> str:
     Rounds as JavaScript's Math.round does (half up), on integers, so reasons.js
     writes the very same characters for the same number.
     """
-    tenths = math.floor(value * 10 + 0.5)
+    scaled = value * 10 + 0.5
+    if not math.isfinite(scaled):  # 1e308 from a broken peer: no number to write
+        return "?"
+    tenths = math.floor(scaled)
     whole, frac = divmod(abs(tenths), 10)
     text = f"{whole}" if frac == 0 else f"{whole}.{frac}"
     return text if tenths >= 0 else MINUS + text

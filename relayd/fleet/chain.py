@@ -13,6 +13,7 @@ receiver-sensitivity table of relayd.sim.radio) times the MAC efficiency.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Any
 
 from relayd.api.reasons import describe
@@ -152,10 +153,55 @@ def fleet_map(views: list[RelayView], now: float, stale_after_s: float) -> dict[
     return {"relays": placed, "unplaced": unplaced}
 
 
+#: What a relay's status document may break with when it is not what a relayd sends.
+_BAD_DOC = (AttributeError, TypeError, ValueError, KeyError, IndexError, OverflowError)
+
+
 def fleet_document(views: list[RelayView], now: float, stale_after_s: float) -> dict[str, Any]:
+    """The whole fleet. Each relay's document is read on its own: one that is not what a
+    relayd sends is shown as a bad answer, with the reason, and the others stay."""
+    relays: list[dict[str, Any]] = []
+    good: list[RelayView] = []
+    for v in views:
+        try:
+            summary = relay_summary(v, now, stale_after_s)
+            hops([v], now, stale_after_s)
+            fleet_map([v], now, stale_after_s)
+        except _BAD_DOC as exc:
+            relays.append(_bad_summary(v, f"unreadable status: {type(exc).__name__}: {exc}"))
+            continue
+        relays.append(summary)
+        good.append(v)
     return {
-        "relays": [relay_summary(v, now, stale_after_s) for v in views],
-        "hops": hops(views, now, stale_after_s),
-        "map": fleet_map(views, now, stale_after_s),
+        "relays": relays,
+        "hops": hops([v if v in good else _without_doc(v) for v in views], now, stale_after_s),
+        "map": fleet_map(good, now, stale_after_s),
         "stale_after_s": stale_after_s,
+    }
+
+
+def _without_doc(view: RelayView) -> RelayView:
+    return replace(view, doc=None)
+
+
+def _bad_summary(view: RelayView, error: str) -> dict[str, Any]:
+    return {
+        "name": view.relay.name,
+        "url": view.relay.url,
+        "link": "bad_answer",
+        "current": False,
+        "error": error[:200],
+        "age_s": None,
+        "latency_ms": None,
+        "has_token": view.relay.token is not None,
+        "robot": None,
+        "state": None,
+        "mode": None,
+        "reason": None,
+        "reason_text": None,
+        "battery_v": None,
+        "rssi_leader_dbm": None,
+        "rssi_behind_dbm": None,
+        "bearing_deg": None,
+        "wheels_mm_s": [None, None],
     }

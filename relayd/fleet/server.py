@@ -65,15 +65,16 @@ async def hold_one(
 ) -> dict[str, Any]:
     """POST {"mode": "hold"} to one relay; the result says plainly what happened."""
     result: dict[str, Any] = {"name": relay.name, "url": relay.url, "ok": False, "status": None}
-    if relay.token is None:
-        return {**result, "message": "not sent: no token configured for this relay"}
+    # A stop needs no token (docs/DEPLOY.md 6.1): it is sent to every relay, with the token
+    # when one is configured.
+    headers = {} if relay.token is None else {"Authorization": f"Bearer {relay.token}"}
     try:
         async with (
             asyncio.timeout(timeout_s),
             session.post(
                 relay.url + "/api/mode",
                 json={"mode": "hold"},
-                headers={"Authorization": f"Bearer {relay.token}"},
+                headers=headers,
             ) as resp,
         ):
             text = await resp.text()

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import json
 import time
 from collections.abc import AsyncIterator
 from pathlib import Path
@@ -16,6 +17,8 @@ from typing import Any
 
 import aiohttp
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from drivers.transport.clock import REAL_CLOCK
 from relayd.api import make_app, start_api
@@ -313,13 +316,13 @@ async def test_hold_one_reports_every_outcome() -> None:
         state.mode = Mode.FOLLOW
         ok = await hold_one(s, Relay("a", url, TOKEN), 2.0)
         assert ok["ok"] and ok["status"] == 200 and state.mode is Mode.HOLD
+        # A stop needs no token: a wrong one or none stops the relay all the same.
+        state.mode = Mode.FOLLOW
         bad = await hold_one(s, Relay("a", url, "wrong-token"), 2.0)
-        assert not bad["ok"] and bad["message"] == "refused: HTTP 401 wrong bearer token"
+        assert bad["ok"] and state.mode is Mode.HOLD
+        state.mode = Mode.FOLLOW
         none = await hold_one(s, Relay("a", url, None), 2.0)
-        assert (
-            none["message"] == "not sent: no token configured for this relay"
-            and none["status"] is None
-        )
+        assert none["ok"] and none["message"] == "hold accepted" and state.mode is Mode.HOLD
         gone = await hold_one(s, Relay("g", closed_port_url(), TOKEN), 2.0)
         assert gone["message"].startswith("unreachable: hold NOT sent")
         t0 = time.monotonic()
@@ -399,3 +402,50 @@ async def test_relayd_fleet_command_serves_the_page() -> None:
         )
         _, err = await bad.communicate()
         assert bad.returncode == 2 and b"no relays" in err
+
+
+_json_values = st.recursive(
+    st.none() | st.booleans() | st.floats(allow_nan=True) | st.integers() | st.text(max_size=8),
+    lambda inner: (
+        st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=8), inner, max_size=3)
+    ),
+    max_leaves=12,
+)
+_keys = st.sampled_from(
+    [
+        "links",
+        "pose",
+        "wheels_mm_s",
+        "thresholds",
+        "rssi_leader_dbm",
+        "reason",
+        "state",
+        "battery_v",
+    ]
+)
+
+
+@given(st.dictionaries(_keys, _json_values, max_size=6))
+@settings(max_examples=150, deadline=None)
+def test_one_odd_relay_never_blanks_the_fleet(overrides: dict[str, Any]) -> None:
+    """A relay whose /status has lists where objects belong, or 1e308, is shown as bad; the
+    healthy relay beside it stays (a bad one once made /fleet.json answer 500)."""
+    odd = _view("odd", {**_doc("odd", -50.0, -60.0), **overrides})
+    good = _view("good", _doc("good", -52.0, -58.0))
+    doc = fleet_document([odd, good], 100.2, 2.0)
+    json.dumps(doc)  # a valid document
+    by_name = {r["name"]: r for r in doc["relays"]}
+    assert by_name["good"]["current"] and by_name["good"]["link"] == "live"
+    assert by_name["odd"]["link"] in ("live", "bad_answer")
+
+
+def test_the_two_documents_that_once_blanked_the_page() -> None:
+    for odd_doc in (
+        {**_doc("odd", -50.0, -60.0), "links": ["front", "rear"]},
+        {**_doc("odd", -50.0, -60.0), "rssi_leader_dbm": 1e308, "reason": "leader_near"},
+    ):
+        doc = fleet_document(
+            [_view("odd", odd_doc), _view("good", _doc("good", -52, -58))], 100.2, 2.0
+        )
+        assert [r["name"] for r in doc["relays"]] == ["odd", "good"]
+        assert doc["relays"][1]["current"]
