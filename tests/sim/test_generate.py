@@ -84,3 +84,18 @@ def test_planner_goes_round_a_wall_and_refuses_a_closed_room() -> None:
         ((-1.0, 1.0), (-1.0, -1.0)),
     ]
     assert plan(box, (0.0, 0.0), (4.0, 0.0), 0.3) is None
+
+
+def test_sweep_generated_arg_expands_to_seeds() -> None:
+    import argparse
+
+    from relayd.cli.sweep import _generated_arg
+
+    assert _generated_arg("office:3") == [
+        "generated:office:0",
+        "generated:office:1",
+        "generated:office:2",
+    ]
+    for bad in ("office", "office:0", "office:x"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            _generated_arg(bad)
