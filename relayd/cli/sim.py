@@ -52,7 +52,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
         default=DEFAULT_SCENARIO,
         metavar="NAME|FILE",
         help=f"a shipped scenario ({', '.join(builtin_names())}; default {DEFAULT_SCENARIO})"
-        " or a scenario TOML file (docs/SIMULATOR.md)",
+        " or a scenario TOML file (docs/SIMULATOR.md), or generated:KIND:SEED (relayd/sim/generate.py)",
+    )
+    parser.add_argument(
+        "--save-scenario",
+        metavar="FILE",
+        default=None,
+        help="write the generated:KIND:SEED world's scenario TOML to FILE and exit",
     )
     parser.add_argument(
         "--relays",
@@ -195,6 +201,22 @@ def _open_log(out: Path) -> Any:
     return (out / "sim.log").open("w", encoding="utf-8")
 
 
+def _save_generated(ref: str, dest: Path) -> int:
+    from relayd.sim.generate import GenerateError, generate, parse_ref
+
+    try:
+        parsed = parse_ref(ref)
+        if parsed is None:
+            print(f"--save-scenario: {ref!r} is not generated:KIND:SEED", file=sys.stderr)
+            return 2
+        dest.write_text(generate(*parsed), encoding="utf-8")
+    except (GenerateError, OSError) as exc:
+        print(f"--save-scenario: {exc}", file=sys.stderr)
+        return 2
+    print(f"wrote {dest}")
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     """On a virtual-time loop: deterministic, paced to --speed x wall time (or flat out)."""
     from relayd.runtime import vtime
@@ -207,6 +229,8 @@ async def _run(args: argparse.Namespace) -> int:
     from relayd.sim import plots as sim_plots
     from relayd.sim.scenario import ScenarioError, load_scenario
 
+    if args.save_scenario is not None:
+        return _save_generated(args.scenario, Path(args.save_scenario))
     try:
         scenario = load_scenario(args.scenario)
         if isinstance(args.relays, int):

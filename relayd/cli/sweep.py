@@ -45,12 +45,27 @@ def _positive_int(text: str) -> int:
     return v
 
 
+def _generated_arg(text: str) -> list[str]:
+    kind, sep, n = text.partition(":")
+    if not sep or not n.isdigit() or int(n) < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected KIND:N, e.g. office:20")
+    return [f"generated:{kind}:{i}" for i in range(int(n))]
+
+
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--scenario",
         action="append",
-        required=True,
-        help="a shipped scenario name or a TOML file (repeatable)",
+        default=[],
+        help="a shipped scenario name, a TOML file or generated:KIND:SEED (repeatable)",
+    )
+    parser.add_argument(
+        "--generated",
+        action="append",
+        default=[],
+        type=_generated_arg,
+        metavar="KIND:N",
+        help="N generated worlds of KIND, seeds 0..N-1 (repeatable; relayd/sim/generate.py)",
     )
     parser.add_argument(
         "--relays",
@@ -130,8 +145,11 @@ def run(args: argparse.Namespace) -> int:
     seeds = args.seed_list if args.seed_list is not None else list(range(1, (args.seeds or 10) + 1))
     try:
         axes = [parse_set(s) for s in args.sets]
+        scenarios = list(args.scenario) + [s for g in args.generated for s in g]
+        if not scenarios:
+            raise GridError("--scenario or --generated: at least one")
         specs = build_grid(
-            args.scenario, args.relays, seeds, axes, seconds=args.seconds, speed=args.speed
+            scenarios, args.relays, seeds, axes, seconds=args.seconds, speed=args.speed
         )
     except GridError as exc:
         print(f"relayd sweep: {exc}", file=sys.stderr)

@@ -367,6 +367,14 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
     """Load a shipped scenario by name (`corridor`) or any scenario file by path."""
     text: str
     p = Path(name_or_path)
+    from relayd.sim.generate import GenerateError, generate, parse_ref
+
+    try:
+        ref = parse_ref(str(name_or_path))
+        if ref is not None:
+            return parse_scenario(tomllib.loads(generate(*ref)))
+    except GenerateError as exc:
+        raise ScenarioError([str(exc)]) from None
     if p.suffix == ".toml" or p.exists():
         try:
             raw = p.read_bytes()

@@ -120,7 +120,27 @@ def row_for(
             "run_dir": f"runs/{spec.run_id}",
         }
     )
+    row.update(relay_columns(s))
     return row
+
+
+#: Per-relay outcome columns, from summary.json's followers (named <relay>_<field>).
+RELAY_FIELDS = (
+    ("reason", "stopped_reason"),
+    ("final_gap_m", "final_gap_m"),
+    ("collisions", "collisions"),
+    ("travelled_m", "travelled_m"),
+)
+#: The split outcome (issue 25) where the summary has it.
+SPLIT_FIELDS = ("leader_arrived", "link_held", "relays_ok")
+
+
+def relay_columns(summary: dict[str, Any]) -> dict[str, Any]:
+    out: dict[str, Any] = {k: summary[k] for k in SPLIT_FIELDS if k in summary}
+    for f in summary.get("followers", []):
+        for col, key in RELAY_FIELDS:
+            out[f"{f['name']}_{col}"] = f.get(key, "")
+    return out
 
 
 def load_finished(out: Path, spec: RunSpec) -> dict[str, Any] | None:
@@ -171,7 +191,10 @@ def write_run(out: Path, spec: RunSpec, row: dict[str, Any], result: dict[str, A
 def write_csv(path: Path, rows: list[dict[str, Any]], set_keys: list[str]) -> None:
     tmp = path.with_suffix(".csv.tmp")
     with tmp.open("w", encoding="utf-8", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=columns(set_keys), extrasaction="ignore")
+        fixed = columns(set_keys)
+        # The per-relay columns after the fixed ones, in the order the rows first name them.
+        extra = list(dict.fromkeys(k for r in rows for k in r if k not in fixed))
+        w = csv.DictWriter(f, fieldnames=[*fixed, *extra], extrasaction="ignore")
         w.writeheader()
         for r in rows:
             w.writerow(r)

@@ -139,6 +139,9 @@ def write_report(
             plot_cell(out, f"{label}: end-to-end throughput, mean ± 1 sd", series, out / png)
             lines += ["", f"![{label}]({png.as_posix()})"]
         lines.append("")
+    from relayd.sweep.robust import section
+
+    lines += section(rows)
     path = out / "report.md"
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path

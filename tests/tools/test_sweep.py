@@ -142,7 +142,13 @@ def test_two_workers_equal_one_worker_and_resume(
     two, one = tmp_path / "two", tmp_path / "one"
     assert main(["sweep", *grid, "--workers", "2", "--out", str(two)]) == 0
     rows = _rows(two / "runs.csv")
-    assert list(rows[0]) == columns(["radio.shadow_sigma_db", "leader.speed_m_s"])
+    fixed = columns(["radio.shadow_sigma_db", "leader.speed_m_s"])
+    assert list(rows[0])[: len(fixed)] == fixed
+    # Per-relay outcome columns follow, filled for the 1-relay runs only.
+    per_relay = ["relay1_reason", "relay1_final_gap_m", "relay1_collisions", "relay1_travelled_m"]
+    assert list(rows[0])[len(fixed) :] == per_relay
+    for r in rows:
+        assert (r["relay1_reason"] != "") == (r["relays"] == "1")
     assert len(rows) == 4 and all(r["status"] == "ok" and r["attempts"] == "1" for r in rows)
     for r in rows:
         summary = json.loads((two / r["run_dir"] / "summary.json").read_text())

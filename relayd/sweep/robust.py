@@ -1,0 +1,78 @@
+"""The robustness section of report.md: clean share with a Wilson interval, failures by
+category, the worst worlds with the command that reproduces each (issue 27).
+
+A run is clean when the leader reached its goal, the link never broke, nothing collided and
+every relay ended on the link rule. It reads runs.csv's per-relay columns (<relay>_reason).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Sequence
+from typing import Any
+
+#: Reasons that end a relay on the paper's stop rule (or still following the leader).
+LINK_RULE = ("leader_near", "rear_weak", "driving")
+
+
+def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """The Wilson score interval of k successes in n trials (95 % by default)."""
+    if n == 0:
+        return 0.0, 1.0
+    p = k / n
+    c = (p + z * z / (2 * n)) / (1 + z * z / n)
+    h = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return max(0.0, c - h), min(1.0, c + h)
+
+
+def _reasons(row: dict[str, Any]) -> list[str]:
+    return [str(v) for k, v in row.items() if k.endswith("_reason") and v not in ("", None)]
+
+
+def category(row: dict[str, Any]) -> str:
+    """'clean' or the first failure that applies, in the issue's order of gravity."""
+    if int(float(row.get("collisions") or 0)) > 0:
+        return "collision"
+    if row.get("link_broken_at_s") not in ("", None):
+        return "link broke"
+    if str(row.get("goal_reached")) != "True":
+        return "leader never arrived"
+    for r in _reasons(row):
+        if not r.startswith(LINK_RULE):
+            return "stuck avoiding" if "avoid" in r else "lost"
+    return "clean"
+
+
+def section(rows: Sequence[dict[str, Any]]) -> list[str]:
+    ok = [r for r in rows if r.get("status") == "ok" and _reasons(r)]
+    if not ok:
+        return []
+    cats = Counter(category(r) for r in ok)
+    lo, hi = wilson(cats["clean"], len(ok))
+    lines = [
+        "## Robustness",
+        "",
+        f"Clean: {cats['clean']}/{len(ok)} ({100 * cats['clean'] / len(ok):.1f} %), "
+        f"Wilson 95 % interval {100 * lo:.1f}-{100 * hi:.1f} %.",
+        "",
+        "| outcome | runs |",
+        "|---|---|",
+        *(f"| {c} | {n} |" for c, n in sorted(cats.items())),
+        "",
+    ]
+    worst = sorted(ok, key=lambda r: float(r.get("min_e2e_mbps") or 0))
+    worst = [r for r in worst if category(r) != "clean"][:5] or worst[:5]
+    lines += [
+        "Worst runs (the failures, else all runs; lowest minimum end-to-end throughput first):",
+        "",
+    ]
+    for r in worst:
+        ref = str(r["scenario"])
+        if ref.startswith("generated-"):
+            ref = "generated:" + ref.removeprefix("generated-").replace("-", ":", 1)
+        lines.append(
+            f"- {r['scenario']} seed {r['seed']} ({category(r)}): "
+            f"`relayd sim --scenario {ref} --relays {r['relays']} --seed {r['seed']}`"
+        )
+    return [*lines, ""]

@@ -1,0 +1,101 @@
+"""The floor-plan generator: deterministic, valid worlds, loadable as scenarios."""
+
+from __future__ import annotations
+
+import itertools
+import math
+import tomllib
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from relayd.sim.generate import CLEARANCE_M, MIN_ROUTE_M, GenerateError, build, generate
+from relayd.sim.planner import Grid, plan, route_length_m
+from relayd.sim.scenario import ScenarioError, load_scenario
+
+
+def _segments(world: dict[str, object]) -> list[tuple[tuple[float, float], tuple[float, float]]]:
+    from relayd.sim.generate import _segments as segs
+
+    return segs(world)
+
+
+def test_same_seed_same_file() -> None:
+    assert generate("office", 7) == generate("office", 7)
+    assert generate("office", 7) != generate("office", 8)
+
+
+def _check_valid(seed: int) -> None:
+    world, route = build("office", seed)
+    segs = _segments(world)
+    # The route keeps the footprint plus margin clear of every wall (sampled every 5 cm,
+    # with one grid cell of slack for the waypoints' rounding).
+    grid = Grid(segs, CLEARANCE_M - 0.15)
+    for a, b in itertools.pairwise(route):
+        n = max(1, int(math.dist(a, b) / 0.05))
+        for k in range(n + 1):
+            p = (a[0] + (b[0] - a[0]) * k / n, a[1] + (b[1] - a[1]) * k / n)
+            assert grid.free(p), (seed, p)
+    assert route_length_m(route) >= MIN_ROUTE_M
+    # No wall crosses a doorway: a doorway's midpoint is clear of every wall.
+    for (ax, ay), (bx, by) in world["doors"]:  # type: ignore[attr-defined]
+        mid = ((ax + bx) / 2, (ay + by) / 2)
+        assert Grid(segs, 0.3).free(mid), (seed, mid)
+    # The convoy's start poses are free.
+    sc = load_scenario(f"generated:office:{seed}")
+    free = Grid(segs, 0.3)
+    for r in sc.relay:
+        assert free.free((r.x, r.y))
+    assert free.free((sc.command_center.x, sc.command_center.y))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_world_is_valid(seed: int) -> None:
+    _check_valid(seed)
+
+
+@settings(max_examples=8, deadline=None)
+@given(st.integers(min_value=0, max_value=10**6))
+def test_sampled_seeds_are_valid(seed: int) -> None:
+    _check_valid(seed)
+
+
+def test_written_scenario_parses() -> None:
+    data = tomllib.loads(generate("office", 4))
+    assert data["relays"] == 2 and len(data["relay"]) == 2
+
+
+def test_unknown_kind_is_a_scenario_error() -> None:
+    with pytest.raises(ScenarioError, match="unknown kind"):
+        load_scenario("generated:castle:1")
+    with pytest.raises(GenerateError):
+        build("castle", 1)
+
+
+def test_planner_goes_round_a_wall_and_refuses_a_closed_room() -> None:
+    wall = [((2.0, -5.0), (2.0, 5.0))]
+    route = plan(wall, (0.0, 0.0), (4.0, 0.0), 0.5)
+    assert route is not None and route_length_m(route) > 10.0
+    box = [
+        ((-1.0, -1.0), (1.0, -1.0)),
+        ((1.0, -1.0), (1.0, 1.0)),
+        ((1.0, 1.0), (-1.0, 1.0)),
+        ((-1.0, 1.0), (-1.0, -1.0)),
+    ]
+    assert plan(box, (0.0, 0.0), (4.0, 0.0), 0.3) is None
+
+
+def test_sweep_generated_arg_expands_to_seeds() -> None:
+    import argparse
+
+    from relayd.cli.sweep import _generated_arg
+
+    assert _generated_arg("office:3") == [
+        "generated:office:0",
+        "generated:office:1",
+        "generated:office:2",
+    ]
+    for bad in ("office", "office:0", "office:x"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            _generated_arg(bad)

@@ -1,0 +1,46 @@
+"""The sweep report's robustness section: Wilson interval, categories, repro commands."""
+
+from __future__ import annotations
+
+import pytest
+
+from relayd.sweep.robust import category, section, wilson
+
+
+def test_wilson_matches_hand_values() -> None:
+    lo, hi = wilson(6, 6)
+    assert lo == pytest.approx(0.6097, abs=1e-4) and hi == pytest.approx(1.0)
+    lo, hi = wilson(95, 100)
+    assert lo == pytest.approx(0.8882, abs=1e-3) and hi == pytest.approx(0.9785, abs=1e-3)
+
+
+def _row(**kw: object) -> dict[str, object]:
+    base: dict[str, object] = {
+        "scenario": "generated-office-3",
+        "relays": 2,
+        "seed": 1,
+        "status": "ok",
+        "goal_reached": "True",
+        "link_broken_at_s": "",
+        "collisions": "0",
+        "min_e2e_mbps": "19.0",
+        "relay1_reason": "rear_weak",
+        "relay2_reason": "leader_near",
+    }
+    base.update(kw)
+    return base
+
+
+def test_categories() -> None:
+    assert category(_row()) == "clean"
+    assert category(_row(relay1_reason="avoiding (obstacle)")) == "stuck avoiding"
+    assert category(_row(relay2_reason="leader_lost")) == "lost"
+    assert category(_row(collisions="1")) == "collision"
+    assert category(_row(link_broken_at_s="120.0")) == "link broke"
+    assert category(_row(goal_reached="False")) == "leader never arrived"
+
+
+def test_section_names_the_repro_command() -> None:
+    text = "\n".join(section([_row(), _row(seed=2, relay1_reason="leader_lost")]))
+    assert "Clean: 1/2" in text
+    assert "`relayd sim --scenario generated:office:3 --relays 2 --seed 2`" in text
