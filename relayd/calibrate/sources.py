@@ -117,30 +117,20 @@ def readings_from_messages(
 
 def iter_recording(path: str | Path) -> Iterator[tuple[str, dict[str, Any]]]:
     """The odometry, link and RSSI messages of an MCAP recording, in log-time order."""
-    from mcap.exceptions import McapError
-    from mcap.reader import make_reader
+    from relayd.record.reader import RecordingError, iter_messages
 
-    p = Path(path)
     try:
-        f = p.open("rb")
-    except OSError as exc:
-        raise SourceError(f"{p}: {exc.strerror or exc}") from None
-    with f:
+        # The one reader of recordings: the CRCs and the chunk caps replay has, too.
+        messages = iter_messages(Path(path), frozenset({"/robot/sip", "/link", "/wifi/rssi"}))
+    except RecordingError as exc:
+        raise SourceError(f"not a readable MCAP recording: {exc}") from None
+    for topic, _t, data in messages:
         try:
-            reader = make_reader(f)
-            for _schema, channel, message in reader.iter_messages(
-                topics=["/robot/sip", "/link", "/wifi/rssi"], log_time_order=True
-            ):
-                try:
-                    doc = json.loads(message.data)
-                except ValueError:
-                    continue  # one undecodable message loses one reading, not the calibration
-                if isinstance(doc, dict):
-                    yield channel.topic, doc
-        except (McapError, EOFError, ValueError) as exc:
-            raise SourceError(
-                f"{p}: not a readable MCAP recording ({type(exc).__name__}: {exc})"
-            ) from None
+            doc = json.loads(data)
+        except (ValueError, RecursionError):
+            continue  # one undecodable message loses one reading, not the calibration
+        if isinstance(doc, dict):
+            yield topic, doc
 
 
 def readings_from_recording(

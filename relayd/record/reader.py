@@ -26,6 +26,14 @@ from relayd.record.meta import RunInfo
 
 #: No record of ours comes near this: a bigger length field is a corrupt file.
 RECORD_SIZE_LIMIT = 1 << 30
+#: A chunk that says it expands beyond this is refused before it is decompressed (the
+#: recorder's chunks are about 1 MiB; a 10 KB file once declared 3 GB of zeros).
+CHUNK_SIZE_LIMIT = 64 << 20
+#: What one file may expand to in all: the work per file is bounded.
+TOTAL_SIZE_LIMIT = 2 << 30
+#: The compressions a chunk may use (the recorder writes lz4). zstd's output is bounded by
+#: the declared size; lz4's by its ratio (at most ~255:1) times RECORD_SIZE_LIMIT's chunk.
+COMPRESSIONS = ("", "zstd", "lz4")
 
 
 class RecordingError(Exception):
@@ -151,6 +159,56 @@ def _records(f: BinaryIO, cursor: _Cursor) -> Iterator[tuple[int, McapRecord]]:
         yield cursor.start, rec
 
 
+def chunk_refusal(chunk: Chunk, expanded_bytes: int) -> str | None:
+    """Why a chunk is not decompressed (None: it may be): the checks before any work."""
+    if chunk.compression not in COMPRESSIONS:
+        return f"compression {chunk.compression!r} is not one relayd writes"
+    if chunk.uncompressed_size > CHUNK_SIZE_LIMIT:
+        return f"declares {chunk.uncompressed_size} bytes, more than {CHUNK_SIZE_LIMIT}"
+    if expanded_bytes > TOTAL_SIZE_LIMIT:
+        return f"the file expands to more than {TOTAL_SIZE_LIMIT} bytes"
+    return None
+
+
+def iter_messages(path: Path, topics: frozenset[str]) -> Iterator[tuple[str, int, bytes]]:
+    """(topic, log time, data) of the messages on `topics`, in log-time order, read with the
+    same checks as read_recording (CRCs, the chunk caps); RecordingError says where not."""
+    try:
+        f = path.open("rb")
+    except OSError as exc:
+        raise RecordingError(path, f"cannot open: {exc.strerror or exc}") from None
+    channels: dict[int, str] = {}
+    out: list[tuple[str, int, bytes]] = []
+    expanded = chunks = 0
+    cursor = _Cursor()
+    with f:
+        try:
+            for offset, rec in _records(f, cursor):
+                inner: list[McapRecord] = [rec]
+                if isinstance(rec, Chunk):
+                    expanded += rec.uncompressed_size
+                    refused = chunk_refusal(rec, expanded)
+                    if refused is not None:
+                        raise RecordingError(path, f"chunk {chunks + 1}: {refused}", offset)
+                    inner = breakup_chunk(rec, validate_crc=True)
+                    chunks += 1
+                for r in inner:
+                    if isinstance(r, Channel):
+                        channels[r.id] = r.topic
+                    elif isinstance(r, Message) and channels.get(r.channel_id) in topics:
+                        out.append((channels[r.channel_id], r.log_time, r.data))
+        except RecordingError:
+            raise
+        except InvalidMagic:
+            raise RecordingError(path, "not an MCAP file (bad magic)", 0) from None
+        except Exception as exc:  # noqa: BLE001 - a corrupt length or field fails in many ways
+            raise RecordingError(
+                path, f"unreadable ({type(exc).__name__}: {exc})", cursor.start
+            ) from None
+    out.sort(key=lambda m: m[1])
+    return iter(out)
+
+
 def _cut_at(f: BinaryIO, offset: int) -> bool:
     """Whether the record at `offset` runs past the end of the file (a cut, not a corruption)."""
     size = f.seek(0, 2)
@@ -177,6 +235,7 @@ def read_recording(path: str | Path, *, partial: bool = False) -> Recording:  # 
     robot = recorder = None
     chunked = _Chunked(p)
     chunks = 0
+    expanded = 0
     complete = False
     broke: str | None = None
     cursor = _Cursor()
@@ -184,6 +243,10 @@ def read_recording(path: str | Path, *, partial: bool = False) -> Recording:  # 
         try:
             for offset, rec in _records(f, cursor):
                 if isinstance(rec, Chunk):
+                    expanded += rec.uncompressed_size
+                    refused = chunk_refusal(rec, expanded)
+                    if refused is not None:
+                        raise RecordingError(p, f"chunk {chunks + 1}: {refused}", offset)
                     try:
                         records = breakup_chunk(rec, validate_crc=True)
                     except Exception as exc:  # noqa: BLE001 - decompression, CRC or record errors alike
