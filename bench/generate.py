@@ -1,4 +1,4 @@
-"""Generate many worlds per kind and time it (issue 27): every seed must give a valid world.
+"""Generate many worlds per kind and time it: every seed must give a valid world.
 
     python -m bench.generate [--seeds 1000] [--kind office]
 

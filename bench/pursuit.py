@@ -1,4 +1,4 @@
-"""Issue 26: every shipped scenario with `control.pursuit` = "trail" and "bearing" side by side.
+"""Every shipped scenario with `control.pursuit` = "trail" and "bearing" side by side.
 
 For each scenario (its own relay count, at least 2 where it has them), each seed and
 each pursuit, one `relayd sim` run in virtual time; per relay the reason it ended on

@@ -90,6 +90,7 @@ class ApiContext:
     streams_by_client: dict[str, int] = field(default_factory=dict)
     #: Failed authentications per client: (failures in a row, refused until clock time).
     auth_backoff: dict[str, tuple[int, float]] = field(default_factory=dict)
+    auth_free_failures: int = AUTH_FREE_FAILURES
     #: The last /status body and what it was rendered for: (state revision, clock time).
     status_cache: tuple[int, float, str] | None = None
 
@@ -200,7 +201,7 @@ def _authorize(ctx: ApiContext, request: web.Request) -> web.Response | None:
 
 def _auth_failed(ctx: ApiContext, client: str, failures: int, now: float) -> None:
     failures += 1
-    over = failures - AUTH_FREE_FAILURES
+    over = failures - ctx.auth_free_failures
     until_t = (
         now + min(AUTH_BACKOFF_MAX_S, AUTH_BACKOFF_S * 2.0 ** min(over, 16)) if over > 0 else 0.0
     )

@@ -111,7 +111,7 @@ def build_openapi(max_drive_mm_s: float) -> dict[str, Any]:
             "/path": {
                 "get": {
                     "summary": "This relay's odometry pose and the path it drove, for a relay "
-                    "that follows it (read-only; issue 26)",
+                    "that follows it (read-only)",
                     "operationId": "getPath",
                     "responses": {"200": _json("the pose and the path", "Path")},
                 }

@@ -121,7 +121,7 @@ class Recovery(_Model):
 
 
 class Trail(_Model):
-    """The leader's trail in this relay's odometry frame (relayd/core/trail, issue 26)."""
+    """The leader's trail in this relay's odometry frame (relayd/core/trail)."""
 
     source: Literal["estimate", "bearing"] = Field(
         description="what the pursuit steers by: the estimated trail, or the scan bearing (no trail yet)"
@@ -150,7 +150,7 @@ class PathPose(_Model):
 
 class OwnPath(_Model):
     """GET /path: this relay's odometry pose and the path it drove (a relay following it
-    follows this path, issue 26), odometry frame, oldest first."""
+    follows this path), odometry frame, oldest first."""
 
     pose: PathPose | None = Field(description="the newest pose; null before the first SIP")
     points: list[Annotated[list[float], Field(min_length=3, max_length=3)]] = Field(

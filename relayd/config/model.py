@@ -237,7 +237,7 @@ class ControlSettings(_Section):
     search_turn: bool = True
     #: ... at this rate (deg/s): a full-range sweep while turning must still fit a lobe.
     search_turn_deg_s: Annotated[float, Field(ge=5, le=90, allow_inf_nan=False)] = 25.0
-    #: Issue 26 (relayd/core/trail): "trail" steers along the leader's estimated trail (pure
+    #: (relayd/core/trail) "trail" steers along the leader's estimated trail (pure
     #: pursuit), "bearing" at the scan bearing as the paper's relays did.
     pursuit: Literal["trail", "bearing"] = "bearing"
     #: The path-loss model the leader's range is estimated with (`relayd calibrate` fits

@@ -207,7 +207,7 @@ class Brain:
         return self.rear.on_poll(ev, self._pose)
 
     def _trail_scan(self, now: float) -> None:
-        """A finished scan into the leader estimate and its trail (issue 26)."""
+        """A finished scan into the leader estimate and its trail."""
         bearing = self.scans.bearing_now(now, self._heading)
         sd = self.scans.model.sd_deg(now, self._heading)
         floor = (

@@ -125,7 +125,7 @@ def plot_map(world: World, records: Sequence[dict[str, Any]], path: Path) -> Non
             ax.plot(xs, ys, color=c, lw=1.5, label=body.name)
             ax.plot(xs[0], ys[0], marker="o", color=c, ms=8, ls="")
             ax.plot(xs[-1], ys[-1], marker="D", color=c, ms=7, ls="")
-            # Pursuit "trail" (issue 26): where this relay estimated its leader (the sim's
+            # Pursuit "trail": where this relay estimated its leader (the sim's
             # odometry starts at the body's world pose, so its frame is the world's).
             est = [
                 t["leader_xy_m"]

@@ -219,7 +219,7 @@ class SimRunner:
                     "rssi_l_mean_dbm": round(w.radio.mean_power_dbm(body.pos, w.node_pos(i))[0], 1),
                     "situation": st.situation,
                     "threshold_b_dbm": st.thresholds.get("threshold_b_dbm"),
-                    # Pursuit "trail" only (issue 26), so a "bearing" run's trace stays as it was.
+                    # Pursuit "trail" only, so a "bearing" run's trace stays as it was.
                     **self._trail_record(r),
                     "recovery": None
                     if (rv := st.recovery) is None

@@ -131,7 +131,7 @@ RELAY_FIELDS = (
     ("collisions", "collisions"),
     ("travelled_m", "travelled_m"),
 )
-#: The split outcome (issue 25) where the summary has it.
+#: The split outcome (leader_arrived, link_held, relays_ok) where the summary has it.
 SPLIT_FIELDS = ("leader_arrived", "link_held", "relays_ok")
 
 

@@ -1,5 +1,5 @@
 """The robustness section of report.md: clean share with a Wilson interval, failures by
-category, the worst worlds with the command that reproduces each (issue 27).
+category, the worst worlds with the command that reproduces each.
 
 A run is clean when the leader reached its goal, the link never broke, nothing collided and
 every relay ended on the link rule. It reads runs.csv's per-relay columns (<relay>_reason).
@@ -31,7 +31,7 @@ def _reasons(row: dict[str, Any]) -> list[str]:
 
 
 def category(row: dict[str, Any]) -> str:
-    """'clean' or the first failure that applies, in the issue's order of gravity."""
+    """'clean' or the first failure that applies, in order of gravity."""
     if int(float(row.get("collisions") or 0)) > 0:
         return "collision"
     if row.get("link_broken_at_s") not in ("", None):

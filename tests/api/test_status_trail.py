@@ -1,4 +1,4 @@
-"""/status's `trail` (issue 26) against its typed model and the OpenAPI schema."""
+"""/status's `trail` against its typed model and the OpenAPI schema."""
 
 from __future__ import annotations
 

@@ -28,7 +28,8 @@ import structlog
 
 from drivers.airos.client import AirOsClient
 from drivers.airos.fake import FakeAirOs
-from relayd.api import make_app, start_api
+from relayd.api import make_app
+from relayd.api.app import CONTEXT, start_api
 from relayd.runtime.logsetup import setup_logging
 from relayd.runtime.state import RelayState
 from relayd.runtime.supervisor import Supervisor
@@ -183,16 +184,19 @@ async def test_malformed_requests_are_info_without_traceback_and_rate_limited() 
 async def test_wrong_token_warnings_are_rate_limited_with_a_count() -> None:
     clock = ManualClock(1000.0)
     with captured("json") as buf:
-        server, port = await start_api(
-            make_app(RelayState(), _Controls(), clock=clock, token=TOKEN), "127.0.0.1", 0
-        )
+        app = make_app(RelayState(), _Controls(), clock=clock, token=TOKEN)
+        # The log's rate limit alone, without the backoff that would refuse most of these.
+        app[CONTEXT].auth_free_failures = 10**6
+        server, port = await start_api(app, "127.0.0.1", 0)
         try:
             async with aiohttp.ClientSession() as session:
 
                 async def post(token: str | None) -> int:
                     headers = {"Authorization": f"Bearer {token}"} if token else {}
                     async with session.post(
-                        f"http://127.0.0.1:{port}/api/mode", json={"mode": "hold"}, headers=headers
+                        f"http://127.0.0.1:{port}/api/mode",
+                        json={"mode": "follow"},
+                        headers=headers,
                     ) as resp:
                         return resp.status
 

@@ -1,4 +1,4 @@
-"""Pursuit "trail" in the simulator (issue 26): the trace carries each relay's trail source and
+"""Pursuit "trail" in the simulator: the trace carries each relay's trail source and
 leader estimate, the estimate is near the true leader, and a "bearing" run's trace has none."""
 
 from __future__ import annotations

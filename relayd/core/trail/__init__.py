@@ -1,4 +1,4 @@
-"""The leader's trail (issue 26): where the leader is, where it went, and how to go there.
+"""The leader's trail: where the leader is, where it went, and how to go there.
 
 - `estimate`: the leader's position in the relay's odometry frame (an EKF over the scan
   bearing, the RSSI through the path-loss model and the sonar floor), with its covariance.

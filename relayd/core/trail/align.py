@@ -1,4 +1,4 @@
-"""Aligning a leader relay's odometry frame to this relay's own (pure; issue 26's robot leader).
+"""Aligning a leader relay's odometry frame to this relay's own (pure; the robot-leader part).
 
 A robot leader publishes its own odometry poses. To follow its real path, the follower
 needs the transform T = (tx, ty, phi) that maps the leader's frame into its own:

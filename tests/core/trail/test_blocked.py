@@ -1,4 +1,4 @@
-"""Never stuck without saying so: "trail_blocked" and its backoff (issue 26)."""
+"""Never stuck without saying so: "trail_blocked" and its backoff."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The trail polyline, pure pursuit along it, and the law's trail hook (issue 26)."""
+"""The trail polyline, pure pursuit along it, and the law's trail hook."""
 
 from __future__ import annotations
 
