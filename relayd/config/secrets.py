@@ -8,6 +8,7 @@ re-exports every name here.
 from __future__ import annotations
 
 import os
+import stat
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -66,6 +67,9 @@ def resolve_secret(ref: SecretRef, environ: Mapping[str, str]) -> str | None:
         return value
     if ref.file is not None:
         try:
+            # A FIFO or a device would block the read (check-config once hung on a FIFO).
+            if not stat.S_ISREG(os.stat(ref.file).st_mode):
+                raise ConfigError([f"{ref.key}: {ref.file} is not a regular file"])
             value = Path(ref.file).read_text(encoding="utf-8").strip()
         except OSError as exc:
             raise ConfigError(
@@ -79,6 +83,8 @@ def resolve_secret(ref: SecretRef, environ: Mapping[str, str]) -> str | None:
 
 #: The API token guards the wheels; anything shorter is guessable across the bridge.
 MIN_API_TOKEN_CHARS = 16
+#: ... and one of few different characters ("aaaaaaaaaaaaaaaa") is no secret either.
+MIN_API_TOKEN_DISTINCT = 6
 
 
 def check_api_token(ref: SecretRef, token: str) -> str:
@@ -88,6 +94,13 @@ def check_api_token(ref: SecretRef, token: str) -> str:
             [
                 f"{ref.key}: the API token has {len(token)} characters; "
                 f"at least {MIN_API_TOKEN_CHARS} are needed (e.g. `openssl rand -hex 16`)"
+            ]
+        )
+    if len(set(token)) < MIN_API_TOKEN_DISTINCT:
+        raise ConfigError(
+            [
+                f"{ref.key}: the API token has only {len(set(token))} different characters; "
+                f"a guessable token is refused (make one with `openssl rand -hex 16`)"
             ]
         )
     return token

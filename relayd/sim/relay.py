@@ -188,6 +188,6 @@ async def start_relay(
     if record_dir is not None:
         doc["record"] = {"enabled": True, "path": str(record_dir / f"{body.name}.mcap")}
     settings = Settings.model_validate(doc)
-    env = {AP_PASSWORD_ENV: password, API_TOKEN_ENV: secrets.token_hex(8)}
+    env = {AP_PASSWORD_ENV: password, API_TOKEN_ENV: secrets.token_hex(16)}
     daemon = Daemon(settings, clock=clock, env=env, devices=devices)
     return SimRelay(body.name, robot, maestro, procfs, rear, front, daemon)

@@ -94,7 +94,7 @@ def test_a_16_character_token_is_accepted(tmp_path: Path) -> None:
             "api": {"token_env": "T"},
         }
     )
-    Daemon(settings, env={"T": "x" * 16})
+    Daemon(settings, env={"T": "0123456789abcdef"})
     with pytest.raises(ConfigError, match=r"api\.token_env"):
         Daemon(settings, env={"T": "x" * 15})
 
@@ -190,7 +190,7 @@ def test_check_config_names_a_short_token_file_and_a_bad_certificate(
     }
     good = tmp_path / "good.toml"
     good_token = tmp_path / "good-token"
-    good_token.write_text("x" * 32 + "\n", encoding="utf-8")
+    good_token.write_text("0123456789abcdef" * 2 + "\n", encoding="utf-8")
     good.write_text(
         dump_toml(
             {
