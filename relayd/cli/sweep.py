@@ -137,6 +137,16 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import logging
 
+    try:
+        import distributed  # noqa: F401  (Dask: an extra, not in the base install)
+    except ImportError:
+        print(
+            "relayd sweep: Dask is not installed; install the sweep extra: "
+            "pip install 'relayd[sweep]'",
+            file=sys.stderr,
+        )
+        return 2
+
     from relayd.sim import plots as sim_plots
     from relayd.sweep.driver import SweepOptions, run_sweep
     from relayd.sweep.grid import GridError, build_grid, parse_set
@@ -157,7 +167,6 @@ def run(args: argparse.Namespace) -> int:
     set_keys = [a.key for a in axes]
     # Dask's own info lines (scheduler and worker start/stop) would bury the progress bar;
     # distributed sets levels on its sub-loggers when imported, so quiet them after that.
-    import distributed  # noqa: F401
 
     for name in ["distributed", *logging.root.manager.loggerDict]:
         if name.startswith("distributed"):

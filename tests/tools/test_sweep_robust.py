@@ -44,3 +44,17 @@ def test_section_names_the_repro_command() -> None:
     text = "\n".join(section([_row(), _row(seed=2, relay1_reason="leader_lost")]))
     assert "Clean: 1/2" in text
     assert "`relayd sim --scenario generated:office:3 --relays 2 --seed 2`" in text
+
+
+def test_sweep_without_dask_names_the_extra_and_exits_2() -> None:
+    import subprocess
+    import sys
+
+    code = (
+        "import sys; sys.modules['distributed'] = None\n"
+        "from relayd.cli import main\n"
+        "sys.exit(main(['sweep', '--scenario', 'convoy']))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
+    assert out.returncode == 2, out.stderr
+    assert "relayd[sweep]" in out.stderr and "Traceback" not in out.stderr
