@@ -9,11 +9,12 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import importlib
 import inspect
 import signal
 import sys
-from collections.abc import Coroutine, Sequence
+from collections.abc import Coroutine, Iterator, Sequence
 from typing import Any
 
 from relayd import __version__
@@ -177,14 +178,35 @@ def _keep_rich_out() -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     # Ctrl-C before a command has its own handlers (while the imports and the config load,
-    # the first 0.2 s) is the shell's 130 too, without a traceback.
+    # the first 0.2 s) is the shell's 130 too, without a traceback. While the command's
+    # modules are imported it is only noted: a KeyboardInterrupt raised inside a class
+    # body's __set_name__ (pydantic's) comes out as a RuntimeError no handler expects.
     try:
-        return _main(argv)
+        interrupted: list[int] = []
+        with _interrupts_noted(interrupted):
+            args, runner = _prepare(argv)
+        if interrupted:
+            return 130
+        return _run(args, runner)
     except KeyboardInterrupt:
         return 130
 
 
-def _main(argv: Sequence[str] | None) -> int:
+@contextlib.contextmanager
+def _interrupts_noted(into: list[int]) -> Iterator[None]:
+    """SIGINT appends to `into` instead of raising, for the block (main thread only)."""
+    try:
+        previous = signal.signal(signal.SIGINT, lambda signum, _frame: into.append(signum))
+    except ValueError:  # not the main thread: nothing to defer
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _prepare(argv: Sequence[str] | None) -> tuple[argparse.Namespace, Any]:
     if argv is None:
         _keep_rich_out()
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -195,6 +217,10 @@ def _main(argv: Sequence[str] | None) -> int:
     from relayd.runtime.logsetup import StdStream, setup_logging
 
     setup_logging("info", "console", stream=StdStream("stderr"))
+    return args, runner
+
+
+def _run(args: argparse.Namespace, runner: Any) -> int:
     code = (
         asyncio.run(_until_signal(runner(args)))
         if inspect.iscoroutinefunction(runner)

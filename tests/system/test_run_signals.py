@@ -158,13 +158,19 @@ if kind == "main":
         await start(self)
         while not driving(self):
             await asyncio.sleep(0.01)
+        await asyncio.sleep(1.0)  # driving for a while: the test must see it drive first
         raise RuntimeError("injected into the main coroutine")
     Daemon.start = failing_start
 else:
     check = ControlShell.check_devices
+    ticks = []
     def failing_check(self):
         check(self)
         if driving(self):
+            ticks.append(1)
+        # A second of driving first (ten 0.1 s ticks): the test must see the robot drive
+        # before the fault, or it waits for a drive that a stop already cancelled.
+        if len(ticks) >= 10:
             raise {"base": Injected("injected"), "exit": SystemExit(7),
                    "keyboard": KeyboardInterrupt()}[kind]
     ControlShell.check_devices = failing_check
@@ -200,8 +206,8 @@ async def test_an_exception_that_ends_the_daemon_ends_in_the_safe_stop(
         relayd = Relayd(proc)
         try:
             await _driving(rig, relayd)
-            # The fault fires at the first control tick that sees the wheels turning.
-            got = await _assert_safe_stop(rig, relayd, 0, time.monotonic())
+            # The fault fires about a second into the drive (INJECT): the stop is timed from then.
+            got = await _assert_safe_stop(rig, relayd, 0, time.monotonic() + 1.0)
         finally:
             await relayd.kill()
         assert got == code, relayd.output()

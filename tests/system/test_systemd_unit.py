@@ -145,7 +145,7 @@ def test_execstart_is_a_relayd_run_the_cli_accepts() -> None:
     exe = Path(argv[0])
     assert exe.name == "relayd" and exe.is_absolute()
     scripts = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
-    assert scripts["relayd"] == "relayd.cli:main"
+    assert scripts["relayd"] == "relayd.__main__:entry"
     args = build_parser().parse_args(argv[1:])
     assert args.command == "run"
     assert args.config == "/etc/relayd/relayd.toml"
