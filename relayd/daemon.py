@@ -371,6 +371,7 @@ class Daemon:
                 token=self._token,
                 metrics=self.metrics,
                 healthz_max_age_s=max(1.0, 5 * 0.1),
+                allowed_hosts=tuple(s.api.allowed_hosts),
             )
             # Bound before any device is touched: a wrong bind or a taken port is a
             # config error (exit 2 naming the key), not a robot that is already enabled.

@@ -30,6 +30,7 @@ from pydantic import BaseModel, ValidationError
 from drivers.transport.clock import Clock
 from relayd.api.history import History
 from relayd.api.history import install as install_history
+from relayd.api.hostcheck import normalise_names, request_problem
 from relayd.api.models import DriveRequest, ModeRequest
 from relayd.api.openapi import build_openapi
 from relayd.api.server import start_api
@@ -396,6 +397,26 @@ async def _close_streams(app: web.Application) -> None:
         task.cancel()
 
 
+def _host_middleware(allowed: frozenset[str]) -> Any:
+    """Refuse a foreign Host (421) or Origin (403) on every route: DNS rebinding (hostcheck.py)."""
+
+    @web.middleware
+    async def check(request: web.Request, handler: Any) -> web.StreamResponse:
+        host = request.headers.get("Host")
+        problem = request_problem(host, request.headers.get("Origin"), allowed)
+        if problem is not None:
+            ctx = request.app[CONTEXT]
+            count = ctx.auth_log_limit.hit(f"host:{request.remote}", ctx.clock.now())
+            if count is not None:
+                log.warning("api_host_refused", peer=request.remote, reason=problem, count=count)
+            status = 403 if problem.startswith("Origin") else 421
+            return _error(status, problem, "Origin" if status == 403 else "Host")
+        resp: web.StreamResponse = await handler(request)
+        return resp
+
+    return check
+
+
 @web.middleware
 async def _headers_middleware(request: web.Request, handler: Any) -> web.StreamResponse:
     response: web.StreamResponse = await handler(request)
@@ -414,11 +435,14 @@ def make_app(
     max_drive_mm_s: float = DEFAULT_MAX_DRIVE_MM_S,
     sse_heartbeat_s: float = 1.0,
     sse_min_interval_s: float = 0.1,
+    allowed_hosts: tuple[str, ...] = (),
 ) -> web.Application:
     """The relayd web application. `metrics` defaults to a fresh `Metrics(state, clock)`.
 
     The heartbeat is short because the live page treats 2 s without any event as stale
     data: a daemon that is alive but unchanged must say so well within that.
+    `allowed_hosts` are the names (beyond IP addresses and localhost) the Host and
+    Origin headers may carry.
     """
     if metrics is None:
         metrics = Metrics(state, clock)
@@ -435,7 +459,10 @@ def make_app(
         openapi_body=json.dumps(build_openapi(max_drive_mm_s), indent=1).encode(),
         index_body=(STATIC_DIR / "index.html").read_bytes(),
     )
-    app = web.Application(client_max_size=MAX_BODY_BYTES, middlewares=[_headers_middleware])
+    app = web.Application(
+        client_max_size=MAX_BODY_BYTES,
+        middlewares=[_host_middleware(normalise_names(allowed_hosts)), _headers_middleware],
+    )
     app[CONTEXT] = ctx
     app.router.add_get("/", handle_index)
     app.router.add_get("/status", handle_status)

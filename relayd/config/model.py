@@ -308,6 +308,9 @@ class ApiSettings(_Section):
     #: PEM certificate (chain) and private key: both set, the API serves HTTPS only.
     tls_cert: str | None = None
     tls_key: str | None = None
+    #: Host names (beyond IP addresses and localhost) the Host and Origin headers may
+    #: carry, e.g. ["relay1.local"]: any other name is refused, against DNS rebinding.
+    allowed_hosts: list[Annotated[str, Field(min_length=1, max_length=253)]] = []
 
     @model_validator(mode="after")
     def _tls_pair(self) -> ApiSettings:

@@ -42,7 +42,7 @@ async def _slow_header(sock: socket.socket, until: float, stats: dict[str, int])
     loop = asyncio.get_running_loop()
     header = b"X-Slow: " + b"a" * 1000
     try:
-        await loop.sock_sendall(sock, b"GET /status HTTP/1.1\r\nHost: relay\r\n")
+        await loop.sock_sendall(sock, b"GET /status HTTP/1.1\r\nHost: 127.0.0.1\r\n")
         for byte in header:
             if time.monotonic() >= until:
                 return

@@ -60,7 +60,9 @@ async def connect(port: int) -> tuple[asyncio.StreamReader, asyncio.StreamWriter
 async def get(port: int, path: str = "/status", timeout_s: float = 5.0) -> bytes:
     reader, writer = await connect(port)
     try:
-        writer.write(f"GET {path} HTTP/1.1\r\nHost: relay\r\nConnection: close\r\n\r\n".encode())
+        writer.write(
+            f"GET {path} HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n".encode()
+        )
         return await asyncio.wait_for(reader.read(), timeout_s)
     finally:
         writer.close()
@@ -99,7 +101,7 @@ async def test_an_event_stream_is_busy_and_stays_open() -> None:
     guard = GuardedServer(max_connections=10, idle_timeout_s=IDLE_S, evict_idle_s=EVICT_S)
     async with serving(guard) as port:
         reader, writer = await connect(port)
-        writer.write(b"GET /events HTTP/1.1\r\nHost: relay\r\n\r\n")
+        writer.write(b"GET /events HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
         t0 = now()
         while now() - t0 < IDLE_S * 3:
             assert await asyncio.wait_for(reader.readline(), 5.0)  # heartbeats keep coming
@@ -129,7 +131,7 @@ async def test_at_the_cap_with_every_connection_busy_a_new_one_waits() -> None:
         streams = []
         for _ in range(2):
             r, w = await connect(port)
-            w.write(b"GET /events HTTP/1.1\r\nHost: relay\r\n\r\n")
+            w.write(b"GET /events HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
             assert await asyncio.wait_for(r.readline(), 5.0)
             streams.append((r, w))
         waiting = asyncio.create_task(get(port, timeout_s=30.0))
@@ -181,7 +183,7 @@ async def test_keep_alive_connection_serves_many_requests(busy: bool) -> None:
     async with serving(guard) as port:
         reader, writer = await connect(port)
         for _ in range(5):
-            writer.write(b"GET /status HTTP/1.1\r\nHost: relay\r\n\r\n")
+            writer.write(b"GET /status HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
             status = await asyncio.wait_for(reader.readline(), 5.0)
             assert b"200" in status
             while (line := await asyncio.wait_for(reader.readline(), 5.0)) != b"\r\n":
