@@ -6,7 +6,9 @@ Thin I/O around the brain (`relayd.core.brain`), which decides everything:
   the driver's own callback, so the brain's step and the wheel command it causes run
   on the SIP's stack with no queue in between (the control latency);
 - a timer publishes a `Tick` every `tick_s`, because silence (no SIP) is exactly when
-  the robot must be stopped and no SIP would arrive to do it; before it, every
+  the robot must be stopped and no SIP would arrive to do it. A tick that wakes late
+  (the process held up: a GC pause, a starved CPU) first lets the input that waited
+  with it be read, so it judges the robot silent only if the robot was; before it, every
   device's state is looked at and changes are published as `DeviceEvent`s: UP, DOWN,
   or FAULT when its driver's health says the last attempt failed. A fault the
   supervisor reports (a device's task failed and is restarted) comes in through
@@ -19,6 +21,7 @@ Thin I/O around the brain (`relayd.core.brain`), which decides everything:
 
 from __future__ import annotations
 
+import asyncio
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -45,6 +48,8 @@ from relayd.runtime.state import ModeError
 
 #: Bytes in to SIP decoded: the driver's latency starts this much before the SIP's `t`.
 DECODE_SLACK_S = 0.005
+#: A tick this much past its time (clock s) was held up with the process, not by its timer.
+LATE_TICK_S = 0.05
 
 
 class SonarView(Protocol):
@@ -195,12 +200,16 @@ class ControlShell:
         if self._robot is not None and not self._halted and self._remove_listener is None:
             self._remove_listener = self._robot.add_listener(self.on_sip)
         try:
+            due = self._clock.now()
             while True:
+                if self._clock.now() - due > LATE_TICK_S:
+                    await _read_what_waited()
                 self.check_devices()
                 now = self._clock.now()
                 self._bus.publish(Tick(now))
                 if self._on_tick is not None:
                     self._on_tick(now)
+                due = now + self._tick_s
                 await self._clock.sleep(self._tick_s)
         finally:
             if self._remove_listener is not None:
@@ -238,3 +247,18 @@ class ControlShell:
             self.latency_dropped += 1
             return
         self._on_latency(seconds)
+
+
+async def _read_what_waited() -> None:
+    """Let the event loop read the input that became ready while this task waited.
+
+    A late tick wakes in the same loop iteration as, or ahead of, the robot's SIP bytes
+    that arrived during the hold-up; judged at once, the SIP would look `sip_timeout_s`
+    old while it sits unread in the socket, and the robot would be stopped for nothing.
+    The first yield puts this task behind the callbacks already queued; the loop's next
+    poll then queues the readers of every ready descriptor, and the second yield puts
+    this task behind those too. A robot that really was silent is still stopped: no
+    bytes, no SIP.
+    """
+    await asyncio.sleep(0)
+    await asyncio.sleep(0)

@@ -10,6 +10,11 @@ and prints `{"config": PATH}`. It then samples the fake robot's wheel target eve
             since the previous `stops` (or since `watch`)
     watch   {"watching": true}, from now on samples at or below zero are recorded
     count   {"commands": N, "sips_sent": M}, what the fake robot has received and sent so far
+    silences {"silences": [{"wall": [T0, T1], "mono": [M0, M1]}, ...]}: spans since `watch`, in
+            wall-clock (time.time, as relayd's log) and monotonic time (as `stops`), in
+            which the fake robot itself sent no SIP for longer than SILENCE_S: this process
+            was starved by the machine, so the robot really was silent and relayd was right
+            to stop it (the test excuses those spans; it does not excuse any other stop)
 
 End of stdin stops the rig and exits. Its own process, so the fake devices keep their
 timing however busy the test's own process (and its event loop) is.
@@ -25,6 +30,8 @@ from pathlib import Path
 from typing import Any
 
 SAMPLE_S = 0.02
+#: Longer than three SIP periods without a SIP: relayd's lost_after_s (0.5 s) is near.
+SILENCE_S = 0.3
 
 
 async def main(work: Path, leader_xy_m: tuple[float, float], config: dict[str, Any]) -> None:
@@ -34,12 +41,19 @@ async def main(work: Path, leader_xy_m: tuple[float, float], config: dict[str, A
         path = rig.write_config(**config)
         print(json.dumps({"config": str(path)}), flush=True)
         stops: list[float] = []
+        silences: list[dict[str, list[float]]] = []
         watching = False
 
         async def sample() -> None:
+            sips, sip_wall, sip_mono = rig.robot.sips_sent, time.time(), time.monotonic()
             while True:
                 if watching and rig.robot.target_vel_mm_s <= 0:
                     stops.append(time.monotonic())
+                if rig.robot.sips_sent != sips:
+                    wall, mono = time.time(), time.monotonic()
+                    if watching and mono - sip_mono > SILENCE_S:
+                        silences.append({"wall": [sip_wall, wall], "mono": [sip_mono, mono]})
+                    sips, sip_wall, sip_mono = rig.robot.sips_sent, wall, mono
                 await asyncio.sleep(SAMPLE_S)
 
         sampler = asyncio.create_task(sample())
@@ -55,6 +69,8 @@ async def main(work: Path, leader_xy_m: tuple[float, float], config: dict[str, A
                 elif line == "stops":
                     answer = {"stops": stops[:]}
                     stops.clear()
+                elif line == "silences":
+                    answer = {"silences": silences[:]}
                 else:
                     answer = {"error": f"unknown command {line!r}"}
                 print(json.dumps(answer), flush=True)

@@ -11,7 +11,11 @@ with EMFILE, the robot stopped on rssi_stale, /healthz timed out and asyncio log
 the failed accept tens of thousands of times. Now:
 
 - the robot keeps driving: the fake robot's wheel target never drops to zero and the
-  daemon never reports a stop, during the flood or after it;
+  daemon never reports a stop, during the flood or after it. One cause of a stop is not
+  the flood's and is excused: the rig's own process starved by a loaded machine (CI runs
+  three test workers on two cores), so that the fake robot itself sent no SIP for longer
+  than relayd's lost_after_s. relayd must stop a silent robot; the rig records each such
+  silence (tests/api/rig_proc.py) and only a device-silence stop inside one is excused;
 - /healthz answers (200) within 10 s of the flood being in place, on a new connection;
 - the whole log stays under 1 MB.
 """
@@ -21,12 +25,14 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import math
 import re
 import resource
 import signal
 import subprocess
 import sys
 import time
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -49,6 +55,13 @@ HOLD_S = 13.0
 HEALTHZ_WITHIN_S = 10.0
 MAX_LOG_BYTES = 1_000_000
 _PRIORITY = re.compile(r"^<\d>")
+#: A stop for a silent device is excused from the start of the rig's own silence until
+#: this long after its end: relayd sees the next SIP, steps, and reports driving again.
+EXCUSE_AFTER_S = 1.0
+#: What a silent rig causes (its robot, its RSSI file, its servo, its rear radio): the
+#: control law's fault reasons, and the ARCOS session's warning of a silent robot.
+SILENCE_REASONS = {"no_sip", "rssi_stale", "scan_stale", "scan_servo", "rear_link_stale"}
+SILENCE_EVENTS = {"robot_stale"}
 
 
 def _free_port() -> int:
@@ -71,6 +84,15 @@ def _events(log: Path) -> list[dict[str, Any]]:
             if isinstance(doc, dict):
                 out.append(doc)
     return out
+
+
+def _wall(event: dict[str, Any]) -> float:
+    """A log event's time (structlog's ISO UTC timestamp) as time.time() would give it."""
+    stamp = str(event.get("timestamp", "")).replace("Z", "+00:00")
+    try:
+        return datetime.fromisoformat(stamp).timestamp()
+    except ValueError:
+        return math.nan  # no time: never excused
 
 
 async def _healthz(port: int) -> int | None:
@@ -212,6 +234,7 @@ async def test_connection_flood_does_not_stop_the_robot(tmp_path: Path) -> None:
             poll_s=0.1,
         )
         stops = (await ask("stops"))["stops"]
+        silences = (await ask("silences"))["silences"]
         after = await _status(port)
     finally:
         if flood is not None and flood.returncode is None:
@@ -246,13 +269,29 @@ async def test_connection_flood_does_not_stop_the_robot(tmp_path: Path) -> None:
     assert t_ok is not None and t_ok - t_flood <= HEALTHZ_WITHIN_S, (
         f"/healthz not answering within {HEALTHZ_WITHIN_S} s of the flood\n{tail}"
     )
+    silent_s = sum(m1 - m0 for m0, m1 in (span["mono"] for span in silences))
+    print(f"the rig's own silences: {len(silences)}, {silent_s:.2f} s in all")
+    # Most of the flood must be a real test: a rig silent for half of it proves nothing.
+    assert silent_s < HOLD_S / 2, f"the rig itself was silent {silent_s:.1f} s: {silences}"
+
+    def excused(t: float, clock: str) -> bool:
+        return any(bool(s[clock][0] <= t <= s[clock][1] + EXCUSE_AFTER_S) for s in silences)
+
+    def excused_event(e: dict[str, Any]) -> bool:
+        silent = e.get("reason") in SILENCE_REASONS or e.get("event") in SILENCE_EVENTS
+        return silent and excused(_wall(e), "wall")
+
+    stops = [t for t in stops if not excused(t, "mono")]
     assert stops == [], f"the wheels stopped {len(stops)} times during the flood\n{tail}"
     not_driving = [
-        e for e in events[mark:] if e.get("event") == "drive_state" and e.get("state") != "driving"
+        e
+        for e in events[mark:]
+        if e.get("event") == "drive_state" and e.get("state") != "driving"
+        if not excused_event(e)
     ]
-    assert not_driving == [], not_driving[:5]
-    stale = [e for e in events if "stale" in json.dumps(e)]
-    assert stale == [], stale[:5]
+    assert not_driving == [], (not_driving[:5], silences)
+    stale = [e for e in events if "stale" in json.dumps(e) and not excused_event(e)]
+    assert stale == [], (stale[:5], silences)
     assert after is not None and after["state"] == "driving", after
     assert log_bytes < MAX_LOG_BYTES, f"log grew to {log_bytes} bytes"
     assert not any(

@@ -9,13 +9,16 @@ speeds otherwise, and the fail-safes of docs/CONTROL.md section 6 with their rea
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import math
+import socket
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import pytest
 
 import relayd.core.brain
+import relayd.runtime.control
 from drivers.airos.model import LinkQuality
 from drivers.arcos.sip import Sip as ArcosSip
 from drivers.transport.clock import Clock
@@ -236,6 +239,78 @@ def test_drives_with_fresh_data_and_turns_toward_the_bearing() -> None:
     assert right > left > 0  # bearing +20: leader to the left
     assert (w.state.wheels_left_mm_s, w.state.wheels_right_mm_s) == (left, right)
     assert w.state.state is DriveState.DRIVING
+
+
+class HeldUpClock(ManualClock):
+    """A clock whose first tick sleep comes back 0.7 s late with the robot's bytes ready.
+
+    As when the process was held up (a GC pause, a starved CPU): the SIP that arrived
+    meanwhile sits readable in its socket when the tick wakes. Later sleeps park.
+    """
+
+    def __init__(self, robot_side: socket.socket) -> None:
+        super().__init__()
+        self._robot_side = robot_side
+        self.sleeps = 0
+        self.parked = asyncio.Event()
+
+    async def sleep(self, seconds: float) -> None:
+        self.sleeps += 1
+        if self.sleeps == 1:
+            self._robot_side.send(b"sip")
+            self.t += 0.7  # past sip_timeout_s (0.5), within the RSSI and rear limits
+            return  # no yield: the tick task runs on, as after a hold-up
+        self.parked.set()
+        await asyncio.Event().wait()
+
+
+async def _late_tick_stops(monkeypatch: pytest.MonkeyPatch, *, read_first: bool) -> int:
+    """Run the shell through one late tick; the number of stops the robot was sent."""
+    if not read_first:
+
+        async def judge_at_once() -> None:
+            return None
+
+        monkeypatch.setattr(relayd.runtime.control, "_read_what_waited", judge_at_once)
+    ours, robot_side = socket.socketpair()
+    ours.setblocking(False)
+    try:
+        clock = HeldUpClock(robot_side)
+        robot = StandInRobot()
+        loop = Loop(clock, robot, Mode.FOLLOW, scanner=False)
+        w = World(clock, robot, loop.state, loop)
+        scans = loop.brain.scans
+        scans.bearing_deg, scans.bearing_heading_deg = 20.0, 0.0
+        scans.rssi_leader_dbm = -50.0
+        w.fresh()
+
+        def sip_bytes_in() -> None:
+            ours.recv(64)
+            w.sip()  # decoded now, as the ARCOS driver's reader does
+
+        asyncio.get_running_loop().add_reader(ours.fileno(), sip_bytes_in)
+        task = asyncio.create_task(loop.run())
+        try:
+            await asyncio.wait_for(clock.parked.wait(), 10.0)
+        finally:
+            asyncio.get_running_loop().remove_reader(ours.fileno())
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+        assert clock.t == pytest.approx(100.7)
+        return robot.stops
+    finally:
+        ours.close()
+        robot_side.close()
+
+
+async def test_a_late_tick_reads_the_sip_that_waited_before_judging_the_robot_silent(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # A tick held up 0.7 s behind a SIP that did arrive: the robot is not silent.
+    assert await _late_tick_stops(monkeypatch, read_first=True) == 0
+    # The same tick judged at once (the old order) stops a robot that was talking.
+    assert await _late_tick_stops(monkeypatch, read_first=False) == 1
 
 
 def test_stop_is_sent_once_on_the_transition_to_zero_not_every_tick() -> None:
