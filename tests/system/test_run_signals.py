@@ -220,10 +220,31 @@ async def test_ctrl_c_while_starting_exits_130_without_a_traceback(
     tmp_path: Path, delay_s: float
 ) -> None:
     # Within the first 0.2 s the command line is still importing and loading the config:
-    # Ctrl-C there used to print a KeyboardInterrupt traceback.
+    # Ctrl-C there used to print a KeyboardInterrupt traceback. The delay counts from the
+    # moment Python has loaded relayd's package: before it the interpreter is starting
+    # itself (site, the venv's .pth files), which no code of relayd's runs in; on a loaded
+    # machine that alone took more than 0.05 s, and Python's own traceback came out.
     async with FakeRig(tmp_path) as rig:
-        relayd = await Relayd.start("run", "-c", str(_config(rig)))
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable,
+            "-X",
+            "importtime",  # one stderr line per module loaded: says when relayd's began
+            "-m",
+            "relayd",
+            "run",
+            "-c",
+            str(_config(rig)),
+            stdout=asyncio.subprocess.PIPE,
+            stderr=asyncio.subprocess.PIPE,
+            env=clean_env(),
+        )
+        relayd = Relayd(proc)
         try:
+            await until(
+                lambda: any(line.endswith("| relayd") for line in relayd.stderr),
+                "Python to load relayd's package",
+                timeout_s=30.0,
+            )
             await asyncio.sleep(delay_s)
             relayd.proc.send_signal(signal.SIGINT)
             code = await relayd.wait(10)
