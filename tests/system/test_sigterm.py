@@ -21,7 +21,9 @@ from tests.support import until
 
 pytestmark = pytest.mark.slow
 
-EXIT_LIMIT_S = 1.0
+#: 1.0 s failed once at 1.2 s with the machine's load average at 19 on its 2 cores; a
+#: shutdown timeout or a joined thread costs 2 s or more on top of the exit itself.
+EXIT_LIMIT_S = 1.6
 
 
 async def _start(*args: str) -> tuple[asyncio.subprocess.Process, list[str]]:
