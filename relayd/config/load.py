@@ -38,6 +38,7 @@ from relayd.config.model import (
     PanTiltSettings,
     Settings,
 )
+from relayd.config.secrets import secret_file_warnings
 
 DEFAULT_CONFIG_PATH = Path("/etc/relayd/relayd.toml")
 
@@ -121,4 +122,4 @@ def config_warnings(settings: Settings) -> list[str]:
                 f"{key}: {section.port!r} looks like a placeholder (XXXX): use your adapter's "
                 "serial, or the udev name (/dev/relay/base, /dev/relay/servo)"
             )
-    return out
+    return out + secret_file_warnings(settings)

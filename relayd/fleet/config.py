@@ -86,6 +86,9 @@ class FleetSection(BaseModel):
     poll_s: PositiveFloat = 0.5
     timeout_s: PositiveFloat = 1.0
     stale_after_s: PositiveFloat = 2.0
+    #: Names (beyond IP addresses and localhost) the page may be reached by: a browser's
+    #: Host and Origin must be one of them (DNS rebinding, relayd/api/hostcheck.py).
+    allowed_hosts: list[str] = Field(default_factory=list)
     relay: list[RelayEntry] = Field(default_factory=list)
 
 
@@ -110,6 +113,7 @@ class FleetSettings:
     poll_s: float = 0.5
     timeout_s: float = 1.0
     stale_after_s: float = 2.0
+    allowed_hosts: tuple[str, ...] = ()
 
 
 def _unique_names(relays: Sequence[Relay]) -> list[str]:
@@ -155,6 +159,7 @@ def parse_fleet(data: Mapping[str, Any], environ: Mapping[str, str] | None = Non
         section.poll_s,
         section.timeout_s,
         section.stale_after_s,
+        tuple(section.allowed_hosts),
     )
 
 
