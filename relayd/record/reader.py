@@ -22,7 +22,7 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 
 from relayd.core.events import Action, Event
 from relayd.record import codec
-from relayd.record.meta import RunInfo
+from relayd.record.meta import RunInfo, recorder_counts
 
 #: No record of ours comes near this: a bigger length field is a corrupt file.
 RECORD_SIZE_LIMIT = 1 << 30
@@ -268,7 +268,12 @@ def read_recording(path: str | Path, *, partial: bool = False) -> Recording:  # 
                     elif rec.name == "robot":
                         robot = dict(rec.metadata)
                     elif rec.name == "recorder":
-                        recorder = dict(rec.metadata)
+                        try:
+                            recorder = recorder_counts(dict(rec.metadata))
+                        except ValueError as exc:
+                            raise RecordingError(
+                                p, f"bad recorder metadata ({exc})", offset
+                            ) from None
                 elif isinstance(rec, Schema | Channel | Message):
                     chunked.take([rec], offset)
                 elif isinstance(rec, Footer):

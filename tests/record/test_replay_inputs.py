@@ -1,0 +1,108 @@
+"""Recordings whose metadata or messages hold the wrong kind of value: `relayd replay` answers
+with a clear error and exit 2, or with strict JSON, never with a traceback.
+
+Each case is a good recording rewritten with one thing changed (the mcap library's own
+reader and writer), so only that one thing is wrong.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+from mcap.writer import CompressionType, Writer
+
+from relayd import cli
+from tests.record.test_record import record_route, settings_for
+
+Meta = Callable[[str, dict[str, str]], dict[str, str]]
+Msg = Callable[[str, bytes], bytes]
+
+
+def rewrite(src: Path, dst: Path, meta: Meta | None = None, msg: Msg | None = None) -> Path:
+    with src.open("rb") as f_in, dst.open("wb") as f_out:
+        reader = make_reader(f_in)
+        w = Writer(f_out, compression=CompressionType.ZSTD)
+        w.start("relayd", "test")
+        for m in reader.iter_metadata():
+            w.add_metadata(m.name, meta(m.name, dict(m.metadata)) if meta else dict(m.metadata))
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        for schema, channel, message in reader.iter_messages():
+            assert schema is not None
+            if schema.id not in schemas:
+                schemas[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = w.register_channel(
+                    channel.topic, channel.message_encoding, schemas[schema.id]
+                )
+            data = msg(channel.topic, message.data) if msg else message.data
+            w.add_message(channels[channel.id], message.log_time, data, message.publish_time)
+        w.finish()
+    return dst
+
+
+@pytest.fixture
+async def recording(tmp_path: Path) -> Path:
+    await record_route(settings_for(tmp_path / "r.mcap"), 3.0)
+    return tmp_path / "r.mcap"
+
+
+def _set(name: str, key: str, value: str) -> Meta:
+    def change(record: str, data: dict[str, str]) -> dict[str, str]:
+        return {**data, key: value} if record == name else data
+
+    return change
+
+
+@pytest.mark.parametrize(
+    ("meta", "expected"),
+    [
+        (
+            _set("relayd", "config", "[1, 2]"),
+            "bad relayd metadata (config: a JSON list, not an object)",
+        ),
+        (_set("relayd", "config", "[" * 50_000 + "]" * 50_000), "config: nested too deeply"),
+        (
+            _set("recorder", "dropped", "lots"),
+            "bad recorder metadata (dropped: 'lots' is not a count)",
+        ),
+        (_set("recorder", "events", "-3"), "bad recorder metadata (events: '-3' is not a count)"),
+    ],
+)
+async def test_metadata_of_the_wrong_kind_is_exit_2_naming_it(
+    recording: Path, meta: Meta, expected: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bad = rewrite(recording, recording.with_name("bad.mcap"), meta=meta)
+    assert cli.main(["replay", str(bad), "--json"]) == 2
+    err = capsys.readouterr().err
+    assert expected in err and "Traceback" not in err, err
+
+
+async def test_replay_json_is_strict_json_when_a_time_is_null(
+    recording: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    def null_t(topic: str, data: bytes) -> bytes:
+        if topic != "/robot/sip":
+            return data
+        doc = json.loads(data)
+        doc["t"] = None
+        return json.dumps(doc).encode()
+
+    bad = rewrite(recording, recording.with_name("null-t.mcap"), msg=null_t)
+    assert cli.main(["replay", str(bad), "--json"]) in (0, 1)
+    text = capsys.readouterr().out
+
+    def refuse(name: str) -> float:
+        raise AssertionError(f"{name} is not JSON")
+
+    doc = json.loads(text, parse_constant=refuse)
+    assert (
+        doc["first_divergence"] is None
+        or doc["first_divergence"]["t"] is None
+        or math.isfinite(doc["first_divergence"]["t"])
+    )
