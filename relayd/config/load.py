@@ -24,6 +24,7 @@ from relayd.config.checks import (
     avoidance_rules,
     control_rules,
     cross_section_rules,
+    loads_toml,
     message,
     pantilt_rules,
     undecodable,
@@ -107,7 +108,7 @@ def load_settings(path: str | os.PathLike[str]) -> Settings:
     except UnicodeDecodeError as exc:
         raise ConfigError([undecodable(raw, exc)]) from None
     try:
-        data = tomllib.loads(text)
+        data = loads_toml(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError([f"{p}: not valid TOML: {exc}"]) from None
     return parse_settings(data)

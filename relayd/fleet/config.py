@@ -28,7 +28,7 @@ from urllib.parse import urlsplit
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from relayd.config.checks import validation_messages
+from relayd.config.checks import loads_toml, undecodable, validation_messages
 from relayd.config.model import ConfigError, SecretRef, resolve_secret
 
 DEFAULT_PORT = 8090
@@ -168,7 +168,10 @@ def load_fleet(
 ) -> FleetSettings:
     p = Path(path)
     try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
+        raw = p.read_bytes()
+        data = loads_toml(raw.decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise ConfigError([f"{p}: {undecodable(raw, exc)}"]) from None
     except OSError as exc:
         raise ConfigError([f"{p}: cannot read: {exc.strerror or exc}"]) from None
     except tomllib.TOMLDecodeError as exc:
