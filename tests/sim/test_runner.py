@@ -346,6 +346,37 @@ def test_sim_log_is_plain_json_with_relay_and_sim_time(
     assert any(t > 0 for t in ts), "simulation time never advanced in the log"
 
 
+def test_progress_line_says_starting_until_the_first_sip() -> None:
+    starting = _rec(0.0, 3.5, 27.0, False, [1.5], state="fault")
+    starting["relays"][0]["reason"] = "no_sip"
+    buf = io.StringIO()
+    p = ProgressLine(100, stream=buf, every_s=0.0, enabled=True)
+    p(starting)
+    assert "r0:starting/" in buf.getvalue() and "fault" not in buf.getvalue()
+    p(_rec(1.0, 3.5, 27.0, False, [1.5], state="stopped"))
+    buf.truncate(0)
+    p(starting)  # the base lost after it had started: a fault, said as one
+    assert "r0:fault/" in buf.getvalue()
+
+
+def test_progress_line_at_a_terminal_width_of_0_is_not_cut_to_nothing() -> None:
+    import fcntl
+    import pty
+    import struct
+    import termios
+
+    master, slave = pty.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 0, 0, 0, 0))
+    with os.fdopen(slave, "w", encoding="utf-8") as tty:
+        p = ProgressLine(600, stream=tty, every_s=0.0)
+        p(_rec(12.5, 3.0, 27.0, False, [1.5]))
+        p.close()
+    written = os.read(master, 65536).decode()
+    os.close(master)
+    # 80 columns taken: the whole line (it was cut at 20: "t=12.5/600s leader=(").
+    assert "e2e=27.0Mbps r0:driving/-40dBm/1.5m" in written, written
+
+
 @pytest.mark.parametrize("columns", [80, 60])
 def test_progress_line_never_wraps_on_the_terminal(columns: int) -> None:
     import fcntl
