@@ -99,7 +99,7 @@ def test_summarize_reached_and_broken() -> None:
         recs[:2], scenario="x", relays=1, goal=(10, 0), goal_radius_m=0.5, collisions=0, followers=f
     )
     assert s["goal_reached"] is False and s["goal_reached_at_s"] is None
-    assert "goal NOT reached" in format_summary(
+    assert "the leader did NOT reach its goal" in format_summary(
         s
         | {
             "followers": [
@@ -113,6 +113,34 @@ def test_summarize_reached_and_broken() -> None:
                 }
             ]
         }
+    )
+
+
+def _summary(recs: list[dict], travelled_m: float) -> dict:
+    f = [{"name": "r0", "collisions": 0, "travelled_m": travelled_m}]
+    return summarize(
+        recs, scenario="x", relays=1, goal=(10, 0), goal_radius_m=0.5, collisions=0, followers=f
+    )
+
+
+def test_the_printed_summary_says_what_happened() -> None:
+    """'goal reached, link held' once stood for a leader that started on its goal with the
+    relays stuck, and 'goal reached, link broke' for a drift that ended at 0.0 Mbps."""
+    on_goal = [_rec(t, 10, 27, False, [2.0]) for t in (0, 1, 2)]
+    text = format_summary(_summary(on_goal, 0.0))
+    assert "the leader stood on its goal from the start (nothing to reach)" in text
+    assert "goal reached" not in text and "never moved: r0" in text
+    drift = [_rec(0, 0, 27, False, [2.0]), _rec(1, 10, 20, False, [3.0])]
+    drift += [_rec(t, 10, 0, True, [9.0]) for t in (2, 3, 4)]
+    text = format_summary(_summary(drift, 3.0))
+    assert (
+        "the leader reached its goal at 1.0 s with the link up; the link broke later, at 2.0 s, "
+        "and was still down at the end" in text
+    ), text
+    assert "never moved" not in text
+    held = [_rec(0, 0, 27, False, [2.0]), _rec(1, 10, 20, False, [3.0])]
+    assert "the leader reached its goal at 1.0 s, the link held" in format_summary(
+        _summary(held, 3.0)
     )
 
 
