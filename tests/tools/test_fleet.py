@@ -26,7 +26,7 @@ from relayd.api.demo import DemoControls, populate
 from relayd.cli.fleet import settings_from_args
 from relayd.config.model import ConfigError
 from relayd.core.vocab import Mode
-from relayd.fleet.chain import fleet_document, hops, link_status
+from relayd.fleet.chain import NO_ORIGIN, fleet_document, hops, link_status
 from relayd.fleet.config import Relay, normalise_url, parse_fleet, relay_from_arg
 from relayd.fleet.poller import Fleet, RelayView
 from relayd.fleet.server import hold_one
@@ -230,7 +230,8 @@ def test_map_places_relays_by_their_origin() -> None:
     assert (placed["x_m"], placed["y_m"], placed["heading_deg"]) == pytest.approx((2.0, 4.0, 90.0))
     assert placed["leader_deg"] == pytest.approx(100.0)
     assert placed["trail"] == [[2.0, 3.0], [2.0, 4.0]]
-    assert m["unplaced"] == [{"name": "r2", "why": "no origin configured"}]
+    assert m["unplaced"] == [{"name": "r2", "why": NO_ORIGIN}]
+    assert NO_ORIGIN.startswith("no origin configured") and "--relay" in NO_ORIGIN
 
 
 # -- polling and hold-all against real relay APIs ------------------------------------------
