@@ -76,9 +76,25 @@ def test_a_tls_key_with_a_pass_phrase_is_refused_without_a_prompt(tmp_path: Path
         skip_or_fail("the openssl CLI is needed to make a test key")
     cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"
     subprocess.run(
-        [openssl, "req", "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1"]
-        + ["-keyout", str(key), "-out", str(cert), "-days", "1", "-subj", "/CN=relay1"]
-        + ["-passout", "pass:secret"],
+        [
+            openssl,
+            "req",
+            "-x509",
+            "-newkey",
+            "ec",
+            "-pkeyopt",
+            "ec_paramgen_curve:prime256v1",
+            "-keyout",
+            str(key),
+            "-out",
+            str(cert),
+            "-days",
+            "1",
+            "-subj",
+            "/CN=relay1",
+            "-passout",
+            "pass:secret",
+        ],
         check=True,
         capture_output=True,
     )

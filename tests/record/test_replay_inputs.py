@@ -109,3 +109,22 @@ def test_replay_json_is_strict() -> None:
     doc = finite({"t": math.nan, "a": [math.inf, 1.5, {"b": -math.inf}], "c": "x"})
     assert doc == {"t": None, "a": [None, 1.5, {"b": None}], "c": "x"}
     json.dumps(doc, allow_nan=False)
+
+
+async def test_replay_plots_draw_the_recorded_thresholds(
+    recording: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """replay's rssi_bearing.png once had no threshold lines (the simulator's has them)."""
+    pytest.importorskip("matplotlib")
+    from relayd.cli.replay_plots import plot_recording
+    from relayd.record.reader import read_recording
+    from relayd.sim import plots
+
+    kept: list = []
+    monkeypatch.setattr(plots, "save", lambda fig, path, **kw: kept.append(fig))
+    plot_recording(read_recording(recording), recording.parent / "plots")
+    rssi = kept[0].axes[0]
+    labels = [line.get_label() for line in rssi.get_lines()]
+    assert any(lab.startswith("Threshold$_l$ -30") for lab in labels), labels
+    assert any(lab.startswith("Threshold$_b$") for lab in labels), labels
+    assert len(kept[0].legends) == 1
