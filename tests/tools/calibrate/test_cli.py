@@ -49,6 +49,7 @@ def test_cli_on_a_synthetic_recording(tmp_path: Path, capsys: pytest.CaptureFixt
     assert (
         thr["by_measured_rate"] is not None and thr["by_measured_rate"] > thr["by_throughput"] + 2.0
     )
+    assert (out / "path-loss.toml").read_text().endswith("\n")
     snippet = tomllib.loads((out / "path-loss.toml").read_text())
     assert snippet["control"]["threshold_b_dbm"] == round(thr["chosen"])
     assert snippet["control"]["target_hop_mbps"] == 10
