@@ -57,6 +57,7 @@ from relayd.core.vocab import Mode
 from relayd.record import off_status
 from relayd.runtime.bus import Bus
 from relayd.runtime.control import ControlShell
+from relayd.runtime.fdbudget import FdBudget
 from relayd.runtime.health import device_health
 from relayd.runtime.metrics import Metrics
 from relayd.runtime.scanner import RssiMonitor, Scanner
@@ -187,13 +188,17 @@ class Daemon:
         self.state.recording_source = (
             self.recorder.status if self.recorder is not None else off_status
         )
+        # One descriptor account for every listener (the API, the live view): together
+        # they leave the devices their reserve (relayd/runtime/fdbudget.py).
+        self.fds = FdBudget.for_process()
         self.live: LiveServer | None = None
         self._live_task: asyncio.Task[None] | None = None
         if settings.foxglove.enabled:
             from relayd.record.live import LiveServer
 
             # The live Foxglove view: one more bus subscriber, never on the control path.
-            self.live = LiveServer(self.bus, settings, clock)
+            self.live = LiveServer(self.bus, settings, clock, budget=self.fds)
+            self.state.health_sources["foxglove"] = self.live.health
         self._build()
         self.bus.connect(self.brain.handle, self._on_actions)
 
@@ -363,6 +368,7 @@ class Daemon:
             raise ConfigError(held)
         if s.api.enabled:
             from relayd.api import make_app, start_api
+            from relayd.api.guard import GuardedServer
 
             app = make_app(
                 self.state,
@@ -377,7 +383,11 @@ class Daemon:
             # config error (exit 2 naming the key), not a robot that is already enabled.
             try:
                 self._runner, self.api_port = await start_api(
-                    app, s.api.bind, s.api.port, ssl_context=self._tls
+                    app,
+                    s.api.bind,
+                    s.api.port,
+                    ssl_context=self._tls,
+                    guard=GuardedServer(budget=self.fds),
                 )
             except OSError as exc:
                 raise ConfigError([api_bind_error(s.api.bind, s.api.port, exc)]) from None

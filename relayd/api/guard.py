@@ -13,9 +13,11 @@ thousands of times a second. So relayd runs its own accept loop in front of aioh
 - a connection with no request in progress for `IDLE_TIMEOUT_S` is closed: that
   covers clients that connect and send nothing, send their headers slowly, or keep
   an idle keep-alive connection (TLS handshakes have the same deadline);
-- descriptors reserved for the devices: a connection whose descriptor number reaches
-  the soft RLIMIT_NOFILE minus `FD_RESERVE` is closed at once and accepting pauses
-  (Linux hands out the lowest free number, so the number says how many are in use);
+- descriptors reserved for the devices: each connection is booked in the process's one
+  descriptor account (relayd/runtime/fdbudget.py), shared with every other listener
+  (the live Foxglove view); a connection the account cannot take, or whose descriptor
+  number reaches the soft RLIMIT_NOFILE minus `FD_RESERVE`, is closed at once and
+  accepting pauses;
 - accept errors (EMFILE and the like) pause accepting for a second, and every refusal
   is logged at most once a minute with a count, never once per attempt.
   (relayd/api/server.py does the same for asyncio's own accept loop.)
@@ -29,7 +31,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import errno
-import resource
 import socket
 import ssl
 from collections.abc import Awaitable, Callable
@@ -39,6 +40,7 @@ from typing import Any, cast
 import structlog
 from aiohttp import web
 
+from relayd.runtime.fdbudget import FD_RESERVE, FdBudget
 from relayd.runtime.ratelimit import LogRateLimit
 
 log = structlog.get_logger(__name__)
@@ -46,9 +48,7 @@ log = structlog.get_logger(__name__)
 #: Concurrent API connections. A relay's clients are a few browsers on the live page,
 #: Prometheus and the odd `relayd status`; 100 leaves room for a whole convoy's tools.
 MAX_CONNECTIONS = 100
-#: Descriptors kept free for the devices (serial ports, RSSI source, airOS sessions,
-#: reconnects) whatever the API does; a quarter of the limit when that is smaller.
-FD_RESERVE = 128
+__all__ = ["FD_RESERVE", "MAX_CONNECTIONS", "GuardedServer"]
 #: A connection with no request in progress is closed after this long.
 IDLE_TIMEOUT_S = 10.0
 #: At the cap, a connection idle this long may be closed to admit a new one.
@@ -60,6 +60,8 @@ ACCEPT_RETRY_S = 1.0
 SWEEP_S = 0.5
 #: Refusals and accept errors are logged at most once per this period, with a count.
 LOG_EVERY_S = 60.0
+#: The API's name in the descriptor account.
+BUDGET_OWNER = "api"
 _RESOURCE_ERRNOS = frozenset({errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM})
 
 
@@ -107,10 +109,6 @@ class _Relay(asyncio.Protocol):
         self._inner.resume_writing()
 
 
-def fd_reserve(soft_limit: int) -> int:
-    return min(FD_RESERVE, max(8, soft_limit // 4))
-
-
 class GuardedServer:
     """The accept loop in front of aiohttp (see the module docstring)."""
 
@@ -121,16 +119,15 @@ class GuardedServer:
         idle_timeout_s: float = IDLE_TIMEOUT_S,
         evict_idle_s: float = EVICT_IDLE_S,
         fd_limit: int | None = None,
+        budget: FdBudget | None = None,
     ) -> None:
         self.max_connections = max_connections
         self.idle_timeout_s = idle_timeout_s
         self.evict_idle_s = evict_idle_s
-        if fd_limit is None:
-            soft, _hard = resource.getrlimit(resource.RLIMIT_NOFILE)
-            soft = soft if soft != resource.RLIM_INFINITY else 1 << 20
-            fd_limit = soft - fd_reserve(soft)
+        #: The process's descriptor account, shared with the other listeners.
+        self.budget = budget or FdBudget.for_process()
         #: Accepted descriptors numbered at or above this are refused.
-        self.fd_limit = fd_limit
+        self.fd_limit = self.budget.fd_limit if fd_limit is None else fd_limit
         self.conns: set[_Conn] = set()
         self.handlers: dict[asyncio.BaseProtocol, _Conn] = {}
         self.counters = {
@@ -247,7 +244,7 @@ class GuardedServer:
                 if exc.errno in _RESOURCE_ERRNOS:
                     self._backoff(now)
                 return
-            if sock.fileno() >= self.fd_limit:
+            if sock.fileno() >= self.fd_limit or not self.budget.take(BUDGET_OWNER):
                 sock.close()
                 self.counters["refused"] += 1
                 self._note(
@@ -310,7 +307,9 @@ class GuardedServer:
             conn.transport.close()
 
     def drop(self, conn: _Conn) -> None:
-        self.conns.discard(conn)
+        if conn in self.conns:
+            self.conns.remove(conn)
+            self.budget.give(BUDGET_OWNER)
         if conn.handler is not None:
             self.handlers.pop(conn.handler, None)
         if (

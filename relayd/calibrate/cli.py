@@ -177,13 +177,19 @@ async def run(args: argparse.Namespace) -> int:
             [r.distance_m for r in readings], [r.rssi_dbm for r in readings], seed=args.seed
         )
     except (SourceError, FitError) as exc:
+        # Data that give no model: a clear refusal, exit 2, and nothing written.
         print(f"relayd calibrate: {exc}", file=sys.stderr)
-        return 1
+        return 2
     except OSError as exc:  # the robot's API unreachable
         print(f"relayd calibrate: {type(exc).__name__}: {exc}", file=sys.stderr)
         return 1
-    thr = thresholds(fit, readings, wanted)
-    print(text_report(fit, thr, wanted, source))
+    try:
+        thr = thresholds(fit, readings, wanted)
+        report = text_report(fit, thr, wanted, source)
+    except (FitError, ValueError) as exc:
+        print(f"relayd calibrate: {exc}", file=sys.stderr)
+        return 2
+    print(report)
     written = write_outputs(args.out, fit, thr, wanted, readings, source)
     print(f"wrote {', '.join(str(w) for w in written)}")
     return 0

@@ -54,6 +54,13 @@ MIN_DISTANCE_M = 0.5
 #: The fit needs at least this many readings, spread over at least this ratio of distances.
 MIN_POINTS = 10
 MIN_SPAN_RATIO = 2.0
+#: The smallest path-loss exponent taken as a fit. Free space is 2, a corridor that guides
+#: the wave about 1.5; below this the RSSI barely falls with distance (the node's radio
+#: off, the robot not moving away, a flat recording) and no limit can be placed by it.
+MIN_N = 0.5
+#: Distances the model is asked for beyond this many times the farthest reading are not
+#: given as figures: the fit says nothing about a place the drive never reached.
+MAX_EXTRAPOLATION = 2.0
 
 
 class FitError(ValueError):
@@ -116,8 +123,21 @@ class PathLossFit:
         return self.l0_dbm - 10.0 * self.n * math.log10(max(distance_m, 1e-3))
 
     def distance_at(self, rssi_dbm: float) -> float:
-        """The distance where the model's median RSSI is `rssi_dbm`."""
-        return float(10.0 ** ((self.l0_dbm - rssi_dbm) / (10.0 * self.n)))
+        """The distance where the model's median RSSI is `rssi_dbm` (FitError for a model
+        whose RSSI does not fall with distance: no such distance exists)."""
+        if not self.n > 0:
+            raise FitError(f"n = {self.n:.2f}: the RSSI does not fall with distance")
+        exponent = (self.l0_dbm - rssi_dbm) / (10.0 * self.n)
+        return math.inf if exponent > 300 else float(10.0**exponent)
+
+    def measured_distance_at(self, rssi_dbm: float) -> float | None:
+        """`distance_at`, or None when that lies beyond MAX_EXTRAPOLATION x the farthest
+        reading (or when the fit has no readings to bound it: a model given, not fitted)."""
+        d = self.distance_at(rssi_dbm)
+        far = self.distance_range_m[1]
+        if math.isfinite(far) and not d <= MAX_EXTRAPOLATION * far:
+            return None
+        return d
 
     def to_json(self) -> dict[str, object]:
         return {
@@ -247,6 +267,12 @@ def fit_path_loss(
     x = [10.0 * math.log10(d) for d, _ in pairs]
     y = [r for _, r in pairs]
     a, b, sd = huber_line(x, y)
+    if -b < MIN_N:
+        raise FitError(
+            f"the RSSI does not fall with distance (n = {-b:.2f}, from {y[0]:.0f} dBm at "
+            f"{d_lo:.1f} m to {y[-1]:.0f} dBm at {d_hi:.1f} m; at least {MIN_N:g} is needed): "
+            "is the node's radio on, and did the robot drive away from it? No threshold written"
+        )
     res = [yi - a - b * xi for xi, yi in zip(x, y, strict=True)]
     fast = min(_fast_sd(x, res), sd)
     slow = math.sqrt(max(0.0, sd * sd - fast * fast))
@@ -254,16 +280,19 @@ def fit_path_loss(
     # Moving-block bootstrap over distance: each block is the readings within block_m of
     # drive from a start drawn uniformly in distance, so a drive that went slower in
     # places (the first metres, relayd/calibrate/sources.py) is resampled in its own
-    # proportions, and a block is block_m long wherever it falls.
+    # proportions. The starts run from block_m before the first reading to the last, so
+    # every distance is equally likely to be drawn, the ends included: drawn only from
+    # where a whole block fits, the readings at the start distance (the robot standing
+    # there, which pin L0) were never drawn, and the intervals missed their estimates.
     rng = random.Random(seed)
     count = len(x)
     dists = [d for d, _ in pairs]
-    room = max(0.0, (d_hi - d_lo) - block_m)
+    span = (d_hi - d_lo) + block_m
     l0s, ns, sds = [], [], []
     for _ in range(resamples):
         idx: list[int] = []
         while len(idx) < count:
-            d0 = d_lo + rng.random() * room
+            d0 = d_lo - block_m + rng.random() * span
             idx.extend(
                 range(bisect.bisect_left(dists, d0), bisect.bisect_right(dists, d0 + block_m))
             )

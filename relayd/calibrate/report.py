@@ -6,8 +6,10 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from relayd.calibrate.fit import (
+    MAX_EXTRAPOLATION,
     PathLossFit,
     required_rssi_dbm,
     threshold_for_hop_length,
@@ -139,14 +141,14 @@ def text_report(fit: PathLossFit, thr: Thresholds, wanted: Wanted, source: str) 
     if thr.bound is not None:
         lines.append(
             f"  gap at most {wanted.hop_m:g} m (outage {wanted.outage:g}):  {thr.key} = {thr.bound:.1f} dBm"
-            f"  (a median gap of {fit.distance_at(thr.bound):.1f} m)"
+            f"  ({_where(fit, thr.bound, 'a median gap of {:.1f} m')})"
         )
     if thr.by_throughput is not None and wanted.target_mbps is not None:
         need = required_rssi_dbm(wanted.target_mbps, wanted.phy, wanted.mac_efficiency)
         lines.append(
             f"  hop throughput {wanted.target_mbps:g} Mbit/s ({wanted.phy} needs {need:g} dBm, "
             f"+ {thr.by_throughput - need:.1f} dB margin):  {thr.key} = {thr.by_throughput:.1f} dBm"
-            f"  (about {fit.distance_at(thr.by_throughput):.1f} m in this place)"
+            f"  ({_where(fit, thr.by_throughput, 'about {:.1f} m in this place')})"
         )
     if thr.by_measured_rate is not None:
         lines.append(
@@ -160,7 +162,22 @@ def text_report(fit: PathLossFit, thr: Thresholds, wanted: Wanted, source: str) 
         )
     if thr.chosen is None:
         lines.append("  (give --hop-m and/or --target-mbps for thresholds)")
+    far = fit.distance_range_m[1]
+    if wanted.hop_m is not None and wanted.hop_m > MAX_EXTRAPOLATION * far:
+        lines.append(
+            f"  note      {wanted.hop_m:g} m is beyond {MAX_EXTRAPOLATION:g} x the farthest "
+            f"reading ({far:.1f} m): the threshold for it is extrapolated; drive that far"
+        )
     return "\n".join(lines)
+
+
+def _where(fit: PathLossFit, rssi_dbm: float, text: str) -> str:
+    """Where the model puts `rssi_dbm`, or that it lies past what the drive measured."""
+    d = fit.measured_distance_at(rssi_dbm)
+    if d is None:
+        far = MAX_EXTRAPOLATION * fit.distance_range_m[1]
+        return f"beyond {far:.1f} m, {MAX_EXTRAPOLATION:g} x the farthest reading: not measured"
+    return text.format(d)
 
 
 def config_snippet(fit: PathLossFit, thr: Thresholds, wanted: Wanted, source: str) -> str:
@@ -196,6 +213,16 @@ def config_snippet(fit: PathLossFit, thr: Thresholds, wanted: Wanted, source: st
             "(docs/CONTROL.md section 5.1)",
         ]
     return "\n".join(lines) + "\n"
+
+
+def plain_log_axis(ax: Any) -> None:
+    """A log distance axis labelled in plain metres (1, 2, 5, 10, 20 ...), not 2x10^0."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+    ax.set_xscale("log")
+    ax.xaxis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v:g}"))
+    ax.xaxis.set_minor_formatter(NullFormatter())
 
 
 def plot_fit(
@@ -237,7 +264,7 @@ def plot_fit(
                 ax.axhline(
                     value, linestyle=style, color="tab:red", label=f"{thr.key} {name}: {value:.1f}"
                 )
-        ax.set_xscale("log")
+        plain_log_axis(ax)
         ax.set_xlabel("distance from the node (m, odometry)")
         ax.set_ylabel("RSSI (dBm)")
         ax.set_title(title)

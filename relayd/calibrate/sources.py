@@ -54,13 +54,20 @@ def _num(value: Any) -> float | None:
     return float(value) if math.isfinite(value) else None
 
 
+def _obj(value: Any) -> dict[str, Any]:
+    """A message's sub-object, or an empty one where a file holds something else (a list,
+    a number): that message gives no reading, the rest of the file still does."""
+    return value if isinstance(value, dict) else {}
+
+
 def link_reading(
     quality: dict[str, Any],
 ) -> tuple[float | None, float | None, float | None, float | None]:
     """(signal, tx, rx, ccq) of one airOS poll: the strongest station's, else the radio's own."""
+    listed = quality.get("stations")
     stations = [
         s
-        for s in quality.get("stations") or []
+        for s in (listed if isinstance(listed, list) else [])
         if isinstance(s, dict) and _num(s.get("signal_dbm"))
     ]
     if stations:
@@ -93,7 +100,7 @@ def readings_from_messages(
     out: list[Reading] = []
     for topic, doc in messages:
         if topic == "/robot/sip":
-            sip = doc.get("sip") or {}
+            sip = _obj(doc.get("sip"))
             x, y = _num(sip.get("x_mm")), _num(sip.get("y_mm"))
             if x is None or y is None:
                 continue
@@ -104,11 +111,11 @@ def readings_from_messages(
             continue  # no odometry yet: nothing to place the reading at
         elif topic == "/link" and link in ("rear", "front") and doc.get("side") == link:
             t = _num(doc.get("t"))
-            signal, tx, rx, ccq = link_reading(doc.get("quality") or {})
+            signal, tx, rx, ccq = link_reading(_obj(doc.get("quality")))
             if t is not None and signal is not None:
                 out.append(Reading(t, distance, signal, tx, rx, ccq))
         elif topic == "/wifi/rssi" and link == "leader":
-            sample = doc.get("sample") or {}
+            sample = _obj(doc.get("sample"))
             t, rssi = _num(doc.get("t")), _num(sample.get("rssi_dbm"))
             if t is not None and rssi is not None and sample.get("fresh") is True:
                 out.append(Reading(t, distance, rssi))

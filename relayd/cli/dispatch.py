@@ -58,7 +58,9 @@ FAKES: dict[str, tuple[str, str]] = {
     ),
     "rig": (
         "relayd.fakes.rig_cmd",
-        "all of one relay's devices faked, with a leader; writes a config for `relayd run`",
+        "all of one relay's devices faked, with a leader; writes a config for `relayd run`. "
+        "The fake world keeps its state while it serves: a second run finds the robot where "
+        "the first left it",
     ),
 }
 

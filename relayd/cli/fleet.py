@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import ipaddress
 import sys
 from dataclasses import replace
 
@@ -34,6 +35,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--bind", default=None, help="address of the fleet page (default 127.0.0.1)"
+    )
+    parser.add_argument(
+        "--allowed-host",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="a name (beyond IP addresses and localhost) the page may be reached by; repeatable",
     )
     parser.add_argument(
         "--port",
@@ -81,7 +89,12 @@ def settings_from_args(args: argparse.Namespace) -> FleetSettings:
     for key in ("poll_s", "timeout_s"):
         if key in overrides and not overrides[key] > 0:
             raise ConfigError([f"--{key.replace('_', '-')}: must be > 0"])
-    settings = replace(settings, relays=settings.relays + extra, **overrides)
+    settings = replace(
+        settings,
+        relays=settings.relays + extra,
+        allowed_hosts=settings.allowed_hosts + tuple(args.allowed_host),
+        **overrides,
+    )
     if not settings.relays:
         raise ConfigError(["no relays: give --relay URL or a config with [[fleet.relay]] entries"])
     return settings
@@ -118,5 +131,23 @@ async def run(args: argparse.Namespace) -> int:
         for line in exc.errors:
             print(f"  {line}", file=sys.stderr)
         return 2
+    for line in bind_warnings(settings.bind):
+        print(f"relayd fleet: warning: {line}", file=sys.stderr)
     await serve(settings)
     return 0
+
+
+def bind_warnings(bind: str) -> list[str]:
+    """The page's hold-all needs no token (a stop never does): bound beyond loopback,
+    anyone who reaches this machine can stop every relay. Say so."""
+    try:
+        loopback = ipaddress.ip_address(bind).is_loopback
+    except ValueError:
+        loopback = bind == "localhost"
+    if loopback:
+        return []
+    return [
+        f"--bind {bind}: the fleet page is open beyond this machine, and its hold-all "
+        "(POST /api/hold-all, no token) stops every relay for anyone who can reach it "
+        "(the whole bridge with 0.0.0.0); bind 127.0.0.1 and use `ssh -L` unless that is meant"
+    ]

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -126,7 +127,9 @@ def run(args: argparse.Namespace) -> int:
         "robot": rec.robot,
         "complete": rec.complete,
         "broke": rec.broke,
-        "dropped": int(rec.recorder["dropped"]) if rec.recorder else None,
+        "dropped": int(rec.recorder["dropped"])
+        if rec.recorder and "dropped" in rec.recorder
+        else None,
         "events": result.events,
         "actions": result.actions,
         "divergences": result.divergences,
@@ -149,10 +152,22 @@ def run(args: argparse.Namespace) -> int:
             return _fail("--plot needs matplotlib (pip install 'relayd[sim]')")
         out["plots"] = [str(p) for p in plot_recording(rec, Path(args.plot))]
     if args.json:
-        print(json.dumps(out, indent=2))
+        # Strict JSON: a time the recording left empty (null, read as NaN) is null here too.
+        print(json.dumps(finite(out), indent=2, allow_nan=False))
     else:
         print(_human(out))
     return 0 if result.divergences == 0 else 1
+
+
+def finite(node: Any) -> Any:
+    """`node` with every NaN or infinity replaced by None (JSON has no such numbers)."""
+    if isinstance(node, float):
+        return node if math.isfinite(node) else None
+    if isinstance(node, dict):
+        return {k: finite(v) for k, v in node.items()}
+    if isinstance(node, list | tuple):
+        return [finite(v) for v in node]
+    return node
 
 
 def _human(o: dict[str, Any]) -> str:

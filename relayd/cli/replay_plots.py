@@ -64,13 +64,22 @@ def trace_records(rec: Recording) -> tuple[list[dict[str, Any]], list[float], li
     return records, xs, ys
 
 
+def recorded_thresholds(rec: Recording) -> tuple[float, float]:
+    """threshold_l and threshold_b as the recorded config set them (the lines the RSSI
+    panel draws, as the simulator's does)."""
+    from relayd.config.load import parse_settings
+
+    control = parse_settings(rec.info.config).control
+    return control.threshold_l_dbm, control.threshold_b_dbm
+
+
 def plot_recording(rec: Recording, out: Path) -> list[Path]:
     """rssi_bearing.png and path.png into `out`; returns the files written."""
     out.mkdir(parents=True, exist_ok=True)
     records, xs, ys = trace_records(rec)
     name = (rec.robot or {}).get("name", "relay")
     files = [out / "rssi_bearing.png", out / "path.png"]
-    sim_plots.plot_rssi_bearing(records, files[0])
+    sim_plots.plot_rssi_bearing(records, files[0], [recorded_thresholds(rec)])
     sim_plots.plot_paths(
         {name: (xs, ys)}, files[1], f"{name}: path from odometry ({rec.path.name})"
     )

@@ -132,16 +132,42 @@ class SimLogFields:
 SIM_LOG_FIELDS = SimLogFields()
 
 
+#: A relay that drove less than this (m) in a run never moved.
+STILL_M = 0.05
+
+
+def outcome_words(s: dict[str, Any]) -> str:
+    """What happened to the leader and the link, in words that cannot mislead: a leader
+    already on its goal reached nothing, and a link that broke after the leader arrived
+    broke (summary.json's goal_reached counts that run as reached: the paper's measure)."""
+    arrived, broken = s["goal_reached_at_s"], s["link_broken_at_s"]
+    breaks = s.get("link_breaks") or []
+    still_down = bool(breaks) and breaks[-1].get("end_s") is None
+    down = ", and was still down at the end" if still_down else ""
+    if arrived is not None and arrived <= 0.0:
+        leader = "the leader stood on its goal from the start (nothing to reach)"
+    elif arrived is not None:
+        leader = f"the leader reached its goal at {arrived:.1f} s"
+    else:
+        leader = "the leader did NOT reach its goal"
+    if broken is None:
+        return f"{leader}, the link held"
+    if arrived is not None and 0.0 < arrived < broken:
+        return f"{leader} with the link up; the link broke later, at {broken:.1f} s{down}"
+    return f"{leader}; the link broke at {broken:.1f} s{down}"
+
+
 def format_summary(s: dict[str, Any]) -> str:
     """A few human lines about one run."""
-    broken = s["link_broken_at_s"]
     lines = [
         f"{s['scenario']} with {s['relays']} relay(s), {s['sim_seconds']:.0f} s simulated: "
-        + ("goal reached" if s["goal_reached"] else "goal NOT reached")
-        + (", link held" if broken is None else f", link broke at {broken:.1f} s"),
+        + outcome_words(s),
         f"  end-to-end throughput: min {s['min_e2e_mbps']:.1f} Mbps, final {s['final_e2e_mbps']:.1f} Mbps;"
         f" collisions: {s['collisions']}",
     ]
+    still = [f["name"] for f in s["followers"] if f["travelled_m"] < STILL_M]
+    if still:
+        lines.append(f"  never moved: {', '.join(still)}")
     breaks = s.get("link_breaks") or []
     if breaks:
         lines.append(f"  link breaks: {len(breaks)}, down {s.get('downtime_s', 0.0):.1f} s in all")

@@ -20,7 +20,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from relayd.cli.argtypes import positive_float, speed
+from relayd.cli.argtypes import positive_float, scheduler_address, speed
 
 
 def _int_list(text: str) -> list[int]:
@@ -109,7 +109,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="worker processes of the embedded LocalCluster (default: the core count)",
     )
     cluster.add_argument(
-        "--scheduler", default=None, help="an existing Dask scheduler, e.g. tcp://host:8786"
+        "--scheduler",
+        type=scheduler_address,
+        default=None,
+        help="an existing Dask scheduler, tcp://HOST:PORT, e.g. tcp://host:8786",
     )
     parser.add_argument(
         "--run-timeout",

@@ -200,6 +200,17 @@ def did_you_mean(key: str, known: Iterable[str]) -> str:
     return f" (did you mean {match[0]!r}?)" if match else ""
 
 
+def loads_toml(text: str) -> dict[str, Any]:
+    """tomllib.loads, with nesting too deep for the parser (`a = [[[[...`, which once ended
+    check-config in a RecursionError traceback) reported as the TOMLDecodeError it is."""
+    import tomllib
+
+    try:
+        return tomllib.loads(text)
+    except RecursionError:
+        raise tomllib.TOMLDecodeError("arrays or tables nested too deeply") from None
+
+
 def undecodable(raw: bytes, exc: UnicodeDecodeError) -> str:
     """Where a non-UTF-8 byte sits in a TOML file: 'section.key (line N)' and the byte."""
     before = raw[: exc.start].decode("utf-8", errors="replace")

@@ -24,6 +24,7 @@ from relayd.config.checks import (
     avoidance_rules,
     control_rules,
     cross_section_rules,
+    loads_toml,
     message,
     pantilt_rules,
     undecodable,
@@ -38,6 +39,7 @@ from relayd.config.model import (
     PanTiltSettings,
     Settings,
 )
+from relayd.config.secrets import secret_file_warnings
 
 DEFAULT_CONFIG_PATH = Path("/etc/relayd/relayd.toml")
 
@@ -106,7 +108,7 @@ def load_settings(path: str | os.PathLike[str]) -> Settings:
     except UnicodeDecodeError as exc:
         raise ConfigError([undecodable(raw, exc)]) from None
     try:
-        data = tomllib.loads(text)
+        data = loads_toml(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError([f"{p}: not valid TOML: {exc}"]) from None
     return parse_settings(data)
@@ -121,4 +123,4 @@ def config_warnings(settings: Settings) -> list[str]:
                 f"{key}: {section.port!r} looks like a placeholder (XXXX): use your adapter's "
                 "serial, or the udev name (/dev/relay/base, /dev/relay/servo)"
             )
-    return out
+    return out + secret_file_warnings(settings)

@@ -7,6 +7,7 @@ re-exports every name here.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import stat
 from collections.abc import Mapping
@@ -18,6 +19,34 @@ from relayd.config.checks import ConfigError
 
 if TYPE_CHECKING:
     from relayd.config.model import Settings
+
+
+def secret_file_warnings(settings: Settings) -> list[str]:
+    """Secret files that work but are exposed: readable by every user of the machine, or a
+    symbolic link (whoever may change the link chooses the secret). `relayd run` logs these,
+    check-config prints them."""
+    files = [(ref.key, ref.file) for ref in secret_refs(settings).values() if ref.file]
+    if settings.api.enabled and settings.api.tls_key:
+        files.append(("api.tls_key", settings.api.tls_key))
+    out = []
+    for key, path in files:
+        try:
+            st = os.lstat(path)
+        except OSError:
+            continue  # unreadable or missing: secret_file_errors says so
+        if stat.S_ISLNK(st.st_mode):
+            out.append(
+                f"{key}: {path} is a symbolic link (to {os.readlink(path)}); name the file itself"
+            )
+            with contextlib.suppress(OSError):
+                st = os.stat(path)
+        if st.st_mode & stat.S_IROTH:
+            out.append(
+                f"{key}: {path} can be read by every user of this machine "
+                f"(mode {stat.S_IMODE(st.st_mode):04o}); `chmod 600 {path}` (or 640 with "
+                "relayd's group)"
+            )
+    return out
 
 
 def secret_file_errors(settings: Settings) -> list[str]:

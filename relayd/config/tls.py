@@ -30,7 +30,18 @@ def tls_context(api: ApiSettings) -> ssl.SSLContext | None:
     ctx = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
     ctx.minimum_version = ssl.TLSVersion.TLSv1_2
     try:
-        ctx.load_cert_chain(api.tls_cert, api.tls_key)
+        # The callback is asked only for an encrypted key: without it OpenSSL prompts for
+        # the pass phrase on the terminal (or fails with a traceback under systemd).
+        ctx.load_cert_chain(api.tls_cert, api.tls_key, password=_no_passphrase)
+    except _EncryptedKey:
+        raise ConfigError(
+            [
+                f"api.tls_key: {api.tls_key} is protected by a pass phrase, which relayd "
+                "cannot ask for at start (under systemd nobody can type it); write the key "
+                f"without one: `openssl pkey -in {api.tls_key} -out <new file>`, readable "
+                "by relayd only"
+            ]
+        ) from None
     except ssl.SSLError as exc:
         raise ConfigError(
             [
@@ -39,3 +50,11 @@ def tls_context(api: ApiSettings) -> ssl.SSLContext | None:
             ]
         ) from None
     return ctx
+
+
+class _EncryptedKey(Exception):
+    """The key file asked for a pass phrase."""
+
+
+def _no_passphrase() -> bytes:
+    raise _EncryptedKey

@@ -310,12 +310,18 @@ class Brain:
         )
 
     def stage_fail_safes(self, now: float, out: ControlOutput | None) -> ControlOutput:
-        """No wheel moves on a scan that stopped arriving (the servo or the RSSI stream died)."""
+        """No wheel moves on a scan that stopped arriving (the servo or the RSSI stream died);
+        no wheel beyond v_max, whichever stage commanded it (recovery and the retreat add
+        their turn to their speed: at a first drive's low v_max that once passed it)."""
         assert out is not None
         if (out.left_mm_s or out.right_mm_s) and self.scans.stale(now, self._mode is Mode.FOLLOW):
             return ControlOutput(
                 0.0, 0.0, DriveState.FAULT, "scan_stale", out.situation, out.memory
             )
+        c = self.rear.control
+        if max(abs(out.left_mm_s), abs(out.right_mm_s)) > c.v_max_mm_s + 1e-9:
+            left, right = c.actuator.express_wheels(out.left_mm_s, out.right_mm_s, c.v_max_mm_s)
+            return replace(out, left_mm_s=left, right_mm_s=right)
         return out
 
     def _recovery_step(self, now: float, rp: RecoveryParams, forward_mm_s: float) -> RecoveryOutput:

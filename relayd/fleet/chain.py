@@ -105,6 +105,13 @@ def hops(views: list[RelayView], now: float, stale_after_s: float) -> list[dict[
     return out
 
 
+#: Why a relay is not on the map without an origin, and how to give it one.
+NO_ORIGIN = (
+    "no origin configured: odometry starts at zero wherever relayd started; give "
+    "origin = [x_m, y_m, heading_deg] in its [[fleet.relay]] (fleet -c), which --relay cannot"
+)
+
+
 def _to_map(origin: tuple[float, float, float], x_mm: float, y_mm: float) -> tuple[float, float]:
     ox, oy, oth = origin
     c, s = math.cos(math.radians(oth)), math.sin(math.radians(oth))
@@ -128,7 +135,7 @@ def fleet_map(views: list[RelayView], now: float, stale_after_s: float) -> dict[
             unplaced.append(
                 {
                     "name": v.relay.name,
-                    "why": "no origin configured" if origin is None else "no odometry yet",
+                    "why": NO_ORIGIN if origin is None else "no odometry yet",
                 }
             )
             continue

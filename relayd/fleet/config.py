@@ -28,7 +28,7 @@ from urllib.parse import urlsplit
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from relayd.config.checks import validation_messages
+from relayd.config.checks import loads_toml, undecodable, validation_messages
 from relayd.config.model import ConfigError, SecretRef, resolve_secret
 
 DEFAULT_PORT = 8090
@@ -86,6 +86,9 @@ class FleetSection(BaseModel):
     poll_s: PositiveFloat = 0.5
     timeout_s: PositiveFloat = 1.0
     stale_after_s: PositiveFloat = 2.0
+    #: Names (beyond IP addresses and localhost) the page may be reached by: a browser's
+    #: Host and Origin must be one of them (DNS rebinding, relayd/api/hostcheck.py).
+    allowed_hosts: list[str] = Field(default_factory=list)
     relay: list[RelayEntry] = Field(default_factory=list)
 
 
@@ -110,6 +113,7 @@ class FleetSettings:
     poll_s: float = 0.5
     timeout_s: float = 1.0
     stale_after_s: float = 2.0
+    allowed_hosts: tuple[str, ...] = ()
 
 
 def _unique_names(relays: Sequence[Relay]) -> list[str]:
@@ -155,6 +159,7 @@ def parse_fleet(data: Mapping[str, Any], environ: Mapping[str, str] | None = Non
         section.poll_s,
         section.timeout_s,
         section.stale_after_s,
+        tuple(section.allowed_hosts),
     )
 
 
@@ -163,7 +168,10 @@ def load_fleet(
 ) -> FleetSettings:
     p = Path(path)
     try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
+        raw = p.read_bytes()
+        data = loads_toml(raw.decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise ConfigError([f"{p}: {undecodable(raw, exc)}"]) from None
     except OSError as exc:
         raise ConfigError([f"{p}: cannot read: {exc.strerror or exc}"]) from None
     except tomllib.TOMLDecodeError as exc:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import time
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -22,9 +23,11 @@ import structlog
 from aiohttp import web
 
 from drivers.transport.clock import REAL_CLOCK, Clock
+from relayd.api.hostcheck import normalise_names, request_problem
 from relayd.fleet.chain import fleet_document
 from relayd.fleet.config import FleetSettings, Relay
 from relayd.fleet.poller import Fleet, short_error
+from relayd.runtime.ratelimit import LogRateLimit
 
 log = structlog.get_logger(__name__)
 
@@ -108,6 +111,29 @@ async def handle_hold_all(request: web.Request) -> web.Response:
     return _json({"ok": all(r["ok"] for r in results), "results": list(results)})
 
 
+def _host_middleware(allowed: frozenset[str]) -> Any:
+    """Refuse a foreign Host (421) or Origin (403) on every route, as the relay's API does:
+    a page the operator visits could otherwise rebind its name to this server and press
+    hold-all. Refusals are logged at a bounded rate."""
+    limit = LogRateLimit(60.0)
+
+    @web.middleware
+    async def check(request: web.Request, handler: Any) -> web.StreamResponse:
+        problem = request_problem(
+            request.headers.get("Host"), request.headers.get("Origin"), allowed
+        )
+        if problem is not None:
+            count = limit.hit(f"host:{request.remote}", time.monotonic())
+            if count is not None:
+                log.warning("fleet_host_refused", peer=request.remote, reason=problem, count=count)
+            status = 403 if problem.startswith("Origin") else 421
+            return web.json_response({"error": problem}, status=status)
+        resp: web.StreamResponse = await handler(request)
+        return resp
+
+    return check
+
+
 def make_fleet_app(settings: FleetSettings, clock: Clock = REAL_CLOCK) -> web.Application:
     fleet = Fleet(
         settings.relays,
@@ -116,7 +142,10 @@ def make_fleet_app(settings: FleetSettings, clock: Clock = REAL_CLOCK) -> web.Ap
         stale_after_s=settings.stale_after_s,
         clock=clock,
     )
-    app = web.Application(client_max_size=16 * 1024)
+    app = web.Application(
+        client_max_size=16 * 1024,
+        middlewares=[_host_middleware(normalise_names(settings.allowed_hosts))],
+    )
     app[FLEET] = fleet
 
     async def lifecycle(app: web.Application) -> Any:

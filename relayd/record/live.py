@@ -4,7 +4,10 @@ Foxglove connects to `ws://<bind>:<port>` (`[foxglove]` in the config) and sees 
 relay live with the same topics, schemas and layouts that open a recording: the
 channels, their JSON schemas (byte for byte) and the message bodies all come from
 `relayd.record.codec` and `relayd.record.foxglove`, the recorder's own sources. The
-WebSocket server is the maintained `foxglove-sdk` (Rust, its own threads).
+WebSocket server is the maintained `foxglove-sdk` (Rust, its own threads), on an
+ephemeral loopback port behind relayd's own gate (relayd/record/livegate.py: a client
+cap, a handshake deadline, the process's shared descriptor account, rate-limited log
+lines, and the SDK's listener restarted when it stops accepting).
 
 What it costs the control path: no work inside it. This is ONE bus subscriber (`with_actions`),
 so the brain and the wheel command run inside `publish()` before it sees the event;
@@ -26,7 +29,9 @@ Differences from a recording, all because a viewer joins a run already under way
 from __future__ import annotations
 
 import asyncio
+import errno
 import json
+import socket
 import time
 from typing import TYPE_CHECKING, Any
 
@@ -37,8 +42,11 @@ from relayd.config.model import Settings
 from relayd.core.events import Decision
 from relayd.record import codec
 from relayd.record.foxglove import VIEWS, Views, log_line
+from relayd.record.livegate import LiveGate
 from relayd.record.recorder import Routed, RoutedBus
 from relayd.record.writer import ChannelSpec, channel_spec
+from relayd.runtime.fdbudget import FdBudget
+from relayd.runtime.state import DeviceHealth
 
 if TYPE_CHECKING:  # the SDK itself is imported only when the server is enabled
     from foxglove.websocket import WebSocketServer
@@ -82,6 +90,7 @@ class LiveServer:
         *,
         queue_len: int = QUEUE_LEN,
         drain_s: float = DRAIN_S,
+        budget: FdBudget | None = None,
     ) -> None:
         import foxglove  # the SDK's Rust module is loaded only when the server is enabled
 
@@ -115,6 +124,12 @@ class LiveServer:
         self._latch_wanted = False
         self._last: Decision | None = None
         self._server: WebSocketServer | None = None
+        self._listen: socket.socket | None = None
+        self.gate = LiveGate(
+            budget or FdBudget.for_process(), 0, on_upstream_refused=self._restart_sdk
+        )
+        #: Times the SDK's listener stopped accepting and was started again.
+        self.restarts = 0
         self._seen_dropped = 0
         self.port: int | None = None
         self.events = 0
@@ -133,10 +148,29 @@ class LiveServer:
         return {topic: int(ch.id()) for topic, ch in self._by_topic.items()}
 
     def start(self) -> None:
-        """Listen; raises BindError (the daemon reports it as a config error)."""
+        """Listen (the gate on `[foxglove]`'s address, the SDK behind it on loopback);
+        raises BindError (the daemon reports it as a config error)."""
+        s = self.settings
+        try:
+            self._listen = listen_on(s.bind, s.port)
+        except OSError as exc:
+            text = exc.strerror or str(exc)
+            key = "foxglove.bind" if exc.errno == errno.EADDRNOTAVAIL else "foxglove.port"
+            raise BindError(text, key) from None
+        self.port = int(self._listen.getsockname()[1])
+        try:
+            self.gate.upstream_port = self._start_sdk()
+        except RuntimeError as exc:
+            self._listen.close()
+            self._listen = None
+            raise BindError(str(exc), "foxglove.port") from None
+        self.gate.start(self._listen)
+        log.info("foxglove_live", url=f"ws://{s.bind}:{self.port}", channels=len(self._by_topic))
+
+    def _start_sdk(self) -> int:
+        """The SDK's server on an ephemeral loopback port, reached only through the gate."""
         from foxglove.websocket import ServerListener
 
-        s = self.settings
         owner = self
 
         class Listener(ServerListener):
@@ -146,22 +180,48 @@ class LiveServer:
                 if channel.topic == "/state":
                     owner._latch_wanted = True
 
+        self._server = self._fox.start_server(
+            name=self.name,
+            host="127.0.0.1",
+            port=0,
+            context=self._context,
+            capabilities=[],
+            message_backlog_size=CLIENT_BACKLOG,
+            server_listener=Listener(),
+        )
+        return int(self._server.port)
+
+    def _restart_sdk(self) -> int | None:
+        """The SDK refused the gate's connection: its listener is gone. Start it again."""
+        old, self._server = self._server, None
+        if old is not None:
+            try:
+                old.stop()
+            except Exception as exc:  # noqa: BLE001 - a dead server may fail to stop; start anew anyway
+                log.debug("foxglove_stop_failed", error=str(exc))
         try:
-            self._server = self._fox.start_server(
-                name=self.name,
-                host=s.bind,
-                port=s.port,
-                context=self._context,
-                capabilities=[],
-                message_backlog_size=CLIENT_BACKLOG,
-                server_listener=Listener(),
-            )
+            port = self._start_sdk()
         except RuntimeError as exc:
-            text = str(exc)
-            key = "foxglove.bind" if "assign requested address" in text else "foxglove.port"
-            raise BindError(text, key) from None
-        self.port = self._server.port
-        log.info("foxglove_live", url=f"ws://{s.bind}:{self.port}", channels=len(self._by_topic))
+            self.error = f"the Foxglove server could not be restarted: {exc}"
+            log.warning("foxglove_restart_failed", error=str(exc))
+            return None
+        self.restarts += 1
+        log.warning("foxglove_restarted", restarts=self.restarts)
+        return port
+
+    def health(self) -> DeviceHealth:
+        """The live view as /status shows it, under health "foxglove": listening, the
+        connections refused (cap, deadline, descriptors), the SDK's restarts, the last error."""
+        gate = self.gate
+        return DeviceHealth(
+            connected=gate.listening and self._server is not None and self.error is None,
+            last_data_t=None,
+            errors=gate.counters["refused"]
+            + gate.counters["late"]
+            + gate.counters["upstream_failed"],
+            reconnects=self.restarts,
+            last_error=self.error or gate.last_error,
+        )
 
     async def run(self) -> None:
         """Drain the subscription every `drain_s` until it is closed."""
@@ -184,6 +244,10 @@ class LiveServer:
 
     def close(self) -> None:
         self._bus.unsubscribe(self._sub)
+        self.gate.close()
+        if self._listen is not None:
+            self._listen.close()
+            self._listen = None
         server, self._server = self._server, None
         if server is not None:
             server.stop()
@@ -264,6 +328,12 @@ class LiveServer:
         self.sent_bytes += len(data)
         if len(data) > self.max_message_bytes:
             self.max_message_bytes = len(data)
+
+
+def listen_on(host: str, port: int) -> socket.socket:
+    """A listening TCP socket on host:port (0 = ephemeral); OSError if it cannot bind."""
+    infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    return socket.create_server((host, port), family=infos[0][0], backlog=64)
 
 
 async def close_soon(server: LiveServer | None, task: asyncio.Task[None] | None) -> None:

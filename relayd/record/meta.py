@@ -89,8 +89,32 @@ class RunInfo:
             clock_t0=float(data["clock_t0"]),
             run_id=data["run_id"],
             part=int(data["part"]),
-            config=json.loads(data["config"]),
+            config=_config_object(data["config"]),
         )
+
+
+def _config_object(text: str) -> dict[str, Any]:
+    """The recorded config: a JSON object, or ValueError saying what it is instead."""
+    try:
+        config = json.loads(text)
+    except RecursionError:
+        raise ValueError("config: nested too deeply to be a relayd config") from None
+    if not isinstance(config, dict):
+        raise ValueError(f"config: a JSON {type(config).__name__}, not an object")
+    return config
+
+
+#: The recorder's counts in its metadata record.
+RECORDER_COUNTS = ("events", "actions", "dropped")
+
+
+def recorder_counts(data: dict[str, str]) -> dict[str, str]:
+    """The recorder's metadata, its counts checked; ValueError naming a count that is not one."""
+    for key in RECORDER_COUNTS:
+        value = data.get(key)
+        if value is not None and not (value.isascii() and value.isdigit()):
+            raise ValueError(f"{key}: {value[:40]!r} is not a count")
+    return data
 
 
 def run_info(

@@ -22,7 +22,7 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 
 from relayd.core.events import Action, Event
 from relayd.record import codec
-from relayd.record.meta import RunInfo
+from relayd.record.meta import RunInfo, recorder_counts
 
 #: No record of ours comes near this: a bigger length field is a corrupt file.
 RECORD_SIZE_LIMIT = 1 << 30
@@ -114,18 +114,22 @@ class _Chunked:
                 name = schema.removeprefix("relayd.")
                 try:
                     doc = json.loads(rec.data)
-                    seq = doc.pop("seq")
+                    if not isinstance(doc, dict):
+                        raise TypeError(f"a JSON {type(doc).__name__}, not an object")
+                    seq = _count(doc.pop("seq"), "seq")
                     if name in codec.EVENT_TYPES:
                         event = codec.decode(codec.EVENT_TYPES[name], doc)
+                        if not abs(event.t) <= MAX_EVENT_T:
+                            raise ValueError(f"t: {event.t!r} is not a time of a run")
                         events[seq] = event
                         last_t = event.t
                     elif name in codec.ACTION_TYPES:
-                        i = doc.pop("i")
+                        i = _count(doc.pop("i"), "i")
                         action = codec.decode(codec.ACTION_TYPES[name], doc)
                         acts.setdefault(seq, []).append((i, action, {"type": name, **doc}))
                     else:
                         raise codec.DecodeError(f"unknown message type {schema}")
-                except (ValueError, KeyError, TypeError) as exc:
+                except (ValueError, KeyError, TypeError, RecursionError) as exc:
                     raise RecordingError(
                         self.path, f"a {topic} message in the chunk does not decode: {exc}", offset
                     ) from None
@@ -135,6 +139,18 @@ class _Chunked:
         for topic, n in topics.items():
             self.topics[topic] = self.topics.get(topic, 0) + n
         self.last_t = last_t
+
+
+#: An event time beyond this (s, either sign) is no clock reading of a run: a recording
+#: holding one is refused, where the brain would overflow on it (1e308 once did).
+MAX_EVENT_T = 1e10
+
+
+def _count(value: Any, key: str) -> int:
+    """A message's `seq` or `i`: a whole number >= 0 (it orders the file's steps)."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise TypeError(f"{key}: {value!r} is not a count")
+    return value
 
 
 class _Cursor:
@@ -268,7 +284,12 @@ def read_recording(path: str | Path, *, partial: bool = False) -> Recording:  # 
                     elif rec.name == "robot":
                         robot = dict(rec.metadata)
                     elif rec.name == "recorder":
-                        recorder = dict(rec.metadata)
+                        try:
+                            recorder = recorder_counts(dict(rec.metadata))
+                        except ValueError as exc:
+                            raise RecordingError(
+                                p, f"bad recorder metadata ({exc})", offset
+                            ) from None
                 elif isinstance(rec, Schema | Channel | Message):
                     chunked.take([rec], offset)
                 elif isinstance(rec, Footer):

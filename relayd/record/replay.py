@@ -22,6 +22,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from relayd.config.checks import loads_toml
 from relayd.config.load import parse_settings
 from relayd.config.model import Settings
 from relayd.config.params import brain_params
@@ -44,7 +45,7 @@ def parse_override(text: str) -> tuple[str, Any]:
         raise OverrideError(f"{text!r}: expected SECTION.KEY=VALUE, e.g. control.kp=2.0")
     raw = raw.strip()
     try:
-        value = tomllib.loads(f"v = {raw}")["v"]
+        value = loads_toml(f"v = {raw}")["v"]
     except tomllib.TOMLDecodeError:
         value = raw
     return key, value

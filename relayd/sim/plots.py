@@ -54,6 +54,22 @@ LEGEND_OUTSIDE: dict[str, Any] = {
 }
 
 
+#: Time labels on the map closer than this share of its extent are not both drawn.
+LABEL_SEPARATION = 0.025
+#: A path plot shows at least this much floor both ways (m).
+MIN_PATH_SPAN_M = 3.0
+
+
+def save(fig: Any, path: Path, **kw: Any) -> None:
+    """Every figure's one way out (tests replace it to look at the figure)."""
+    import matplotlib.pyplot as plt
+
+    try:
+        fig.savefig(path, **kw)
+    finally:
+        plt.close(fig)
+
+
 def marks_every(records: Sequence[dict[str, Any]], every_s: float = 20.0) -> list[dict[str, Any]]:
     """The first record at or after each multiple of `every_s` (the paper's 20 s circles)."""
     out = []
@@ -141,8 +157,13 @@ def plot_map(world: World, records: Sequence[dict[str, Any]], path: Path) -> Non
                     ls=":",
                     label=f"{body.name}'s leader estimate",
                 )
-        # A body standing still gets one label (its first time there), not a pile of them.
+        # A body standing still gets one label (its first time there), not a pile of them,
+        # and no label is drawn on top of another body's ("20 s 20 s" once overlapped).
         last_labelled: dict[int, tuple[float, float]] = {}
+        placed: list[tuple[float, float]] = []
+        xs_all = [w.x1 for w in world.walls] + [w.x2 for w in world.walls] + lx
+        ys_all = [w.y1 for w in world.walls] + [w.y2 for w in world.walls] + ly
+        sep = LABEL_SEPARATION * max(max(xs_all) - min(xs_all), max(ys_all) - min(ys_all), 1.0)
         for r in marks_every(records):
             if r["t"] == 0:
                 continue
@@ -156,6 +177,9 @@ def plot_map(world: World, records: Sequence[dict[str, Any]], path: Path) -> Non
                 if prev is not None and abs(prev[0] - x) + abs(prev[1] - y) < 0.5:
                     continue
                 last_labelled[k] = (x, y)
+                if any(abs(px - x) < 2 * sep and abs(py - y) < sep for px, py in placed):
+                    continue  # a label is there already: the circle alone says enough
+                placed.append((x, y))
                 ax.annotate(
                     label,
                     (x, y),
@@ -173,8 +197,7 @@ def plot_map(world: World, records: Sequence[dict[str, Any]], path: Path) -> Non
     ax.legend(fontsize=8, **LEGEND_OUTSIDE)
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110, bbox_inches="tight")
-    plt.close(fig)
+    save(fig, path, dpi=110, bbox_inches="tight")
 
 
 def _shade(ax: Any, records: Sequence[dict[str, Any]], i: int) -> None:
@@ -187,7 +210,9 @@ def _shade(ax: Any, records: Sequence[dict[str, Any]], i: int) -> None:
             ax.axvspan(t0, t1, facecolor="none", edgecolor="grey", hatch=hatch, lw=0, alpha=0.5)
 
 
-def _shade_legend(ax: Any) -> None:
+def _shade_legend(fig: Any, rows: int) -> None:
+    """The drive states' key, once for the figure, under the panels: a legend hung off one
+    axes once widened the figure's gutter and sat small and far below."""
     import matplotlib.patches as mpatches
 
     handles = [mpatches.Patch(color=c, alpha=0.5, label=s) for s, c in STATE_COLORS.items()]
@@ -195,14 +220,9 @@ def _shade_legend(ax: Any) -> None:
         mpatches.Patch(facecolor="none", edgecolor="grey", hatch=h, label=f"stopped: {r}")
         for r, h in REASON_HATCH.items()
     ]
-    ax.legend(
-        handles=handles,
-        fontsize=7,
-        ncol=len(handles),
-        loc="upper center",
-        bbox_to_anchor=(0.5, -0.35),
-        frameon=False,
-    )
+    bottom = 0.5 / (3.4 * rows)  # half an inch, whatever the figure's height
+    fig.tight_layout(rect=(0, bottom, 1, 1))
+    fig.legend(handles=handles, fontsize=9, ncol=4, loc="lower center", frameon=False)
 
 
 def plot_rssi_bearing(
@@ -248,32 +268,46 @@ def plot_rssi_bearing(
     for ax in axes[-1]:
         ax.set_xlabel("time (s)")
     if n:
-        _shade_legend(axes[-1][0])
-    fig.tight_layout()
-    fig.savefig(path, dpi=100, bbox_inches="tight")
-    plt.close(fig)
+        _shade_legend(fig, n)
+    else:
+        fig.tight_layout()
+    save(fig, path, dpi=100, bbox_inches="tight")
 
 
 def plot_paths(
     paths: Mapping[str, tuple[Sequence[float], Sequence[float]]], path: Path, title: str
 ) -> None:
-    """Paths in the plane (e.g. each robot's odometry), start and end marked, equal axes."""
+    """Paths in the plane (e.g. each robot's odometry), start and end marked, equal axes
+    at least MIN_PATH_SPAN_M wide both ways (a 1.7 m path was once a strip), the legend
+    beside the plot."""
+    from matplotlib.ticker import MaxNLocator
+
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(7, 6))
+    fig, ax = plt.subplots(figsize=(8, 6))
+    xs_all: list[float] = []
+    ys_all: list[float] = []
     for name, (xs, ys) in paths.items():
         line = ax.plot(xs, ys, lw=1.5, label=name)[0]
         if xs:
-            ax.plot(xs[0], ys[0], marker="s", color=line.get_color(), ms=7, ls="")
-            ax.plot(xs[-1], ys[-1], marker="o", color=line.get_color(), ms=9, ls="")
-    ax.set_aspect("equal")
+            ax.plot(xs[0], ys[0], marker="s", color=line.get_color(), ms=7, ls="", label="start")
+            ax.plot(xs[-1], ys[-1], marker="o", color=line.get_color(), ms=9, ls="", label="end")
+        xs_all += list(xs)
+        ys_all += list(ys)
+    if xs_all:
+        half = max(max(xs_all) - min(xs_all), max(ys_all) - min(ys_all), MIN_PATH_SPAN_M) * 0.55
+        cx, cy = (max(xs_all) + min(xs_all)) / 2, (max(ys_all) + min(ys_all)) / 2
+        ax.set_xlim(cx - half, cx + half)
+        ax.set_ylim(cy - half, cy + half)
+    ax.set_aspect("equal", adjustable="box")
+    ax.xaxis.set_major_locator(MaxNLocator(6))
+    ax.yaxis.set_major_locator(MaxNLocator(6))
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_title(title)
-    ax.legend(loc="best", fontsize=8)
+    ax.legend(fontsize=8, **LEGEND_OUTSIDE)
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save(fig, path, dpi=110, bbox_inches="tight")
 
 
 def plot_throughput(
@@ -284,7 +318,7 @@ def plot_throughput(
     fig, ax = plt.subplots(figsize=(9, 4))
     for label, records in runs:
         ax.plot([r["t"] for r in records], [r["e2e_mbps"] for r in records], label=label)
-    _finish_throughput(plt, fig, ax, title, path)
+    _finish_throughput(fig, ax, title, path)
 
 
 def plot_throughput_bands(
@@ -331,7 +365,7 @@ def plot_throughput_bands(
             alpha=0.2,
             lw=0,
         )
-    _finish_throughput(plt, fig, ax, title, path)
+    _finish_throughput(fig, ax, title, path)
 
 
 def write_run_plots(world: World, records: Sequence[dict[str, Any]], out: Path) -> list[Path]:
@@ -352,7 +386,7 @@ def write_run_plots(world: World, records: Sequence[dict[str, Any]], out: Path) 
     return files
 
 
-def _finish_throughput(plt: Any, fig: Any, ax: Any, title: str, path: Path) -> None:
+def _finish_throughput(fig: Any, ax: Any, title: str, path: Path) -> None:
     """The axes, title, legend and file every throughput-over-time plot shares."""
     ax.set_xlabel("time (s)")
     ax.set_ylabel("end-to-end throughput (Mbps)")
@@ -361,5 +395,4 @@ def _finish_throughput(plt: Any, fig: Any, ax: Any, title: str, path: Path) -> N
     ax.legend()
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    save(fig, path, dpi=100)

@@ -13,13 +13,25 @@ import sys
 import time
 from typing import Any, TextIO
 
+#: The width taken when the terminal reports none.
+DEFAULT_COLUMNS = 80
+#: A relay's reason while its daemon has not had the base's first SIP: it is starting.
+STARTING_REASON = "no_sip"
 
-def progress_text(rec: dict[str, Any], duration_s: float, width: int | None = None) -> str:
+
+def progress_text(
+    rec: dict[str, Any],
+    duration_s: float,
+    width: int | None = None,
+    started: set[str] | None = None,
+) -> str:
     """The progress line for one trace record, at most `width` characters if given.
 
     Time, leader and throughput come first; relays follow while they fit, and the
     ones that do not are counted (`+2`) rather than wrapped onto a new line,
-    which a carriage return cannot rewrite. A relay reads `name:state/RSSI^l/gap`.
+    which a carriage return cannot rewrite. A relay reads `name:state/RSSI^l/gap`;
+    with `started` (the relays seen past their first SIP), one not in it that waits
+    for its first SIP reads `starting`, not the `fault` its daemon reports.
     """
     parts = [
         f"t={rec['t']:.1f}/{duration_s:.0f}s",
@@ -29,8 +41,11 @@ def progress_text(rec: dict[str, Any], duration_s: float, width: int | None = No
     relays = []
     for r in rec["relays"]:
         rssi = r["rssi_l_dbm"]
+        state = r["state"]
+        if started is not None and r["name"] not in started and r.get("reason") == STARTING_REASON:
+            state = "starting"
         relays.append(
-            f"{r['name']}:{r['state']}"
+            f"{r['name']}:{state}"
             + (f"/{rssi:.0f}dBm" if isinstance(rssi, int | float) else "")
             + f"/{r['gap_m']:.1f}m"
         )
@@ -61,16 +76,20 @@ class ProgressLine:
         self._last = 0.0
         self._width = 0
         self.lines = 0
+        self._started: set[str] = set()
 
     def __call__(self, rec: dict[str, Any]) -> None:
         if not self.enabled:
             return
+        for r in rec["relays"]:
+            if r.get("reason") != STARTING_REASON:
+                self._started.add(r["name"])
         now = time.monotonic()
         if now - self._last < self.every_s:
             return
         self._last = now
         # One column short of the terminal: writing the last column wraps on some terminals.
-        text = progress_text(rec, self.duration_s, self._columns() - 1)
+        text = progress_text(rec, self.duration_s, self._columns() - 1, self._started)
         pad = max(0, self._width - len(text))
         self._width = len(text)
         self.stream.write("\r" + text + " " * pad)
@@ -79,10 +98,13 @@ class ProgressLine:
 
     def _columns(self) -> int:
         # Asked each time: the user may resize the terminal during a long run.
+        # A terminal that reports 0 columns (a serial console, some CI ptys) has no known
+        # width: take the usual 80 rather than cutting the line to nothing useful.
         try:
-            return max(20, os.get_terminal_size(self.stream.fileno()).columns)
+            columns = os.get_terminal_size(self.stream.fileno()).columns
         except (AttributeError, OSError, ValueError):
-            return shutil.get_terminal_size().columns
+            columns = shutil.get_terminal_size().columns
+        return max(20, columns) if columns > 0 else DEFAULT_COLUMNS
 
     def close(self) -> None:
         if self.enabled and self.lines:

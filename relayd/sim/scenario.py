@@ -17,6 +17,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from relayd.config.checks import loads_toml
 from relayd.sim.geometry import Box, Segment, polygon_segments
 from relayd.sim.radio import DEFAULT_HOP_COUPLING, DEFAULT_WALL_LOSS_DB, RadioParams
 from relayd.sim.zones import RadioZone
@@ -397,7 +398,7 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
             )
         text = res.read_text(encoding="utf-8")
     try:
-        data = tomllib.loads(text)
+        data = loads_toml(text)
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError([f"{name_or_path}: not valid TOML: {exc}"]) from None
     return parse_scenario(data)

@@ -276,7 +276,17 @@ def _start_client(opts: SweepOptions) -> tuple[Any, Any]:
     Client, LocalCluster = dist.Client, dist.LocalCluster
 
     if opts.scheduler:
-        return Client(opts.scheduler, timeout=f"{opts.connect_timeout_s:g}s"), None
+        try:
+            return Client(opts.scheduler, timeout=f"{opts.connect_timeout_s:g}s"), None
+        except OSError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - whatever answered, it is not a scheduler
+            # Something else listens there (a web server's answer read as a frame length
+            # once asked numpy for 3 EiB): say so as the unreachable case is said.
+            raise OSError(
+                f"{opts.scheduler} did not answer as a Dask scheduler "
+                f"({type(exc).__name__}: {str(exc)[:120]})"
+            ) from None
     n = opts.workers or default_workers()
     # The scheduler serves HTTP (health, metrics, the dashboard if bokeh is installed) on
     # a free loopback port: the default 8787 clashes with any other cluster on the machine.

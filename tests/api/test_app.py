@@ -558,6 +558,23 @@ async def test_a_stop_needs_no_token(
         assert resp.status == 401
 
 
+async def test_tokenless_stops_are_logged_at_a_bounded_rate(
+    client: TestClient[Any, Any], controls: FakeControls, clock: ManualClock
+) -> None:
+    """A stop is open to anyone on the bridge; a script sending a thousand of them must not
+    fill the journal: one line, then one a minute with the count it stands for."""
+    import structlog
+
+    with structlog.testing.capture_logs() as logs:
+        for _ in range(50):
+            assert (await client.post("/api/mode", json={"mode": "hold"})).status == 200
+        clock.advance(61.0)
+        assert (await client.post("/api/mode", json={"mode": "hold"})).status == 200
+    lines = [e for e in logs if e["event"] == "api_stop_without_token"]
+    assert [e["count"] for e in lines] == [1, 50], lines
+    assert len(controls.modes) == 51
+
+
 async def test_failed_authentication_backs_the_client_off(
     client: TestClient[Any, Any], controls: FakeControls
 ) -> None:

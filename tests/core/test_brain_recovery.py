@@ -40,6 +40,7 @@ class Relay:
     x_mm: float = 0.0
     rssi_fresh: bool = True
     rear_dbm: float = -50.0
+    theta_deg: float = 0.0
     log: list[Action] = field(default_factory=list)
 
     def feed(self, ev: object) -> list[Action]:
@@ -57,7 +58,7 @@ class Relay:
                 t=self.t,
                 x_mm=self.x_mm,
                 y_mm=0.0,
-                theta_deg=0.0,
+                theta_deg=self.theta_deg,
                 left_mm_s=0.0,
                 right_mm_s=0.0,
                 battery_v=13.0,
@@ -96,9 +97,13 @@ class Relay:
         return out.left_mm_s, out.right_mm_s
 
 
-def relay(enabled: bool) -> Relay:
+def relay(enabled: bool, **control: float) -> Relay:
     cfg = Settings.model_validate(
-        {"recovery": {"enabled": enabled}, "scan": {"samples": 5, "width_deg": 120}}
+        {
+            "recovery": {"enabled": enabled},
+            "scan": {"samples": 5, "width_deg": 120},
+            "control": control,
+        }
     )
     r = Relay(Brain(brain_params(cfg)))
     r.feed(DeviceEvent(0.0, PANTILT, DeviceStatus.UP))
@@ -107,7 +112,7 @@ def relay(enabled: bool) -> Relay:
         r.scan(-40.0 - 3 * k)
         r.step(1.0)
     assert r.brain.last_output is not None and r.brain.last_output.state is DriveState.DRIVING
-    assert r.x_mm > 1000.0
+    assert r.x_mm > 500.0
     return r
 
 
@@ -162,6 +167,25 @@ def test_leader_lost_widens_then_retraces_then_resumes_following() -> None:
     assert "widen" in phases and "retrace" in phases and phases[-1] == "idle"
     states = {a.state for a in r.log if isinstance(a, Decision)}
     assert DriveState.RECOVERING in states
+
+
+def test_v_max_bounds_every_wheel_of_a_retrace_that_turns() -> None:
+    """Recovery adds its turn to a speed already at v_max: at a first drive's v_max of 120
+    a wheel once got 180 mm/s. v_max bounds every stage's command (docs/DEPLOY.md 7)."""
+    r = relay(True, v_max_mm_s=120.0)
+    lose_leader(r)
+    r.feed(ScanReady(r.t))
+    r.step(1.0)
+    r.scan(-100.0)
+    r.theta_deg = 20.0  # the crumbs behind are now 20 deg off the rear axis: it must turn
+    r.step(2.0)
+    assert r.brain.recovery.phase is Phase.RETRACE
+    left, right = r.wheels
+    # Bounded as every command is (relayd/core/control/actuator.py `within`): the turn is
+    # kept, the translation shrunk first.
+    assert left != right and min(left, right) < 0, (left, right)
+    wheels = [w for a in r.log if isinstance(a, Decision) for w in (a.left_mm_s, a.right_mm_s)]
+    assert max(abs(w) for w in wheels) <= 120.0 + 1e-6
 
 
 def test_rear_link_lost_backs_up_and_stops_when_restored() -> None:

@@ -99,3 +99,61 @@ def test_series_windows() -> None:
     assert first_below(s, 5.0) == 2.0
     assert first_below(s, 0.0) is None
     assert set(FIGURES) == {"6-17", "6-21"}
+
+
+def _figures(monkeypatch: pytest.MonkeyPatch) -> list:
+    """The figures the plot functions draw, kept open instead of saved."""
+    kept: list = []
+    monkeypatch.setattr(plots, "save", lambda fig, path, **kw: kept.append(fig))
+    return kept
+
+
+def _two_relays_together() -> list[dict]:
+    recs = _recs(450)
+    for r in recs:
+        r["relays"].append({**r["relays"][0], "name": "relay2", "x": r["relays"][0]["x"] + 0.05})
+    return recs
+
+
+def test_map_time_labels_never_sit_on_each_other(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Two relays side by side once got '20 s 20 s' printed over each other."""
+    pytest.importorskip("matplotlib")
+    kept = _figures(monkeypatch)
+    world = World(load_scenario("corridor").with_relays(2), seed=1)
+    plots.plot_map(world, _two_relays_together(), Path("unused.png"))
+    (fig,) = kept
+    labels = [t for t in fig.axes[0].texts if t.get_text().endswith(" s")]
+    fig.canvas.draw()
+    boxes = [t.get_window_extent() for t in labels]
+    assert labels
+    for i, a in enumerate(boxes):
+        for b in boxes[i + 1 :]:
+            assert not a.overlaps(b), "two time labels overlap"
+
+
+def test_rssi_bearing_has_its_key_under_the_panels_and_no_gutter(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    pytest.importorskip("matplotlib")
+    kept = _figures(monkeypatch)
+    plots.plot_rssi_bearing(_two_relays_together(), Path("unused.png"), [(-30, -40)] * 2)
+    (fig,) = kept
+    assert len(fig.legends) == 1 and fig.legends[0].get_texts()[0].get_fontsize() >= 9
+    left, right = fig.axes[0].get_position(), fig.axes[1].get_position()
+    assert right.x0 - left.x1 < 0.12, "a wide gutter between the two columns"
+
+
+def test_a_short_path_is_drawn_on_a_readable_square(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A 1.7 m path was once squeezed into a strip, ticks overlapping, the legend on the title."""
+    pytest.importorskip("matplotlib")
+    kept = _figures(monkeypatch)
+    xs = [0.01 * k for k in range(170)]
+    plots.plot_paths({"relay1": (xs, [0.02 * x for x in xs])}, Path("unused.png"), "path")
+    (fig,) = kept
+    ax = fig.axes[0]
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    assert x1 - x0 >= plots.MIN_PATH_SPAN_M and y1 - y0 >= plots.MIN_PATH_SPAN_M
+    assert len(ax.get_xticks()) <= 8
+    fig.canvas.draw()
+    legend = ax.get_legend().get_window_extent()
+    assert legend.x0 >= ax.get_window_extent().x1, "the legend sits on the plot"

@@ -99,7 +99,7 @@ def test_summarize_reached_and_broken() -> None:
         recs[:2], scenario="x", relays=1, goal=(10, 0), goal_radius_m=0.5, collisions=0, followers=f
     )
     assert s["goal_reached"] is False and s["goal_reached_at_s"] is None
-    assert "goal NOT reached" in format_summary(
+    assert "the leader did NOT reach its goal" in format_summary(
         s
         | {
             "followers": [
@@ -113,6 +113,34 @@ def test_summarize_reached_and_broken() -> None:
                 }
             ]
         }
+    )
+
+
+def _summary(recs: list[dict], travelled_m: float) -> dict:
+    f = [{"name": "r0", "collisions": 0, "travelled_m": travelled_m}]
+    return summarize(
+        recs, scenario="x", relays=1, goal=(10, 0), goal_radius_m=0.5, collisions=0, followers=f
+    )
+
+
+def test_the_printed_summary_says_what_happened() -> None:
+    """'goal reached, link held' once stood for a leader that started on its goal with the
+    relays stuck, and 'goal reached, link broke' for a drift that ended at 0.0 Mbps."""
+    on_goal = [_rec(t, 10, 27, False, [2.0]) for t in (0, 1, 2)]
+    text = format_summary(_summary(on_goal, 0.0))
+    assert "the leader stood on its goal from the start (nothing to reach)" in text
+    assert "goal reached" not in text and "never moved: r0" in text
+    drift = [_rec(0, 0, 27, False, [2.0]), _rec(1, 10, 20, False, [3.0])]
+    drift += [_rec(t, 10, 0, True, [9.0]) for t in (2, 3, 4)]
+    text = format_summary(_summary(drift, 3.0))
+    assert (
+        "the leader reached its goal at 1.0 s with the link up; the link broke later, at 2.0 s, "
+        "and was still down at the end" in text
+    ), text
+    assert "never moved" not in text
+    held = [_rec(0, 0, 27, False, [2.0]), _rec(1, 10, 20, False, [3.0])]
+    assert "the leader reached its goal at 1.0 s, the link held" in format_summary(
+        _summary(held, 3.0)
     )
 
 
@@ -344,6 +372,37 @@ def test_sim_log_is_plain_json_with_relay_and_sim_time(
     ts = [d["t"] for d in docs]
     assert min(ts) >= 0.0 and max(ts) <= 8.0 + 2.0
     assert any(t > 0 for t in ts), "simulation time never advanced in the log"
+
+
+def test_progress_line_says_starting_until_the_first_sip() -> None:
+    starting = _rec(0.0, 3.5, 27.0, False, [1.5], state="fault")
+    starting["relays"][0]["reason"] = "no_sip"
+    buf = io.StringIO()
+    p = ProgressLine(100, stream=buf, every_s=0.0, enabled=True)
+    p(starting)
+    assert "r0:starting/" in buf.getvalue() and "fault" not in buf.getvalue()
+    p(_rec(1.0, 3.5, 27.0, False, [1.5], state="stopped"))
+    buf.truncate(0)
+    p(starting)  # the base lost after it had started: a fault, said as one
+    assert "r0:fault/" in buf.getvalue()
+
+
+def test_progress_line_at_a_terminal_width_of_0_is_not_cut_to_nothing() -> None:
+    import fcntl
+    import pty
+    import struct
+    import termios
+
+    master, slave = pty.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 0, 0, 0, 0))
+    with os.fdopen(slave, "w", encoding="utf-8") as tty:
+        p = ProgressLine(600, stream=tty, every_s=0.0)
+        p(_rec(12.5, 3.0, 27.0, False, [1.5]))
+        p.close()
+    written = os.read(master, 65536).decode()
+    os.close(master)
+    # 80 columns taken: the whole line (it was cut at 20: "t=12.5/600s leader=(").
+    assert "e2e=27.0Mbps r0:driving/-40dBm/1.5m" in written, written
 
 
 @pytest.mark.parametrize("columns", [80, 60])

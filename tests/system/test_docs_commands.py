@@ -323,8 +323,9 @@ async def test_the_control_curl_commands_work_against_the_api() -> None:
             assert path is not None, cmd.where()
             resp = await client.request(method, path, headers=headers, data=body)
             assert resp.status == 200, f"{cmd.where()}: {resp.status} {await resp.text()}"
-    # The guide's sequence (hold, manual, a drive) really reached the robot's controls.
-    assert controls.drives == [(100, 100)]
+    # The guide's sequences (hold, manual, a drive; the stand test's forward, left only,
+    # right only) really reached the robot's controls.
+    assert controls.drives == [(100, 100), (100, 100), (100, 0), (0, 100)]
 
 
 _INLINE = re.compile(r"`(relayd [^`]+)`")

@@ -99,3 +99,24 @@ def test_deploy_guide_uses_the_same_names() -> None:
     assert _rule_with(rules, "NAME")["NAME"][1] in deploy
     for link in _symlinks(rules):
         assert f"`{link}`" in deploy
+
+
+def test_the_guide_installs_the_rules_once_filled_in_and_starts_the_service_after_bring_up() -> (
+    None
+):
+    """The service once started (and enabled the motors) before any device was checked, and
+    the rules were installed before the section that says how to fill them in."""
+    deploy = DEPLOY.read_text()
+    udev = deploy.index("## 2. udev names")
+    fill = deploy.index("udevadm info -a -n /dev/ttyUSB0")
+    bring_up = deploy.index("## 3. Bring-up")
+    servo = deploy.index("## 4. Servo calibration")
+    assert udev < fill < deploy.index("install -m 0644 config/99-relayd.rules") < bring_up
+    assert deploy.count("config/99-relayd.rules /etc/udev") == 1
+    assert deploy.count("systemctl enable --now relayd") == 1
+    assert servo < deploy.index("systemctl enable --now relayd") < deploy.index("## 5.")
+    readme = (ROOT / "README.md").read_text()
+    assert readme.index("relayd check-config /etc/relayd/relayd.toml") < readme.index(
+        "systemctl enable --now relayd"
+    )
+    assert readme.index("DEPLOY.md section 2") < readme.index("systemctl enable --now relayd")

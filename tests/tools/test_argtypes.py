@@ -38,3 +38,33 @@ def test_each_subcommand_names_the_bad_number(
         main(argv)
     assert exc.value.code == 2
     assert "not a number: 'abc'" in capsys.readouterr().err
+
+
+def test_scheduler_addresses() -> None:
+    from relayd.cli.argtypes import scheduler_address
+
+    assert scheduler_address("tcp://10.0.0.5:8786") == "tcp://10.0.0.5:8786"
+    assert scheduler_address("host:8786") == "tcp://host:8786"
+    assert scheduler_address("tcp://[::1]:8786") == "tcp://[::1]:8786"
+    for bad, why in (
+        ("garbage", "is not tcp://HOST:PORT"),
+        ("http://host:8787", "web address"),
+        ("tls://host:8786", "tls:// is not supported"),
+        ("inproc://x", "inproc:// is not supported"),
+        ("tcp://host", "is not tcp://HOST:PORT"),
+        ("tcp://host:99999", "is not tcp://HOST:PORT"),
+        ("tcp://:8786", "is not tcp://HOST:PORT"),
+    ):
+        with pytest.raises(argparse.ArgumentTypeError, match=why):
+            scheduler_address(bad)
+
+
+@pytest.mark.parametrize("address", ["garbage", "http://127.0.0.1:1", "tls://h:1", "inproc://x"])
+def test_sweep_refuses_a_scheduler_address_it_cannot_use(
+    address: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as done:
+        main(["sweep", "--scenario", "corridor", "--scheduler", address])
+    assert done.value.code == 2
+    err = capsys.readouterr().err
+    assert "argument --scheduler:" in err and "Traceback" not in err

@@ -80,3 +80,18 @@ def test_unknown_option_after_valid_ones_is_named(capsys: pytest.CaptureFixture[
     err = capsys.readouterr().err
     assert err.startswith("usage: relayd fake robot ")
     assert "unrecognized arguments: --bogus" in err
+
+
+def test_fake_rig_help_gives_every_default_and_says_the_world_persists(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    fresh = argparse.ArgumentParser()
+    importlib.import_module("relayd.fakes.rig_cmd").configure(fresh)
+    for action in fresh._actions:
+        if action.default not in (None, False) and not isinstance(action, argparse._HelpAction):
+            assert "default" in (action.help or ""), action.option_strings
+    with pytest.raises(SystemExit):
+        main(["fake", "rig", "--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    assert "(default: 6 2)" in out and "(default: -55)" in out
+    assert "keeps its state while it serves" in out

@@ -26,7 +26,7 @@ from relayd.api.demo import DemoControls, populate
 from relayd.cli.fleet import settings_from_args
 from relayd.config.model import ConfigError
 from relayd.core.vocab import Mode
-from relayd.fleet.chain import fleet_document, hops, link_status
+from relayd.fleet.chain import NO_ORIGIN, fleet_document, hops, link_status
 from relayd.fleet.config import Relay, normalise_url, parse_fleet, relay_from_arg
 from relayd.fleet.poller import Fleet, RelayView
 from relayd.fleet.server import hold_one
@@ -109,6 +109,7 @@ def _args(**kw: Any) -> argparse.Namespace:
         "port": None,
         "poll_s": None,
         "timeout_s": None,
+        "allowed_host": [],
     }
     return argparse.Namespace(**{**base, **kw})
 
@@ -229,7 +230,8 @@ def test_map_places_relays_by_their_origin() -> None:
     assert (placed["x_m"], placed["y_m"], placed["heading_deg"]) == pytest.approx((2.0, 4.0, 90.0))
     assert placed["leader_deg"] == pytest.approx(100.0)
     assert placed["trail"] == [[2.0, 3.0], [2.0, 4.0]]
-    assert m["unplaced"] == [{"name": "r2", "why": "no origin configured"}]
+    assert m["unplaced"] == [{"name": "r2", "why": NO_ORIGIN}]
+    assert NO_ORIGIN.startswith("no origin configured") and "--relay" in NO_ORIGIN
 
 
 # -- polling and hold-all against real relay APIs ------------------------------------------
@@ -449,3 +451,55 @@ def test_the_two_documents_that_once_blanked_the_page() -> None:
         )
         assert [r["name"] for r in doc["relays"]] == ["odd", "good"]
         assert doc["relays"][1]["current"]
+
+
+async def test_the_fleet_page_refuses_a_foreign_host_or_origin() -> None:
+    """DNS rebinding: a page the operator visits must not reach hold-all through its own name."""
+    from aiohttp.test_utils import TestClient, TestServer
+
+    from relayd.fleet.config import FleetSettings
+    from relayd.fleet.server import make_fleet_app
+
+    async with relay_api("a") as (url, state):
+        state.mode = Mode.FOLLOW
+        fleet = FleetSettings(relays=(Relay("a", url, TOKEN),), allowed_hosts=("cc.lab",))
+        async with TestClient(TestServer(make_fleet_app(fleet))) as client:
+            for path in ("/", "/fleet.json", "/static/fleet.js"):
+                resp = await client.get(path, headers={"Host": "evil.example:8090"})
+                assert resp.status == 421, path
+                assert "evil.example" in (await resp.json())["error"]
+            resp = await client.post(
+                "/api/hold-all", json={}, headers={"Host": "evil.example:8090"}
+            )
+            assert resp.status == 421 and state.mode is Mode.FOLLOW
+            resp = await client.post(
+                "/api/hold-all", json={}, headers={"Origin": "http://evil.example"}
+            )
+            assert resp.status == 403 and state.mode is Mode.FOLLOW
+            # A listed name passes, as do IP literals and localhost.
+            for host in ("cc.lab:8090", "localhost", "127.0.0.1:8090"):
+                assert (await client.get("/fleet.json", headers={"Host": host})).status == 200
+            resp = await client.post(
+                "/api/hold-all",
+                json={},
+                headers={"Host": "cc.lab:8090", "Origin": "http://cc.lab:8090"},
+            )
+            assert resp.status == 200 and state.mode is Mode.HOLD
+
+
+def test_a_fleet_page_bound_beyond_loopback_warns_that_hold_all_is_open() -> None:
+    from relayd.cli.fleet import bind_warnings
+
+    assert bind_warnings("127.0.0.1") == [] and bind_warnings("::1") == []
+    (line,) = bind_warnings("0.0.0.0")
+    assert line.startswith("--bind 0.0.0.0:") and "hold-all" in line and "no token" in line
+    assert bind_warnings("192.168.1.10")
+
+
+def test_fleet_allowed_hosts_from_config_and_command_line(tmp_path: Path) -> None:
+    cfg = tmp_path / "fleet.toml"
+    cfg.write_text(
+        '[fleet]\nallowed_hosts = ["cc.lab"]\n[[fleet.relay]]\nurl = "http://10.0.0.1:8080"\n'
+    )
+    args = _args(config=str(cfg), allowed_host=["cc2.lab"])
+    assert settings_from_args(args).allowed_hosts == ("cc.lab", "cc2.lab")

@@ -7,6 +7,7 @@ every process a test starts is bounded in time and killed in a finally.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import json
@@ -384,3 +385,49 @@ def test_external_scheduler_two_workers_one_killed(tmp_path: Path) -> None:
         for p in reversed(procs):
             _kill_group(p)
         log.close()
+
+
+def test_a_server_that_is_not_a_dask_scheduler_is_exit_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A web server's answer, read as a Dask frame, once asked numpy for 3 EiB (a traceback)."""
+    import threading
+
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen()
+    port = server.getsockname()[1]
+
+    def answer() -> None:
+        with contextlib.suppress(OSError):
+            while True:
+                conn, _ = server.accept()
+                with conn:
+                    conn.recv(65536)
+                    conn.sendall(
+                        b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n" + b"x" * 200
+                    )
+
+    threading.Thread(target=answer, daemon=True).start()
+    try:
+        code = main(
+            [
+                "sweep",
+                *TINY,
+                "--relays",
+                "0",
+                "--seeds",
+                "1",
+                "--scheduler",
+                f"tcp://127.0.0.1:{port}",
+                "--connect-timeout",
+                "5",
+                "--out",
+                str(tmp_path / "x"),
+            ]
+        )
+    finally:
+        server.close()
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert "no Dask cluster" in err and "did not answer as a Dask scheduler" in err, err

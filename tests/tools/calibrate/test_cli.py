@@ -49,6 +49,7 @@ def test_cli_on_a_synthetic_recording(tmp_path: Path, capsys: pytest.CaptureFixt
     assert (
         thr["by_measured_rate"] is not None and thr["by_measured_rate"] > thr["by_throughput"] + 2.0
     )
+    assert (out / "path-loss.toml").read_text().endswith("\n")
     snippet = tomllib.loads((out / "path-loss.toml").read_text())
     assert snippet["control"]["threshold_b_dbm"] == round(thr["chosen"])
     assert snippet["control"]["target_hop_mbps"] == 10
@@ -56,18 +57,18 @@ def test_cli_on_a_synthetic_recording(tmp_path: Path, capsys: pytest.CaptureFixt
     assert "L0" in text and "threshold_b_dbm" in text
 
 
-def test_cli_errors_are_one_line_and_exit_1(
+def test_cli_errors_are_one_line_and_exit_2(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    assert main(["calibrate", "path-loss", "--from", str(tmp_path / "missing.mcap")]) == 1
+    assert main(["calibrate", "path-loss", "--from", str(tmp_path / "missing.mcap")]) == 2
     assert "missing.mcap" in capsys.readouterr().err
     junk = tmp_path / "junk.mcap"
     junk.write_bytes(b"not an mcap file at all")
-    assert main(["calibrate", "path-loss", "--from", str(junk)]) == 1
+    assert main(["calibrate", "path-loss", "--from", str(junk)]) == 2
     assert "not a readable MCAP" in capsys.readouterr().err
     short = tmp_path / "short.mcap"
     write_recording(short, drive_messages(l0_dbm=-20.0, n=2.5, sigma_db=3.0, seed=1, far_m=1.5))
-    assert main(["calibrate", "path-loss", "--from", str(short)]) == 1
+    assert main(["calibrate", "path-loss", "--from", str(short)]) == 2
     assert "usable readings" in capsys.readouterr().err
 
 
@@ -266,3 +267,59 @@ def test_the_leader_link_prints_the_median_gap_and_the_bound_on_it() -> None:
     )
     # The rear link has no bound: its hop-length threshold already carries the margin.
     assert thresholds(fit, [], Wanted(link="rear", hop_m=5.0)).bound is None
+
+
+def test_flat_rssi_is_refused_with_the_reason_and_nothing_written(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A drive whose RSSI does not fall (the node's radio off, a rig): no n of -0.00, no
+    threshold of -55 written without a word, and never a ZeroDivisionError."""
+    rec = tmp_path / "flat.mcap"
+    write_recording(rec, drive_messages(l0_dbm=-55.0, n=0.0, sigma_db=0.0, seed=1, far_m=20.0))
+    out = tmp_path / "out"
+    args = ["calibrate", "path-loss", "--from", str(rec), "--out", str(out)]
+    assert main([*args, "--target-mbps", "10", "--hop-m", "10"]) == 2
+    err = capsys.readouterr().err
+    assert "the RSSI does not fall with distance (n = " in err and "No threshold written" in err
+    assert "Traceback" not in err and not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("topic", "doc"),
+    [
+        ("/robot/sip", {"t": 1.0, "sip": [1, 2]}),
+        ("/link", {"t": 1.0, "side": "rear", "quality": [1, 2]}),
+        ("/link", {"t": 1.0, "side": "rear", "quality": {"stations": 5, "signal_dbm": -50}}),
+        ("/link", {"t": 1.0, "side": "rear", "quality": {"stations": "x"}}),
+        ("/wifi/rssi", {"t": 1.0, "sample": [3]}),
+    ],
+)
+def test_a_message_of_the_wrong_shape_loses_one_reading_not_the_calibration(
+    topic: str, doc: dict[str, Any]
+) -> None:
+    good = drive_messages(l0_dbm=-20.0, n=2.5, sigma_db=1.0, seed=1, far_m=10.0)
+    messages = [good[0], (topic, doc), *good[1:]]
+    for link in ("rear", "leader"):
+        readings_from_messages(messages, link=link)  # no AttributeError or TypeError
+    assert len(readings_from_messages(messages)) >= len(readings_from_messages(good)) - 1
+
+
+def test_the_distance_axis_is_labelled_in_plain_metres() -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from relayd.calibrate.report import plain_log_axis
+
+    fig, ax = plt.subplots()
+    try:
+        ax.plot([1.0, 2.0, 3.0, 8.1], [-20, -26, -30, -38])
+        plain_log_axis(ax)
+        fig.canvas.draw()
+        labels = [t.get_text() for t in ax.get_xticklabels() if t.get_text()]
+        minor = [t.get_text() for t in ax.get_xticklabels(minor=True) if t.get_text()]
+    finally:
+        plt.close(fig)
+    assert labels and all(text.replace(".", "").isdigit() for text in labels), labels
+    assert {"1", "2", "5"} <= set(labels) and not minor, (labels, minor)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import random
 from statistics import NormalDist
@@ -148,3 +149,197 @@ def test_a_known_model_gives_the_fits_thresholds(
 def test_a_known_model_refuses_nonsense(l0: float, n: float, sigma: float) -> None:
     with pytest.raises(ValueError):
         PathLossFit.known(l0, n, sigma)
+
+
+#: A corridor recording's rear-link readings (relayd sim --scenario corridor --seconds 120
+#: --record, relay1): the robot stands at the start distance for 83 polls, then drives.
+CORRIDOR_DISTANCE_M = [1.0] * 83 + [
+    1.117,
+    1.297,
+    1.477,
+    1.648,
+    1.809,
+    1.987,
+    2.149,
+    2.216,
+    2.216,
+    2.216,
+    2.216,
+    2.3,
+    2.517,
+    2.716,
+    2.913,
+    3.119,
+    3.342,
+    3.565,
+    3.799,
+    4.038,
+    4.271,
+    4.508,
+    4.748,
+    4.976,
+    5.211,
+    5.466,
+    5.716,
+    5.966,
+    6.202,
+    6.429,
+    6.659,
+    6.881,
+    7.128,
+    7.35,
+    7.583,
+    7.827,
+    8.061,
+]
+CORRIDOR_RSSI_DBM = [
+    -16,
+    -14,
+    -12,
+    -16,
+    -14,
+    -15,
+    -12,
+    -12,
+    -16,
+    -14,
+    -13,
+    -14,
+    -13,
+    -13,
+    -14,
+    -14,
+    -13,
+    -12,
+    -12,
+    -14,
+    -13,
+    -17,
+    -13,
+    -11,
+    -12,
+    -13,
+    -15,
+    -16,
+    -13,
+    -14,
+    -15,
+    -13,
+    -12,
+    -11,
+    -15,
+    -13,
+    -14,
+    -13,
+    -11,
+    -14,
+    -11,
+    -13,
+    -16,
+    -12,
+    -11,
+    -15,
+    -12,
+    -16,
+    -14,
+    -14,
+    -15,
+    -15,
+    -12,
+    -12,
+    -12,
+    -12,
+    -13,
+    -16,
+    -13,
+    -12,
+    -13,
+    -14,
+    -15,
+    -12,
+    -11,
+    -14,
+    -13,
+    -14,
+    -13,
+    -14,
+    -13,
+    -12,
+    -14,
+    -13,
+    -13,
+    -14,
+    -13,
+    -15,
+    -13,
+    -13,
+    -16,
+    -13,
+    -15,
+    -15,
+    -15,
+    -15,
+    -16,
+    -18,
+    -15,
+    -18,
+    -16,
+    -15,
+    -16,
+    -19,
+    -18,
+    -19,
+    -19,
+    -21,
+    -19,
+    -22,
+    -20,
+    -24,
+    -25,
+    -24,
+    -24,
+    -24,
+    -26,
+    -27,
+    -27,
+    -29,
+    -27,
+    -24,
+    -26,
+    -25,
+    -27,
+    -27,
+    -26,
+    -28,
+    -26,
+    -31,
+]
+
+
+def test_the_intervals_hold_their_own_estimates_on_a_corridor_recording() -> None:
+    """The bootstrap once drew its blocks only where a whole block fits, so the readings at
+    the start distance were never drawn: L0 -13.3 [-12.9 .. -9.1], n 1.60 [1.72 .. 2.36]."""
+    fit = fit_path_loss(CORRIDOR_DISTANCE_M, [float(v) for v in CORRIDOR_RSSI_DBM])
+    assert fit.l0_dbm in fit.l0_ci, (fit.l0_dbm, fit.l0_ci)
+    assert fit.n in fit.n_ci, (fit.n, fit.n_ci)
+    assert fit.sigma_db in fit.sigma_ci
+
+
+def test_a_flat_fit_is_refused_and_no_distance_divides_by_zero() -> None:
+    d = [1.0 + 0.5 * i for i in range(40)]
+    with pytest.raises(FitError, match="does not fall with distance"):
+        fit_path_loss(d, [-55.0] * 40)
+    with pytest.raises(FitError, match="does not fall with distance"):
+        fit_path_loss(d, [-55.0 + 0.1 * i for i in range(40)])  # rising: n < 0
+    flat = PathLossFit.known(-40.0, 2.0, 1.0)
+    flat = dataclasses.replace(flat, n=0.0)
+    with pytest.raises(FitError):
+        flat.distance_at(-70.0)
+
+
+def test_distances_past_twice_the_drive_are_not_given_as_figures() -> None:
+    d = [1.0 + 0.25 * i for i in range(40)]  # 1 .. 10.75 m
+    fit = fit_path_loss(d, [-30.0 - 20.0 * math.log10(x) for x in d])
+    assert fit.measured_distance_at(fit.rssi_at(20.0)) == pytest.approx(20.0)
+    assert fit.measured_distance_at(fit.rssi_at(30.0)) is None
+    assert fit.measured_distance_at(-400.0) is None  # no overflow
