@@ -9,9 +9,10 @@ from hypothesis import strategies as st
 from prometheus_client import generate_latest
 from prometheus_client.parser import text_string_to_metric_families
 
+from drivers.transport.health import DeviceHealth, LinkState
 from relayd.core.vocab import DriveState, Mode
 from relayd.runtime.metrics import Metrics
-from relayd.runtime.state import DeviceHealth, LinkInfo, RelayState
+from relayd.runtime.state import LinkInfo, RelayState
 from tests.support import ManualClock
 
 
@@ -52,8 +53,7 @@ def test_levels_are_read_at_scrape_time() -> None:
     state.thresholds = {"threshold_l_dbm": -30.0, "threshold_b_dbm": -60.0}
     state.sonar_mm[3] = 1234
     state.links["front"] = LinkInfo(signal_dbm=-50, ccq_pct=80, tx_mbps=54, rx_mbps=None, t=99.0)
-    base = state.device("base")
-    base.connected, base.errors, base.last_data_t = True, 3, 99.5
+    state.health["base"] = DeviceHealth("base", LinkState.UP, errors=3, last_rx_t=99.5)
     state.loop_tick_t = 99.9
     after = _samples(m)
     assert after[("relayd_rssi_dbm", (("peer", "leader"),))] == -47.5
@@ -92,7 +92,7 @@ def test_observations_and_reconnects() -> None:
     m.observe_control_latency(-1.0)
     m.observe_scan_period(1.7)
     # Reconnects are the driver's own count, read through its health source.
-    state.health_sources["servo"] = lambda: DeviceHealth(connected=True, reconnects=2)
+    state.health_sources["servo"] = lambda: DeviceHealth("servo", LinkState.UP, reconnects=2)
     s = _samples(m)
     assert s[("relayd_control_latency_seconds_count", ())] == 2.0
     assert s[("relayd_control_latency_seconds_bucket", (("le", "0.0005"),))] == 1.0
