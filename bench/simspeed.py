@@ -10,7 +10,9 @@ With `--against TREE` every case also runs on another checkout of the project (e
 `git archive main | tar -x -C /tmp/base`), the two trees alternating case by case so
 the machine's load hits both alike, and the table shows both side by side plus whether
 the two runs gave byte-identical summary.json and trace.jsonl. A speed-up of the
-simulator must not change a run: the exit status is 1 when any case differs.
+simulator must not change a run: the exit status is 1 when any case differs. Where a
+case differs, the table says which of summary.json's outcomes differ (none: only the
+trace's figures moved).
 
     python bench/simspeed.py                          # this tree, the default cases
     python bench/simspeed.py --against /tmp/base      # side by side + identity check
@@ -34,7 +36,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -107,6 +109,7 @@ class Run:
     cpu_s: float
     sim_s: float
     digest: str
+    summary: dict[str, object] = field(default_factory=dict)
 
 
 def run_case(case: Case, tree: Path) -> Run:
@@ -141,7 +144,21 @@ def run_case(case: Case, tree: Path) -> Run:
             digest.update((out / name).read_bytes())
         summary = json.loads((out / "summary.json").read_text())
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-    return Run(wall, cpu, float(summary["sim_seconds"]), digest.hexdigest()[:12])
+    return Run(wall, cpu, float(summary["sim_seconds"]), digest.hexdigest()[:12], summary)
+
+
+def summary_differences(a: object, b: object, where: str = "") -> list[str]:
+    """The paths at which two summary.json documents differ (followers by index)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        keys = sorted(set(a) | set(b))
+        return [d for k in keys for d in summary_differences(a.get(k), b.get(k), f"{where}.{k}")]
+    if isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+        return [
+            d
+            for k, (x, y) in enumerate(zip(a, b, strict=True))
+            for d in summary_differences(x, y, f"{where}[{k}]")
+        ]
+    return [] if a == b else [where.lstrip(".")]
 
 
 def _best(runs: Sequence[Run]) -> Run:
@@ -150,7 +167,7 @@ def _best(runs: Sequence[Run]) -> Run:
         raise RuntimeError(f"repeats of one case differ: {[r.digest for r in runs]}")
     cpu = statistics.median(r.cpu_s for r in runs)
     wall = statistics.median(r.wall_s for r in runs)
-    return Run(wall, cpu, runs[0].sim_s, runs[0].digest)
+    return Run(wall, cpu, runs[0].sim_s, runs[0].digest, runs[0].summary)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -197,9 +214,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.against:
             same = runs[0].digest == runs[1].digest
             differ += not same
+            outcomes = summary_differences(runs[0].summary, runs[1].summary)
             row += [
                 f"{runs[0].cpu_s / runs[1].cpu_s:.2f}",
-                "yes" if same else f"**NO** {runs[0].digest} vs {runs[1].digest}",
+                "yes"
+                if same
+                else f"**NO** {runs[0].digest} vs {runs[1].digest}; summary.json differs in: "
+                + (", ".join(outcomes) if outcomes else "nothing (the trace only)"),
             ]
         print("| " + " | ".join(row) + " |", flush=True)
     print(

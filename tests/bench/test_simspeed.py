@@ -46,3 +46,11 @@ def test_a_case_that_differs_between_the_trees_fails_the_bench(
     monkeypatch.setattr(simspeed, "run_case", lambda case, tree: Run(1.0, 0.5, 100.0, "same"))
     assert simspeed.main(["--cases", "convoy:2:1", "--against", str(tmp_path)]) == 0
     assert "all cases byte-identical" in capsys.readouterr().out
+
+
+def test_a_differing_case_names_the_outcomes_that_moved() -> None:
+    a = {"goal_reached": True, "followers": [{"final_gap_m": 2.5, "collisions": 0}]}
+    b = {"goal_reached": True, "followers": [{"final_gap_m": 2.6, "collisions": 0}]}
+    assert simspeed.summary_differences(a, b) == ["followers[0].final_gap_m"]
+    assert simspeed.summary_differences(a, a) == []
+    assert simspeed.summary_differences(a, {**a, "collisions": 1}) == ["collisions"]
