@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import re
+from pathlib import Path
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -10,7 +12,7 @@ from prometheus_client import generate_latest
 from prometheus_client.parser import text_string_to_metric_families
 
 from drivers.transport.health import DeviceHealth, LinkState
-from relayd.core.vocab import DriveState, Mode
+from relayd.core.vocab import DriveState, Mode, Reason
 from relayd.runtime.metrics import Metrics
 from relayd.runtime.state import LinkInfo, RelayState
 from tests.support import ManualClock
@@ -158,3 +160,23 @@ def test_drive_info_carries_state_and_reason() -> None:
     # One series only: the old reason is gone, so a query never sees two reasons at once.
     assert info == {(("reason", "controller_error: ValueError"), ("state", "fault")): 1.0}
     assert s[("relayd_drive_state", (("relayd_drive_state", "fault"),))] == 1.0
+
+
+def test_every_reason_reaches_status_and_the_metric_as_its_code() -> None:
+    """The metric and /status carry a Reason as its code, and the shipped Prometheus
+    files name only codes that are Reasons (a renamed code would silently match nothing)."""
+    state = RelayState()
+    m = Metrics(state, ManualClock(0.0))
+    for reason in Reason:
+        state.reason = reason
+        labels = [dict(lb) for (name, lb), _ in _samples(m).items() if name == "relayd_drive_info"]
+        assert [Reason(lb["reason"]) for lb in labels] == [reason]
+        assert Reason(state.snapshot(0.0)["reason"]) is reason
+    deploy = Path(__file__).resolve().parents[2] / "deploy" / "prometheus"
+    named = {
+        code
+        for f in deploy.glob("*.yml")
+        for code in re.findall(r'reason="([^"]+)"', f.read_text())
+    }
+    assert named, "the alert tests name no reason: the pattern is out of date"
+    assert named <= {r.value for r in Reason}

@@ -261,7 +261,7 @@ def _manual(
     )
 
 
-# Complexity: the paper's law in order (docs/CONTROL.md 5): each `if` is one of its rules.
+# Complexity: the paper's rules in order (docs/CONTROL.md 5), then the escape's and trail's (7).
 def control_step(  # noqa: C901
     inputs: ControlInputs, params: ControlParams, memory: ControlMemory
 ) -> ControlOutput:
