@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 
 import pytest
 
@@ -54,3 +55,13 @@ def test_a_differing_case_names_the_outcomes_that_moved() -> None:
     assert simspeed.summary_differences(a, b) == ["followers[0].final_gap_m"]
     assert simspeed.summary_differences(a, a) == []
     assert simspeed.summary_differences(a, {**a, "collisions": 1}) == ["collisions"]
+
+
+def test_a_differing_trace_names_its_fields_and_their_largest_difference() -> None:
+    a = b'{"t":0.0,"relays":[{"x":1.0,"state":"driving"}]}\n{"t":0.1,"relays":[{"x":2.0}]}\n'
+    b = b'{"t":0.0,"relays":[{"x":1.0,"state":"driving"}]}\n{"t":0.1,"relays":[{"x":2.5}]}\n'
+    assert simspeed.trace_differences(a, a) == (0, {})
+    assert simspeed.trace_differences(a, b) == (1, {"relays[].x": 0.5})
+    c = a.replace(b'"driving"', b'"stopped"')
+    assert simspeed.trace_differences(a, c) == (1, {"relays[].state": math.inf})
+    assert simspeed.trace_differences(a, a.splitlines(keepends=True)[0])[0] == 1
