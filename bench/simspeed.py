@@ -10,7 +10,10 @@ With `--against TREE` every case also runs on another checkout of the project (e
 `git archive main | tar -x -C /tmp/base`), the two trees alternating case by case so
 the machine's load hits both alike, and the table shows both side by side plus whether
 the two runs gave byte-identical summary.json and trace.jsonl. A speed-up of the
-simulator must not change a run: the exit status is 1 when any case differs.
+simulator must not change a run: the exit status is 1 when any case differs. Where a
+case differs, the table says which of summary.json's outcomes differ (none: only the
+trace's figures moved), how many trace records differ, and the trace fields that do,
+each with its largest difference (a change in the last bits shows as ~1e-12).
 
     python bench/simspeed.py                          # this tree, the default cases
     python bench/simspeed.py --against /tmp/base      # side by side + identity check
@@ -26,6 +29,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import math
 import os
 import resource
 import statistics
@@ -34,7 +38,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -107,6 +111,8 @@ class Run:
     cpu_s: float
     sim_s: float
     digest: str
+    summary: dict[str, object] = field(default_factory=dict)
+    trace: bytes = b""
 
 
 def run_case(case: Case, tree: Path) -> Run:
@@ -140,8 +146,64 @@ def run_case(case: Case, tree: Path) -> Run:
         for name in ("summary.json", "trace.jsonl"):
             digest.update((out / name).read_bytes())
         summary = json.loads((out / "summary.json").read_text())
+        trace = (out / "trace.jsonl").read_bytes()
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-    return Run(wall, cpu, float(summary["sim_seconds"]), digest.hexdigest()[:12])
+    return Run(wall, cpu, float(summary["sim_seconds"]), digest.hexdigest()[:12], summary, trace)
+
+
+def summary_differences(a: object, b: object, where: str = "") -> list[str]:
+    """The paths at which two summary.json documents differ (followers by index)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        keys = sorted(set(a) | set(b))
+        return [d for k in keys for d in summary_differences(a.get(k), b.get(k), f"{where}.{k}")]
+    if isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+        return [
+            d
+            for k, (x, y) in enumerate(zip(a, b, strict=True))
+            for d in summary_differences(x, y, f"{where}[{k}]")
+        ]
+    return [] if a == b else [where.lstrip(".")]
+
+
+def _field_deltas(a: object, b: object, where: str, out: dict[str, float]) -> None:
+    """Per field path (list items merged), the largest |a - b|; inf for a non-number."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        for k in a.keys() | b.keys():
+            _field_deltas(a.get(k), b.get(k), f"{where}.{k}", out)
+    elif isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+        for x, y in zip(a, b, strict=True):
+            _field_deltas(x, y, f"{where}[]", out)
+    elif a != b:
+        delta = math.inf
+        if isinstance(a, int | float) and isinstance(b, int | float):
+            delta = math.inf if isinstance(a, bool) or isinstance(b, bool) else abs(a - b)
+        key = where.lstrip(".")
+        out[key] = max(out.get(key, 0.0), delta)
+
+
+def trace_differences(a: bytes, b: bytes) -> tuple[int, dict[str, float]]:
+    """(records that differ, field path -> largest difference) between two trace.jsonl."""
+    la, lb = a.splitlines(), b.splitlines()
+    deltas: dict[str, float] = {}
+    records = abs(len(la) - len(lb))
+    for x, y in zip(la, lb, strict=False):
+        if x != y:
+            records += 1
+            _field_deltas(json.loads(x), json.loads(y), "", deltas)
+    if len(la) != len(lb):
+        deltas["(records)"] = math.inf
+    return records, deltas
+
+
+def describe_difference(a: Run, b: Run) -> str:
+    """What differs between two runs of one case, in a table cell."""
+    outcomes = summary_differences(a.summary, b.summary)
+    text = "summary.json differs in: " + (", ".join(outcomes) if outcomes else "nothing")
+    if a.trace or b.trace:
+        records, deltas = trace_differences(a.trace, b.trace)
+        fields = ", ".join(f"{k} {v:.2g}" for k, v in sorted(deltas.items()))
+        text += f"; trace: {records} records differ, at most by {fields or 'nothing'}"
+    return text
 
 
 def _best(runs: Sequence[Run]) -> Run:
@@ -150,7 +212,7 @@ def _best(runs: Sequence[Run]) -> Run:
         raise RuntimeError(f"repeats of one case differ: {[r.digest for r in runs]}")
     cpu = statistics.median(r.cpu_s for r in runs)
     wall = statistics.median(r.wall_s for r in runs)
-    return Run(wall, cpu, runs[0].sim_s, runs[0].digest)
+    return Run(wall, cpu, runs[0].sim_s, runs[0].digest, runs[0].summary, runs[0].trace)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -199,7 +261,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             differ += not same
             row += [
                 f"{runs[0].cpu_s / runs[1].cpu_s:.2f}",
-                "yes" if same else f"**NO** {runs[0].digest} vs {runs[1].digest}",
+                "yes"
+                if same
+                else f"**NO** {runs[0].digest} vs {runs[1].digest}; "
+                + describe_difference(runs[0], runs[1]),
             ]
         print("| " + " | ".join(row) + " |", flush=True)
     print(

@@ -30,7 +30,7 @@ from drivers.airos.model import LinkQuality
 from drivers.arcos import ArcosRobot
 from drivers.pantilt import PanTilt
 from drivers.transport.clock import REAL_CLOCK, Clock
-from drivers.transport.health import DeviceHealth as DriverHealth
+from drivers.transport.health import DeviceHealth
 from drivers.transport.link import held_ports
 from drivers.wifi import RssiSource
 from relayd.config.checks import api_bind_error
@@ -292,7 +292,7 @@ class Daemon:
                 extra_errors=0 if scanner_ is None else scanner_.link_errors,
             )
         robot_ = self.robot
-        health: dict[str, Callable[[], DriverHealth]] = {}
+        health: dict[str, Callable[[], DeviceHealth]] = {}
         if self.robot is not None:
             health["robot"] = self.robot.health
         if self.pantilt is not None:

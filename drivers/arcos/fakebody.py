@@ -28,8 +28,8 @@ from drivers.arcos.sip import (
     STALL_RIGHT,
     RawSip,
     conv_factors,
-    normalize_deg,
     vel_rvel_to_wheels,
+    wrap_deg,
 )
 from drivers.arcos.sonar import SONAR_COUNT
 
@@ -78,7 +78,7 @@ class FakeBody:
 
     def set_pose(self, x_mm: float, y_mm: float, theta_deg: float) -> None:
         """Move the robot in the world (odometry does not see it, as with a kidnapped robot)."""
-        self.x_mm, self.y_mm, self.theta_deg = float(x_mm), float(y_mm), normalize_deg(theta_deg)
+        self.x_mm, self.y_mm, self.theta_deg = float(x_mm), float(y_mm), wrap_deg(theta_deg)
 
     @property
     def odometry_mm_deg(self) -> Pose:
@@ -116,7 +116,7 @@ class FakeBody:
         omid = math.radians(self._odo[2] + step.turn_deg / 2.0)
         self._odo[0] += step.dist_mm * math.cos(omid)
         self._odo[1] += step.dist_mm * math.sin(omid)
-        self._odo[2] = normalize_deg(self._odo[2] + step.turn_deg)
+        self._odo[2] = wrap_deg(self._odo[2] + step.turn_deg)
 
     def _sonar_readings(self) -> tuple[tuple[int, int], ...]:
         if not self.sonar_on:

@@ -12,7 +12,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from drivers.arcos.sip import normalize_deg
+from drivers.arcos.sip import wrap_deg
 
 #: (x_mm, y_mm, theta_deg) in the world frame.
 Pose = tuple[float, float, float]
@@ -43,12 +43,12 @@ def drive_step(
     dth = rvel_deg_s * dt
     mid = math.radians(th + dth / 2.0)
     ds = vel_mm_s * dt
-    new = (x + ds * math.cos(mid), y + ds * math.sin(mid), normalize_deg(th + dth))
+    new = (x + ds * math.cos(mid), y + ds * math.sin(mid), wrap_deg(th + dth))
     if guard is None or guard(pose, new):
         return Move(new, ds, dth, False)
     # Blocked: the wheels stall. Move as far as allowed (halving the step a few times).
     full_ds, ds = ds, 0.0
-    new = (x, y, normalize_deg(th + dth))
+    new = (x, y, wrap_deg(th + dth))
     if dth != 0 and not guard(pose, new):
         dth = 0.0
         new = pose

@@ -230,8 +230,9 @@ class Sip:
     flags: int = 0
 
 
-def normalize_deg(angle_deg: float) -> float:
-    """Into (-180, 180]."""
+def wrap_deg(angle_deg: float) -> float:
+    """An angle in degrees wrapped to (-180, 180], the one convention of the whole system
+    (relayd.core.geometry re-exports it); an angle already in range comes back bit for bit."""
     a = math.fmod(angle_deg, 360.0)
     if a <= -180.0:
         a += 360.0
@@ -275,9 +276,7 @@ class Odometry:
         c, s = math.cos(self._rot_rad), math.sin(self._rot_rad)
         self.x_mm += c * dx_mm - s * dy_mm
         self.y_mm += s * dx_mm + c * dy_mm
-        self.theta_deg = normalize_deg(
-            self.theta_deg + math.degrees(dth * factors.angle_rad_per_unit)
-        )
+        self.theta_deg = wrap_deg(self.theta_deg + math.degrees(dth * factors.angle_rad_per_unit))
 
 
 def wheel_to_vel_rvel(left_mm_s: float, right_mm_s: float) -> tuple[int, int]:

@@ -13,10 +13,12 @@ import asyncio
 import math
 import os
 import random
+from dataclasses import replace
 
 import structlog
 
 from drivers.transport.clock import REAL_CLOCK, Clock
+from drivers.transport.health import DeviceHealth, LinkState
 from relayd.api.app import make_app
 from relayd.api.server import start_api
 from relayd.core.vocab import DriveState, Mode, ScanRecord
@@ -127,9 +129,7 @@ def populate(state: RelayState, clock: Clock) -> None:
         ),
     }
     for name in ("base", "servo", "wifi", "ap_front", "ap_rear"):
-        health = state.device(name)
-        health.connected = True
-        health.last_data_t = now
+        state.health[name] = DeviceHealth(name, LinkState.UP, last_rx_t=now)
     state.loop_tick_t = now
     state.touch()
 
@@ -143,8 +143,7 @@ async def animate(state: RelayState, clock: Clock, period_s: float = 0.1) -> Non
         now = clock.now()
         tick += 1
         state.loop_tick_t = now
-        for health in state.health.values():
-            health.last_data_t = now
+        state.health = {name: replace(h, last_rx_t=now) for name, h in state.health.items()}
         if tick % 16 == 0:
             leader = 40.0 * math.sin(now / 7.0)
             scan = synthetic_scan(now, leader, rng=rng)

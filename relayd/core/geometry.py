@@ -1,7 +1,8 @@
 """Domain facts about angles and the P3-AT's body, each defined once.
 
 - `wrap_deg`: the one angle-wrap convention, (-180, 180]. It returns an angle already in
-  range unchanged, bit for bit, which `(a + 180) % 360 - 180` does not.
+  range unchanged, bit for bit, which `(a + 180) % 360 - 180` does not. It is defined with
+  the robot's odometry (drivers.arcos.sip), which the drivers cannot import from here.
 - The sonar ring: the mounting poses are the device's own fact and live with its driver
   (drivers.arcos.sonar, which decodes the SIP's sonar readings); here they are re-exported
   with what the core, the drivers' fake and the simulator derive from them.
@@ -13,18 +14,8 @@ from __future__ import annotations
 
 import math
 
+from drivers.arcos.sip import wrap_deg
 from drivers.arcos.sonar import SONAR_POSES, SonarPose
-
-
-def wrap_deg(angle_deg: float) -> float:
-    """An angle in degrees wrapped to (-180, 180]."""
-    wrapped = math.fmod(angle_deg, 360.0)
-    if wrapped <= -180.0:
-        wrapped += 360.0
-    elif wrapped > 180.0:
-        wrapped -= 360.0
-    return wrapped
-
 
 #: The ring's 16 transducers, in the SIP's index order (docs/PROTOCOLS.md 1.11).
 SONAR_COUNT = len(SONAR_POSES)

@@ -29,7 +29,7 @@ from typing import Protocol
 
 from drivers.arcos.sip import Sip
 from drivers.transport.clock import REAL_CLOCK, Clock
-from drivers.transport.health import DeviceHealth as DriverHealth
+from drivers.transport.health import DeviceHealth
 from relayd.core.brain import PANTILT, ROBOT, Brain
 from relayd.core.events import (
     DeviceEvent,
@@ -96,7 +96,7 @@ class ControlShell:
         servo_up: Callable[[], bool] | None = None,
         robot_name: Callable[[], str | None] | None = None,
         on_tick: Callable[[float], None] | None = None,
-        health: Mapping[str, Callable[[], DriverHealth]] | None = None,
+        health: Mapping[str, Callable[[], DeviceHealth]] | None = None,
     ) -> None:
         self._bus = bus
         self._brain = brain
@@ -179,7 +179,7 @@ class ControlShell:
         self._bus.publish(DeviceEvent(self._clock.now(), device, DeviceStatus.FAULT, detail))
 
     def _judge(
-        self, device: str, up: bool, h: DriverHealth | None, now: float, detail: str | None
+        self, device: str, up: bool, h: DeviceHealth | None, now: float, detail: str | None
     ) -> None:
         if up:
             self._change(device, DeviceStatus.UP, now, detail)

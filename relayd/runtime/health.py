@@ -6,28 +6,27 @@ function read at snapshot time that asks the driver's own `health()`; the
 supervisor's counts (task failures) live beside it in `RelayState.health` and are
 added on top (`relayd.runtime.state.merge_health`), so neither side can overwrite the other.
 
-`device_health` is the one adapter from a driver's `drivers.transport.health.DeviceHealth` to
-the daemon's view of it.
+`device_health` adapts a driver's `drivers.transport.health.DeviceHealth` (the one health
+record, which /status and /metrics read too) to what the daemon knows around the driver.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Protocol
 
-from drivers.transport.health import DeviceHealth as DriverHealth
-from drivers.transport.health import LinkState
+from drivers.transport.health import DeviceHealth, LinkState
 from relayd.core.events import DeviceStatus
-from relayd.runtime.state import DeviceHealth
 
 HealthSource = Callable[[], DeviceHealth]
 
 
 class HasHealth(Protocol):
-    def health(self) -> DriverHealth: ...
+    def health(self) -> DeviceHealth: ...
 
 
-def device_status(h: DriverHealth) -> DeviceStatus:
+def device_status(h: DeviceHealth) -> DeviceStatus:
     """What a driver's health means on the bus: UP when its data are usable, FAULT when its
     last attempt failed (it retries on backoff), DOWN otherwise (connecting, quiet, closed)."""
     if h.state is LinkState.UP:
@@ -49,10 +48,11 @@ def device_health(
     around the driver (the link servo's); `last_data_t` overrides the driver's last
     reception time when the daemon knows better (the last *fresh* RSSI sample)."""
     h = driver.health()
-    return DeviceHealth(
-        connected=h.connected and usable,
-        last_data_t=h.last_rx_t if last_data_t is None else last_data_t,
+    # Connected but not usable reads as STALE: /status and /metrics show it not connected.
+    state = LinkState.STALE if h.state is LinkState.UP and not usable else h.state
+    return replace(
+        h,
+        state=state,
+        last_rx_t=h.last_rx_t if last_data_t is None else last_data_t,
         errors=h.errors + extra_errors,
-        reconnects=h.reconnects,
-        last_error=h.last_error,
     )

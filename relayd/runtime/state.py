@@ -4,7 +4,7 @@ One writer: `relayd.runtime.statewriter.StateWriter` applies the brain's actions
 events' raw device data; the HTTP API, the metrics collector, the live page and the
 simulator's trace only read it. Device health is not copied in: `health_sources`
 are read when a snapshot is taken (see `relayd.runtime.health`), and `health` holds only the
-supervisor's own failure records, added on top. Everything here is plain data on the
+supervisor's own failure records, added on top; both are the drivers' one `DeviceHealth`. Everything here is plain data on the
 event loop thread: no locks, and a reader never waits for a device.
 """
 
@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Protocol, TypedDict
 
+from drivers.transport.health import DeviceHealth, LinkState
 from relayd import __version__
 from relayd.core.geometry import SONAR_COUNT
 from relayd.core.vocab import DriveState, Mode, ScanRecord
@@ -35,20 +36,6 @@ class RecordingStatus(TypedDict):
     events: int
     dropped: int
     error: str | None
-
-
-@dataclass(slots=True)
-class DeviceHealth:
-    """Per-device health as /status and /metrics report it."""
-
-    connected: bool = False
-    last_data_t: float | None = None
-    errors: int = 0
-    reconnects: int = 0
-    last_error: str | None = None
-
-    def age_s(self, now: float) -> float | None:
-        return None if self.last_data_t is None else max(0.0, now - self.last_data_t)
 
 
 @dataclass(frozen=True, slots=True)
@@ -126,11 +113,11 @@ class RelayState:
     revision: int = 0
     changed: asyncio.Event = field(default_factory=asyncio.Event, repr=False)
 
-    def device(self, name: str) -> DeviceHealth:
-        health = self.health.get(name)
-        if health is None:
-            health = self.health[name] = DeviceHealth()
-        return health
+    def record_failure(self, device: str, message: str) -> DeviceHealth:
+        """The supervisor's record of one more failed task of `device`, with its message."""
+        old = self.health.get(device) or DeviceHealth(device, LinkState.DOWN)
+        new = self.health[device] = replace(old, errors=old.errors + 1, last_error=message)
+        return new
 
     def health_now(self) -> dict[str, DeviceHealth]:
         """Every device's health now: the driver's view plus the supervisor's failure records."""
@@ -216,9 +203,8 @@ def merge_health(source: DeviceHealth, supervised: DeviceHealth | None) -> Devic
     """The driver's view plus the supervisor's failure count and message (neither replaces the other)."""
     if supervised is None:
         return source
-    return DeviceHealth(
-        connected=source.connected,
-        last_data_t=source.last_data_t,
+    return replace(
+        source,
         errors=source.errors + supervised.errors,
         reconnects=source.reconnects + supervised.reconnects,
         last_error=source.last_error or supervised.last_error,

@@ -131,9 +131,7 @@ class Supervisor:
 
     def _record_failure(self, entry: _Entry, message: str) -> None:
         if entry.device is not None:
-            health = self._state.device(entry.device)
-            health.errors += 1
-            health.last_error = message
+            self._state.record_failure(entry.device, message)
             if self._on_fault is not None:
                 try:
                     self._on_fault(entry.device, message)

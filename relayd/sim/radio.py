@@ -300,3 +300,34 @@ class Radio:
         mean, los = self.mean_power_dbm(a, b, gain_db)
         k_db = self.environment(a, b).rician_k_db if self.params.zones else None
         return max(self.params.noise_floor_dbm, mean + self.fading_db(los, k_db))
+
+
+@dataclass(frozen=True, slots=True)
+class Hop:
+    """One hop of the chain, between node `front` and node `front + 1`."""
+
+    front: int
+    power_dbm: float
+    rate_mbps: float  # the hop's throughput alone (PHY rate x MAC efficiency)
+    walls: int
+    phy_mbps: float = 0.0
+
+    @property
+    def up(self) -> bool:
+        # A hop whose multipath leaves no rate is down even above the weakest sensitivity.
+        return self.power_dbm >= HOP_DOWN_DBM and self.rate_mbps > 0
+
+
+@dataclass(slots=True)
+class LinkBudget:
+    hops: list[Hop] = field(default_factory=list)
+    #: airtime coupling of neighbouring hops (chain_throughput_mbps)
+    coupling: float = DEFAULT_HOP_COUPLING
+
+    @property
+    def e2e_mbps(self) -> float:
+        return chain_throughput_mbps([h.rate_mbps for h in self.hops], self.coupling)
+
+    @property
+    def broken(self) -> bool:
+        return any(not h.up for h in self.hops)

@@ -3,7 +3,8 @@
 Each sonar reports the nearest surface inside its beam (relayd.sim.geometry.cone_range,
 exact, not sampled by rays) among the walls and boxes within reach, the leader and the
 other relays. A range is computed when it is first read: a P3-AT's SIP carries 8 of the
-16, so the FakeRobot asks for half of them each time.
+16, so the FakeRobot asks for half of them each time. The world hands the ring a
+`SonarScene`, plain values of that instant; this module knows nothing of the World.
 """
 
 from __future__ import annotations
@@ -11,14 +12,40 @@ from __future__ import annotations
 import math
 import random
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, overload
 
-from relayd.core.geometry import SONAR_POSES
-from relayd.sim.geometry import cone_range, polygon_segments
+from relayd.core.geometry import ROBOT_LENGTH_M, ROBOT_WIDTH_M, SONAR_POSES
+from relayd.sim.geometry import Polygon, Segment, cone_range, footprint, polygon_segments
 
 if TYPE_CHECKING:
     from relayd.sim.scenario import SonarSpec
-    from relayd.sim.world import World
+
+
+@dataclass(frozen=True, slots=True)
+class Body:
+    """A P3-AT's body at one instant: its centre and heading."""
+
+    x_m: float
+    y_m: float
+    theta_deg: float
+
+    def polygon(self) -> Polygon:
+        return footprint(self.x_m, self.y_m, self.theta_deg, ROBOT_LENGTH_M, ROBOT_WIDTH_M)
+
+
+@dataclass(frozen=True, slots=True)
+class SonarScene:
+    """What could echo at one instant (World.sonar_scene): the walls, boxes and timed
+    obstacles present, the leader (a robot's footprint, or a person's disc) and every relay."""
+
+    obstacles: Sequence[Segment]
+    leader_x_m: float
+    leader_y_m: float
+    leader_radius_m: float
+    #: The leader's footprint when it is a robot; None: a person, a disc of leader_radius_m.
+    leader_body: Body | None
+    relays: tuple[Body, ...]
 
 
 class SonarReadings(Sequence[int]):
@@ -32,7 +59,7 @@ class SonarReadings(Sequence[int]):
 
     def __init__(
         self,
-        world: World,
+        scene: SonarScene,
         i: int,
         x_mm: float,
         y_mm: float,
@@ -46,7 +73,7 @@ class SonarReadings(Sequence[int]):
         reach = cfg.max_range_m + 0.5
         segs = [
             s
-            for s in world.obstacles
+            for s in scene.obstacles
             if not (
                 max(s.x1, s.x2) < x - reach
                 or min(s.x1, s.x2) > x + reach
@@ -58,15 +85,16 @@ class SonarReadings(Sequence[int]):
         # Bodies (the leader, the other relays) count only when near: a centre `reach` + 1 m
         # away leaves even a robot's far corner (0.4 m) beyond every transducer's range
         # (each within 0.25 m of this robot's centre), so no cone could report it.
-        lx, ly = world.leader.x_m, world.leader.y_m
-        person = world.leader_kind != "robot"
-        if math.hypot(lx - x, ly - y) < reach + 1.0 + (world.leader_radius_m if person else 0.0):
-            lp = world.leader_polygon()
-            if lp is not None:
-                segs.extend(polygon_segments(lp))
+        lx, ly = scene.leader_x_m, scene.leader_y_m
+        body = scene.leader_body
+        if math.hypot(lx - x, ly - y) < reach + 1.0 + (
+            scene.leader_radius_m if body is None else 0.0
+        ):
+            if body is not None:
+                segs.extend(polygon_segments(body.polygon()))
             else:
-                circles.append((lx, ly, world.leader_radius_m))
-        for j, other in enumerate(world.relays):
+                circles.append((lx, ly, scene.leader_radius_m))
+        for j, other in enumerate(scene.relays):
             if j != i and math.hypot(other.x_m - x, other.y_m - y) < reach + 1.0:
                 segs.extend(polygon_segments(other.polygon()))
         self._segs, self._circles = segs, circles

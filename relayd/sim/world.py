@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 import random
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from relayd.core.geometry import ROBOT_LENGTH_M, ROBOT_RADIUS_M, ROBOT_WIDTH_M, wrap_deg
 from relayd.sim.geometry import (
@@ -33,17 +33,16 @@ from relayd.sim.geometry import (
 )
 from relayd.sim.leader_script import LeaderScript
 from relayd.sim.radio import (
-    DEFAULT_HOP_COUPLING,
-    HOP_DOWN_DBM,
     MAC_EFFICIENCY,
+    Hop,
+    LinkBudget,
     Radio,
-    chain_throughput_mbps,
     patch_gain_db,
     phy_rate_mbps,
     yagi_gain_db,
 )
 from relayd.sim.scenario import Scenario
-from relayd.sim.sonar import SonarReadings
+from relayd.sim.sonar import Body, SonarReadings, SonarScene
 
 #: P3-AT body (docs/PROTOCOLS.md 1.11, from ARIA's p3at.p: RobotLength 626 mm, RobotWidth 505 mm).
 #: The P3-AT footprint's circumradius: no part of the body is farther from its centre.
@@ -82,37 +81,6 @@ class RelayBody:
 
     def polygon(self) -> Polygon:
         return footprint(self.x_m, self.y_m, self.theta_deg, ROBOT_LENGTH_M, ROBOT_WIDTH_M)
-
-
-@dataclass(frozen=True, slots=True)
-class Hop:
-    """One hop of the chain, between node `front` and node `front + 1`."""
-
-    front: int
-    power_dbm: float
-    rate_mbps: float  # the hop's throughput alone (PHY rate x MAC efficiency)
-    walls: int
-    phy_mbps: float = 0.0
-
-    @property
-    def up(self) -> bool:
-        # A hop whose multipath leaves no rate is down even above the weakest sensitivity.
-        return self.power_dbm >= HOP_DOWN_DBM and self.rate_mbps > 0
-
-
-@dataclass(slots=True)
-class LinkBudget:
-    hops: list[Hop] = field(default_factory=list)
-    #: airtime coupling of neighbouring hops (radio.chain_throughput_mbps)
-    coupling: float = DEFAULT_HOP_COUPLING
-
-    @property
-    def e2e_mbps(self) -> float:
-        return chain_throughput_mbps([h.rate_mbps for h in self.hops], self.coupling)
-
-    @property
-    def broken(self) -> bool:
-        return any(not h.up for h in self.hops)
 
 
 class World:
@@ -319,6 +287,19 @@ class World:
         return False
 
     # --- sensors --------------------------------------------------------------------
+    def sonar_scene(self) -> SonarScene:
+        """What the sonars could hear now, as plain values (relayd.sim.sonar.SonarScene)."""
+        lead = self.leader
+        robot = self.leader_kind == "robot"
+        return SonarScene(
+            self.obstacles,
+            lead.x_m,
+            lead.y_m,
+            self.leader_radius_m,
+            Body(lead.x_m, lead.y_m, lead.heading_deg) if robot else None,
+            tuple(Body(r.x_m, r.y_m, r.theta_deg) for r in self.relays),
+        )
+
     def sonar_mm(self, i: int, x_mm: float, y_mm: float, theta_deg: float) -> list[int]:
         """The 16 sonar ranges of relay i at that pose, as a P3-AT reports them.
 
@@ -329,19 +310,21 @@ class World:
         would break the exact mirror symmetry that a real sonar ring shows, and which
         the controller must cope with.
         """
-        ring = SonarReadings(
-            self, i, x_mm, y_mm, theta_deg, cfg=self._sonar_cfg, rng=self._sonar_rng
-        )
+        ring = self._ring(i, x_mm, y_mm, theta_deg)
         return [ring[k] for k in range(len(ring))]
 
     def sonar_ranges(self, i: int, x_mm: float, y_mm: float, theta_deg: float) -> Sequence[int]:
         """`sonar_mm`, each range computed when it is first read: a P3-AT SIP carries 8 of
         the 16, so the FakeRobot reads half. With sonar noise all 16 are computed at once,
         so the noise draws come in sonar order whichever are read (the same run)."""
-        ring = SonarReadings(
-            self, i, x_mm, y_mm, theta_deg, cfg=self._sonar_cfg, rng=self._sonar_rng
-        )
+        ring = self._ring(i, x_mm, y_mm, theta_deg)
         return ring if self._sonar_cfg.noise_mm <= 0 else [ring[k] for k in range(len(ring))]
+
+    def _ring(self, i: int, x_mm: float, y_mm: float, theta_deg: float) -> SonarReadings:
+        scene = self.sonar_scene()
+        return SonarReadings(
+            scene, i, x_mm, y_mm, theta_deg, cfg=self._sonar_cfg, rng=self._sonar_rng
+        )
 
     def yagi_rssi_dbm(self, i: int, scan_deg: float | None = None) -> float:
         """What relay i's Yagi hears from its leader's transmitter with the scan servo at

@@ -13,11 +13,12 @@ from aiohttp import ClientSession, web
 from aiohttp.test_utils import TestClient, TestServer
 from prometheus_client.parser import text_string_to_metric_families
 
+from drivers.transport.health import DeviceHealth, LinkState
 from relayd.api import make_app, start_api
 from relayd.api.demo import populate
 from relayd.core.vocab import DriveState, Mode
 from relayd.runtime.metrics import Metrics
-from relayd.runtime.state import DeviceHealth, ModeError, RelayState
+from relayd.runtime.state import ModeError, RelayState
 from tests.support import ManualClock
 
 TOKEN = "s3cr3t-token-do-not-leak"
@@ -227,7 +228,7 @@ async def test_metrics_text(state: RelayState, controls: FakeControls, clock: Ma
     metrics.sip_received()
     metrics.observe_control_latency(0.0007)
     metrics.observe_scan_period(1.6)
-    state.health_sources["base"] = lambda: DeviceHealth(connected=True, reconnects=1)
+    state.health_sources["base"] = lambda: DeviceHealth("base", LinkState.UP, reconnects=1)
     c = await _client(make_app(state, controls, clock=clock, token=TOKEN, metrics=metrics))
     try:
         resp = await c.get("/metrics")

@@ -6,8 +6,10 @@ import argparse
 import io
 import json
 import socket
+from dataclasses import replace
 
 from drivers.transport.clock import Clock
+from drivers.transport.health import LinkState
 from relayd.api import make_app, start_api
 from relayd.api.demo import DemoControls, populate
 from relayd.cli import main
@@ -32,8 +34,10 @@ async def test_status_table_and_json() -> None:
     clock = Clock()
     state = RelayState()
     populate(state, clock)
-    state.device("servo").connected = False
-    state.device("servo").last_error = "no answer to GET_POSITION"
+    servo = state.health["servo"]
+    state.health["servo"] = replace(
+        servo, state=LinkState.DOWN, last_error="no answer to GET_POSITION"
+    )
     runner, port = await start_api(
         make_app(state, DemoControls(state), clock=clock, token=None), "127.0.0.1", 0
     )

@@ -9,11 +9,12 @@ from __future__ import annotations
 import json
 
 from drivers.transport.clock import Clock
+from drivers.transport.health import DeviceHealth, LinkState
 from relayd.api.demo import populate
 from relayd.api.openapi import STATUS_SCHEMA
 from relayd.api.status import Status
 from relayd.core.vocab import ScanRecord
-from relayd.runtime.state import DeviceHealth, LinkInfo, RelayState
+from relayd.runtime.state import LinkInfo, RelayState
 
 
 def _validate(doc: dict[str, object]) -> Status:
@@ -49,8 +50,12 @@ def test_a_busy_state_matches_the_model_field_by_field() -> None:
         period_s=1.2,
     )
     st.links["rear"] = LinkInfo(signal_dbm=-55.0, ccq_pct=90.0, t=2.5)
-    st.health_sources["robot"] = lambda: DeviceHealth(connected=True, last_data_t=2.9, errors=1)
-    st.device("pantilt").errors = 2  # the supervisor's record of a failed task
+    st.health_sources["robot"] = lambda: DeviceHealth(
+        "robot", LinkState.UP, last_rx_t=2.9, errors=1
+    )
+    st.health["pantilt"] = DeviceHealth(
+        "pantilt", LinkState.DOWN, errors=2
+    )  # the supervisor's record
     st.thresholds = {"threshold_l_dbm": -30.0}
     doc = st.snapshot(3.0)
     status = _validate(doc)

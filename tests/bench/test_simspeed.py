@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 
 import pytest
 
@@ -46,3 +47,21 @@ def test_a_case_that_differs_between_the_trees_fails_the_bench(
     monkeypatch.setattr(simspeed, "run_case", lambda case, tree: Run(1.0, 0.5, 100.0, "same"))
     assert simspeed.main(["--cases", "convoy:2:1", "--against", str(tmp_path)]) == 0
     assert "all cases byte-identical" in capsys.readouterr().out
+
+
+def test_a_differing_case_names_the_outcomes_that_moved() -> None:
+    a = {"goal_reached": True, "followers": [{"final_gap_m": 2.5, "collisions": 0}]}
+    b = {"goal_reached": True, "followers": [{"final_gap_m": 2.6, "collisions": 0}]}
+    assert simspeed.summary_differences(a, b) == ["followers[0].final_gap_m"]
+    assert simspeed.summary_differences(a, a) == []
+    assert simspeed.summary_differences(a, {**a, "collisions": 1}) == ["collisions"]
+
+
+def test_a_differing_trace_names_its_fields_and_their_largest_difference() -> None:
+    a = b'{"t":0.0,"relays":[{"x":1.0,"state":"driving"}]}\n{"t":0.1,"relays":[{"x":2.0}]}\n'
+    b = b'{"t":0.0,"relays":[{"x":1.0,"state":"driving"}]}\n{"t":0.1,"relays":[{"x":2.5}]}\n'
+    assert simspeed.trace_differences(a, a) == (0, {})
+    assert simspeed.trace_differences(a, b) == (1, {"relays[].x": 0.5})
+    c = a.replace(b'"driving"', b'"stopped"')
+    assert simspeed.trace_differences(a, c) == (1, {"relays[].state": math.inf})
+    assert simspeed.trace_differences(a, a.splitlines(keepends=True)[0])[0] == 1

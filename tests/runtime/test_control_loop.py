@@ -22,8 +22,7 @@ import relayd.runtime.control
 from drivers.airos.model import LinkQuality
 from drivers.arcos.sip import Sip as ArcosSip
 from drivers.transport.clock import Clock
-from drivers.transport.health import DeviceHealth as DriverHealth
-from drivers.transport.health import LinkState
+from drivers.transport.health import DeviceHealth, LinkState
 from drivers.wifi.records import RssiSample
 from relayd.core.brain import PANTILT, Brain, BrainParams
 from relayd.core.control.law import ControlOutput, ControlParams
@@ -541,8 +540,8 @@ def test_a_driver_reporting_a_failure_is_published_as_fault_until_it_is_up() -> 
     robot_state = {"state": LinkState.UP, "error": None}
     radio_state = {"state": LinkState.CONNECTING, "error": None}
 
-    def health_of(device: str, now: dict[str, object]) -> Callable[[], DriverHealth]:
-        return lambda: DriverHealth(
+    def health_of(device: str, now: dict[str, object]) -> Callable[[], DeviceHealth]:
+        return lambda: DeviceHealth(
             device=device,
             state=LinkState(now["state"]),
             last_error=str(now["error"]) if now["error"] else None,

@@ -3,15 +3,18 @@
 from __future__ import annotations
 
 import math
+import re
+from pathlib import Path
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from prometheus_client import generate_latest
 from prometheus_client.parser import text_string_to_metric_families
 
-from relayd.core.vocab import DriveState, Mode
+from drivers.transport.health import DeviceHealth, LinkState
+from relayd.core.vocab import DriveState, Mode, Reason
 from relayd.runtime.metrics import Metrics
-from relayd.runtime.state import DeviceHealth, LinkInfo, RelayState
+from relayd.runtime.state import LinkInfo, RelayState
 from tests.support import ManualClock
 
 
@@ -52,8 +55,7 @@ def test_levels_are_read_at_scrape_time() -> None:
     state.thresholds = {"threshold_l_dbm": -30.0, "threshold_b_dbm": -60.0}
     state.sonar_mm[3] = 1234
     state.links["front"] = LinkInfo(signal_dbm=-50, ccq_pct=80, tx_mbps=54, rx_mbps=None, t=99.0)
-    base = state.device("base")
-    base.connected, base.errors, base.last_data_t = True, 3, 99.5
+    state.health["base"] = DeviceHealth("base", LinkState.UP, errors=3, last_rx_t=99.5)
     state.loop_tick_t = 99.9
     after = _samples(m)
     assert after[("relayd_rssi_dbm", (("peer", "leader"),))] == -47.5
@@ -92,7 +94,7 @@ def test_observations_and_reconnects() -> None:
     m.observe_control_latency(-1.0)
     m.observe_scan_period(1.7)
     # Reconnects are the driver's own count, read through its health source.
-    state.health_sources["servo"] = lambda: DeviceHealth(connected=True, reconnects=2)
+    state.health_sources["servo"] = lambda: DeviceHealth("servo", LinkState.UP, reconnects=2)
     s = _samples(m)
     assert s[("relayd_control_latency_seconds_count", ())] == 2.0
     assert s[("relayd_control_latency_seconds_bucket", (("le", "0.0005"),))] == 1.0
@@ -158,3 +160,23 @@ def test_drive_info_carries_state_and_reason() -> None:
     # One series only: the old reason is gone, so a query never sees two reasons at once.
     assert info == {(("reason", "controller_error: ValueError"), ("state", "fault")): 1.0}
     assert s[("relayd_drive_state", (("relayd_drive_state", "fault"),))] == 1.0
+
+
+def test_every_reason_reaches_status_and_the_metric_as_its_code() -> None:
+    """The metric and /status carry a Reason as its code, and the shipped Prometheus
+    files name only codes that are Reasons (a renamed code would silently match nothing)."""
+    state = RelayState()
+    m = Metrics(state, ManualClock(0.0))
+    for reason in Reason:
+        state.reason = reason
+        labels = [dict(lb) for (name, lb), _ in _samples(m).items() if name == "relayd_drive_info"]
+        assert [Reason(lb["reason"]) for lb in labels] == [reason]
+        assert Reason(state.snapshot(0.0)["reason"]) is reason
+    deploy = Path(__file__).resolve().parents[2] / "deploy" / "prometheus"
+    named = {
+        code
+        for f in deploy.glob("*.yml")
+        for code in re.findall(r'reason="([^"]+)"', f.read_text())
+    }
+    assert named, "the alert tests name no reason: the pattern is out of date"
+    assert named <= {r.value for r in Reason}

@@ -23,9 +23,10 @@ from prometheus_client import generate_latest
 from prometheus_client.parser import text_string_to_metric_families
 
 from drivers.transport.clock import Clock
+from drivers.transport.health import DeviceHealth, LinkState
 from relayd.core.vocab import DriveState, Mode, ScanRecord
 from relayd.runtime.metrics import Metrics
-from relayd.runtime.state import DeviceHealth, LinkInfo, RelayState
+from relayd.runtime.state import LinkInfo, RelayState
 from tests.support import skip_or_fail
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -91,7 +92,7 @@ def exported() -> dict[str, dict[str, set[str]]]:
                     signal_dbm=-60, ccq_pct=90, tx_mbps=54, rx_mbps=48, t=99.0
                 )
             for device in ("robot", "pantilt", "wifi", "ap.rear", "ap.front"):
-                st.health[device] = DeviceHealth(connected=True, last_data_t=99.0)
+                st.health[device] = DeviceHealth(device, LinkState.UP, last_rx_t=99.0)
             m = Metrics(st, _Clock())
             m.observe_control_latency(0.0005)
             m.observe_control_step(0.0001)

@@ -1,36 +1,14 @@
 """Getting past obstacles without deadlock: a pure, bounded escape state machine.
 
-The paper's situation 1 (steer by the sonar centroid, slow down towards the stop
-distance) cannot get a robot past an obstacle that is symmetric about its path: the
-centroid is 0, the speed scale is 0, and the robot stands still for good. This module
-is the layer that notices that and does something the robot can really execute. It is
-pure: the time, the odometry pose, the sonars and the leader's bearing come in a
-`Sense`, the memory in an `AvoidState`, and `avoid_step` returns both the new state and
-the command; nothing here reads a clock. docs/AVOIDANCE.md has the state diagram.
-
-- FOLLOW: the paper's law drives; a watchdog says "blocked" when a forward sonar reads
-  below the stop distance, or the robot has not moved `progress_m` in `no_progress_s`
-  while the link rule says its leader is beyond.
-- An escape begins. A leader `align_first_deg` (60) or more off the nose is not beyond
-  what blocks the way (it is round a corner the robot overran, or behind it): ALIGN
-  first, turning onto it; only what then blocks the way to it is gone round. Otherwise
-  the side is latched for the whole episode (the freer side; a tie
-  goes to the leader's side, bearing 0 to the left). BACKOFF first when the robot is
-  closer than `backoff_below_m` and the rear sonars show room. In a passage (a boundary
-  abeam on the free side) LANE: run beside that boundary, or down the middle of a
-  narrow gap, past the obstacle. Otherwise TURN in place toward the free side until the
-  front is open, then WALL: boundary following (Bug family) with the obstacle on the
-  other side; an inner corner goes back to TURN, a lost boundary runs `corner_run_m`
-  on and turns 90 degrees toward it (CORNER). Leave (tangent-bug style) when the
-  leader's direction is open and the robot is further along the leader's line than
-  where it hit (Bug2; a door abeam may be level with the hit point): ALIGN (turn in
-  place onto the leader's bearing), then FOLLOW.
-- BLOCKED: the escape exceeded `max_escape_s`, `max_escape_m` or `max_turn_deg`, or
-  took the robot more than `max_stray_m` from where it took over from the paper's law:
-  wheels zero, reason `blocked`, until the leader's direction is open ahead again.
-
-The escape's vocabulary (modes, settings, memory, one step's view and verdict) and
-the guarded turn and drive commands are in relayd/core/avoid/state.py.
+The paper's situation 1 cannot get a robot past an obstacle symmetric about its path
+(the centroid is 0, the speed scale 0). `avoid_step` notices that and runs an escape:
+one handler per mode (HANDLERS: FOLLOW, BACKOFF, ALIGN, LANE, TURN, WALL, CORNER,
+BLOCKED) over the escape's memory, with the hand-overs within one step as a table
+(HANDS_OVER). It promises: the escape is bounded (time, distance, turning, stray from
+where it took over; then BLOCKED with wheels at zero), and its commands are guarded by
+the sonars. The state diagram and each rule: docs/AVOIDANCE.md. The vocabulary and the
+guarded commands are in relayd/core/avoid/state.py; the lane and the boundary
+following in lane.py and wall.py. Pure: time, pose, sonars and bearing come in a `Sense`.
 """
 
 from __future__ import annotations

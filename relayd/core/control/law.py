@@ -12,59 +12,18 @@ from dataclasses import dataclass, field, replace
 
 from relayd.core.avoid.escape import avoid_step
 from relayd.core.avoid.ring import guard
-from relayd.core.avoid.state import AvoidParams, AvoidState, Sense
-from relayd.core.control.actuator import Actuator
+from relayd.core.avoid.state import AvoidState, Sense
+from relayd.core.control.params import ControlParams as ControlParams
 from relayd.core.control.rangecue import far_by_sonar, release_speed_mm_s
-from relayd.core.control.search import SearchParams, SearchState, search_step, search_wheels
+from relayd.core.control.search import SearchState, search_step, search_wheels
 from relayd.core.scan.estimator import (
     SonarReading,
     avoidance_bearing,
     classify_situation,
     nearest_front_m,
 )
-from relayd.core.trail.blocked import BlockedParams, BlockedState, blocked_step, waiting
+from relayd.core.trail.blocked import BlockedState, blocked_step, waiting
 from relayd.core.vocab import DriveState, Mode
-
-
-@dataclass(frozen=True, slots=True)
-class ControlParams:
-    """Controller settings; defaults as in docs/CONTROL.md section 8."""
-
-    kp: float = 1.0
-    kd: float = 0.3
-    w1: float = 10.0
-    w2: float = 150.0
-    v_max_mm_s: float = 400.0
-    threshold_l_dbm: float = -30.0
-    threshold_b_dbm: float = -60.0
-    hysteresis_db: float = 2.0
-    rear_link_required: bool = True
-    threshold_o_m: float = 0.8
-    stop_distance_m: float = 0.3
-    detect_range_m: float = 3.0
-    gamma_o_m: float = 1.0
-    sip_timeout_s: float = 0.5  # robot.lost_after_s
-    #: No fresh RSSI sample for this long is a fault. The daemon sets max(0.5 s, 5 sample
-    #: periods) from wifi.sample_hz (relayd/config/params.py): 0.5 s at the default 20 Hz.
-    rssi_timeout_s: float = 0.5
-    rear_timeout_s: float = 3.0  # RSSI^b older than this is stale
-    manual_deadman_s: float = 0.5
-    #: False: the paper's obstacle rule alone, no escape (config `control.escape`).
-    escape: bool = True
-    #: "leader_near" is overruled while the sonar floor says the leader is at least this
-    #: far (m); 0 = off, the paper's rule alone (relayd/core/control/rangecue.py, docs/CONTROL.md 5.3).
-    leader_gap_max_m: float = 0.0
-    #: The escape when forward motion is blocked (relayd/core/avoid/escape.py); its stop
-    #: distance and threshold_o are taken from the two fields above.
-    avoid: AvoidParams = field(default_factory=AvoidParams)
-    #: What VEL/RVEL can express; every follow-mode command is rounded to it here.
-    actuator: Actuator = field(default_factory=Actuator)
-    #: The turn toward a lost leader beyond the servo's reach (relayd/core/control/search.py).
-    search: SearchParams = field(default_factory=SearchParams)
-    #: "bearing": at the scan bearing (the paper's); "trail": along the trail (docs 7.1).
-    pursuit: str = "bearing"
-    #: An escape no nearer the trail's head stops on "trail_blocked" (core/trail/blocked.py).
-    trail_blocked: BlockedParams = field(default_factory=BlockedParams)
 
 
 @dataclass(frozen=True, slots=True)
@@ -261,17 +220,10 @@ def _manual(
     )
 
 
-# Complexity: the paper's law in order (docs/CONTROL.md 5): each `if` is one of its rules.
-def control_step(  # noqa: C901
-    inputs: ControlInputs, params: ControlParams, memory: ControlMemory
-) -> ControlOutput:
-    """One control decision; see the module docstring for the order of rules."""
-    situation = classify_situation(inputs.front_sonar, params.threshold_o_m, params.detect_range_m)
-
-    # Hold, manual and the fail-safes end a search episode: its heading and time bookkeeping
-    # mean nothing after them (the operator may have moved the robot); a relay still lost
-    # afterwards searches afresh, on evidence still recent (docs/CONTROL.md 6.1).
-    halted = replace(memory, search=SearchState())
+def _fail_safe_or_mode(
+    inputs: ControlInputs, params: ControlParams, situation: int, halted: ControlMemory
+) -> ControlOutput | None:
+    """Section 6's first rules: a stale input or servo stops, hold and manual decide."""
     if _stale(inputs.sip_age_s, params.sip_timeout_s):
         return _stopped(DriveState.FAULT, "no_sip", situation, halted)
     if inputs.mode is Mode.FOLLOW:
@@ -288,7 +240,20 @@ def control_step(  # noqa: C901
         return _stopped(DriveState.STOPPED, "hold", situation, halted)
     if inputs.mode is Mode.MANUAL:
         return _manual(inputs, params, situation, halted)
+    return None
 
+
+def control_step(
+    inputs: ControlInputs, params: ControlParams, memory: ControlMemory
+) -> ControlOutput:
+    """One control decision; see the module docstring for the order of rules."""
+    situation = classify_situation(inputs.front_sonar, params.threshold_o_m, params.detect_range_m)
+    # Hold, manual and the fail-safes end a search episode: its heading and time bookkeeping
+    # mean nothing after them (the operator may have moved the robot); a relay still lost
+    # afterwards searches afresh, on evidence still recent (docs/CONTROL.md 6.1).
+    first = _fail_safe_or_mode(inputs, params, situation, replace(memory, search=SearchState()))
+    if first is not None:
+        return first
     if inputs.leader_lost:
         return _lost(inputs, params, situation, memory)
     if memory.search != SearchState():
@@ -354,47 +319,49 @@ def control_step(  # noqa: C901
         reason = "leader_far_sonar" if released else "driving"
 
     act = params.actuator
-    if (
-        params.escape
-        and inputs.t_s is not None
-        and inputs.odom is not None
-        and math.isfinite(inputs.t_s)
-    ):
-        sense = Sense(inputs.t_s, inputs.odom, inputs.front_sonar, bearing, inputs.rear_sonar)
-        aparams = replace(
-            params.avoid, stop_distance_m=params.stop_distance_m, threshold_o_m=params.threshold_o_m
-        )
-        avoid, cmd = avoid_step(memory.avoid, sense, aparams, act)
-        memory = replace(memory, avoid=avoid)
-        if params.pursuit == "trail":
-            moving = not cmd.follow and (cmd.vel_mm_s != 0 or cmd.rvel_deg_s != 0)
-            block, stop = blocked_step(
-                memory.trail_block,
-                inputs.t_s,
-                moving,
-                inputs.trail_remaining_m,
-                params.trail_blocked,
-            )
-            memory = replace(memory, trail_block=block)
-            if stop:  # _stopped clears the escape: it starts afresh after the wait
-                return _stopped(DriveState.STOPPED, "trail_blocked", situation, memory)
-        if not cmd.follow:
-            # The escape's turn rates are fixed; a v_max below them still bounds every wheel.
-            left, right = act.wheels(*act.within(cmd.vel_mm_s, cmd.rvel_deg_s, params.v_max_mm_s))
-            moving = cmd.vel_mm_s != 0 or cmd.rvel_deg_s != 0
-            state = DriveState.AVOIDING if moving else DriveState.STOPPED
-            # The escape's command (its "blocked" stop too) ends a sonar release: it must be
-            # earned again at the full limit once the paper's law drives again.
-            return ControlOutput(
-                left,
-                right,
-                state,
-                cmd.reason,
-                situation,
-                replace(memory, prev_steer_deg=None, sonar_release=False),
-            )
+    if params.escape:
+        memory, escaped = _escape(inputs, params, memory, bearing, situation)
+        if escaped is not None:
+            return escaped
     # The paper's command, as the wire will carry it, never into a near echo.
     vel, rvel = act.within(*act.express(*act.vel_rvel(left, right)), params.v_max_mm_s)
     vel, rvel = guard(vel, rvel, inputs.front_sonar, params.stop_distance_m)
     left, right = act.wheels(vel, rvel)
     return ControlOutput(left, right, state, reason, situation, memory)
+
+
+def _escape(
+    inputs: ControlInputs,
+    params: ControlParams,
+    memory: ControlMemory,
+    bearing: float,
+    situation: int,
+) -> tuple[ControlMemory, ControlOutput | None]:
+    """The escape's step (section 7): its command, when it has one, replaces the paper's."""
+    if inputs.t_s is None or inputs.odom is None or not math.isfinite(inputs.t_s):
+        return memory, None
+    act = params.actuator
+    sense = Sense(inputs.t_s, inputs.odom, inputs.front_sonar, bearing, inputs.rear_sonar)
+    aparams = replace(
+        params.avoid, stop_distance_m=params.stop_distance_m, threshold_o_m=params.threshold_o_m
+    )
+    avoid, cmd = avoid_step(memory.avoid, sense, aparams, act)
+    memory = replace(memory, avoid=avoid)
+    if params.pursuit == "trail":
+        moving = not cmd.follow and (cmd.vel_mm_s != 0 or cmd.rvel_deg_s != 0)
+        block, stop = blocked_step(
+            memory.trail_block, inputs.t_s, moving, inputs.trail_remaining_m, params.trail_blocked
+        )
+        memory = replace(memory, trail_block=block)
+        if stop:  # _stopped clears the escape: it starts afresh after the wait
+            return memory, _stopped(DriveState.STOPPED, "trail_blocked", situation, memory)
+    if cmd.follow:
+        return memory, None
+    # The escape's turn rates are fixed; a v_max below them still bounds every wheel.
+    left, right = act.wheels(*act.within(cmd.vel_mm_s, cmd.rvel_deg_s, params.v_max_mm_s))
+    moving = cmd.vel_mm_s != 0 or cmd.rvel_deg_s != 0
+    state = DriveState.AVOIDING if moving else DriveState.STOPPED
+    # The escape's command (its "blocked" stop too) ends a sonar release: it must be
+    # earned again at the full limit once the paper's law drives again.
+    out = replace(memory, prev_steer_deg=None, sonar_release=False)
+    return memory, ControlOutput(left, right, state, cmd.reason, situation, out)

@@ -1,53 +1,13 @@
 """How far is the leader at least? A lower bound on its distance from the front sonars.
 
-RSSI^l cannot tell distance under shadowing: a relay standing in a spot 8-10 dB above the
-path-loss median hears its leader "near" at 5-6 m and stands still on "leader_near" while
-the leader walks away. The sonar ring tells better: every echo is the nearest surface in
-its beam, so whatever lies inside a beam is at least as far as that beam's echo.
-`leader_floor_m` turns the front ring and the bearing filter's estimate into such a
-bound; the controller's link rule (docs/CONTROL.md section 5.3) keeps following past
-"leader_near" while it says "far".
-
-What the floor means: the distance from the robot's centre to the centre of anything
-(the leader above all) that lies inside the front fan, at least `near_m` out, is at
-least the floor. The fan is the bearings the front ring sees whole (`cover_deg`): -54.7
-to +54.7 degrees and 75 to 90.3 degrees either side. The floor is offered only when the
-tracking filter is sure (sd at most 10 degrees) and the bearing estimate +- max(2 sd, 20
-degrees) lies inside the fan, i.e. when the leader is believed well inside it. The 75-90
-degree parts are only 15 degrees wide, less than the 40 the margin needs, so they never
-qualify: a floor exists only for bearings within about +-34.7 degrees. Why it holds:
-
-- Coverage. Seen from its transducer (offset from the robot's centre, drivers/arcos/
-  sonar.py), a point moving out along a ray from the robot's centre turns monotonically,
-  from where it is at `near_m` to the ray's own direction at infinity. So the ray is
-  inside a beam from `near_m` on exactly when both ends are: `cover_deg` gives, per
-  sonar, the bearings it sees whole; the fan is their union.
-- Bound. A centre in the fan lies in the beam of some sonar k. The segment from that
-  transducer to the centre is inside the beam (a cone from its apex), so it crosses the
-  body's surface, which is at least `core_m` before the centre (a person is ~0.25 m deep,
-  a P3-AT 0.5 m wide): the echo r_k is at most the transducer-to-centre distance less
-  `core_m`. The front transducers look away from the robot's centre (t.u > 0 over every
-  beam), so the centre is at least min |t + (r_k + core_m) u| over the beam's directions
-  u from the robot's centre (`centre_bound_m`), itself at least r_k + core_m. The floor is
-  the least of these over the whole front ring, so it needs no trust in which beam the
-  leader is in: only that it is in the fan.
-- No echo counts as the sonar's maximum range: nothing in that beam within 5 m.
-
-Why the whole ring, the 20 degree margin and the sd limit: the filter's sd is its own
-opinion. In the simulated convoy its error reached 5-20 sd (an estimate 54 degrees off,
-sd 4.5, while the leader turned 1.4 m away), so a bound from only the beams around the
-estimate put a leader at 1-1.5 m beyond 5 m in 1-5 % of the records of every seed. Over
-the whole ring it failed only while the estimate had a leader in front that was behind
-(-114 degrees, estimate -21, sd 15 and growing); with the sd limit, never (10 seeds,
-22 186 relay-records with a floor, docs/CONTROL.md 5.3).
-
-What it does not cover: a leader nearer than `near_m`, a leader outside the fan though
-the estimate says otherwise, and a sonar that misses the leader (a soft target at
-several metres, an echo lost to specular reflection): the floor is then the range of
-whatever lies behind it, or the maximum. Why the release adds no new hazard for that is
-the controller's part (docs/CONTROL.md section 5.3). The floor needs every front-ring
-sonar read at least once: a sonar never read is not "nothing there".
-Pure: no I/O, no clock; angles in degrees in the robot frame, ccw positive; metres.
+RSSI^l cannot tell distance under shadowing; the sonar ring can bound it from below:
+whatever lies inside a beam is at least as far as that beam's echo. `leader_floor_m`
+turns the front ring and the tracking filter's estimate into such a floor, offered only
+when every front sonar has been read, the filter is sure (sd at most 10 degrees) and
+the estimate +- max(2 sd, 20 degrees) lies inside the fan the ring sees whole
+(`cover_deg`). The controller's link rule keeps following past "leader_near" while the
+floor says "far". Why the floor holds, the margins and what it does not cover:
+docs/CONTROL.md section 5.3. Pure: angles in degrees in the robot frame, ccw +; metres.
 """
 
 from __future__ import annotations

@@ -1,29 +1,12 @@
 """A lost relay whose leader is probably behind it turns in place to find it.
 
-The pan servo reaches +-90 deg; a leader the relay has passed (two robots meeting at
-a corner, the truth sweeping from ahead to behind in a few seconds) is beyond it, where
-no scan can see a lobe. Standing still and widening, as a lost relay otherwise does,
-then waits for a leader that may never walk back into view (30 % of a convoy run in
-one case). So while the leader is lost and the last evidence of it put it at or
-beyond a servo limit (the tracking filter's `search_bearing`: the last lobe fit there,
-however unsure, or the strongest sample at a limit when it is at least lost_rssi; at
-most a few scan periods old; carried into today's frame) and is
-still at least `min_bearing_deg` off the nose, the relay turns in place toward that
-side at `rate_deg_s`, the full-range scans running meanwhile, until the evidence is
-ahead (then it stands, and the sweeps look there without a turn smearing them), until
-the leader is found (no longer lost). New evidence beyond `min_bearing_deg` (a later
-scan's fit, however unsure) turns it that way. An episode lasts at most
-`max_turn_deg` of odometry heading or the time that takes at `rate_deg_s` plus half
-(so a turn the guard keeps refusing ends too); then wheels zero, as before, until the
-leader is found again.
-
-Evidence within the sweep gets no turn (the model gives none): the servo's full sweep
-covers it, and a turn would only smear those scans and take the relay off its line.
-Every command keeps each wheel within v_max, as the follow law's do, and passes
-`relayd.core.avoid.ring.guard` (no turn in place without room, as the obstacle escape's turns).
-docs/CONTROL.md section 6.1.
-
-Pure: time and heading come in as arguments.
+While the leader is lost and the tracking filter's last evidence (`search_bearing`) put
+it at or beyond a servo limit, at least `min_bearing_deg` off the nose, `search_step`
+turns the relay in place toward that side at `rate_deg_s` until the evidence is ahead or
+the leader is found; an episode is bounded by `max_turn_deg` and its time. Evidence
+within the sweep gets no turn. It promises: every command keeps each wheel within v_max
+and passes `relayd.core.avoid.ring.guard` (no turn without room). Why and what it
+measured: docs/CONTROL.md section 6.1. Pure: time and heading come in as arguments.
 """
 
 from __future__ import annotations

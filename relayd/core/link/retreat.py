@@ -1,50 +1,14 @@
 """Stepping back out of a shadow: the adaptive rear limit's one move backwards (pure).
 
-The adaptive rear limit (relayd/core/link/model.py, docs/CONTROL.md section 5.1) stretches
-the hop behind to the target's edge. Where the hop loses 15 dB within a few centimetres
-(a row of parked cars coming between the antennas) no limit with less margin stops the
-relay before the edge: it stops on the next poll, already in the shadow, and a relay
-only drives toward its leader. This module lets it step back, a bounded distance, to
-the last spot where its hop met the target, and hold there.
-
-- **Spots.** While following, the relay lays a spot every SPACING_M of odometry travel,
-  and one at every rear poll with the poll's verdict (did the hop deliver
-  `target_hop_mbps`?) and RSSI^b. A poll at the spot of the newest poll replaces its
-  verdict (a relay standing still re-measures one spot; the newest word counts). The
-  trail keeps the newest KEEP spots (at least 5 m).
-- **When.** Only with `link_policy = "adaptive"`, in follow mode, with the controller
-  holding the relay at its rear limit (reason "rear_weak", wheels at zero) on the step
-  that starts the move, and either
-  - *an edge:* the newest poll missed the target EDGE_DROP_DB or more below the poll
-    before it, which met it, after EDGE_M or less of the relay's own travel (at least
-    STANDING_M): far more than a 4-frame RSSI reading fades between two polls, and far
-    more than path loss changes over a metre, so the relay drove into a shadow. It
-    steps back at once instead of standing there for the polls below; or
-  - *a run:* `BELOW_POLLS` rear polls in a row missed the target while it stood there
-    (a gradual edge, or a shadow that came to it): one deep fade does not do it.
-- **Where to.** Back along its own trail (ground it has driven over) to the poll before
-  the newest one more than REACH_M away that met the target, when that one met it too;
-  else to that newest one. A poll's value may be up to a poll period old when it
-  arrives (the AP's own averaging, the poll), so its spot, marked where the relay was
-  when it arrived, may lie past where it was measured; the measurement lies between
-  the spots of that poll and the one before, and both met the target. Within what is
-  left of `MAX_RETREAT_M` of path; none within reach: it stays (the controller's stop
-  stands).
-- **How.** In reverse, so the Yagi keeps facing the leader, with the breadcrumb
-  geometry of the recovery (relayd/core/recovery/trail.py): the rear sonars slow and steer it
-  and stop it short of any echo closer than stop_distance; a rear sonar not read yet
-  stops it too (it never backs blind). The speed is tapered to the distance left, so
-  one control period cannot carry it past its bound.
-- **Hold.** At the spot it stops, and the rear limit in force becomes at least what the
-  poll there measured plus HOLD_MARGIN_DB (a 2 dB upward fade, the hysteresis, would
-  otherwise send it straight back over the edge). The hold ends once the relay is
-  CLEAR_M from that spot (its link behind rose enough to drive it on); so does the
-  distance budget, which otherwise adds up over retreats.
-- **Doubt.** Stale SIP, RSSI stream or RSSI^b, no pose, a controller fault or a mode
-  change: the move ends and wheels are zero on that step (the controller, which stops
-  on stale input, has the next one). MAX_TIME_S bounds a move blocked by an obstacle.
-
-No I/O, no clock: every step gets its time in the controller's inputs.
+Where the hop behind loses 15 dB within centimetres (a car between the antennas) the
+relay stops already in the shadow. `retreat_step` steps it back along its own trail of
+spots (each rear poll's verdict marked on it) to the last spot whose poll met the
+target, in reverse, guarded by the rear sonars, within MAX_RETREAT_M, and holds there
+with the rear limit raised to that poll's RSSI^b + HOLD_MARGIN_DB. It promises: a move
+starts only in adaptive mode, in follow, with the controller holding the relay at its
+rear limit; it never backs blind; stale input ends a move with wheels at zero on that
+step. When, where to, the hold and each constant's reason: docs/CONTROL.md section 5.1,
+"Stepping back out of a shadow". No I/O, no clock.
 """
 
 from __future__ import annotations

@@ -1,39 +1,13 @@
-"""Self-healing when a link breaks: breadcrumbs and the recovery state machine (pure).
+"""Self-healing when a link breaks: the recovery state machine (pure; docs/CONTROL.md 9).
 
-The paper leaves broken links out of scope; this is the backup plan it names as future
-work, decided locally by each relay (docs/CONTROL.md section 9). Nothing here does
-I/O or reads a clock: `recovery_step` gets one snapshot (`RecoveryInputs`), the
-settings and the memory of the step before, and returns either a wheel command that
-replaces the follow controller's, or None (the controller's output stands).
-
-- **Breadcrumbs.** While no episode runs, every `crumb_spacing_m` of odometry travel
-  adds a crumb: the pose and the RSSI^l / RSSI^b the relay had there. The trail keeps
-  the newest `trail_len` crumbs.
-- **Leader lost** (the brain's 3-scans-below-lost_rssi rule): WIDEN first (wheels zero
-  while `widen_scans` full-range scans complete; the brain widens the window by
-  itself while the leader is lost), then RETRACE: back along the trail toward the
-  newest crumb where RSSI^l was at or above threshold_l (none: the crumb with the best
-  RSSI^l), scanning as it goes. The leader heard again ends the episode ("found").
-- **Rear link breaking** (a fresh RSSI^b poll below lost_rssi): BACKUP along the trail
-  until RSSI^b is above threshold_b + hysteresis on REAR_RESTORED_POLLS polls in a
-  row ("restored"): one upward fade does not end it. It pre-empts a leader episode:
-  the chain behind is restored first. For FENCE_S after a restore, the controller may
-  not drive forward to within FENCE_M of where the link broke: a relay at a corner
-  whose link behind falls off a cliff would otherwise drive straight back over it.
-- Both move in **reverse** along crumbs the relay already drove through (known free
-  space), so the Yagi keeps facing where the leader went; the rear sonars 9..14 slow,
-  steer and stop it like the front ones do going forward, and never let it back into
-  an obstacle. The trail is consumed as the relay passes its crumbs.
-- **Limits.** An incident ends GAVE_UP (wheels zero; reason "leader_lost" or
-  "rear_lost") after `max_time_s` or `max_distance_m` of odometry travel. An incident
-  is the run of episodes from the controller losing charge to getting it back: a rear
-  episode that pre-empts a leader episode, or a leader episode right after the rear
-  is restored, spends what is left of the same budget, so alternating episodes cannot
-  add up past the limits. The reverse speed is tapered to the distance left (at most
-  remaining / TAPER_S), so a control period under TAPER_S can never carry the relay
-  past its distance limit.
-- **Stale input never drives.** Any input older than its limit (SIP, RSSI stream,
-  scan, RSSI^b when required or backing up) gives zero wheels while an episode runs.
+`recovery_step` gets one snapshot (`RecoveryInputs`), the settings and the memory of
+the step before, and returns a wheel command that replaces the follow controller's, or
+None (the controller's output stands). It runs TRANSITIONS, an ordered table read top
+to bottom (the override order): a rear link breaking pre-empts a lost leader; WIDEN,
+RETRACE and BACKUP move in reverse along the breadcrumbs the relay drove through; an
+incident gives up after its time or distance budget, shared by its episodes. It
+promises: stale input never drives; the reverse speed is tapered so no control period
+carries the relay past its distance limit. No I/O, no clock.
 """
 
 from __future__ import annotations

@@ -1,46 +1,12 @@
 """Where is the leader in one scan, without knowing the antenna: a main-lobe fit.
 
-The weighted centroid (`relayd.core.scan.estimator.wca_bearing`) is a mean of the sampled
-angles, so a lobe cut off by the window's edge pulls it toward the window's middle.
-This module fits the main lobe instead: near its peak, almost every directional
-antenna's gain in dB is a downward parabola in the off-axis angle (a Gaussian beam
-exactly; cos^n and Yagi patterns to within a few tenths of a dB down to about -8 dB),
-
-    RSSI(theta) = peak - 12 * ((theta - centre) / beamwidth_3db)^2
-
-so its centre is the bearing, wherever the window is, and the fit needs no pattern
-measured beforehand: peak, centre and beamwidth are fitted on every scan.
-
-How (`fit_main_lobe`):
-1. The samples are sorted by angle; the peak is found on a 3-point running mean, so
-   one lucky fading sample cannot pick a side lobe.
-2. The main lobe is the run of samples around that peak that stay within `drop` dB of
-   it: 70 % of the scan's dynamic range, 6 to 14 dB, so the lobe's flanks (where the
-   centre is decided) are in and a 12 dB front-to-back floor with 2 dB of jitter is
-   out. At least 3 samples are always used (the peak and its neighbours).
-3. y = a + b u + c u^2 (u = angle - peak angle, for conditioning) by weighted least
-   squares, re-weighted (Huber, scale from the residuals' MAD) so a faded sample or an
-   obstacle's PRSSI dip does not drag the fit. Then the run is chosen again from the
-   fitted lobe (its peak, not the noisy best sample) and fitted once more.
-4. centre = peak angle - b / (2c). A lobe that is not concave (c >= 0: flat or
-   no leader), or so shallow that its 3 dB beamwidth would exceed
-   `max_beamwidth_deg` (150: a flat scan with RSSI drifting while it sweeps), gives
-   no centre: `None`, and the tracker treats the scan as a miss.
-   A centre outside the sampled span (the leader beyond the servo limit) is kept up
-   to `max_extrapolation_deg` past the span's ends, since turning toward it is right;
-   further out the one-sided fit is not trusted and the centre is clamped there.
-5. sd_deg, the centre's standard deviation, by propagating the fit's covariance
-   (residual variance, floored at `min_noise_db`) through -b/2c. It is what the
-   tracking filter weighs this scan by.
-
-Several scans can be fitted as one (`scan_ids`: which scan each sample came from): each
-scan then has its own level (the leader's distance and the shadowing change from scan to
-scan, the lobe's shape does not), and the shape is fitted on all of them. That is how
-`relayd.core.scan.pool` averages a still leader's scans before the nonlinear -b/2c rather than
-after it.
-
-No I/O, no clock, no NumPy: the 3x3 normal equations are inverted in closed form, and
-the pooled sums are gathered in one pass (a scan end fits a dozen times).
+Near its peak almost every directional antenna's gain in dB is a downward parabola,
+`peak - 12 ((theta - centre) / beamwidth_3db)^2`, so `fit_main_lobe` fits peak, centre
+and beamwidth on every scan (robust weighted least squares over the run of samples
+around the peak) and returns the centre with its sd, or None when no lobe is there (the
+tracker then counts a miss). Several scans can be fitted as one, each with its own level
+(`scan_ids`; relayd.core.scan.pool). The choices and their measurements: docs/CONTROL.md
+section 10.2. No I/O, no clock, no NumPy (the 3x3 normal equations in closed form).
 """
 
 from __future__ import annotations

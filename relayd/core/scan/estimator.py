@@ -3,38 +3,11 @@
 Turns a finished Yagi scan (servo angle, RSSI and odometry heading per sample) and the
 sonar ring into a bearing estimate: scan planning, the weighted centroid (WCA), the
 two obstacle situations, the pseudo-RSSI (PRSSI) penalty and leader-lost counting.
-No I/O, no clock, no logging: the scanner and control tasks call these functions and
-the tests drive them directly.
-
-Conventions: angles in degrees relative to the robot's forward axis, counter-clockwise
-positive (positive = to the left); sonar ranges in millimetres on the wire, metres here.
-
-Decisions (also in docs/CONTROL.md):
-- plan_scan: the window [c - w/2, c + w/2] is shifted back inside the servo limits,
-  keeping its width, when it crosses one and the width fits; only a window wider than
-  the servo's range is clipped to the limits. Shifting keeps the full number of
-  distinct, evenly spaced angles over the requested width instead of piling samples
-  up in a narrower window. N = 1 samples the centre (clamped into the limits).
-- WCA: w_j = 10^((RSSI_j - max RSSI) / gamma). Subtracting the maximum leaves the
-  result unchanged and makes overflow impossible (the best sample weighs exactly 1).
-  The result is clamped to [min angle, max angle] against floating-point rounding.
-- Front sonars: the P3-AT's sonars 1..6 (headings +50, +30, +10, -10, -30, -50) are
-  "front" for d_min and the avoidance centroid. Sonars 0 and 7 (+90/-90) look
-  sideways: a wall alongside in a corridor must not make the robot crawl or steer,
-  so they are left out of d_min and the centroid. Rear sonars 8..15 never steer.
-  PRSSI (situation 2) uses every front-ring sonar 0..7 whose range is in
-  [threshold_o, detect_range): an object to the side still deserves a penalty on the
-  scan samples that look at it. `front_readings` therefore returns the whole front
-  ring (0..7); `classify_situation` and `avoidance_bearing` keep only readings that
-  look forward (|heading| < 90), which on a P3-AT are exactly FRONT_SONARS.
-- No echo: `None`, and (because ARCOS probably reports its maximum when nothing
-  echoes) any range of SONAR_MAX_RANGE_MM or more. It never triggers a situation and
-  counts as the maximum range in the avoidance centroid.
-- PRSSI: when the beams of two sonars both contain a sample (adjacent P3-AT sonars
-  20 degrees apart with +-15 degree beams overlap), the sample gets the larger
-  penalty, not the sum: one object seen by two sonars is still one object.
-- Situation 2 is decided from the sonars at the scan's end; the controller decides
-  situation 1 again on every control step from the current sonars.
+Angles in degrees from the robot's forward axis, ccw +; sonar ranges in millimetres on
+the wire, metres here; no echo is None or SONAR_MAX_RANGE_MM and up. The decisions (a
+window shifted, not clipped, at a servo limit; which sonars are "front"; the larger of
+two overlapping penalties, not their sum) are in docs/CONTROL.md sections 2-3.
+No I/O, no clock, no logging.
 """
 
 from __future__ import annotations

@@ -1,27 +1,12 @@
 """The brain's bearing memory, two ways: the paper's centroid, or a lobe fit with a tracking filter.
 
-`relayd.core.brain` asks a `BearingModel` three things and nothing else: what a finished
-scan says (`scan_done`: the estimate it publishes), where the leader is now
-(`bearing_now`), and where to sweep next (`window`). Two models:
-
-- `CentroidModel` ("wca"): the paper's weighted centroid of each scan, kept as the
-  bearing until the next scan; windows of the configured width centred on it. The
-  reference, and what relayd did before.
-- `TrackingModel` ("lobe"): each scan's main lobe is fitted (`relayd.core.scan.bearing`), the fit
-  feeds a Kalman filter on bearing and bearing rate with the odometry heading change
-  as its control input (`relayd.core.scan.tracker`), and the filter's prediction is the bearing
-  the wheels steer by, every control step. While the filter says the bearing is
-  steady, the last few scans are fitted together (`relayd.core.scan.pool`). A fit's sd is
-  never below what the recent scans' residual noise allows. It learns the antenna's
-  beamwidth from its own two-sided scans (the curvature prior of one-sided ones at a
-  servo limit). While the bearing moves, a scan is fitted in the leader's frame (each
-  sample carried by the filter's rate to the beam's predicted crossing). With
-  `window = "adaptive"` a confident filter narrows the sweep around its prediction: at
-  the full window's spacing while the bearing is steady, coarser (a few samples per
-  beamwidth) and narrower while it moves, so a sweep takes less time, in steps fitted
-  to the scanner's clock (the sizing is `relayd.core.scan.window`'s); an unsure or lost one
-  sweeps the servo's whole range.
-
+`relayd.core.brain` asks a `BearingModel` three things: what a finished scan says
+(`scan_done`), where the leader is now (`bearing_now`) and where to sweep next
+(`window`). `CentroidModel` ("wca") is the paper's weighted centroid, kept until the
+next scan. `TrackingModel` ("lobe") fits each scan's main lobe (core/scan/bearing.py),
+pools a steady leader's scans (pool.py), feeds a Kalman filter on bearing and rate
+(tracker.py) whose prediction the wheels steer by, and with `window = "adaptive"` sizes
+the sweep from its confidence (window.py). The reasons: docs/CONTROL.md section 10.
 Pure: times and headings come in as arguments; no clock, no I/O.
 """
 
