@@ -38,6 +38,7 @@ from typing import TYPE_CHECKING, Any
 import structlog
 
 from drivers.transport.clock import Clock
+from drivers.transport.health import DeviceHealth, LinkState
 from relayd.config.model import Settings
 from relayd.core.events import Decision
 from relayd.record import codec
@@ -46,7 +47,6 @@ from relayd.record.livegate import LiveGate
 from relayd.record.recorder import Routed, RoutedBus
 from relayd.record.writer import ChannelSpec, channel_spec
 from relayd.runtime.fdbudget import FdBudget
-from relayd.runtime.state import DeviceHealth
 
 if TYPE_CHECKING:  # the SDK itself is imported only when the server is enabled
     from foxglove.websocket import WebSocketServer
@@ -213,9 +213,10 @@ class LiveServer:
         """The live view as /status shows it, under health "foxglove": listening, the
         connections refused (cap, deadline, descriptors), the SDK's restarts, the last error."""
         gate = self.gate
+        up = gate.listening and self._server is not None and self.error is None
         return DeviceHealth(
-            connected=gate.listening and self._server is not None and self.error is None,
-            last_data_t=None,
+            "foxglove",
+            LinkState.UP if up else LinkState.DOWN,
             errors=gate.counters["refused"]
             + gate.counters["late"]
             + gate.counters["upstream_failed"],
