@@ -154,6 +154,9 @@ def outcome_words(s: dict[str, Any]) -> str:
         return f"{leader}, the link held"
     if arrived is not None and 0.0 < arrived < broken:
         return f"{leader} with the link up; the link broke later, at {broken:.1f} s{down}"
+    if arrived is not None and arrived > 0.0:
+        # summary.json's goal_reached is false: the paper's goal is to arrive connected.
+        return f"{leader}, but the link had broken before, at {broken:.1f} s{down}"
     return f"{leader}; the link broke at {broken:.1f} s{down}"
 
 

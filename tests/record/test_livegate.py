@@ -173,3 +173,26 @@ class _Controls:
     def set_mode(self, mode: Any) -> None: ...
 
     def manual_drive(self, left_mm_s: float, right_mm_s: float) -> None: ...
+
+
+async def test_a_flood_of_silent_connections_costs_the_process_a_bounded_count_of_descriptors() -> (
+    None
+):
+    """The red team's flood: connections that never send a handshake. Without the gate the
+    SDK kept all of them (1,023 of 1,024 descriptors); here at most the cap is held, and
+    each for no longer than the deadline."""
+    from relayd.record.livegate import MAX_CLIENTS
+    from relayd.runtime.fdbudget import open_fds
+
+    budget = big_budget()
+    async with live_server(budget, handshake_s=0.5) as live:
+        before = open_fds()
+        flood = [await asyncio.open_connection("127.0.0.1", live.port or 0) for _ in range(150)]
+        await until(lambda: live.gate.counters["refused"] >= 150 - MAX_CLIENTS, "refusals", 10)
+        # Ours: the 150 client ends this test holds, plus at most the cap's worth server-side.
+        assert open_fds() - before <= 150 + MAX_CLIENTS * FDS_PER_CLIENT
+        assert len(live.gate.clients) <= MAX_CLIENTS
+        await until(lambda: not live.gate.clients, "the held ones closed at the deadline", 10)
+        assert budget.in_use == 0
+        for _r, w in flood:
+            w.close()
