@@ -22,6 +22,7 @@ from relayd.core.control.law import (
     ControlMemory,
     ControlOutput,
     control_step,
+    within_v_max,
 )
 from relayd.core.control.rangecue import known_front, leader_floor_m
 from relayd.core.events import (
@@ -75,7 +76,6 @@ class Brain:
         self._mode = Mode(mode)
         self._manual: tuple[float, float, float] | None = None
         self._halted = False
-        # What the base said.
         self._sip_t: float | None = None
         self._heading: float | None = None
         self._robot_down = False
@@ -83,7 +83,6 @@ class Brain:
         #: Odometry pose of the latest SIP (mm, mm, deg): the obstacle escape's progress
         #: watchdog and limits (relayd/core/avoid/escape.py) and the recovery's breadcrumbs.
         self._pose: tuple[float, float, float] | None = None
-        # RSSI and scans.
         self._rssi_fresh_t: float | None = None
         self._servo_ok = not params.has_scanner
         #: The sweep in progress, the bearing memory of the scans, leader-lost (relayd/core/scan/memory.py).
@@ -311,18 +310,13 @@ class Brain:
 
     def stage_fail_safes(self, now: float, out: ControlOutput | None) -> ControlOutput:
         """No wheel moves on a scan that stopped arriving (the servo or the RSSI stream died);
-        no wheel beyond v_max, whichever stage commanded it (recovery and the retreat add
-        their turn to their speed: at a first drive's low v_max that once passed it)."""
+        no wheel beyond v_max, whichever stage commanded it (law.within_v_max)."""
         assert out is not None
         if (out.left_mm_s or out.right_mm_s) and self.scans.stale(now, self._mode is Mode.FOLLOW):
             return ControlOutput(
                 0.0, 0.0, DriveState.FAULT, "scan_stale", out.situation, out.memory
             )
-        c = self.rear.control
-        if max(abs(out.left_mm_s), abs(out.right_mm_s)) > c.v_max_mm_s + 1e-9:
-            left, right = c.actuator.express_wheels(out.left_mm_s, out.right_mm_s, c.v_max_mm_s)
-            return replace(out, left_mm_s=left, right_mm_s=right)
-        return out
+        return within_v_max(out, self.rear.control)
 
     def _recovery_step(self, now: float, rp: RecoveryParams, forward_mm_s: float) -> RecoveryOutput:
         return recovery_step(

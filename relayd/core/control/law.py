@@ -99,6 +99,16 @@ def _clamp(value: float, low: float, high: float) -> float:
     return min(max(value, low), high)
 
 
+def within_v_max(out: ControlOutput, params: ControlParams) -> ControlOutput:
+    """`out` with no wheel beyond v_max, whichever stage commanded it (recovery and the
+    retreat add their turn to their speed: at a first drive's low v_max that once passed
+    it): the turn kept, the translation shrunk, as the law does; unchanged within it."""
+    if max(abs(out.left_mm_s), abs(out.right_mm_s)) <= params.v_max_mm_s + 1e-9:
+        return out
+    left, right = params.actuator.express_wheels(out.left_mm_s, out.right_mm_s, params.v_max_mm_s)
+    return replace(out, left_mm_s=left, right_mm_s=right)
+
+
 def background_speed(rssi_leader_dbm: float, w1: float, w2: float, v_max_mm_s: float) -> float:
     """v = -w1 * RSSI^l - w2, clamped to [0, v_max]: faster the fainter the leader."""
     return _clamp(-w1 * rssi_leader_dbm - w2, 0.0, v_max_mm_s)
