@@ -14,6 +14,12 @@ its owner's wishes (motors, wheels), hands each SIP to the owner, returns what t
 handshake and OPEN learned as a `SessionInfo`, and reports through two callbacks: the
 robot went quiet, and the session ended. The driver (`ArcosRobot`) is the one writer
 of what it knows of the robot.
+
+Two callbacks, not one with an end reason: going quiet is not an end (the session goes
+on, and the next SIP makes the robot fresh again), so folding it into an end callback
+would make "ended" mean "maybe not". The end's reason is already a typed value, the
+`ArcosError` that `serve` raises, whose text the driver shows; an enum beside it would
+be a second name for the same reason that nothing reads.
 """
 
 from __future__ import annotations
@@ -127,9 +133,11 @@ class SessionOwner(Protocol):
 
     def handle_sip(self, pkt: Packet, rx_perf: float) -> float | None: ...
 
-    def session_quiet(self, silent_s: float) -> None: ...
+    def session_quiet(self, silent_s: float) -> None:
+        """No SIP for lost_after_s: doubt the robot (the session goes on; a SIP ends the doubt)."""
 
-    def session_ended(self, reason: ArcosError) -> None: ...
+    def session_ended(self, reason: ArcosError) -> None:
+        """Called once, at once: the session is over, for `reason` (what `serve` raises)."""
 
 
 class ArcosSession:

@@ -71,7 +71,9 @@ ROBOT, PANTILT = "robot", "pantilt"
 class Brain:
     """Events in, actions out. Not thread-safe, not async: call `handle` in event order."""
 
-    def __init__(self, params: BrainParams, *, mode: Mode = Mode.FOLLOW) -> None:
+    def __init__(
+        self, params: BrainParams, *, mode: Mode = Mode.FOLLOW, link_model: LinkModel | None = None
+    ) -> None:
         self.params = params
         self._mode = Mode(mode)
         self._manual: tuple[float, float, float] | None = None
@@ -87,8 +89,8 @@ class Brain:
         self._servo_ok = not params.has_scanner
         #: The sweep in progress, the bearing memory of the scans, leader-lost (relayd/core/scan/memory.py).
         self.scans = ScanMemory(params.scan, params.estimator, params.leader)
-        #: The link behind: RSSI^b, the link model, the retreat, the limit in force (core/link/rear.py).
-        self.rear = RearLinkMemory(params.control, params.link, params.rear_station_mac)
+        #: RSSI^b, the link model (`link_model`: a set-up seam), the retreat (core/link/rear.py).
+        self.rear = RearLinkMemory(params.control, params.link, params.rear_station_mac, link_model)
         # The controller's memory and last word.
         self._memory = ControlMemory()
         self.last_output: ControlOutput | None = None
@@ -209,9 +211,7 @@ class Brain:
         """A finished scan into the leader estimate and its trail."""
         bearing = self.scans.bearing_now(now, self._heading)
         sd = self.scans.model.sd_deg(now, self._heading)
-        floor = (
-            leader_floor_m(known_front(self._sonar), bearing, sd) if bearing is not None else None
-        )
+        floor = None if bearing is None else leader_floor_m(known_front(self._sonar), bearing, sd)
         self.trail.scan(now, self._pose, bearing, sd, self.scans.rssi_leader_dbm, floor)
 
     # -- the control step -----------------------------------------------------------------

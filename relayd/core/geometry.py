@@ -3,6 +3,7 @@
 - `wrap_deg`: the one angle-wrap convention, (-180, 180]. It returns an angle already in
   range unchanged, bit for bit, which `(a + 180) % 360 - 180` does not. It is defined with
   the robot's odometry (drivers.arcos.sip), which the drivers cannot import from here.
+  `wrap_rad` is the same convention in radians, (-pi, pi], for the core's filters.
 - The sonar ring: the mounting poses are the device's own fact and live with its driver
   (drivers.arcos.sonar, which decodes the SIP's sonar readings); here they are re-exported
   with what the core, the drivers' fake and the simulator derive from them.
@@ -34,6 +35,18 @@ HALF_LENGTH_M = ROBOT_LENGTH_M / 2.0
 #: The circle a turn in place sweeps.
 ROBOT_RADIUS_M = math.hypot(ROBOT_LENGTH_M, ROBOT_WIDTH_M) / 2.0
 
+
+def wrap_rad(angle_rad: float) -> float:
+    """An angle in radians wrapped to (-pi, pi]: `wrap_deg`'s convention and code in radians
+    (an angle already in range comes back bit for bit)."""
+    a = math.fmod(angle_rad, math.tau)
+    if a <= -math.pi:
+        a += math.tau
+    elif a > math.pi:
+        a -= math.tau
+    return a
+
+
 __all__ = [
     "HALF_LENGTH_M",
     "HALF_WIDTH_M",
@@ -46,4 +59,5 @@ __all__ = [
     "SONAR_POSES",
     "SonarPose",
     "wrap_deg",
+    "wrap_rad",
 ]

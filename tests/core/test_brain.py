@@ -40,6 +40,8 @@ from relayd.core.events import (
     Tick,
     WheelCommand,
 )
+from relayd.core.link.model import LinkModel
+from relayd.core.params import BrainParams
 from relayd.core.vocab import Mode
 from tests.support import ManualClock
 
@@ -344,3 +346,24 @@ def test_same_events_same_actions() -> None:
     assert a == b
     assert any(isinstance(x, Decision) and x.reason == "rssi_stale" for _, x in a)
     assert all(not isinstance(x, Decision) or math.isfinite(x.left_mm_s) for _, x in a)
+
+
+def test_the_rooms_memories_are_read_only_and_set_up_through_their_seams() -> None:
+    params = BrainParams()
+    model = LinkModel(params.link)
+    brain = Brain(params, link_model=model)
+    assert brain.link_model is model  # given at the start, kept
+    with pytest.raises(AttributeError):
+        brain.rear.model = LinkModel(params.link)  # type: ignore[misc]
+    with pytest.raises(AttributeError):
+        brain.scans.prev_bearing_deg = 1.0  # type: ignore[misc]
+    brain.scans.remember(15.0, 0.0, -60.0)
+    brain.scans.remember(20.0, 5.0, -50.0)  # as a finished scan: the last becomes the one before
+    scans = brain.scans
+    assert (scans.prev_bearing_deg, scans.prev_heading_deg) == (15.0, 0.0)
+    assert (scans.bearing_deg, scans.bearing_heading_deg, scans.rssi_leader_dbm) == (
+        20.0,
+        5.0,
+        -50.0,
+    )
+    assert scans.count == 0 and scans.last_scan_t is None  # no scan was taken

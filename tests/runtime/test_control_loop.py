@@ -215,11 +215,9 @@ def make_world(mode: Mode = Mode.FOLLOW, *, sip: bool = True) -> World:
     loop = Loop(clock, robot, mode, scanner=False)
     world = World(clock, robot, loop.state, loop)
     # Bearing +20 deg, the scan before +15, both taken at heading 0; a far leader
-    # (background speed 350 mm/s).
-    scans = loop.brain.scans
-    scans.bearing_deg, scans.bearing_heading_deg = 20.0, 0.0
-    scans.prev_bearing_deg, scans.prev_heading_deg = 15.0, 0.0
-    scans.rssi_leader_dbm = -50.0
+    # (background speed 350 mm/s). Remembered as two finished scans would leave them.
+    loop.brain.scans.remember(15.0, 0.0, -50.0)
+    loop.brain.scans.remember(20.0, 0.0, -50.0)
     if sip:
         world.fresh()
     else:
@@ -463,7 +461,7 @@ def test_mode_change_forgets_the_manual_command() -> None:
 
 def test_bearing_is_corrected_for_the_turn_since_the_scan() -> None:
     w = make_world()
-    w.brain.scans.prev_bearing_deg = w.brain.scans.bearing_deg  # no D term
+    w.brain.scans.remember(20.0, 0.0, -50.0)  # the same bearing twice: no D term
     w.loop.step()
     left0, right0 = w.robot.wheels[-1]
     # The robot has since turned 20 degrees left: the leader is now straight ahead.

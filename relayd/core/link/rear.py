@@ -64,8 +64,15 @@ class RearLinkMemory:
     """RSSI^b, its freshness, the rear-link model and the retreat; the limit they put in force."""
 
     def __init__(
-        self, control: ControlParams, link: LinkPolicyParams, station_mac: str | None
+        self,
+        control: ControlParams,
+        link: LinkPolicyParams,
+        station_mac: str | None,
+        model: LinkModel | None = None,
     ) -> None:
+        """`model`: the rear-link model to learn with, else a new one from `link` (a set-up seam,
+        e.g. for a test that watches what the model is told). It is given here or not at all:
+        `model` is read-only, so the model the brain starts with is the one it keeps."""
         self._base = control
         self._link = link
         self._mac = station_mac
@@ -75,10 +82,15 @@ class RearLinkMemory:
         self._shown: float | None = None
         #: The pose at the last poll the model learned from (how far it moved between polls).
         self._learned_pose: tuple[float, float, float] | None = None
-        self.model = LinkModel(link)
+        self._model = LinkModel(link) if model is None else model
         #: Stepping back out of a shadow (relayd.core.link.retreat, adaptive only).
         self.retreat = RetreatMemory()
         self.control = self._with_limit()
+
+    @property
+    def model(self) -> LinkModel:
+        """The rear-link model (read-only: it is given, if at all, when the memory is made)."""
+        return self._model
 
     def on_poll(self, ev: LinkEvent, pose: tuple[float, float, float] | None) -> list[Action]:
         """One rear-AP poll: RSSI^b, then what the model learns from it."""
@@ -98,10 +110,10 @@ class RearLinkMemory:
         if rssi_dbm is None:
             return []
         sample = link_sample(ev.t, ev.quality, rssi_dbm, peer, pose, self._learned_pose)
-        if not self.model.observe(sample, ev.t):
+        if not self._model.observe(sample, ev.t):
             return []
         self._learned_pose = pose
-        delivered = self.model.last_delivered_mbps
+        delivered = self._model.last_delivered_mbps
         self.retreat = record_poll(
             self.retreat,
             pose,
@@ -109,12 +121,12 @@ class RearLinkMemory:
             delivered is not None and delivered >= self._link.target_hop_mbps,
         )
         self.control = self._with_limit()
-        return [LinkModelView(self.in_force().threshold_b_dbm, self.model.status(ev.t))]
+        return [LinkModelView(self.in_force().threshold_b_dbm, self._model.status(ev.t))]
 
     def _with_limit(self) -> ControlParams:
         if not self._link.adaptive:
             return self._base
-        return replace(self._base, threshold_b_dbm=self.model.threshold_dbm)
+        return replace(self._base, threshold_b_dbm=self._model.threshold_dbm)
 
     def in_force(self) -> ControlParams:
         """The controller's params: the rear limit, raised while holding after a retreat."""

@@ -26,7 +26,7 @@ from relayd.core.scan.estimator import (
     front_readings,
     update_lost_count,
 )
-from relayd.core.scan.leader import LeaderParams, make_model
+from relayd.core.scan.leader import BearingModel, LeaderParams, make_model
 from relayd.core.scan.plan import ScanParams, full_window, in_current_frame, next_window, sweep_plan
 from relayd.core.vocab import ScanRecord
 
@@ -40,23 +40,81 @@ class ScanMemory:
         self._ascending = True
         self._scan: list[ScanSample] = []
         self._scan_t: list[float] = []
-        #: The bearing estimator behind the bearing memory below (`relayd.core.scan.leader`).
-        self.model = make_model(leader)
+        self._model = make_model(leader)
         #: The scanner asked for a plan while the servo was not answering: plan when it is.
         self._wanted = False
-        self.last_scan_t: float | None = None
-        #: Scans that gave an estimate (the recovery's breadcrumbs count them).
-        self.count = 0
-        self.lost_count = 0
-        self.bearing_deg: float | None = None
-        self.bearing_heading_deg: float | None = None
-        self.prev_bearing_deg: float | None = None
-        self.prev_heading_deg: float | None = None
-        self.rssi_leader_dbm: float | None = None
+        self._last_scan_t: float | None = None
+        self._count = 0
+        self._lost_count = 0
+        self._bearing_deg: float | None = None
+        self._bearing_heading_deg: float | None = None
+        self._prev_bearing_deg: float | None = None
+        self._prev_heading_deg: float | None = None
+        self._rssi_leader_dbm: float | None = None
+
+    # -- read-only views (the bearing memory is written by `remember` alone) -------------
+
+    @property
+    def bearing_deg(self) -> float | None:
+        """The last scan's bearing (robot frame at `bearing_heading_deg`)."""
+        return self._bearing_deg
+
+    @property
+    def bearing_heading_deg(self) -> float | None:
+        return self._bearing_heading_deg
+
+    @property
+    def prev_bearing_deg(self) -> float | None:
+        """The scan before the last one's bearing (robot frame at `prev_heading_deg`)."""
+        return self._prev_bearing_deg
+
+    @property
+    def prev_heading_deg(self) -> float | None:
+        return self._prev_heading_deg
+
+    @property
+    def rssi_leader_dbm(self) -> float | None:
+        return self._rssi_leader_dbm
+
+    @property
+    def model(self) -> BearingModel:
+        """The bearing estimator behind the bearing memory (`relayd.core.scan.leader`)."""
+        return self._model
+
+    @property
+    def count(self) -> int:
+        """Scans that gave an estimate (the recovery's breadcrumbs count them)."""
+        return self._count
+
+    @property
+    def lost_count(self) -> int:
+        return self._lost_count
+
+    @property
+    def last_scan_t(self) -> float | None:
+        return self._last_scan_t
 
     @property
     def leader_lost(self) -> bool:
-        return self.lost_count >= LOST_AFTER_SCANS
+        return self._lost_count >= LOST_AFTER_SCANS
+
+    def remember(
+        self, bearing_deg: float, heading_deg: float | None, rssi_leader_dbm: float
+    ) -> None:
+        """A finished scan's bearing into the bearing memory: the last one becomes the one before.
+
+        The one writer of the bearing memory: `done` calls it with each scan's estimate. It is
+        also the set-up seam for a brain that starts with bearings in memory (a test of the
+        control shell without a scanner): a caller puts bearings in the way a scan does,
+        through this method, instead of writing fields, and touches nothing else a scan does
+        (no scan time, no leader-lost count, no tracking filter, no trail).
+        """
+        self._prev_bearing_deg, self._prev_heading_deg = (
+            self._bearing_deg,
+            self._bearing_heading_deg,
+        )
+        self._bearing_deg, self._bearing_heading_deg = bearing_deg, heading_deg
+        self._rssi_leader_dbm = rssi_leader_dbm
 
     # -- the sweep in progress ------------------------------------------------------------
 
@@ -106,7 +164,7 @@ class ScanMemory:
             except ValueError:
                 est = None  # bad sonar data: this scan is lost, the next one is planned
             if est is not None:
-                est = self.model.scan_done(
+                est = self._model.scan_done(
                     ev.t,
                     heading_end if heading_end is not None else samples[-1].heading_deg,
                     est,
@@ -114,17 +172,12 @@ class ScanMemory:
                 )
             if est is not None:
                 period_s = ev.t - ev.started_t
-                self.prev_bearing_deg, self.prev_heading_deg = (
-                    self.bearing_deg,
-                    self.bearing_heading_deg,
+                self.remember(est.bearing_deg, heading_end, est.rssi_leader_dbm)
+                self._lost_count = update_lost_count(
+                    self._lost_count, est.rssi_leader_dbm, self._params.lost_rssi_dbm
                 )
-                self.bearing_deg, self.bearing_heading_deg = est.bearing_deg, heading_end
-                self.rssi_leader_dbm = est.rssi_leader_dbm
-                self.lost_count = update_lost_count(
-                    self.lost_count, est.rssi_leader_dbm, self._params.lost_rssi_dbm
-                )
-                self.last_scan_t = ev.t
-                self.count += 1
+                self._last_scan_t = ev.t
+                self._count += 1
                 record = ScanRecord(
                     t=ev.t,
                     angles_deg=tuple(round(a, 2) for a in est.angles_deg),
@@ -145,7 +198,7 @@ class ScanMemory:
         """Leader lost: RSSI^l too low for 3 scans, or the tracking filter lost it."""
         # A filter that lost its leader because no scan completes says so as "scan_stale".
         return self.leader_lost or (
-            self.model.lost(now, heading_deg) and not self.stale(now, following)
+            self._model.lost(now, heading_deg) and not self.stale(now, following)
         )
 
     def stale(self, now: float, following: bool) -> bool:
@@ -154,25 +207,25 @@ class ScanMemory:
         return (
             limit is not None
             and following
-            and self.last_scan_t is not None
-            and now - self.last_scan_t > limit
+            and self._last_scan_t is not None
+            and now - self._last_scan_t > limit
         )
 
     def bearing_now(self, now: float, heading_deg: float | None) -> float | None:
         """The bearing to steer by: the filter's prediction, else the last scan's in the current frame."""
-        predicted = self.model.bearing_now(now, heading_deg)
+        predicted = self._model.bearing_now(now, heading_deg)
         if predicted is not None:
             return predicted
-        return in_current_frame(self.bearing_deg, self.bearing_heading_deg, heading_deg)
+        return in_current_frame(self._bearing_deg, self._bearing_heading_deg, heading_deg)
 
     def prev_bearing_now(self, heading_deg: float | None) -> float | None:
         """The scan before the last one's bearing, in the current frame (the controller's D term)."""
-        return in_current_frame(self.prev_bearing_deg, self.prev_heading_deg, heading_deg)
+        return in_current_frame(self._prev_bearing_deg, self._prev_heading_deg, heading_deg)
 
     def plan(self, now: float, heading_deg: float | None, following: bool) -> ScanPlan:
         """The next sweep (relayd/core/scan/plan.py), each in the other direction than the last."""
         sp, lost = self._params, self.lost(now, heading_deg, following)
-        planned = None if lost else self.model.window(now, heading_deg, full_window(sp))
+        planned = None if lost else self._model.window(now, heading_deg, full_window(sp))
         window = next_window(sp, lost, planned, self.bearing_now(now, heading_deg))
         plan, self._ascending = sweep_plan(sp, window, self._ascending), not self._ascending
         return plan

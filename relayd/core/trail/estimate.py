@@ -24,6 +24,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from relayd.core.geometry import wrap_rad
+
 Vec = tuple[float, float, float, float]
 Mat = tuple[Vec, Vec, Vec, Vec]
 
@@ -148,10 +150,6 @@ def _update(est: LeaderEstimate, h: Vec, innov: float, r: float, gate: float) ->
     return LeaderEstimate(est.t_s, x, _mat(sym))
 
 
-def _wrap_rad(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
-
-
 def start(
     t_s: float,
     relay_xy_m: tuple[float, float],
@@ -200,7 +198,7 @@ def observe(
     r2 = max(dx * dx + dy * dy, MIN_RANGE_M**2)
     if bearing_world_deg is not None:
         sd = math.radians(bearing_sd_deg if bearing_sd_deg is not None else prm.bearing_sd_deg)
-        innov = _wrap_rad(math.radians(bearing_world_deg) - math.atan2(dy, dx))
+        innov = wrap_rad(math.radians(bearing_world_deg) - math.atan2(dy, dx))
         est = _update(est, (-dy / r2, dx / r2, 0.0, 0.0), innov, sd * sd, prm.gate_sigma)
         dx, dy = est.x[0] - rx, est.x[1] - ry
         r2 = max(dx * dx + dy * dy, MIN_RANGE_M**2)

@@ -324,10 +324,8 @@ def test_brain_tells_the_model_how_far_the_relay_moved_between_rear_polls() -> N
             seen.append(sample)
             return super().observe(sample, now)
 
-    brain = Brain(
-        BrainParams(control=ControlParams(threshold_b_dbm=-66.0), link=params(min_samples=1.0))
-    )
-    brain.rear.model = Spy(brain.link_model.params)
+    bp = BrainParams(control=ControlParams(threshold_b_dbm=-66.0), link=params(min_samples=1.0))
+    brain = Brain(bp, link_model=Spy(bp.link))
     for i, x_mm in enumerate((0.0, 300.0, 300.0)):
         sip = Sip(
             t=float(i),
