@@ -1,6 +1,6 @@
 """`relayd sim`: run real relayd daemons in the simulated world and summarise the run.
 
-    relayd sim [--scenario NAME|FILE] [--relays N|all] [--speed X|max] [--seconds S]
+    relayd sim [--scenario NAME|FILE] [--map FILE.map] [--relays N|all] [--speed X|max] [--seconds S]
                [--out DIR] [--seed N] [--no-plots] [--record] [--recovery on|off]
                [--log-level LEVEL]
 
@@ -53,6 +53,19 @@ def configure(parser: argparse.ArgumentParser) -> None:
         metavar="NAME|FILE",
         help=f"a shipped scenario ({', '.join(builtin_names())}; default {DEFAULT_SCENARIO})"
         " or a scenario TOML file (docs/SIMULATOR.md), or generated:KIND:SEED (relayd/sim/generate.py)",
+    )
+    parser.add_argument(
+        "--map",
+        default=None,
+        metavar="FILE.map",
+        help="an ARIA map (docs/SIMULATOR.md, 'ARIA maps'): its walls, points, RobotHome"
+        " start poses and Goal route; with --scenario FILE the scenario's other keys apply",
+    )
+    parser.add_argument(
+        "--map-material",
+        default=None,
+        metavar="NAME",
+        help="material of the map's LINES (default: the scenario's map_material, else brick)",
     )
     parser.add_argument(
         "--save-scenario",
@@ -217,6 +230,35 @@ def _save_generated(ref: str, dest: Path) -> int:
     return 0
 
 
+def _load(args: argparse.Namespace) -> Any:
+    """The scenario of --scenario, read from --map's ARIA map when given (ScenarioError)."""
+    from relayd.sim.scenario import load_scenario, parse_scenario
+
+    if args.map is None:
+        if args.map_material is not None:
+            from relayd.sim.scenario import ScenarioError
+
+            raise ScenarioError(["--map-material: needs --map"])
+        return load_scenario(args.scenario)
+    import tomllib
+
+    from relayd.sim.mapscenario import with_map
+
+    doc: dict[str, Any] = {}
+    if args.scenario != DEFAULT_SCENARIO:
+        p = Path(args.scenario)
+        try:
+            doc = tomllib.loads(p.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+            from relayd.sim.scenario import ScenarioError
+
+            raise ScenarioError([f"{p}: {exc}"]) from None
+    doc.pop("map", None)
+    if args.map_material is not None:
+        doc["map_material"] = args.map_material
+    return parse_scenario(with_map(doc, args.map))
+
+
 def run(args: argparse.Namespace) -> int:
     """On a virtual-time loop: deterministic, paced to --speed x wall time (or flat out)."""
     from relayd.runtime import vtime
@@ -227,16 +269,17 @@ def run(args: argparse.Namespace) -> int:
 async def _run(args: argparse.Namespace) -> int:
     from relayd.runtime.logsetup import StdStream, setup_logging
     from relayd.sim import plots as sim_plots
-    from relayd.sim.scenario import ScenarioError, load_scenario
+    from relayd.sim.scenario import ScenarioError
 
     if args.save_scenario is not None:
         return _save_generated(args.scenario, Path(args.save_scenario))
     try:
-        scenario = load_scenario(args.scenario)
+        scenario = _load(args)
         if isinstance(args.relays, int):
             scenario.with_relays(args.relays)
     except ScenarioError as exc:
-        print(f"{args.scenario}: {len(exc.errors)} error(s)", file=sys.stderr)
+        what = args.scenario if args.map is None else args.map
+        print(f"{what}: {len(exc.errors)} error(s)", file=sys.stderr)
         for line in exc.errors:
             print(f"  {line}", file=sys.stderr)
         return 2

@@ -44,9 +44,10 @@ class SonarReadings(Sequence[int]):
         self._cfg = cfg
         x, y = self._x, self._y = x_mm / 1000.0, y_mm / 1000.0
         reach = cfg.max_range_m + 0.5
+        x0, y0, x1, y1 = x - reach, y - reach, x + reach, y + reach
         segs = [
             s
-            for s in world.obstacles
+            for s in world.obstacles_near(x0, y0, x1, y1)
             if not (
                 max(s.x1, s.x2) < x - reach
                 or min(s.x1, s.x2) > x + reach
@@ -54,7 +55,8 @@ class SonarReadings(Sequence[int]):
                 or min(s.y1, s.y2) > y + reach
             )
         ]
-        circles: list[tuple[float, float, float]] = []
+        # A map's scan points within reach echo as small discs.
+        circles: list[tuple[float, float, float]] = world.points_near(x0, y0, x1, y1)
         # Bodies (the leader, the other relays) count only when near: a centre `reach` + 1 m
         # away leaves even a robot's far corner (0.4 m) beyond every transducer's range
         # (each within 0.25 m of this robot's centre), so no cone could report it.
