@@ -1,6 +1,7 @@
 """`relayd sim`: run real relayd daemons in the simulated world and summarise the run.
 
-    relayd sim [--scenario NAME|FILE] [--map FILE.map] [--relays N|all] [--speed X|max] [--seconds S]
+    relayd sim [--scenario NAME|FILE] [--map FILE.map] [--engine builtin|mobilesim]
+               [--mobilesim PATH] [--relays N|all] [--speed X|max] [--seconds S]
                [--out DIR] [--seed N] [--no-plots] [--record] [--recovery on|off]
                [--log-level LEVEL]
 
@@ -66,6 +67,19 @@ def configure(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="NAME",
         help="material of the map's LINES (default: the scenario's map_material, else brick)",
+    )
+    parser.add_argument(
+        "--engine",
+        choices=["builtin", "mobilesim"],
+        default="builtin",
+        help="builtin: relayd's own world on virtual time (default); mobilesim: the robots in"
+        " MobileSim, in real time (needs --map or a scenario with map =)",
+    )
+    parser.add_argument(
+        "--mobilesim",
+        default=None,
+        metavar="PATH",
+        help="the MobileSim program for --engine mobilesim (default: $RELAYD_MOBILESIM)",
     )
     parser.add_argument(
         "--save-scenario",
@@ -187,8 +201,19 @@ async def run_one(
         for name, port in ports.items():
             print(f"{name}: API and live page at http://127.0.0.1:{port}/", flush=True)
 
-    runner = SimRunner(
+    kwargs: dict[str, Any] = {}
+    if getattr(args, "engine", "builtin") == "mobilesim":
+        from relayd.sim.msengine import MobileSimRunner
+        from relayd.sim.msproc import find_program
+
+        runner_cls: Any = MobileSimRunner
+        kwargs = {"program": find_program(args.mobilesim), "mobilesim_log": out / "mobilesim.log"}
+        out.mkdir(parents=True, exist_ok=True)
+    else:
+        runner_cls = SimRunner
+    runner = runner_cls(
         sc,
+        **kwargs,
         speed=args.speed,
         seed=args.seed,
         seconds=seconds,
@@ -263,12 +288,18 @@ def run(args: argparse.Namespace) -> int:
     """On a virtual-time loop: deterministic, paced to --speed x wall time (or flat out)."""
     from relayd.runtime import vtime
 
+    if args.engine == "mobilesim":
+        import asyncio
+
+        # MobileSim runs in real time: a plain event loop, whatever --speed says.
+        return asyncio.run(_run(args))
     return vtime.run(_run(args), speed=args.speed)
 
 
 async def _run(args: argparse.Namespace) -> int:
     from relayd.runtime.logsetup import StdStream, setup_logging
     from relayd.sim import plots as sim_plots
+    from relayd.sim.msproc import MobileSimError
     from relayd.sim.scenario import ScenarioError
 
     if args.save_scenario is not None:
@@ -306,7 +337,11 @@ async def _run(args: argparse.Namespace) -> int:
             sub = out / f"relays-{n}" if args.relays == "all" else out
             pace = "max" if args.speed is None else f"{args.speed:g}"
             print(f"running {scenario.name} with {n} relay(s) at speed {pace} ...", flush=True)
-            summary, records, _ = await run_one(scenario, n, args, sub, plots)
+            try:
+                summary, records, _ = await run_one(scenario, n, args, sub, plots)
+            except MobileSimError as exc:
+                print(f"mobilesim: {exc}", file=sys.stderr)
+                return 2
             summaries.append(summary)
             runs.append((f"{n} relay(s)", records))
             print(format_summary(summary), flush=True)

@@ -31,8 +31,8 @@ from relayd.sim.planner import Grid, plan_on
 from relayd.sim.scenario import ScenarioError
 
 #: How far the planned route keeps from every wall and point: a P3-AT's half-width
-#: (0.25 m) and a margin, small enough for an office doorway (0.8-0.9 m).
-ROUTE_CLEARANCE_M = 0.35
+#: (0.25 m) and a margin, small enough for an office doorway of 0.9 m.
+ROUTE_CLEARANCE_M = 0.4
 #: The planner's grid cell (m).
 ROUTE_CELL_M = 0.1
 #: The map's points are kept one per square of this side (m): see _points.
@@ -116,6 +116,29 @@ def _starts(doc: dict[str, Any], amap: AriaMap) -> None:
             doc.setdefault("relays", 0)
 
 
+def _clear(grid: Grid, a: tuple[float, float], b: tuple[float, float]) -> bool:
+    """Whether the straight line a-b stays on free cells (sampled every half cell)."""
+    n = max(1, math.ceil(math.dist(a, b) / (grid.cell_m / 2)))
+    return all(
+        grid.free((a[0] + (b[0] - a[0]) * k / n, a[1] + (b[1] - a[1]) * k / n))
+        for k in range(n + 1)
+    )
+
+
+def _taut(grid: Grid, route: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """The grid route with its staircase removed: from each kept corner, straight to the
+    farthest later corner in sight (the ends are kept)."""
+    out = [route[0]]
+    i = 0
+    while i < len(route) - 1:
+        j = len(route) - 1
+        while j > i + 1 and not _clear(grid, route[i], route[j]):
+            j -= 1
+        out.append(route[j])
+        i = j
+    return out
+
+
 def _route(doc: dict[str, Any], amap: AriaMap, points: list[tuple[float, float]]) -> None:
     leader = dict(doc.get("leader") or {})
     wps = leader.get("waypoints")
@@ -144,6 +167,7 @@ def _route(doc: dict[str, Any], amap: AriaMap, points: list[tuple[float, float]]
                         f" keeping {ROUTE_CLEARANCE_M} m from walls and points"
                     ]
                 )
+            route = _taut(grid, route)
             planned += [{"x": round(x, 3), "y": round(y, 3)} for x, y in route[1:-1]]
             planned.append(dict(b))
         wps = planned

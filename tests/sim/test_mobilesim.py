@@ -1,0 +1,156 @@
+"""The MobileSim tier: relayd against the vendor's ARCOS simulator, in real time.
+
+One MobileSim process for the module (robots "leader", "relay1" and "relay2" in the
+project's tests/fixtures/maps/corner.map), placed anew by each test. Skipped, with the
+reason, when RELAYD_MOBILESIM does not name the program (CI provisions it). Real time:
+each run is short, and the assertions are ones every run must meet (no stall, the
+leader arrives, the relays follow and end on the link rule), not exact figures.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+from collections.abc import AsyncIterator
+from pathlib import Path
+
+import pytest
+import pytest_asyncio
+
+from drivers.arcos.driver import ArcosRobot
+from relayd.sim.mapscenario import with_map
+from relayd.sim.msbridge import ArcosBridge, BridgeBody
+from relayd.sim.msengine import MobileSimRunner
+from relayd.sim.msproc import ENV_PROGRAM, MobileSim, MobileSimError, find_program
+from relayd.sim.scenario import parse_scenario
+from tests.support import until
+
+MAP = Path(__file__).resolve().parents[1] / "fixtures" / "maps" / "corner.map"
+NAMES = ["leader", "relay1", "relay2"]
+#: Where a robot a test does not use waits: the far end of the box corridor.
+PARK = {"leader": (11000, 15400, 180), "relay1": (10200, 15400, 180), "relay2": (9400, 15400, 180)}
+
+pytestmark = [pytest.mark.mobilesim, pytest.mark.asyncio(loop_scope="module")]
+
+
+@pytest_asyncio.fixture(loop_scope="module", scope="module")
+async def sim() -> AsyncIterator[MobileSim]:
+    try:
+        program = find_program()
+    except MobileSimError as exc:
+        pytest.skip(f"{exc} (the MobileSim tier needs it)")
+    ms = MobileSim(program, MAP, NAMES)
+    await ms.start()
+    try:
+        yield ms
+    finally:
+        await ms.stop()
+
+
+async def _place(sim: MobileSim, name: str, pose: tuple[float, float, float]) -> BridgeBody:
+    """Put a robot at `pose` (mm, mm, deg) through a short session of its own."""
+    bridge = ArcosBridge(BridgeBody(name), sim.port(name), pose)
+    await bridge.start()
+    robot = ArcosRobot(bridge.url)
+    try:
+        await robot.connect()
+        await until(lambda: bridge.body.simstats >= 2, f"{name}'s SIMSTAT", 15.0)
+    finally:
+        await robot.shutdown()
+        await bridge.close()
+    return bridge.body
+
+
+async def _park(sim: MobileSim, *names: str) -> None:
+    for n in names:
+        await _place(sim, n, PARK[n])
+
+
+async def test_probe_reads_mobilesim(sim: MobileSim) -> None:
+    await until(lambda: _port_open(sim.port("relay1")), "relay1's port", 15.0)
+    proc = subprocess.run(
+        [sys.executable, "-m", "relayd", "probe", "robot", "--port", f"socket://127.0.0.1:{sim.port('relay1')}"],
+        capture_output=True, text=True, timeout=60, check=False,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert "MobileSim" in proc.stdout and "p3at" in proc.stdout
+
+
+def _port_open(port: int) -> bool:
+    from relayd.sim.msproc import _listening
+
+    return _listening(port)
+
+
+async def test_drive_moves_the_true_pose(sim: MobileSim) -> None:
+    await _park(sim, "leader", "relay2")
+    bridge = ArcosBridge(BridgeBody("relay1"), sim.port("relay1"), (0.0, 0.0, 0.0))
+    await until(lambda: _port_open(sim.port("relay1")), "relay1's port", 15.0)
+    await bridge.start()
+    robot = ArcosRobot(bridge.url, enable_motors=True)
+    try:
+        await robot.connect()
+        task = __import__("asyncio").create_task(robot.run())
+        await until(lambda: bridge.body.simstats > 0, "SIMSTAT", 15.0)
+        assert math.hypot(bridge.body.x_mm, bridge.body.y_mm) < 50
+        robot.set_wheels(300.0, 300.0)
+        await until(lambda: bridge.body.x_mm > 600, "0.6 m driven east", 15.0)
+        robot.stop()
+        assert abs(bridge.body.y_mm) < 100 and not bridge.body.stalled
+    finally:
+        await robot.shutdown()
+        task.cancel()
+        await bridge.close()
+
+
+def _records_ok(records: list[dict[str, object]]) -> None:
+    assert not any(any(r["stalled"]) for r in records)  # type: ignore[arg-type]
+
+
+async def test_box_dead_ahead(sim: MobileSim, tmp_path: Path) -> None:
+    """A box 2.3 m ahead on the line to a leader standing still beyond it."""
+    await _park(sim, "relay2")
+    doc = {
+        "name": "ms-box",
+        "duration_s": 45,
+        "settle_after_goal_s": 45,
+        "relays": 1,
+        "map_route": "straight",
+        "command_center": {"x": 1.5, "y": 14.0},
+        "leader": {"kind": "robot", "waypoints": [{"x": 10.5, "y": 14.0}]},
+        "relay": [{"name": "relay1", "x": 3.7, "y": 14.0}],
+    }
+    sc = parse_scenario(with_map(doc, MAP))
+    res = await MobileSimRunner(sc, sim=sim, out_dir=tmp_path).run()
+    _records_ok(res.records)
+    xs = [r["relays"][0]["x"] for r in res.records]  # type: ignore[index]
+    assert max(xs) > 6.8, f"relay1 did not get past the box: got to x = {max(xs)}"
+
+
+async def test_two_relay_convoy_through_a_corner(sim: MobileSim, tmp_path: Path) -> None:
+    doc = {"name": "ms-corner", "duration_s": 60, "settle_after_goal_s": 8}
+    sc = parse_scenario(with_map(doc, MAP))
+    leader = sc.leader.model_copy(update={"kind": "robot", "speed_m_s": 0.3})
+    sc = sc.model_copy(update={"leader": leader})
+    res = await MobileSimRunner(sc, sim=sim, out_dir=tmp_path).run()
+    _records_ok(res.records)
+    s = res.summary
+    assert s["goal_reached"], s
+    assert s["link_broken_at_s"] is None
+    for f in s["followers"]:
+        assert f["travelled_m"] > 1.5, f
+        assert f["stopped_reason"] in ("leader_near", "rear_weak"), f
+    assert (tmp_path / "trace.jsonl").stat().st_size > 0
+
+
+def test_program_missing_is_a_clear_error(tmp_path: Path) -> None:
+    env = {k: v for k, v in os.environ.items() if k != ENV_PROGRAM}
+    proc = subprocess.run(
+        [sys.executable, "-m", "relayd", "sim", "--engine", "mobilesim", "--map", str(MAP),
+         "--out", str(tmp_path)],
+        capture_output=True, text=True, timeout=60, check=False, env=env,
+    )  # fmt: skip
+    assert proc.returncode == 2
+    assert "RELAYD_MOBILESIM" in proc.stderr
