@@ -114,23 +114,27 @@ async def test_box_dead_ahead(sim: MobileSim, tmp_path: Path) -> None:
     await _park(sim, "relay2")
     doc = {
         "name": "ms-box",
-        "duration_s": 45,
-        "settle_after_goal_s": 45,
+        "environment": "outdoor",
+        "duration_s": 50,
+        "settle_after_goal_s": 50,
         "relays": 1,
         "map_route": "straight",
         "command_center": {"x": 1.5, "y": 14.0},
-        "leader": {"kind": "robot", "waypoints": [{"x": 10.5, "y": 14.0}]},
+        "leader": {"kind": "robot", "waypoints": [{"x": 11.0, "y": 14.0}]},
         "relay": [{"name": "relay1", "x": 3.7, "y": 14.0}],
     }
     sc = parse_scenario(with_map(doc, MAP))
     res = await MobileSimRunner(sc, sim=sim, out_dir=tmp_path).run()
     _records_ok(res.records)
-    xs = [r["relays"][0]["x"] for r in res.records]  # type: ignore[index]
-    assert max(xs) > 6.8, f"relay1 did not get past the box: got to x = {max(xs)}"
+    relay = [r["relays"][0] for r in res.records]  # type: ignore[index]
+    assert any(r["state"] == "avoiding" for r in relay), "the relay never avoided the box"
+    # Off the line round the box (0.3 m half-width, the body 0.25 m): the sonar steered it.
+    offset = max(abs(r["y"] - 14.0) for r in relay)
+    assert offset > 0.5, f"relay1 never left the line to the leader: {offset:.2f} m"
 
 
 async def test_two_relay_convoy_through_a_corner(sim: MobileSim, tmp_path: Path) -> None:
-    doc = {"name": "ms-corner", "duration_s": 60, "settle_after_goal_s": 8}
+    doc = {"name": "ms-corner", "duration_s": 75, "settle_after_goal_s": 25}
     sc = parse_scenario(with_map(doc, MAP))
     leader = sc.leader.model_copy(update={"kind": "robot", "speed_m_s": 0.3})
     sc = sc.model_copy(update={"leader": leader})
@@ -139,8 +143,9 @@ async def test_two_relay_convoy_through_a_corner(sim: MobileSim, tmp_path: Path)
     s = res.summary
     assert s["goal_reached"], s
     assert s["link_broken_at_s"] is None
+    # relay1 follows the leader round the corner; relay2 moves only if the radio asks it to.
+    assert s["followers"][0]["travelled_m"] > 1.5, s["followers"][0]
     for f in s["followers"]:
-        assert f["travelled_m"] > 1.5, f
         assert f["stopped_reason"] in ("leader_near", "rear_weak"), f
     assert (tmp_path / "trace.jsonl").stat().st_size > 0
 
