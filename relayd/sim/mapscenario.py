@@ -30,8 +30,9 @@ from relayd.sim.ariamap import AriaMap, MapError, load_map
 from relayd.sim.planner import Grid, plan_on
 from relayd.sim.scenario import ScenarioError
 
-#: How far the planned route keeps from every wall and point: a P3-AT's half-width
-#: (0.25 m) and a margin, small enough for an office doorway of 0.9 m.
+#: How far the planned route keeps from every wall and point by default (the scenario's
+#: map_clearance_m): a P3-AT's half-width (0.25 m) and a margin, small enough for an
+#: office doorway of 0.9 m.
 ROUTE_CLEARANCE_M = 0.4
 #: The planner's grid cell (m).
 ROUTE_CELL_M = 0.1
@@ -151,7 +152,8 @@ def _route(doc: dict[str, Any], amap: AriaMap, points: list[tuple[float, float]]
         wps = [{"x": g.x, "y": g.y} for g in goals]
     if doc.get("map_route", "plan") == "plan" and len(wps) >= 2:
         walls = [((ln.x1, ln.y1), (ln.x2, ln.y2)) for ln in amap.lines]
-        grid = Grid(walls, ROUTE_CLEARANCE_M, ROUTE_CELL_M, points=points)
+        clearance_m = float(doc.get("map_clearance_m", ROUTE_CLEARANCE_M))
+        grid = Grid(walls, clearance_m, ROUTE_CELL_M, points=points)
         planned: list[dict[str, Any]] = [dict(wps[0])]
         for k, (a, b) in enumerate(itertools.pairwise(wps)):
             try:
@@ -164,7 +166,7 @@ def _route(doc: dict[str, Any], amap: AriaMap, points: list[tuple[float, float]]
                     [
                         f"leader.waypoints.{k + 1}: no way through {amap.source} from"
                         f" ({start[0]:.2f}, {start[1]:.2f}) to ({goal[0]:.2f}, {goal[1]:.2f})"
-                        f" keeping {ROUTE_CLEARANCE_M} m from walls and points"
+                        f" keeping {clearance_m} m from walls and points (map_clearance_m)"
                     ]
                 )
             route = _taut(grid, route)

@@ -201,6 +201,8 @@ class Scenario(_Model):
     map_points: Literal["points", "off"] = "points"
     #: Leader waypoints joined by the A* planner through the map ("plan") or as given.
     map_route: Literal["plan", "straight"] = "plan"
+    #: How far a planned route keeps from the map's walls and points (m).
+    map_clearance_m: Annotated[float, Field(gt=0, le=2, allow_inf_nan=False)] = 0.4
     #: Point obstacles (x, y) of radius point_radius_m (a map's DATA; none by default).
     points: list[tuple[Finite, Finite]] = Field(default_factory=list)
     point_radius_m: Positive = 0.01

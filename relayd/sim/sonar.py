@@ -28,7 +28,19 @@ class SonarReadings(Sequence[int]):
     gathered when it is made, so every range is of the world at that instant.
     """
 
-    __slots__ = ("_c", "_cfg", "_circles", "_got", "_rng", "_s", "_segs", "_theta_deg", "_x", "_y")
+    __slots__ = (
+        "_c",
+        "_cfg",
+        "_circles",
+        "_got",
+        "_points",  # the world, when it has map points
+        "_rng",
+        "_s",
+        "_segs",
+        "_theta_deg",
+        "_x",
+        "_y",
+    )
 
     def __init__(
         self,
@@ -55,8 +67,10 @@ class SonarReadings(Sequence[int]):
                 or min(s.y1, s.y2) > y + reach
             )
         ]
-        # A map's scan points within reach echo as small discs.
-        circles: list[tuple[float, float, float]] = world.points_near(x0, y0, x1, y1)
+        # A map's scan points within reach echo as small discs (each sonar keeps those
+        # that can meet its cone: _range_mm).
+        self._points = world if world.points else None
+        circles: list[tuple[float, float, float]] = []
         # Bodies (the leader, the other relays) count only when near: a centre `reach` + 1 m
         # away leaves even a robot's far corner (0.4 m) beyond every transducer's range
         # (each within 0.25 m of this robot's centre), so no cone could report it.
@@ -100,6 +114,9 @@ class SonarReadings(Sequence[int]):
         sx, sy, sh = pose.x_mm, pose.y_mm, pose.heading_deg
         ox = self._x + (c * sx - s * sy) / 1000.0
         oy = self._y + (s * sx + c * sy) / 1000.0
+        circles = self._circles
+        if self._points is not None:
+            circles = self._cone_points(ox, oy, self._theta_deg + sh) + circles
         best = cone_range(
             ox,
             oy,
@@ -107,7 +124,7 @@ class SonarReadings(Sequence[int]):
             cfg.beam_deg / 2.0,
             cfg.max_range_m,
             self._segs,
-            self._circles,
+            circles,
         )
         max_mm = round(cfg.max_range_m * 1000)
         if best is None:
@@ -116,3 +133,35 @@ class SonarReadings(Sequence[int]):
         if cfg.noise_mm > 0:
             mm += self._rng.gauss(0.0, cfg.noise_mm)
         return round(min(max_mm, max(round(cfg.min_range_m * 1000), mm)))
+
+    def _cone_points(
+        self, ox: float, oy: float, heading_deg: float
+    ) -> list[tuple[float, float, float]]:
+        """The map points that can meet this sonar's cone: a disc wholly outside either
+        edge's half-plane, or farther than the range, cannot give cone_range a hit (its
+        centre is outside the cone and neither edge ray reaches it), so leaving it out
+        changes no range; a disc over the transducer is kept (a hit at 0)."""
+        h = math.radians(heading_deg)
+        w = math.radians(self._cfg.beam_deg / 2.0)
+        # The inward normals of cone_range's two edges.
+        nlx, nly = math.sin(h + w), -math.cos(h + w)
+        nrx, nry = -math.sin(h - w), math.cos(h - w)
+        far = self._cfg.max_range_m
+        hypot = math.hypot
+        # The sector lies inside the quadrilateral apex, both range ends, and the point
+        # where the two range ends' tangents meet (far / cos w along the heading).
+        xs = [ox, ox + far * math.cos(h - w), ox + far * math.cos(h + w)]
+        ys = [oy, oy + far * math.sin(h - w), oy + far * math.sin(h + w)]
+        tip = far / math.cos(w)
+        xs.append(ox + tip * math.cos(h))
+        ys.append(oy + tip * math.sin(h))
+        assert self._points is not None
+        pad = self._points.scenario.point_radius_m
+        near = self._points.points_near(min(xs) - pad, min(ys) - pad, max(xs) + pad, max(ys) + pad)
+        return [
+            c
+            for c in near
+            if nlx * (c[0] - ox) + nly * (c[1] - oy) >= -c[2]
+            and nrx * (c[0] - ox) + nry * (c[1] - oy) >= -c[2]
+            and hypot(c[0] - ox, c[1] - oy) - c[2] <= far
+        ]

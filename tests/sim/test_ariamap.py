@@ -79,6 +79,26 @@ def test_the_scenario_of_the_small_map() -> None:
     assert min(ring[3], ring[4]) == pytest.approx(1000 - 20 - 240, abs=60)
 
 
+def test_sonar_keeps_only_the_points_its_cone_can_meet(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The per-sonar pruning of map points changes no range: the same rings with every
+    point handed to every cone."""
+    import random
+
+    from relayd.sim.sonar import SonarReadings
+
+    rng = random.Random(7)
+    doc = with_map({"name": "s", "relays": 1, "map_route": "straight"}, SMALL)
+    doc["points"] = [[rng.uniform(-1.0, 9.0), rng.uniform(-2.0, 2.0)] for _ in range(400)]
+    world = World(parse_scenario(doc))
+    poses = [
+        (rng.uniform(0, 8000), rng.uniform(-1500, 1500), rng.uniform(-180, 180)) for _ in range(40)
+    ]
+    pruned = [world.sonar_mm(0, *p) for p in poses]
+    monkeypatch.setattr(SonarReadings, "_cone_points", lambda self, ox, oy, h: list(world.points))
+    assert [world.sonar_mm(0, *p) for p in poses] == pruned
+    assert any(min(r) < 5000 for r in pruned)
+
+
 def test_points_off_and_straight_route() -> None:
     sc = parse_scenario(
         with_map({"name": "s", "map_points": "off", "map_route": "straight"}, SMALL)
