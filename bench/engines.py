@@ -53,7 +53,9 @@ def run_engine(engine: str, args: argparse.Namespace, out: Path) -> tuple[float,
     return time.monotonic() - t0, proc.returncode
 
 
-def metrics(out: Path, lines: list[tuple[float, float, float, float]], corners: list[Any]) -> list[dict[str, Any]]:
+def metrics(
+    out: Path, lines: list[tuple[float, float, float, float]], corners: list[Any]
+) -> list[dict[str, Any]]:
     recs = [json.loads(x) for x in (out / "trace.jsonl").read_text().splitlines()]
     summary = json.loads((out / "summary.json").read_text())
     rows = []

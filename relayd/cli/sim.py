@@ -186,6 +186,14 @@ def format_summary(s: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _mobilesim_kwargs(args: argparse.Namespace, out: Path) -> dict[str, Any]:
+    """The MobileSim engine's program and log file (MobileSimError if there is no program)."""
+    from relayd.sim.msproc import find_program
+
+    out.mkdir(parents=True, exist_ok=True)
+    return {"program": find_program(args.mobilesim), "mobilesim_log": out / "mobilesim.log"}
+
+
 async def run_one(
     scenario: Any, relays: int, args: argparse.Namespace, out: Path, plots: bool
 ) -> tuple[dict[str, Any], list[dict[str, Any]], Any]:
@@ -204,11 +212,9 @@ async def run_one(
     kwargs: dict[str, Any] = {}
     if getattr(args, "engine", "builtin") == "mobilesim":
         from relayd.sim.msengine import MobileSimRunner
-        from relayd.sim.msproc import find_program
 
         runner_cls: Any = MobileSimRunner
-        kwargs = {"program": find_program(args.mobilesim), "mobilesim_log": out / "mobilesim.log"}
-        out.mkdir(parents=True, exist_ok=True)
+        kwargs = _mobilesim_kwargs(args, out)
     else:
         runner_cls = SimRunner
     runner = runner_cls(

@@ -68,7 +68,9 @@ def decode_simstat(payload: bytes) -> tuple[int, int, int]:
 class ArcosBridge:
     """Serves `body` on a loopback port, forwarding to MobileSim's robot port."""
 
-    def __init__(self, body: BridgeBody, robot_port: int, start: tuple[float, float, float]) -> None:
+    def __init__(
+        self, body: BridgeBody, robot_port: int, start: tuple[float, float, float]
+    ) -> None:
         self.body = body
         self.robot_port = robot_port
         self.start_pose: tuple[float, float, float] | None = start

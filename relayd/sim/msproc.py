@@ -50,7 +50,8 @@ def _listening(port: int) -> bool:
     try:
         with open("/proc/net/tcp", encoding="ascii") as f:
             return any(
-                (parts := line.split())[1] == want and parts[3] == "0A" for line in f.readlines()[1:]
+                (parts := line.split())[1] == want and parts[3] == "0A"
+                for line in f.readlines()[1:]
             )
     except OSError:
         return False
@@ -114,7 +115,7 @@ class MobileSim:
             os.close(fd)
         self._procs.append(proc)
         async with asyncio.timeout(10.0):
-            while not disp.read_text(encoding="ascii").strip():  # noqa: ASYNC110
+            while not disp.read_text(encoding="ascii").strip():
                 if proc.returncode is not None:
                     raise MobileSimError(f"Xvfb exited with {proc.returncode}")
                 await asyncio.sleep(0.05)
@@ -144,7 +145,7 @@ class MobileSim:
         self._procs.append(proc)
         try:
             async with asyncio.timeout(START_TIMEOUT_S):
-                while not all(_listening(self.port(n)) for n in self.names):  # noqa: ASYNC110
+                while not all(_listening(self.port(n)) for n in self.names):
                     if proc.returncode is not None:
                         tail = log.read_text(encoding="utf-8", errors="replace")[-600:]
                         raise MobileSimError(f"MobileSim exited with {proc.returncode}: {tail}")

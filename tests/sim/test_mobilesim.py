@@ -126,7 +126,7 @@ async def test_box_dead_ahead(sim: MobileSim, tmp_path: Path) -> None:
     sc = parse_scenario(with_map(doc, MAP))
     res = await MobileSimRunner(sc, sim=sim, out_dir=tmp_path).run()
     _records_ok(res.records)
-    relay = [r["relays"][0] for r in res.records]  # type: ignore[index]
+    relay = [r["relays"][0] for r in res.records]
     assert any(r["state"] == "avoiding" for r in relay), "the relay never avoided the box"
     # Off the line round the box (0.3 m half-width, the body 0.25 m): the sonar steered it.
     offset = max(abs(r["y"] - 14.0) for r in relay)
