@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import resource
 import subprocess
 import sys
 import tempfile
@@ -39,7 +40,8 @@ def _seg_dist(px: float, py: float, x1: float, y1: float, x2: float, y2: float) 
     return math.hypot(px - x1 - u * ex, py - y1 - u * ey)
 
 
-def run_engine(engine: str, args: argparse.Namespace, out: Path) -> tuple[float, int]:
+def run_engine(engine: str, args: argparse.Namespace, out: Path) -> tuple[float, float, int]:
+    """Wall s, CPU s (the run and its children: MobileSim and Xvfb too), exit status."""
     cmd = [sys.executable, "-m", "relayd", "sim", "--engine", engine, "--map", args.map,
            "--no-plots", "--speed", "max", "--out", str(out)]  # fmt: skip
     if args.scenario:
@@ -47,10 +49,13 @@ def run_engine(engine: str, args: argparse.Namespace, out: Path) -> tuple[float,
     if args.mobilesim:
         cmd += ["--mobilesim", args.mobilesim]
     t0 = time.monotonic()
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     if proc.returncode != 0:
         print(proc.stderr[-2000:], file=sys.stderr)
-    return time.monotonic() - t0, proc.returncode
+    cpu_s = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+    return time.monotonic() - t0, cpu_s, proc.returncode
 
 
 def metrics(
@@ -110,10 +115,13 @@ def main() -> int:
         for engine, n in (("builtin", 1), ("mobilesim", args.runs)):
             for i in range(n):
                 out = Path(tmp) / f"{engine}-{i}"
-                wall_s, rc = run_engine(engine, args, out)
+                wall_s, cpu_s, rc = run_engine(engine, args, out)
                 if rc != 0:
                     print(f"{engine} run {i}: exit {rc}")
                     continue
+                sim_s = json.loads((out / "summary.json").read_text())["sim_seconds"]
+                print(f"{engine}#{i + 1}: {sim_s:.0f} s simulated, {wall_s:.0f} s wall,"
+                      f" {cpu_s:.1f} s CPU ({cpu_s / sim_s:.3f} CPU s per simulated s)")  # fmt: skip
                 results.append((f"{engine}#{i + 1}", wall_s, metrics(out, lines, corners)))
     head = f"{'run':<12} {'wall s':>6} {'relay':<7} {'travel m':>8} {'corners s':<18} {'min clr m':>9} {'avoid s':>7} {'stalls':>6} {'gap m':>6}  reason / goal"
     print(head)
