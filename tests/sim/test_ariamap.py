@@ -187,3 +187,14 @@ def test_vendor_maps_load_fast(name: str) -> None:
         world.sonar_mm(0, 1000 * (x0 + (x1 - x0) * k / 20), 1000 * (y0 + y1) / 2, 0.0)
     assert time.perf_counter() - t0 < 20.0
     assert time.perf_counter() - t1 < 5.0
+
+
+def test_mobilesim_engine_without_its_program_exits_2(tmp_path: Path) -> None:
+    env = {k: v for k, v in os.environ.items() if k != "RELAYD_MOBILESIM"}
+    proc = subprocess.run(
+        [sys.executable, "-m", "relayd", "sim", "--engine", "mobilesim", "--map", str(SMALL),
+         "--out", str(tmp_path)],
+        capture_output=True, text=True, timeout=120, check=False, env=env,
+    )  # fmt: skip
+    assert proc.returncode == 2
+    assert "give --mobilesim PATH or set RELAYD_MOBILESIM" in proc.stderr

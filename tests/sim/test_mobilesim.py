@@ -10,7 +10,6 @@ leader arrives, the relays follow and end on the link rule), not exact figures.
 from __future__ import annotations
 
 import math
-import os
 import subprocess
 import sys
 from collections.abc import AsyncIterator
@@ -23,7 +22,7 @@ from drivers.arcos.driver import ArcosRobot
 from relayd.sim.mapscenario import with_map
 from relayd.sim.msbridge import ArcosBridge, BridgeBody
 from relayd.sim.msengine import MobileSimRunner
-from relayd.sim.msproc import ENV_PROGRAM, MobileSim, MobileSimError, find_program
+from relayd.sim.msproc import MobileSim, MobileSimError, find_program
 from relayd.sim.scenario import parse_scenario
 from tests.support import until
 
@@ -154,14 +153,3 @@ async def test_two_relay_convoy_through_a_corner(sim: MobileSim, tmp_path: Path)
     for f in s["followers"]:
         assert f["stopped_reason"] in ("leader_near", "rear_weak"), f
     assert (tmp_path / "trace.jsonl").stat().st_size > 0
-
-
-def test_program_missing_is_a_clear_error(tmp_path: Path) -> None:
-    env = {k: v for k, v in os.environ.items() if k != ENV_PROGRAM}
-    proc = subprocess.run(
-        [sys.executable, "-m", "relayd", "sim", "--engine", "mobilesim", "--map", str(MAP),
-         "--out", str(tmp_path)],
-        capture_output=True, text=True, timeout=60, check=False, env=env,
-    )  # fmt: skip
-    assert proc.returncode == 2
-    assert "RELAYD_MOBILESIM" in proc.stderr
