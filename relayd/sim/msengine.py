@@ -8,7 +8,8 @@ scenario's ARIA map. Each robot is reached through an ARCOS bridge
 makes it, whose robot port is its bridge; its other devices (servo controller, the
 Yagi's RSSI, the two airOS radios) are the in-process fakes of the built-in engine, fed
 by relayd's radio model (relayd/sim/world.py) from the TRUE poses. The leader is driven
-along the scenario's waypoints over ARCOS by a pursuit controller here.
+along the scenario's waypoints over ARCOS by a pursuit controller here (a P3-AT for a
+robot leader, MobileSim's small AmigoBot standing in for a person).
 
 Real time: MobileSim runs on its own clock (100 ms steps), so a run takes as long as it
 simulates and is not reproducible to the byte: the daemons' timing, MobileSim's
@@ -32,11 +33,13 @@ from relayd.core.geometry import wrap_deg
 from relayd.sim.leader_script import LeaderPose
 from relayd.sim.msbridge import ArcosBridge, BridgeBody
 from relayd.sim.msproc import MobileSim, MobileSimError
-from relayd.sim.relay import API_TOKEN_ENV, AP_PASSWORD_ENV, PULSE_US, SimRelay, relay_settings
+from relayd.sim.relay import AP_PASSWORD_ENV, API_TOKEN_ENV, PULSE_US, SimRelay, relay_settings
 from relayd.sim.runner import AIROS_UPDATE_S, TRACE_HZ, SimRunner
 from relayd.sim.scenario import Scenario
 
 LEADER = "leader"
+#: MobileSim's model for a person leader.
+PERSON_MODEL = "amigo-nosonar"
 #: The leader counts a waypoint reached within this distance (m).
 WAYPOINT_REACHED_M = 0.25
 #: Pursuit gains: turn rate per degree of heading error, its cap, and how far off the
@@ -71,7 +74,13 @@ class MobileSimRunner(SimRunner):
         if sim is None:
             if program is None:
                 raise MobileSimError("no MobileSim program given")
-            sim = MobileSim(program, Path(scenario.map), names, log_path=mobilesim_log)
+            # A person is stood in for by MobileSim's smallest robot (an AmigoBot, about
+            # 0.33 x 0.28 m, without sonar): the relays' sonar sees a body of about a
+            # person's size; a robot leader is a P3-AT like the relays.
+            models = {LEADER: PERSON_MODEL} if scenario.leader.kind == "person" else {}
+            sim = MobileSim(
+                program, Path(scenario.map), names, models=models, log_path=mobilesim_log
+            )
         elif not set(names) <= set(sim.names):
             raise MobileSimError(f"the running MobileSim has robots {sim.names}, not {names}")
         self.sim = sim

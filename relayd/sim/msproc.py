@@ -85,6 +85,8 @@ class MobileSim:
     map_path: Path | None
     names: list[str]
     model: str = "p3at"
+    #: Robot models other than `model`, by robot name (a person's stand-in: "amigo-nosonar").
+    models: dict[str, str] = field(default_factory=dict)
     base_port: int = 0
     log_path: Path | None = None
     _procs: list[asyncio.subprocess.Process] = field(default_factory=list)
@@ -135,7 +137,7 @@ class MobileSim:
         args += ["--no-crash-debug", "--no-crash-restart"]
         args += ["-m", str(self.map_path)] if self.map_path is not None else ["--nomap"]
         for n in self.names:
-            args += ["-r", f"{self.model}:{n}"]
+            args += ["-r", f"{self.models.get(n, self.model)}:{n}"]
         log = self.log_path or Path(self._tmp.name) / "mobilesim.log"
         with log.open("wb") as out:
             proc = await asyncio.create_subprocess_exec(

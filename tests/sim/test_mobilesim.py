@@ -19,6 +19,7 @@ import pytest
 import pytest_asyncio
 
 from drivers.arcos.driver import ArcosRobot
+from relayd.sim.ariamap import MapLine, load_map
 from relayd.sim.mapscenario import with_map
 from relayd.sim.msbridge import ArcosBridge, BridgeBody
 from relayd.sim.msengine import MobileSimRunner
@@ -104,6 +105,13 @@ async def test_drive_moves_the_true_pose(sim: MobileSim) -> None:
         await bridge.close()
 
 
+def _seg_dist_m(px: float, py: float, ln: MapLine) -> float:
+    ex, ey = ln.x2 - ln.x1, ln.y2 - ln.y1
+    n2 = ex * ex + ey * ey
+    u = 0.0 if n2 == 0 else max(0.0, min(1.0, ((px - ln.x1) * ex + (py - ln.y1) * ey) / n2))
+    return math.hypot(px - ln.x1 - u * ex, py - ln.y1 - u * ey)
+
+
 def _records_ok(records: list[dict[str, object]]) -> None:
     assert not any(any(r["stalled"]) for r in records)  # type: ignore[arg-type]
 
@@ -148,6 +156,12 @@ async def test_two_relay_convoy_through_a_corner(sim: MobileSim, tmp_path: Path)
     s = res.summary
     assert s["goal_reached"], s
     assert s["link_broken_at_s"] is None
+    # No relay centre within 0.3 m of a wall line at any trace record.
+    lines = load_map(MAP).lines
+    for rec in res.records:
+        for r in rec["relays"]:
+            clear = min(_seg_dist_m(r["x"], r["y"], ln) for ln in lines)
+            assert clear > 0.3, f"{r['name']} {clear:.2f} m from a wall at t = {rec['t']}"
     # relay1 follows the leader round the corner; relay2 moves only if the radio asks it to.
     assert s["followers"][0]["travelled_m"] > 1.5, s["followers"][0]
     for f in s["followers"]:
