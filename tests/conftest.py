@@ -28,6 +28,7 @@ import structlog
 #: worker while the other idles. A stale list costs only wall time; every file not named
 #: runs after these, in their usual order.
 LONGEST_FILES_FIRST = (
+    "tests/sim/test_mobilesim.py",  # ~2 min where MobileSim is provisioned, waits: real time
     "tests/system/test_types.py",  # ~15 s cold (a fresh checkout), CPU: mypy, strict
     "tests/api/test_flood.py",  # ~22 s, waits: a 13 s flood
     "tests/tools/test_sweep.py",  # ~25 s, Dask clusters and child processes

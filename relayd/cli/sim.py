@@ -1,6 +1,7 @@
 """`relayd sim`: run real relayd daemons in the simulated world and summarise the run.
 
-    relayd sim [--scenario NAME|FILE] [--relays N|all] [--speed X|max] [--seconds S]
+    relayd sim [--scenario NAME|FILE] [--map FILE.map] [--engine builtin|mobilesim]
+               [--mobilesim PATH] [--relays N|all] [--speed X|max] [--seconds S]
                [--out DIR] [--seed N] [--no-plots] [--record] [--recovery on|off]
                [--log-level LEVEL]
 
@@ -53,6 +54,32 @@ def configure(parser: argparse.ArgumentParser) -> None:
         metavar="NAME|FILE",
         help=f"a shipped scenario ({', '.join(builtin_names())}; default {DEFAULT_SCENARIO})"
         " or a scenario TOML file (docs/SIMULATOR.md), or generated:KIND:SEED (relayd/sim/generate.py)",
+    )
+    parser.add_argument(
+        "--map",
+        default=None,
+        metavar="FILE.map",
+        help="an ARIA map (docs/SIMULATOR.md, 'ARIA maps'): its walls, points, RobotHome"
+        " start poses and Goal route; with --scenario FILE the scenario's other keys apply",
+    )
+    parser.add_argument(
+        "--map-material",
+        default=None,
+        metavar="NAME",
+        help="material of the map's LINES (default: the scenario's map_material, else brick)",
+    )
+    parser.add_argument(
+        "--engine",
+        choices=["builtin", "mobilesim"],
+        default="builtin",
+        help="builtin: relayd's own world on virtual time (default); mobilesim: the robots in"
+        " MobileSim, in real time (needs --map or a scenario with map =)",
+    )
+    parser.add_argument(
+        "--mobilesim",
+        default=None,
+        metavar="PATH",
+        help="the MobileSim program for --engine mobilesim (default: $RELAYD_MOBILESIM)",
     )
     parser.add_argument(
         "--save-scenario",
@@ -188,6 +215,14 @@ def format_summary(s: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _mobilesim_kwargs(args: argparse.Namespace, out: Path) -> dict[str, Any]:
+    """The MobileSim engine's program and log file (MobileSimError if there is no program)."""
+    from relayd.sim.msproc import find_program
+
+    out.mkdir(parents=True, exist_ok=True)
+    return {"program": find_program(args.mobilesim), "mobilesim_log": out / "mobilesim.log"}
+
+
 async def run_one(
     scenario: Any, relays: int, args: argparse.Namespace, out: Path, plots: bool
 ) -> tuple[dict[str, Any], list[dict[str, Any]], Any]:
@@ -203,8 +238,17 @@ async def run_one(
         for name, port in ports.items():
             print(f"{name}: API and live page at http://127.0.0.1:{port}/", flush=True)
 
-    runner = SimRunner(
+    kwargs: dict[str, Any] = {}
+    if getattr(args, "engine", "builtin") == "mobilesim":
+        from relayd.sim.msengine import MobileSimRunner
+
+        runner_cls: Any = MobileSimRunner
+        kwargs = _mobilesim_kwargs(args, out)
+    else:
+        runner_cls = SimRunner
+    runner = runner_cls(
         sc,
+        **kwargs,
         speed=args.speed,
         seed=args.seed,
         seconds=seconds,
@@ -246,26 +290,62 @@ def _save_generated(ref: str, dest: Path) -> int:
     return 0
 
 
+def _load(args: argparse.Namespace) -> Any:
+    """The scenario of --scenario, read from --map's ARIA map when given (ScenarioError)."""
+    from relayd.sim.scenario import load_scenario, parse_scenario
+
+    if args.map is None:
+        if args.map_material is not None:
+            from relayd.sim.scenario import ScenarioError
+
+            raise ScenarioError(["--map-material: needs --map"])
+        return load_scenario(args.scenario)
+    import tomllib
+
+    from relayd.sim.mapscenario import with_map
+
+    doc: dict[str, Any] = {}
+    if args.scenario != DEFAULT_SCENARIO:
+        p = Path(args.scenario)
+        try:
+            doc = tomllib.loads(p.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+            from relayd.sim.scenario import ScenarioError
+
+            raise ScenarioError([f"{p}: {exc}"]) from None
+    doc.pop("map", None)
+    if args.map_material is not None:
+        doc["map_material"] = args.map_material
+    return parse_scenario(with_map(doc, args.map))
+
+
 def run(args: argparse.Namespace) -> int:
     """On a virtual-time loop: deterministic, paced to --speed x wall time (or flat out)."""
     from relayd.runtime import vtime
 
+    if args.engine == "mobilesim":
+        import asyncio
+
+        # MobileSim runs in real time: a plain event loop, whatever --speed says.
+        return asyncio.run(_run(args))
     return vtime.run(_run(args), speed=args.speed)
 
 
 async def _run(args: argparse.Namespace) -> int:
     from relayd.runtime.logsetup import StdStream, setup_logging
     from relayd.sim import plots as sim_plots
-    from relayd.sim.scenario import ScenarioError, load_scenario
+    from relayd.sim.msproc import MobileSimError
+    from relayd.sim.scenario import ScenarioError
 
     if args.save_scenario is not None:
         return _save_generated(args.scenario, Path(args.save_scenario))
     try:
-        scenario = load_scenario(args.scenario)
+        scenario = _load(args)
         if isinstance(args.relays, int):
             scenario.with_relays(args.relays)
     except ScenarioError as exc:
-        print(f"{args.scenario}: {len(exc.errors)} error(s)", file=sys.stderr)
+        what = args.scenario if args.map is None else args.map
+        print(f"{what}: {len(exc.errors)} error(s)", file=sys.stderr)
         for line in exc.errors:
             print(f"  {line}", file=sys.stderr)
         return 2
@@ -292,7 +372,11 @@ async def _run(args: argparse.Namespace) -> int:
             sub = out / f"relays-{n}" if args.relays == "all" else out
             pace = "max" if args.speed is None else f"{args.speed:g}"
             print(f"running {scenario.name} with {n} relay(s) at speed {pace} ...", flush=True)
-            summary, records, _ = await run_one(scenario, n, args, sub, plots)
+            try:
+                summary, records, _ = await run_one(scenario, n, args, sub, plots)
+            except MobileSimError as exc:
+                print(f"mobilesim: {exc}", file=sys.stderr)
+                return 2
             summaries.append(summary)
             runs.append((f"{n} relay(s)", records))
             print(format_summary(summary), flush=True)

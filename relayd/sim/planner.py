@@ -29,10 +29,15 @@ class Grid:
     """Blocked cells: every cell whose centre is within `clearance_m` of a wall."""
 
     def __init__(
-        self, walls: Sequence[Segment], clearance_m: float, cell_m: float = 0.2, pad_m: float = 2.0
+        self,
+        walls: Sequence[Segment],
+        clearance_m: float,
+        cell_m: float = 0.2,
+        pad_m: float = 2.0,
+        points: Sequence[Point] = (),
     ) -> None:
-        xs = [p[0] for s in walls for p in s] or [0.0]
-        ys = [p[1] for s in walls for p in s] or [0.0]
+        xs = [p[0] for s in walls for p in s] + [p[0] for p in points] or [0.0]
+        ys = [p[1] for s in walls for p in s] + [p[1] for p in points] or [0.0]
         self.cell_m = cell_m
         self.x0 = min(xs) - pad_m
         self.y0 = min(ys) - pad_m
@@ -47,6 +52,23 @@ class Grid:
                 for j in range(max(0, j0 - r), min(self.ny, j1 + r + 1)):
                     if _seg_dist(self.centre(i, j), a, b) < clearance_m:
                         self.blocked[i * self.ny + j] = 1
+        if points:
+            # Obstacle points (a map's scan): one stamp of the cells within clearance of a
+            # point placed at a cell centre, grown by half a cell's diagonal so that a
+            # point anywhere in its cell blocks every cell within clearance of it.
+            reach = clearance_m + cell_m * math.sqrt(0.5)
+            stamp = [
+                (di, dj)
+                for di in range(-r, r + 1)
+                for dj in range(-r, r + 1)
+                if math.hypot(di, dj) * cell_m < reach
+            ]
+            for p in points:
+                i, j = self.cell(p)
+                for di, dj in stamp:
+                    u, v = i + di, j + dj
+                    if 0 <= u < self.nx and 0 <= v < self.ny:
+                        self.blocked[u * self.ny + v] = 1
 
     def cell(self, p: Point) -> tuple[int, int]:
         return round((p[0] - self.x0) / self.cell_m), round((p[1] - self.y0) / self.cell_m)
@@ -63,10 +85,19 @@ _STEPS = [(1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1)]
 
 
 def plan(
-    walls: Sequence[Segment], start: Point, goal: Point, clearance_m: float, cell_m: float = 0.2
+    walls: Sequence[Segment],
+    start: Point,
+    goal: Point,
+    clearance_m: float,
+    cell_m: float = 0.2,
+    points: Sequence[Point] = (),
 ) -> list[Point] | None:
-    """The shortest 8-connected grid route keeping `clearance_m` from every wall."""
-    g = Grid(walls, clearance_m, cell_m)
+    """The shortest 8-connected grid route keeping `clearance_m` from every wall (and point)."""
+    return plan_on(Grid(walls, clearance_m, cell_m, points=points), start, goal)
+
+
+def plan_on(g: Grid, start: Point, goal: Point) -> list[Point] | None:
+    """`plan` on a grid already made (several legs through one map)."""
     if not (g.free(start) and g.free(goal)):
         return None
     s, t = g.cell(start), g.cell(goal)

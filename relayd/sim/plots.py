@@ -126,6 +126,16 @@ def plot_map(world: World, records: Sequence[dict[str, Any]], path: Path) -> Non
                 (b.x_min, b.y_min), b.x_max - b.x_min, b.y_max - b.y_min, color="dimgray", alpha=0.7
             )
         )
+    if world.points:
+        # A map's scan points (relayd/sim/mapscenario.py), drawn only when there are any.
+        ax.plot(
+            [p[0] for p in world.points],
+            [p[1] for p in world.points],
+            ls="",
+            marker=".",
+            ms=1.5,
+            color="dimgray",
+        )
     ax.plot(*world.cc, marker="s", color="black", ms=9, ls="", label="command center")
     if records:
         lx = [r["leader"]["x"] for r in records]

@@ -154,6 +154,13 @@ class RadioSpec(_Model):
     zones: list[ZoneSpec] = Field(default_factory=list)
 
 
+class MapWallOverride(_Model):
+    """A different material for one LINES entry of the map (its line number in the file)."""
+
+    line: Annotated[int, Field(ge=1)]
+    material: str
+
+
 class SonarSpec(_Model):
     """The simulated sonar ring: one exact range per sonar (see `World.sonar_mm`)."""
 
@@ -186,6 +193,20 @@ class Scenario(_Model):
     scan: dict[str, Any] = Field(default_factory=dict)
     #: Keys of the daemon's [recovery] section for every relay (the bench overrides enabled).
     recovery: dict[str, Any] = Field(default_factory=dict)
+    #: An ARIA map the world was read from (relayd/sim/mapscenario.py; the resolved path).
+    map: str | None = None
+    #: The material of the map's LINES, and per-line exceptions.
+    map_material: str = "brick"
+    map_walls: list[MapWallOverride] = Field(default_factory=list)
+    #: The map's DATA points: sonar-visible solid discs ("points") or left out ("off").
+    map_points: Literal["points", "off"] = "points"
+    #: Leader waypoints joined by the A* planner through the map ("plan") or as given.
+    map_route: Literal["plan", "straight"] = "plan"
+    #: How far a planned route keeps from the map's walls and points (m).
+    map_clearance_m: Annotated[float, Field(gt=0, le=2, allow_inf_nan=False)] = 0.4
+    #: Point obstacles (x, y) of radius point_radius_m (a map's DATA; none by default).
+    points: list[tuple[Finite, Finite]] = Field(default_factory=list)
+    point_radius_m: Positive = 0.01
 
     @field_validator("relay")
     @classmethod
@@ -308,6 +329,12 @@ def scenario_problems(data: dict[str, Any]) -> list[str]:
                 out.append(
                     f"{group}.{i}.material: unknown material {material!r} (known: {', '.join(sorted(losses))})"
                 )
+    for key, material in [("map_material", data.get("map_material"))] + [
+        (f"map_walls.{i}.material", _dict(o).get("material"))
+        for i, o in enumerate(_list(data.get("map_walls")))
+    ]:
+        if isinstance(material, str) and material not in losses:
+            out.append(f"{key}: unknown material {material!r} (known: {', '.join(sorted(losses))})")
     relays, starts = data.get("relays", 1), _list(data.get("relay"))
     if isinstance(relays, int) and not isinstance(relays, bool) and relays > len(starts):
         out.append(f"relays: relays = {relays} but only {len(starts)} [[relay]] start poses")
@@ -401,4 +428,9 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         data = loads_toml(text)
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError([f"{name_or_path}: not valid TOML: {exc}"]) from None
+    if "map" in data:
+        from relayd.sim.mapscenario import with_map
+
+        base = p.parent if p.exists() else Path.cwd()
+        data = with_map(data, base / str(data["map"]))
     return parse_scenario(data)

@@ -11,15 +11,17 @@ from __future__ import annotations
 
 import math
 import random
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, overload
+from typing import TYPE_CHECKING, TypeVar, overload
 
 from relayd.core.geometry import ROBOT_LENGTH_M, ROBOT_WIDTH_M, SONAR_POSES
 from relayd.sim.geometry import Polygon, Segment, cone_range, footprint, polygon_segments
 
 if TYPE_CHECKING:
     from relayd.sim.scenario import SonarSpec
+
+T = TypeVar("T")
 
 
 @dataclass(frozen=True, slots=True)
@@ -34,12 +36,23 @@ class Body:
         return footprint(self.x_m, self.y_m, self.theta_deg, ROBOT_LENGTH_M, ROBOT_WIDTH_M)
 
 
+#: A box query (x0, y0, x1, y1) answered from the world's spatial index.
+BoxQuery = Callable[[float, float, float, float], Sequence[T]]
+
+
 @dataclass(frozen=True, slots=True)
 class SonarScene:
     """What could echo at one instant (World.sonar_scene): the walls, boxes and timed
-    obstacles present, the leader (a robot's footprint, or a person's disc) and every relay."""
+    obstacles present, a map's scan points, the leader (a robot's footprint, or a person's
+    disc) and every relay. The fixed parts come as box queries on the world's index, so a
+    map of thousands of lines costs a sonar only what lies near it."""
 
-    obstacles: Sequence[Segment]
+    #: The obstacles that may meet a box, in the world's order (every one, unindexed).
+    obstacles_near: BoxQuery[Segment]
+    #: The map points (x, y, radius) that may meet a box; None: the map has none.
+    points_near: BoxQuery[tuple[float, float, float]] | None
+    #: Every map point's radius (the query's box is padded by it).
+    point_radius_m: float
     leader_x_m: float
     leader_y_m: float
     leader_radius_m: float
@@ -55,7 +68,20 @@ class SonarReadings(Sequence[int]):
     gathered when it is made, so every range is of the world at that instant.
     """
 
-    __slots__ = ("_c", "_cfg", "_circles", "_got", "_rng", "_s", "_segs", "_theta_deg", "_x", "_y")
+    __slots__ = (
+        "_c",
+        "_cfg",
+        "_circles",
+        "_got",
+        "_point_radius_m",
+        "_points",  # the scene's point query, when the map has points
+        "_rng",
+        "_s",
+        "_segs",
+        "_theta_deg",
+        "_x",
+        "_y",
+    )
 
     def __init__(
         self,
@@ -71,9 +97,10 @@ class SonarReadings(Sequence[int]):
         self._cfg = cfg
         x, y = self._x, self._y = x_mm / 1000.0, y_mm / 1000.0
         reach = cfg.max_range_m + 0.5
+        x0, y0, x1, y1 = x - reach, y - reach, x + reach, y + reach
         segs = [
             s
-            for s in scene.obstacles
+            for s in scene.obstacles_near(x0, y0, x1, y1)
             if not (
                 max(s.x1, s.x2) < x - reach
                 or min(s.x1, s.x2) > x + reach
@@ -81,6 +108,10 @@ class SonarReadings(Sequence[int]):
                 or min(s.y1, s.y2) > y + reach
             )
         ]
+        # A map's scan points within reach echo as small discs (each sonar keeps those
+        # that can meet its cone: _range_mm).
+        self._points = scene.points_near
+        self._point_radius_m = scene.point_radius_m
         circles: list[tuple[float, float, float]] = []
         # Bodies (the leader, the other relays) count only when near: a centre `reach` + 1 m
         # away leaves even a robot's far corner (0.4 m) beyond every transducer's range
@@ -126,6 +157,9 @@ class SonarReadings(Sequence[int]):
         sx, sy, sh = pose.x_mm, pose.y_mm, pose.heading_deg
         ox = self._x + (c * sx - s * sy) / 1000.0
         oy = self._y + (s * sx + c * sy) / 1000.0
+        circles = self._circles
+        if self._points is not None:
+            circles = self._cone_points(ox, oy, self._theta_deg + sh) + circles
         best = cone_range(
             ox,
             oy,
@@ -133,7 +167,7 @@ class SonarReadings(Sequence[int]):
             cfg.beam_deg / 2.0,
             cfg.max_range_m,
             self._segs,
-            self._circles,
+            circles,
         )
         max_mm = round(cfg.max_range_m * 1000)
         if best is None:
@@ -142,3 +176,35 @@ class SonarReadings(Sequence[int]):
         if cfg.noise_mm > 0:
             mm += self._rng.gauss(0.0, cfg.noise_mm)
         return round(min(max_mm, max(round(cfg.min_range_m * 1000), mm)))
+
+    def _cone_points(
+        self, ox: float, oy: float, heading_deg: float
+    ) -> list[tuple[float, float, float]]:
+        """The map points that can meet this sonar's cone: a disc wholly outside either
+        edge's half-plane, or farther than the range, cannot give cone_range a hit (its
+        centre is outside the cone and neither edge ray reaches it), so leaving it out
+        changes no range; a disc over the transducer is kept (a hit at 0)."""
+        h = math.radians(heading_deg)
+        w = math.radians(self._cfg.beam_deg / 2.0)
+        # The inward normals of cone_range's two edges.
+        nlx, nly = math.sin(h + w), -math.cos(h + w)
+        nrx, nry = -math.sin(h - w), math.cos(h - w)
+        far = self._cfg.max_range_m
+        hypot = math.hypot
+        # The sector lies inside the quadrilateral apex, both range ends, and the point
+        # where the two range ends' tangents meet (far / cos w along the heading).
+        xs = [ox, ox + far * math.cos(h - w), ox + far * math.cos(h + w)]
+        ys = [oy, oy + far * math.sin(h - w), oy + far * math.sin(h + w)]
+        tip = far / math.cos(w)
+        xs.append(ox + tip * math.cos(h))
+        ys.append(oy + tip * math.sin(h))
+        assert self._points is not None
+        pad = self._point_radius_m
+        near = self._points(min(xs) - pad, min(ys) - pad, max(xs) + pad, max(ys) + pad)
+        return [
+            c
+            for c in near
+            if nlx * (c[0] - ox) + nly * (c[1] - oy) >= -c[2]
+            and nrx * (c[0] - ox) + nry * (c[1] - oy) >= -c[2]
+            and hypot(c[0] - ox, c[1] - oy) - c[2] <= far
+        ]

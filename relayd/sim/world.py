@@ -43,6 +43,7 @@ from relayd.sim.radio import (
 )
 from relayd.sim.scenario import Scenario
 from relayd.sim.sonar import Body, SonarReadings, SonarScene
+from relayd.sim.spatial import GridIndex
 
 #: P3-AT body (docs/PROTOCOLS.md 1.11, from ARIA's p3at.p: RobotLength 626 mm, RobotWidth 505 mm).
 #: The P3-AT footprint's circumradius: no part of the body is farther from its centre.
@@ -52,6 +53,9 @@ BODY_SLACK_M = 1e-6
 DOOR_CLEAR_M = 0.6
 #: A contact episode ends once the footprint is this far from everything again.
 CONTACT_CLEAR_M = 0.02
+#: From this many static wall pieces on (a building's map), the world indexes them
+#: spatially (relayd/sim/spatial.py); below it a scan of the list is as fast.
+INDEX_MIN_SEGMENTS = 256
 
 
 def _point_segment_m(px: float, py: float, s: Segment) -> float:
@@ -98,6 +102,21 @@ class World:
         self.timed = scenario.timed_obstacles()
         self.timed_present = [False] * len(self.timed)
         self.obstacles: list[Segment] = list(self._static)
+        # A map's scan points (x, y, radius): sonar-visible and solid, radio-transparent
+        # (they lie on the walls the map's lines already draw, or are furniture).
+        self.points: list[tuple[float, float, float]] = [
+            (x, y, scenario.point_radius_m) for x, y in scenario.points
+        ]
+        self._point_index = (
+            GridIndex([(x - r, y - r, x + r, y + r) for x, y, r in self.points])
+            if self.points
+            else None
+        )
+        self._static_index = (
+            GridIndex([s.bbox() for s in self._static])
+            if len(self._static) >= INDEX_MIN_SEGMENTS
+            else None
+        )
         # Boxes attenuate too (a crate or a car is in the way of the radio path); the radio
         # checks every material, timed ones included.
         self.radio = Radio(
@@ -192,6 +211,26 @@ class World:
             return self.relays[k - 1].pos
         return self.cc
 
+    # --- what is near ----------------------------------------------------------------
+    def obstacles_near(self, x0: float, y0: float, x1: float, y1: float) -> list[Segment]:
+        """The obstacles that may meet the box, in `obstacles` order (all of them without an
+        index; callers still test each one exactly)."""
+        if self._static_index is None:
+            return self.obstacles
+        static = self._static
+        out = [static[k] for k in self._static_index.query(x0, y0, x1, y1)]
+        out.extend(self.obstacles[len(static) :])  # the timed obstacles present now
+        return out
+
+    def points_near(
+        self, x0: float, y0: float, x1: float, y1: float
+    ) -> list[tuple[float, float, float]]:
+        """The map points (x, y, radius) that may meet the box."""
+        if self._point_index is None:
+            return []
+        pts = self.points
+        return [pts[k] for k in self._point_index.query(x0, y0, x1, y1)]
+
     # --- bodies ---------------------------------------------------------------------
     def leader_polygon(self) -> Polygon | None:
         if self.leader_kind != "robot":
@@ -204,7 +243,7 @@ class World:
         xs = [p[0] for p in poly]
         ys = [p[1] for p in poly]
         x0, x1, y0, y1 = min(xs), max(xs), min(ys), max(ys)
-        for s in self.obstacles:
+        for s in self.obstacles_near(x0, y0, x1, y1):
             if (
                 max(s.x1, s.x2) < x0
                 or min(s.x1, s.x2) > x1
@@ -214,6 +253,11 @@ class World:
                 continue
             if polygon_hits_segment(poly, s):
                 return True
+        if self.points:
+            pr = self.scenario.point_radius_m
+            for px, py, r in self.points_near(x0 - pr, y0 - pr, x1 + pr, y1 + pr):
+                if polygon_hits_circle(poly, px, py, r):
+                    return True
         # A body whose bounding disc's box misses this footprint's box cannot touch it:
         # skipped before its footprint is even made (BODY_SLACK_M: far above rounding).
         x0, x1, y0, y1 = x0 - BODY_SLACK_M, x1 + BODY_SLACK_M, y0 - BODY_SLACK_M, y1 + BODY_SLACK_M
@@ -292,7 +336,9 @@ class World:
         lead = self.leader
         robot = self.leader_kind == "robot"
         return SonarScene(
-            self.obstacles,
+            self.obstacles_near,
+            self.points_near if self.points else None,
+            self.scenario.point_radius_m,
             lead.x_m,
             lead.y_m,
             self.leader_radius_m,

@@ -51,6 +51,13 @@ FORBIDDEN: tuple[tuple[str, re.Pattern[str]], ...] = (
     ("the planning brief instead of what it asked for", re.compile(r"\b[Tt]he brief\b")),
 )
 
+#: (file, exact text) that may stay: CI's provisioning of tools the project does not ship
+#: (the CI machine keeps a build of MobileSim beside the checkout; users install their own,
+#: docs/SIMULATOR.md). Only that folder, only in the CI entry point.
+ALLOWED_OUTSIDE: frozenset[tuple[str, str]] = frozenset(
+    {(".ci/run", '"$(pwd)/../shared/vendor/mobilesim/MobileSim"')}
+)
+
 _SKIP_DIRS = {
     ".git",
     ".venv",
@@ -105,6 +112,8 @@ def _outside_references(name: str) -> list[str]:
         return []
     hits = []
     for lineno, line in enumerate(text.splitlines(), 1):
+        if any(name == f and allowed in line for f, allowed in ALLOWED_OUTSIDE):
+            continue
         for what, pattern in FORBIDDEN:
             if pattern.search(line):
                 hits.append(f"{name}:{lineno}: {what}: {line.strip()[:100]}")

@@ -1,0 +1,169 @@
+"""The MobileSim tier: relayd against the vendor's ARCOS simulator, in real time.
+
+One MobileSim process for the module (robots "leader", "relay1" and "relay2" in the
+project's tests/fixtures/maps/corner.map), placed anew by each test. Skipped, with the
+reason, when RELAYD_MOBILESIM does not name the program (CI provisions it). Real time:
+each run is short, and the assertions are ones every run must meet (no stall, the
+leader arrives, the relays follow and end on the link rule), not exact figures.
+"""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+from collections.abc import AsyncIterator
+from pathlib import Path
+
+import pytest
+import pytest_asyncio
+
+from drivers.arcos.driver import ArcosRobot
+from relayd.sim.ariamap import MapLine, load_map
+from relayd.sim.mapscenario import with_map
+from relayd.sim.msbridge import ArcosBridge, BridgeBody
+from relayd.sim.msengine import MobileSimRunner
+from relayd.sim.msproc import MobileSim, MobileSimError, find_program
+from relayd.sim.scenario import parse_scenario
+from tests.support import until
+
+MAP = Path(__file__).resolve().parents[1] / "fixtures" / "maps" / "corner.map"
+NAMES = ["leader", "relay1", "relay2"]
+#: Where a robot a test does not use waits: the far end of the box corridor.
+PARK = {"leader": (11000, 15400, 180), "relay1": (10200, 15400, 180), "relay2": (9400, 15400, 180)}
+
+pytestmark = [pytest.mark.mobilesim, pytest.mark.asyncio(loop_scope="module")]
+
+
+@pytest_asyncio.fixture(loop_scope="module", scope="module")
+async def sim() -> AsyncIterator[MobileSim]:
+    try:
+        program = find_program()
+    except MobileSimError as exc:
+        pytest.skip(f"{exc} (the MobileSim tier needs it)")
+    ms = MobileSim(program, MAP, NAMES)
+    await ms.start()
+    try:
+        yield ms
+    finally:
+        await ms.stop()
+
+
+async def _place(sim: MobileSim, name: str, pose: tuple[float, float, float]) -> BridgeBody:
+    """Put a robot at `pose` (mm, mm, deg) through a short session of its own."""
+    bridge = ArcosBridge(BridgeBody(name), sim.port(name), pose)
+    await bridge.start()
+    robot = ArcosRobot(bridge.url)
+    try:
+        await robot.connect()
+        await until(lambda: bridge.body.simstats >= 2, f"{name}'s SIMSTAT", 15.0)
+    finally:
+        await robot.shutdown()
+        await bridge.close()
+    return bridge.body
+
+
+async def _park(sim: MobileSim, *names: str) -> None:
+    for n in names:
+        await _place(sim, n, PARK[n])
+
+
+async def test_probe_reads_mobilesim(sim: MobileSim) -> None:
+    await until(lambda: _port_open(sim.port("relay1")), "relay1's port", 15.0)
+    proc = subprocess.run(
+        [sys.executable, "-m", "relayd", "probe", "robot", "--port", f"socket://127.0.0.1:{sim.port('relay1')}"],
+        capture_output=True, text=True, timeout=60, check=False,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert "MobileSim" in proc.stdout and "p3at" in proc.stdout
+
+
+def _port_open(port: int) -> bool:
+    from relayd.sim.msproc import _listening
+
+    return _listening(port)
+
+
+async def test_drive_moves_the_true_pose(sim: MobileSim) -> None:
+    await _park(sim, "leader", "relay2")
+    bridge = ArcosBridge(BridgeBody("relay1"), sim.port("relay1"), (0.0, 0.0, 0.0))
+    await until(lambda: _port_open(sim.port("relay1")), "relay1's port", 15.0)
+    await bridge.start()
+    robot = ArcosRobot(bridge.url, enable_motors=True)
+    try:
+        await robot.connect()
+        task = __import__("asyncio").create_task(robot.run())
+        await until(lambda: bridge.body.simstats > 0, "SIMSTAT", 15.0)
+        assert math.hypot(bridge.body.x_mm, bridge.body.y_mm) < 50
+        robot.set_wheels(300.0, 300.0)
+        await until(lambda: bridge.body.x_mm > 600, "0.6 m driven east", 15.0)
+        robot.stop()
+        assert abs(bridge.body.y_mm) < 100 and not bridge.body.stalled
+    finally:
+        await robot.shutdown()
+        task.cancel()
+        await bridge.close()
+
+
+def _seg_dist_m(px: float, py: float, ln: MapLine) -> float:
+    ex, ey = ln.x2 - ln.x1, ln.y2 - ln.y1
+    n2 = ex * ex + ey * ey
+    u = 0.0 if n2 == 0 else max(0.0, min(1.0, ((px - ln.x1) * ex + (py - ln.y1) * ey) / n2))
+    return math.hypot(px - ln.x1 - u * ex, py - ln.y1 - u * ey)
+
+
+def _records_ok(records: list[dict[str, object]]) -> None:
+    assert not any(any(r["stalled"]) for r in records)  # type: ignore[arg-type]
+
+
+async def test_box_dead_ahead(sim: MobileSim, tmp_path: Path) -> None:
+    """A box 2.3 m ahead on the line to a leader standing still beyond it: MobileSim's own
+    sonar shows it, and the relay stops short of it and starts its escape, never touching.
+    (Getting round a box this exactly symmetric takes 40 s to over a minute of real time,
+    or a few back-up-and-retry rounds: bench/RESULTS.md; not a short test's business.)"""
+    await _park(sim, "relay2")
+    doc = {
+        "name": "ms-box",
+        "environment": "outdoor",
+        "duration_s": 22,
+        "settle_after_goal_s": 22,
+        "relays": 1,
+        "map_route": "straight",
+        "command_center": {"x": 1.5, "y": 14.0},
+        "leader": {"kind": "robot", "waypoints": [{"x": 11.0, "y": 14.0}]},
+        "relay": [{"name": "relay1", "x": 3.7, "y": 14.0}],
+    }
+    sc = parse_scenario(with_map(doc, MAP))
+    res = await MobileSimRunner(sc, sim=sim, out_dir=tmp_path).run()
+    _records_ok(res.records)
+    relay = [r["relays"][0] for r in res.records]
+    reasons = {r["reason"] for r in relay}
+    assert "obstacle" in reasons, f"the relay never saw the box: {reasons}"
+    assert "avoiding" in reasons, f"the relay never started its escape: {reasons}"
+    # It drove toward the box, and its front (0.31 m ahead of its centre) never reached
+    # the box's near face at x = 6.0.
+    front = max(r["x"] for r in relay) + 0.313
+    assert 5.2 < front < 6.0, f"relay1's front got to x = {front:.2f}"
+
+
+async def test_two_relay_convoy_through_a_corner(sim: MobileSim, tmp_path: Path) -> None:
+    doc = {"name": "ms-corner", "duration_s": 75, "settle_after_goal_s": 25}
+    sc = parse_scenario(with_map(doc, MAP))
+    leader = sc.leader.model_copy(update={"kind": "robot", "speed_m_s": 0.3})
+    sc = sc.model_copy(update={"leader": leader})
+    res = await MobileSimRunner(sc, sim=sim, out_dir=tmp_path).run()
+    _records_ok(res.records)
+    s = res.summary
+    assert s["goal_reached"], s
+    assert s["link_broken_at_s"] is None
+    # No relay centre within 0.3 m of a wall line at any trace record.
+    lines = load_map(MAP).lines
+    for rec in res.records:
+        for r in rec["relays"]:
+            clear = min(_seg_dist_m(r["x"], r["y"], ln) for ln in lines)
+            assert clear > 0.3, f"{r['name']} {clear:.2f} m from a wall at t = {rec['t']}"
+    # relay1 follows the leader round the corner; relay2 moves only if the radio asks it to.
+    assert s["followers"][0]["travelled_m"] > 1.5, s["followers"][0]
+    for f in s["followers"]:
+        assert f["stopped_reason"] in ("leader_near", "rear_weak"), f
+    assert (tmp_path / "trace.jsonl").stat().st_size > 0
