@@ -169,18 +169,22 @@ class AntennaPattern:
         return -self.gain_db(back)
 
     def main_lobe_deg(self) -> tuple[float, float]:
-        """The main lobe's extent: from the peak down each side to the first local minimum
-        (or where the table ends)."""
+        """The main lobe's extent: from the peak down each side to its first null, the
+        lowest point before the gain rises again by more than 1.5 dB (a measured table's
+        ripple of a few tenths is no null), or where the table ends."""
         p = self.peak_deg()
         ends = []
         for d in (-1.0, 1.0):
-            x, prev = p, self.gain_db(p)
+            low_x, low = p, self.gain_db(p)
+            x = p
             for _ in range(int(180.0 / 0.5)):
-                cur = self.gain_db(x + d * 0.5)
-                if cur > prev + 1e-9:
+                x += d * 0.5
+                cur = self.gain_db(x)
+                if cur < low:
+                    low_x, low = x, cur
+                elif low < -3.0 and cur > low + 1.5:
                     break
-                x, prev = x + d * 0.5, cur
-            ends.append(x)
+            ends.append(low_x)
         return ends[0], ends[1]
 
     def side_lobe_db(self) -> float | None:
