@@ -65,6 +65,7 @@ class AntennaPattern:
     #: How and where it was measured (free-form text, as the file's [conditions] had it).
     conditions: tuple[tuple[str, str], ...] = ()
     _lookup: tuple[float, ...] = field(default=(), init=False, repr=False, compare=False)
+    _beamwidth: float | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         a, g = self.angles_deg, self.gain_db_table
@@ -87,6 +88,9 @@ class AntennaPattern:
             "_lookup",
             tuple(self._interp(-180.0 + i * LOOKUP_STEP_DEG) for i in range(n + 1)),
         )
+        left, right = self.half_widths_deg()
+        bw = None if left is None or right is None else left + right
+        object.__setattr__(self, "_beamwidth", bw)
 
     @property
     def full_circle(self) -> bool:
@@ -113,6 +117,11 @@ class AntennaPattern:
         j = i - 1
         f = (x - a[j]) / (a[i] - a[j])
         return g[j] + f * (g[i] - g[j])
+
+    @property
+    def lookup(self) -> tuple[float, ...]:
+        """The gain every LOOKUP_STEP_DEG from -180 to 180 (both ends), for hot loops."""
+        return self._lookup
 
     def gain_db(self, off_axis_deg: float) -> float:
         """Relative gain (dB, <= 0) at this off-axis angle."""
@@ -158,6 +167,8 @@ class AntennaPattern:
 
     def beamwidth_deg(self, level_db: float = -3.0) -> float | None:
         """Between the `level_db` points around the peak (None: the gain never falls that far)."""
+        if level_db == -3.0:
+            return self._beamwidth  # computed once: the fit asks every scan
         left, right = self.half_widths_deg(level_db)
         return None if left is None or right is None else left + right
 

@@ -45,7 +45,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from relayd.core.scan.bearing import LobeFit
-from relayd.core.scan.pattern import AntennaPattern, wrap180
+from relayd.core.scan.pattern import LOOKUP_STEP_DEG, AntennaPattern, wrap180
 
 
 @dataclass(frozen=True, slots=True)
@@ -100,6 +100,40 @@ def _cost(
     return c, lv
 
 
+def _search_costs(
+    grid: Sequence[float],
+    pattern: AntennaPattern,
+    angles: Sequence[float],
+    ys: Sequence[float],
+    gs: Sequence[int],
+) -> list[float]:
+    """`_cost` with unit weights at every bearing of the grid, by each scan's sums of the
+    residual d = y - P and of d^2 (cost = sum d^2 - (sum d)^2 / n per scan): the search
+    is the fit's hot loop (a hundred bearings a scan)."""
+    lk = pattern.lookup
+    last = len(lk) - 1
+    inv = 1.0 / LOOKUP_STEP_DEG
+    members: dict[int, list[int]] = {}
+    for i, g in enumerate(gs):
+        members.setdefault(g, []).append(i)
+    parts = [([angles[i] for i in m], [ys[i] for i in m]) for m in members.values()]
+    out = []
+    for b in grid:
+        c = 0.0
+        for a_s, y_s in parts:
+            ds = []
+            for a, y in zip(a_s, y_s, strict=True):
+                # pattern.gain_db inlined: the lookup table, linear between its points.
+                x = (b - a + 180.0) % 360.0 * inv
+                i = int(x)
+                g = lk[last] if i >= last else lk[i] + (x - i) * (lk[i + 1] - lk[i])
+                ds.append(y - g)
+            sd = sum(ds)
+            c += sum(d * d for d in ds) - sd * sd / len(ds)
+        out.append(c)
+    return out
+
+
 def _median(xs: Sequence[float]) -> float:
     s = sorted(xs)
     n = len(s)
@@ -151,7 +185,7 @@ def fit_pattern(
     ]
     if around_deg is not None:
         grid = [g for g in grid if abs(wrap180(g - around_deg)) <= bw] or [around_deg]
-    costs = [_cost(b, pattern, angles, ys, ws, gs)[0] for b in grid]
+    costs = _search_costs(grid, pattern, angles, ys, gs)
     best = min(range(len(grid)), key=lambda i: costs[i])
     b = grid[best]
     # 2. Refine, Huber-weighted.
