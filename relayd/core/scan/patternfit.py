@@ -126,8 +126,8 @@ def _search_costs(
                 # pattern.gain_db inlined: the lookup table, linear between its points.
                 x = (b - a + 180.0) % 360.0 * inv
                 i = int(x)
-                g = lk[last] if i >= last else lk[i] + (x - i) * (lk[i + 1] - lk[i])
-                ds.append(y - g)
+                gv = lk[last] if i >= last else lk[i] + (x - i) * (lk[i + 1] - lk[i])
+                ds.append(y - gv)
             sd = sum(ds)
             c += sum(d * d for d in ds) - sd * sd / len(ds)
         out.append(c)
