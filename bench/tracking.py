@@ -430,6 +430,43 @@ def antenna_items(quick: bool, seeds: int | None = None) -> list[Result]:
     return rows
 
 
+def antenna_convoy(seeds: int, quick: bool) -> list[Result]:
+    """Item 6's convoy: bench/followshare.py's "within 5 m" policy, lobe/adaptive, with the
+    built-in, the shallow and the side-lobe (yagi) antennas, without and with calibration."""
+    import tempfile
+
+    from bench.followshare import POLICIES, _mean, policy_scenario, sim_share
+
+    rows: list[Result] = []
+    seconds = 20.0 if quick else None
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in ("builtin", "shallow", "yagi"):
+            for calibrated in (False, True):
+                scan: dict[str, object] = {"estimator": "lobe", "window": "adaptive"}
+                if name != "builtin":
+                    scan["pattern"] = name
+                if calibrated:
+                    scan["pattern_file"] = calibrated_file(name, tmp)
+                sc = policy_scenario("convoy", POLICIES[2], scan)
+                shares = sim_share(sc, seeds, seconds)
+                value = 100.0 * _mean([x.within for x in shares])
+                how = "calibrated" if calibrated else "no pattern file"
+                rows.append(
+                    Result(
+                        NAME,
+                        f"antenna {name}, {how}: convoy share of time within 5 m ({POLICIES[2].name})",
+                        value,
+                        "%",
+                        "",
+                        None,
+                        f"{seeds} seeds x {sc.relays} relays; worst relay-run "
+                        f"{100 * min(x.within for x in shares):.1f} %",
+                    )
+                )
+                print(f"convoy {name} {how}: {value:.2f} %", file=sys.stderr, flush=True)
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     """`python -m bench.tracking [--sim-only] [--seeds N] [--quick]`: print the table."""
     from bench.run import table
@@ -451,6 +488,11 @@ def main(argv: list[str] | None = None) -> int:
         help="with --sim-only: this scenario only (repeatable; default both)",
     )
     p.add_argument(
+        "--antenna-convoy",
+        action="store_true",
+        help="item 6's convoy: within 5 m with the built-in, shallow and yagi antennas",
+    )
+    p.add_argument(
         "--antennas",
         action="store_true",
         help="item 6 alone: every antenna pattern, calibrated or not",
@@ -459,6 +501,10 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     if args.antennas:
         print(table(antenna_items(args.quick, args.seeds)))
+        print(f"\n{time.perf_counter() - t0:.0f} s", file=sys.stderr)
+        return 0
+    if args.antenna_convoy:
+        print(table(antenna_convoy(args.seeds or (1 if args.quick else 10), args.quick)))
         print(f"\n{time.perf_counter() - t0:.0f} s", file=sys.stderr)
         return 0
     out = run(args.quick, sim_seeds=args.seeds, sim_only=args.sim_only, scenarios=args.scenario)
