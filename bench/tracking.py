@@ -94,6 +94,8 @@ def crossing_error(
     seed: int = 1,
     within_deg: float = 60.0,
     acquire_s: float = 20.0,
+    pattern: Callable[[float], float] = sim_yagi,
+    scan_extra: dict[str, object] | None = None,
 ) -> tuple[float, float]:
     """(worst |error| while the leader walks within +-within_deg, sweep rate deg/s) of one pass.
 
@@ -104,9 +106,10 @@ def crossing_error(
     y0 = -distance_m * math.tan(math.radians(within_deg))
     y1 = distance_m * math.tan(math.radians(70.0))
     rig = BrainRig(
-        scan=_scan(cfg),
+        scan={**_scan(cfg), **(scan_extra or {})},
         leader=crossing(distance_m, speed_m_s, y0, acquire_s),
         radio=Radio(RadioParams.outdoor(), [], seed=seed),
+        pattern=pattern,
     )
     rig.start()
     worst = 0.0
@@ -127,12 +130,14 @@ def crossing_error(
     return worst, (sum(sweeps) / len(sweeps) if sweeps else math.nan)
 
 
-def fastest_per_seed(cfg: tuple[str, str], seed: int, top_m_s: float = 2.0) -> tuple[float, float]:
+def fastest_per_seed(
+    cfg: tuple[str, str], seed: int, top_m_s: float = 2.0, **kw: Any
+) -> tuple[float, float]:
     """The highest speed (0.05 m/s steps) this seed tracks at and below, and the sweep rate there."""
     best, rate = 0.0, math.nan
     v = 0.05
     while v <= top_m_s + 1e-9:
-        worst, r = crossing_error(cfg, v, seed=seed)
+        worst, r = crossing_error(cfg, v, seed=seed, **kw)
         if worst > TRACK_TOLERANCE_DEG:
             break
         best, rate = v, r
@@ -430,6 +435,41 @@ def antenna_items(quick: bool, seeds: int | None = None) -> list[Result]:
     return rows
 
 
+def antenna_crossing(seeds: int, names: list[str]) -> list[Result]:
+    """Item 6, moving: the fastest crossing leader at 2 m a still relay keeps (median over
+    seeds), lobe/adaptive, each antenna without and with its calibration."""
+    import tempfile
+
+    from relayd.sim.antennas import FAMILY
+
+    rows: list[Result] = []
+    cfg = ("lobe", "adaptive")
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in names:
+            for calibrated in (False, True):
+                extra: dict[str, object] = {}
+                if calibrated:
+                    extra["pattern_file"] = calibrated_file(name, tmp)
+                per_seed = sorted(
+                    fastest_per_seed(cfg, s, pattern=FAMILY[name], scan_extra=extra)[0]
+                    for s in range(1, seeds + 1)
+                )
+                how = "calibrated" if calibrated else "no pattern file"
+                rows.append(
+                    Result(
+                        NAME,
+                        f"antenna {name}, {how}: fastest leader tracked at 2 m (median over seeds)",
+                        median(per_seed),
+                        "m/s",
+                        "",
+                        None,
+                        f"{seeds} seeds: {', '.join(f'{v:.2f}' for v in per_seed)}",
+                    )
+                )
+                print(f"crossing {name} {how}: {per_seed}", file=sys.stderr, flush=True)
+    return rows
+
+
 def antenna_convoy(seeds: int, quick: bool) -> list[Result]:
     """Item 6's convoy: bench/followshare.py's "within 5 m" policy, lobe/adaptive, with the
     built-in, the shallow and the side-lobe (yagi) antennas, without and with calibration."""
@@ -467,6 +507,12 @@ def antenna_convoy(seeds: int, quick: bool) -> list[Result]:
     return rows
 
 
+def family_names() -> list[str]:
+    from relayd.sim.antennas import FAMILY
+
+    return list(FAMILY)
+
+
 def main(argv: list[str] | None = None) -> int:
     """`python -m bench.tracking [--sim-only] [--seeds N] [--quick]`: print the table."""
     from bench.run import table
@@ -488,6 +534,11 @@ def main(argv: list[str] | None = None) -> int:
         help="with --sim-only: this scenario only (repeatable; default both)",
     )
     p.add_argument(
+        "--antenna-crossing",
+        action="store_true",
+        help="item 6, moving: the fastest crossing leader with every antenna",
+    )
+    p.add_argument(
         "--antenna-convoy",
         action="store_true",
         help="item 6's convoy: within 5 m with the built-in, shallow and yagi antennas",
@@ -501,6 +552,11 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     if args.antennas:
         print(table(antenna_items(args.quick, args.seeds)))
+        print(f"\n{time.perf_counter() - t0:.0f} s", file=sys.stderr)
+        return 0
+    if args.antenna_crossing:
+        names = ["builtin", "shallow", "yagi"] if args.quick else family_names()
+        print(table(antenna_crossing(args.seeds or (2 if args.quick else 10), names)))
         print(f"\n{time.perf_counter() - t0:.0f} s", file=sys.stderr)
         return 0
     if args.antenna_convoy:
