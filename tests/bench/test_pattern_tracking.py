@@ -39,3 +39,16 @@ def test_without_it_the_squinted_lobe_is_off_by_its_squint() -> None:
     # pattern file exists.
     err = _after_5({"estimator": "lobe"}, "asymmetric", 0.0)
     assert err == pytest.approx(-8.0, abs=2.5)
+
+
+@pytest.mark.parametrize("b", [105.0, -120.0])
+def test_a_leader_beyond_the_servo_is_published_beyond_it(tmp_path: Path, b: float) -> None:
+    # The servo reaches +-90. Without the file the Yagi's side lobe puts a leader at 105
+    # near 63 deg; with it the bearing is where the leader is, up to the servo's range
+    # plus the fit's 20 deg of extrapolation: beyond the reach, on the right side.
+    f = tmp_path / "yagi.toml"
+    f.write_text(pattern_toml(family_pattern("yagi")))
+    err = _after_5({"estimator": "lobe", "pattern_file": str(f)}, "yagi", b)
+    published = b + err
+    assert abs(published) > 100.0 and published * b > 0
+    assert abs(published) <= 110.0 + 1e-9
