@@ -87,6 +87,9 @@ class AntennaCalibration:
     worst_se_db: float
     #: The sd (deg) of the sweeps' own peak angles.
     peak_spread_deg: float
+    #: Where the lobe's top is, off the mechanical axis (the fitted top, not the loudest
+    #: average): the asymmetry's first figure.
+    squint_deg: float
     #: Single sweeps' scatter (dB RMS) about the average over the main lobe.
     scatter_db: float
     beamwidth_deg: float | None
@@ -94,11 +97,6 @@ class AntennaCalibration:
     front_to_back_db: float | None
     side_lobe_db: float | None
     warnings: tuple[str, ...] = field(default=())
-
-    @property
-    def squint_deg(self) -> float:
-        """Where the peak is, off the mechanical axis (the asymmetry's first figure)."""
-        return self.pattern.peak_deg()
 
 
 def off_axis_deg(s: AntennaSample, node_bearing_deg: float, heading0_deg: float) -> float:
@@ -184,7 +182,7 @@ def measure_pattern(  # noqa: C901
         raise CalibrationRefused(reasons)
     angles = sorted(kept)
     means = [_mean(kept[a]) for a in angles]
-    peak = _peak_level(angles, means)
+    peak, peak_at = _peak_level(angles, means)
     floor = min(means)
     if peak - floor < p.min_range_db:
         reasons.append(
@@ -266,6 +264,7 @@ def measure_pattern(  # noqa: C901
             f"takes the lowest level measured ({min(gains):.1f} dB). Turn the robot in place "
             "between sweeps to measure the back half"
         )
+    halves_3db = _half_widths(pattern, peak_at)
     return AntennaCalibration(
         pattern=pattern,
         samples=len(samples),
@@ -274,19 +273,21 @@ def measure_pattern(  # noqa: C901
         repeat_db=repeat,
         worst_se_db=worst_se,
         peak_spread_deg=spread,
+        squint_deg=peak_at,
         scatter_db=scatter,
-        beamwidth_deg=bw,
-        half_widths_deg=pattern.half_widths_deg(),
+        beamwidth_deg=None if None in halves_3db else sum(h for h in halves_3db if h is not None),
+        half_widths_deg=halves_3db,
         front_to_back_db=pattern.front_to_back_db(),
         side_lobe_db=pattern.side_lobe_db(),
         warnings=tuple(warnings),
     )
 
 
-def _peak_level(angles: Sequence[float], means: Sequence[float]) -> float:
-    """The lobe's top: a parabola through the averages within 4 dB of the loudest (its run
-    around it), not the loudest average itself, which the noise lifts by a fraction of a dB
-    (the maximum of many noisy averages is biased up)."""
+def _peak_level(angles: Sequence[float], means: Sequence[float]) -> tuple[float, float]:
+    """The lobe's top and where it is: a parabola through the averages within 4 dB of the
+    loudest (its run around it), not the loudest average itself, which the noise lifts by a
+    fraction of a dB and moves by a sample or two on a flat top (the maximum of many noisy
+    averages is biased up)."""
     top = max(range(len(means)), key=lambda i: means[i])
     lo = hi = top
     while lo > 0 and means[lo - 1] >= means[top] - 4.0:
@@ -294,7 +295,7 @@ def _peak_level(angles: Sequence[float], means: Sequence[float]) -> float:
     while hi < len(means) - 1 and means[hi + 1] >= means[top] - 4.0:
         hi += 1
     if hi - lo < 2:
-        return means[top]
+        return means[top], angles[top]
     xs = [angles[i] - angles[top] for i in range(lo, hi + 1)]
     ys = list(means[lo : hi + 1])
     # Least squares y = a + b x + c x^2 by the normal equations (3x3, Cramer's rule).
@@ -311,7 +312,7 @@ def _peak_level(angles: Sequence[float], means: Sequence[float]) -> float:
 
     d = det(m)
     if abs(d) < 1e-12:
-        return means[top]
+        return means[top], angles[top]
     coef = []
     for j in range(3):
         mj = [row[:] for row in m]
@@ -320,8 +321,21 @@ def _peak_level(angles: Sequence[float], means: Sequence[float]) -> float:
         coef.append(det(mj) / d)
     a, b, c = coef
     if c >= 0 or not xs[0] <= -b / (2 * c) <= xs[-1]:
-        return means[top]
-    return a - b * b / (4 * c)
+        return means[top], angles[top]
+    return a - b * b / (4 * c), angles[top] - b / (2 * c)
+
+
+def _half_widths(pattern: AntennaPattern, top_deg: float) -> tuple[float | None, float | None]:
+    """How far each side of the fitted top the pattern stays above -3 dB."""
+    out: list[float | None] = []
+    for d in (-1.0, 1.0):
+        x = None
+        for k in range(1, 1800):
+            if pattern.gain_db(top_deg + d * 0.1 * k) <= -3.0:
+                x = 0.1 * k
+                break
+        out.append(x)
+    return out[0], out[1]
 
 
 def _full_circle(angles: Sequence[float], step: float) -> bool:
