@@ -12,6 +12,7 @@ function of its settings and seed, and runs much faster than real time.
 from __future__ import annotations
 
 import math
+import random
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -97,6 +98,10 @@ class BrainRig:
     theta_deg: float = 0.0
     results: list[tuple[float, ScanResult]] = field(default_factory=list)
     wheels: tuple[float, float] = (0.0, 0.0)
+    #: Real adapters report whole dBm that wander: with `jitter_db` > 0 each reading gets a
+    #: uniform +-jitter_db (seeded by `jitter_seed`) and is rounded to a whole dB.
+    jitter_db: float = 0.0
+    jitter_seed: int = 0
 
     def __post_init__(self) -> None:
         control = {"rear_link": "ignore", "mode": str(self.mode), **self.control}
@@ -113,6 +118,7 @@ class BrainRig:
         self._next_sample_t = math.inf
         self._scan_start = 0.0
         self._servo = 0.0
+        self._jitter = random.Random(self.jitter_seed)
 
     # -- the world ---------------------------------------------------------------------
 
@@ -128,7 +134,10 @@ class BrainRig:
 
     def rssi_dbm(self, servo_deg: float) -> float:
         off = self.true_bearing_deg() - servo_deg
-        return self.radio.sample_dbm((self.x_m, self.y_m), self.leader(self.t), self.pattern(off))
+        rssi = self.radio.sample_dbm((self.x_m, self.y_m), self.leader(self.t), self.pattern(off))
+        if self.jitter_db > 0.0:
+            return float(round(rssi + self._jitter.uniform(-self.jitter_db, self.jitter_db)))
+        return rssi
 
     def _feed(self, event: object) -> None:
         for a in self.brain.handle(event):  # type: ignore[arg-type]

@@ -24,6 +24,12 @@ runs the real `relayd.core.brain.Brain`:
    trace records in which each relay is within 5 m of its own leader, under the paper's
    stop policy and under two that ask for a following distance (bench/followshare.py).
    Just this item: `python -m bench.tracking --sim-only [--seeds N] [--scenario NAME] [--quick]`.
+6. Antennas as they come (`--antennas`): every pattern of the simulator's family
+   (relayd/sim/antennas.py), without a pattern file (the main-lobe fit) and with the one
+   a simulated `relayd calibrate antenna` measured (80 sweeps, four headings, LOS
+   fading, whole-dB readings): the worst static error after 5 scans over -85..85 with
+   +-1 dB quantized jitter, and the RMS after 5 scans over -60..60 under the simulator's
+   LOS and NLOS fading (plus the jitter).
 5. CPU per brain event (SIP steps and scan ends): the decision core's share of the
    control latency and of the steady CPU; then a real relayd on the fakes (bench/steady.py,
    bench/latency.py) with each estimator, one after the other: steady CPU and the SIP ->
@@ -88,6 +94,8 @@ def crossing_error(
     seed: int = 1,
     within_deg: float = 60.0,
     acquire_s: float = 20.0,
+    pattern: Callable[[float], float] = sim_yagi,
+    scan_extra: dict[str, object] | None = None,
 ) -> tuple[float, float]:
     """(worst |error| while the leader walks within +-within_deg, sweep rate deg/s) of one pass.
 
@@ -98,9 +106,10 @@ def crossing_error(
     y0 = -distance_m * math.tan(math.radians(within_deg))
     y1 = distance_m * math.tan(math.radians(70.0))
     rig = BrainRig(
-        scan=_scan(cfg),
+        scan={**_scan(cfg), **(scan_extra or {})},
         leader=crossing(distance_m, speed_m_s, y0, acquire_s),
         radio=Radio(RadioParams.outdoor(), [], seed=seed),
+        pattern=pattern,
     )
     rig.start()
     worst = 0.0
@@ -121,12 +130,14 @@ def crossing_error(
     return worst, (sum(sweeps) / len(sweeps) if sweeps else math.nan)
 
 
-def fastest_per_seed(cfg: tuple[str, str], seed: int, top_m_s: float = 2.0) -> tuple[float, float]:
+def fastest_per_seed(
+    cfg: tuple[str, str], seed: int, top_m_s: float = 2.0, **kw: Any
+) -> tuple[float, float]:
     """The highest speed (0.05 m/s steps) this seed tracks at and below, and the sweep rate there."""
     best, rate = 0.0, math.nan
     v = 0.05
     while v <= top_m_s + 1e-9:
-        worst, r = crossing_error(cfg, v, seed=seed)
+        worst, r = crossing_error(cfg, v, seed=seed, **kw)
         if worst > TRACK_TOLERANCE_DEG:
             break
         best, rate = v, r
@@ -272,6 +283,8 @@ def run(
         )
     # 4. simulated convoy (LOS) and corridor (NLOS), under each stop policy
     out.results += sim_items(quick, sim_seeds)
+    # 6. antennas as they come
+    out.results += antenna_items(quick)
     # 5. CPU of the decision core, and of the whole daemon on the fakes
     for cfg in CONFIGS:
         sip_us, scan_us = event_cpu_us(cfg)
@@ -330,6 +343,176 @@ def daemon_figures(quick: bool) -> list[Result]:
     return rows
 
 
+def calibrated_file(name: str, directory: str) -> str:
+    """The pattern file a simulated `relayd calibrate antenna` of this family pattern writes."""
+    import os
+
+    from relayd.calibrate.antenna import measure_pattern
+    from relayd.calibrate.antenna_sources import samples_from_messages, sweep_messages
+    from relayd.core.scan.pattern import pattern_toml
+    from relayd.sim.antennas import FAMILY
+
+    msgs = sweep_messages(
+        FAMILY[name], seed=17, headings_deg=(0.0, 90.0, 180.0, 270.0), sweeps_per_heading=20
+    )
+    cal = measure_pattern(samples_from_messages(msgs), distance_m=8.0, name=name)
+    path = os.path.join(directory, f"{name}.toml")
+    with open(path, "w", encoding="utf-8") as f:
+        f.write(pattern_toml(cal.pattern))
+    return path
+
+
+def _antenna_error(
+    scan: dict[str, object],
+    gain: Callable[[float], float],
+    b: float,
+    radio: Radio | None,
+    seed: int,
+) -> float:
+    leader = still(5.0 * math.cos(math.radians(b)), 5.0 * math.sin(math.radians(b)))
+    kw: dict[str, Any] = {} if radio is None else {"radio": radio}
+    rig = BrainRig(scan=scan, leader=leader, pattern=gain, jitter_db=1.0, jitter_seed=seed, **kw)
+    rig.start()
+    rig.run_scans(SCANS)
+    return math.remainder(rig.results[-1][1].estimate.bearing_deg - b, 360.0)
+
+
+def antenna_items(quick: bool, seeds: int | None = None) -> list[Result]:
+    """Item 6: every family pattern, with and without its calibration."""
+    import tempfile
+
+    from relayd.sim.antennas import FAMILY
+
+    rows: list[Result] = []
+    step = 20.0 if quick else 5.0
+    bearings = [-85.0 + step * i for i in range(int(170 / step) + 1)]
+    n_seeds = seeds if seeds is not None else (1 if quick else 4)
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, gain in FAMILY.items():
+            for calibrated in (False, True):
+                scan: dict[str, object] = {"estimator": "lobe", "window": "adaptive"}
+                if calibrated:
+                    scan["pattern_file"] = calibrated_file(name, tmp)
+                how = "calibrated" if calibrated else "no pattern file"
+                worst = max(
+                    abs(_antenna_error(scan, gain, b, None, 1000 + int(b))) for b in bearings
+                )
+                rows.append(
+                    Result(
+                        NAME,
+                        f"antenna {name}, {how}: static |error| after 5 scans, -85..85, +-1 dB jitter",
+                        worst,
+                        "deg",
+                        f"<= {STATIC_TARGET_DEG:g} deg" if calibrated else "",
+                        worst <= STATIC_TARGET_DEG if calibrated else None,
+                        f"{len(bearings)} bearings",
+                    )
+                )
+                for nlos in (False, True):
+                    params = (
+                        RadioParams.outdoor(rician_k_db=-60.0) if nlos else RadioParams.outdoor()
+                    )
+                    errs = [
+                        _antenna_error(
+                            scan, gain, b, Radio(params, [], seed=seed * 1000 + b), seed * 7 + b
+                        )
+                        for seed in range(n_seeds)
+                        for b in range(-60, 61, 10)
+                    ]
+                    value = rms(errs)
+                    rows.append(
+                        Result(
+                            NAME,
+                            f"antenna {name}, {how}: RMS after 5 scans, {'NLOS' if nlos else 'LOS'} fading",
+                            value,
+                            "deg",
+                            f"<= {NOISY_TARGET_DEG:g} deg" if calibrated else "",
+                            value <= NOISY_TARGET_DEG if calibrated else None,
+                            f"{len(errs)} runs, bearings -60..60, worst {max(map(abs, errs)):.1f}",
+                        )
+                    )
+                print(f"antenna {name} {how} done", file=sys.stderr, flush=True)
+    return rows
+
+
+def antenna_crossing(seeds: int, names: list[str]) -> list[Result]:
+    """Item 6, moving: the fastest crossing leader at 2 m a still relay keeps (median over
+    seeds), lobe/adaptive, each antenna without and with its calibration."""
+    import tempfile
+
+    from relayd.sim.antennas import FAMILY
+
+    rows: list[Result] = []
+    cfg = ("lobe", "adaptive")
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in names:
+            for calibrated in (False, True):
+                extra: dict[str, object] = {}
+                if calibrated:
+                    extra["pattern_file"] = calibrated_file(name, tmp)
+                per_seed = sorted(
+                    fastest_per_seed(cfg, s, pattern=FAMILY[name], scan_extra=extra)[0]
+                    for s in range(1, seeds + 1)
+                )
+                how = "calibrated" if calibrated else "no pattern file"
+                rows.append(
+                    Result(
+                        NAME,
+                        f"antenna {name}, {how}: fastest leader tracked at 2 m (median over seeds)",
+                        median(per_seed),
+                        "m/s",
+                        "",
+                        None,
+                        f"{seeds} seeds: {', '.join(f'{v:.2f}' for v in per_seed)}",
+                    )
+                )
+                print(f"crossing {name} {how}: {per_seed}", file=sys.stderr, flush=True)
+    return rows
+
+
+def antenna_convoy(seeds: int, quick: bool) -> list[Result]:
+    """Item 6's convoy: bench/followshare.py's "within 5 m" policy, lobe/adaptive, with the
+    built-in, the shallow and the side-lobe (yagi) antennas, without and with calibration."""
+    import tempfile
+
+    from bench.followshare import POLICIES, _mean, policy_scenario, sim_share
+
+    rows: list[Result] = []
+    seconds = 20.0 if quick else None
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in ("builtin", "shallow", "yagi"):
+            for calibrated in (False, True):
+                scan: dict[str, object] = {"estimator": "lobe", "window": "adaptive"}
+                if name != "builtin":
+                    scan["pattern"] = name
+                if calibrated:
+                    scan["pattern_file"] = calibrated_file(name, tmp)
+                sc = policy_scenario("convoy", POLICIES[2], scan)
+                shares = sim_share(sc, seeds, seconds)
+                value = 100.0 * _mean([x.within for x in shares])
+                how = "calibrated" if calibrated else "no pattern file"
+                rows.append(
+                    Result(
+                        NAME,
+                        f"antenna {name}, {how}: convoy share of time within 5 m ({POLICIES[2].name})",
+                        value,
+                        "%",
+                        "",
+                        None,
+                        f"{seeds} seeds x {sc.relays} relays; worst relay-run "
+                        f"{100 * min(x.within for x in shares):.1f} %",
+                    )
+                )
+                print(f"convoy {name} {how}: {value:.2f} %", file=sys.stderr, flush=True)
+    return rows
+
+
+def family_names() -> list[str]:
+    from relayd.sim.antennas import FAMILY
+
+    return list(FAMILY)
+
+
 def main(argv: list[str] | None = None) -> int:
     """`python -m bench.tracking [--sim-only] [--seeds N] [--quick]`: print the table."""
     from bench.run import table
@@ -350,8 +533,36 @@ def main(argv: list[str] | None = None) -> int:
         choices=("convoy", "corridor"),
         help="with --sim-only: this scenario only (repeatable; default both)",
     )
+    p.add_argument(
+        "--antenna-crossing",
+        action="store_true",
+        help="item 6, moving: the fastest crossing leader with every antenna",
+    )
+    p.add_argument(
+        "--antenna-convoy",
+        action="store_true",
+        help="item 6's convoy: within 5 m with the built-in, shallow and yagi antennas",
+    )
+    p.add_argument(
+        "--antennas",
+        action="store_true",
+        help="item 6 alone: every antenna pattern, calibrated or not",
+    )
     args = p.parse_args(argv)
     t0 = time.perf_counter()
+    if args.antennas:
+        print(table(antenna_items(args.quick, args.seeds)))
+        print(f"\n{time.perf_counter() - t0:.0f} s", file=sys.stderr)
+        return 0
+    if args.antenna_crossing:
+        names = ["builtin", "shallow", "yagi"] if args.quick else family_names()
+        print(table(antenna_crossing(args.seeds or (2 if args.quick else 10), names)))
+        print(f"\n{time.perf_counter() - t0:.0f} s", file=sys.stderr)
+        return 0
+    if args.antenna_convoy:
+        print(table(antenna_convoy(args.seeds or (1 if args.quick else 10), args.quick)))
+        print(f"\n{time.perf_counter() - t0:.0f} s", file=sys.stderr)
+        return 0
     out = run(args.quick, sim_seeds=args.seeds, sim_only=args.sim_only, scenarios=args.scenario)
     print(table(out.results))
     print(f"\n{time.perf_counter() - t0:.0f} s", file=sys.stderr)

@@ -70,6 +70,10 @@ CALIBRATIONS: dict[str, tuple[str, str]] = {
         "relayd.calibrate.cli",
         "fit L0, n and sigma on a straight drive away from a node; print thresholds",
     ),
+    "antenna": (
+        "relayd.calibrate.antenna_cli",
+        "measure the scan antenna's pattern from sweeps of a still node; write the pattern file",
+    ),
 }
 
 

@@ -17,6 +17,7 @@ relayd.config.tomlwriter, the secrets in relayd.config.secrets (re-exported here
 from __future__ import annotations
 
 import ipaddress
+from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from pydantic import (
@@ -44,6 +45,7 @@ from relayd.config.secrets import check_api_token as check_api_token
 from relayd.config.secrets import resolve_secret as resolve_secret
 from relayd.config.secrets import secret_file_errors as secret_file_errors
 from relayd.config.secrets import secret_refs as secret_refs
+from relayd.core.scan.pattern import AntennaPattern, PatternError, parse_pattern
 
 BAUD_RATES = (9600, 19200, 38400, 57600, 115200)
 
@@ -173,6 +175,17 @@ class ScanSettings(_Section):
     #: "full": every sweep `width_deg` wide. Unset: "adaptive" with "lobe", "full" with
     #: "wca" (so `estimator = "wca"` alone is the paper's estimator, as it always was).
     window: Literal["full", "adaptive"] = "adaptive"
+    #: The scan antenna's measured pattern (a file `relayd calibrate antenna` writes):
+    #: with it each scan's bearing is the pattern matched to the scan (docs/CONTROL.md
+    #: section 10.6) instead of the main-lobe fit. Needs estimator "lobe".
+    pattern_file: str | None = None
+
+    @field_validator("pattern_file")
+    @classmethod
+    def _pattern_usable(cls, v: str | None) -> str | None:
+        if v is not None:
+            load_pattern_file(v)  # a ValueError naming the file and the key in it
+        return v
 
     @model_validator(mode="before")
     @classmethod
@@ -187,7 +200,21 @@ class ScanSettings(_Section):
             raise ValueError(
                 'window "adaptive" needs estimator "lobe" (the WCA has no confidence to narrow on)'
             )
+        if self.pattern_file is not None and self.estimator != "lobe":
+            raise ValueError('pattern_file needs estimator "lobe" (the WCA uses no pattern)')
         return self
+
+
+def load_pattern_file(path: str) -> AntennaPattern:
+    """The antenna pattern in the file at `path`; ValueError naming the file and what is wrong."""
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: cannot read: {getattr(exc, 'strerror', None) or exc}") from None
+    try:
+        return parse_pattern(text)
+    except PatternError as exc:
+        raise ValueError(f"{path}: {exc}") from None
 
 
 class ControlSettings(_Section):

@@ -14,7 +14,7 @@ from typing import Any, TypeVar
 
 from pydantic import BaseModel
 
-from relayd.config.model import Settings
+from relayd.config.model import Settings, load_pattern_file
 from relayd.core.avoid.state import AvoidParams
 from relayd.core.control.actuator import Actuator
 from relayd.core.control.law import ControlParams
@@ -167,6 +167,9 @@ def brain_params(settings: Settings) -> BrainParams:
         leader=LeaderParams(
             estimator=s.estimator,
             window=s.window,
+            # Validated when the settings were (ScanSettings), read again here: the brain
+            # gets the table, the config keeps the path.
+            pattern=load_pattern_file(s.pattern_file) if s.pattern_file is not None else None,
             adaptive=WindowParams(
                 # The adaptive window's steps fit the step-mode scanner's clock; a continuous
                 # sweep samples at the RSSI rate wherever the servo is.

@@ -182,7 +182,7 @@ async def start_relay(
         rear_url=rear_url,
         front_url=front_url,
         control=control,
-        scan=dict(scenario.scan),
+        scan=scenario.daemon_scan(),
         recovery=recovery,
     )
     if record_dir is not None:

@@ -123,6 +123,8 @@ class RelaySpec(_Model):
     y: Finite
     theta_deg: Finite = 0.0
     control: dict[str, Any] = Field(default_factory=dict)
+    #: This relay's scan antenna (relayd/sim/antennas.py); unset: the scenario's `[scan] pattern`.
+    pattern: str | None = None
 
 
 class ZoneSpec(_Model):
@@ -221,6 +223,17 @@ class Scenario(_Model):
         for problem in scenario_problems(self.model_dump()):
             raise ValueError(problem)
         return self
+
+    def daemon_scan(self) -> dict[str, Any]:
+        """The `[scan]` table the relays' daemons get: without `pattern`, which is the
+        simulated antenna's (relayd/sim/antennas.py), not a daemon key."""
+        return {k: v for k, v in self.scan.items() if k != "pattern"}
+
+    def relay_pattern(self, i: int) -> str | None:
+        """The family pattern relay i scans with (None: the simulator's own Yagi)."""
+        own = self.relay[i].pattern if i < len(self.relay) else None
+        shared = self.scan.get("pattern")
+        return own if own is not None else (shared if isinstance(shared, str) else None)
 
     def wall_losses(self) -> dict[str, float]:
         out = dict(DEFAULT_WALL_LOSS_DB)
@@ -335,10 +348,27 @@ def scenario_problems(data: dict[str, Any]) -> list[str]:
     ]:
         if isinstance(material, str) and material not in losses:
             out.append(f"{key}: unknown material {material!r} (known: {', '.join(sorted(losses))})")
+    out += _pattern_problems(data)
     relays, starts = data.get("relays", 1), _list(data.get("relay"))
     if isinstance(relays, int) and not isinstance(relays, bool) and relays > len(starts):
         out.append(f"relays: relays = {relays} but only {len(starts)} [[relay]] start poses")
     return out
+
+
+def _pattern_problems(data: dict[str, Any]) -> list[str]:
+    """`[scan] pattern` and each relay's `pattern` must name one of the simulator's antennas."""
+    from relayd.sim.antennas import FAMILY
+
+    named = [("scan.pattern", _dict(data.get("scan")).get("pattern"))]
+    named += [
+        (f"relay.{i}.pattern", _dict(r).get("pattern"))
+        for i, r in enumerate(_list(data.get("relay")))
+    ]
+    return [
+        f"{key}: unknown antenna pattern {name!r} (known: {', '.join(FAMILY)})"
+        for key, name in named
+        if name is not None and name not in FAMILY
+    ]
 
 
 def _daemon_sections(data: dict[str, Any]) -> list[str]:
@@ -349,7 +379,11 @@ def _daemon_sections(data: dict[str, Any]) -> list[str]:
     base = _dict(data.get("control"))
     sections: tuple[tuple[str, Any, dict[str, Any]], ...] = (
         ("control", ControlSettings, base),
-        ("scan", ScanSettings, _dict(data.get("scan"))),
+        (
+            "scan",
+            ScanSettings,
+            {k: v for k, v in _dict(data.get("scan")).items() if k != "pattern"},
+        ),
         ("recovery", RecoverySettings, _dict(data.get("recovery"))),
     )
     for key, model, doc in sections:

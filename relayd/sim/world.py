@@ -18,10 +18,11 @@ from __future__ import annotations
 
 import math
 import random
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 
 from relayd.core.geometry import ROBOT_LENGTH_M, ROBOT_RADIUS_M, ROBOT_WIDTH_M, wrap_deg
+from relayd.sim.antennas import pattern_gain
 from relayd.sim.geometry import (
     Point,
     Polygon,
@@ -123,6 +124,12 @@ class World:
             scenario.radio_params(), self._static + [s for *_, o in self.timed for s in o], seed
         )
         self.radio.walls = tuple(self.obstacles)
+        # Each relay's scan antenna: None is the simulator's own Yagi (`yagi_gain_db` with
+        # the radio's floor, as always); a name is one of relayd/sim/antennas.py's family.
+        self._scan_gain: list[Callable[[float], float] | None] = [
+            None if (name := scenario.relay_pattern(i)) is None else pattern_gain(name)
+            for i in range(scenario.relays)
+        ]
         lead = scenario.leader
         self.leader_script = LeaderScript(
             [(w.x, w.y, w.pause_s) for w in lead.waypoints],
@@ -380,7 +387,8 @@ class World:
         lx, ly = self.node_pos(i)  # relay i is node i+1; its leader is node i
         bearing_world = math.degrees(math.atan2(ly - r.y_m, lx - r.x_m))
         off = wrap_deg(bearing_world - (r.theta_deg + ang))
-        gain = yagi_gain_db(off, self.radio.params.yagi_floor_db)
+        own = self._scan_gain[i] if i < len(self._scan_gain) else None
+        gain = yagi_gain_db(off, self.radio.params.yagi_floor_db) if own is None else own(off)
         return self.radio.sample_dbm(r.pos, (lx, ly), gain)
 
     def true_bearing_deg(self, i: int) -> float:

@@ -20,6 +20,8 @@ from typing import Protocol
 from relayd.core.scan import tracker
 from relayd.core.scan.bearing import LobeFit, LobeParams, fit_main_lobe
 from relayd.core.scan.estimator import ScanEstimate
+from relayd.core.scan.pattern import AntennaPattern
+from relayd.core.scan.patternfit import PatternFitParams, fit_pattern
 from relayd.core.scan.plan import in_current_frame
 from relayd.core.scan.pool import PooledScan, PoolParams, ScanPool
 from relayd.core.scan.tracker import Track, TrackerParams
@@ -34,6 +36,10 @@ class LeaderParams:
     estimator: str = "wca"
     window: str = "full"
     lobe: LobeParams = field(default_factory=LobeParams)
+    #: The antenna's measured pattern (`[scan] pattern_file`): with it each scan is fitted by
+    #: matching the pattern (`relayd.core.scan.patternfit`), not by the main-lobe parabola.
+    pattern: AntennaPattern | None = None
+    pattern_fit: PatternFitParams = field(default_factory=PatternFitParams)
     tracker: TrackerParams = field(default_factory=TrackerParams)
     adaptive: WindowParams = field(default_factory=WindowParams)
     #: Two-sided fits the beamwidth is learnt from (median of the last ones).
@@ -121,11 +127,22 @@ class TrackingModel:
         #: limit (bearing at the scan's end, the heading then, the scan's time): a lost relay
         #: turns toward it (`relayd.core.control.search`) while it is recent.
         self._evidence: tuple[float, float, float] | None = None
+        self._pattern_bw = params.pattern.beamwidth_deg() if params.pattern is not None else None
 
     @property
     def beamwidth_deg(self) -> float | None:
-        """The antenna's 3 dB beamwidth as learnt from two-sided scans (None: not yet)."""
+        """The antenna's 3 dB beamwidth: the pattern file's, else as learnt from two-sided
+        scans (None: not yet)."""
+        if self.params.pattern is not None:
+            return self._pattern_bw
         return _median(self._beamwidths) if self._beamwidths else None
+
+    def _fit(self, angles: Sequence[float], values: Sequence[float]) -> LobeFit | None:
+        """One scan's fit: the measured pattern matched to it, else the main-lobe parabola."""
+        p = self.params
+        if p.pattern is not None:
+            return fit_pattern(angles, values, p.pattern, p.pattern_fit)
+        return fit_main_lobe(angles, values, p.lobe, beamwidth_prior_deg=self.beamwidth_deg)
 
     def _learn(self, fit: LobeFit, angles: Sequence[float]) -> None:
         # Only a lobe seen well on both sides says how wide it is.
@@ -154,13 +171,13 @@ class TrackingModel:
         p = self.params
         values = est.nrssi_dbm
         angles, t_ref = self._leader_frame(t, heading_deg, est.angles_deg, sample_t)
-        fit = fit_main_lobe(angles, values, p.lobe, beamwidth_prior_deg=self.beamwidth_deg)
+        fit = self._fit(angles, values)
         if fit is None and est.situation == 2:
             # The PRSSI penalty carved up the lobe itself: the "obstacle" is the leader, or
             # right beside it (a relay close behind its leader robot). The raw scan still
             # says where the leader is; losing the track over it would stop the relay.
             values = est.rssi_dbm
-            fit = fit_main_lobe(angles, values, p.lobe, beamwidth_prior_deg=self.beamwidth_deg)
+            fit = self._fit(angles, values)
         self.last_fit = fit
         self._remember(fit, angles, est.rssi_dbm, t, heading_deg)
         if len(sample_t) >= 2:
@@ -282,7 +299,9 @@ class TrackingModel:
         """Update the filter with the pooled fit where the scans may be pooled, else with this scan's."""
         tp = self.params.tracker
         fit = scan.fit
-        pooled = self._pool.fit(self.track, scan, self.params.lobe, self.beamwidth_deg)
+        pooled = self._pool.fit(
+            self.track, scan, self.params.lobe, self.beamwidth_deg, self.params.pattern
+        )
         if pooled is not None:
             fit, base = pooled
             self.last_fit = fit

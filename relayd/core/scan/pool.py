@@ -16,6 +16,8 @@ from dataclasses import dataclass, replace
 
 from relayd.core.geometry import wrap_deg
 from relayd.core.scan.bearing import LobeFit, LobeParams, fit_main_lobe
+from relayd.core.scan.pattern import AntennaPattern
+from relayd.core.scan.patternfit import fit_pattern
 from relayd.core.scan.tracker import Track
 
 
@@ -77,6 +79,7 @@ class ScanPool:
         newest: PooledScan,
         lobe: LobeParams,
         beamwidth_prior_deg: float | None,
+        pattern: AntennaPattern | None = None,
     ) -> tuple[LobeFit, Track | None] | None:
         """(pooled fit, track to update from), or None when the scans may not be pooled.
 
@@ -109,9 +112,14 @@ class ScanPool:
             angles += [a + shift for a in s.angles_deg]
             rssi += s.rssi_dbm
             ids += [k] * len(s.angles_deg)
-        pooled = fit_main_lobe(
-            angles, rssi, lobe, beamwidth_prior_deg=beamwidth_prior_deg, scan_ids=ids
-        )
+        if pattern is not None:
+            pooled = fit_pattern(
+                angles, rssi, pattern, scan_ids=ids, around_deg=newest.fit.bearing_deg
+            )
+        else:
+            pooled = fit_main_lobe(
+                angles, rssi, lobe, beamwidth_prior_deg=beamwidth_prior_deg, scan_ids=ids
+            )
         if pooled is None:
             return None
         gap = abs(wrap_deg(pooled.bearing_deg - newest.fit.bearing_deg))
