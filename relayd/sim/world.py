@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 import random
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from relayd.core.geometry import ROBOT_LENGTH_M, ROBOT_RADIUS_M, ROBOT_WIDTH_M, wrap_deg
 from relayd.sim.antennas import pattern_gain
