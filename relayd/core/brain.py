@@ -31,6 +31,7 @@ from relayd.core.events import (
     DeviceStatus,
     DriveCommand,
     Event,
+    LeaderPath,
     LinkEvent,
     LinkSide,
     ModeCommand,
@@ -167,6 +168,10 @@ class Brain:
                 self._halted = True
                 return self._step(event.t, None)
             case ServoPosition():
+                return []
+            case LeaderPath():
+                # The leader relay's own path: the trail the pursuit follows while it is up.
+                self.trail.leader_path(event)
                 return []
             case _:
                 # mypy names the event type a new handler is missing for (STYLE: exhaustive).
