@@ -28,9 +28,7 @@ def test_only_a_relay_following_a_relay_with_the_trail_pursuit_reads_a_feed() ->
 
 @pytest.mark.slow
 @pytest.mark.timeout(180)
-def test_a_relay_follows_its_leaders_path_and_finishes_on_the_estimate_when_the_feed_dies() -> (
-    None
-):
+def test_a_relay_follows_its_leaders_path_and_finishes_on_the_estimate_when_the_feed_dies() -> None:
     assert WORLD["relays"] == 2
     runner = SimRunner(scenario(), speed=None, seed=1)
 

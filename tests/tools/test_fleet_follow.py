@@ -26,10 +26,16 @@ def test_the_chain_gives_each_relay_its_leader_and_origin() -> None:
     )
     keys = follow_keys(fleet)
     assert keys["relay1"] == {}  # it follows the person
-    assert keys["relay2"] == {"leader_url": "http://10.0.0.31:8080", "leader_origin": [1.5, 0.0, 0.0]}
+    assert keys["relay2"] == {
+        "leader_url": "http://10.0.0.31:8080",
+        "leader_origin": [1.5, 0.0, 0.0],
+    }
     # relay2 started 0.5 m east and 1 m north of relay3, which faced north: ahead, on its right.
-    x, y, phi = keys["relay3"]["leader_origin"]  # type: ignore[misc]
-    assert math.isclose(x, 1.0) and math.isclose(y, -0.5) and math.isclose(phi, -90.0)
+    origin = keys["relay3"]["leader_origin"]
+    assert isinstance(origin, list)
+    assert all(
+        math.isclose(a, b, abs_tol=1e-9) for a, b in zip(origin, [1.0, -0.5, -90.0], strict=True)
+    )
     assert keys["relay4"] == {"leader_url": "http://10.0.0.33:8080"}  # no origin: none given
     s = parse_settings({"control": {"rear_link": "ignore", "pursuit": "trail", **keys["relay2"]}})
     assert s.control.leader_url == "http://10.0.0.31:8080"

@@ -17,8 +17,13 @@ from relayd.core.trail.feed import (
     FeedParams,
     LeaderFeed,
 )
-from relayd.core.trail.keeper import SOURCE_BEARING, SOURCE_ESTIMATE, SOURCE_FEED, TrailKeeper
-from relayd.core.trail.keeper import TrailParams
+from relayd.core.trail.keeper import (
+    SOURCE_BEARING,
+    SOURCE_ESTIMATE,
+    SOURCE_FEED,
+    TrailKeeper,
+    TrailParams,
+)
 
 TRUE = Frame(1.5, 0.0, 0.0)  # the leader started 1.5 m ahead, facing the same way
 
@@ -31,9 +36,7 @@ def _leader_xy(t: float) -> tuple[float, float]:
 def _answer(t: float, offset_s: float = 100.0) -> LeaderPath:
     """The leader's GET /path at our time t; its clock reads `offset_s` less than ours."""
     lt = t - offset_s
-    points = tuple(
-        (k * 0.25 - offset_s, *_leader_xy(k * 0.25)) for k in range(int(t / 0.25) + 1)
-    )
+    points = tuple((k * 0.25 - offset_s, *_leader_xy(k * 0.25)) for k in range(int(t / 0.25) + 1))
     x, y = _leader_xy(t)
     return LeaderPath(t + 0.05, (lt, x, y, 0.0), points)
 
@@ -136,9 +139,7 @@ def test_a_wrong_start_pose_is_corrected_by_the_bearings() -> None:
     wrong = Frame(1.5, 1.5, 10.0)
     feed = _feed(wrong)
     rng = random.Random(3)
-    _drive(
-        feed, 40.0, lambda own, t: _bearing(own, t, rng=rng), lambda t: (0.3 * t - 1.0, -1.5)
-    )
+    _drive(feed, 40.0, lambda own, t: _bearing(own, t, rng=rng), lambda t: (0.3 * t - 1.0, -1.5))
     a = feed.alignment
     assert a is not None and a.accepted and a.why == "refined", a
     probe = (6.0, 6.0)
