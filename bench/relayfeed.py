@@ -80,6 +80,7 @@ class Outcome:
     seed: int
     cut_at_s: float | None
     rms_m: float
+    rms_before_cut_m: float | None
     rms_after_cut_m: float | None
     max_m: float
     samples: int
@@ -146,6 +147,7 @@ async def run(seed: int, cut_at_s: float | None, seconds: float | None = None) -
     result = await runner.run()
     errs = path_errors(result.records)
     after = [e for t, e in errs if cut_at_s is not None and t >= cut_at_s]
+    before = [e for t, e in errs if cut_at_s is not None and t < cut_at_s]
     sources: dict[str, int] = {}
     for r in result.records:
         tr = r["relays"][1].get("trail") or {}
@@ -156,6 +158,7 @@ async def run(seed: int, cut_at_s: float | None, seconds: float | None = None) -
         seed,
         cut_at_s,
         rms([e for _, e in errs]),
+        rms(before) if cut_at_s is not None else None,
         rms(after) if cut_at_s is not None else None,
         max((e for _, e in errs), default=math.nan),
         len(errs),
@@ -181,15 +184,19 @@ def main(argv: Sequence[str] | None = None) -> int:
             o = vtime.run(run(seed, cut))
             rows.append(o)
             print(o, file=sys.stderr)
-    head = "| seed | feed | RMS to relay1's path | after the cut | max | relay2 ends on | feed | reason | collisions |"
-    print(head)
-    print("|" + "---|" * 9)
+    print(
+        "| seed | feed | RMS to relay1's path | before the cut | after the cut | max "
+        "| relay2 ends on (trail.source) | trail.feed | reason | collisions |"
+    )
+    print("|" + "---|" * 10)
     for o in rows:
         feed = "up" if o.cut_at_s is None else f"cut at {o.cut_at_s:g} s"
+        before = "" if o.rms_before_cut_m is None else f"{o.rms_before_cut_m:.3f} m"
         after = "" if o.rms_after_cut_m is None else f"{o.rms_after_cut_m:.2f} m"
         print(
-            f"| {o.seed} | {feed} | {o.rms_m:.3f} m | {after} | {o.max_m:.2f} m | "
-            f"{o.final_source} | {o.final_feed} | {o.final_reason} | {o.collisions} |"
+            f"| {o.seed} | {feed} | {o.rms_m:.3f} m | {before} | {after} | {o.max_m:.2f} m | "
+            f"{o.final_source} | {o.final_feed} | {o.final_reason} | {o.collisions} |",
+            flush=True,
         )
     return 0
 

@@ -60,13 +60,16 @@ class FeedParams:
     sightings: int = 120
     sight_every_s: float = 1.0
     #: Fewer sightings than this cannot reject the prior (one odd bearing is not a verdict).
-    min_sightings: int = 5
+    min_sightings: int = 10
     #: A bearing less sure than this (deg, the tracking filter's sd) is no sighting.
     max_bearing_sd_deg: float = 15.0
     #: Sightings whose feed position is this far (s, leader clock) beyond its newest pose
     #: are not matched (the feed lags the scan).
     max_extrapolate_s: float = 0.5
-    align: AlignParams = field(default_factory=AlignParams)
+    #: Sightings nearer than 2 m are not used: across a metre or two the antenna's offset
+    #: from the robot's centre and the leader's size are degrees (a simulator run rejected
+    #: a right prior on such bearings while standing 2 m behind its leader).
+    align: AlignParams = field(default_factory=lambda: AlignParams(min_range_m=2.0))
     #: The bearings' median absolute residual (deg) under the prior up to which it stands.
     keep_prior_deg: float = 8.0
     #: How many of the path's points ahead the relay may be found at (0.1 m each).
