@@ -113,6 +113,8 @@ class LeaderFeed:
         #: The leader's time of the last path point the relay reached (None: join afresh).
         self._reached_t: float | None = None
         self._joined = False
+        #: The path in our frame, less the standoff, and the frame it was mapped with.
+        self._mapped: tuple[Frame, list[TrailPoint]] | None = None
 
     # -- inputs ---------------------------------------------------------------------------
 
@@ -126,6 +128,7 @@ class LeaderFeed:
             # The tightest of the recent answers: latency and the SIP's age only add.
             self._offsets = (*self._offsets, ev.t - pose[0])[-20:]
         self.pose, self.path = pose, points
+        self._mapped = None
 
     def sight(
         self,
@@ -221,9 +224,12 @@ class LeaderFeed:
             self._joined = False
             return None
         p = self.params
-        pts = [TrailPoint(t, *self.frame.apply((x, y))) for t, x, y in self.path]
-        pts.append(TrailPoint(self.pose[0], *self.frame.apply(self.pose[1:3])))
-        pts = _less_standoff(pts, p.standoff_m)
+        if self._mapped is None or self._mapped[0] is not self.frame:
+            # Once per answer or alignment, not per control step (600 points).
+            pts = [TrailPoint(t, *self.frame.apply((x, y))) for t, x, y in self.path]
+            pts.append(TrailPoint(self.pose[0], *self.frame.apply(self.pose[1:3])))
+            self._mapped = (self.frame, _less_standoff(pts, p.standoff_m))
+        pts = self._mapped[1]
         if self._reached_t is not None:
             pts = [q for q in pts if q.t_s >= self._reached_t]
         if not pts:
