@@ -59,6 +59,7 @@ from relayd.runtime.bus import Bus
 from relayd.runtime.control import ControlShell
 from relayd.runtime.fdbudget import FdBudget
 from relayd.runtime.health import device_health
+from relayd.runtime.leaderfeed import LeaderFeedTask, PathClient
 from relayd.runtime.metrics import Metrics
 from relayd.runtime.scanner import RssiMonitor, Scanner
 from relayd.runtime.state import RelayState
@@ -87,11 +88,13 @@ class DeviceOverrides:
     """In-process stand-ins for devices without a `memory://` link (the simulator on virtual time).
 
     `rssi_source` replaces the configured RSSI source; `airos_clients[side]` replaces
-    that poller's HTTP client (same interface, see relayd.sim.inproc).
+    that poller's HTTP client (same interface, see relayd.sim.inproc); `leader_path`
+    replaces the leader feed's HTTP client (the leader relay's daemon in this process).
     """
 
     rssi_source: RssiSource | None = None
     airos_clients: Mapping[str, AirOsClient] = field(default_factory=dict)
+    leader_path: PathClient | None = None
 
 
 class Notifier(Protocol):
@@ -268,6 +271,18 @@ class Daemon:
             self.pollers[side] = poller
             state.health_sources[f"ap.{side}"] = functools.partial(device_health, poller)
             self.supervisor.add(f"ap.{side}", poller.run, device=f"ap.{side}")
+        self.leader_feed: LeaderFeedTask | None = None
+        if s.control.leader_url is not None:
+            # A relay following a relay: the leader's own path (docs/CONTROL.md 7.1).
+            feed = self.leader_feed = LeaderFeedTask(
+                s.control.leader_url,
+                poll_s=s.control.leader_poll_s,
+                clock=clock,
+                publish=self.bus.publish,
+                client=self._devices.leader_path,
+            )
+            state.health_sources["leader_feed"] = functools.partial(device_health, feed)
+            self.supervisor.add("leader_feed", feed.run, device="leader_feed")
         pantilt = self.pantilt
         if pantilt is not None and self.monitor is not None:
             scanner = self.scanner = Scanner(

@@ -120,11 +120,31 @@ class Recovery(_Model):
     )
 
 
+class LeaderFeed(_Model):
+    """A relay following a relay: its leader's GET /path, and why it is followed or not."""
+
+    state: Literal["waiting", "up", "stale", "rejected"] = Field(
+        description="waiting: no answer yet; up: followed; stale: the leader's pose is older "
+        "than control.leader_stale_s (the estimate leads); rejected: the alignment "
+        "disagrees with this relay's bearings of the leader (the estimate leads)"
+    )
+    age_s: float | None = Field(description="since the leader's pose last moved on (s)")
+    alignment: str | None = Field(
+        description="prior (start poses only), refined (by the bearings), bearings_disagree, "
+        "too_far_from_prior; null before a sighting"
+    )
+    residual_deg: float | None = Field(
+        description="the bearings' median absolute residual under the alignment (deg)"
+    )
+    sightings: int = Field(description="bearings of the leader the alignment uses")
+
+
 class Trail(_Model):
     """The leader's trail in this relay's odometry frame (relayd/core/trail)."""
 
-    source: Literal["estimate", "bearing"] = Field(
-        description="what the pursuit steers by: the estimated trail, or the scan bearing (no trail yet)"
+    source: Literal["leader_feed", "estimate", "bearing"] = Field(
+        description="what the pursuit steers by: the leader relay's own path (its GET /path, "
+        "aligned), the estimated trail, or the scan bearing (no trail)"
     )
     leader_xy_m: list[float] | None = Field(
         description="the estimated leader position [x, y] (m, odometry frame); null before a scan"
@@ -139,6 +159,9 @@ class Trail(_Model):
         description="the pursuit target's bearing (robot frame, ccw +); null: not steering by the trail"
     )
     caught_up: bool = Field(description="the relay is at the trail's head (it holds and scans)")
+    feed: LeaderFeed | None = Field(
+        default=None, description="the leader relay's feed (control.leader_url); null: none"
+    )
 
 
 class PathPose(_Model):

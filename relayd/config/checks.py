@@ -16,6 +16,7 @@ import errno
 import math
 from collections.abc import Iterable, Mapping
 from typing import Any, get_args
+from urllib.parse import urlsplit
 
 from pydantic import BaseModel, ValidationError
 
@@ -83,6 +84,7 @@ def control_rules(c: Mapping[str, Any]) -> list[Problem]:
                 "leader is at least",
             )
         )
+    out.extend(leader_feed_rules(c))
     thr_l, thr_b, lost = (
         _num(c.get(k)) for k in ("threshold_l_dbm", "threshold_b_dbm", "lost_rssi_dbm")
     )
@@ -160,6 +162,44 @@ def pantilt_rules(p: Mapping[str, Any]) -> list[Problem]:
     if isinstance(scan, int) and isinstance(link, int) and scan == link:
         return [("pantilt.link_channel", "scan_channel and link_channel must differ")]
     return []
+
+
+def leader_url_error(url: str) -> str | None:
+    """Why `control.leader_url` is not a relay's API base URL (None: it is)."""
+    parts = urlsplit(url)
+    try:
+        parts.port  # noqa: B018 - raises ValueError for a port that is not a number
+    except ValueError:
+        return f"bad port in {url!r}"
+    if parts.scheme not in ("http", "https") or not parts.hostname:
+        return f"must be the leader relay's API as http(s)://host:port, got {url!r}"
+    if parts.query or parts.fragment or parts.path not in ("", "/"):
+        return f"the leader relay's base URL has no path, query or fragment: {url!r}"
+    return None
+
+
+def leader_feed_rules(c: Mapping[str, Any]) -> list[Problem]:
+    """A leader feed needs the start poses (the frame's prior) and the trail pursuit."""
+    if c.get("leader_url") is None:
+        return []
+    out: list[Problem] = []
+    if c.get("leader_origin") is None:
+        out.append(
+            (
+                "control.leader_origin",
+                "is needed with leader_url: where the leader's odometry started, in "
+                "this relay's odometry frame (x_m, y_m, heading_deg; the fleet "
+                "config's origins give it)",
+            )
+        )
+    if c.get("pursuit") != "trail":
+        out.append(
+            (
+                "control.leader_url",
+                'is followed only with pursuit = "trail" (the bearing pursuit has no trail)',
+            )
+        )
+    return out
 
 
 def ap_rules(side: str, ap: Mapping[str, Any]) -> list[Problem]:

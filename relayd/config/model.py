@@ -34,6 +34,7 @@ from relayd.config.checks import (
     ap_rules,
     avoidance_rules,
     control_rules,
+    leader_url_error,
     pantilt_rules,
     raise_first,
 )
@@ -51,6 +52,7 @@ BAUD_RATES = (9600, 19200, 38400, 57600, 115200)
 
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+Finite = Annotated[float, Field(allow_inf_nan=False)]
 #: A received signal level: never above 0 dBm at a receiver (a positive value is a sign error).
 Dbm = Annotated[float, Field(ge=-120, le=0, allow_inf_nan=False)]
 
@@ -272,6 +274,32 @@ class ControlSettings(_Section):
     pathloss_l0_dbm: Dbm = -15.0
     pathloss_exponent: Annotated[float, Field(ge=1.0, le=6.0, allow_inf_nan=False)] = 2.0
     pathloss_sigma_db: Annotated[float, Field(gt=0, le=20, allow_inf_nan=False)] = 6.0
+    #: A relay following a relay: the leader relay's API (its GET /path is followed with
+    #: pursuit "trail"; docs/CONTROL.md 7.1). Unset: the leader is estimated from the scans.
+    leader_url: str | None = None
+    #: Where the leader's odometry started, in this relay's odometry frame (x_m, y_m,
+    #: heading_deg): the alignment's prior (the fleet config's origins give it).
+    leader_origin: (
+        Annotated[
+            tuple[Finite, Finite, Annotated[float, Field(ge=-360, le=360)]],
+            BeforeValidator(_list_to_tuple),
+        ]
+        | None
+    ) = None
+    #: GET /path every this many s; a leader pose older than leader_stale_s is not followed.
+    leader_poll_s: Annotated[float, Field(ge=0.1, le=10, allow_inf_nan=False)] = 0.5
+    leader_stale_s: Annotated[float, Field(ge=0.5, le=60, allow_inf_nan=False)] = 2.0
+
+    @field_validator("leader_url")
+    @classmethod
+    def _leader_url(cls, v: str | None) -> str | None:
+        if v is None:
+            return None
+        v = v.strip().rstrip("/")
+        error = leader_url_error(v)
+        if error is not None:
+            raise ValueError(error)
+        return v
 
     @model_validator(mode="after")
     def _cross_key_rules(self) -> ControlSettings:

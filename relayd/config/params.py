@@ -26,7 +26,9 @@ from relayd.core.scan.estimator import EstimatorParams
 from relayd.core.scan.leader import LeaderParams
 from relayd.core.scan.plan import ScanParams
 from relayd.core.scan.window import WindowParams
+from relayd.core.trail.align import Frame
 from relayd.core.trail.estimate import EstimateParams, RangeModel
+from relayd.core.trail.feed import FeedParams
 from relayd.core.trail.keeper import TrailParams
 
 P = TypeVar("P")
@@ -192,4 +194,10 @@ def trail_params(settings: Settings) -> TrailParams:
     """The leader's trail (relayd/core/trail): the pursuit and the path-loss model."""
     c = settings.control
     model = RangeModel(c.pathloss_l0_dbm, c.pathloss_exponent, c.pathloss_sigma_db)
-    return TrailParams(pursuit=c.pursuit, estimate=EstimateParams(range_model=model))
+    # The leader relay's own path, where one is configured (its origin is the frame's prior).
+    origin = c.leader_origin if c.leader_url is not None else None
+    feed = FeedParams(
+        prior=None if origin is None else Frame(*origin),
+        stale_s=c.leader_stale_s,
+    )
+    return TrailParams(pursuit=c.pursuit, estimate=EstimateParams(range_model=model), feed=feed)

@@ -32,6 +32,7 @@ from relayd.core.events import (
     DeviceStatus,
     DriveCommand,
     Event,
+    LeaderPath,
     LinkEvent,
     LinkSide,
     ModeCommand,
@@ -91,7 +92,6 @@ class Brain:
         self.scans = ScanMemory(params.scan, params.estimator, params.leader)
         #: RSSI^b, the link model (`link_model`: a set-up seam), the retreat (core/link/rear.py).
         self.rear = RearLinkMemory(params.control, params.link, params.rear_station_mac, link_model)
-        # The controller's memory and last word.
         self._memory = ControlMemory()
         self.last_output: ControlOutput | None = None
         # Breadcrumbs and the recovery episode (relayd.core.recovery.machine).
@@ -158,9 +158,8 @@ class Brain:
                 self._manual = None
                 return self._step(event.t, None)
             case DriveCommand():
-                if self._mode is not Mode.MANUAL or not (
-                    math.isfinite(event.left_mm_s) and math.isfinite(event.right_mm_s)
-                ):
+                sum_mm_s = event.left_mm_s + event.right_mm_s  # NaN or inf if either is
+                if self._mode is not Mode.MANUAL or not math.isfinite(sum_mm_s):
                     return []  # the API's shell refuses these before they get here
                 self._manual = (float(event.left_mm_s), float(event.right_mm_s), event.t)
                 return self._step(event.t, None)
@@ -169,11 +168,12 @@ class Brain:
                 return self._step(event.t, None)
             case ServoPosition():
                 return []
+            case LeaderPath():
+                self.trail.leader_path(event)  # the trail the pursuit follows while it is up
+                return []
             case _:
                 # mypy names the event type a new handler is missing for (STYLE: exhaustive).
                 assert_never(event)
-
-    # -- inputs ---------------------------------------------------------------------------
 
     def _on_sip(self, ev: SipEvent) -> list[Action]:
         self._sip_t = ev.t

@@ -139,6 +139,20 @@ class Tick:
 
 
 @dataclass(frozen=True, slots=True)
+class LeaderPath:
+    """One answer of the leader relay's GET /path (its odometry frame, its clock's times).
+
+    `t` is when this relay received it (our clock); `pose` is the leader's newest pose
+    (t_s, x_m, y_m, theta_deg), None before its first SIP; `points` its driven path
+    (t_s, x_m, y_m), oldest first.
+    """
+
+    t: float
+    pose: tuple[float, float, float, float] | None
+    points: tuple[tuple[float, float, float], ...]
+
+
+@dataclass(frozen=True, slots=True)
 class Shutdown:
     """The daemon stops: never command the wheels again."""
 
@@ -157,6 +171,7 @@ Event = (
     | ModeCommand
     | DriveCommand
     | Tick
+    | LeaderPath
     | Shutdown
 )
 

@@ -12,6 +12,9 @@
     token_file = "/etc/relayd/relay1.token"   # or token_env = "...", or token = "..."
     origin = [0.0, 0.0, 0.0]  # where its odometry started: x_m, y_m, heading_deg on a shared map
 
+The chain is also each relay's leader: relay k follows relay k-1 (`follow_keys` gives
+each its `[control] leader_url` and `leader_origin` from the URLs and origins here).
+
 Other sections of the file are ignored, so one site file may carry both a robot's
 config and the fleet's. Unknown keys inside `[fleet]` are errors, as in relayd.config.model.
 """
@@ -30,6 +33,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from relayd.config.checks import loads_toml, undecodable, validation_messages
 from relayd.config.model import ConfigError, SecretRef, resolve_secret
+from relayd.core.trail.align import frame_between
 
 DEFAULT_PORT = 8090
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
@@ -189,3 +193,21 @@ def relay_from_arg(text: str, token: str | None = None) -> Relay:
     except ValueError as exc:
         raise ConfigError([f"--relay: {exc}"]) from None
     return Relay(name or urlsplit(clean).netloc, clean, token)
+
+
+def follow_keys(fleet: FleetSettings) -> dict[str, dict[str, object]]:
+    """Each relay's `[control]` keys for following the relay ahead of it in the chain: its
+    `leader_url` (that relay's API) and, where both have an origin, `leader_origin` (where
+    that relay's odometry started, in this one's frame). The first relay follows the person
+    and gets none. The same list `[control] leader_url` asks for, read from this file."""
+    out: dict[str, dict[str, object]] = {}
+    for k, relay in enumerate(fleet.relays):
+        keys: dict[str, object] = {}
+        if k > 0:
+            ahead = fleet.relays[k - 1]
+            keys["leader_url"] = ahead.url
+            if relay.origin is not None and ahead.origin is not None:
+                f = frame_between(relay.origin, ahead.origin)
+                keys["leader_origin"] = [round(f.tx_m, 3), round(f.ty_m, 3), round(f.phi_deg, 2)]
+        out[relay.name] = keys
+    return out

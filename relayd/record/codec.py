@@ -43,6 +43,7 @@ TOPICS: dict[str, str] = {
     "ModeCommand": "/operator/mode",
     "DriveCommand": "/operator/drive",
     "Tick": "/tick",
+    "LeaderPath": "/leader/path",
     "Shutdown": "/shutdown",
     "WheelCommand": "/action/wheels",
     "ServoTarget": "/action/servo",

@@ -10,11 +10,15 @@ controller already have in-memory links (`drivers.transport.memlink`); these cov
   `FakeAirOs` object directly instead of over HTTP. The documents go through a JSON
   round trip and the client's own parsing, so the daemon sees exactly what it would
   see over the wire. The HTTP fake stays for the integration tests.
+- `InProcessPath`: a relay following a relay reads its leader's GET /path from the
+  leader's daemon in this process (its state's path source, the document the API
+  serves), encoded as the API would, and parsed by the feed's own parser.
 """
 
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from typing import Any
 
 from drivers.airos.client import AirOsClient
@@ -71,3 +75,26 @@ class InProcessAirOs(AirOsClient):
     async def stations(self) -> tuple[Station, ...]:
         # The fake's own rule for what sta.cgi serves (its station list, or the link mirrored).
         return parse_stations(_wire(self._fake._station_list()))
+
+
+class InProcessPath:
+    """The leader relay's GET /path, read from its daemon here (a `PathClient`)."""
+
+    def __init__(self, source: Callable[[], dict[str, Any] | None]) -> None:
+        self._source = source
+        self.alive = True
+
+    def cut(self) -> None:
+        """The bridge to the leader fails from now on (a test's or a bench's fault)."""
+        self.alive = False
+
+    async def fetch(self) -> bytes:
+        if not self.alive:
+            raise ConnectionError("the leader relay does not answer (cut)")
+        doc = self._source()
+        if doc is None:
+            raise ConnectionError("the leader relay has no path source yet")
+        return json.dumps(doc).encode()
+
+    async def close(self) -> None:
+        return None

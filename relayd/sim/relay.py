@@ -13,7 +13,7 @@ from __future__ import annotations
 import asyncio
 import secrets
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -48,6 +48,28 @@ def _pose3(p: Any) -> tuple[float, float, float]:
     if isinstance(p, tuple | list):
         return float(p[0]), float(p[1]), float(p[2])
     return float(p.x_mm), float(p.y_mm), float(p.theta_deg)
+
+
+def leader_feed(
+    control: dict[str, Any],
+    ahead: tuple[str, tuple[float, float, float]] | None,
+    own: tuple[float, float, float],
+) -> dict[str, Any]:
+    """The `[control]` keys of a relay following the relay `ahead` (its in-memory name and
+    start pose in the world) with pursuit "trail": its leader's API and where the leader's
+    odometry started in ours (each odometry starts at 0, 0, 0 where its robot stands,
+    as the fleet config's origins give it on a robot). Empty for the person's follower
+    or the bearing pursuit, whose settings (and so traces) stay as they were."""
+    if ahead is None or control.get("pursuit") != "trail" or "leader_url" in control:
+        return {}
+    from relayd.core.trail.align import frame_between
+
+    tag, start = ahead
+    f = frame_between(own, start)
+    return {
+        "leader_url": f"http://{tag}-api.inproc",
+        "leader_origin": [round(f.tx_m, 6), round(f.ty_m, 6), round(f.phi_deg, 6)],
+    }
 
 
 def relay_settings(
@@ -117,17 +139,20 @@ async def start_relay(
     password: str,
     recovery: dict[str, Any],
     record_dir: Path | None,
+    ahead: SimRelay | None = None,
 ) -> SimRelay:
     """Relay `i` of `world`: its fakes serving (in memory when `virtual`, else under
     `work`), the robot's SIP loop started, and its daemon built but not yet running.
-    `prefix` names its in-memory links; the robot's fake gets seed `seed * 1000 + i`."""
+    `prefix` names its in-memory links; the robot's fake gets seed `seed * 1000 + i`.
+    `ahead` is the relay it follows (None: it follows the person); with pursuit
+    "trail" it reads that relay's path (`leader_feed`)."""
     from drivers.airos.fake import FakeAirOs
     from drivers.arcos.fake import FakeRobot
     from drivers.pantilt.fake import FakeMaestro
     from drivers.wifi.fake import ProcfsWriter
     from relayd.config.model import Settings
     from relayd.daemon import Daemon, DeviceOverrides
-    from relayd.sim.inproc import InProcessAirOs, MemoryRssi
+    from relayd.sim.inproc import InProcessAirOs, InProcessPath, MemoryRssi
 
     body = world.relays[i]
 
@@ -148,7 +173,7 @@ async def start_relay(
     maestro = FakeMaestro(clock=clock, initial_us=PULSE_US[1])
     rear = FakeAirOs("ubnt", password, clock=clock)
     front = FakeAirOs("ubnt", password, clock=clock)
-    devices = None
+    devices: DeviceOverrides | None = None
     procfs: ProcfsWriter | MemoryRssi
     if virtual:
         tag = f"{prefix}-{body.name}"
@@ -175,6 +200,12 @@ async def start_relay(
     procfs.write(world.yagi_rssi_dbm(i, 0.0))
     control = dict(scenario.control)
     control.update(scenario.relay[i].control)
+    in_front = None
+    if ahead is not None:
+        lb = world.relays[i - 1]
+        in_front = (f"{prefix}-{ahead.name}", (lb.x_m, lb.y_m, lb.theta_deg))
+    feed = leader_feed(control, in_front, (body.x_m, body.y_m, body.theta_deg))
+    control.update(feed)
     doc = relay_settings(
         robot_port=robot_port,
         servo_port=servo_port,
@@ -187,6 +218,14 @@ async def start_relay(
     )
     if record_dir is not None:
         doc["record"] = {"enabled": True, "path": str(record_dir / f"{body.name}.mcap")}
+    if feed and ahead is not None:
+        state = ahead.daemon.state
+        path = InProcessPath(lambda: None if state.path_source is None else state.path_source())
+        devices = (
+            DeviceOverrides(leader_path=path)
+            if devices is None
+            else replace(devices, leader_path=path)
+        )
     settings = Settings.model_validate(doc)
     env = {AP_PASSWORD_ENV: password, API_TOKEN_ENV: secrets.token_hex(16)}
     daemon = Daemon(settings, clock=clock, env=env, devices=devices)

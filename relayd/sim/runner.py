@@ -139,6 +139,7 @@ class SimRunner:
             password=self._password,
             recovery=self._recovery_section(),
             record_dir=self.record_dir,
+            ahead=self.relays[i - 1] if i > 0 else None,
         )
         self._update_links()
         return relay
@@ -257,14 +258,16 @@ class SimRunner:
         if trail.params.pursuit != "trail":
             return {}
         v = trail.view()
-        return {
-            "trail": {
-                "source": v.source,
-                "leader_xy_m": None if v.leader_xy_m is None else list(v.leader_xy_m),
-                "leader_sigma_m": v.leader_sigma_m,
-                "caught_up": v.caught_up,
-            }
+        shown: dict[str, Any] = {
+            "source": v.source,
+            "leader_xy_m": None if v.leader_xy_m is None else list(v.leader_xy_m),
+            "leader_sigma_m": v.leader_sigma_m,
+            "caught_up": v.caught_up,
         }
+        if v.feed is not None:  # a relay following a relay: why it is (not) on the feed
+            shown["feed"] = v.feed.state
+            shown["feed_alignment"] = v.feed.alignment
+        return {"trail": shown}
 
     async def _world_loop(self) -> None:
         clock = self.clock

@@ -79,3 +79,51 @@ async def test_get_path_serves_the_relay_s_own_path() -> None:
         assert doc["points"] == [[1.0, 1.5, -0.2]]
     finally:
         await client.close()
+
+
+async def test_a_follower_reads_a_relay_s_path_over_http_and_shows_its_feed() -> None:
+    """Relay A's API serves GET /path; relay B's feed client reads it, B's keeper follows it
+    (source leader_feed) and B's /status shows the feed, valid against the model and schema."""
+    from typing import Any
+
+    from aiohttp.test_utils import TestClient, TestServer
+
+    from relayd.api import make_app
+    from relayd.core.trail.align import Frame
+    from relayd.core.trail.feed import FeedParams
+    from relayd.runtime.leaderfeed import HttpPathClient, parse_path
+    from tests.support import ManualClock
+
+    class _Controls:
+        def set_mode(self, mode: object) -> None: ...
+        def manual_drive(self, left_mm_s: float, right_mm_s: float) -> None: ...
+
+    leader = TrailKeeper(TrailParams())
+    for k in range(60):  # 6 m east at 0.5 m/s
+        leader.own_pose(0.2 * k, (100.0 * k, 0.0, 0.0))
+    st_a = RelayState()
+    st_a.path_source = leader.path_json
+    app = make_app(st_a, _Controls(), clock=ManualClock(10.0), token=None)  # type: ignore[arg-type]
+    client: TestClient[Any, Any] = TestClient(TestServer(app, host="127.0.0.1"))
+    await client.start_server()
+    try:
+        feed_client = HttpPathClient(str(client.make_url("/")))
+        event = parse_path(await feed_client.fetch(), 12.0)
+        await feed_client.close()
+    finally:
+        await client.close()
+    follower = TrailKeeper(
+        TrailParams(pursuit="trail", feed=FeedParams(prior=Frame(1.5, 0.0, 0.0)))
+    )
+    follower.leader_path(event)
+    got = follower.steer(12.2, (0.0, 0.0, 0.0), ())
+    assert got is not None and got.steer_deg is not None and abs(got.steer_deg) < 1.0
+    st_b = RelayState()
+    st_b.trail_source = lambda: follower.view().to_json()
+    doc = st_b.snapshot(12.3)
+    status = Status.model_validate_json(json.dumps(doc), strict=True)
+    assert status.model_dump(mode="json") == doc
+    assert status.trail is not None and status.trail.source == "leader_feed"
+    assert status.trail.feed is not None and status.trail.feed.state == "up"
+    feed_schema = STATUS_SCHEMA["properties"]["trail"]["properties"]["feed"]
+    assert set(feed_schema["properties"]) == set(doc["trail"]["feed"])

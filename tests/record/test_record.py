@@ -35,6 +35,7 @@ from relayd.core.events import (
     DeviceStatus,
     DriveCommand,
     Event,
+    LeaderPath,
     LinkEvent,
     LinkModelView,
     LinkSide,
@@ -130,6 +131,8 @@ def every_type(t: float = 5.0) -> tuple[list[Event], list[Action]]:
         ModeCommand(t, Mode.MANUAL),
         DriveCommand(t, 100.0, -100.0),
         Tick(t),
+        LeaderPath(t, None, ()),
+        LeaderPath(t, (t - 0.1, 1.5, -0.25, 90.0), ((t - 3.0, 0.0, 0.0), (t - 2.0, 0.1, 0.0))),
         Shutdown(t),
     ]
     actions: list[Action] = [

@@ -276,9 +276,7 @@ async def _late_tick_stops(monkeypatch: pytest.MonkeyPatch, *, read_first: bool)
         robot = StandInRobot()
         loop = Loop(clock, robot, Mode.FOLLOW, scanner=False)
         w = World(clock, robot, loop.state, loop)
-        scans = loop.brain.scans
-        scans.bearing_deg, scans.bearing_heading_deg = 20.0, 0.0
-        scans.rssi_leader_dbm = -50.0
+        loop.brain.scans.remember(20.0, 0.0, -50.0)
         w.fresh()
 
         def sip_bytes_in() -> None:

@@ -8,7 +8,7 @@ the leader (taken from its pose at the time, world frame) refine it: Gauss-Newto
 the bearing residuals plus the prior, a few iterations. The alignment is rejected when
 its bearing residuals' RMS exceeds `max_rms_deg` (an alignment the antenna disagrees
 with), or when it needs more than `max_shift_m` / `max_turn_deg` from the prior.
-Not wired into the daemon yet: the feed resource and `leader_url` are not built.
+Wired in by relayd/core/trail/feed.py (the leader relay's GET /path, `leader_url`).
 """
 
 from __future__ import annotations
@@ -31,6 +31,16 @@ class Frame:
     def apply(self, xy_m: tuple[float, float]) -> tuple[float, float]:
         c, s = math.cos(math.radians(self.phi_deg)), math.sin(math.radians(self.phi_deg))
         return c * xy_m[0] - s * xy_m[1] + self.tx_m, s * xy_m[0] + c * xy_m[1] + self.ty_m
+
+
+def frame_between(
+    own_origin: tuple[float, float, float], leader_origin: tuple[float, float, float]
+) -> Frame:
+    """The leader's odometry frame in ours, from where each odometry started on a shared
+    map (x_m, y_m, heading_deg; the fleet config's `origin`s): the alignment's prior."""
+    c, s = math.cos(math.radians(own_origin[2])), math.sin(math.radians(own_origin[2]))
+    dx, dy = leader_origin[0] - own_origin[0], leader_origin[1] - own_origin[1]
+    return Frame(c * dx + s * dy, -s * dx + c * dy, wrap_deg(leader_origin[2] - own_origin[2]))
 
 
 @dataclass(frozen=True, slots=True)
@@ -65,7 +75,8 @@ class Alignment:
     why: str
 
 
-def _residuals(f: Frame, sightings: Sequence[Sighting]) -> list[float]:
+def residuals_deg(f: Frame, sightings: Sequence[Sighting]) -> list[float]:
+    """Each sighting's bearing minus where the frame puts the leader (deg)."""
     out = []
     for s in sightings:
         x, y = f.apply(s.leader_xy_m)
@@ -104,7 +115,7 @@ def align(prior: Frame, sightings: Sequence[Sighting], p: AlignParams) -> Alignm
         # Normal equations of the bearing residuals (deg) and the prior, by numeric Jacobian.
         h = [[0.0] * 3 for _ in range(3)]
         g = [0.0] * 3
-        base = _residuals(f, use)
+        base = residuals_deg(f, use)
         steps = (1e-4, 1e-4, 1e-3)
         cols = []
         for k, eps in enumerate(steps):
@@ -112,7 +123,7 @@ def align(prior: Frame, sightings: Sequence[Sighting], p: AlignParams) -> Alignm
             d[k] = eps
             moved = Frame(f.tx_m + d[0], f.ty_m + d[1], f.phi_deg + d[2])
             cols.append(
-                [(b1 - b0) / eps for b0, b1 in zip(base, _residuals(moved, use), strict=True)]
+                [(b1 - b0) / eps for b0, b1 in zip(base, residuals_deg(moved, use), strict=True)]
             )
         for i in range(len(use)):
             for a in range(3):
@@ -130,7 +141,7 @@ def align(prior: Frame, sightings: Sequence[Sighting], p: AlignParams) -> Alignm
         f = Frame(f.tx_m - step[0], f.ty_m - step[1], f.phi_deg - step[2])
         if max(abs(step[0]), abs(step[1])) < 1e-4 and abs(step[2]) < 1e-3:
             break
-    res = _residuals(f, use)
+    res = residuals_deg(f, use)
     rms = math.sqrt(sum(r * r for r in res) / len(res)) if res else math.nan
     shift = math.hypot(f.tx_m - prior.tx_m, f.ty_m - prior.ty_m)
     turn = abs(wrap_deg(f.phi_deg - prior.phi_deg))

@@ -6,6 +6,10 @@ estimate (`estimate`) and the trail (`polyline`) behind it; `steer` prunes the t
 behind the relay and asks `pursuit` where to go. `view` is what /status and the trace
 show. An estimate less sure than `max_sigma_m` puts nothing on the trail (its source
 is then "bearing": the law steers by the scan bearing as the paper's relays did).
+
+A robot leader's own path (`feed`, relayd/core/trail/feed.py: its GET /path aligned
+into our frame) comes first while it is up: the source is then "leader_feed". Stale
+or rejected, the estimated trail takes over, then the bearing.
 """
 
 from __future__ import annotations
@@ -14,8 +18,10 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+from relayd.core.events import LeaderPath
 from relayd.core.scan.estimator import SonarReading
 from relayd.core.trail.estimate import EstimateParams, LeaderEstimate, observe
+from relayd.core.trail.feed import FeedParams, FeedView, LeaderFeed
 from relayd.core.trail.polyline import Trail, TrailPoint, add_point, prune, remaining_m
 from relayd.core.trail.pursuit import Pursuit, PursuitParams, pursue
 
@@ -23,7 +29,7 @@ from relayd.core.trail.pursuit import Pursuit, PursuitParams, pursue
 #: feed's poses between them), the newest 600 (60 m).
 OWN_SPACING_M, OWN_KEEP = 0.1, 600
 #: Where the trail came from, as /status names it.
-SOURCE_ESTIMATE, SOURCE_BEARING = "estimate", "bearing"
+SOURCE_FEED, SOURCE_ESTIMATE, SOURCE_BEARING = "leader_feed", "estimate", "bearing"
 
 
 @dataclass(frozen=True, slots=True)
@@ -41,6 +47,8 @@ class TrailParams:
     #: Caught up with the head: hold and scan this long (s), then steer by the bearing until
     #: the trail has a new point (a head that no longer moves may be an estimate gone stale).
     hold_s: float = 6.0
+    #: A robot leader's own path (its prior None: no feed, the estimate alone).
+    feed: FeedParams = field(default_factory=FeedParams)
 
 
 @dataclass(frozen=True, slots=True)
@@ -53,10 +61,13 @@ class TrailView:
     points: tuple[tuple[float, float], ...]
     steer_deg: float | None
     caught_up: bool
+    #: The robot leader's feed (None: no leader_url).
+    feed: FeedView | None = None
 
     def to_json(self) -> dict[str, object]:
         """/status's `trail` (the newest MAX_SHOWN points of it)."""
         return {
+            "feed": None if self.feed is None else self.feed.to_json(),
             "source": self.source,
             "leader_xy_m": None if self.leader_xy_m is None else list(self.leader_xy_m),
             "leader_sigma_m": self.leader_sigma_m,
@@ -82,6 +93,15 @@ class TrailKeeper:
         self.own: tuple[float, float, float, float] | None = None
         self._held_since: float | None = None
         self._held_head: TrailPoint | None = None
+        self.feed = None if params.feed.prior is None else LeaderFeed(params.feed)
+        self._source = SOURCE_BEARING
+        self._now: float | None = None
+        self._fed: Trail | None = None
+
+    def leader_path(self, ev: LeaderPath) -> None:
+        """An answer of the leader relay's GET /path (ignored without a configured feed)."""
+        if self.feed is not None:
+            self.feed.on_path(ev)
 
     def own_pose(self, t_s: float, pose_mm_deg: tuple[float, float, float]) -> None:
         """This relay's odometry pose of a SIP, onto its own published path."""
@@ -125,6 +145,8 @@ class TrailKeeper:
             rssi_dbm = None
         xy = (pose_mm_deg[0] / 1000.0, pose_mm_deg[1] / 1000.0)
         world = None if bearing_deg is None else pose_mm_deg[2] + bearing_deg
+        if self.feed is not None and world is not None:
+            self.feed.sight(t_s, xy, world, bearing_sd_deg)
         self.estimate = observe(
             self.estimate, t_s, xy, world, bearing_sd_deg, rssi_dbm, floor_m, self.params.estimate
         )
@@ -144,12 +166,23 @@ class TrailKeeper:
         front: Sequence[SonarReading],
     ) -> Pursuit | None:
         """Where pursuit steers from this pose (None: no trail, steer by the bearing)."""
+        self._now = now_s
         if pose_mm_deg is None:
             self.last = None
             return None
         x, y, th = pose_mm_deg[0] / 1000.0, pose_mm_deg[1] / 1000.0, pose_mm_deg[2]
         p = self.params
+        # Pruned even while the feed leads, so a fall-back finds it from where the relay is.
         self.trail = prune(self.trail, (x, y), reach_m=p.reach_m, window=p.prune_window)
+        fed = None if self.feed is None else self.feed.trail(now_s, (x, y))
+        self._fed = fed
+        if fed:
+            # The leader's own path: its head is where it is, no estimate to go stale.
+            self._held_since = self._held_head = None
+            self._source = SOURCE_FEED
+            self.last = pursue(fed, (x, y, th), front, p.pursue)
+            return self.last
+        self._source = SOURCE_ESTIMATE
         got = pursue(self.trail, (x, y, th), front, p.pursue)
         if got is not None and got.caught_up:
             # The last committed point: a head that only jitters on its estimate is no news.
@@ -168,6 +201,8 @@ class TrailKeeper:
         if pose_mm_deg is None:
             return None
         xy = (pose_mm_deg[0] / 1000.0, pose_mm_deg[1] / 1000.0)
+        if self._source == SOURCE_FEED and self._fed:
+            return remaining_m(self._fed, xy)
         if self.trail:
             return remaining_m(self.trail, xy)
         if self.estimate is not None:
@@ -177,8 +212,9 @@ class TrailKeeper:
     def view(self) -> TrailView:
         est = self.estimate
         steering = self.params.pursuit == "trail" and self.last is not None
-        src = SOURCE_ESTIMATE if steering else SOURCE_BEARING
+        src = self._source if steering else SOURCE_BEARING
         last = self.last
+        feed = None if self.feed is None else self.feed.view(self._now or 0.0)
         return TrailView(
             src,
             None if est is None else (round(est.x[0], 3), round(est.x[1], 3)),
@@ -186,4 +222,5 @@ class TrailKeeper:
             tuple((round(p.x_m, 3), round(p.y_m, 3)) for p in self.trail),
             None if last is None or last.steer_deg is None else round(last.steer_deg, 1),
             last is not None and last.caught_up,
+            feed,
         )
