@@ -1,7 +1,10 @@
 """The paper's throughput figures against a sweep: the tables and plots of docs/VALIDATION.md.
 
     relayd sweep --scenario corridor --scenario outdoor --relays 0,1,2 --seeds 10 --out DIR
-    python -m relayd.sweep.validation DIR [--docs docs]
+    python -m relayd.sweep.validation DIR [DIR ...] [--docs docs]
+
+A sweep with a `--set radio.model=...` axis gets one table (and plot) per radio model;
+runs without that column are the default wall-count model.
 
 For each figure (6-17 indoor corridor, 6-21 outdoor lot) every number the paper states is
 set against relayd's mean +- sd over the sweep's seeds, with the deviation and a verdict
@@ -56,6 +59,19 @@ def first_below(s: Series, mbps: float, after_s: float = 0.0) -> float | None:
     return next(
         (t for t, e in zip(s["t"], s["e2e_mbps"], strict=True) if t >= after_s and e < mbps), None
     )
+
+
+def min_at(s: Series) -> float | None:
+    """The first time the end-to-end throughput was at its lowest."""
+    if not s["e2e_mbps"]:
+        return None
+    low = min(s["e2e_mbps"])
+    return next(t for t, e in zip(s["t"], s["e2e_mbps"], strict=True) if e == low)
+
+
+#: The sweep column of a `--set radio.model=...` axis, and the model of runs without it.
+MODEL_COLUMN = "radio.model"
+DEFAULT_MODEL = "wall-count"
 
 
 def leader_corner_s(scenario: str, k: int) -> float:
@@ -158,6 +174,22 @@ FIGURES: dict[str, tuple[str, str, list[Check]]] = {
             ),
             Check(
                 "final e2e (Mbps)", 2, "~20", "point", (20,), lambda r, s: _f(r, "final_e2e_mbps")
+            ),
+            Check(
+                "min e2e, whole walk (Mbps)",
+                2,
+                "very stable",
+                "info",
+                (),
+                lambda r, s: _f(r, "min_e2e_mbps"),
+            ),
+            Check(
+                "when the minimum came (s)",
+                2,
+                "-",
+                "info",
+                (),
+                lambda r, s: min_at(s),
             ),
             Check(
                 "runs with the link held to the goal",
@@ -283,6 +315,8 @@ def verdict(
         return "-", "met" if m <= check.target[0] else "OFF"
     if check.kind == "min":
         return "-", "met" if m >= check.target[0] else "OFF"
+    if check.kind == "info":
+        return "-", "-"
     if check.kind == "count":
         # the paper's one run did it; every seed has to
         return "-", "met" if m >= 1.0 else "OFF"
@@ -295,46 +329,75 @@ def _values(
     return [v for r in by_n.get(c.relays, []) if (v := c.measure(r, series[id(r)])) is not None]
 
 
-def tables(out: Path) -> tuple[str, dict[str, dict[int, list[Series]]]]:
-    with (out / "runs.csv").open(encoding="utf-8") as f:
-        rows = [r for r in csv.DictReader(f) if r["status"] == "ok"]
+def _rows(dirs: Sequence[Path]) -> list[tuple[Path, dict[str, Any]]]:
+    out: list[tuple[Path, dict[str, Any]]] = []
+    for d in dirs:
+        with (d / "runs.csv").open(encoding="utf-8") as f:
+            out += [(d, r) for r in csv.DictReader(f) if r["status"] == "ok"]
+    return out
+
+
+def tables(out: Path | Sequence[Path]) -> tuple[str, dict[str, dict[int, list[Series]]]]:
+    """The Markdown tables and the curves to plot, keyed by figure (and model, when a
+    figure's runs have more than one: `6-17`, `6-17-dominant-path`)."""
+    dirs = [out] if isinstance(out, Path) else list(out)
+    rows = _rows(dirs)
     lines: list[str] = []
     curves: dict[str, dict[int, list[Series]]] = {}
     for fig, (scenario, title, checks) in FIGURES.items():
-        runs = [r for r in rows if r["scenario"] == scenario]
-        series = {id(r): load_series(out, r) or {"t": [], "e2e_mbps": []} for r in runs}
-        by_n: dict[int, list[dict[str, Any]]] = {}
-        for r in runs:
-            by_n.setdefault(int(r["relays"]), []).append(r)
-        curves[fig] = {n: [series[id(r)] for r in rs] for n, rs in by_n.items()}
-        seeds = sorted({int(r["seed"]) for r in runs})
-        lines += [
-            f"### Fig. {fig}: {title}",
-            "",
-            f"relayd: {len(seeds)} seeds per relay count (seeds {seeds[0]}-{seeds[-1]})."
-            if seeds
-            else "relayd: no runs.",
-            "",
-            "| quantity | relays | paper | relayd mean ± sd | n | deviation | verdict |",
-            "|---|---|---|---|---|---|---|",
-        ]
-        measured = {id(c): _values(c, by_n, series) for c in checks}
-        # the ordering checks hold together: the means fall from 0 to 1 to 2 relays
-        order_means = [mean_sd(measured[id(c)]) for c in checks if c.kind == "order"]
-        order_ok = all(m is not None for m in order_means) and all(
-            a[0] > b[0]  # type: ignore[index]
-            for a, b in itertools.pairwise(order_means)
-        )
-        for c in checks:
-            vals = measured[id(c)]
-            ms = mean_sd(vals)
-            shown = f"{int(sum(vals))}/{len(vals)}" if c.kind == "count" else fmt_ms(ms)
-            dev, ok = verdict(c, ms, len(vals), order_ok)
-            lines.append(
-                f"| {c.what} | {c.relays} | {c.paper} | {shown} | {len(vals)} | {dev} | {ok} |"
-            )
-        lines.append("")
+        mine = [(d, r) for d, r in rows if r["scenario"] == scenario]
+        models = sorted({r.get(MODEL_COLUMN) or DEFAULT_MODEL for _, r in mine}, reverse=True)
+        for model in models or [DEFAULT_MODEL]:
+            picked = [(d, r) for d, r in mine if (r.get(MODEL_COLUMN) or DEFAULT_MODEL) == model]
+            key = fig if model == DEFAULT_MODEL else f"{fig}-{model}"
+            head = title if len(models) < 2 else f"{title}, {model} radio"
+            lines += _table(key, fig, head, checks, picked, curves)
     return "\n".join(lines), curves
+
+
+def _table(
+    key: str,
+    fig: str,
+    title: str,
+    checks: list[Check],
+    picked: list[tuple[Path, dict[str, Any]]],
+    curves: dict[str, dict[int, list[Series]]],
+) -> list[str]:
+    lines: list[str] = []
+    runs = [r for _, r in picked]
+    series = {id(r): load_series(d, r) or {"t": [], "e2e_mbps": []} for d, r in picked}
+    by_n: dict[int, list[dict[str, Any]]] = {}
+    for r in runs:
+        by_n.setdefault(int(r["relays"]), []).append(r)
+    curves[key] = {n: [series[id(r)] for r in rs] for n, rs in by_n.items()}
+    seeds = sorted({int(r["seed"]) for r in runs})
+    lines += [
+        f"### Fig. {fig}: {title}",
+        "",
+        f"relayd: {len(seeds)} seeds per relay count (seeds {seeds[0]}-{seeds[-1]})."
+        if seeds
+        else "relayd: no runs.",
+        "",
+        "| quantity | relays | paper | relayd mean ± sd | n | deviation | verdict |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    measured = {id(c): _values(c, by_n, series) for c in checks}
+    # the ordering checks hold together: the means fall from 0 to 1 to 2 relays
+    order_means = [mean_sd(measured[id(c)]) for c in checks if c.kind == "order"]
+    order_ok = all(m is not None for m in order_means) and all(
+        a[0] > b[0]  # type: ignore[index]
+        for a, b in itertools.pairwise(order_means)
+    )
+    for c in checks:
+        vals = measured[id(c)]
+        ms = mean_sd(vals)
+        shown = f"{int(sum(vals))}/{len(vals)}" if c.kind == "count" else fmt_ms(ms)
+        dev, ok = verdict(c, ms, len(vals), order_ok)
+        lines.append(
+            f"| {c.what} | {c.relays} | {c.paper} | {shown} | {len(vals)} | {dev} | {ok} |"
+        )
+    lines.append("")
+    return lines
 
 
 def write_plots(curves: dict[str, dict[int, list[Series]]], docs: Path) -> list[Path]:
@@ -342,8 +405,11 @@ def write_plots(curves: dict[str, dict[int, list[Series]]], docs: Path) -> list[
     from relayd.sweep.report import band
 
     files = []
-    for fig, by_n in curves.items():
+    for key, by_n in curves.items():
+        fig = key[:4]
         scenario, title, _ = FIGURES[fig]
+        if key != fig:
+            title = f"{title}, {key[5:]} radio"
         rows = []
         for n in sorted(by_n):
             t, mean, sd = band(by_n[n])
@@ -352,7 +418,7 @@ def write_plots(curves: dict[str, dict[int, list[Series]]], docs: Path) -> list[
             (leader_corner_s(scenario, 1), "corner 1"),
             (leader_corner_s(scenario, 2), "corner 2"),
         ]
-        path = docs / f"validation-fig{fig}.png"
+        path = docs / f"validation-fig{key}.png"
         plot_throughput_bands(
             rows,
             path,
@@ -366,7 +432,7 @@ def write_plots(curves: dict[str, dict[int, list[Series]]], docs: Path) -> list[
 
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("sweep_dir", type=Path)
+    p.add_argument("sweep_dir", type=Path, nargs="+")
     p.add_argument(
         "--docs",
         type=Path,
