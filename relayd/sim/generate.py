@@ -149,6 +149,12 @@ def generate(kind: str, seed: int) -> str:
         "x = 0.5",
         "y = 0.0",
         "",
+        "[sonar]",
+        "specular = true",
+        "",
+        "[radio]",
+        'model = "dominant-path"',
+        "",
         "[radio.wall_loss_db]",
     ]
     out += [f"{m} = {v}" for m, v in world["loss"].items()]  # type: ignore[attr-defined]
