@@ -54,6 +54,8 @@ def cost_per_sim_s(sc: Scenario, model: str, seconds: int = 20) -> float:
     """Wall seconds the radio spends per simulated second with the relays walking behind
     the leader along its route (positions moved every tick, so no memo hit is free)."""
     w = World(_variant(sc, model, {}, min(2, len(sc.relay))), seed=1)
+    if model == "dominant-path":
+        w.radio.corner_graph()  # built once per world: timed on its own
     ticks = int(seconds * sc.tick_hz)
     span = w.leader_script.end_s - sc.leader.start_s
     t0 = time.perf_counter()

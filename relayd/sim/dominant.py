@@ -30,6 +30,9 @@ from relayd.sim.geometry import Point, Segment, segments_intersect
 NODE_OFFSET_M = 0.05
 #: Chains kept per (first node, last node) pair, each ending in a different previous node.
 LABELS_PER_PAIR = 3
+#: Chains whose inner bends cost more than this are not searched further (four right
+#: angles at the default 10 dB: the straight path through a few walls is stronger).
+MAX_INNER_TURNS_DB = 40.0
 _SLACK = 1e-9
 
 
@@ -109,6 +112,28 @@ def _clear(p: Point, q: Point, walls: Sequence[Segment]) -> bool:
     return True
 
 
+#: Sectors of a bend point's view: a line from it lies in one, and only the walls that
+#: reach into that sector can cross the line.
+SECTORS = 64
+_SECTOR = 2 * math.pi / SECTORS
+
+
+def _sectors(node: Point, walls: Sequence[Segment]) -> list[list[Segment]]:
+    """The walls reaching into each sector round `node` (one sector of slack each side)."""
+    out: list[list[Segment]] = [[] for _ in range(SECTORS)]
+    x, y = node
+    for w in walls:
+        a1 = math.atan2(w.y1 - y, w.x1 - x)
+        a2 = math.atan2(w.y2 - y, w.x2 - x)
+        span = math.remainder(a2 - a1, 2 * math.pi)
+        start = a1 if span >= 0 else a2
+        k0 = math.floor((start + math.pi) / _SECTOR) - 1
+        k1 = math.floor((start + abs(span) + math.pi) / _SECTOR) + 1
+        for k in range(k0, k1 + 1):
+            out[k % SECTORS].append(w)
+    return out
+
+
 @dataclass(frozen=True, slots=True)
 class Chain:
     """A precomputed chain of bends from node i to node j: its length, the loss of its
@@ -140,23 +165,42 @@ class CornerGraph:
         self.exponent = exponent
         self.nodes = bend_points(self.walls)
         n = len(self.nodes)
+        self._sectors = [_sectors(node, self.walls) for node in self.nodes]
         self.sees: list[list[int]] = [[] for _ in range(n)]
+        self._dist: dict[tuple[int, int], float] = {}
+        self._unit: dict[tuple[int, int], tuple[float, float]] = {}
+        self._turns: dict[tuple[int, int, int], float] = {}
         for i in range(n):
             for j in range(i + 1, n):
-                if _clear(self.nodes[i], self.nodes[j], self.walls):
+                if self._sees(i, self.nodes[j]):
                     self.sees[i].append(j)
                     self.sees[j].append(i)
+                    (xi, yi), (xj, yj) = self.nodes[i], self.nodes[j]
+                    d = math.hypot(xj - xi, yj - yi)
+                    self._dist[(i, j)] = self._dist[(j, i)] = d
+                    ux, uy = (xj - xi) / d, (yj - yi) / d
+                    self._unit[(i, j)], self._unit[(j, i)] = (ux, uy), (-ux, -uy)
         self.chains: list[dict[int, list[Chain]]] = [self._from(i) for i in range(n)]
+
+    def _turn_db(self, prev: int, u: int, w: int) -> float:
+        """Loss of the bend prev -> u -> w (kept: every source's search meets the same bends)."""
+        key = (prev, u, w)
+        t = self._turns.get(key)
+        if t is None:
+            (ax, ay), (bx, by) = self._unit[(prev, u)], self._unit[(u, w)]
+            cos = max(-1.0, min(1.0, ax * bx + ay * by))
+            t = self._turns[key] = turn_loss_db(math.degrees(math.acos(cos)), self.per_90_db)
+        return t
 
     def _from(self, src: int) -> dict[int, list[Chain]]:
         """Best chains from node src: Dijkstra over (node, previous node) states, ordered by
         the loss a path of that length and those inner turns would have (turns at src are
         the query's: they depend on where the path comes from)."""
-        nodes, k = self.nodes, 10.0 * self.exponent
+        k, dist = 10.0 * self.exponent, self._dist
         best: dict[tuple[int, int], tuple[float, float, int]] = {}
         heap: list[tuple[float, int, int, float, float, int]] = []
         for v in self.sees[src]:
-            d = math.dist(nodes[src], nodes[v])
+            d = dist[(src, v)]
             heapq.heappush(heap, (k * math.log10(max(d, 0.5)), v, src, d, 0.0, v))
         out: dict[int, list[Chain]] = {}
         while heap:
@@ -170,15 +214,24 @@ class CornerGraph:
             for w in self.sees[u]:
                 if w in (prev, src) or (w, u) in best:
                     continue
-                t = turns + turn_loss_db(_turn_deg(nodes[prev], nodes[u], nodes[w]), self.per_90_db)
-                d = length + math.dist(nodes[u], nodes[w])
+                t = turns + self._turn_db(prev, u, w)
+                if t > MAX_INNER_TURNS_DB:
+                    continue  # a path bent this much never dominates: not worth a search
+                d = length + dist[(u, w)]
                 heapq.heappush(heap, (k * math.log10(max(d, 0.5)) + t, w, u, d, t, second))
         return out
 
+    def _sees(self, i: int, p: Point) -> bool:
+        """True if bend point i sees p: only the walls in the sector of i's view that p
+        lies in can be on the line between them."""
+        x, y = self.nodes[i]
+        a = math.atan2(p[1] - y, p[0] - x)
+        k = int((a + math.pi) / _SECTOR) % SECTORS
+        return _clear(p, self.nodes[i], self._sectors[i][k])
+
     def visible(self, p: Point) -> list[int]:
         """The bend points p sees (no wall on the line)."""
-        walls, nodes = self.walls, self.nodes
-        return [i for i in range(len(nodes)) if _clear(p, nodes[i], walls)]
+        return [i for i in range(len(self.nodes)) if self._sees(i, p)]
 
     def best(self, a: Point, b: Point, va: Sequence[int], vb: Sequence[int]) -> BentPath | None:
         """The indirect path a -> ... -> b of least loss (length term plus turns), given the

@@ -265,6 +265,11 @@ class Radio:
     def _path(self, a: Point, b: Point) -> PathInfo:
         """The link a-b's gain-free local-mean power, wall loss, walls crossed, environment,
         and (dominant path model, when a bent path wins) its first and last bend."""
+        if self.params.model == "dominant-path" and (b[0], b[1]) < (a[0], a[1]):
+            # One entry per link, whichever end asks (the Yagi asks relay first, the hop
+            # front first): the same path, walked the other way.
+            base, loss, n_walls, env, via = self._path(b, a)
+            return base, loss, n_walls, env, None if via is None else (via[1], via[0])
         key = (a[0], a[1], b[0], b[1])
         if self.params is not self._memo_params:
             self._paths.clear()
@@ -311,14 +316,8 @@ class Radio:
         """World bearing, seen from `at`, of the way the signal from `frm` arrives: straight
         at `frm`, or at the last bend of a dominant path round corners (a signal that comes
         through a doorway points at the doorway)."""
-        # The path already worked out either way round (a hop is asked front to back).
-        hit = self._paths.get((frm[0], frm[1], at[0], at[1]))
-        if hit is not None and self.params is self._memo_params:
-            via = hit[4]
-            tx, ty = frm if via is None else via[1]
-        else:
-            via = self._path(at, frm)[4]
-            tx, ty = frm if via is None else via[0]
+        via = self._path(at, frm)[4]
+        tx, ty = frm if via is None else via[0]
         return math.degrees(math.atan2(ty - at[1], tx - at[0]))
 
     def _shadow_value(self, pt: Point) -> float:
