@@ -268,8 +268,8 @@ class Radio:
         if self.params.model == "dominant-path" and (b[0], b[1]) < (a[0], a[1]):
             # One entry per link, whichever end asks (the Yagi asks relay first, the hop
             # front first): the same path, walked the other way.
-            base, loss, n_walls, env, via = self._path(b, a)
-            return base, loss, n_walls, env, None if via is None else (via[1], via[0])
+            base, loss, n_walls, env, back = self._path(b, a)
+            return base, loss, n_walls, env, None if back is None else (back[1], back[0])
         key = (a[0], a[1], b[0], b[1])
         if self.params is not self._memo_params:
             self._paths.clear()
