@@ -146,3 +146,28 @@ def test_world_yagi_peaks_at_the_doorway() -> None:
     w = World(parse_scenario(doc), seed=0)
     levels = {a: w.yagi_rssi_dbm(0, float(a)) for a in range(-180, 180, 5)}
     assert max(levels, key=lambda a: levels[a]) == -180  # straight through the wall
+
+
+def test_generated_network_never_weaker_than_the_straight_path_and_symmetric() -> None:
+    import dataclasses
+    import random
+
+    from relayd.sim.scenario import load_scenario
+
+    sc = load_scenario("generated:corridors:3")
+    walls = sc.wall_segments() + [s for b in sc.box_shapes() for s in b.segments()]
+    base = RadioParams(shadow_sigma_db=0.0, fading=False, wall_loss_db=sc.wall_losses())
+    wc = Radio(base, walls)
+    dp = Radio(dataclasses.replace(base, model="dominant-path"), walls)
+    route = [(w.x, w.y) for w in sc.leader.waypoints]
+    rng = random.Random(5)
+    bent = 0
+    for _ in range(60):
+        a, b = rng.choice(route), rng.choice(route)
+        a = (a[0] + rng.uniform(-0.5, 0.5), a[1] + rng.uniform(-0.5, 0.5))
+        b = (b[0] + rng.uniform(-0.5, 0.5), b[1] + rng.uniform(-0.5, 0.5))
+        p_dp, p_wc = dp.mean_power_dbm(a, b)[0], wc.mean_power_dbm(a, b)[0]
+        assert p_dp >= p_wc - 1e-9
+        assert dp.mean_power_dbm(b, a)[0] == p_dp
+        bent += p_dp > p_wc
+    assert bent >= 10  # round corners is often the stronger way in a corridor network
