@@ -184,7 +184,7 @@ FIGURES: dict[str, tuple[str, str, list[Check]]] = {
                 lambda r, s: _f(r, "min_e2e_mbps"),
             ),
             Check(
-                "when the minimum came (s)",
+                "when the minimum first came (s)",
                 2,
                 "-",
                 "info",
