@@ -171,3 +171,10 @@ def test_generated_network_never_weaker_than_the_straight_path_and_symmetric() -
         assert dp.mean_power_dbm(b, a)[0] == p_dp
         bent += p_dp > p_wc
     assert bent >= 10  # round corners is often the stronger way in a corridor network
+
+
+def test_no_bend_point_at_a_t_joint_or_a_straight_joint() -> None:
+    tee = [Segment(0, 0, 10, 0), Segment(5, 0, 5, 5)]
+    assert bend_points(tee) == sorted([(-OFF, 0.0), (10 + OFF, 0.0), (5.0, 5 + OFF)])
+    straight = [Segment(0, 0, 5, 0), Segment(5, 0, 10, 0)]
+    assert bend_points(straight) == [(-OFF, 0.0), (10 + OFF, 0.0)]
