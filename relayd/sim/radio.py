@@ -15,6 +15,10 @@ Rician when the direct path crosses no wall, Rayleigh otherwise. Rates and link
 state are computed from the local-mean power (without fast fading), as 802.11 rate
 adaptation averages over fades; the RSSI the Wi-Fi adapter and the APs report includes
 fading averaged over a few frames (`fading_avg_frames`).
+
+With `model = "dominant-path"` a link whose straight path crosses walls may instead take
+the best path round corners and through openings (relayd/sim/dominant.py), whichever is
+stronger; the antennas then hear it from that path's direction (`arrival_deg`).
 """
 
 from __future__ import annotations
@@ -329,7 +333,8 @@ class Radio:
         return v
 
     def wall_loss_db(self, a: Point, b: Point) -> tuple[float, int]:
-        """Total loss of the walls the direct path crosses, and how many it crosses."""
+        """Total loss of the walls the direct path crosses, and how many it crosses (with the
+        dominant-path model, when a path round corners wins: its turn loss and 0 walls)."""
         _, loss, n_walls, _, _ = self._path(a, b)
         return loss, n_walls
 
