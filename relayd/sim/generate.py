@@ -5,7 +5,8 @@ room by its corridor door and leaves it by an inner door into the next, plans th
 person's route with A* (relayd/sim/planner.py) keeping the P3-AT's half-width plus a
 margin from every wall and box, and writes an ordinary scenario document. The same
 kind and seed give the same text, byte for byte (random.Random seeded from the string).
-Only the "office" kind exists so far; other kinds are refused by name.
+Kinds: "office" (below) and "corridors" (a corridor network with L-corners and
+T-junctions, relayd/sim/gen_corridors.py); other kinds are refused by name.
 """
 
 from __future__ import annotations
@@ -14,10 +15,11 @@ import itertools
 import math
 import random
 
+from relayd.sim.gen_corridors import corridors
 from relayd.sim.planner import Point, Segment, plan, route_length_m
 from relayd.sim.radio import DEFAULT_WALL_LOSS_DB
 
-KINDS = ("office",)
+KINDS = ("office", "corridors")
 #: P3-AT: 0.50 m wide (half 0.25 m) plus a 0.25 m margin on each side.
 CLEARANCE_M = 0.5
 #: Below this route length the corridor's straight hops carry the link with one relay.
@@ -105,7 +107,13 @@ def build(kind: str, seed: int) -> tuple[dict[str, object], list[Point]]:
         raise GenerateError(f"generated: unknown kind {kind!r} (known: {', '.join(KINDS)})")
     rng = random.Random(f"{kind}:{seed}")
     for _ in range(MAX_TRIES):
-        world = _office(rng)
+        if kind == "office":
+            world = _office(rng)
+        else:
+            loss = {
+                m: _r(v * rng.uniform(0.8, 1.2)) for m, v in sorted(DEFAULT_WALL_LOSS_DB.items())
+            }
+            world = corridors(rng, loss)
         route = plan(_segments(world), START, world["goal"], CLEARANCE_M)  # type: ignore[arg-type]
         if route is not None and route_length_m(route) >= MIN_ROUTE_M:
             return world, [(_r(x), _r(y)) for x, y in route]
@@ -148,6 +156,12 @@ def generate(kind: str, seed: int) -> str:
         'name = "relay2"',
         "x = 0.5",
         "y = 0.0",
+        "",
+        "[sonar]",
+        "specular = true",
+        "",
+        "[radio]",
+        'model = "dominant-path"',
         "",
         "[radio.wall_loss_db]",
     ]

@@ -15,6 +15,10 @@ Rician when the direct path crosses no wall, Rayleigh otherwise. Rates and link
 state are computed from the local-mean power (without fast fading), as 802.11 rate
 adaptation averages over fades; the RSSI the Wi-Fi adapter and the APs report includes
 fading averaged over a few frames (`fading_avg_frames`).
+
+With `model = "dominant-path"` a link whose straight path crosses walls may instead take
+the best path round corners and through openings (relayd/sim/dominant.py), whichever is
+stronger; the antennas then hear it from that path's direction (`arrival_deg`).
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 from relayd.core.link.rates import RATE_TABLE_80211G, RATE_TABLE_80211N_1X1, RATE_TABLES  # noqa: F401 (re-exported)
+from relayd.sim.dominant import CornerGraph
 from relayd.sim.geometry import Point, Segment, crossings
 from relayd.sim.zones import PathEnvironment, RadioZone, path_environment
 
@@ -131,6 +136,11 @@ class RadioParams:
 
     #: Per-zone environments (relayd/sim/zones.py); outside them the values above hold.
     zones: tuple[RadioZone, ...] = ()
+    #: "wall-count" (the straight path, every wall on it charged) or "dominant-path" (the
+    #: stronger of that and the best path round corners; relayd/sim/dominant.py).
+    model: str = "wall-count"
+    #: Dominant path: loss of one bend of 90 degrees (proportional to the turning angle).
+    turn_loss_db: float = 10.0
 
     @classmethod
     def indoor(cls, **kw: object) -> RadioParams:
@@ -170,6 +180,12 @@ class ShadowField:
 
 #: Entries a Radio memo holds before it is emptied (a few seconds of a moving chain).
 MEMO_MAX_ENTRIES = 512
+#: Corner graphs a Radio keeps (one per set of walls: a timed door open or shut).
+GRAPHS_KEPT = 4
+
+#: A path's memo entry: gain-free local-mean power, wall loss (or turn loss of a bent
+#: path), walls crossed, environment, and for a bent path its first and last bend.
+PathInfo = tuple[float, float, int, PathEnvironment, tuple[Point, Point] | None]
 
 
 class Radio:
@@ -193,12 +209,14 @@ class Radio:
         for w in self._walls:
             if w.material not in params.wall_loss_db:
                 raise ValueError(f"wall material {w.material!r} has no loss in radio.wall_loss_db")
-        #: (ax, ay, bx, by) -> (mean power without antenna gain, wall loss, walls crossed, environment)
-        self._paths: dict[
-            tuple[float, float, float, float], tuple[float, float, int, PathEnvironment]
-        ] = {}
+        #: (ax, ay, bx, by) -> PathInfo
+        self._paths: dict[tuple[float, float, float, float], PathInfo] = {}
         self._shadow_at: dict[tuple[float, float], float] = {}
         self._memo_params = params
+        if params.model not in ("wall-count", "dominant-path"):
+            raise ValueError(f"radio.model {params.model!r}: wall-count or dominant-path")
+        self._graphs: dict[tuple[Segment, ...], CornerGraph] = {}
+        self._sees: dict[tuple[float, float], list[int]] = {}
 
     @property
     def walls(self) -> tuple[Segment, ...]:
@@ -209,9 +227,53 @@ class Radio:
     def walls(self, walls: Iterable[Segment]) -> None:
         self._walls = tuple(walls)
         self._paths.clear()
+        self._sees.clear()
 
-    def _path(self, a: Point, b: Point) -> tuple[float, float, int, PathEnvironment]:
-        """The link a-b's gain-free local-mean power, wall loss, walls crossed, environment."""
+    def corner_graph(self) -> CornerGraph:
+        """The bend points of the present walls and the chains between them (built once per
+        set of walls: a timed door that opens and shuts again reuses the graph it had)."""
+        g = self._graphs.get(self._walls)
+        if g is None or g.per_90_db != self.params.turn_loss_db:
+            if len(self._graphs) >= GRAPHS_KEPT:
+                self._graphs.clear()
+            g = self._graphs[self._walls] = CornerGraph(
+                self._walls, self.params.turn_loss_db, self.params.exponent
+            )
+        return g
+
+    def _seen(self, g: CornerGraph, p: Point) -> list[int]:
+        key = (p[0], p[1])
+        v = self._sees.get(key)
+        if v is None:
+            if len(self._sees) >= MEMO_MAX_ENTRIES:
+                self._sees.clear()
+            v = self._sees[key] = g.visible(key)
+        return v
+
+    def _bent(
+        self, a: Point, b: Point, direct_db: float, exponent: float
+    ) -> tuple[float, float, tuple[Point, Point]] | None:
+        """The best path round corners if it beats the straight one's `direct_db` (its
+        distance term plus its walls): (distance term, turn loss, first and last bend)."""
+        g = self.corner_graph()
+        if not g.nodes:
+            return None
+        bent = g.best(a, b, self._seen(g, a), self._seen(g, b))
+        if bent is None:
+            return None
+        dist_db = 10.0 * exponent * math.log10(max(self.params.min_distance_m, bent.length_m))
+        if dist_db + bent.turns_db >= direct_db:
+            return None
+        return dist_db, bent.turns_db, (bent.first, bent.last)
+
+    def _path(self, a: Point, b: Point) -> PathInfo:
+        """The link a-b's gain-free local-mean power, wall loss, walls crossed, environment,
+        and (dominant path model, when a bent path wins) its first and last bend."""
+        if self.params.model == "dominant-path" and (b[0], b[1]) < (a[0], a[1]):
+            # One entry per link, whichever end asks (the Yagi asks relay first, the hop
+            # front first): the same path, walked the other way.
+            base, loss, n_walls, env, back = self._path(b, a)
+            return base, loss, n_walls, env, None if back is None else (back[1], back[0])
         key = (a[0], a[1], b[0], b[1])
         if self.params is not self._memo_params:
             self._paths.clear()
@@ -233,17 +295,34 @@ class Radio:
         hit_walls = crossings(a, b, self._walls)
         loss, n_walls = sum(p.wall_loss_db[w.material] for w in hit_walls), len(hit_walls)
         d = max(p.min_distance_m, math.hypot(b[0] - a[0], b[1] - a[1]))
-        # Summed in the order of the budget P = L0 - 10 n log10(d) - walls + shadowing (+ gain).
-        base = (
-            env.l0_dbm
-            - 10.0 * env.exponent * math.log10(d)
-            - loss
-            + self.shadowing_db(a, b, env.shadow_sigma_db)
-        )
+        via: tuple[Point, Point] | None = None
+        if n_walls and p.model == "dominant-path":
+            dist_db = 10.0 * env.exponent * math.log10(d)
+            bent = self._bent(a, b, dist_db + loss, env.exponent)
+            if bent is not None:
+                dist_db, loss, via = bent
+                n_walls = 0
+            base = env.l0_dbm - dist_db - loss + self.shadowing_db(a, b, env.shadow_sigma_db)
+        else:
+            # Summed in the order of the budget P = L0 - 10 n log10(d) - walls + shadowing (+ gain).
+            base = (
+                env.l0_dbm
+                - 10.0 * env.exponent * math.log10(d)
+                - loss
+                + self.shadowing_db(a, b, env.shadow_sigma_db)
+            )
         if len(self._paths) >= MEMO_MAX_ENTRIES:
             self._paths.clear()
-        out = self._paths[key] = (base, loss, n_walls, env)
+        out = self._paths[key] = (base, loss, n_walls, env, via)
         return out
+
+    def arrival_deg(self, at: Point, frm: Point) -> float:
+        """World bearing, seen from `at`, of the way the signal from `frm` arrives: straight
+        at `frm`, or at the last bend of a dominant path round corners (a signal that comes
+        through a doorway points at the doorway)."""
+        via = self._path(at, frm)[4]
+        tx, ty = frm if via is None else via[0]
+        return math.degrees(math.atan2(ty - at[1], tx - at[0]))
 
     def _shadow_value(self, pt: Point) -> float:
         v = self._shadow_at.get(pt)
@@ -254,8 +333,9 @@ class Radio:
         return v
 
     def wall_loss_db(self, a: Point, b: Point) -> tuple[float, int]:
-        """Total loss of the walls the direct path crosses, and how many it crosses."""
-        _, loss, n_walls, _ = self._path(a, b)
+        """Total loss of the walls the direct path crosses, and how many it crosses (with the
+        dominant-path model, when a path round corners wins: its turn loss and 0 walls)."""
+        _, loss, n_walls, _, _ = self._path(a, b)
         return loss, n_walls
 
     def environment(self, a: Point, b: Point) -> PathEnvironment:
@@ -269,8 +349,8 @@ class Radio:
 
     def mean_power_dbm(self, a: Point, b: Point, gain_db: float = 0.0) -> tuple[float, bool]:
         """Local-mean received power (no fast fading) and whether the path is line of sight."""
-        base, _, n_walls, _ = self._path(a, b)
-        return base + gain_db, n_walls == 0
+        base, _, n_walls, _, via = self._path(a, b)
+        return base + gain_db, n_walls == 0 and via is None
 
     def rate_penalty_db(self, a: Point, b: Point) -> float:
         """SNR margin the link's multipath costs its rate (0 outside zones that set it)."""

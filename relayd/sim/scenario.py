@@ -154,6 +154,11 @@ class RadioSpec(_Model):
     phy: Literal["802.11g", "802.11n-1x1"] = "802.11g"
     hop_coupling: Annotated[float, Field(ge=0, le=1)] = DEFAULT_HOP_COUPLING
     zones: list[ZoneSpec] = Field(default_factory=list)
+    #: The straight path through the walls, or the stronger of that and the best path round
+    #: corners and through doorways (relayd/sim/dominant.py).
+    model: Literal["wall-count", "dominant-path"] = "wall-count"
+    #: Dominant path: the loss of one 90-degree bend (proportional to the turning angle).
+    turn_loss_db: Annotated[float, Field(ge=0, le=60)] = 10.0
 
 
 class MapWallOverride(_Model):
@@ -170,6 +175,11 @@ class SonarSpec(_Model):
     noise_mm: NonNeg = 0.0
     max_range_m: Positive = 5.0
     min_range_m: NonNeg = 0.1
+    #: Smooth walls echo only near normal incidence; corners and wall ends always echo;
+    #: now and then a transducer hears its neighbour's echo (relayd/sim/sonar.py).
+    specular: bool = False
+    grazing_limit_deg: Annotated[float, Field(gt=0, lt=90)] = 35.0
+    crosstalk_prob: Annotated[float, Field(ge=0, le=1)] = 0.02
 
 
 class Scenario(_Model):
@@ -257,6 +267,8 @@ class Scenario(_Model):
             patch_floor_db=r.patch_floor_db,
             phy=r.phy,
             hop_coupling=r.hop_coupling,
+            model=r.model,
+            turn_loss_db=r.turn_loss_db,
             zones=tuple(
                 RadioZone(
                     z.name,

@@ -5,6 +5,14 @@ exact, not sampled by rays) among the walls and boxes within reach, the leader a
 other relays. A range is computed when it is first read: a P3-AT's SIP carries 8 of the
 16, so the FakeRobot asks for half of them each time. The world hands the ring a
 `SonarScene`, plain values of that instant; this module knows nothing of the World.
+
+With `[sonar] specular = true` the ring misses things as a real one does (docs/
+SIMULATOR.md, "Specular sonar"): a smooth wall or box side echoes only when the
+transducer's axis is within `grazing_limit_deg` of the wall's normal; beyond it the
+ping glances off and the wall is silent, though its corners and free ends (which send
+sound back from any angle) still echo. And with probability `crosstalk_prob` a reading
+is the nearer of its own echo and a neighbouring transducer's (seeded, the world's
+sonar random stream). Bodies (the person, the other robots) echo as before.
 """
 
 from __future__ import annotations
@@ -72,7 +80,10 @@ class SonarReadings(Sequence[int]):
         "_c",
         "_cfg",
         "_circles",
+        "_echo",
+        "_edges",
         "_got",
+        "_n_walls",
         "_point_radius_m",
         "_points",  # the scene's point query, when the map has points
         "_rng",
@@ -108,6 +119,8 @@ class SonarReadings(Sequence[int]):
                 or min(s.y1, s.y2) > y + reach
             )
         ]
+        self._n_walls = len(segs)
+        self._edges = _edge_points(segs) if cfg.specular else []
         # A map's scan points within reach echo as small discs (each sonar keeps those
         # that can meet its cone: _range_mm).
         self._points = scene.points_near
@@ -134,6 +147,7 @@ class SonarReadings(Sequence[int]):
         self._c, self._s = math.cos(a), math.sin(a)
         self._rng = rng
         self._got: list[int | None] = [None] * len(SONAR_POSES)
+        self._echo: list[int | None] = [None] * len(SONAR_POSES)
 
     def __len__(self) -> int:
         return len(SONAR_POSES)
@@ -152,22 +166,36 @@ class SonarReadings(Sequence[int]):
         return got
 
     def _range_mm(self, k: int) -> int:
+        cfg = self._cfg
+        if not cfg.specular:
+            return self._plain_mm(k)
+        got = self._specular_mm(k)
+        if cfg.crosstalk_prob > 0 and self._rng.random() < cfg.crosstalk_prob:
+            # The neighbour's ping, glanced off a wall, reaches this transducer first.
+            n = len(SONAR_POSES)
+            other = self._specular_mm((k + self._rng.choice((-1, 1))) % n)
+            got = min(got, other)
+        return got
+
+    def _specular_mm(self, k: int) -> int:
+        got = self._echo[k]
+        if got is None:
+            got = self._echo[k] = self._plain_mm(k, specular=True)
+        return got
+
+    def _plain_mm(self, k: int, specular: bool = False) -> int:
         cfg, c, s = self._cfg, self._c, self._s
         pose = SONAR_POSES[k]
         sx, sy, sh = pose.x_mm, pose.y_mm, pose.heading_deg
         ox = self._x + (c * sx - s * sy) / 1000.0
         oy = self._y + (s * sx + c * sy) / 1000.0
-        circles = self._circles
+        segs, circles = self._segs, self._circles
+        if specular:
+            segs, circles = self._specular_targets(self._theta_deg + sh)
         if self._points is not None:
             circles = self._cone_points(ox, oy, self._theta_deg + sh) + circles
         best = cone_range(
-            ox,
-            oy,
-            self._theta_deg + sh,
-            cfg.beam_deg / 2.0,
-            cfg.max_range_m,
-            self._segs,
-            circles,
+            ox, oy, self._theta_deg + sh, cfg.beam_deg / 2.0, cfg.max_range_m, segs, circles
         )
         max_mm = round(cfg.max_range_m * 1000)
         if best is None:
@@ -208,3 +236,40 @@ class SonarReadings(Sequence[int]):
             and nrx * (c[0] - ox) + nry * (c[1] - oy) >= -c[2]
             and hypot(c[0] - ox, c[1] - oy) - c[2] <= far
         ]
+
+    def _specular_targets(
+        self, heading_deg: float
+    ) -> tuple[list[Segment], list[tuple[float, float, float]]]:
+        """What can echo to a transducer pointing at heading_deg: walls met within the
+        grazing limit of their normal, every corner and free end, and the bodies."""
+        h = math.radians(heading_deg)
+        dx, dy = math.cos(h), math.sin(h)
+        cos_lim = math.cos(math.radians(self._cfg.grazing_limit_deg))
+        walls = self._segs[: self._n_walls]
+        segs = [
+            w
+            for w in walls
+            # |axis x wall direction| / |wall| is the cosine of the angle from the normal.
+            if abs(dx * (w.y2 - w.y1) - dy * (w.x2 - w.x1)) >= cos_lim * w.length_m
+        ]
+        segs.extend(self._segs[self._n_walls :])
+        return segs, self._circles + self._edges
+
+
+def _edge_points(segs: Sequence[Segment]) -> list[tuple[float, float, float]]:
+    """Corners and free ends of the walls (as points, radius 0): every segment end except
+    where exactly two segments continue one another in a straight line."""
+    ends: dict[tuple[float, float], list[Segment]] = {}
+    for w in segs:
+        ends.setdefault((w.x1, w.y1), []).append(w)
+        ends.setdefault((w.x2, w.y2), []).append(w)
+    out = []
+    for (x, y), ws in ends.items():
+        if len(ws) == 2:
+            a, b = ws
+            if abs((a.x2 - a.x1) * (b.y2 - b.y1) - (a.y2 - a.y1) * (b.x2 - b.x1)) < 1e-9 * (
+                a.length_m * b.length_m
+            ):
+                continue
+        out.append((x, y, 0.0))
+    return out

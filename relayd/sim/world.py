@@ -130,6 +130,7 @@ class World:
             None if (name := scenario.relay_pattern(i)) is None else pattern_gain(name)
             for i in range(scenario.relays)
         ]
+        self._dominant = self.radio.params.model == "dominant-path"
         lead = scenario.leader
         self.leader_script = LeaderScript(
             [(w.x, w.y, w.pause_s) for w in lead.waypoints],
@@ -385,7 +386,11 @@ class World:
         r = self.relays[i]
         ang = r.scan_deg if scan_deg is None else scan_deg
         lx, ly = self.node_pos(i)  # relay i is node i+1; its leader is node i
-        bearing_world = math.degrees(math.atan2(ly - r.y_m, lx - r.x_m))
+        if self._dominant:
+            # The Yagi hears the way the dominant path arrives (a doorway, a corner).
+            bearing_world = self.radio.arrival_deg(r.pos, (lx, ly))
+        else:
+            bearing_world = math.degrees(math.atan2(ly - r.y_m, lx - r.x_m))
         off = wrap_deg(bearing_world - (r.theta_deg + ang))
         own = self._scan_gain[i] if i < len(self._scan_gain) else None
         gain = yagi_gain_db(off, self.radio.params.yagi_floor_db) if own is None else own(off)
@@ -411,7 +416,10 @@ class World:
         if 1 <= back <= len(self.relays):
             r = self.relays[back - 1]
             fx, fy = self.node_pos(k)
-            want = math.degrees(math.atan2(fy - r.y_m, fx - r.x_m))
+            if self._dominant:
+                want = self.radio.arrival_deg(r.pos, (fx, fy))
+            else:
+                want = math.degrees(math.atan2(fy - r.y_m, fx - r.x_m))
             off = wrap_deg(want - (r.theta_deg + r.link_deg))
             return patch_gain_db(off, self.radio.params.patch_floor_db)
         return 0.0

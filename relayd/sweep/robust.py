@@ -44,7 +44,32 @@ def category(row: dict[str, Any]) -> str:
     return "clean"
 
 
-def section(rows: Sequence[dict[str, Any]]) -> list[str]:
+def _setting(row: dict[str, Any], set_keys: Sequence[str]) -> str:
+    return ", ".join(f"{k}={row.get(k, '')}" for k in set_keys)
+
+
+def _by_setting(ok: Sequence[dict[str, Any]], set_keys: Sequence[str]) -> list[str]:
+    """One row per combination of `--set` values: the laws side by side on the same worlds."""
+    groups: dict[str, list[dict[str, Any]]] = {}
+    for r in ok:
+        groups.setdefault(_setting(r, set_keys), []).append(r)
+    cats = sorted({category(r) for r in ok} - {"clean"})
+    lines = [
+        "| setting | clean | Wilson 95 % | " + " | ".join(cats) + " |",
+        "|---|---|---|" + "---|" * len(cats),
+    ]
+    for name, rs in groups.items():
+        k = sum(category(r) == "clean" for r in rs)
+        lo, hi = wilson(k, len(rs))
+        counts = Counter(category(r) for r in rs)
+        lines.append(
+            f"| {name} | {k}/{len(rs)} ({100 * k / len(rs):.1f} %) | "
+            f"{100 * lo:.1f}-{100 * hi:.1f} % | " + " | ".join(str(counts[c]) for c in cats) + " |"
+        )
+    return [*lines, ""]
+
+
+def section(rows: Sequence[dict[str, Any]], set_keys: Sequence[str] = ()) -> list[str]:
     ok = [r for r in rows if r.get("status") == "ok" and _reasons(r)]
     if not ok:
         return []
@@ -54,13 +79,16 @@ def section(rows: Sequence[dict[str, Any]]) -> list[str]:
         "## Robustness",
         "",
         f"Clean: {cats['clean']}/{len(ok)} ({100 * cats['clean'] / len(ok):.1f} %), "
-        f"Wilson 95 % interval {100 * lo:.1f}-{100 * hi:.1f} %.",
+        f"Wilson 95 % interval {100 * lo:.1f}-{100 * hi:.1f} %"
+        + (" (every setting pooled; each apart below)." if set_keys else "."),
         "",
         "| outcome | runs |",
         "|---|---|",
         *(f"| {c} | {n} |" for c, n in sorted(cats.items())),
         "",
     ]
+    if set_keys:
+        lines += _by_setting(ok, set_keys)
     worst = sorted(ok, key=lambda r: float(r.get("min_e2e_mbps") or 0))
     worst = [r for r in worst if category(r) != "clean"][:5] or worst[:5]
     lines += [
@@ -71,8 +99,11 @@ def section(rows: Sequence[dict[str, Any]]) -> list[str]:
         ref = str(r["scenario"])
         if ref.startswith("generated-"):
             ref = "generated:" + ref.removeprefix("generated-").replace("-", ":", 1)
+        setting = _setting(r, set_keys)
         lines.append(
-            f"- {r['scenario']} seed {r['seed']} ({category(r)}): "
+            f"- {r['scenario']} seed {r['seed']}{', ' + setting if setting else ''} "
+            f"({category(r)}): "
             f"`relayd sim --scenario {ref} --relays {r['relays']} --seed {r['seed']}`"
+            + (" with that setting in the scenario (--save-scenario, then edit)" if setting else "")
         )
     return [*lines, ""]

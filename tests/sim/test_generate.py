@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from relayd.sim.generate import CLEARANCE_M, MIN_ROUTE_M, GenerateError, build, generate
+from relayd.sim.generate import CLEARANCE_M, KINDS, MIN_ROUTE_M, GenerateError, build, generate
 from relayd.sim.planner import Grid, plan, route_length_m
 from relayd.sim.scenario import ScenarioError, load_scenario
 
@@ -21,13 +21,14 @@ def _segments(world: dict[str, object]) -> list[tuple[tuple[float, float], tuple
     return segs(world)
 
 
-def test_same_seed_same_file() -> None:
-    assert generate("office", 7) == generate("office", 7)
-    assert generate("office", 7) != generate("office", 8)
+@pytest.mark.parametrize("kind", KINDS)
+def test_same_seed_same_file(kind: str) -> None:
+    assert generate(kind, 7) == generate(kind, 7)
+    assert generate(kind, 7) != generate(kind, 8)
 
 
-def _check_valid(seed: int) -> None:
-    world, route = build("office", seed)
+def _check_valid(seed: int, kind: str = "office") -> None:
+    world, route = build(kind, seed)
     segs = _segments(world)
     # The route keeps the footprint plus margin clear of every wall (sampled every 5 cm,
     # with one grid cell of slack for the waypoints' rounding).
@@ -43,22 +44,55 @@ def _check_valid(seed: int) -> None:
         mid = ((ax + bx) / 2, (ay + by) / 2)
         assert Grid(segs, 0.3).free(mid), (seed, mid)
     # The convoy's start poses are free.
-    sc = load_scenario(f"generated:office:{seed}")
+    sc = load_scenario(f"generated:{kind}:{seed}")
     free = Grid(segs, 0.3)
     for r in sc.relay:
         assert free.free((r.x, r.y))
     assert free.free((sc.command_center.x, sc.command_center.y))
 
 
+@pytest.mark.parametrize("kind", KINDS)
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_world_is_valid(seed: int) -> None:
-    _check_valid(seed)
+def test_world_is_valid(seed: int, kind: str) -> None:
+    _check_valid(seed, kind)
 
 
 @settings(max_examples=8, deadline=None)
 @given(st.integers(min_value=0, max_value=10**6))
 def test_sampled_seeds_are_valid(seed: int) -> None:
     _check_valid(seed)
+
+
+@settings(max_examples=8, deadline=None)
+@given(st.integers(min_value=0, max_value=10**6))
+def test_sampled_corridor_networks_are_valid(seed: int) -> None:
+    _check_valid(seed, "corridors")
+
+
+def test_corridor_network_turns_and_branches() -> None:
+    """The kind's point: L-corners and T-junctions on the way, a generated world with the
+    specular sonar and the dominant-path radio."""
+    import random
+
+    from relayd.sim.gen_corridors import _tree
+
+    turns = branches = 0
+    for seed in range(20):
+        edges, _ = _tree(random.Random(seed))
+        degree: dict[tuple[int, int], int] = {}
+        for c, r, c2, r2 in edges:
+            degree[(c, r)] = degree.get((c, r), 0) + 1
+            degree[(c2, r2)] = degree.get((c2, r2), 0) + 1
+        branches += sum(1 for d in degree.values() if d >= 3)
+        _, route = build("corridors", seed)
+        turns += sum(
+            1
+            for a, b, c in zip(route, route[1:], route[2:], strict=False)
+            if abs((b[0] - a[0]) * (c[1] - b[1]) - (b[1] - a[1]) * (c[0] - b[0])) > 1.0
+        )
+    assert branches >= 10 and turns >= 20
+    sc = load_scenario("generated:corridors:3")
+    assert sc.sonar.specular and sc.radio.model == "dominant-path"
 
 
 def test_written_scenario_parses() -> None:

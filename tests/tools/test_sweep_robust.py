@@ -46,6 +46,19 @@ def test_section_names_the_repro_command() -> None:
     assert "`relayd sim --scenario generated:office:3 --relays 2 --seed 2`" in text
 
 
+def test_section_sets_the_settings_side_by_side() -> None:
+    rows = [
+        _row(**{"control.pursuit": "bearing"}),
+        _row(**{"control.pursuit": "bearing", "seed": 2}),
+        _row(**{"control.pursuit": "trail", "relay1_reason": "leader_lost"}),
+        _row(**{"control.pursuit": "trail", "seed": 2}),
+    ]
+    text = "\n".join(section(rows, ["control.pursuit"]))
+    assert "| control.pursuit=bearing | 2/2 (100.0 %) | 34.2-100.0 % | 0 |" in text
+    assert "| control.pursuit=trail | 1/2 (50.0 %) | 9.5-90.5 % | 1 |" in text
+    assert "seed 1, control.pursuit=trail (lost)" in text
+
+
 def test_sweep_without_dask_names_the_extra_and_exits_2() -> None:
     import subprocess
     import sys

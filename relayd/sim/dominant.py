@@ -1,0 +1,270 @@
+"""Dominant paths: the radio's way round corners and through doorways (`[radio] model`).
+
+The wall-count model charges every wall on the straight line between two antennas. In a
+building the strongest signal often takes another way: down a corridor, round its
+corner, through a doorway. The dominant path model of Wölfle and Landstorfer (docs/
+SIMULATOR.md, "Radio that turns corners") keeps only the strongest path between the two
+antennas and charges it for its unfolded length and for every turn it takes, more for a
+sharper turn. Here the candidates are the straight path through the walls (the
+wall-count model) and the best path that bends at corners and door jambs and crosses no
+wall at all; the stronger of the two wins.
+
+What is precomputed once per set of walls (`CornerGraph`): the points a path may bend
+at (a little way off every free wall end and every convex wall corner), which of them see
+each other, and for every ordered pair the best chain of bends between them (a
+Dijkstra search over (node, previous node) states, so each turn's angle is known). A
+query then only finds which nodes each end sees and joins the two ends to the
+precomputed chains, exactly costing the turns at the first and last node.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from relayd.sim.geometry import Point, Segment, segments_intersect
+
+#: How far off a wall end or corner a bend point sits (clear of the wall it turns round).
+NODE_OFFSET_M = 0.05
+#: Chains kept per (first node, last node) pair, each ending in a different previous node.
+LABELS_PER_PAIR = 3
+#: Chains whose inner bends cost more than this are not searched further (four right
+#: angles at the default 10 dB: the straight path through a few walls is stronger).
+MAX_INNER_TURNS_DB = 40.0
+_SLACK = 1e-9
+
+
+def turn_loss_db(turn_deg: float, per_90_db: float) -> float:
+    """Loss of one bend: proportional to how far the path turns (0 straight on, 2x at a U-turn)."""
+    return per_90_db * abs(turn_deg) / 90.0
+
+
+def _turn_deg(a: Point, b: Point, c: Point) -> float:
+    """How far the path a -> b -> c turns at b (0 straight on, 180 back on itself)."""
+    ux, uy = b[0] - a[0], b[1] - a[1]
+    vx, vy = c[0] - b[0], c[1] - b[1]
+    nu, nv = math.hypot(ux, uy), math.hypot(vx, vy)
+    if nu < 1e-12 or nv < 1e-12:
+        return 0.0
+    cos = max(-1.0, min(1.0, (ux * vx + uy * vy) / (nu * nv)))
+    return math.degrees(math.acos(cos))
+
+
+def _on_interior(p: Point, s: Segment) -> bool:
+    """True if p lies on s away from its ends (a wall ending against another: a T joint)."""
+    ex, ey = s.x2 - s.x1, s.y2 - s.y1
+    n2 = ex * ex + ey * ey
+    if n2 < 1e-18:
+        return False
+    u = ((p[0] - s.x1) * ex + (p[1] - s.y1) * ey) / n2
+    if u <= 1e-6 or u >= 1 - 1e-6:
+        return False
+    return math.hypot(p[0] - s.x1 - u * ex, p[1] - s.y1 - u * ey) < 1e-6
+
+
+def bend_points(walls: Sequence[Segment], offset_m: float = NODE_OFFSET_M) -> list[Point]:
+    """Where a path may bend: just past every free wall end (a door jamb, the end of a
+    partition) and just outside every convex corner (where two walls meet at an angle, on
+    the side of the larger angle). Ends that butt against another wall, junctions of three
+    or more walls and straight joints are no bend points."""
+    ends: dict[tuple[float, float], list[tuple[float, float]]] = {}
+    for s in walls:
+        length = s.length_m
+        if length < 1e-9:
+            continue
+        ux, uy = (s.x2 - s.x1) / length, (s.y2 - s.y1) / length
+        ends.setdefault((round(s.x1, 9), round(s.y1, 9)), []).append((ux, uy))
+        ends.setdefault((round(s.x2, 9), round(s.y2, 9)), []).append((-ux, -uy))
+    out: list[Point] = []
+    for p, dirs in ends.items():
+        if len(dirs) == 1:
+            if any(_on_interior(p, s) for s in walls):
+                continue
+            (ux, uy) = dirs[0]
+            out.append((p[0] - offset_m * ux, p[1] - offset_m * uy))
+        elif len(dirs) == 2:
+            (ax, ay), (bx, by) = dirs
+            if abs(ax * by - ay * bx) < 1e-6:
+                continue  # straight on (or a wall folded back on itself)
+            mx, my = ax + bx, ay + by
+            n = math.hypot(mx, my)
+            out.append((p[0] - offset_m * mx / n, p[1] - offset_m * my / n))
+    return sorted(out)
+
+
+def _clear(p: Point, q: Point, walls: Sequence[Segment]) -> bool:
+    """True if the straight line p-q touches no wall."""
+    x0, x1 = min(p[0], q[0]) - _SLACK, max(p[0], q[0]) + _SLACK
+    y0, y1 = min(p[1], q[1]) - _SLACK, max(p[1], q[1]) + _SLACK
+    for s in walls:
+        sx1, sy1, sx2, sy2 = s.x1, s.y1, s.x2, s.y2
+        if (
+            (sx1 < x0 and sx2 < x0)
+            or (sx1 > x1 and sx2 > x1)
+            or (sy1 < y0 and sy2 < y0)
+            or (sy1 > y1 and sy2 > y1)
+        ):
+            continue
+        if segments_intersect(p, q, (sx1, sy1), (sx2, sy2)):
+            return False
+    return True
+
+
+#: Sectors of a bend point's view: a line from it lies in one, and only the walls that
+#: reach into that sector can cross the line.
+SECTORS = 64
+_SECTOR = 2 * math.pi / SECTORS
+
+
+def _sectors(node: Point, walls: Sequence[Segment]) -> list[list[Segment]]:
+    """The walls reaching into each sector round `node` (one sector of slack each side)."""
+    out: list[list[Segment]] = [[] for _ in range(SECTORS)]
+    x, y = node
+    for w in walls:
+        a1 = math.atan2(w.y1 - y, w.x1 - x)
+        a2 = math.atan2(w.y2 - y, w.x2 - x)
+        span = math.remainder(a2 - a1, 2 * math.pi)
+        start = a1 if span >= 0 else a2
+        k0 = math.floor((start + math.pi) / _SECTOR) - 1
+        k1 = math.floor((start + abs(span) + math.pi) / _SECTOR) + 1
+        for k in range(k0, k1 + 1):
+            out[k % SECTORS].append(w)
+    return out
+
+
+@dataclass(frozen=True, slots=True)
+class Chain:
+    """A precomputed chain of bends from node i to node j: its length, the loss of its
+    inner turns, the node after i (fixes the turn at i) and the node before j."""
+
+    length_m: float
+    turns_db: float
+    second: int
+    before_last: int
+
+
+@dataclass(frozen=True, slots=True)
+class BentPath:
+    """The best indirect path between two points: unfolded length, turn losses, and its
+    first and last bends (the directions it leaves one end and reaches the other)."""
+
+    length_m: float
+    turns_db: float
+    first: Point
+    last: Point
+
+
+class CornerGraph:
+    """Bend points of one set of walls, which see which, and the best chains between them."""
+
+    def __init__(self, walls: Sequence[Segment], per_90_db: float, exponent: float = 3.0) -> None:
+        self.walls = tuple(walls)
+        self.per_90_db = per_90_db
+        self.exponent = exponent
+        self.nodes = bend_points(self.walls)
+        n = len(self.nodes)
+        self._sectors = [_sectors(node, self.walls) for node in self.nodes]
+        self.sees: list[list[int]] = [[] for _ in range(n)]
+        self._dist: dict[tuple[int, int], float] = {}
+        self._unit: dict[tuple[int, int], tuple[float, float]] = {}
+        self._turns: dict[tuple[int, int, int], float] = {}
+        for i in range(n):
+            for j in range(i + 1, n):
+                if self._sees(i, self.nodes[j]):
+                    self.sees[i].append(j)
+                    self.sees[j].append(i)
+                    (xi, yi), (xj, yj) = self.nodes[i], self.nodes[j]
+                    d = math.hypot(xj - xi, yj - yi)
+                    self._dist[(i, j)] = self._dist[(j, i)] = d
+                    ux, uy = (xj - xi) / d, (yj - yi) / d
+                    self._unit[(i, j)], self._unit[(j, i)] = (ux, uy), (-ux, -uy)
+        self.chains: list[dict[int, list[Chain]]] = [self._from(i) for i in range(n)]
+
+    def _turn_db(self, prev: int, u: int, w: int) -> float:
+        """Loss of the bend prev -> u -> w (kept: every source's search meets the same bends)."""
+        key = (prev, u, w)
+        t = self._turns.get(key)
+        if t is None:
+            (ax, ay), (bx, by) = self._unit[(prev, u)], self._unit[(u, w)]
+            cos = max(-1.0, min(1.0, ax * bx + ay * by))
+            t = self._turns[key] = turn_loss_db(math.degrees(math.acos(cos)), self.per_90_db)
+        return t
+
+    def _from(self, src: int) -> dict[int, list[Chain]]:
+        """Best chains from node src: Dijkstra over (node, previous node) states, ordered by
+        the loss a path of that length and those inner turns would have (turns at src are
+        the query's: they depend on where the path comes from)."""
+        k, dist = 10.0 * self.exponent, self._dist
+        best: dict[tuple[int, int], tuple[float, float, int]] = {}
+        heap: list[tuple[float, int, int, float, float, int]] = []
+        for v in self.sees[src]:
+            d = dist[(src, v)]
+            heapq.heappush(heap, (k * math.log10(max(d, 0.5)), v, src, d, 0.0, v))
+        out: dict[int, list[Chain]] = {}
+        while heap:
+            _, u, prev, length, turns, second = heapq.heappop(heap)
+            if (u, prev) in best:
+                continue
+            best[(u, prev)] = (length, turns, second)
+            labels = out.setdefault(u, [])
+            if len(labels) < LABELS_PER_PAIR:
+                labels.append(Chain(length, turns, second, prev))
+            for w in self.sees[u]:
+                if w in (prev, src) or (w, u) in best:
+                    continue
+                t = turns + self._turn_db(prev, u, w)
+                if t > MAX_INNER_TURNS_DB:
+                    continue  # a path bent this much never dominates: not worth a search
+                d = length + dist[(u, w)]
+                heapq.heappush(heap, (k * math.log10(max(d, 0.5)) + t, w, u, d, t, second))
+        return out
+
+    def _sees(self, i: int, p: Point) -> bool:
+        """True if bend point i sees p: only the walls in the sector of i's view that p
+        lies in can be on the line between them."""
+        x, y = self.nodes[i]
+        a = math.atan2(p[1] - y, p[0] - x)
+        k = int((a + math.pi) / _SECTOR) % SECTORS
+        return _clear(p, self.nodes[i], self._sectors[i][k])
+
+    def visible(self, p: Point) -> list[int]:
+        """The bend points p sees (no wall on the line)."""
+        return [i for i in range(len(self.nodes)) if self._sees(i, p)]
+
+    def best(self, a: Point, b: Point, va: Sequence[int], vb: Sequence[int]) -> BentPath | None:
+        """The indirect path a -> ... -> b of least loss (length term plus turns), given the
+        bend points each end sees; None when no chain joins them."""
+        nodes, per90, k = self.nodes, self.per_90_db, 10.0 * self.exponent
+        found: tuple[float, float, float, tuple[int, ...]] | None = None
+        vb_set = set(vb)
+        for i in va:
+            ni = nodes[i]
+            da = math.dist(a, ni)
+            if i in vb_set:  # one bend
+                length = da + math.dist(ni, b)
+                t = turn_loss_db(_turn_deg(a, ni, b), per90)
+                cost = k * math.log10(max(length, 0.5)) + t
+                if found is None or cost < found[0]:
+                    found = (cost, length, t, (i,))
+            chains = self.chains[i]
+            for j in vb:
+                if j == i:
+                    continue
+                nj = nodes[j]
+                db = math.dist(nj, b)
+                for c in chains.get(j, ()):
+                    length = da + c.length_m + db
+                    t = (
+                        c.turns_db
+                        + turn_loss_db(_turn_deg(a, ni, nodes[c.second]), per90)
+                        + turn_loss_db(_turn_deg(nodes[c.before_last], nj, b), per90)
+                    )
+                    cost = k * math.log10(max(length, 0.5)) + t
+                    if found is None or cost < found[0]:
+                        found = (cost, length, t, (i, c.second, c.before_last, j))
+        if found is None:
+            return None
+        _, length, t, ids = found
+        return BentPath(length, t, nodes[ids[0]], nodes[ids[-1]])
