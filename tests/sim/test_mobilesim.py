@@ -187,7 +187,7 @@ async def test_two_relay_convoy_through_a_corner(sim: MobileSim, tmp_path: Path)
 async def test_two_relay_convoy_through_the_office(tmp_path: Path) -> None:
     """bench/amroffice.toml on the vendor's AMROffice.map: up one corridor, through the
     opening at its end, along the next; both relays follow (relay1 out into the second
-    corridor, relay2 into the opening) and end on the link rule."""
+    corridor, relay2 up to the opening) and end on the link rule."""
     try:
         office = find_program().parent / "AMROffice.map"
     except MobileSimError as exc:
