@@ -8,7 +8,7 @@ the map's wall lines (robot centre to line), its time in avoidance, its stall ep
 its final gap and reason, and the wall time of each run.
 
     python bench/engines.py --map AMROffice.map --scenario bench/amroffice.toml
-    python bench/engines.py --map tests/fixtures/maps/corner.map --runs 3
+    python bench/engines.py --map tests/fixtures/maps/corner.map --runs 3 --keep runs/
 """
 
 from __future__ import annotations
@@ -101,6 +101,7 @@ def main() -> int:
     ap.add_argument("--scenario", default=None, help="scenario TOML (default: the map alone)")
     ap.add_argument("--mobilesim", default=None)
     ap.add_argument("--runs", type=int, default=1, help="MobileSim runs (real time, vary)")
+    ap.add_argument("--keep", default=None, help="keep each run's outputs under this folder")
     args = ap.parse_args()
     doc: dict[str, Any] = {}
     if args.scenario:
@@ -110,7 +111,8 @@ def main() -> int:
     corners = [(w.x, w.y) for w in sc.leader.waypoints[1:-1]]
     lines = [(ln.x1, ln.y1, ln.x2, ln.y2) for ln in load_map(args.map).lines]
     print(f"map {args.map}: route corners {[(round(x, 2), round(y, 2)) for x, y in corners]}")
-    with tempfile.TemporaryDirectory(prefix="relayd-engines-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="relayd-engines-") as scratch:
+        tmp = args.keep or scratch
         results = []
         for engine, n in (("builtin", 1), ("mobilesim", args.runs)):
             for i in range(n):

@@ -1,7 +1,8 @@
 """The MobileSim tier: relayd against the vendor's ARCOS simulator, in real time.
 
 One MobileSim process for the module (robots "leader", "relay1" and "relay2" in the
-project's tests/fixtures/maps/corner.map), placed anew by each test. Skipped, with the
+project's tests/fixtures/maps/corner.map), placed anew by each test; the office convoy
+starts its own, on the vendor's AMROffice.map beside the program (skipped without it). Skipped, with the
 reason, when RELAYD_MOBILESIM does not name the program (CI provisions it). Real time:
 each run is short, and the assertions are ones every run must meet (no stall, the
 leader arrives, the relays follow and end on the link rule), not exact figures.
@@ -12,6 +13,7 @@ from __future__ import annotations
 import math
 import subprocess
 import sys
+import tomllib
 from collections.abc import AsyncIterator
 from pathlib import Path
 
@@ -24,10 +26,16 @@ from relayd.sim.mapscenario import with_map
 from relayd.sim.msbridge import ArcosBridge, BridgeBody
 from relayd.sim.msengine import MobileSimRunner
 from relayd.sim.msproc import MobileSim, MobileSimError, find_program
+from relayd.sim.runner import SimResult
 from relayd.sim.scenario import parse_scenario
 from tests.support import until
 
 MAP = Path(__file__).resolve().parents[1] / "fixtures" / "maps" / "corner.map"
+#: The office convoy's scenario (bench/engines.py runs it too: bench/RESULTS.md).
+OFFICE = Path(__file__).resolve().parents[2] / "bench" / "amroffice.toml"
+#: The office convoy's settling time after the leader's goal (reached at about 18 s): relay2
+#: stopped 44-51 s into the runs measured (bench/RESULTS.md); the bench file gives 60 s.
+SETTLE_S = 45.0
 NAMES = ["leader", "relay1", "relay2"]
 #: Where a robot a test does not use waits: the far end of the box corridor.
 PARK = {"leader": (11000, 15400, 180), "relay1": (10200, 15400, 180), "relay2": (9400, 15400, 180)}
@@ -146,24 +154,53 @@ async def test_box_dead_ahead(sim: MobileSim, tmp_path: Path) -> None:
     assert 5.2 < front < 6.0, f"relay1's front got to x = {front:.2f}"
 
 
+def _convoy_ok(res: SimResult, map_path: Path, relay1_m: float) -> None:
+    """The leader arrives with the link held, no relay stalls or comes within 0.3 m of a
+    wall line, relay1 travels more than `relay1_m` and every relay ends on the link rule."""
+    _records_ok(res.records)
+    s = res.summary
+    assert s["goal_reached"], s
+    assert s["link_broken_at_s"] is None
+    lines = load_map(map_path).lines
+    for rec in res.records:
+        for r in rec["relays"]:
+            near = [ln for ln in lines if min(ln.x1, ln.x2) - 1 < r["x"] < max(ln.x1, ln.x2) + 1
+                    and min(ln.y1, ln.y2) - 1 < r["y"] < max(ln.y1, ln.y2) + 1]  # fmt: skip
+            clear = min((_seg_dist_m(r["x"], r["y"], ln) for ln in near), default=math.inf)
+            assert clear > 0.3, f"{r['name']} {clear:.2f} m from a wall at t = {rec['t']}"
+    assert s["followers"][0]["travelled_m"] > relay1_m, s["followers"][0]
+    for f in s["followers"]:
+        assert f["stopped_reason"] in ("leader_near", "rear_weak"), f
+
+
 async def test_two_relay_convoy_through_a_corner(sim: MobileSim, tmp_path: Path) -> None:
     doc = {"name": "ms-corner", "duration_s": 75, "settle_after_goal_s": 25}
     sc = parse_scenario(with_map(doc, MAP))
     leader = sc.leader.model_copy(update={"kind": "robot", "speed_m_s": 0.3})
     sc = sc.model_copy(update={"leader": leader})
     res = await MobileSimRunner(sc, sim=sim, out_dir=tmp_path).run()
-    _records_ok(res.records)
-    s = res.summary
-    assert s["goal_reached"], s
-    assert s["link_broken_at_s"] is None
-    # No relay centre within 0.3 m of a wall line at any trace record.
-    lines = load_map(MAP).lines
-    for rec in res.records:
-        for r in rec["relays"]:
-            clear = min(_seg_dist_m(r["x"], r["y"], ln) for ln in lines)
-            assert clear > 0.3, f"{r['name']} {clear:.2f} m from a wall at t = {rec['t']}"
     # relay1 follows the leader round the corner; relay2 moves only if the radio asks it to.
-    assert s["followers"][0]["travelled_m"] > 1.5, s["followers"][0]
-    for f in s["followers"]:
-        assert f["stopped_reason"] in ("leader_near", "rear_weak"), f
+    _convoy_ok(res, MAP, 1.5)
     assert (tmp_path / "trace.jsonl").stat().st_size > 0
+
+
+async def test_two_relay_convoy_through_the_office(tmp_path: Path) -> None:
+    """bench/amroffice.toml on the vendor's AMROffice.map: up one corridor, through the
+    opening at its end, along the next; both relays follow (relay1 out into the second
+    corridor, relay2 up to the opening) and end on the link rule."""
+    try:
+        office = find_program().parent / "AMROffice.map"
+    except MobileSimError as exc:
+        pytest.skip(f"{exc} (the MobileSim tier needs it)")
+    if not office.is_file():
+        pytest.skip(f"no {office.name} beside the MobileSim program")
+    doc = tomllib.loads(OFFICE.read_text())
+    doc["settle_after_goal_s"] = SETTLE_S
+    sc = parse_scenario(with_map(doc, office))
+    res = await MobileSimRunner(sc, program=find_program(), out_dir=tmp_path).run()
+    _convoy_ok(res, office, 2.5)
+    # relay1 ends east of the first corridor's east wall (x = -2.2 m), in the second one;
+    # relay2 up the first corridor, at its north end (the opening is at y = -1.2 to -0.7 m).
+    relay1, relay2 = res.records[-1]["relays"]
+    assert relay1["x"] > -2.2, f"relay1 ended at ({relay1['x']:.2f}, {relay1['y']:.2f})"
+    assert relay2["y"] > -1.5, f"relay2 ended at ({relay2['x']:.2f}, {relay2['y']:.2f})"
