@@ -198,6 +198,10 @@ def format_summary(s: dict[str, Any]) -> str:
     still = [f["name"] for f in s["followers"] if f["travelled_m"] < STILL_M]
     if still:
         lines.append(f"  never moved: {', '.join(still)}")
+    stuck = [f for f in s["followers"] if f.get("on_link_rule") is False]
+    if stuck:
+        ends = ", ".join(f"{f['name']} ({f['final_state']}: {f['stopped_reason']})" for f in stuck)
+        lines.append(f"  NOT ended on the link rule (stuck or gave up): {ends}")
     breaks = s.get("link_breaks") or []
     if breaks:
         lines.append(f"  link breaks: {len(breaks)}, down {s.get('downtime_s', 0.0):.1f} s in all")

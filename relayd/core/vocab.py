@@ -80,6 +80,21 @@ class Reason(StrEnum):
     RECOVERY_STALE_INPUT = "recovery_stale_input"
 
 
+#: Where a relay is meant to end a run (docs/CONTROL.md 5): stopped by the paper's link
+#: rule (the link ahead strong, or the link behind at its limit, fixed or learned), or still
+#: following its leader. Any other end (avoiding, blocked, lost, searching, a fault) means
+#: it gave up or is stuck: a run that ends so is not a clean run.
+LINK_RULE_ENDS = frozenset(
+    {
+        Reason.LEADER_NEAR,
+        Reason.REAR_WEAK,
+        Reason.RETREAT_HOLD,  # the adaptive limit's hold, where the hop met its target
+        Reason.DRIVING,
+        Reason.LEADER_FAR_SONAR,  # following: the sonar says the leader is farther
+    }
+)
+
+
 @dataclass(frozen=True, slots=True)
 class ScanRecord:
     """One finished scan: what the Yagi heard where, and what the estimator made of it."""

@@ -10,6 +10,7 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
+from relayd.core.vocab import LINK_RULE_ENDS
 from relayd.sim.outcomes import downtime_s, link_breaks, recovery_episodes
 
 
@@ -56,7 +57,11 @@ def summarize(
 
     goal_reached: the leader got within goal_radius_m of its final waypoint while the
     end-to-end link had held all the way (the paper's "reached the destination while
-    staying connected"). link_broken_at_s: the first record with any hop down.
+    staying connected"). link_broken_at_s: the first record with any hop down. It is
+    also split three ways, so that a stuck relay never reads as a green run:
+    leader_arrived (the leader reached its goal), link_held (no hop was ever down), and
+    relays_ok (every relay ended on the link rule or still following, each follower's
+    on_link_rule; core/vocab.py LINK_RULE_ENDS).
     """
     broken_at = next((r["t"] for r in records if r["broken"]), None)
     arrived_at = next(
@@ -79,6 +84,7 @@ def summarize(
                 "max_gap_m": round(max(gaps), 3) if gaps else None,
                 "final_gap_m": round(gaps[-1], 3) if gaps else None,
                 "stopped_reason": None if last is None else last["relays"][i]["reason"],
+                "on_link_rule": last is not None and last["relays"][i]["reason"] in LINK_RULE_ENDS,
                 "final_state": None if last is None else last["relays"][i]["state"],
                 "collisions": f["collisions"],
                 "travelled_m": round(f["travelled_m"], 3),
@@ -92,6 +98,9 @@ def summarize(
         "sim_seconds": round(last["t"], 2) if last else 0.0,
         "goal_reached": reached,
         "goal_reached_at_s": arrived_at,
+        "leader_arrived": arrived_at is not None,
+        "link_held": broken_at is None,
+        "relays_ok": all(f["on_link_rule"] for f in out_followers),
         "link_broken_at_s": broken_at,
         "min_e2e_mbps": min(e2e) if e2e else 0.0,
         "final_e2e_mbps": e2e[-1] if e2e else 0.0,

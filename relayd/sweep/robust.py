@@ -12,8 +12,10 @@ from collections import Counter
 from collections.abc import Sequence
 from typing import Any
 
+from relayd.core.vocab import LINK_RULE_ENDS
+
 #: Reasons that end a relay on the paper's stop rule (or still following the leader).
-LINK_RULE = ("leader_near", "rear_weak", "driving")
+LINK_RULE = frozenset(str(r) for r in LINK_RULE_ENDS)
 
 
 def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -39,7 +41,7 @@ def category(row: dict[str, Any]) -> str:
     if str(row.get("goal_reached")) != "True":
         return "leader never arrived"
     for r in _reasons(row):
-        if not r.startswith(LINK_RULE):
+        if r not in LINK_RULE:
             return "stuck avoiding" if "avoid" in r else "lost"
     return "clean"
 
