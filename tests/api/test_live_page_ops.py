@@ -389,8 +389,10 @@ async def test_controls_reasons_history_and_layout(
             async with aiohttp.ClientSession(
                 headers={"Authorization": f"Bearer {rig.api_token}"}
             ) as http:
-                t_end = time.monotonic() + 4.0
-                while time.monotonic() < t_end:
+                # Until the robot is 0.8 m ahead (about 3 s idle; a loaded machine's late
+                # requests let the deadman stop it between them, so no fixed time suffices).
+                t_end = time.monotonic() + 30.0
+                while (state.x_mm or 0.0) <= 800.0 and time.monotonic() < t_end:
                     async with http.post(
                         url + "/api/drive", json={"left_mm_s": 400.0, "right_mm_s": 400.0}
                     ) as r:
