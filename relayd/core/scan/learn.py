@@ -140,12 +140,19 @@ class PatternLearner:
         return [s >= self.params.min_bin_samples for s in self._samples]
 
     def _fill(self) -> tuple[list[float], list[bool]]:
-        """The table with narrow gaps between covered bins interpolated, and which bins are
-        covered (sampled enough, or in such a gap)."""
+        """The table as the fit sees it, and which bins are covered (sampled enough, or in a
+        narrow gap between such bins, interpolated). Covered bins are smoothed over their
+        covered neighbours (a 10 deg triangle: whole-dB readings leave a bin's mean a few
+        tenths off, and a wide lobe's flat top must not grow false peaks). Outward of the
+        covered lobe the prior's shape goes on from the last covered bin, never above it:
+        where the data stop the table must not step (the fit would take the step for a lobe
+        edge)."""
         n = len(self._mean)
         covered = self._covered()
-        values = list(self._mean)
+        raw = list(self._mean)
         seen = [i for i in range(n) if covered[i]]
+        if not seen:
+            return list(self._mean), covered
         max_gap = round(self.params.gap_fill_deg / self.params.bin_deg)
         filled = list(covered)
         for a, b in zip(seen, seen[1:] + seen[:1], strict=True):
@@ -153,8 +160,25 @@ class PatternLearner:
             if 1 < gap <= max_gap + 1:
                 for k in range(1, gap):
                     i = (a + k) % n
-                    values[i] = self._mean[a] + (self._mean[b] - self._mean[a]) * k / gap
+                    raw[i] = self._mean[a] + (self._mean[b] - self._mean[a]) * k / gap
                     filled[i] = True
+        values = list(raw)
+        for i in range(n):
+            if filled[i]:
+                pairs = [
+                    (3 - abs(k), raw[(i + k) % n]) for k in range(-2, 3) if filled[(i + k) % n]
+                ]
+                values[i] = sum(w * v for w, v in pairs) / sum(w for w, _ in pairs)
+        peak = max((i for i in range(n) if filled[i]), key=lambda i: values[i])
+        floor = values[peak] + self.params.prior_floor_db
+        for step in (1, -1):
+            last_v, last_p = values[peak], self._prior[peak]
+            for k in range(1, n // 2 + (1 if step == 1 else 0)):
+                i = (peak + step * k) % n
+                if filled[i]:
+                    last_v, last_p = values[i], self._prior[i]
+                else:
+                    values[i] = max(min(last_v, self._prior[i] + last_v - last_p), floor)
         return values, filled
 
     def _values(self) -> list[float]:
