@@ -16,7 +16,12 @@ still, the lobe fit with the adaptive window, whole-dB readings with +-1 dB jitt
 The warm-up is run once per pattern and its learner copied for every bearing.
 Prints each bearing's error and the worst, per pattern.
 
+Then, with `--fading-seeds N`, the RMS after 5 scans over -60..60 under the simulator's
+LOS and NLOS fading (bench/tracking.py item 6's), fresh against a learner warmed up under
+the same fading.
+
     python -m bench.learnpattern [--patterns builtin,shallow,patch] [--step 5] [--warm 30]
+        [--fading-seeds 2]
 """
 
 from __future__ import annotations
@@ -28,7 +33,9 @@ import sys
 import time
 
 from bench.brainrig import BrainRig, still
+from bench.common import rms
 from relayd.sim.antennas import FAMILY
+from relayd.sim.radio import Radio, RadioParams
 
 SCANS = 5
 
@@ -37,12 +44,24 @@ def _at(b: float) -> tuple[float, float]:
     return 5.0 * math.cos(math.radians(b)), 5.0 * math.sin(math.radians(b))
 
 
-def _rig(name: str, learn: bool, b: float, seed: int) -> BrainRig:
+def _radio(fading: str, seed: int) -> Radio:
+    if fading == "none":
+        return Radio(RadioParams.outdoor(fading=False, shadow_sigma_db=0.0), [])
+    params = RadioParams.outdoor(rician_k_db=-60.0) if fading == "nlos" else RadioParams.outdoor()
+    return Radio(params, [], seed=seed)
+
+
+def _rig(name: str, learn: bool, b: float, seed: int, fading: str = "none") -> BrainRig:
     scan: dict[str, object] = {"estimator": "lobe", "window": "adaptive"}
     if learn:
         scan["learn_pattern"] = True
     rig = BrainRig(
-        scan=scan, leader=still(*_at(b)), pattern=FAMILY[name], jitter_db=1.0, jitter_seed=seed
+        scan=scan,
+        leader=still(*_at(b)),
+        pattern=FAMILY[name],
+        radio=_radio(fading, seed),
+        jitter_db=1.0,
+        jitter_seed=seed,
     )
     rig.start()
     return rig
@@ -56,8 +75,10 @@ def _error(rig: BrainRig, b: float) -> float:
 WARM_BEARINGS = {"narrow": (30.0, -30.0), "wide": (30.0, -30.0, 55.0, -55.0)}
 
 
-def warmed(name: str, learn: bool, warm: int, seed: int, how: str = "narrow") -> BrainRig:
-    rig = _rig(name, learn, 0.0, seed)
+def warmed(
+    name: str, learn: bool, warm: int, seed: int, how: str = "narrow", fading: str = "none"
+) -> BrainRig:
+    rig = _rig(name, learn, 0.0, seed, fading)
     rig.run_scans(warm)
     for b in WARM_BEARINGS[how]:
         rig.leader = still(*_at(b))
@@ -88,6 +109,25 @@ def profile(name: str, bearings: list[float], warm: int, how: str) -> dict[str, 
     return out
 
 
+def fading_rms(name: str, fading: str, warm: int, seeds: int) -> tuple[float, float, int]:
+    """RMS error after 5 scans over bearings -60..60 under the simulator's fading: fresh
+    relays without learning, and relays given a learner warmed up under the same fading."""
+    fresh: list[float] = []
+    learnt: list[float] = []
+    for seed in range(seeds):
+        base = warmed(name, True, warm, 500 + seed, fading=fading)
+        learner = base.brain.scans.model.learner  # type: ignore[attr-defined]
+        for b in range(-60, 61, 10):
+            rig = _rig(name, False, b, seed * 1000 + b, fading)
+            rig.run_scans(SCANS)
+            fresh.append(_error(rig, b))
+            rig = _rig(name, True, b, seed * 1000 + b, fading)
+            rig.brain.scans.model.learner = copy.deepcopy(learner)  # type: ignore[attr-defined]
+            rig.run_scans(SCANS)
+            learnt.append(_error(rig, b))
+    return rms(fresh), rms(learnt), len(fresh)
+
+
 def _worst(errs: list[float]) -> int:
     return max(range(len(errs)), key=lambda i: abs(errs[i]))
 
@@ -98,6 +138,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--step", type=float, default=5.0)
     ap.add_argument("--warm", type=int, default=30)
     ap.add_argument("--warm-bearings", choices=sorted(WARM_BEARINGS), default="narrow")
+    ap.add_argument(
+        "--fading-seeds", type=int, default=0, help="also the RMS under LOS and NLOS fading"
+    )
     args = ap.parse_args(argv)
     names = [n for n in args.patterns.split(",") if n]
     unknown = [n for n in names if n not in FAMILY]
@@ -121,6 +164,11 @@ def main(argv: list[str] | None = None) -> int:
             + ", ".join(f"{k} {bearings[worst[k]]:g}" for k in prof),
             flush=True,
         )
+        for fading in ("los", "nlos") if args.fading_seeds > 0 else ():
+            f, lr, runs = fading_rms(name, fading, args.warm, args.fading_seeds)
+            print(
+                f"{name} {fading.upper()}: RMS fresh {f:.2f} deg, learnt {lr:.2f} deg ({runs} runs)"
+            )
     print(f"\n{time.monotonic() - t0:.0f} s")
     return 0
 

@@ -12,10 +12,12 @@ to the scan's level (distance, shadowing). This module collects those samples:
   learnt pattern would then learn as the antenna's shape and repeat. A scan that is not
   sure is refused whole (`add` says so); nothing of it enters the table.
 - **The level from the lobe's top.** Each scan's level is the mean of rssi - T(b - a)
-  over its loudest three neighbouring samples, T the current table (0 dB at its peak):
-  near the peak a prior and a real antenna differ least (a 90 deg prior and a 30 deg
-  lobe by half a dB at 7.5 deg off axis; over the floor by 10 dB and more). What error
-  is left is a constant on one scan, and shrinks as the table learns its top.
+  over the samples the current table T puts within `level_window_db` of its peak (at
+  least three): near the peak a prior and a real antenna differ least (over the floor
+  by 10 dB and more). The samples are chosen by the table, not by the readings: the
+  loudest readings are the ones with the luckiest noise, and a level read from them
+  lifts the peak's bins above the rest (a 90 deg lobe was learnt 77 deg wide that way).
+  What error is left is a constant on one scan, and shrinks as the table learns.
 - **Bins with a prior.** Off-axis angle in `bin_deg` bins round the circle; each bin's
   value is a running mean that starts at the prior with the weight of `prior_weight`
   samples, so a bin the data never reach stays the prior and a well-visited one is the
@@ -53,7 +55,7 @@ class LearnParams:
     #: Off-axis bin width (deg).
     bin_deg: float = 2.0
     #: A scan is learnt from only while the track's sd is at most this (deg).
-    sure_sd_deg: float = 2.0
+    sure_sd_deg: float = 4.0
     #: ... and its bearing at least this far (deg) inside the sweep's ends.
     edge_margin_deg: float = 30.0
     #: Each bin starts at the prior with this many samples' weight.
@@ -64,6 +66,8 @@ class LearnParams:
     prior_beamwidth_deg: float = 90.0
     #: ... floored here (dB).
     prior_floor_db: float = -20.0
+    #: A scan's level comes from its samples the table puts within this much (dB) of its peak.
+    level_window_db: float = 3.0
     #: A bin counts as covered with this many samples ...
     min_bin_samples: int = 3
     #: ... or when it lies in a gap at most this wide (deg) between covered bins: a servo's
@@ -222,19 +226,18 @@ class PatternLearner:
             self.refused += 1
             return False
         p = self.params
-        order = sorted(range(len(angles_deg)), key=lambda i: angles_deg[i])
-        if len(order) < 3:
+        offs = [bearing_deg - a for a in angles_deg]
+        # The level from the samples the table puts near its peak: chosen by the table,
+        # not by the readings (the loudest samples are the ones with the luckiest noise).
+        top = max(self._values())
+        model = [self.value_db(o) for o in offs]
+        ranked = sorted(range(len(offs)), key=lambda i: -model[i])
+        count = max(3, sum(1 for m in model if m >= top - p.level_window_db))
+        near = [rssi_dbm[i] - model[i] for i in ranked[:count]]
+        if len(near) < 3:
             self.refused += 1
             return False
-        offs = [bearing_deg - a for a in angles_deg]
-        # The level from the scan's loudest three neighbouring samples against the table
-        # there: near the peak a prior and the real lobe differ least.
-        top3 = max(
-            (order[k - 1 : k + 2] for k in range(1, len(order) - 1)),
-            key=lambda ix: sum(rssi_dbm[i] for i in ix),
-        )
-        top = max(self._mean)
-        level = sum(rssi_dbm[i] - self.value_db(offs[i]) + top for i in top3) / 3.0
+        level = sum(near) / len(near) + top
         for o, y in zip(offs, rssi_dbm, strict=True):
             k = self._bin(o)
             w = min(self._weight[k] + 1.0, p.max_weight)
