@@ -26,9 +26,14 @@ to the scan's level (distance, shadowing). This module collects those samples:
   known, else `prior_beamwidth_deg`), floored at `prior_floor_db`.
 - **Forgetting.** A bin remembers at most `max_weight` samples (beyond, the running mean
   is an exponential one): an antenna that is bent or swapped is relearnt.
-- **Gaps.** A still leader is sampled at the same off-axis angles scan after scan (the
-  servo's steps); a bin in a gap of at most `gap_fill_deg` between covered bins is
-  interpolated between them, not left at the prior.
+- **Gaps, noise, symmetry.** A still leader is sampled at the same off-axis angles scan
+  after scan (the servo's steps); a bin in a gap of at most `gap_fill_deg` between
+  covered bins is interpolated between them, not left at the prior. Covered bins are
+  smoothed over a 10 deg triangle, and with `symmetric` each side is the mean of both.
+- **Beyond the learnt lobe, a bound.** With `bound_beyond`, outward of the lobe covered
+  without a break the table is flat at the lobe's last value and the pattern says where
+  it is data (`AntennaPattern.known_deg`): the fit (relayd/core/scan/patternfit.py)
+  censors the rest instead of taking a guess for a measurement.
 - **Progress.** The sure scans taken, the degrees of off-axis angle covered (bins with
   `min_bin_samples` samples, and the gaps between them), and `ready` once there are
   `ready_scans` scans and the table is covered `ready_half_deg` each side of its peak:
@@ -78,6 +83,12 @@ class LearnParams:
     #: far (deg) each side of its peak.
     ready_scans: int = 15
     ready_half_deg: float = 30.0
+    #: Beyond the covered lobe the table is a bound (flat at the lobe's last learnt value,
+    #: `AntennaPattern.known_deg` set, the fit censors there) rather than the prior's
+    #: continuation taken as data.
+    bound_beyond: bool = True
+    #: Learn a lobe symmetric about its axis (each side the mean of both).
+    symmetric: bool = True
 
     def __post_init__(self) -> None:
         if not 0.0 < self.bin_deg <= 10.0 or 360.0 % self.bin_deg > 1e-9:
@@ -130,6 +141,7 @@ class PatternLearner:
         self.refused = 0
         self._table: AntennaPattern | None = None
         self._filled: list[float] | None = None
+        self._known: tuple[float, float] | None = None
 
     def set_prior_beamwidth(self, beamwidth_deg: float) -> None:
         """Shape the prior with this beamwidth (the one learnt from two-sided fits); only
@@ -173,17 +185,49 @@ class PatternLearner:
                     (3 - abs(k), raw[(i + k) % n]) for k in range(-2, 3) if filled[(i + k) % n]
                 ]
                 values[i] = sum(w * v for w, v in pairs) / sum(w for w, _ in pairs)
+        if self.params.symmetric:
+            # Mirror about the axis (bin i and n-1-i are +-x): the track's own error
+            # scatters a few scans' samples to one side, and a wide lobe's flat top
+            # tilts by a few tenths of a dB, which moves the fit by degrees.
+            both = [filled[i] and filled[n - 1 - i] for i in range(n)]
+            values = [
+                0.5 * (values[i] + values[n - 1 - i]) if both[i] else values[i] for i in range(n)
+            ]
+            filled = [filled[i] or filled[n - 1 - i] for i in range(n)]
+            values = [
+                values[i] if filled[i] or not filled[n - 1 - i] else values[n - 1 - i]
+                for i in range(n)
+            ]
         peak = max((i for i in range(n) if filled[i]), key=lambda i: values[i])
         floor = values[peak] + self.params.prior_floor_db
+        self._known = self._lobe_extent(peak, filled)
         for step in (1, -1):
             last_v, last_p = values[peak], self._prior[peak]
+            inside = True
             for k in range(1, n // 2 + (1 if step == 1 else 0)):
                 i = (peak + step * k) % n
-                if filled[i]:
+                inside = inside and filled[i]
+                if self.params.bound_beyond and not inside:
+                    values[i] = last_v  # a bound: at most the lobe's last learnt value
+                elif filled[i]:
                     last_v, last_p = values[i], self._prior[i]
                 else:
                     values[i] = max(min(last_v, self._prior[i] + last_v - last_p), floor)
         return values, filled
+
+    def _lobe_extent(self, peak: int, filled: list[bool]) -> tuple[float, float] | None:
+        """The off-axis angles (deg) covered without a break round the peak, or None when
+        that is the whole circle."""
+        n = len(filled)
+        ends = []
+        for step in (-1, 1):
+            k = 0
+            while k < n // 2 and filled[(peak + step * (k + 1)) % n]:
+                k += 1
+            if k >= n // 2:
+                return None
+            ends.append(self._centres[peak] + step * k * self.params.bin_deg)
+        return ends[0], ends[1]
 
     def _values(self) -> list[float]:
         if self._filled is None:
@@ -275,5 +319,6 @@ class PatternLearner:
                 tuple(self._values()),
                 "learnt online",
                 (("scans", str(self.scans)),),
+                known_deg=self._known if self.params.bound_beyond else None,
             )
         return self._table

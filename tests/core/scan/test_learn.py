@@ -173,3 +173,31 @@ def test_learn_pattern_is_off_by_default_and_needs_the_tracking_estimator() -> N
     assert brain_params(on).leader.learn_pattern
     with pytest.raises(ValidationError, match="learn_pattern needs estimator"):
         Settings.model_validate({"scan": {"learn_pattern": True, "estimator": "wca"}})
+
+
+@pytest.mark.parametrize("name", ["builtin", "shallow", "patch", "deep"])
+def test_a_table_known_only_in_part_is_a_bound_beyond_and_the_limits_hold(name: str) -> None:
+    """What the learner hands the fit: the lobe within +-60 deg, beyond it only a bound.
+    Taken as data, a wrong continuation (8 dB under the edge) drags the fit at the servo
+    limits; as a bound (`known_deg`), one scan's fit holds within 5 deg everywhere."""
+    from relayd.core.scan.pattern import AntennaPattern
+    from relayd.core.scan.patternfit import fit_pattern
+
+    g = FAMILY[name]
+    angles = tuple(-179.0 + 2.0 * i for i in range(180))
+    edge = 60.0
+    wrong = tuple(g(a) if abs(a) <= edge else g(edge) - 8.0 for a in angles)
+    bound = tuple(g(a) if abs(a) <= edge else g(edge) for a in angles)
+    as_data = AntennaPattern(angles, wrong, "data")
+    as_bound = AntennaPattern(angles, bound, "bound", known_deg=(-edge, edge))
+    assert as_bound.known(30.0) and not as_bound.known(70.0) and as_data.known(70.0)
+    rng = random.Random(3)
+    worst_data = worst_bound = 0.0
+    for b in range(-85, 86, 10):
+        ys = _scan(g, float(b), rng)
+        fd, fb = fit_pattern(FULL, ys, as_data), fit_pattern(FULL, ys, as_bound)
+        assert fb is not None
+        worst_bound = max(worst_bound, abs(fb.bearing_deg - b))
+        worst_data = max(worst_data, 99.0 if fd is None else abs(fd.bearing_deg - b))
+    assert worst_bound <= 5.0, worst_bound
+    assert worst_data > worst_bound
