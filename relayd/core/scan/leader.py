@@ -133,11 +133,8 @@ class TrackingModel:
         #: turns toward it (`relayd.core.control.search`) while it is recent.
         self._evidence: tuple[float, float, float] | None = None
         self._pattern_bw = params.pattern.beamwidth_deg() if params.pattern is not None else None
-        self.learner = (
-            PatternLearner(params.learn)
-            if params.learn_pattern and params.pattern is None and params.estimator == "lobe"
-            else None
-        )
+        learn = params.learn_pattern and params.pattern is None
+        self.learner = PatternLearner(params.learn) if learn else None
 
     @property
     def pattern(self) -> AntennaPattern | None:
@@ -233,9 +230,8 @@ class TrackingModel:
         """Give the learner the scan (raw RSSI: the antenna, not the obstacles) with the
         track's bearing at its end, while the leader is still and the track established."""
         now = self._now(t, heading_deg)
-        if self.learner is None or now is None or now.updates < 3:
-            return
-        if abs(now.rate_deg_s) > self.params.adaptive.moving_rate_deg_s:
+        still = now is not None and abs(now.rate_deg_s) <= self.params.adaptive.moving_rate_deg_s
+        if self.learner is None or now is None or now.updates < 3 or not still:
             return
         if self.learner.scans == 0 and (bw := self.beamwidth_deg) is not None:
             self.learner.set_prior_beamwidth(bw)
