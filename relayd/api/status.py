@@ -164,6 +164,21 @@ class Trail(_Model):
     )
 
 
+class PatternLearned(_Model):
+    """The scan antenna's pattern learnt online (scan.learn_pattern, docs/CONTROL.md 10.7)."""
+
+    scans: Annotated[int, Field(ge=0)] = Field(
+        description="scans the filter was sure of that entered the learnt table"
+    )
+    refused: Annotated[int, Field(ge=0)] = Field(
+        description="scans offered but not sure enough (sd, or too near a servo limit)"
+    )
+    coverage_deg: Annotated[float, Field(ge=0)] = Field(
+        description="degrees of off-axis angle with at least 3 samples"
+    )
+    ready: bool = Field(description="the fit matches the learnt pattern (its main lobe is covered)")
+
+
 class PathPose(_Model):
     t: float = Field(description="the SIP's time (s, the daemon's clock)")
     x_m: float
@@ -216,6 +231,10 @@ class Status(_Model):
     recovery: Recovery | None = Field(description="self-healing state machine; null while disabled")
     trail: Trail | None = Field(
         default=None, description="the leader's trail (control.pursuit); null when not wired"
+    )
+    pattern_learned: PatternLearned | None = Field(
+        default=None,
+        description="the antenna pattern learnt online (scan.learn_pattern); null: not learning",
     )
 
 

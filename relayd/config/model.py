@@ -181,6 +181,9 @@ class ScanSettings(_Section):
     #: with it each scan's bearing is the pattern matched to the scan (docs/CONTROL.md
     #: section 10.6) instead of the main-lobe fit. Needs estimator "lobe".
     pattern_file: str | None = None
+    #: Without a pattern file: learn the pattern from scans the tracking filter is sure of
+    #: and fit with it once learnt (docs/CONTROL.md section 10.7). Needs estimator "lobe".
+    learn_pattern: bool = False
 
     @field_validator("pattern_file")
     @classmethod
@@ -204,6 +207,10 @@ class ScanSettings(_Section):
             )
         if self.pattern_file is not None and self.estimator != "lobe":
             raise ValueError('pattern_file needs estimator "lobe" (the WCA uses no pattern)')
+        if self.learn_pattern and self.estimator != "lobe":
+            raise ValueError('learn_pattern needs estimator "lobe" (the WCA uses no pattern)')
+        if self.learn_pattern and self.pattern_file is not None:
+            raise ValueError("learn_pattern: a pattern_file is set; the measured pattern is used")
         return self
 
 

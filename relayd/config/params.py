@@ -172,6 +172,7 @@ def brain_params(settings: Settings) -> BrainParams:
             # Validated when the settings were (ScanSettings), read again here: the brain
             # gets the table, the config keeps the path.
             pattern=load_pattern_file(s.pattern_file) if s.pattern_file is not None else None,
+            learn_pattern=s.learn_pattern,
             adaptive=WindowParams(
                 # The adaptive window's steps fit the step-mode scanner's clock; a continuous
                 # sweep samples at the RSSI rate wherever the servo is.

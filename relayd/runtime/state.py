@@ -107,6 +107,8 @@ class RelayState:
     recovery: RecoveryView | None = None
     #: The leader's trail (relayd/core/trail) as /status shows it, read at snapshot time.
     trail_source: Callable[[], dict[str, Any]] | None = field(default=None, repr=False)
+    #: The online pattern learner's progress (`[scan] learn_pattern`), read at snapshot time.
+    pattern_source: Callable[[], dict[str, object] | None] | None = field(default=None, repr=False)
     #: This relay's own odometry pose and path (GET /path), read at request time.
     path_source: Callable[[], dict[str, Any]] | None = field(default=None, repr=False)
     #: Bumped on every change a live view cares about; `changed` is set with it.
@@ -196,6 +198,7 @@ class RelayState:
             "recording": None if self.recording_source is None else self.recording_source(),
             "recovery": None if self.recovery is None else self.recovery.to_json(),
             "trail": None if self.trail_source is None else self.trail_source(),
+            "pattern_learned": None if self.pattern_source is None else self.pattern_source(),
         }
 
 

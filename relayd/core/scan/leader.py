@@ -20,6 +20,7 @@ from typing import Protocol
 from relayd.core.scan import tracker
 from relayd.core.scan.bearing import LobeFit, LobeParams, fit_main_lobe
 from relayd.core.scan.estimator import ScanEstimate
+from relayd.core.scan.learn import LearnParams, LearnStatus, PatternLearner
 from relayd.core.scan.pattern import AntennaPattern
 from relayd.core.scan.patternfit import PatternFitParams, fit_pattern
 from relayd.core.scan.plan import in_current_frame
@@ -40,6 +41,10 @@ class LeaderParams:
     #: matching the pattern (`relayd.core.scan.patternfit`), not by the main-lobe parabola.
     pattern: AntennaPattern | None = None
     pattern_fit: PatternFitParams = field(default_factory=PatternFitParams)
+    #: Without a pattern file, learn the pattern from scans the filter is sure of and fit
+    #: with it once learnt (`relayd.core.scan.learn`; `[scan] learn_pattern`).
+    learn_pattern: bool = False
+    learn: LearnParams = field(default_factory=LearnParams)
     tracker: TrackerParams = field(default_factory=TrackerParams)
     adaptive: WindowParams = field(default_factory=WindowParams)
     #: Two-sided fits the beamwidth is learnt from (median of the last ones).
@@ -128,6 +133,19 @@ class TrackingModel:
         #: turns toward it (`relayd.core.control.search`) while it is recent.
         self._evidence: tuple[float, float, float] | None = None
         self._pattern_bw = params.pattern.beamwidth_deg() if params.pattern is not None else None
+        learn = params.learn_pattern and params.pattern is None
+        self.learner = PatternLearner(params.learn) if learn else None
+
+    @property
+    def pattern(self) -> AntennaPattern | None:
+        """The pattern the fit matches: the file's, else the learnt one once ready, else none."""
+        if self.params.pattern is not None:
+            return self.params.pattern
+        return self.learner.pattern() if self.learner is not None and self.learner.ready else None
+
+    def learned_status(self) -> LearnStatus | None:
+        """How far the learnt pattern has come (None: not learning)."""
+        return None if self.learner is None else self.learner.status()
 
     @property
     def beamwidth_deg(self) -> float | None:
@@ -135,13 +153,15 @@ class TrackingModel:
         scans (None: not yet)."""
         if self.params.pattern is not None:
             return self._pattern_bw
+        if (learnt := self.pattern) is not None:
+            return learnt.beamwidth_deg()
         return _median(self._beamwidths) if self._beamwidths else None
 
     def _fit(self, angles: Sequence[float], values: Sequence[float]) -> LobeFit | None:
         """One scan's fit: the measured pattern matched to it, else the main-lobe parabola."""
         p = self.params
-        if p.pattern is not None:
-            return fit_pattern(angles, values, p.pattern, p.pattern_fit)
+        if (pattern := self.pattern) is not None:
+            return fit_pattern(angles, values, pattern, p.pattern_fit)
         return fit_main_lobe(angles, values, p.lobe, beamwidth_prior_deg=self.beamwidth_deg)
 
     def _learn(self, fit: LobeFit, angles: Sequence[float]) -> None:
@@ -194,6 +214,7 @@ class TrackingModel:
                 t_meas = min(sample_t[nearest], t)
             fit = self.last_fit = self._trusted(fit)
             self._update(PooledScan(angles, tuple(values), t_meas, heading_deg, self.track, fit))
+            self._learn_pattern(t, heading_deg, est)
         else:
             self._pool.clear()
             if self.track is not None:
@@ -204,6 +225,17 @@ class TrackingModel:
             bearing = fit.bearing_deg if fit is not None else est.bearing_deg
             return replace(est, bearing_deg=bearing, bearing_sd_deg=None)
         return replace(est, bearing_deg=self._seen(now.bearing_deg), bearing_sd_deg=now.sd_deg)
+
+    def _learn_pattern(self, t: float, heading_deg: float, est: ScanEstimate) -> None:
+        """Give the learner the scan (raw RSSI: the antenna, not the obstacles) with the
+        track's bearing at its end, while the leader is still and the track established."""
+        now = self._now(t, heading_deg)
+        still = now is not None and abs(now.rate_deg_s) <= self.params.adaptive.moving_rate_deg_s
+        if self.learner is None or now is None or now.updates < 3 or not still:
+            return
+        if self.learner.scans == 0 and (bw := self.beamwidth_deg) is not None:
+            self.learner.set_prior_beamwidth(bw)
+        self.learner.add(est.angles_deg, est.rssi_dbm, now.bearing_deg, now.sd_deg)
 
     def _remember(
         self,
@@ -300,7 +332,7 @@ class TrackingModel:
         tp = self.params.tracker
         fit = scan.fit
         pooled = self._pool.fit(
-            self.track, scan, self.params.lobe, self.beamwidth_deg, self.params.pattern
+            self.track, scan, self.params.lobe, self.beamwidth_deg, self.pattern
         )
         if pooled is not None:
             fit, base = pooled

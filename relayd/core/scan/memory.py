@@ -26,7 +26,7 @@ from relayd.core.scan.estimator import (
     front_readings,
     update_lost_count,
 )
-from relayd.core.scan.leader import BearingModel, LeaderParams, make_model
+from relayd.core.scan.leader import BearingModel, LeaderParams, TrackingModel, make_model
 from relayd.core.scan.plan import ScanParams, full_window, in_current_frame, next_window, sweep_plan
 from relayd.core.vocab import ScanRecord
 
@@ -80,6 +80,12 @@ class ScanMemory:
     def model(self) -> BearingModel:
         """The bearing estimator behind the bearing memory (`relayd.core.scan.leader`)."""
         return self._model
+
+    def pattern_learned(self) -> dict[str, object] | None:
+        """How far the online pattern learner has come (/status; None: not learning)."""
+        m = self._model
+        status = m.learned_status() if isinstance(m, TrackingModel) else None
+        return None if status is None else status.to_json()
 
     @property
     def count(self) -> int:

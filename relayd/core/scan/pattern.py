@@ -64,6 +64,10 @@ class AntennaPattern:
     name: str = ""
     #: How and where it was measured (free-form text, as the file's [conditions] had it).
     conditions: tuple[tuple[str, str], ...] = ()
+    #: Off-axis angles (lo, hi) where the table is data; outside them it is only an upper
+    #: bound (a pattern learnt online: the gain there is at most the last value learnt).
+    #: None: the whole table is data, as a measured file's is.
+    known_deg: tuple[float, float] | None = None
     _lookup: tuple[float, ...] = field(default=(), init=False, repr=False, compare=False)
     _beamwidth: float | None = field(default=None, init=False, repr=False, compare=False)
 
@@ -132,6 +136,13 @@ class AntennaPattern:
             return lk[-1]
         f = x - i
         return lk[i] + f * (lk[i + 1] - lk[i])
+
+    def known(self, off_axis_deg: float) -> bool:
+        """Whether the table is data at this off-axis angle (not only a bound)."""
+        if self.known_deg is None:
+            return True
+        x = wrap180(off_axis_deg)
+        return self.known_deg[0] <= x <= self.known_deg[1]
 
     def slope_db_per_deg(self, off_axis_deg: float) -> float:
         """The pattern's slope there (central difference over one lookup step)."""

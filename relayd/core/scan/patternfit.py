@@ -32,6 +32,12 @@ and the fit is the maximum-likelihood (b, L) under that model, robustly:
    A bearing beyond the sampled span is kept (the leader is out of the servo's reach,
    and the fit says where) and flagged `extrapolated`.
 
+A table known only in part (`AntennaPattern.known_deg`: a pattern learnt online,
+relayd/core/scan/learn.py) is data within that range and an upper bound beyond: there a
+sample costs the noise it would have had, plus its excess when it is louder than the
+bound, and the levels come from the known samples (`_censored_cost`). A measured file
+has no such range and is fitted exactly as above.
+
 Several scans can be fitted as one (`scan_ids`): each scan has its own level, the
 bearing is shared, as in `relayd.core.scan.bearing`.
 
@@ -40,8 +46,9 @@ Pure: no I/O, no clock, no NumPy.
 
 from __future__ import annotations
 
+import itertools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from relayd.core.scan.bearing import LobeFit
@@ -68,6 +75,11 @@ class PatternFitParams:
     #: Bearings up to the pattern's beamwidth, at least this (deg), beyond the sweep's ends
     #: are searched.
     min_reach_deg: float = 30.0
+    #: Where a table is only a bound (`AntennaPattern.known_deg`), the gain is taken to lie
+    #: between the bound and a floor: this much (dB) below the lowest known value, and at
+    #: most `bound_floor_db` (a table known only high on its lobe says nothing of the floor).
+    bound_depth_db: float = 10.0
+    bound_floor_db: float = -30.0
 
 
 def _levels(
@@ -134,10 +146,138 @@ def _search_costs(
     return out
 
 
+def _censored_cost(
+    b: float,
+    pattern: AntennaPattern,
+    angles: Sequence[float],
+    ys: Sequence[float],
+    ws: Sequence[float],
+    gs: Sequence[int],
+    s2: float,
+    floor_db: float = -math.inf,
+) -> tuple[float, dict[int, float], float]:
+    """`_cost` for a table that is data only within `pattern.known_deg`: each scan's level
+    from its samples there; a sample outside counts as the noise it would have (`s2`, so a
+    bearing that moves samples out of the data gains nothing by it) plus its excess over
+    the bound when it is louder than the table allows, or under `floor_db` when quieter
+    than that. Also the cost without the `s2`
+    terms (what the no-lobe test compares with a flat scan). Infinite with fewer than three
+    known samples in a scan, or a fifth of them."""
+    ms = [pattern.gain_db(b - a) for a in angles]
+    kn = [pattern.known(b - a) for a in angles]
+    kw = [w if k else 0.0 for w, k in zip(ws, kn, strict=True)]
+    lv = _levels(ys, ms, kw, gs)
+    counts: dict[int, list[int]] = {}
+    for g, k in zip(gs, kn, strict=True):
+        c = counts.setdefault(g, [0, 0])
+        c[0] += 1 if k else 0
+        c[1] += 1
+    # A bearing that leaves a scan only a few known samples explains them too easily (a
+    # leader at +85 deg was put at +147, its two loudest samples called the floor).
+    if any(k < max(3, math.ceil(m / 5)) for k, m in counts.values()):
+        return math.inf, lv, math.inf
+    data = penalty = 0.0
+    for y, m, w, g, k in zip(ys, ms, ws, gs, kn, strict=True):
+        r = y - m - lv.get(g, 0.0)
+        if k:
+            data += w * r * r
+        else:
+            # Between the bound and the floor: an unknown part of a real antenna is not
+            # far below everything known of it (else a leader's loudest samples could be
+            # "explained" as the floor, the rest as anything below it).
+            below = min(y - floor_db - lv.get(g, 0.0), 0.0)
+            data += w * (max(r, 0.0) ** 2 + below * below)
+            penalty += w * s2
+    return data + penalty, lv, data
+
+
+def _censored_search(
+    grid: Sequence[float],
+    pattern: AntennaPattern,
+    angles: Sequence[float],
+    ys: Sequence[float],
+    gs: Sequence[int],
+    min_noise_db: float,
+    floor_db: float,
+) -> tuple[float, list[float]]:
+    """Every bearing's `_censored_cost`, and the noise a censored sample stands for: the
+    known samples' residual variance at the best bearing of a first pass (at the noise
+    floor). Not from the table taken as all data: where it is only a bound the truth can
+    lie far below it, and that noise would pull every fit toward the bearings that keep
+    samples known."""
+    ws = [1.0] * len(ys)
+    # Never below the scan's own roughness: neighbouring samples' differences (the
+    # lobe's slope inflates it a little, which only makes leaving the data dearer). A
+    # first pass that keeps only a few samples known fits them closely, and its small
+    # residuals would make every censored sample cheap (a leader at -60 deg was put at
+    # -130, where three samples were known).
+    order = sorted(range(len(ys)), key=lambda i: (gs[i], angles[i]))
+    steps = [abs(ys[j] - ys[i]) for i, j in itertools.pairwise(order) if gs[i] == gs[j]]
+    rough = _median(steps) / 0.6745 / math.sqrt(2.0) if steps else 0.0
+    floor = max(min_noise_db, rough) ** 2
+    s2 = floor
+    for _ in range(2):
+        costs = [_censored_cost(g, pattern, angles, ys, ws, gs, s2, floor_db)[0] for g in grid]
+        b = grid[min(range(len(grid)), key=lambda i: costs[i])]
+        _, lv, _ = _censored_cost(b, pattern, angles, ys, ws, gs, s2, floor_db)
+        known = [
+            (y - pattern.gain_db(b - a) - lv.get(g, 0.0)) ** 2
+            for a, y, g in zip(angles, ys, gs, strict=True)
+            if pattern.known(b - a)
+        ]
+        dof = len(known) - len(set(gs))
+        if dof <= 0:
+            break
+        s2 = max(floor, sum(known) / dof)
+    return s2, costs
+
+
 def _median(xs: Sequence[float]) -> float:
     s = sorted(xs)
     n = len(s)
     return s[n // 2] if n % 2 else 0.5 * (s[n // 2 - 1] + s[n // 2])
+
+
+Cost = Callable[[float, Sequence[float]], tuple[float, dict[int, float]]]
+
+
+def _refine(
+    b: float,
+    cost: Cost,
+    pattern: AntennaPattern,
+    angles: Sequence[float],
+    ys: Sequence[float],
+    gs: Sequence[int],
+    params: PatternFitParams,
+) -> tuple[float, list[float], float]:
+    """Step 2: around the search's best, finely, Huber-weighted, three rounds; the
+    bearing, the weights and the residual scale."""
+    n = len(ys)
+    ws = [1.0] * n
+    scale = params.min_noise_db
+    fine = params.fine_step_deg
+    span = round(params.search_step_deg / fine) + 1
+    for _ in range(3):
+        cands = [b + k * fine for k in range(-span, span + 1)]
+        cs = [cost(c, ws)[0] for c in cands]
+        k = min(range(len(cands)), key=lambda i: cs[i])
+        b = cands[k]
+        if 0 < k < len(cands) - 1 and all(map(math.isfinite, cs[k - 1 : k + 2])):
+            # The parabola through the three lowest costs: between the grid's points.
+            den = cs[k - 1] - 2.0 * cs[k] + cs[k + 1]
+            if den > 0:
+                b += 0.5 * fine * (cs[k - 1] - cs[k + 1]) / den
+        _, lv = cost(b, [1.0] * n)
+        res = [
+            y - pattern.gain_db(b - a) - lv.get(g, 0.0)
+            for a, y, g in zip(angles, ys, gs, strict=True)
+        ]
+        # Below a bound is no residual (the leader is at least that far down there).
+        res = [r if pattern.known(b - a) else max(r, 0.0) for r, a in zip(res, angles, strict=True)]
+        scale = max(params.min_noise_db, _median([abs(r) for r in res]) / 0.6745)
+        kk = params.huber_k * scale
+        ws = [1.0 if abs(r) <= kk else kk / abs(r) for r in res]
+    return b, ws, scale
 
 
 # Complexity: one fit in its steps (search, refine, sd, ambiguity, no-lobe), each a few lines.
@@ -169,7 +309,6 @@ def fit_pattern(
     if n < len(groups) + 3:
         return None
     angles, ys = list(angles_deg), list(rssi_dbm)
-    ws = [1.0] * n
     # 1. The global search.
     step = params.search_step_deg
     bw = pattern.beamwidth_deg() or 30.0
@@ -186,32 +325,31 @@ def fit_pattern(
     if around_deg is not None:
         grid = [g for g in grid if abs(wrap180(g - around_deg)) <= bw] or [around_deg]
     costs = _search_costs(grid, pattern, angles, ys, gs)
+    s2_bound, floor_db = 0.0, -math.inf
+    if pattern.known_deg is not None:
+        table = zip(pattern.angles_deg, pattern.gain_db_table, strict=True)
+        lowest = min((g for a, g in table if pattern.known(a)), default=0.0)
+        floor_db = min(lowest - params.bound_depth_db, params.bound_floor_db)
+        s2_bound, costs = _censored_search(
+            grid, pattern, angles, ys, gs, params.min_noise_db, floor_db
+        )
     best = min(range(len(grid)), key=lambda i: costs[i])
+    if not math.isfinite(costs[best]):
+        return None  # too few samples where the table is known, wherever the leader is
     b = grid[best]
+
     # 2. Refine, Huber-weighted.
-    scale = params.min_noise_db
-    fine = params.fine_step_deg
-    span = round(step / fine) + 1
-    for _ in range(3):
-        cands = [b + k * fine for k in range(-span, span + 1)]
-        cs = [_cost(c, pattern, angles, ys, ws, gs)[0] for c in cands]
-        k = min(range(len(cands)), key=lambda i: cs[i])
-        b = cands[k]
-        if 0 < k < len(cands) - 1:
-            # The parabola through the three lowest costs: between the grid's points.
-            den = cs[k - 1] - 2.0 * cs[k] + cs[k + 1]
-            if den > 0:
-                b += 0.5 * fine * (cs[k - 1] - cs[k + 1]) / den
-        _, lv = _cost(b, pattern, angles, ys, [1.0] * n, gs)
-        res = [
-            y - pattern.gain_db(b - a) - lv.get(g, 0.0)
-            for a, y, g in zip(angles, ys, gs, strict=True)
-        ]
-        scale = max(params.min_noise_db, _median([abs(r) for r in res]) / 0.6745)
-        kk = params.huber_k * scale
-        ws = [1.0 if abs(r) <= kk else kk / abs(r) for r in res]
+    def cost(c: float, weights: Sequence[float]) -> tuple[float, dict[int, float]]:
+        if pattern.known_deg is None:
+            return _cost(c, pattern, angles, ys, weights, gs)
+        total, levels, _ = _censored_cost(c, pattern, angles, ys, weights, gs, s2_bound, floor_db)
+        return total, levels
+
+    b, ws, scale = _refine(b, cost, pattern, angles, ys, gs, params)
     b = wrap180(b)
     cost_b, lv = _cost(b, pattern, angles, ys, ws, gs)
+    if pattern.known_deg is not None:
+        _, lv, cost_b = _censored_cost(b, pattern, angles, ys, ws, gs, s2_bound, floor_db)
     # 5. No lobe: the pattern at its best explains little more than a flat line.
     flat_lv = _levels(ys, [0.0] * n, ws, gs)
     flat = sum(w * (y - flat_lv.get(g, 0.0)) ** 2 for y, w, g in zip(ys, ws, gs, strict=True))
@@ -219,7 +357,7 @@ def fit_pattern(
     if (flat - cost_b) / s2 < params.min_explained_chi2:
         return None
     # 3. The sd: the Fisher information of b, each scan's level a nuisance.
-    sl = [pattern.slope_db_per_deg(b - a) for a in angles]
+    sl = [pattern.slope_db_per_deg(b - a) if pattern.known(b - a) else 0.0 for a in angles]
     sw: dict[int, float] = {}
     sj: dict[int, float] = {}
     for j, w, g in zip(sl, ws, gs, strict=True):
