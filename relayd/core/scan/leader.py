@@ -6,8 +6,7 @@
 next scan. `TrackingModel` ("lobe") fits each scan's main lobe (core/scan/bearing.py),
 pools a steady leader's scans (pool.py), feeds a Kalman filter on bearing and rate
 (tracker.py) whose prediction the wheels steer by, and with `window = "adaptive"` sizes
-the sweep from its confidence (window.py). The reasons: docs/CONTROL.md section 10.
-Pure: times and headings come in as arguments; no clock, no I/O.
+the sweep from its confidence (window.py); why, in docs/CONTROL.md 10. No clock, no I/O.
 """
 
 from __future__ import annotations
@@ -41,8 +40,7 @@ class LeaderParams:
     #: matching the pattern (`relayd.core.scan.patternfit`), not by the main-lobe parabola.
     pattern: AntennaPattern | None = None
     pattern_fit: PatternFitParams = field(default_factory=PatternFitParams)
-    #: Without a pattern file, learn the pattern from scans the filter is sure of and fit
-    #: with it once learnt (`relayd.core.scan.learn`; `[scan] learn_pattern`).
+    #: No file: learn the pattern from sure scans, fit with it once learnt (scan/learn.py).
     learn_pattern: bool = False
     learn: LearnParams = field(default_factory=LearnParams)
     tracker: TrackerParams = field(default_factory=TrackerParams)
@@ -227,8 +225,7 @@ class TrackingModel:
         return replace(est, bearing_deg=self._seen(now.bearing_deg), bearing_sd_deg=now.sd_deg)
 
     def _learn_pattern(self, t: float, heading_deg: float, est: ScanEstimate) -> None:
-        """Give the learner the scan (raw RSSI: the antenna, not the obstacles) with the
-        track's bearing at its end, while the leader is still and the track established."""
+        """The scan's raw RSSI and the track's bearing to the learner, if the track is sure."""
         now = self._now(t, heading_deg)
         still = now is not None and abs(now.rate_deg_s) <= self.params.adaptive.moving_rate_deg_s
         if self.learner is None or now is None or now.updates < 3 or not still:
