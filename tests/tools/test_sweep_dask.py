@@ -3,9 +3,10 @@
 
 Fifty worlds (25 offices, 25 corridor networks), two relays, one seed. Each run simulates
 only RUN_S seconds, enough for both relays to have scanned with their drawn antennas and
-decided; the cost is the run's process start, not the simulated time (about 1.3 s of
-a run's 2.5 s on a loaded 2-core machine at RUN_S = 10). Every process the test starts
-is bounded in time and killed in a finally.
+decided. What a run costs is its process start (a child alone: 1.31 s wall at 1 simulated
+second, 1.37 s at 5, 1.53 s at 10), so a shorter run would not make the test shorter: it
+took 167 s on a loaded 2-core machine (64 s the scheduler's sweep, 92 s the LocalCluster's;
+bench/RESULTS.md). Every process the test starts is bounded in time and killed in a finally.
 """
 
 from __future__ import annotations
