@@ -28,7 +28,8 @@ import structlog
 #: worker while the other idles. A stale list costs only wall time; every file not named
 #: runs after these, in their usual order.
 LONGEST_FILES_FIRST = (
-    "tests/sim/test_mobilesim.py",  # ~2 min where MobileSim is provisioned, waits: real time
+    "tests/sim/test_mobilesim.py",  # ~2.5 min where MobileSim is provisioned, waits: real time
+    "tests/tools/test_sweep_dask.py",  # ~2-3 min, CPU: 50 worlds on a scheduler, then a LocalCluster
     "tests/system/test_types.py",  # ~15 s cold (a fresh checkout), CPU: mypy, strict
     "tests/api/test_flood.py",  # ~22 s, waits: a 13 s flood
     "tests/tools/test_sweep.py",  # ~25 s, Dask clusters and child processes

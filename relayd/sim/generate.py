@@ -7,6 +7,10 @@ margin from every wall and box, and writes an ordinary scenario document. The sa
 kind and seed give the same text, byte for byte (random.Random seeded from the string).
 Kinds: "office" (below) and "corridors" (a corridor network with L-corners and
 T-junctions, relayd/sim/gen_corridors.py); other kinds are refused by name.
+
+Each relay scans with an antenna drawn from the simulator's family
+(relayd/sim/antennas.py), one draw per relay from a stream of its own seeded from the same
+kind and seed, so adding the antennas left every floor plan, route and loss table as it was.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ import itertools
 import math
 import random
 
+from relayd.sim.antennas import FAMILY
 from relayd.sim.gen_corridors import corridors
 from relayd.sim.planner import Point, Segment, plan, route_length_m
 from relayd.sim.radio import DEFAULT_WALL_LOSS_DB
@@ -120,6 +125,15 @@ def build(kind: str, seed: int) -> tuple[dict[str, object], list[Point]]:
     raise GenerateError(f"generated:{kind}:{seed}: no valid world in {MAX_TRIES} draws")
 
 
+def antennas(kind: str, seed: int, relays: int) -> list[str]:
+    """The family pattern each of the world's relays scans with, in relay order."""
+    # A stream of its own: drawing from the world's would move every later draw, and so
+    # every floor plan.
+    rng = random.Random(f"{kind}:{seed}:antennas")
+    names = list(FAMILY)
+    return [rng.choice(names) for _ in range(relays)]
+
+
 def _pts(points: list[Point]) -> str:
     return "[" + ", ".join(f"[{x}, {y}]" for x, y in points) + "]"
 
@@ -127,6 +141,7 @@ def _pts(points: list[Point]) -> str:
 def generate(kind: str, seed: int) -> str:
     """The scenario TOML of world `kind`:`seed`."""
     world, route = build(kind, seed)
+    pattern1, pattern2 = antennas(kind, seed, 2)
     length = route_length_m(route)
     name = f"generated-{kind}-{seed}"
     out = [
@@ -151,11 +166,13 @@ def generate(kind: str, seed: int) -> str:
         'name = "relay1"',
         "x = 2.0",
         "y = 0.0",
+        f'pattern = "{pattern1}"',
         "",
         "[[relay]]",
         'name = "relay2"',
         "x = 0.5",
         "y = 0.0",
+        f'pattern = "{pattern2}"',
         "",
         "[sonar]",
         "specular = true",

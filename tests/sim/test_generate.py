@@ -10,7 +10,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from relayd.sim.generate import CLEARANCE_M, KINDS, MIN_ROUTE_M, GenerateError, build, generate
+from relayd.sim.antennas import FAMILY
+from relayd.sim.generate import (
+    CLEARANCE_M,
+    KINDS,
+    MIN_ROUTE_M,
+    GenerateError,
+    antennas,
+    build,
+    generate,
+)
 from relayd.sim.planner import Grid, plan, route_length_m
 from relayd.sim.scenario import ScenarioError, load_scenario
 
@@ -98,6 +107,53 @@ def test_corridor_network_turns_and_branches() -> None:
 def test_written_scenario_parses() -> None:
     data = tomllib.loads(generate("office", 4))
     assert data["relays"] == 2 and len(data["relay"]) == 2
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_every_relay_scans_with_a_family_antenna(kind: str) -> None:
+    """One pattern per relay, written into the scenario, the world's relays scanning with it."""
+    from relayd.sim.world import World
+
+    for seed in (0, 5):
+        drawn = antennas(kind, seed, 2)
+        assert drawn == antennas(kind, seed, 2) and all(p in FAMILY for p in drawn)
+        sc = load_scenario(f"generated:{kind}:{seed}")
+        assert [sc.relay_pattern(i) for i in range(2)] == drawn
+        assert [r["pattern"] for r in tomllib.loads(generate(kind, seed))["relay"]] == drawn
+        w = World(sc, seed=0)
+        for i, name in enumerate(drawn):
+            gain = w._scan_gain[i]
+            assert gain is not None and [gain(a) for a in range(-180, 180, 15)] == [
+                FAMILY[name](a) for a in range(-180, 180, 15)
+            ]
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_antennas_spread_over_the_family_across_seeds(kind: str) -> None:
+    draws = [antennas(kind, seed, 2) for seed in range(60)]
+    for i in range(2):
+        assert {d[i] for d in draws} == set(FAMILY), i
+    # The two relays draw independently: not always the same antenna.
+    assert sum(d[0] != d[1] for d in draws) > 30
+    assert draws != [antennas(kind, seed + 1000, 2) for seed in range(60)]
+
+
+@pytest.mark.parametrize(
+    ("kind", "seed", "sha256"),
+    [
+        ("office", 7, "5b2742143242554968595ae0ccb0c2e21a3b14e4f2d1b8fcb457a06d301531cb"),
+        ("corridors", 3, "a3e8ec36226c71992f35ff2d26fec319131562cb5e4da26d3b18e741e1a7534b"),
+    ],
+)
+def test_antennas_left_the_rest_of_the_world_as_it_was(kind: str, seed: int, sha256: str) -> None:
+    """The digests are of the generator's text before it drew antennas: the antennas come
+    from a stream of their own, so without their lines the file is the same."""
+    import hashlib
+
+    text = "".join(
+        line + "\n" for line in generate(kind, seed).splitlines() if not line.startswith("pattern")
+    )
+    assert hashlib.sha256(text.encode()).hexdigest() == sha256
 
 
 def test_unknown_kind_is_a_scenario_error() -> None:
