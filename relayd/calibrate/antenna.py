@@ -388,6 +388,8 @@ def plot_pattern(cal: AntennaCalibration, path: str, title: str) -> bool:
     ax2.set_ylabel("relative gain (dB)")
     ax2.grid(True)
     fig.suptitle(title)
+    # Room between the two: the polar axes' 270 deg label sat on the dB axis's label.
+    fig.subplots_adjust(left=0.04, right=0.98, wspace=0.3)
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return True
