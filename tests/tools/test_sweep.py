@@ -145,11 +145,13 @@ def test_two_workers_equal_one_worker_and_resume(
     rows = _rows(two / "runs.csv")
     fixed = columns(["radio.shadow_sigma_db", "leader.speed_m_s"])
     assert list(rows[0])[: len(fixed)] == fixed
-    # Per-relay outcome columns follow, filled for the 1-relay runs only.
+    # The split outcome, then per-relay outcome columns, filled for the 1-relay runs only.
+    split = ["leader_arrived", "link_held", "relays_ok"]
     per_relay = ["relay1_reason", "relay1_final_gap_m", "relay1_collisions", "relay1_travelled_m"]
-    assert list(rows[0])[len(fixed) :] == per_relay
+    assert list(rows[0])[len(fixed) :] == split + per_relay
     for r in rows:
         assert (r["relay1_reason"] != "") == (r["relays"] == "1")
+        assert {r[k] for k in split} <= {"True", "False"}, r
     assert len(rows) == 4 and all(r["status"] == "ok" and r["attempts"] == "1" for r in rows)
     for r in rows:
         summary = json.loads((two / r["run_dir"] / "summary.json").read_text())
