@@ -314,8 +314,22 @@ def _result(crashes: list[str], counts: dict[str, int]) -> dict[str, Any]:
     return {
         "crashes": crashes,
         "counts": counts,
-        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        "peak_rss_mb": _peak_rss_mb(),
     }
+
+
+def _peak_rss_mb() -> float:
+    """This process's own peak resident memory (VmHWM, MB).
+
+    Not getrusage's ru_maxrss: Linux carries that over fork and exec, so a child of a
+    test worker that had grown to 300 MB reported 300 MB whatever it used itself.
+    VmHWM belongs to the address space, which exec makes anew.
+    """
+    with open("/proc/self/status", encoding="ascii") as status:
+        for line in status:
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # not Linux
 
 
 if __name__ == "__main__":
