@@ -292,7 +292,12 @@ async def test_controls_reasons_history_and_layout(
             # ... while follow is not sent, and the page says why.
             await page.click("#btn-follow")
             await page.click("#confirm-yes")
-            assert "enter the API token first" in (await page.text_content("#control-result") or "")
+            # Waited for: the hold's answer is still shown until the page has handled the
+            # click (read at once, it was, on a loaded machine).
+            await page.wait_for_function(
+                "() => /enter the API token first/.test(document.getElementById('control-result').textContent)",
+                timeout=10_000,
+            )
             # A wrong token: the API's 401 is shown.
             await page.fill("#token-input", "not-the-token")
             await page.click("#token-form button[type=submit]")
