@@ -22,6 +22,7 @@ from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
+from relayd.calibrate import synthetic
 from relayd.calibrate.antenna import AntennaSample
 from relayd.calibrate.sources import SourceError
 from relayd.calibrate.sources import _num as _num
@@ -195,29 +196,13 @@ def sweep_messages(
 
 def write_recording(path: str, messages: Sequence[tuple[str, dict[str, Any]]]) -> None:
     """An MCAP file with these messages (relayd's layout), for `--from`."""
-    from mcap.writer import Writer
-
-    schemas = {
-        "/robot/sip": "relayd.SipEvent",
-        "/scan/sample": "relayd.ScanSampleEvent",
-        "/scan/done": "relayd.ScanDone",
-    }
-    with Path(path).open("wb") as f:
-        w = Writer(f)
-        w.start(profile="", library="relayd calibrate antenna synthetic")
-        channels: dict[str, int] = {}
-        for topic, name in schemas.items():
-            sid = w.register_schema(name=name, encoding="jsonschema", data=b'{"type": "object"}')
-            channels[topic] = w.register_channel(
-                topic=topic, message_encoding="json", schema_id=sid
-            )
-        for seq, (topic, doc) in enumerate(messages):
-            ns = int(doc["t"] * 1e9)
-            w.add_message(
-                channel_id=channels[topic],
-                log_time=ns,
-                publish_time=ns,
-                sequence=seq,
-                data=json.dumps(doc, separators=(",", ":")).encode(),
-            )
-        w.finish()  # type: ignore[no-untyped-call]  # mcap ships no annotation for it
+    synthetic.write_recording(
+        path,
+        messages,
+        {
+            "/robot/sip": "relayd.SipEvent",
+            "/scan/sample": "relayd.ScanSampleEvent",
+            "/scan/done": "relayd.ScanDone",
+        },
+        "relayd calibrate antenna synthetic",
+    )

@@ -119,18 +119,27 @@ def drive_messages(
     return out
 
 
-def write_recording(path: str | Path, messages: Sequence[tuple[str, dict[str, Any]]]) -> None:
-    """An MCAP file with these messages, one JSON channel per topic (relayd's layout)."""
+#: The topics a path-loss drive records, and their schema names.
+PATH_LOSS_SCHEMAS = {
+    "/robot/sip": "relayd.SipEvent",
+    "/link": "relayd.LinkEvent",
+    "/wifi/rssi": "relayd.RssiEvent",
+}
+
+
+def write_recording(
+    path: str | Path,
+    messages: Sequence[tuple[str, dict[str, Any]]],
+    schemas: dict[str, str] = PATH_LOSS_SCHEMAS,
+    library: str = "relayd calibrate synthetic",
+) -> None:
+    """An MCAP file with these messages, one JSON channel per topic of `schemas` (topic ->
+    schema name; relayd's layout)."""
     from mcap.writer import Writer
 
-    schemas = {
-        "/robot/sip": "relayd.SipEvent",
-        "/link": "relayd.LinkEvent",
-        "/wifi/rssi": "relayd.RssiEvent",
-    }
     with Path(path).open("wb") as f:
         w = Writer(f)
-        w.start(profile="", library="relayd calibrate synthetic")
+        w.start(profile="", library=library)
         channels: dict[str, int] = {}
         for topic, name in schemas.items():
             sid = w.register_schema(name=name, encoding="jsonschema", data=b'{"type": "object"}')
