@@ -3,13 +3,18 @@
 For each scenario (its own relay count, at least 2 where it has them), each seed and
 each pursuit, one `relayd sim` run in virtual time; per relay the reason it ended on
 and its final gap to its own leader. A relay "ends on the link rule" when its last
-reason is leader_near / rear_weak (or their adaptive forms) or it is still following
-(driving, obstacle, leader_far_sonar, trail_head); anything else (avoiding, rejoining,
-blocked, trail_blocked, leader_lost, leader_search) is counted against the pursuit.
+reason is one of relayd.core.vocab.LINK_RULE_ENDS: leader_near / rear_weak (or their
+adaptive forms), or still following (driving, detour, leader_far_sonar, trail_head);
+anything else (obstacle, avoiding, rejoining, blocked, trail_blocked, leader_lost,
+leader_search) is counted against the pursuit. "obstacle" (the paper's slow-down by a
+near echo) is counted against too: a relay that ends on it may be standing at a wall.
+
+Each scenario runs with its own configuration (the project's defaults where it sets
+nothing); `--calibrated` sets the path-loss keys as `relayd calibrate` would find them.
+The runs go to `--jobs` worker processes (default 2, the machine's cores).
 
     nice python bench/pursuit.py                           # every scenario, seeds 1-10
     python bench/pursuit.py --scenarios doorway u-trap --seeds 3
-    python bench/pursuit.py --markdown > table.md          # the table in bench/RESULTS.md
 """
 
 from __future__ import annotations
@@ -27,11 +32,15 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-PURSUITS = ("trail", "bearing")
-#: Ending on the link rule or still following: what a relay should be doing at the end.
-GOOD = frozenset(
-    {"leader_near", "rear_weak", "driving", "obstacle", "leader_far_sonar", "trail_head"}
-)
+#: The laws compared, each as its `[control]` keys over the scenario's own: the shipped
+#: default (the scan bearing, with the detour round the sonar map), the paper's direct
+#: pursuit (the bearing, no detour), and the trail pursuit (with the detour).
+VARIANTS: dict[str, dict[str, object]] = {
+    "default": {},
+    "paper": {"pursuit": "bearing", "detour": False},
+    "trail": {"pursuit": "trail"},
+}
+PURSUITS = tuple(VARIANTS)
 
 
 @dataclass(frozen=True, slots=True)
@@ -46,7 +55,9 @@ class Ending:
 
     @property
     def good(self) -> bool:
-        return self.reason in GOOD
+        from relayd.core.vocab import LINK_RULE_ENDS
+
+        return self.reason in LINK_RULE_ENDS
 
 
 def calibrated(sc: Any) -> dict[str, float]:
@@ -65,12 +76,13 @@ def shipped() -> list[str]:
     return sorted(p.stem for p in (ROOT / "relayd" / "sim" / "scenarios").glob("*.toml"))
 
 
-async def _one(scenario: str, seed: int, pursuit: str) -> list[Ending]:
+async def _one(scenario: str, seed: int, pursuit: str, calibrate: bool) -> list[Ending]:
     from relayd.sim.runner import SimRunner
     from relayd.sim.scenario import load_scenario
 
     sc = load_scenario(scenario)
-    sc = sc.model_copy(update={"control": {**sc.control, **calibrated(sc), "pursuit": pursuit}})
+    keys = calibrated(sc) if calibrate else {}
+    sc = sc.model_copy(update={"control": {**sc.control, **keys, **VARIANTS[pursuit]}})
     result = await SimRunner(sc, speed=None, seed=seed).run()
     last: dict[str, Any] = result.records[-1]
     return [
@@ -87,23 +99,37 @@ async def _one(scenario: str, seed: int, pursuit: str) -> list[Ending]:
     ]
 
 
-def run(scenarios: Sequence[str], seeds: int) -> list[Ending]:
+def _job(job: tuple[str, int, str, bool]) -> list[Ending]:
     from relayd.runtime import vtime
     from relayd.runtime.logsetup import StdStream, setup_logging
 
     setup_logging("error", "console", StdStream("stderr"))
+    return vtime.run(_one(*job))
+
+
+def run(
+    scenarios: Sequence[str], seeds: int, calibrate: bool, jobs: int, variants: Sequence[str]
+) -> list[Ending]:
+    import concurrent.futures
+    import multiprocessing
+
+    todo = [
+        (scenario, seed, pursuit, calibrate)
+        for scenario in scenarios
+        for seed in range(1, seeds + 1)
+        for pursuit in variants  # side by side, seed by seed
+    ]
     out: list[Ending] = []
-    for scenario in scenarios:
-        for seed in range(1, seeds + 1):
-            for pursuit in PURSUITS:  # side by side, seed by seed
-                got = vtime.run(_one(scenario, seed, pursuit))
-                out += got
-                print(
-                    f"# {scenario} seed {seed} {pursuit}: "
-                    + ", ".join(f"{e.relay} {e.reason} {e.gap_m:.1f} m" for e in got),
-                    file=sys.stderr,
-                    flush=True,
-                )
+    ctx = multiprocessing.get_context("spawn")
+    with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=ctx) as pool:
+        for (scenario, seed, pursuit, _), got in zip(todo, pool.map(_job, todo), strict=True):
+            out += got
+            print(
+                f"# {scenario} seed {seed} {pursuit}: "
+                + ", ".join(f"{e.relay} {e.reason} {e.gap_m:.1f} m" for e in got),
+                file=sys.stderr,
+                flush=True,
+            )
     return out
 
 
@@ -112,7 +138,7 @@ def table(endings: Sequence[Ending]) -> str:
     for e in endings:
         by[(e.scenario, e.pursuit)].append(e)
     lines = [
-        "| scenario | pursuit | relay-runs on the link rule | final reasons | mean final gap (m) |",
+        "| scenario | law | relay-runs on the link rule | final reasons | mean final gap (m) |",
         "|---|---|---|---|---|",
     ]
     for scenario in sorted({e.scenario for e in endings}):
@@ -135,23 +161,34 @@ def table(endings: Sequence[Ending]) -> str:
     return "\n".join(lines)
 
 
-def convoy_share(seeds: int, pursuit: str) -> float:
-    """bench/followshare.py's convoy figure (the "within 5 m" close-following policy, the
-    default estimator and window) with this pursuit: the mean share of time within 5 m."""
-    from bench.followshare import POLICIES, policy_scenario, relay_shares, scenario_fit
+def _share_job(job: tuple[str, int]) -> list[float]:
+    """One seed of bench/followshare.py's convoy figure (the "within 5 m" close-following
+    policy, the default estimator and window) under one variant: each relay's share."""
+    from bench.followshare import POLICIES, policy_scenario, relay_shares
     from relayd.runtime import vtime
     from relayd.runtime.logsetup import StdStream, setup_logging
     from relayd.sim.runner import SimRunner
 
-    del scenario_fit  # the policy calibrates itself; imported to fail loudly if it moves
+    variant, seed = job
     setup_logging("error", "console", StdStream("stderr"))
     sc = policy_scenario("convoy", POLICIES[2], {"estimator": "lobe", "window": "adaptive"})
-    sc = sc.model_copy(update={"control": {**sc.control, **calibrated(sc), "pursuit": pursuit}})
-    shares = []
-    for seed in range(1, seeds + 1):
-        result = vtime.run(SimRunner(sc, speed=None, seed=seed).run())
-        shares += [s.within for s in relay_shares(result.records)]
-    return sum(shares) / len(shares)
+    sc = sc.model_copy(update={"control": {**sc.control, **calibrated(sc), **VARIANTS[variant]}})
+    result = vtime.run(SimRunner(sc, speed=None, seed=seed).run())
+    return [s.within for s in relay_shares(result.records)]
+
+
+def convoy_share(seeds: int, variants: Sequence[str], jobs: int) -> dict[str, float]:
+    """The mean share of time within 5 m of the leader over seeds 1..seeds, per variant."""
+    import concurrent.futures
+    import multiprocessing
+
+    todo = [(v, seed) for v in variants for seed in range(1, seeds + 1)]
+    got: dict[str, list[float]] = collections.defaultdict(list)
+    ctx = multiprocessing.get_context("spawn")
+    with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=ctx) as pool:
+        for (v, _), shares in zip(todo, pool.map(_share_job, todo), strict=True):
+            got[v] += shares
+    return {v: sum(x) / len(x) for v, x in got.items()}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -159,18 +196,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--scenarios", nargs="*", default=None)
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--per-run", action="store_true", help="also print every relay-run")
+    ap.add_argument("--calibrated", action="store_true", help="path-loss keys from the radio")
+    ap.add_argument("--jobs", type=int, default=2, help="worker processes")
+    ap.add_argument("--variants", nargs="*", default=list(PURSUITS), choices=PURSUITS)
     ap.add_argument(
         "--convoy-share",
         action="store_true",
-        help="instead: bench/followshare.py's convoy share within 5 m, both pursuits",
+        help="instead: bench/followshare.py's convoy share within 5 m, per variant",
     )
     args = ap.parse_args(argv)
     if args.convoy_share:
-        for pursuit in PURSUITS:
-            share = convoy_share(args.seeds, pursuit)
-            print(f"convoy within 5 m, {pursuit}: {100 * share:.2f} % ({args.seeds} seeds)")
+        for v, share in convoy_share(args.seeds, args.variants, args.jobs).items():
+            print(f"convoy within 5 m, {v}: {100 * share:.2f} % ({args.seeds} seeds)")
         return 0
-    endings = run(args.scenarios or shipped(), args.seeds)
+    endings = run(
+        args.scenarios or shipped(), args.seeds, args.calibrated, args.jobs, args.variants
+    )
     print(table(endings))
     if args.per_run:
         for e in endings:

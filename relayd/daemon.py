@@ -186,7 +186,7 @@ class Daemon:
                 clock,
                 identity=lambda: None if self.robot is None else self.robot.identity,
             )
-        self.state.trail_source = lambda: self.brain.trail.view().to_json()
+        self.state.trail_source = self.brain.trail_json
         self.state.pattern_source = self.brain.scans.pattern_learned
         self.state.path_source = self.brain.trail.path_json
         self.state.recording_source = (

@@ -162,6 +162,11 @@ class Trail(_Model):
     feed: LeaderFeed | None = Field(
         default=None, description="the leader relay's feed (control.leader_url); null: none"
     )
+    detour_m: list[list[float]] | None = Field(
+        default=None,
+        description="the detour in force round what the sonar map shows in the straight way: "
+        "its path [x, y] (m, odometry frame); null: the way is clear (relayd/core/plan)",
+    )
 
 
 class PatternLearned(_Model):

@@ -276,6 +276,10 @@ class ControlSettings(_Section):
     #: (relayd/core/trail) "trail" steers along the leader's estimated trail (pure
     #: pursuit), "bearing" at the scan bearing as the paper's relays did.
     pursuit: Literal["trail", "bearing"] = "bearing"
+    #: (relayd/core/plan) Go round what the sonar map shows in the straight way to the
+    #: leader (a wall its signal comes through, the arm of a U) on a planned path; false:
+    #: the pursuit's straight way and the escape alone, as the paper's relays drove.
+    detour: bool = True
     #: The path-loss model the leader's range is estimated with (`relayd calibrate` fits
     #: them): RSSI = L0 - 10 n log10(d) + N(0, sigma).
     pathloss_l0_dbm: Dbm = -15.0

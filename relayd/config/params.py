@@ -29,6 +29,7 @@ from relayd.core.scan.window import WindowParams
 from relayd.core.trail.align import Frame
 from relayd.core.trail.estimate import EstimateParams, RangeModel
 from relayd.core.trail.feed import FeedParams
+from relayd.core.plan.navigator import NavParams
 from relayd.core.trail.keeper import TrailParams
 
 P = TypeVar("P")
@@ -188,6 +189,7 @@ def brain_params(settings: Settings) -> BrainParams:
         rear_station_mac=rear.station_mac if rear is not None else None,
         link=link_policy_params(settings),
         trail=trail_params(settings),
+        nav=NavParams(enabled=settings.control.detour),
     )
 
 

@@ -52,6 +52,7 @@ from relayd.core.link.model import LinkModel
 from relayd.core.link.rear import RearLinkMemory
 from relayd.core.link.retreat import RetreatMemory
 from relayd.core.params import BrainParams
+from relayd.core.plan.navigator import Navigator
 from relayd.core.recovery.machine import recovery_step
 from relayd.core.recovery.state import (
     RecoveryInputs,
@@ -99,6 +100,7 @@ class Brain:
         self._recovery_shown: RecoveryView | None = None
         #: The leader's estimated position and trail (relayd/core/trail), fed by each scan.
         self.trail = TrailKeeper(params.trail)
+        self.nav = Navigator(params.nav)  # the sonar map, the detour round it (core/plan)
 
     # -- read-only views (the API's shell checks a drive command against the mode) ------
 
@@ -121,6 +123,10 @@ class Brain:
     @property
     def servo_ok(self) -> bool:
         return self._servo_ok
+
+    def trail_json(self) -> dict[str, object]:
+        """/status's `trail`: the trail's view and the detour in force (core/plan)."""
+        return {**self.trail.view().to_json(), "detour_m": self.nav.path_json()}
 
     # -- the one entry point ------------------------------------------------------------
 
@@ -187,6 +193,7 @@ class Brain:
             for index, range_mm in ev.sip.sonar:
                 if 0 <= index < SONAR_COUNT:
                     self._sonar[index] = range_mm
+        self.nav.sonar(ev.t, self._pose, self._sonar)
         return self._step(ev.t, ev.t)
 
     def _on_device(self, ev: DeviceEvent) -> list[Action]:
@@ -237,6 +244,8 @@ class Brain:
             if self.params.trail.pursuit == "trail"
             else None
         )
+        goal = self.trail.goal_xy(self._pose, bearing) if self._mode is Mode.FOLLOW else None
+        detour = self.nav.steer(now, self._pose, goal)  # round the sonar map (core/plan)
         return ControlInputs(
             mode=self._mode,
             sip_age_s=sip_age,
@@ -260,6 +269,7 @@ class Brain:
             trail_steer_deg=None if pursuit is None else pursuit.steer_deg,
             trail_caught_up=pursuit is not None and pursuit.caught_up,
             trail_remaining_m=None if pursuit is None else self.trail.remaining_m(self._pose),
+            detour_steer_deg=None if detour is None else detour.steer_deg,
         )
 
     def _decide(self, now: float) -> ControlOutput:
@@ -363,18 +373,8 @@ class Brain:
             else:
                 actions.append(WheelCommand(out.left_mm_s, out.right_mm_s, False, sip_t))
         changed = prev is None or prev.state is not out.state or prev.reason != out.reason
-        actions.append(
-            Decision(
-                now,
-                out.left_mm_s,
-                out.right_mm_s,
-                out.state,
-                out.reason,
-                out.situation,
-                self._mode,
-                changed,
-            )
-        )
+        wheels = (out.left_mm_s, out.right_mm_s, out.state, out.reason, out.situation)
+        actions.append(Decision(now, *wheels, self._mode, changed))
         actions.extend(self._recovery_report(now))
         return actions
 

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 from relayd.core.control.law import ControlParams
 from relayd.core.link.model import LinkPolicyParams
+from relayd.core.plan.navigator import NavParams
 from relayd.core.recovery.state import RecoveryParams
 from relayd.core.scan.estimator import EstimatorParams
 from relayd.core.scan.leader import LeaderParams
@@ -33,3 +34,5 @@ class BrainParams:
     recovery: RecoveryParams = field(default_factory=RecoveryParams)
     #: The leader's trail and the pursuit along it (relayd/core/trail; docs/CONTROL.md 7.1).
     trail: TrailParams = field(default_factory=TrailParams)
+    #: The sonar map and the detours round what it shows (relayd/core/plan).
+    nav: NavParams = field(default_factory=NavParams)

@@ -50,6 +50,8 @@ class Reason(StrEnum):
     # trail pursuit (relayd.core.trail)
     TRAIL_HEAD = "trail_head"
     TRAIL_BLOCKED = "trail_blocked"
+    # round what the sonar map shows in the way (relayd.core.plan)
+    DETOUR = "detour"
     # operator
     HOLD = "hold"
     MANUAL = "manual"
@@ -91,6 +93,8 @@ LINK_RULE_ENDS = frozenset(
         Reason.RETREAT_HOLD,  # the adaptive limit's hold, where the hop met its target
         Reason.DRIVING,
         Reason.LEADER_FAR_SONAR,  # following: the sonar says the leader is farther
+        Reason.DETOUR,  # following, round a mapped obstacle (relayd.core.plan)
+        Reason.TRAIL_HEAD,  # following: caught up with the trail's head, scanning
     }
 )
 

@@ -6,6 +6,7 @@ import json
 
 from relayd.api.openapi import STATUS_SCHEMA
 from relayd.api.status import Status
+from relayd.core.plan.navigator import Navigator
 from relayd.core.trail.keeper import TrailKeeper, TrailParams
 from relayd.runtime.state import RelayState
 
@@ -15,8 +16,13 @@ def test_a_live_trail_matches_the_model_and_the_schema() -> None:
     for k in range(12):  # a leader walking away along x, seen from the origin
         keeper.scan(float(k), (0.0, 0.0, 0.0), 0.0, 3.0, -30.0 - k, None)
     keeper.steer(12.0, (0.0, 0.0, 0.0), ())
+    nav = Navigator()
+    for k in range(-20, 21):  # a wall across the way, 2 m ahead
+        cell = nav.grid.cell(2.0, 0.1 * k)
+        nav.grid.logodds[cell], nav.grid.hit_t[cell] = 3.0, 0.0
+    assert nav.steer(12.0, (0.0, 0.0, 0.0), keeper.goal_xy((0.0, 0.0, 0.0), 0.0)) is not None
     st = RelayState()
-    st.trail_source = lambda: keeper.view().to_json()
+    st.trail_source = lambda: {**keeper.view().to_json(), "detour_m": nav.path_json()}
     doc = st.snapshot(13.0)
     status = Status.model_validate_json(json.dumps(doc), strict=True)
     assert status.model_dump(mode="json") == doc
@@ -24,6 +30,7 @@ def test_a_live_trail_matches_the_model_and_the_schema() -> None:
     assert trail is not None and trail.source == "estimate"
     assert trail.leader_xy_m is not None and trail.leader_sigma_m is not None
     assert trail.points_m and trail.steer_deg is not None
+    assert trail.detour_m is not None and len(trail.detour_m) >= 3  # round the wall's end
     props = STATUS_SCHEMA["properties"]["trail"]
     assert props["nullable"] is True
     assert set(props["properties"]) == set(doc["trail"])
@@ -119,7 +126,7 @@ async def test_a_follower_reads_a_relay_s_path_over_http_and_shows_its_feed() ->
     got = follower.steer(12.2, (0.0, 0.0, 0.0), ())
     assert got is not None and got.steer_deg is not None and abs(got.steer_deg) < 1.0
     st_b = RelayState()
-    st_b.trail_source = lambda: follower.view().to_json()
+    st_b.trail_source = lambda: {**follower.view().to_json(), "detour_m": None}
     doc = st_b.snapshot(12.3)
     status = Status.model_validate_json(json.dumps(doc), strict=True)
     assert status.model_dump(mode="json") == doc

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import pytest
 
-from bench.pursuit import GOOD
 from bench.relayfeed import WORLD, path_errors, rms, scenario
+from relayd.core.vocab import LINK_RULE_ENDS
 from relayd.runtime import vtime
 from relayd.sim.relay import leader_feed
 from relayd.sim.runner import SimRunner
@@ -53,4 +53,4 @@ def test_a_relay_follows_its_leaders_path_and_finishes_on_the_estimate_when_the_
     assert all(tr["source"] in ("estimate", "bearing") for tr in after)
     last = records[-1]["relays"][1]
     assert last["trail"]["source"] == "estimate" and last["trail"]["feed"] == "stale"
-    assert last["reason"] in GOOD and last["collisions"] == 0
+    assert last["reason"] in LINK_RULE_ENDS and last["collisions"] == 0

@@ -12,17 +12,18 @@ from dataclasses import dataclass, field, replace
 
 from relayd.core.avoid.escape import avoid_step
 from relayd.core.avoid.ring import guard
-from relayd.core.avoid.state import AvoidState, Sense
+from relayd.core.avoid.state import AvoidMode, AvoidState, Sense
 from relayd.core.control.params import ControlParams as ControlParams
 from relayd.core.control.rangecue import far_by_sonar, release_speed_mm_s
 from relayd.core.control.search import SearchState, search_step, search_wheels
+from relayd.core.control.steer import detour_speed, speed_scale, steering, trail_hold
 from relayd.core.scan.estimator import (
     SonarReading,
     avoidance_bearing,
     classify_situation,
     nearest_front_m,
 )
-from relayd.core.trail.blocked import BlockedState, blocked_step, waiting
+from relayd.core.trail.blocked import BlockedState, blocked_step
 from relayd.core.vocab import DriveState, Mode
 
 
@@ -63,6 +64,9 @@ class ControlInputs:
     trail_caught_up: bool = False
     #: How far along the trail the head still is (m; else to the leader's estimate).
     trail_remaining_m: float | None = None
+    #: A detour round what the sonar map shows in the straight way (relayd/core/plan):
+    #: the bearing of its path's lookahead point (None: the way is clear, no detour).
+    detour_steer_deg: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -155,14 +159,6 @@ def link_rule(
     ):
         return False, "rear_weak"
     return True, "driving"
-
-
-def speed_scale(d_min_m: float, threshold_o_m: float, stop_distance_m: float) -> float:
-    """1 at threshold_o (and beyond), falling linearly to 0 at stop_distance (and below)."""
-    span = threshold_o_m - stop_distance_m
-    if span <= 0:
-        return 1.0 if d_min_m >= threshold_o_m else 0.0
-    return _clamp((d_min_m - stop_distance_m) / span, 0.0, 1.0)
 
 
 def _stopped(
@@ -297,14 +293,10 @@ def control_step(
 
     # Trail pursuit: the stop rule above stands; the trail's direction replaces the scan
     # bearing for the wheel law and the escape (back onto the trail, not through a wall).
-    if params.pursuit == "trail":
-        if inputs.t_s is not None and waiting(memory.trail_block, inputs.t_s):
-            return _stopped(DriveState.STOPPED, "trail_blocked", situation, memory)
-        if inputs.trail_caught_up:
-            return _stopped(DriveState.STOPPED, "trail_head", situation, memory)
-        steer = inputs.trail_steer_deg
-        if steer is not None and math.isfinite(steer):
-            bearing, prev = steer, None
+    held = trail_hold(inputs, params, memory)
+    if held is not None:
+        return _stopped(DriveState.STOPPED, held, situation, memory)
+    bearing, prev, detouring = steering(inputs, params, bearing, prev)
     v = (
         release_speed_mm_s(params.threshold_l_dbm, params.w1, params.w2, params.v_max_mm_s)
         if released
@@ -312,7 +304,14 @@ def control_step(
     )
     # Situation 1 means a forward sonar echoed inside the detection range: d_min is set.
     d_min = nearest_front_m(inputs.front_sonar) if situation == 1 else None
-    if d_min is not None:
+    if d_min is not None and detouring:
+        # Near echoes along a planned path (a door's jambs): slow by what lies in the
+        # robot's own path, crawl past the rest, keep to the path.
+        v = detour_speed(v, inputs.front_sonar, params)
+        left, right = wheel_law(v, bearing, None, params.kp, params.kd, params.v_max_mm_s)
+        state, reason = DriveState.DRIVING, "detour"
+        memory = replace(memory, prev_steer_deg=None)
+    elif d_min is not None:
         steer = avoidance_bearing(inputs.front_sonar, params.gamma_o_m)
         v *= speed_scale(d_min, params.threshold_o_m, params.stop_distance_m)
         left, right = wheel_law(
@@ -326,16 +325,19 @@ def control_step(
     else:
         left, right = wheel_law(v, bearing, prev, params.kp, params.kd, params.v_max_mm_s)
         state, memory = DriveState.DRIVING, replace(memory, prev_steer_deg=None)
-        reason = "leader_far_sonar" if released else "driving"
+        reason = "detour" if detouring else ("leader_far_sonar" if released else "driving")
 
     act = params.actuator
-    if params.escape:
-        memory, escaped = _escape(inputs, params, memory, bearing, situation)
-        if escaped is not None:
-            return escaped
     # The paper's command, as the wire will carry it, never into a near echo.
     vel, rvel = act.within(*act.express(*act.vel_rvel(left, right)), params.v_max_mm_s)
     vel, rvel = guard(vel, rvel, inputs.front_sonar, params.stop_distance_m)
+    # Along a planned detour the escape stands by while the robot makes way: a jamb
+    # beside it is what the plan passes between, not a dead end.
+    passing = detouring and vel > 0 and memory.avoid.mode is AvoidMode.FOLLOW
+    if params.escape and not passing:
+        memory, escaped = _escape(inputs, params, memory, bearing, situation)
+        if escaped is not None:
+            return escaped
     left, right = act.wheels(vel, rvel)
     return ControlOutput(left, right, state, reason, situation, memory)
 

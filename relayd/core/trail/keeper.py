@@ -28,6 +28,8 @@ from relayd.core.trail.pursuit import Pursuit, PursuitParams, pursue
 #: This relay's own path: a point each 0.1 m (the centimetre a follower wants is in the
 #: feed's poses between them), the newest 600 (60 m).
 OWN_SPACING_M, OWN_KEEP = 0.1, 600
+#: With no estimate, a detour heads this far along the scan bearing (m).
+FALLBACK_M = 5.0
 #: Where the trail came from, as /status names it.
 SOURCE_FEED, SOURCE_ESTIMATE, SOURCE_BEARING = "leader_feed", "estimate", "bearing"
 
@@ -208,6 +210,26 @@ class TrailKeeper:
         if self.estimate is not None:
             return math.dist(xy, self.estimate.xy_m)
         return None
+
+    def goal_xy(
+        self, pose_mm_deg: tuple[float, float, float] | None, bearing_deg: float | None
+    ) -> tuple[float, float] | None:
+        """Where a detour round the sonar map heads (relayd/core/plan): the feed's lookahead
+        point while a robot leader's own path leads, else the leader's estimate while it is
+        sure enough, else a point FALLBACK_M along the scan bearing."""
+        if pose_mm_deg is None:
+            return None
+        last = self.last
+        if self.params.pursuit == "trail" and self._source == SOURCE_FEED and last is not None:
+            return last.target_xy_m
+        est = self.estimate
+        if est is not None and est.sigma_m <= self.params.max_sigma_m:
+            return est.xy_m
+        if bearing_deg is None or not math.isfinite(bearing_deg):
+            return None
+        a = math.radians(pose_mm_deg[2] + bearing_deg)
+        x, y = pose_mm_deg[0] / 1000.0, pose_mm_deg[1] / 1000.0
+        return (x + FALLBACK_M * math.cos(a), y + FALLBACK_M * math.sin(a))
 
     def view(self) -> TrailView:
         est = self.estimate

@@ -201,8 +201,11 @@ def test_the_closed_forms_solve_the_normal_equations(rows, prior) -> None:
     if inv is not None:
         for i in range(3):
             for j in range(3):
-                got = sum(inv[i][k] * m[k][j] for k in range(3))
-                assert got == pytest.approx(1.0 if i == j else 0.0, abs=1e-6)
+                terms = [inv[i][k] * m[k][j] for k in range(3)]
+                # The rounding of a 3x3 inverse grows with the terms it cancels (the
+                # powers of u up to 90^4 make them large): bound it by their size.
+                tol = 1e-6 + 1e-12 * sum(abs(t) for t in terms)
+                assert sum(terms) == pytest.approx(1.0 if i == j else 0.0, abs=tol)
     # Pooled: (b, c) minimise the weighted squares with one free level per scan.
     fit = _wls_pooled(us, ys, ws, prior, gs)
     groups = sorted(set(gs))

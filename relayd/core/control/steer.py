@@ -1,0 +1,74 @@
+"""Which way the law steers, and how fast along a detour (pure).
+
+The paper's law steers at the scan bearing. The trail pursuit puts the trail's direction
+in its place (back onto the trail, not through a wall), and a detour's path round the
+sonar map (relayd/core/plan) replaces either while the straight way is blocked. Along
+a detour, near echoes beside the path (a door's jambs) slow the robot to a crawl; only
+an echo that may lie in its own path scales its speed to zero.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+from relayd.core.avoid.ring import by_heading, in_path_below_m
+from relayd.core.control.params import ControlParams
+from relayd.core.scan.estimator import SONAR_MAX_RANGE_M, SonarReading
+from relayd.core.trail.blocked import waiting
+
+if TYPE_CHECKING:
+    from relayd.core.control.law import ControlInputs, ControlMemory
+
+
+def speed_scale(d_min_m: float, threshold_o_m: float, stop_distance_m: float) -> float:
+    """1 at threshold_o (and beyond), falling linearly to 0 at stop_distance (and below)."""
+    span = threshold_o_m - stop_distance_m
+    if span <= 0:
+        return 1.0 if d_min_m >= threshold_o_m else 0.0
+    return min(max((d_min_m - stop_distance_m) / span, 0.0), 1.0)
+
+
+#: The speed past near echoes beside a planned path (mm/s).
+PASSAGE_MM_S = 150.0
+
+
+def detour_speed(v_mm_s: float, front: tuple[SonarReading, ...], params: ControlParams) -> float:
+    """The paper's speed along a detour: scaled by the nearest echo that may lie in the
+    robot's forward path, and no faster than PASSAGE_MM_S past echoes beside it."""
+    r = by_heading(front)
+    in_path = min((d for h, d in r.items() if d < in_path_below_m(h)), default=SONAR_MAX_RANGE_M)
+    v_mm_s *= speed_scale(in_path, params.threshold_o_m, params.stop_distance_m)
+    if min(r.values(), default=SONAR_MAX_RANGE_M) < params.threshold_o_m:
+        v_mm_s = min(v_mm_s, PASSAGE_MM_S)
+    return v_mm_s
+
+
+def trail_hold(inputs: ControlInputs, params: ControlParams, memory: ControlMemory) -> str | None:
+    """The trail pursuit's own stops, by reason: a "trail_blocked" wait, or caught up with
+    the trail's head ("trail_head"); None: neither."""
+    if params.pursuit != "trail":
+        return None
+    if inputs.t_s is not None and waiting(memory.trail_block, inputs.t_s):
+        hold_reason = "trail_blocked"
+    elif inputs.trail_caught_up:
+        hold_reason = "trail_head"
+    else:
+        return None
+    return hold_reason
+
+
+def steering(
+    inputs: ControlInputs, params: ControlParams, bearing: float, prev: float | None
+) -> tuple[float, float | None, bool]:
+    """(steer, its previous value for the D term, detouring): the trail's direction replaces
+    the scan bearing in trail pursuit (back onto the trail, not through a wall); a detour's
+    path round the sonar map replaces either (relayd/core/plan)."""
+    if params.pursuit == "trail":
+        steer = inputs.trail_steer_deg
+        if steer is not None and math.isfinite(steer):
+            bearing, prev = steer, None
+    detour = inputs.detour_steer_deg
+    if detour is not None and math.isfinite(detour):
+        return detour, None, True
+    return bearing, prev, False

@@ -1,0 +1,155 @@
+"""What the sonar ring has seen: a sparse log-odds occupancy grid in the odometry frame (pure).
+
+Each SIP's sixteen ranges update the grid the classic way (Moravec and Elfes' sonar
+maps, as in Thrun, Burgard and Fox, "Probabilistic Robotics", ch. 9): the cell an echo
+came from gains `hit`, the cells its beam passed through lose `miss`, each clamped to
+[`floor`, `ceiling`]. An echo is spread over the beam's arc (a sonar reads the nearest
+surface anywhere in its cone: a wall seen at a slant answers from the arc's edge, and an
+echo laid on the axis would put a phantom in the middle of a corridor); the cone's
+inside is cleared along three rays. Echoes beyond `use_m` are too often a side lobe or a multiple bounce to map,
+and a ray with no echo clears only weakly (a smooth wall at a grazing angle returns
+nothing, and that must not erase the wall another sonar saw). Cells are keyed by their
+integer indices; only cells a beam touched are stored, so memory grows with the area
+explored, and `forget` drops what lies far behind. An occupied cell counts only while
+it echoed within `ttl_s`: a person or a robot that stood there has moved on.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+from relayd.core.geometry import SONAR_MAX_RANGE_MM, SONAR_POSES
+
+Cell = tuple[int, int]
+#: The beam's arc where an echo is laid (rad): a sonar reads the nearest surface anywhere
+#: in its +-15 deg cone, so a wall seen at a slant echoes from the arc's edge, not its axis.
+ARC = tuple(math.radians(a) for a in (-12.0, -6.0, 0.0, 6.0, 12.0))
+#: The arc's cells share this many hits' worth: two readings that agree make a cell occupied.
+ARC_WEIGHT = 2.0
+#: The rays (rad off the axis) along which the inside of the cone is cleared.
+CLEAR_RAYS = tuple(math.radians(a) for a in (-8.0, 0.0, 8.0))
+
+
+@dataclass(frozen=True, slots=True)
+class GridParams:
+    cell_m: float = 0.1
+    #: Echoes farther than this are not mapped (m).
+    use_m: float = 3.0
+    #: A ray without an echo clears this far (m), with `miss_no_echo` per cell.
+    clear_no_echo_m: float = 3.0
+    hit: float = 0.9
+    miss: float = 0.3
+    miss_no_echo: float = 0.2
+    floor: float = -2.0
+    ceiling: float = 3.0
+    #: A cell at or above this log-odds is occupied ...
+    occupied: float = 0.5
+    #: ... while its last echo is no older than this (s): people and robots move on, and
+    #: a place no beam has looked at since may have changed.
+    ttl_s: float = 30.0
+
+
+class SonarGrid:
+    """The one writer of the sonar map; `occupied_near` and `occupied_cells` read it."""
+
+    def __init__(self, params: GridParams | None = None) -> None:
+        self.p = params or GridParams()
+        self.logodds: dict[Cell, float] = {}
+        #: When each cell last echoed (s, the SIP's time), and the newest update's time.
+        self.hit_t: dict[Cell, float] = {}
+        self.now_s = 0.0
+        self._last: tuple[tuple[float, float, float], tuple[int | None, ...]] | None = None
+
+    def cell(self, x_m: float, y_m: float) -> Cell:
+        c = self.p.cell_m
+        return (math.floor(x_m / c), math.floor(y_m / c))
+
+    def centre(self, cell: Cell) -> tuple[float, float]:
+        c = self.p.cell_m
+        return ((cell[0] + 0.5) * c, (cell[1] + 0.5) * c)
+
+    def is_occupied(self, cell: Cell) -> bool:
+        return self.logodds.get(cell, 0.0) >= self.p.occupied and self._fresh(cell)
+
+    def _fresh(self, cell: Cell) -> bool:
+        return self.now_s - self.hit_t.get(cell, -math.inf) <= self.p.ttl_s
+
+    def update(
+        self, t_s: float, pose_mm_deg: tuple[float, float, float], ranges_mm: Sequence[int | None]
+    ) -> None:
+        """One SIP's ring (index order, None: never read) seen from this odometry pose at t_s."""
+        self.now_s = t_s
+        seen = (pose_mm_deg, tuple(ranges_mm))
+        if seen == self._last:
+            return  # a robot standing still re-reads the same ring: nothing new to map
+        self._last = seen
+        x0, y0, th_deg = pose_mm_deg[0] / 1000.0, pose_mm_deg[1] / 1000.0, pose_mm_deg[2]
+        th = math.radians(th_deg)
+        c, s = math.cos(th), math.sin(th)
+        p = self.p
+        for pose, mm in zip(SONAR_POSES, ranges_mm, strict=False):
+            if mm is None or mm < 0:
+                continue
+            sx = x0 + (pose.x_mm * c - pose.y_mm * s) / 1000.0
+            sy = y0 + (pose.x_mm * s + pose.y_mm * c) / 1000.0
+            h = th + math.radians(pose.heading_deg)
+            if mm >= SONAR_MAX_RANGE_MM or mm / 1000.0 > p.use_m:
+                self._clear(sx, sy, math.cos(h), math.sin(h), p.clear_no_echo_m, p.miss_no_echo)
+                continue
+            r = mm / 1000.0
+            for off in CLEAR_RAYS:
+                self._clear(sx, sy, math.cos(h + off), math.sin(h + off), r - p.cell_m, p.miss)
+            # The echo came from somewhere on the beam's arc: each point of it gets a share.
+            cells = {self.cell(sx + r * math.cos(h + a), sy + r * math.sin(h + a)) for a in ARC}
+            share = p.hit * ARC_WEIGHT / len(cells) if len(cells) > 1 else p.hit
+            for cell in cells:
+                self._add(cell, share)
+                self.hit_t[cell] = t_s
+
+    def _clear(self, sx: float, sy: float, dx: float, dy: float, to_m: float, miss: float) -> None:
+        step = self.p.cell_m
+        last: Cell | None = None
+        n = int(to_m / step)
+        for i in range(1, n + 1):
+            d = i * step
+            cell = self.cell(sx + d * dx, sy + d * dy)
+            if cell != last:
+                self._add(cell, -miss)
+                last = cell
+
+    def _add(self, cell: Cell, delta: float) -> None:
+        p = self.p
+        v = self.logodds.get(cell, 0.0) + delta
+        self.logodds[cell] = p.ceiling if v > p.ceiling else (p.floor if v < p.floor else v)
+
+    def occupied_cells(self) -> Iterable[Cell]:
+        thr = self.p.occupied
+        return (k for k, v in self.logodds.items() if v >= thr and self._fresh(k))
+
+    def occupied_near(self, x_m: float, y_m: float, radius_m: float) -> bool:
+        """Is any occupied cell's centre within radius_m of this point?"""
+        cx, cy = self.cell(x_m, y_m)
+        n = math.ceil(radius_m / self.p.cell_m)
+        r2 = radius_m * radius_m
+        thr = self.p.occupied
+        get = self.logodds.get
+        cm = self.p.cell_m
+        for i in range(cx - n, cx + n + 1):
+            ex = (i + 0.5) * cm - x_m
+            for j in range(cy - n, cy + n + 1):
+                if get((i, j), 0.0) >= thr and self._fresh((i, j)):
+                    ey = (j + 0.5) * cm - y_m
+                    if ex * ex + ey * ey <= r2:
+                        return True
+        return False
+
+    def forget(self, x_m: float, y_m: float, keep_m: float) -> None:
+        """Drop every cell farther than keep_m from this point (bounded memory)."""
+        cx, cy = self.cell(x_m, y_m)
+        n = keep_m / self.p.cell_m
+        self.logodds = {
+            k: v for k, v in self.logodds.items() if abs(k[0] - cx) <= n and abs(k[1] - cy) <= n
+        }
+        self.hit_t = {k: t for k, t in self.hit_t.items() if k in self.logodds}

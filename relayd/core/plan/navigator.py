@@ -1,0 +1,193 @@
+"""Going round what is in the way: when to plan, and where the plan steers (pure).
+
+The relay drives at its target (the scan bearing's leader estimate, or the trail's
+lookahead point) as long as the straight way there is clear on the sonar map. When the
+map shows something on that line (a wall the leader's signal comes through, the arm of
+a U), the navigator plans a path round it on the map (relayd/core/plan/astar.py) and
+steers at a point `lookahead_m` along that path, replanning every `replan_s`, when the
+target moves by `retarget_m` or when the path runs into a newly seen obstacle. A
+detour, once taken, is kept for `hold_s` after the direct way clears, so the relay does
+not swing back at the wall it has just left behind a corner.
+
+The last metres before the target are not checked (`goal_free_m`): the leader itself
+echoes there, a robot leader most of all. Time comes with each call; nothing is read.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+from relayd.core.geometry import wrap_deg
+from relayd.core.plan.astar import Path, PlanParams, plan
+from relayd.core.plan.grid import GridParams, SonarGrid
+
+
+@dataclass(frozen=True, slots=True)
+class NavParams:
+    #: Off: the navigator never steers (the laws as they were).
+    enabled: bool = True
+    grid: GridParams = field(default_factory=GridParams)
+    plan: PlanParams = field(default_factory=PlanParams)
+    #: How far along the straight way (m) the map is checked, and how close to the
+    #: line an occupied cell must be to block it (the robot's half width and a margin).
+    check_m: float = 4.0
+    clear_m: float = 0.35
+    goal_free_m: float = 1.2
+    lookahead_m: float = 0.8
+    replan_s: float = 1.0
+    retarget_m: float = 1.0
+    hold_s: float = 3.0
+    #: The map keeps this much round the relay (m).
+    keep_m: float = 30.0
+    forget_every_s: float = 30.0
+
+
+@dataclass(frozen=True, slots=True)
+class NavView:
+    """The detour in force: its steering (robot frame) and the path (odometry frame, m)."""
+
+    steer_deg: float
+    path: Path
+
+
+class Navigator:
+    """The one writer of the sonar map and the detour plan."""
+
+    def __init__(self, params: NavParams | None = None) -> None:
+        self.p = params or NavParams()
+        self.grid = SonarGrid(self.p.grid)
+        self.path: Path | None = None
+        self._plan_t: float | None = None
+        self._plan_goal: tuple[float, float] | None = None
+        self._clear_since: float | None = None
+        self._forgot_t: float | None = None
+        self.last: NavView | None = None
+        self.plans = 0
+
+    def sonar(
+        self, t_s: float, pose_mm_deg: tuple[float, float, float], ranges_mm: Sequence[int | None]
+    ) -> None:
+        """One SIP's ring onto the map."""
+        if not self.p.enabled:
+            return
+        self.grid.update(t_s, pose_mm_deg, ranges_mm)
+        if self._forgot_t is None:
+            self._forgot_t = t_s
+        elif t_s - self._forgot_t > self.p.forget_every_s:
+            self._forgot_t = t_s
+            self.grid.forget(pose_mm_deg[0] / 1000.0, pose_mm_deg[1] / 1000.0, self.p.keep_m)
+
+    def clear_line(self, a: tuple[float, float], b: tuple[float, float]) -> bool:
+        """Is the straight way from a toward b free on the map (up to check_m, and short of
+        b by goal_free_m)?"""
+        p = self.p
+        d = math.dist(a, b)
+        span = min(p.check_m, d - p.goal_free_m)
+        if span <= 0:
+            return True
+        ux, uy = (b[0] - a[0]) / d, (b[1] - a[1]) / d
+        step = self.grid.p.cell_m * 0.5
+        for i in range(1, int(span / step) + 1):
+            s = i * step
+            if self.grid.occupied_near(a[0] + s * ux, a[1] + s * uy, p.clear_m):
+                return False
+        return True
+
+    def steer(
+        self,
+        t_s: float,
+        pose_mm_deg: tuple[float, float, float] | None,
+        goal_xy: tuple[float, float] | None,
+    ) -> NavView | None:
+        """The detour's steering from this odometry pose toward goal_xy (m); None: go straight."""
+        p = self.p
+        if not p.enabled or goal_xy is None or pose_mm_deg is None:
+            self._drop()
+            return None
+        here = (pose_mm_deg[0] / 1000.0, pose_mm_deg[1] / 1000.0)
+        if self.clear_line(here, goal_xy):
+            if self.path is None:
+                return None
+            if self._clear_since is None:
+                self._clear_since = t_s
+            if t_s - self._clear_since >= p.hold_s:
+                self._drop()
+                return None
+        else:
+            self._clear_since = None
+        if self._replan_due(t_s, here, goal_xy):
+            self.path = plan(self.grid, here, goal_xy, p.plan)
+            self._plan_t, self._plan_goal = t_s, goal_xy
+            self.plans += 1
+        if self.path is None:
+            self.last = None
+            return None
+        tx, ty = _along(self.path, here, p.lookahead_m)
+        steer = wrap_deg(math.degrees(math.atan2(ty - here[1], tx - here[0])) - pose_mm_deg[2])
+        self.last = NavView(steer, self.path)
+        return self.last
+
+    def _replan_due(self, t_s: float, here: tuple[float, float], goal: tuple[float, float]) -> bool:
+        p = self.p
+        if self.path is None or self._plan_t is None or self._plan_goal is None:
+            return True
+        if t_s - self._plan_t >= p.replan_s or math.dist(goal, self._plan_goal) > p.retarget_m:
+            return True
+        # The path ahead runs into something seen since: replan at once.
+        return not self._ahead_clear(here)
+
+    def _ahead_clear(self, here: tuple[float, float]) -> bool:
+        """The path's next check_m from the relay's place on it keeps clear of the map."""
+        assert self.path is not None
+        step = self.grid.p.cell_m * 0.5
+        inflate = self.p.plan.inflate_m * 0.8
+        checks = int(self.p.check_m / step)
+        for k in range(1, checks + 1):
+            x, y = _along(self.path, here, k * step)
+            if self.grid.occupied_near(x, y, inflate):
+                return False
+        return True
+
+    def path_json(self) -> list[list[float]] | None:
+        """/status's `trail.detour_m`: the detour's path in force (m), or None."""
+        if self.last is None:
+            return None
+        return [[round(x, 3), round(y, 3)] for x, y in self.last.path]
+
+    def _drop(self) -> None:
+        self.path = self.last = None
+        self._plan_t = self._plan_goal = self._clear_since = None
+
+
+def _along(path: Path, here: tuple[float, float], ahead_m: float) -> tuple[float, float]:
+    """The point ahead_m along the path from its point nearest `here` (its projection)."""
+    best_i, best_d, best_pt = 0, math.inf, path[0]
+    for i in range(len(path) - 1):
+        a, b = path[i], path[i + 1]
+        pt = _project(here, a, b)
+        d = math.dist(here, pt)
+        if d < best_d:
+            best_i, best_d, best_pt = i, d, pt
+    left = ahead_m
+    cur = best_pt
+    for j in range(best_i + 1, len(path)):
+        seg = math.dist(cur, path[j])
+        if seg >= left:
+            f = left / seg
+            return (cur[0] + f * (path[j][0] - cur[0]), cur[1] + f * (path[j][1] - cur[1]))
+        left -= seg
+        cur = path[j]
+    return path[-1]
+
+
+def _project(
+    p: tuple[float, float], a: tuple[float, float], b: tuple[float, float]
+) -> tuple[float, float]:
+    ax, ay = b[0] - a[0], b[1] - a[1]
+    n = ax * ax + ay * ay
+    if n < 1e-12:
+        return a
+    f = max(0.0, min(1.0, ((p[0] - a[0]) * ax + (p[1] - a[1]) * ay) / n))
+    return (a[0] + f * ax, a[1] + f * ay)
