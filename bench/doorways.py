@@ -1,9 +1,9 @@
 """Door-like gaps in an ARIA map's wall lines: where they are and how wide.
 
 A door in a `.map` made by ARIA's tools is a gap between two wall lines that would
-otherwise run on: a line ends in free space (no other line within JOIN_M of its end) and,
-straight on along its own direction or across to the wall facing it, another line
-begins 0.5-1.6 m away. For each such gap the script prints the two wall ends, the width
+otherwise run on: a line ends in free space (no other line within JOIN_M of its end) and
+the first line met going on from that end, within ALIGN_DEG of the wall's own direction
+and with no line across the way, is 0.5-1.6 m away. For each such gap the script prints the two wall ends, the width
 between them (line to line), the clear width after the map's scan points (the widest
 stretch of the gap with no `DATA` point within POINT_BAND_M of it: furniture and door
 frames are often only points), and the gap's middle and direction. Passing a gap takes a
@@ -98,27 +98,33 @@ def doorways(
     for own, x, y, dx, dy in ends:
         if box is not None and not (box[0] <= x <= box[2] and box[1] <= y <= box[3]):
             continue
+        # The first wall met going on from this end, along the wall (a door in it) and
+        # with no other wall across the way.
+        best: tuple[float, float, float, MapLine] | None = None
         for other in lines:
             if other is own:
                 continue
             d, qx, qy = _closest(x, y, other)
-            if not min_m <= d <= max_m:
+            if not min_m <= d <= max_m or (best is not None and d >= best[0]):
                 continue
-            # The gap goes on along the wall that ends here (a door in that wall).
-            cos = ((qx - x) * dx + (qy - y) * dy) / d
-            if cos < math.cos(math.radians(ALIGN_DEG)):
+            if ((qx - x) * dx + (qy - y) * dy) / d < math.cos(math.radians(ALIGN_DEG)):
                 continue
             if any(_crosses((x, y), (qx, qy), o) for o in lines if o is not own and o is not other):
                 continue
-            mx, my = (x + qx) / 2, (y + qy) / 2
-            if any(math.hypot(mx - f["mid_x"], my - f["mid_y"]) < 0.3 for f in found):
-                continue
-            near = [p for p in amap.points if abs(p[0] - mx) < d and abs(p[1] - my) < d]
-            found.append({
-                "width_m": d, "clear_m": clear_width_m((x, y), (qx, qy), near),
-                "mid_x": mx, "mid_y": my, "ax": x, "ay": y, "bx": qx, "by": qy,
-                "line_a": own.lineno, "line_b": other.lineno,
-            })  # fmt: skip
+            best = (d, qx, qy, other)
+        if best is None:
+            continue
+        d, qx, qy, other = best
+        mx, my = (x + qx) / 2, (y + qy) / 2
+        # The same gap seen from its other end.
+        if any(math.hypot(mx - f["mid_x"], my - f["mid_y"]) < 0.05 for f in found):
+            continue
+        near = [p for p in amap.points if abs(p[0] - mx) < d and abs(p[1] - my) < d]
+        found.append({
+            "width_m": d, "clear_m": clear_width_m((x, y), (qx, qy), near),
+            "mid_x": mx, "mid_y": my, "ax": x, "ay": y, "bx": qx, "by": qy,
+            "line_a": own.lineno, "line_b": other.lineno,
+        })  # fmt: skip
     found.sort(key=lambda f: -f["clear_m"])
     return found
 
