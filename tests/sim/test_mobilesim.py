@@ -35,7 +35,7 @@ MAP = Path(__file__).resolve().parents[1] / "fixtures" / "maps" / "corner.map"
 #: The office convoy's scenario (bench/engines.py runs it too: bench/RESULTS.md).
 OFFICE = Path(__file__).resolve().parents[2] / "bench" / "amroffice_door.toml"
 #: The office convoy's settling time after the person's goal (reached at about 37 s): the
-#: relays stopped for good 47-64 s into the runs measured (bench/RESULTS.md); the bench
+#: relays stopped for good 47-57 s into the runs measured (bench/RESULTS.md); the bench
 #: file gives 60 s.
 SETTLE_S = 30.0
 NAMES = ["leader", "relay1", "relay2"]
