@@ -5,9 +5,14 @@ and `--engine mobilesim` (real time; RELAYD_MOBILESIM or --mobilesim names the p
 then prints, side by side, each relay's travelled distance, the time it passed each
 corner of the leader's route (first within CORNER_M of it), its minimum clearance from
 the map's wall lines (robot centre to line), its time in avoidance, its stall episodes,
-its final gap and reason, and the wall time of each run.
+its final gap and reason, and the wall time of each run. With `--door X Y` (a doorway's
+middle, bench/doorways.py) also each relay's least distance to it and the second the
+leader came within 0.3 m of it; with `--markdown` the table as Markdown, dated, as
+bench/RESULTS.md keeps it.
 
     python bench/engines.py --map AMROffice.map --scenario bench/amroffice.toml
+    python bench/engines.py --map AMROffice.map --scenario bench/amroffice_door.toml \
+        --door -4.52 -2.75 --runs 3 --markdown
     python bench/engines.py --map tests/fixtures/maps/corner.map --runs 3 --keep runs/
 """
 
@@ -22,6 +27,7 @@ import sys
 import tempfile
 import time
 import tomllib
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +37,8 @@ from relayd.sim.scenario import parse_scenario
 
 #: A relay has passed a corner once its centre comes this close to it (m).
 CORNER_M = 1.0
+#: The leader has gone through the door once its centre comes this close to its middle (m).
+DOOR_M = 0.3
 
 
 def _seg_dist(px: float, py: float, x1: float, y1: float, x2: float, y2: float) -> float:
@@ -59,10 +67,23 @@ def run_engine(engine: str, args: argparse.Namespace, out: Path) -> tuple[float,
 
 
 def metrics(
-    out: Path, lines: list[tuple[float, float, float, float]], corners: list[Any]
+    out: Path,
+    lines: list[tuple[float, float, float, float]],
+    corners: list[Any],
+    door: tuple[float, float] | None = None,
 ) -> list[dict[str, Any]]:
     recs = [json.loads(x) for x in (out / "trace.jsonl").read_text().splitlines()]
     summary = json.loads((out / "summary.json").read_text())
+    leader_door_s = None
+    if door is not None:
+        leader_door_s = next(
+            (
+                rec["t"]
+                for rec in recs
+                if math.hypot(rec["leader"]["x"] - door[0], rec["leader"]["y"] - door[1]) < DOOR_M
+            ),
+            None,
+        )
     rows = []
     for k, f in enumerate(summary["followers"]):
         clear = math.inf
@@ -71,8 +92,11 @@ def metrics(
         stalls = 0
         prev_t = None
         was_stalled = False
+        door_m = math.inf
         for rec in recs:
             r = rec["relays"][k]
+            if door is not None:
+                door_m = min(door_m, math.hypot(r["x"] - door[0], r["y"] - door[1]))
             near = [ln for ln in lines if min(ln[0], ln[2]) - 2 < r["x"] < max(ln[0], ln[2]) + 2
                     and min(ln[1], ln[3]) - 2 < r["y"] < max(ln[1], ln[3]) + 2]  # fmt: skip
             for ln in near:
@@ -91,6 +115,7 @@ def metrics(
             "min_clearance_m": clear, "avoiding_s": avoid_s, "stalls": stalls,
             "collisions": f["collisions"], "final_gap_m": f["final_gap_m"],
             "reason": f["stopped_reason"], "goal": summary["goal_reached"],
+            "on_rule": f.get("on_link_rule"), "door_m": door_m, "leader_door_s": leader_door_s,
         })  # fmt: skip
     return rows
 
@@ -102,7 +127,11 @@ def main() -> int:
     ap.add_argument("--mobilesim", default=None)
     ap.add_argument("--runs", type=int, default=1, help="MobileSim runs (real time, vary)")
     ap.add_argument("--keep", default=None, help="keep each run's outputs under this folder")
+    ap.add_argument("--door", type=float, nargs=2, metavar=("X", "Y"), help="a doorway's middle")
+    ap.add_argument("--markdown", action="store_true", help="the table as Markdown, dated")
     args = ap.parse_args()
+    door = (args.door[0], args.door[1]) if args.door else None
+    started = datetime.now(UTC)
     doc: dict[str, Any] = {}
     if args.scenario:
         doc = tomllib.loads(Path(args.scenario).read_text())
@@ -124,7 +153,10 @@ def main() -> int:
                 sim_s = json.loads((out / "summary.json").read_text())["sim_seconds"]
                 print(f"{engine}#{i + 1}: {sim_s:.0f} s simulated, {wall_s:.0f} s wall,"
                       f" {cpu_s:.1f} s CPU ({cpu_s / sim_s:.3f} CPU s per simulated s)")  # fmt: skip
-                results.append((f"{engine}#{i + 1}", wall_s, metrics(out, lines, corners)))
+                results.append((f"{engine}#{i + 1}", wall_s, metrics(out, lines, corners, door)))
+    if args.markdown:
+        print_markdown(results, started, door is not None)
+        return 0
     head = f"{'run':<12} {'wall s':>6} {'relay':<7} {'travel m':>8} {'corners s':<18} {'min clr m':>9} {'avoid s':>7} {'stalls':>6} {'gap m':>6}  reason / goal"
     print(head)
     print("-" * len(head))
@@ -135,6 +167,31 @@ def main() -> int:
                   f"{r['min_clearance_m']:>9.2f} {r['avoiding_s']:>7.1f} {r['stalls']:>6} "
                   f"{r['final_gap_m']:>6.2f}  {r['reason']} / {'yes' if r['goal'] else 'NO'}")  # fmt: skip
     return 0
+
+
+def print_markdown(
+    results: list[tuple[str, float, list[dict[str, Any]]]], started: datetime, door: bool
+) -> None:
+    """The table as bench/RESULTS.md keeps it, under the UTC time the runs began and ended."""
+    ended = datetime.now(UTC)
+    print(f"\nbench/engines.py, {started:%Y-%m-%d %H:%M}-{ended:%H:%M} UTC\n")
+    cols = ["run", "wall s", "relay", "travel m", "corners s", "min clr m", "avoid s", "stalls"]
+    cols += ["door m", "leader door s"] if door else []
+    cols += ["gap m", "reason / on rule / goal"]
+    print("| " + " | ".join(cols) + " |")
+    print("|" + "---|" * len(cols))
+    for name, wall_s, rows in results:
+        for r in rows:
+            cs = ", ".join("-" if c is None else f"{c:.0f}" for c in r["corners_s"])
+            cells = [name.replace("#", " "), f"{wall_s:.0f}", r["name"], f"{r['travelled_m']:.2f}",
+                     cs, f"{r['min_clearance_m']:.2f}", f"{r['avoiding_s']:.1f}", str(r["stalls"])]  # fmt: skip
+            if door:
+                ld = r["leader_door_s"]
+                cells += [f"{r['door_m']:.2f}", "-" if ld is None else f"{ld:.0f}"]
+            rule = "yes" if r["on_rule"] else "NO"
+            cells += [f"{r['final_gap_m']:.2f}",
+                      f"{r['reason']} / {rule} / {'yes' if r['goal'] else 'NO'}"]  # fmt: skip
+            print("| " + " | ".join(cells) + " |")
 
 
 if __name__ == "__main__":

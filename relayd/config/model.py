@@ -335,6 +335,12 @@ class AvoidanceSettings(_Section):
     turn_rate_deg_s: Annotated[float, Field(gt=0, le=100)] = 20.0
     #: No turn in place is ever commanded slower than this (a rate the tyres execute).
     min_turn_deg_s: Annotated[float, Field(ge=1, le=100)] = 8.0
+    #: The door passage (relayd/core/avoid/door.py): through a gap at least the robot's
+    #: width plus door_margin_m, slowly and in its middle, instead of slowing to a stop in
+    #: it and going round. False: the paper's law and the escape alone.
+    door_pass: bool = True
+    door_margin_m: Annotated[float, Field(ge=0.05, le=1.0)] = 0.2
+    door_speed_mm_s: Annotated[float, Field(ge=20, le=400)] = 120.0
 
     @model_validator(mode="after")
     def _cross_key_rules(self) -> AvoidanceSettings:

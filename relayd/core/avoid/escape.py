@@ -3,7 +3,7 @@
 The paper's situation 1 cannot get a robot past an obstacle symmetric about its path
 (the centroid is 0, the speed scale 0). `avoid_step` notices that and runs an escape:
 one handler per mode (HANDLERS: FOLLOW, BACKOFF, ALIGN, LANE, TURN, WALL, CORNER,
-BLOCKED) over the escape's memory, with the hand-overs within one step as a table
+BLOCKED, DOOR) over the escape's memory, with the hand-overs within one step as a table
 (HANDS_OVER). It promises: the escape is bounded (time, distance, turning, stray from
 where it took over; then BLOCKED with wheels at zero), and its commands are guarded by
 the sonars. The state diagram and each rule: docs/AVOIDANCE.md. The vocabulary and the
@@ -17,6 +17,7 @@ import math
 from collections.abc import Callable
 from dataclasses import replace
 
+from relayd.core.avoid.door import at_door, door_step
 from relayd.core.avoid.lane import lane_step, maybe_lane
 from relayd.core.avoid.ring import (
     by_heading,
@@ -140,6 +141,9 @@ def _on_follow(st: AvoidState, v: StepView) -> Verdict:
                 clear_since_t=None,
                 hit_at=None,
             )
+    if at_door(v):
+        # A gap the robot fits through, the leader beyond it: through it, not round it.
+        return enter(st, AvoidMode.DOOR, t), AvoidMode.DOOR
     stuck = t - st.anchor_t > p.no_progress_s
     if d_min >= p.stop_distance_m and not stuck:
         return st, AvoidCommand(True)
@@ -292,6 +296,7 @@ HANDLERS: dict[AvoidMode, Handler] = {
     AvoidMode.TURN: _on_turn,
     AvoidMode.CORNER: _on_corner,
     AvoidMode.WALL: on_wall,
+    AvoidMode.DOOR: door_step,
 }
 
 #: The hand-overs within one step: a handler that does not decide names the mode whose
@@ -302,7 +307,7 @@ HANDLERS: dict[AvoidMode, Handler] = {
 HANDS_OVER: dict[AvoidMode, frozenset[AvoidMode]] = {
     AvoidMode.BLOCKED: frozenset(),
     AvoidMode.FOLLOW: frozenset(
-        {AvoidMode.ALIGN, AvoidMode.TURN, AvoidMode.BACKOFF, AvoidMode.LANE}
+        {AvoidMode.ALIGN, AvoidMode.TURN, AvoidMode.BACKOFF, AvoidMode.LANE, AvoidMode.DOOR}
     ),
     AvoidMode.BACKOFF: frozenset({AvoidMode.TURN, AvoidMode.ALIGN, AvoidMode.LANE}),
     AvoidMode.LANE: frozenset({AvoidMode.TURN, AvoidMode.WALL}),
@@ -310,4 +315,5 @@ HANDS_OVER: dict[AvoidMode, frozenset[AvoidMode]] = {
     AvoidMode.TURN: frozenset({AvoidMode.WALL}),
     AvoidMode.CORNER: frozenset({AvoidMode.WALL}),
     AvoidMode.WALL: frozenset(),
+    AvoidMode.DOOR: frozenset(),
 }

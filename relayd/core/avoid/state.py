@@ -33,6 +33,7 @@ class AvoidMode(StrEnum):
     CORNER = "corner"
     ALIGN = "align"
     BLOCKED = "blocked"
+    DOOR = "door"
 
 
 @dataclass(frozen=True, slots=True)
@@ -84,6 +85,19 @@ class AvoidParams:
     #: A leader this far off the nose is not beyond what blocks the way ahead: the escape
     #: turns onto it first (ALIGN) instead of going round the obstacle.
     align_first_deg: float = 60.0
+    #: The door passage (relayd/core/avoid/door.py): through a gap at least the robot's
+    #: width plus door_margin_m, jambs within door_side_m each side, the way on open
+    #: beyond door_ahead_m, the leader within door_bearing_deg of the nose; at
+    #: door_speed_mm_s, steering for the gap's middle. False: the paper's law slows to a
+    #: stop in a narrow door and the escape goes round it.
+    door_pass: bool = True
+    door_margin_m: float = 0.2
+    door_side_m: float = 0.8
+    door_ahead_m: float = 0.6
+    door_bearing_deg: float = 40.0
+    door_speed_mm_s: float = 120.0
+    door_gain_deg_s_per_m: float = 100.0
+    door_max_deg_s: float = 15.0
 
 
 @dataclass(frozen=True, slots=True)
