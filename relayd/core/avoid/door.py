@@ -16,12 +16,14 @@ an obstacle to go round. The passage (mode DOOR of relayd/core/avoid/escape.py):
 the robot drives at door_speed_mm_s, steering for the gap's middle, instead of the law's
 slowed command. The guard still stops forward motion toward any echo that may lie in the
 footprint's path within the stop distance. The paper's law takes over again as soon as
-any condition fails (through the door, the sides open up).
+any condition fails (through the door, the sides open up) or the guard holds the robot;
+held for no_progress_s, it is stuck, and the escape takes over as anywhere else.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 from relayd.core.avoid.ring import LATERAL_M
 from relayd.core.avoid.state import (
@@ -77,9 +79,13 @@ def at_door(v: StepView) -> bool:
 
 
 def door_step(st: AvoidState, v: StepView) -> Verdict:
-    """Drive through the gap's middle at door_speed_mm_s; the paper's law again (FOLLOW,
-    progress counted from here) once the passage no longer applies or the guard stops it."""
+    """Drive through the gap's middle at door_speed_mm_s; the paper's law again (FOLLOW)
+    once the passage no longer applies (progress counted afresh) or the guard stops it.
+    Progress is counted here as FOLLOW counts it, so a robot the guard holds in a door is
+    found stuck by FOLLOW's watchdog after no_progress_s, and the escape takes over."""
     s, p, t = v.s, v.p, v.t
+    if st.anchor is None or math.dist(st.anchor, s.pose[:2]) > p.progress_m * 1000.0:
+        st = replace(st, anchor=s.pose[:2], anchor_t=t)
     gap = door_gap(v.r, p) if at_door(v) else None
     if gap is not None:
         left, right = gap
@@ -89,5 +95,7 @@ def door_step(st: AvoidState, v: StepView) -> Verdict:
         cmd = drive_cmd(v.act, s, p, p.door_speed_mm_s, rvel)
         if cmd.vel_mm_s > 0:
             return st, cmd
-    st = enter(st, AvoidMode.FOLLOW, t, anchor=s.pose[:2], anchor_t=t)
-    return st, AvoidCommand(True)
+        # Held by the guard: the watchdog's clock runs on from the last progress.
+        return enter(st, AvoidMode.FOLLOW, t), AvoidCommand(True)
+    # Through (or no door after all): the paper's law afresh, progress counted from here.
+    return enter(st, AvoidMode.FOLLOW, t, anchor=s.pose[:2], anchor_t=t), AvoidCommand(True)

@@ -141,10 +141,11 @@ def _on_follow(st: AvoidState, v: StepView) -> Verdict:
                 clear_since_t=None,
                 hit_at=None,
             )
-    if at_door(v):
-        # A gap the robot fits through, the leader beyond it: through it, not round it.
-        return enter(st, AvoidMode.DOOR, t), AvoidMode.DOOR
     stuck = t - st.anchor_t > p.no_progress_s
+    if not stuck and at_door(v):
+        # A gap the robot fits through, the leader beyond it: through it, not round it
+        # (side echoes nearer than the stop distance included). Stuck in it: the escape.
+        return enter(st, AvoidMode.DOOR, t), AvoidMode.DOOR
     if d_min >= p.stop_distance_m and not stuck:
         return st, AvoidCommand(True)
     st = replace(st, hit_at=s.pose[:2], clear_since_t=None)

@@ -74,6 +74,23 @@ def test_the_passage_ends_once_the_sides_open() -> None:
     assert st.mode is AvoidMode.FOLLOW and cmd.follow and st.anchor == (300.0, 0.0)
 
 
+def test_held_in_a_door_by_the_guard_the_escape_takes_over_after_the_watchdog() -> None:
+    # A gap 0.88 m wide (left 90 degree sonar 0.11 m from a jamb, right one 0.5 m), the
+    # way on open, but the left jamb inside the footprint's path: the guard holds the
+    # robot. The passage must not hold it for ever: FOLLOW's progress watchdog fires.
+    ranges = ring(s0=110, s1=500, s7=500)
+    assert door_gap(by_heading(sense(0.0, ranges).sonar), P) is not None
+    assert path_blocked(sense(0.0, ranges).sonar, P.stop_distance_m)
+    st = AvoidState()
+    modes = []
+    for i in range(60):
+        st, cmd = avoid_step(st, sense(i * 0.1, ranges), P, ACT)
+        assert cmd.vel_mm_s <= 0, cmd  # never forward into the jamb
+        modes.append(st.mode)
+    first = next(i for i, m in enumerate(modes) if m not in (AvoidMode.FOLLOW, AvoidMode.DOOR))
+    assert first * 0.1 == pytest.approx(P.no_progress_s, abs=0.15)
+
+
 def door_world(width_m: float) -> Scenario:
     """A wall across the way at x = 3 m with a door `width_m` wide on the line to the
     leader, who stands 7 m beyond it."""
