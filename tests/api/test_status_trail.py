@@ -18,8 +18,7 @@ def test_a_live_trail_matches_the_model_and_the_schema() -> None:
     keeper.steer(12.0, (0.0, 0.0, 0.0), ())
     nav = Navigator()
     for k in range(-20, 21):  # a wall across the way, 2 m ahead
-        cell = nav.grid.cell(2.0, 0.1 * k)
-        nav.grid.logodds[cell], nav.grid.hit_t[cell] = 3.0, 0.0
+        nav.grid.set_occupied(nav.grid.cell(2.0, 0.1 * k), 0.0)
     assert nav.steer(12.0, (0.0, 0.0, 0.0), keeper.goal_xy((0.0, 0.0, 0.0), 0.0)) is not None
     st = RelayState()
     st.trail_source = lambda: {**keeper.view().to_json(), "detour_m": nav.path_json()}

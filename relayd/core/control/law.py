@@ -16,7 +16,13 @@ from relayd.core.avoid.state import AvoidMode, AvoidState, Sense
 from relayd.core.control.params import ControlParams as ControlParams
 from relayd.core.control.rangecue import far_by_sonar, release_speed_mm_s
 from relayd.core.control.search import SearchState, search_step, search_wheels
-from relayd.core.control.steer import detour_speed, speed_scale, steering, trail_hold
+from relayd.core.control.steer import (
+    detour_speed,
+    retry_detour,
+    speed_scale,
+    steering,
+    trail_hold,
+)
 from relayd.core.scan.estimator import (
     SonarReading,
     avoidance_bearing,
@@ -334,6 +340,10 @@ def control_step(
     # Along a planned detour the escape stands by while the robot makes way: a jamb
     # beside it is what the plan passes between, not a dead end.
     passing = detouring and vel > 0 and memory.avoid.mode is AvoidMode.FOLLOW
+    if detouring and retry_detour(memory.avoid, inputs.t_s):
+        # A blocked escape waits for the leader's bearing to clear, which a way round
+        # never gives; the map has a path: after the wait, the detour tries it again.
+        memory = replace(memory, avoid=AvoidState())
     if params.escape and not passing:
         memory, escaped = _escape(inputs, params, memory, bearing, situation)
         if escaped is not None:

@@ -13,6 +13,7 @@ import math
 from typing import TYPE_CHECKING
 
 from relayd.core.avoid.ring import by_heading, in_path_below_m
+from relayd.core.avoid.state import AvoidMode, AvoidState
 from relayd.core.control.params import ControlParams
 from relayd.core.scan.estimator import SONAR_MAX_RANGE_M, SonarReading
 from relayd.core.trail.blocked import waiting
@@ -27,6 +28,17 @@ def speed_scale(d_min_m: float, threshold_o_m: float, stop_distance_m: float) ->
     if span <= 0:
         return 1.0 if d_min_m >= threshold_o_m else 0.0
     return min(max((d_min_m - stop_distance_m) / span, 0.0), 1.0)
+
+
+#: A blocked escape along a detour is tried again after this long (s).
+DETOUR_RETRY_S = 10.0
+
+
+def retry_detour(avoid: AvoidState, t_s: float | None) -> bool:
+    """Has the escape stood "blocked" DETOUR_RETRY_S, so that a detour may try again?"""
+    return (
+        t_s is not None and avoid.mode is AvoidMode.BLOCKED and t_s - avoid.mode_t >= DETOUR_RETRY_S
+    )
 
 
 #: The speed past near echoes beside a planned path (mm/s).

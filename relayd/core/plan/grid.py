@@ -23,6 +23,8 @@ from dataclasses import dataclass
 from relayd.core.geometry import SONAR_MAX_RANGE_MM, SONAR_POSES
 
 Cell = tuple[int, int]
+#: The occupied-cell index's block side, in cells.
+BUCKET = 10
 #: The beam's arc where an echo is laid (rad): a sonar reads the nearest surface anywhere
 #: in its +-15 deg cone, so a wall seen at a slant echoes from the arc's edge, not its axis.
 ARC = tuple(math.radians(a) for a in (-12.0, -6.0, 0.0, 6.0, 12.0))
@@ -49,6 +51,9 @@ class GridParams:
     #: ... while its last echo is no older than this (s): people and robots move on, and
     #: a place no beam has looked at since may have changed.
     ttl_s: float = 30.0
+    #: At most one ring every this many seconds (the SIP's 10 Hz halved: at walking speed
+    #: the robot moves 8 cm between two, far less than a beam's width at any range).
+    every_s: float = 0.2
 
 
 class SonarGrid:
@@ -61,6 +66,10 @@ class SonarGrid:
         self.hit_t: dict[Cell, float] = {}
         self.now_s = 0.0
         self._last: tuple[tuple[float, float, float], tuple[int | None, ...]] | None = None
+        self._last_t = -math.inf
+        #: The cells at or above `occupied`, by BUCKET x BUCKET block: the queries read
+        #: these few instead of every cell a beam has touched.
+        self._occ: dict[Cell, set[Cell]] = {}
 
     def cell(self, x_m: float, y_m: float) -> Cell:
         c = self.p.cell_m
@@ -73,6 +82,11 @@ class SonarGrid:
     def is_occupied(self, cell: Cell) -> bool:
         return self.logodds.get(cell, 0.0) >= self.p.occupied and self._fresh(cell)
 
+    def set_occupied(self, cell: Cell, t_s: float) -> None:
+        """Mark a cell occupied as of t_s, at full confidence (for a known map: tests, tools)."""
+        self._add(cell, self.p.ceiling - self.logodds.get(cell, 0.0))
+        self.hit_t[cell] = t_s
+
     def _fresh(self, cell: Cell) -> bool:
         return self.now_s - self.hit_t.get(cell, -math.inf) <= self.p.ttl_s
 
@@ -81,10 +95,12 @@ class SonarGrid:
     ) -> None:
         """One SIP's ring (index order, None: never read) seen from this odometry pose at t_s."""
         self.now_s = t_s
+        if t_s - self._last_t < self.p.every_s - 1e-9:
+            return
         seen = (pose_mm_deg, tuple(ranges_mm))
         if seen == self._last:
             return  # a robot standing still re-reads the same ring: nothing new to map
-        self._last = seen
+        self._last, self._last_t = seen, t_s
         x0, y0, th_deg = pose_mm_deg[0] / 1000.0, pose_mm_deg[1] / 1000.0, pose_mm_deg[2]
         th = math.radians(th_deg)
         c, s = math.cos(th), math.sin(th)
@@ -109,41 +125,74 @@ class SonarGrid:
                 self.hit_t[cell] = t_s
 
     def _clear(self, sx: float, sy: float, dx: float, dy: float, to_m: float, miss: float) -> None:
-        step = self.p.cell_m
+        c = self.p.cell_m
+        floor = math.floor
         last: Cell | None = None
-        n = int(to_m / step)
-        for i in range(1, n + 1):
-            d = i * step
-            cell = self.cell(sx + d * dx, sy + d * dy)
+        for i in range(1, int(to_m / c) + 1):
+            d = i * c
+            cell = (floor((sx + d * dx) / c), floor((sy + d * dy) / c))
             if cell != last:
                 self._add(cell, -miss)
                 last = cell
 
     def _add(self, cell: Cell, delta: float) -> None:
         p = self.p
-        v = self.logodds.get(cell, 0.0) + delta
-        self.logodds[cell] = p.ceiling if v > p.ceiling else (p.floor if v < p.floor else v)
+        old = self.logodds.get(cell, 0.0)
+        v = old + delta
+        v = p.ceiling if v > p.ceiling else (p.floor if v < p.floor else v)
+        self.logodds[cell] = v
+        was, now = old >= p.occupied, v >= p.occupied
+        if was != now:
+            key = (cell[0] // BUCKET, cell[1] // BUCKET)
+            if now:
+                self._occ.setdefault(key, set()).add(cell)
+            else:
+                block = self._occ[key]
+                block.discard(cell)
+                if not block:
+                    del self._occ[key]
 
     def occupied_cells(self) -> Iterable[Cell]:
-        thr = self.p.occupied
-        return (k for k, v in self.logodds.items() if v >= thr and self._fresh(k))
+        return (c for block in self._occ.values() for c in block if self._fresh(c))
+
+    def occupied_in(self, x0_m: float, y0_m: float, x1_m: float, y1_m: float) -> list[Cell]:
+        """The occupied cells whose centres may lie in this box (whole blocks: a superset)."""
+        (i0, j0), (i1, j1) = self.cell(x0_m, y0_m), self.cell(x1_m, y1_m)
+        out: list[Cell] = []
+        occ, fresh = self._occ, self._fresh
+        for bi in range(i0 // BUCKET, i1 // BUCKET + 1):
+            for bj in range(j0 // BUCKET, j1 // BUCKET + 1):
+                block = occ.get((bi, bj))
+                if block:
+                    out.extend(c for c in block if fresh(c))
+        return out
 
     def occupied_near(self, x_m: float, y_m: float, radius_m: float) -> bool:
         """Is any occupied cell's centre within radius_m of this point?"""
-        cx, cy = self.cell(x_m, y_m)
-        n = math.ceil(radius_m / self.p.cell_m)
-        r2 = radius_m * radius_m
-        thr = self.p.occupied
-        get = self.logodds.get
+        return not self.segment_clear((x_m, y_m), (x_m, y_m), radius_m)
+
+    def segment_clear(
+        self, a: tuple[float, float], b: tuple[float, float], radius_m: float
+    ) -> bool:
+        """No occupied cell's centre within radius_m of the segment a-b."""
+        r = radius_m
+        cells = self.occupied_in(
+            min(a[0], b[0]) - r, min(a[1], b[1]) - r, max(a[0], b[0]) + r, max(a[1], b[1]) + r
+        )
+        if not cells:
+            return True
         cm = self.p.cell_m
-        for i in range(cx - n, cx + n + 1):
-            ex = (i + 0.5) * cm - x_m
-            for j in range(cy - n, cy + n + 1):
-                if get((i, j), 0.0) >= thr and self._fresh((i, j)):
-                    ey = (j + 0.5) * cm - y_m
-                    if ex * ex + ey * ey <= r2:
-                        return True
-        return False
+        ax, ay = a
+        dx, dy = b[0] - ax, b[1] - ay
+        n2 = dx * dx + dy * dy
+        r2 = r * r
+        for i, j in cells:
+            px, py = (i + 0.5) * cm - ax, (j + 0.5) * cm - ay
+            f = 0.0 if n2 < 1e-12 else min(1.0, max(0.0, (px * dx + py * dy) / n2))
+            ex, ey = px - f * dx, py - f * dy
+            if ex * ex + ey * ey <= r2:
+                return False
+        return True
 
     def forget(self, x_m: float, y_m: float, keep_m: float) -> None:
         """Drop every cell farther than keep_m from this point (bounded memory)."""
@@ -153,3 +202,8 @@ class SonarGrid:
             k: v for k, v in self.logodds.items() if abs(k[0] - cx) <= n and abs(k[1] - cy) <= n
         }
         self.hit_t = {k: t for k, t in self.hit_t.items() if k in self.logodds}
+        self._occ = {}
+        thr = self.p.occupied
+        for k, v in self.logodds.items():
+            if v >= thr:
+                self._occ.setdefault((k[0] // BUCKET, k[1] // BUCKET), set()).add(k)

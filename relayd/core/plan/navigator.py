@@ -15,6 +15,7 @@ echoes there, a robot leader most of all. Time comes with each call; nothing is 
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -36,7 +37,7 @@ class NavParams:
     clear_m: float = 0.35
     goal_free_m: float = 1.2
     lookahead_m: float = 0.8
-    replan_s: float = 1.0
+    replan_s: float = 1.5
     retarget_m: float = 1.0
     hold_s: float = 3.0
     #: The map keeps this much round the relay (m).
@@ -87,13 +88,8 @@ class Navigator:
         span = min(p.check_m, d - p.goal_free_m)
         if span <= 0:
             return True
-        ux, uy = (b[0] - a[0]) / d, (b[1] - a[1]) / d
-        step = self.grid.p.cell_m * 0.5
-        for i in range(1, int(span / step) + 1):
-            s = i * step
-            if self.grid.occupied_near(a[0] + s * ux, a[1] + s * uy, p.clear_m):
-                return False
-        return True
+        end = (a[0] + span * (b[0] - a[0]) / d, a[1] + span * (b[1] - a[1]) / d)
+        return self.grid.segment_clear(a, end, p.clear_m)
 
     def steer(
         self,
@@ -141,14 +137,9 @@ class Navigator:
     def _ahead_clear(self, here: tuple[float, float]) -> bool:
         """The path's next check_m from the relay's place on it keeps clear of the map."""
         assert self.path is not None
-        step = self.grid.p.cell_m * 0.5
         inflate = self.p.plan.inflate_m * 0.8
-        checks = int(self.p.check_m / step)
-        for k in range(1, checks + 1):
-            x, y = _along(self.path, here, k * step)
-            if self.grid.occupied_near(x, y, inflate):
-                return False
-        return True
+        pts = _ahead(self.path, here, self.p.check_m)
+        return all(self.grid.segment_clear(a, b, inflate) for a, b in itertools.pairwise(pts))
 
     def path_json(self) -> list[list[float]] | None:
         """/status's `trail.detour_m`: the detour's path in force (m), or None."""
@@ -161,25 +152,37 @@ class Navigator:
         self._plan_t = self._plan_goal = self._clear_since = None
 
 
-def _along(path: Path, here: tuple[float, float], ahead_m: float) -> tuple[float, float]:
-    """The point ahead_m along the path from its point nearest `here` (its projection)."""
-    best_i, best_d, best_pt = 0, math.inf, path[0]
-    for i in range(len(path) - 1):
-        a, b = path[i], path[i + 1]
-        pt = _project(here, a, b)
-        d = math.dist(here, pt)
-        if d < best_d:
-            best_i, best_d, best_pt = i, d, pt
+def _ahead(path: Path, here: tuple[float, float], ahead_m: float) -> list[tuple[float, float]]:
+    """The path from its point nearest `here` (its projection) to ahead_m along it, as points."""
+    i, cur = _nearest(path, here)
+    out = [cur]
     left = ahead_m
-    cur = best_pt
-    for j in range(best_i + 1, len(path)):
+    for j in range(i + 1, len(path)):
         seg = math.dist(cur, path[j])
         if seg >= left:
             f = left / seg
-            return (cur[0] + f * (path[j][0] - cur[0]), cur[1] + f * (path[j][1] - cur[1]))
+            out.append((cur[0] + f * (path[j][0] - cur[0]), cur[1] + f * (path[j][1] - cur[1])))
+            return out
         left -= seg
         cur = path[j]
-    return path[-1]
+        out.append(cur)
+    return out
+
+
+def _along(path: Path, here: tuple[float, float], ahead_m: float) -> tuple[float, float]:
+    """The point ahead_m along the path from its point nearest `here` (its projection)."""
+    return _ahead(path, here, ahead_m)[-1]
+
+
+def _nearest(path: Path, here: tuple[float, float]) -> tuple[int, tuple[float, float]]:
+    """(index of the segment's start, the point) of the path nearest `here`."""
+    best_i, best_d, best_pt = 0, math.inf, path[0]
+    for i in range(len(path) - 1):
+        pt = _project(here, path[i], path[i + 1])
+        d = math.dist(here, pt)
+        if d < best_d:
+            best_i, best_d, best_pt = i, d, pt
+    return best_i, best_pt
 
 
 def _project(

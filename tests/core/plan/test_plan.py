@@ -26,9 +26,7 @@ def wall(grid: SonarGrid, a: tuple[float, float], b: tuple[float, float]) -> Non
     n = int(math.dist(a, b) / (grid.p.cell_m / 2)) + 1
     for i in range(n + 1):
         f = i / n
-        cell = grid.cell(a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1]))
-        grid.logodds[cell] = 3.0
-        grid.hit_t[cell] = grid.now_s
+        grid.set_occupied(grid.cell(a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1])), grid.now_s)
 
 
 def min_clearance(grid: SonarGrid, path: tuple[tuple[float, float], ...]) -> float:
@@ -58,9 +56,9 @@ def ring(front_m: float | None, others_m: float | None = None) -> list[int | Non
 
 def test_an_echo_ahead_maps_the_wall_and_the_beam_clears_the_way_to_it() -> None:
     grid = SonarGrid()
-    for _ in range(3):
-        grid.update(0.0, (0.0, 0.0, 0.0), ring(2.0))
-        grid.update(0.0, (1.0, 0.0, 0.0), ring(2.0 - 0.001))  # moved 1 mm: a new reading
+    for k in range(3):
+        grid.update(0.4 * k, (0.0, 0.0, 0.0), ring(2.0))
+        grid.update(0.4 * k + 0.2, (1.0, 0.0, 0.0), ring(2.0 - 0.001))  # moved 1 mm
     # Sonar 3 sits 0.245 m ahead of the centre: its echo lies near x = 2.245.
     assert grid.occupied_near(2.25, 0.35, 0.15)
     assert grid.occupied_near(2.25, -0.35, 0.15)
@@ -73,17 +71,20 @@ def test_a_single_reading_is_not_yet_an_obstacle_and_a_robot_standing_still_adds
     grid.update(0.0, (0.0, 0.0, 0.0), ring(1.5))
     assert not any(True for _ in grid.occupied_cells())  # one reading spread over its arc
     before = dict(grid.logodds)
-    grid.update(0.0, (0.0, 0.0, 0.0), ring(1.5))  # the same pose, the same ring
+    grid.update(0.5, (0.0, 0.0, 0.0), ring(1.5))  # the same pose, the same ring
     assert grid.logodds == before
-    grid.update(0.0, (0.0, 0.0, 0.0), ring(1.5 - 0.001))
+    grid.update(0.6, (0.0, 0.0, 0.0), ring(1.5 - 0.001))
     assert any(True for _ in grid.occupied_cells())
+    after = dict(grid.logodds)
+    grid.update(0.7, (0.0, 0.0, 0.0), ring(1.0))  # within every_s of the last ring: skipped
+    assert grid.logodds == after
 
 
 def test_no_echo_clears_only_weakly_so_a_wall_seen_once_survives_a_grazing_miss() -> None:
     grid = SonarGrid()
     wall(grid, (2.0, -1.0), (2.0, 1.0))
     for k in range(5):
-        grid.update(0.0, (float(k), 0.0, 0.0), [5000] * 16)  # poses in mm: hardly moving
+        grid.update(0.2 * k, (float(k), 0.0, 0.0), [5000] * 16)  # poses in mm: hardly moving
     assert grid.occupied_near(2.0, 0.0, 0.1)
 
 
@@ -180,9 +181,9 @@ def test_a_wall_in_the_way_gives_a_detour_round_it_then_straight_on_after_the_ho
     got = nav.steer(0.0, (0.0, 0.0, 0.0), (6.0, 0.0))
     assert got is not None and got.steer_deg > 20.0
     assert nav.plans == 1
-    nav.steer(0.5, (0.0, 0.0, 0.0), (6.0, 0.0))
+    nav.steer(nav.p.replan_s / 2, (0.0, 0.0, 0.0), (6.0, 0.0))
     assert nav.plans == 1  # not yet due
-    nav.steer(1.0, (0.0, 0.0, 0.0), (6.0, 0.0))
+    nav.steer(nav.p.replan_s, (0.0, 0.0, 0.0), (6.0, 0.0))
     assert nav.plans == 2  # replanned each replan_s
     # Beyond the wall with the way clear: the detour holds hold_s, then lets go.
     assert nav.steer(2.0, (3000.0, 1500.0, 0.0), (6.0, 0.0)) is not None
@@ -263,3 +264,21 @@ def test_sonar_poses_and_headings_agree() -> None:
     # The map lays echoes from SONAR_POSES; the law reads SONAR_HEADINGS_DEG: one ring.
     assert tuple(float(p.heading_deg) for p in SONAR_POSES) == SONAR_HEADINGS_DEG
     assert GridParams().cell_m <= 0.1 + 1e-9  # a 0.8 m door keeps free cells between jambs
+
+
+def test_a_detour_tries_again_after_the_escape_stood_blocked_for_a_while() -> None:
+    from dataclasses import replace
+
+    from relayd.core.avoid.state import AvoidMode, AvoidState
+    from relayd.core.control.steer import DETOUR_RETRY_S
+
+    blocked = ControlMemory(avoid=AvoidState(mode=AvoidMode.BLOCKED, mode_t=10.0 - 1.0))
+    p = ControlParams()
+    # The path turns 60 deg off the nose: the escape's hold waits for a bearing within 30.
+    out = control_step(follow_inputs([5000] * 16, 60.0), p, blocked)
+    assert out.reason == "blocked" and out.left_mm_s == out.right_mm_s == 0.0
+    # Blocked for DETOUR_RETRY_S: the detour drives (turns onto) its path again.
+    waited = replace(blocked, avoid=replace(blocked.avoid, mode_t=10.0 - DETOUR_RETRY_S))
+    out = control_step(follow_inputs([5000] * 16, 60.0), p, waited)
+    assert out.reason == "detour" and out.right_mm_s > out.left_mm_s
+    assert out.memory.avoid.mode is AvoidMode.FOLLOW
