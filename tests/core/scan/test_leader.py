@@ -528,3 +528,23 @@ def test_the_daemon_takes_the_evidence_limits_from_lost_rssi_and_the_scan_period
     p = brain_params(s).leader
     assert p.evidence_min_rssi_dbm == -80.0
     assert p.evidence_max_age_s == pytest.approx(EVIDENCE_SCANS * nominal_scan_period_s(s))
+
+
+def test_with_a_pattern_a_moving_leaders_scan_is_fitted_by_the_parabola() -> None:
+    """A measured pattern is matched to a still leader's scan only: carried by the filter's
+    estimated rate, a moving leader's lobe comes stretched or squeezed, and the fixed shape
+    lost a crossing leader the parabola kept (docs/CONTROL.md 10.6)."""
+    from relayd.core.scan.patternfit import fit_pattern
+    from relayd.sim.antennas import family_pattern
+
+    pattern = family_pattern("builtin")
+    model = TrackingModel(LeaderParams(estimator="lobe", window="adaptive", pattern=pattern))
+    angles = [-90.0 + 7.5 * i for i in range(25)]
+    # The lobe 1.3 times as wide as the antenna's: the leader moved with the sweep.
+    values = [-50.0 + pattern.gain_db((20.0 - a) / 1.3) for a in angles]
+    still_fit, moving_fit = model._fit(angles, values, False), model._fit(angles, values, True)
+    assert still_fit == fit_pattern(angles, values, pattern, model.params.pattern_fit)
+    bw = model.beamwidth_deg
+    assert moving_fit == fit_main_lobe(angles, values, model.params.lobe, beamwidth_prior_deg=bw)
+    assert moving_fit is not None and moving_fit.beamwidth_deg > 100.0  # its own width
+    assert abs(moving_fit.bearing_deg - 20.0) < 2.0
