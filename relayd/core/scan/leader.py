@@ -20,6 +20,7 @@ from relayd.core.scan import tracker
 from relayd.core.scan.bearing import LobeFit, LobeParams, fit_main_lobe
 from relayd.core.scan.estimator import ScanEstimate
 from relayd.core.scan.learn import LearnParams, LearnStatus, PatternLearner
+from relayd.core.scan.moving import fit_moving
 from relayd.core.scan.pattern import AntennaPattern
 from relayd.core.scan.patternfit import PatternFitParams, fit_pattern
 from relayd.core.scan.plan import in_current_frame
@@ -154,14 +155,12 @@ class TrackingModel:
             return learnt.beamwidth_deg()
         return _median(self._beamwidths) if self._beamwidths else None
 
-    def _fit(
-        self, angles: Sequence[float], values: Sequence[float], moving: bool
-    ) -> LobeFit | None:
-        """One scan's fit: the pattern matched to it, else the main-lobe parabola; a moving
-        leader's always the parabola: carried by an estimated rate its lobe comes stretched
-        or squeezed, which a free curvature absorbs, a fixed shape not (docs/CONTROL.md 10.6)."""
+    def _fit(self, angles: Sequence[float], values: Sequence[float], fast: bool) -> LobeFit | None:
+        """One scan's fit: the pattern's (a fast leader's: `fit_moving`), else the parabola."""
         p = self.params
-        if (pattern := self.pattern) is not None and not moving:
+        if (pattern := self.pattern) is not None:
+            if fast:
+                return fit_moving(angles, values, pattern, p.lobe)
             return fit_pattern(angles, values, pattern, p.pattern_fit)
         return fit_main_lobe(angles, values, p.lobe, beamwidth_prior_deg=self.beamwidth_deg)
 
@@ -192,13 +191,15 @@ class TrackingModel:
         p = self.params
         values = est.nrssi_dbm
         angles, t_ref = self._leader_frame(t, heading_deg, est.angles_deg, sample_t)
-        fit = self._fit(angles, values, t_ref is not None)
+        w = self.track.rate_deg_s if self.track and t_ref is not None else 0.0
+        fast = abs(w) > p.pattern_fit.parabola_rate_deg_s
+        fit = self._fit(angles, values, fast)
         if fit is None and est.situation == 2:
             # The PRSSI penalty carved up the lobe itself: the "obstacle" is the leader, or
             # right beside it (a relay close behind its leader robot). The raw scan still
             # says where the leader is; losing the track over it would stop the relay.
             values = est.rssi_dbm
-            fit = self._fit(angles, values, t_ref is not None)
+            fit = self._fit(angles, values, fast)
         self.last_fit = fit
         self._remember(fit, angles, est.rssi_dbm, t, heading_deg)
         if len(sample_t) >= 2:
@@ -353,9 +354,8 @@ class TrackingModel:
 
     def bearing_now(self, t: float, heading_deg: float | None) -> float | None:
         now = self._now(t, heading_deg)
-        if now is None or tracker.is_lost(now, self.params.tracker):
-            return None
-        return self._seen(now.bearing_deg)
+        lost = now is None or tracker.is_lost(now, self.params.tracker)
+        return None if lost or now is None else self._seen(now.bearing_deg)
 
     def lost(self, t: float, heading_deg: float | None) -> bool:
         return (now := self._now(t, heading_deg)) is not None and tracker.is_lost(
