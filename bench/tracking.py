@@ -548,6 +548,11 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="item 6 alone: every antenna pattern, calibrated or not",
     )
+    p.add_argument(
+        "--pattern",
+        action="append",
+        help="with --antenna-crossing: this family pattern only (repeatable; default all)",
+    )
     args = p.parse_args(argv)
     t0 = time.perf_counter()
     if args.antennas:
@@ -555,7 +560,14 @@ def main(argv: list[str] | None = None) -> int:
         print(f"\n{time.perf_counter() - t0:.0f} s", file=sys.stderr)
         return 0
     if args.antenna_crossing:
-        names = ["builtin", "shallow", "yagi"] if args.quick else family_names()
+        names = args.pattern or (["builtin", "shallow", "yagi"] if args.quick else family_names())
+        unknown = sorted(set(names) - set(family_names()))
+        if unknown:
+            print(
+                f"--pattern: unknown {unknown} (known: {', '.join(family_names())})",
+                file=sys.stderr,
+            )
+            return 2
         print(table(antenna_crossing(args.seeds or (2 if args.quick else 10), names)))
         print(f"\n{time.perf_counter() - t0:.0f} s", file=sys.stderr)
         return 0

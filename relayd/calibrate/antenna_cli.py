@@ -9,12 +9,15 @@ beamwidth, front-to-back, side lobes, asymmetry and repeatability, and writes
 `antenna-pattern.png` into `--out`. A measurement it cannot trust (flat, too few
 samples, the node too close, an unstable shape) is refused with the reasons and nothing
 is written. Exit 0 on a pattern, 1 when refused or the source fails, 2 on bad options.
+With `--turn-steps N` (live only, started on purpose: the robot moves) the relay turns
+itself in place between sweeps to measure the back half too (calibrate/antenna_turn.py).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from datetime import UTC, datetime
 from pathlib import Path
@@ -27,6 +30,7 @@ from relayd.calibrate.antenna import (
     text_report,
 )
 from relayd.calibrate.antenna_sources import sample_live, samples_from_recording
+from relayd.calibrate.antenna_turn import MAX_TURN_MM_S, TurnOptions, sample_turning
 from relayd.calibrate.sources import SourceError
 from relayd.cli.argtypes import positive_float
 from relayd.core.scan.pattern import pattern_toml
@@ -69,16 +73,72 @@ def configure(parser: argparse.ArgumentParser) -> None:
     live.add_argument(
         "--seconds", type=positive_float, default=120.0, help="stop after this long (default 120 s)"
     )
+    turn = parser.add_argument_group("turning in place (--url; the robot moves)")
+    turn.add_argument(
+        "--turn-steps",
+        type=int,
+        default=0,
+        metavar="N",
+        help="turn the relay in place to N headings 360/N deg apart, --sweeps at each, to "
+        "measure the back half too (manual mode through the daemon; hold at the end)",
+    )
+    turn.add_argument(
+        "--turn-speed-mm-s",
+        type=positive_float,
+        default=100.0,
+        help=f"wheel speed while turning (default 100, at most {MAX_TURN_MM_S:g})",
+    )
+    turn.add_argument(
+        "--token-env",
+        default="RELAYD_API_TOKEN",
+        help="environment variable with the API token, for --turn-steps (default RELAYD_API_TOKEN)",
+    )
+
+
+def _turn_problem(args: argparse.Namespace) -> str | None:
+    """Why the --turn-steps options cannot be used (None: they can, or are not asked for)."""
+    if not args.turn_steps:
+        return None
+    if args.turn_steps < 2:
+        return "--turn-steps: at least 2 headings (or 0: no turning)"
+    if args.from_file is not None:
+        return "--turn-steps: needs --url (a recording cannot turn the robot)"
+    if args.turn_speed_mm_s > MAX_TURN_MM_S:
+        return f"--turn-speed-mm-s: at most {MAX_TURN_MM_S:g}"
+    if not os.environ.get(args.token_env):
+        return f"--turn-steps: needs the API token in ${args.token_env}"
+    return None
 
 
 async def run(args: argparse.Namespace) -> int:
     if args.sweeps < 4:
         print("relayd calibrate antenna: --sweeps at least 4", file=sys.stderr)
         return 2
+    if (problem := _turn_problem(args)) is not None:
+        print(f"relayd calibrate antenna: {problem}", file=sys.stderr)
+        return 2
     try:
         if args.from_file is not None:
             source = str(args.from_file)
             samples = samples_from_recording(source)
+        elif args.turn_steps:
+            source = args.url
+            print(
+                f"turning {args.url} in place to {args.turn_steps} headings "
+                f"({args.sweeps} sweeps each); Ctrl-C stops it and leaves it in hold",
+                file=sys.stderr,
+            )
+            opts = TurnOptions(
+                url=args.url,
+                token=os.environ[args.token_env],
+                steps=args.turn_steps,
+                sweeps_per_step=args.sweeps,
+                seconds_per_step=args.seconds,
+                speed_mm_s=args.turn_speed_mm_s,
+            )
+            samples = await sample_turning(
+                opts, progress=lambda m: print(f"  {m}", file=sys.stderr)
+            )
         else:
             source = args.url
             print(f"sampling {args.url} (read-only); Ctrl-C ends it", file=sys.stderr)

@@ -15,6 +15,13 @@ The others are the shapes real antennas have, for the bench and for scenarios th
   steeper than the other (a mount, the robot's mast beside the antenna), -20 dB floor.
 - "patch": a panel's wide, flat-topped lobe (70 deg between its 3 dB points) with steep
   shoulders (-12 dB at +-50 deg) and an -18 dB back.
+- "helical": a real antenna's measured pattern, not a formula: an XW-24O-H10 2.4 GHz
+  helical at 2440 MHz, from a published turntable measurement (relayd/sim/patterns/, its
+  source in the file's header and docs/CONTROL.md). 39 deg between its 3 dB points, side
+  lobes only 3.4 dB down near +-45 deg, -13 dB at the back: the shape no formula here has.
+
+`DRAWN` is the part of the family the generated worlds draw from (the six shapes they
+always drew from, so a generated world's antennas do not change as the family grows).
 
 Each is a function of the off-axis angle (deg; leader bearing minus servo angle) to
 relative dB, 0 at its peak. `family_pattern` tabulates one as an
@@ -25,8 +32,9 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from importlib import resources
 
-from relayd.core.scan.pattern import AntennaPattern, sampled
+from relayd.core.scan.pattern import AntennaPattern, parse_pattern, sampled
 from relayd.sim.radio import yagi_gain_db
 
 Gain = Callable[[float], float]
@@ -75,6 +83,13 @@ def _builtin(off_deg: float) -> float:
     return yagi_gain_db(off_deg)
 
 
+def measured(filename: str) -> AntennaPattern:
+    """A measured pattern table shipped in relayd/sim/patterns/ (the pattern file format)."""
+    return parse_pattern((resources.files("relayd.sim") / "patterns" / filename).read_text())
+
+
+_HELICAL = measured("helical_xw24o_h10.toml")
+
 FAMILY: dict[str, Gain] = {
     BUILTIN: _builtin,
     "shallow": cos_n(60.0, -12.0),
@@ -82,7 +97,10 @@ FAMILY: dict[str, Gain] = {
     "yagi": _yagi,
     "asymmetric": _asymmetric,
     "patch": _patch,
+    "helical": _HELICAL.gain_db,
 }
+
+DRAWN: tuple[str, ...] = (BUILTIN, "shallow", "deep", "yagi", "asymmetric", "patch")
 
 
 def pattern_gain(name: str) -> Gain:

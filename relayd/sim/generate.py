@@ -19,7 +19,7 @@ import itertools
 import math
 import random
 
-from relayd.sim.antennas import FAMILY
+from relayd.sim.antennas import DRAWN
 from relayd.sim.gen_corridors import corridors
 from relayd.sim.planner import Point, Segment, plan, route_length_m
 from relayd.sim.radio import DEFAULT_WALL_LOSS_DB
@@ -130,7 +130,7 @@ def antennas(kind: str, seed: int, relays: int) -> list[str]:
     # A stream of its own: drawing from the world's would move every later draw, and so
     # every floor plan.
     rng = random.Random(f"{kind}:{seed}:antennas")
-    names = list(FAMILY)
+    names = list(DRAWN)
     return [rng.choice(names) for _ in range(relays)]
 
 

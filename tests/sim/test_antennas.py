@@ -71,3 +71,16 @@ def test_an_unknown_pattern_names_its_key() -> None:
     text = "\n".join(ei.value.errors)
     assert "scan.pattern: unknown antenna pattern 'dish'" in text
     assert "relay.1.pattern: unknown antenna pattern 'horn'" in text
+
+
+def test_the_measured_helical_is_the_published_table() -> None:
+    """The real antenna's table as shipped: its file parses, its figures are the measurement's."""
+    from relayd.sim.antennas import DRAWN, measured
+
+    p = measured("helical_xw24o_h10.toml")
+    assert p.full_circle and len(p.angles_deg) == 360 and p.peak_deg() == 1.0
+    assert p.beamwidth_deg() == pytest.approx(39.0, abs=0.5)
+    assert p.side_lobe_db() == pytest.approx(-3.37, abs=0.01)  # near +45 deg: a real helix's
+    assert p.front_to_back_db() == pytest.approx(13.29, abs=0.01)
+    assert dict(p.conditions)["frequency_mhz"] == "2440"
+    assert FAMILY["helical"](45.0) == p.gain_db(45.0) and "helical" not in DRAWN

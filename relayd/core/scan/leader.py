@@ -20,6 +20,7 @@ from relayd.core.scan import tracker
 from relayd.core.scan.bearing import LobeFit, LobeParams, fit_main_lobe
 from relayd.core.scan.estimator import ScanEstimate
 from relayd.core.scan.learn import LearnParams, LearnStatus, PatternLearner
+from relayd.core.scan.moving import fit_moving
 from relayd.core.scan.pattern import AntennaPattern
 from relayd.core.scan.patternfit import PatternFitParams, fit_pattern
 from relayd.core.scan.plan import in_current_frame
@@ -137,9 +138,9 @@ class TrackingModel:
     @property
     def pattern(self) -> AntennaPattern | None:
         """The pattern the fit matches: the file's, else the learnt one once ready, else none."""
-        if self.params.pattern is not None:
-            return self.params.pattern
-        return self.learner.pattern() if self.learner is not None and self.learner.ready else None
+        if (file := self.params.pattern) is not None or self.learner is None:
+            return file
+        return self.learner.pattern() if self.learner.ready else None
 
     def learned_status(self) -> LearnStatus | None:
         """How far the learnt pattern has come (None: not learning)."""
@@ -147,18 +148,19 @@ class TrackingModel:
 
     @property
     def beamwidth_deg(self) -> float | None:
-        """The antenna's 3 dB beamwidth: the pattern file's, else as learnt from two-sided
-        scans (None: not yet)."""
+        """The antenna's 3 dB beamwidth: the file's, else learnt from two-sided scans, or None."""
         if self.params.pattern is not None:
             return self._pattern_bw
         if (learnt := self.pattern) is not None:
             return learnt.beamwidth_deg()
         return _median(self._beamwidths) if self._beamwidths else None
 
-    def _fit(self, angles: Sequence[float], values: Sequence[float]) -> LobeFit | None:
-        """One scan's fit: the measured pattern matched to it, else the main-lobe parabola."""
+    def _fit(self, angles: Sequence[float], values: Sequence[float], fast: bool) -> LobeFit | None:
+        """One scan's fit: the pattern's (a fast leader's: `fit_moving`), else the parabola."""
         p = self.params
         if (pattern := self.pattern) is not None:
+            if fast:
+                return fit_moving(angles, values, pattern, p.lobe)
             return fit_pattern(angles, values, pattern, p.pattern_fit)
         return fit_main_lobe(angles, values, p.lobe, beamwidth_prior_deg=self.beamwidth_deg)
 
@@ -189,13 +191,15 @@ class TrackingModel:
         p = self.params
         values = est.nrssi_dbm
         angles, t_ref = self._leader_frame(t, heading_deg, est.angles_deg, sample_t)
-        fit = self._fit(angles, values)
+        w = self.track.rate_deg_s if self.track and t_ref is not None else 0.0
+        fast = abs(w) > p.pattern_fit.parabola_rate_deg_s
+        fit = self._fit(angles, values, fast)
         if fit is None and est.situation == 2:
             # The PRSSI penalty carved up the lobe itself: the "obstacle" is the leader, or
             # right beside it (a relay close behind its leader robot). The raw scan still
             # says where the leader is; losing the track over it would stop the relay.
             values = est.rssi_dbm
-            fit = self._fit(angles, values)
+            fit = self._fit(angles, values, fast)
         self.last_fit = fit
         self._remember(fit, angles, est.rssi_dbm, t, heading_deg)
         if len(sample_t) >= 2:
@@ -264,9 +268,8 @@ class TrackingModel:
         self._evidence = (b, heading_deg, t) if not lo < b < hi else None
 
     def search_bearing(self, t: float, heading_deg: float | None) -> float | None:
-        """While the track is lost, where the scans last put the leader, in today's frame,
-        if that was beyond the servo's reach and is at most `evidence_max_age_s` old (None:
-        nowhere, within the sweep, or too old to say where the leader is now)."""
+        """While lost, where the scans last put the leader (today's frame) if that was beyond
+        the servo's reach at most `evidence_max_age_s` ago; else None."""
         if self._evidence is None or not self.lost(t, heading_deg):
             return None
         b, h, seen_t = self._evidence
@@ -306,18 +309,16 @@ class TrackingModel:
         return tuple(a - w * (ti - t_ref) for a, ti in zip(angles, sample_t, strict=True)), t_ref
 
     def _seen(self, bearing_deg: float) -> float:
-        """A prediction kept where a scan could have put it: the servo's range, plus the lobe
-        fit's extrapolation. Beyond, a rate (perhaps from a leader that jumped) would steer
-        the robot toward a bearing no scan has seen; turning toward the limit is right."""
+        """A prediction kept within the servo's range plus the fit's extrapolation: beyond, a
+        rate would steer toward a bearing no scan has seen; turning to the limit is right."""
         if self._span is None:
             return bearing_deg
         ext = self.params.lobe.max_extrapolation_deg
         return min(max(bearing_deg, self._span[0] - ext), self._span[1] + ext)
 
     def _trusted(self, fit: LobeFit) -> LobeFit:
-        """The fit with its sd as the channel's noise allows: a scan's few residuals can
-        happen to be small (a lucky MAD), and its sd with them; the typical noise of the
-        recent scans is the floor."""
+        """The fit with its sd as the channel's noise allows: a scan's few residuals can be
+        small by luck (a lucky MAD), its sd with them; the recent scans' noise is the floor."""
         self._noise.append(fit.noise_db)
         typical = _median(self._noise)
         if fit.noise_db >= typical or fit.noise_db <= 0.0:
@@ -353,17 +354,16 @@ class TrackingModel:
 
     def bearing_now(self, t: float, heading_deg: float | None) -> float | None:
         now = self._now(t, heading_deg)
-        if now is None or tracker.is_lost(now, self.params.tracker):
-            return None
-        return self._seen(now.bearing_deg)
+        lost = now is None or tracker.is_lost(now, self.params.tracker)
+        return None if lost or now is None else self._seen(now.bearing_deg)
 
     def lost(self, t: float, heading_deg: float | None) -> bool:
-        now = self._now(t, heading_deg)
-        return now is not None and tracker.is_lost(now, self.params.tracker)
+        return (now := self._now(t, heading_deg)) is not None and tracker.is_lost(
+            now, self.params.tracker
+        )
 
     def sd_deg(self, t: float, heading_deg: float | None) -> float | None:
-        now = self._now(t, heading_deg)
-        return None if now is None else now.sd_deg
+        return None if (now := self._now(t, heading_deg)) is None else now.sd_deg
 
     def window(self, t: float, heading_deg: float | None, full: Window) -> Window | None:
         """The next sweep. "full": the configured window, centred on the prediction.

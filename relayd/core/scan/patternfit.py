@@ -80,6 +80,8 @@ class PatternFitParams:
     #: most `bound_floor_db` (a table known only high on its lobe says nothing of the floor).
     bound_depth_db: float = 10.0
     bound_floor_db: float = -30.0
+    #: Beyond this rate (deg/s) the parabola fits instead (scan/moving.py, CONTROL.md 10.6).
+    parabola_rate_deg_s: float = 10.0
 
 
 def _levels(

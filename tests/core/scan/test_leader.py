@@ -528,3 +528,31 @@ def test_the_daemon_takes_the_evidence_limits_from_lost_rssi_and_the_scan_period
     p = brain_params(s).leader
     assert p.evidence_min_rssi_dbm == -80.0
     assert p.evidence_max_age_s == pytest.approx(EVIDENCE_SCANS * nominal_scan_period_s(s))
+
+
+def test_with_a_pattern_a_fast_leaders_scan_is_fitted_by_the_parabola_moved_to_the_leader() -> None:
+    """A measured pattern is matched to a still leader's scan; a fast one's (carried by the
+    filter's estimated rate, its lobe stretched or squeezed) gets the parabola, moved by
+    where the pattern's 3 dB points are centred: a squinted lobe's parabola sits there."""
+    from relayd.core.scan.moving import fit_moving, lobe_centre_deg
+    from relayd.core.scan.patternfit import fit_pattern
+    from relayd.sim.antennas import family_pattern
+
+    angles = [-90.0 + 7.5 * i for i in range(25)]
+    # The builtin lobe 1.3 times as wide as the antenna's (the leader moved with the
+    # sweep); the asymmetric one as it is, its parabola 11 deg from the leader.
+    for name, stretch in (("builtin", 1.3), ("asymmetric", 1.0)):
+        pattern = family_pattern(name)
+        model = TrackingModel(LeaderParams(estimator="lobe", window="adaptive", pattern=pattern))
+        values = [-50.0 + pattern.gain_db((20.0 - a) / stretch) for a in angles]
+        still, fast = model._fit(angles, values, False), model._fit(angles, values, True)
+        assert still == fit_pattern(angles, values, pattern, model.params.pattern_fit)
+        assert fast == fit_moving(angles, values, pattern, model.params.lobe)
+        plain = fit_main_lobe(angles, values, beamwidth_prior_deg=pattern.beamwidth_deg())
+        assert fast is not None and plain is not None
+        assert fast.bearing_deg == pytest.approx(plain.bearing_deg + lobe_centre_deg(pattern))
+        assert abs(fast.bearing_deg - 20.0) < 3.0, name
+        assert fast.beamwidth_deg > 100.0 or stretch == 1.0  # its own width, not the file's
+    assert abs(plain.bearing_deg - 20.0) > 8.0  # the asymmetric lobe's, unmoved
+    # The asymmetric lobe: peak 8 deg off axis, 3 dB points 22 and 28 deg either side.
+    assert lobe_centre_deg(family_pattern("asymmetric")) == pytest.approx(11.0, abs=0.3)
