@@ -83,6 +83,7 @@ class SonarReadings(Sequence[int]):
         "_echo",
         "_edges",
         "_got",
+        "_grazing",
         "_n_walls",
         "_point_radius_m",
         "_points",  # the scene's point query, when the map has points
@@ -121,6 +122,15 @@ class SonarReadings(Sequence[int]):
         ]
         self._n_walls = len(segs)
         self._edges = _edge_points(segs) if cfg.specular else []
+        # Each wall's direction and its grazing threshold (the limit's cosine times its
+        # length), worked out once per ring rather than once per transducer (the same
+        # floats: _specular_targets).
+        cos_lim = math.cos(math.radians(cfg.grazing_limit_deg))
+        self._grazing = (
+            [(s, s.y2 - s.y1, s.x2 - s.x1, cos_lim * s.length_m) for s in segs]
+            if cfg.specular
+            else []
+        )
         # A map's scan points within reach echo as small discs (each sonar keeps those
         # that can meet its cone: _range_mm).
         self._points = scene.points_near
@@ -244,13 +254,11 @@ class SonarReadings(Sequence[int]):
         grazing limit of their normal, every corner and free end, and the bodies."""
         h = math.radians(heading_deg)
         dx, dy = math.cos(h), math.sin(h)
-        cos_lim = math.cos(math.radians(self._cfg.grazing_limit_deg))
-        walls = self._segs[: self._n_walls]
         segs = [
             w
-            for w in walls
+            for w, wy, wx, limit in self._grazing
             # |axis x wall direction| / |wall| is the cosine of the angle from the normal.
-            if abs(dx * (w.y2 - w.y1) - dy * (w.x2 - w.x1)) >= cos_lim * w.length_m
+            if abs(dx * wy - dy * wx) >= limit
         ]
         segs.extend(self._segs[self._n_walls :])
         return segs, self._circles + self._edges
