@@ -34,6 +34,9 @@ LABELS_PER_PAIR = 3
 #: angles at the default 10 dB: the straight path through a few walls is stronger).
 MAX_INNER_TURNS_DB = 40.0
 _SLACK = 1e-9
+#: CornerGraph._longest's margin (relative): far above the rounding of log10 and of the
+#: power, so a chain it passes over costs more than the best path, never the same.
+LONGEST_SLACK = 1e-9
 #: segments_intersect's touching tolerance (relayd/sim/geometry.py), written out in _clear.
 _TOUCH = 1e-12
 
@@ -291,13 +294,15 @@ class CornerGraph:
         """The indirect path a -> ... -> b of least loss (length term plus turns), given the
         bend points each end sees; None when no chain joins them.
 
-        The turn at the first bend depends only on (first, second) and the turn at the
-        last only on (before last, last): each is costed once per query and reused by
-        every chain through them (the same value, so the same sums and the same path).
+        Shortcuts that change no answer: the turn at the first bend depends only on
+        (first, second) and the turn at the last only on (before last, last), so each is
+        costed once per query; and a chain longer than the best path so far could cost
+        with no turns at all (`_longest`) is passed over unpriced, as it could not win.
         """
         nodes, per90, k = self.nodes, self.per_90_db, 10.0 * self.exponent
         log10, dist = math.log10, math.dist
         found: tuple[float, float, float, tuple[int, ...]] | None = None
+        longest = math.inf
         vb_set = set(vb)
         to_b = {j: dist(nodes[j], b) for j in vb}
         last_turn: dict[tuple[int, int], float] = {}
@@ -310,6 +315,7 @@ class CornerGraph:
                 cost = k * log10(max(length, 0.5)) + t
                 if found is None or cost < found[0]:
                     found = (cost, length, t, (i,))
+                    longest = self._longest(cost)
             chains = self.chains[i]
             first_turn: dict[int, float] = {}
             for j in vb:
@@ -321,6 +327,8 @@ class CornerGraph:
                 db = to_b[j]
                 for c in cs:
                     length = da + c.length_m + db
+                    if length > longest:
+                        continue
                     ti = first_turn.get(c.second)
                     if ti is None:
                         ti = first_turn[c.second] = turn_loss_db(
@@ -335,7 +343,20 @@ class CornerGraph:
                     cost = k * log10(max(length, 0.5)) + t
                     if found is None or cost < found[0]:
                         found = (cost, length, t, (i, c.second, c.before_last, j))
+                        longest = self._longest(cost)
         if found is None:
             return None
         _, length, t, ids = found
         return BentPath(length, t, nodes[ids[0]], nodes[ids[-1]])
+
+    def _longest(self, cost: float) -> float:
+        """A length beyond which a path costs more than `cost` whatever its turns: turns
+        cost >= 0, so its cost is at least k log10(length), which exceeds `cost` past
+        10^(cost / k); LONGEST_SLACK keeps float rounding (~1e-15) from deciding."""
+        k = 10.0 * self.exponent
+        if k <= 0 or self.per_90_db < 0:
+            return math.inf
+        try:
+            return float(10.0 ** (cost / k)) * (1.0 + LONGEST_SLACK)
+        except OverflowError:
+            return math.inf
