@@ -110,14 +110,16 @@ class SonarReadings(Sequence[int]):
         x, y = self._x, self._y = x_mm / 1000.0, y_mm / 1000.0
         reach = cfg.max_range_m + 0.5
         x0, y0, x1, y1 = x - reach, y - reach, x + reach, y + reach
+        # A wall wholly on one side of the reach box cannot echo (both ends beyond it:
+        # the same test as max(ends) < x0 and its kin, without the calls).
         segs = [
             s
             for s in scene.obstacles_near(x0, y0, x1, y1)
             if not (
-                max(s.x1, s.x2) < x - reach
-                or min(s.x1, s.x2) > x + reach
-                or max(s.y1, s.y2) < y - reach
-                or min(s.y1, s.y2) > y + reach
+                (s.x1 < x0 and s.x2 < x0)
+                or (s.x1 > x1 and s.x2 > x1)
+                or (s.y1 < y0 and s.y2 < y0)
+                or (s.y1 > y1 and s.y2 > y1)
             )
         ]
         self._n_walls = len(segs)
