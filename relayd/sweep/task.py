@@ -12,10 +12,8 @@ from __future__ import annotations
 import atexit
 import contextlib
 import json
-import multiprocessing.util
 import os
 import select
-import shutil
 import signal
 import subprocess
 import sys
@@ -38,34 +36,32 @@ def child_env(base: Mapping[str, str]) -> dict[str, str]:
     """The run's environment: the worker's, with a fixed hash seed, and compiled modules
     kept when the environment forbids writing them beside their sources.
 
-    With PYTHONDONTWRITEBYTECODE set, every run would compile relayd and its libraries
-    afresh (about 0.6 s of CPU per run, a tenth of a generated world's run); instead the
-    worker's runs share a bytecode cache in a private temporary directory of the worker
-    (PYTHONPYCACHEPREFIX; removed when the worker exits), so nothing is written beside
-    the sources all the same. Python checks each cached file against its source.
+    With PYTHONDONTWRITEBYTECODE set, every start of the fork server (or, without it,
+    every run) would compile relayd and its libraries afresh (about 0.6 s of CPU);
+    instead they go to the user's cache directory (PYTHONPYCACHEPREFIX:
+    $XDG_CACHE_HOME/relayd/pycache, else ~/.cache/relayd/pycache), so nothing is
+    written beside the sources all the same. Python checks each cached file against
+    its source; the directory is the user's own (mode 0700) and about 15 MB.
     """
     env = dict(base)
     env.setdefault("PYTHONHASHSEED", "0")
     if env.get("PYTHONDONTWRITEBYTECODE") and not env.get("PYTHONPYCACHEPREFIX"):
-        del env["PYTHONDONTWRITEBYTECODE"]
-        env["PYTHONPYCACHEPREFIX"] = _pycache_dir()
+        cache = _pycache_dir(env)
+        if cache is not None:
+            del env["PYTHONDONTWRITEBYTECODE"]
+            env["PYTHONPYCACHEPREFIX"] = cache
     return env
 
 
-_pycache: list[str] = []  # this worker's bytecode cache, once made
-
-
-def _pycache_dir() -> str:
-    if not _pycache:
-        path = tempfile.mkdtemp(prefix="relayd-sweep-pycache-")
-        # About 15 MB: removed at the worker's exit, whether it is a plain process (atexit)
-        # or a multiprocessing child, as Dask's local workers are (which skip atexit).
-        atexit.register(shutil.rmtree, path, ignore_errors=True)
-        multiprocessing.util.Finalize(
-            None, shutil.rmtree, args=(path,), kwargs={"ignore_errors": True}, exitpriority=0
-        )
-        _pycache.append(path)
-    return _pycache[0]
+def _pycache_dir(env: Mapping[str, str]) -> str | None:
+    """The user's bytecode cache for sweep runs, made if need be; None if it cannot be."""
+    try:
+        root = Path(env.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+        path = root / "relayd" / "pycache"
+        path.mkdir(parents=True, exist_ok=True, mode=0o700)
+    except (OSError, RuntimeError):  # no home, or a read-only one
+        return None
+    return str(path)
 
 
 class ForkServer:
