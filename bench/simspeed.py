@@ -20,7 +20,8 @@ each with its largest difference (a change in the last bits shows as ~1e-12).
     python bench/simspeed.py --cases convoy:2:2 drift:1:1:on --repeat 3
 
 A case is `scenario[:relays[:seed[:recovery]]]` (recovery on | off; default the
-scenario's). The default cases are the scenarios the test suite runs (seed 1) and
+scenario's); a generated world is a scenario too, `generated:office:7:2:1` being the
+office world of seed 7 with two relays and simulation seed 1. The default cases are the scenarios the test suite runs (seed 1) and
 convoy with seed 2.
 """
 
@@ -72,6 +73,9 @@ class Case:
     @classmethod
     def parse(cls, text: str) -> Case:
         parts = text.split(":")
+        if parts[0] == "generated" and len(parts) >= 3:
+            # A generated world is named generated:KIND:WORLD_SEED (relayd/sim/generate.py).
+            parts = [":".join(parts[:3]), *parts[3:]]
         if not 1 <= len(parts) <= 4 or not parts[0]:
             raise argparse.ArgumentTypeError(f"not scenario[:relays[:seed[:on|off]]]: {text!r}")
         relays = int(parts[1]) if len(parts) > 1 and parts[1] else None

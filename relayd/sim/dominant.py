@@ -24,7 +24,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from relayd.sim.geometry import Point, Segment, segments_intersect
+from relayd.sim.geometry import Point, Segment
 
 #: How far off a wall end or corner a bend point sits (clear of the wall it turns round).
 NODE_OFFSET_M = 0.05
@@ -34,6 +34,11 @@ LABELS_PER_PAIR = 3
 #: angles at the default 10 dB: the straight path through a few walls is stronger).
 MAX_INNER_TURNS_DB = 40.0
 _SLACK = 1e-9
+#: CornerGraph._longest's margin (relative): far above the rounding of log10 and of the
+#: power, so a chain it passes over costs more than the best path, never the same.
+LONGEST_SLACK = 1e-9
+#: segments_intersect's touching tolerance (relayd/sim/geometry.py), written out in _clear.
+_TOUCH = 1e-12
 
 
 def turn_loss_db(turn_deg: float, per_90_db: float) -> float:
@@ -94,12 +99,24 @@ def bend_points(walls: Sequence[Segment], offset_m: float = NODE_OFFSET_M) -> li
     return sorted(out)
 
 
-def _clear(p: Point, q: Point, walls: Sequence[Segment]) -> bool:
-    """True if the straight line p-q touches no wall."""
-    x0, x1 = min(p[0], q[0]) - _SLACK, max(p[0], q[0]) + _SLACK
-    y0, y1 = min(p[1], q[1]) - _SLACK, max(p[1], q[1]) + _SLACK
-    for s in walls:
-        sx1, sy1, sx2, sy2 = s.x1, s.y1, s.x2, s.y2
+#: A wall as its end points' coordinates (x1, y1, x2, y2): what the sight-line test reads.
+WallXY = tuple[float, float, float, float]
+
+
+def _clear(p: Point, q: Point, walls: Sequence[WallXY]) -> bool:
+    """True if the straight line p-q touches no wall.
+
+    `segments_intersect(p, q, wall's ends)` for each wall, written out (its four
+    orientations and its touching tests, the same operations on the same floats, so the
+    same answers: tests/sim/test_dominant.py checks it against it), because every bend
+    point runs it for every new antenna position.
+    """
+    px, py = p
+    qx, qy = q
+    x0, x1 = min(px, qx) - _SLACK, max(px, qx) + _SLACK
+    y0, y1 = min(py, qy) - _SLACK, max(py, qy) + _SLACK
+    ex, ey = qx - px, qy - py
+    for sx1, sy1, sx2, sy2 in walls:
         if (
             (sx1 < x0 and sx2 < x0)
             or (sx1 > x1 and sx2 > x1)
@@ -107,7 +124,39 @@ def _clear(p: Point, q: Point, walls: Sequence[Segment]) -> bool:
             or (sy1 > y1 and sy2 > y1)
         ):
             continue
-        if segments_intersect(p, q, (sx1, sy1), (sx2, sy2)):
+        fx, fy = sx2 - sx1, sy2 - sy1
+        d1 = fx * (py - sy1) - fy * (px - sx1)
+        d2 = fx * (qy - sy1) - fy * (qx - sx1)
+        d3 = ex * (sy1 - py) - ey * (sx1 - px)
+        d4 = ex * (sy2 - py) - ey * (sx2 - px)
+        if (
+            (d1 > 0) != (d2 > 0)
+            and d1 != 0
+            and d2 != 0
+            and (d3 > 0) != (d4 > 0)
+            and d3 != 0
+            and d4 != 0
+        ):
+            return False
+        if (
+            abs(d1) < _TOUCH
+            and min(sx1, sx2) - _TOUCH <= px <= max(sx1, sx2) + _TOUCH
+            and min(sy1, sy2) - _TOUCH <= py <= max(sy1, sy2) + _TOUCH
+        ) or (
+            abs(d2) < _TOUCH
+            and min(sx1, sx2) - _TOUCH <= qx <= max(sx1, sx2) + _TOUCH
+            and min(sy1, sy2) - _TOUCH <= qy <= max(sy1, sy2) + _TOUCH
+        ):
+            return False
+        if (
+            abs(d3) < _TOUCH
+            and min(px, qx) - _TOUCH <= sx1 <= max(px, qx) + _TOUCH
+            and min(py, qy) - _TOUCH <= sy1 <= max(py, qy) + _TOUCH
+        ) or (
+            abs(d4) < _TOUCH
+            and min(px, qx) - _TOUCH <= sx2 <= max(px, qx) + _TOUCH
+            and min(py, qy) - _TOUCH <= sy2 <= max(py, qy) + _TOUCH
+        ):
             return False
     return True
 
@@ -118,9 +167,9 @@ SECTORS = 64
 _SECTOR = 2 * math.pi / SECTORS
 
 
-def _sectors(node: Point, walls: Sequence[Segment]) -> list[list[Segment]]:
+def _sectors(node: Point, walls: Sequence[Segment]) -> list[list[WallXY]]:
     """The walls reaching into each sector round `node` (one sector of slack each side)."""
-    out: list[list[Segment]] = [[] for _ in range(SECTORS)]
+    out: list[list[WallXY]] = [[] for _ in range(SECTORS)]
     x, y = node
     for w in walls:
         a1 = math.atan2(w.y1 - y, w.x1 - x)
@@ -130,7 +179,7 @@ def _sectors(node: Point, walls: Sequence[Segment]) -> list[list[Segment]]:
         k0 = math.floor((start + math.pi) / _SECTOR) - 1
         k1 = math.floor((start + abs(span) + math.pi) / _SECTOR) + 1
         for k in range(k0, k1 + 1):
-            out[k % SECTORS].append(w)
+            out[k % SECTORS].append((w.x1, w.y1, w.x2, w.y2))
     return out
 
 
@@ -230,41 +279,84 @@ class CornerGraph:
         return _clear(p, self.nodes[i], self._sectors[i][k])
 
     def visible(self, p: Point) -> list[int]:
-        """The bend points p sees (no wall on the line)."""
-        return [i for i in range(len(self.nodes)) if self._sees(i, p)]
+        """The bend points p sees (no wall on the line): `_sees` for every node, written
+        out (it runs for every new position of a moving antenna)."""
+        x, y = p
+        atan2, pi = math.atan2, math.pi
+        out = []
+        for i, ((nx, ny), sectors) in enumerate(zip(self.nodes, self._sectors, strict=True)):
+            k = int((atan2(y - ny, x - nx) + pi) / _SECTOR) % SECTORS
+            if _clear(p, (nx, ny), sectors[k]):
+                out.append(i)
+        return out
 
     def best(self, a: Point, b: Point, va: Sequence[int], vb: Sequence[int]) -> BentPath | None:
         """The indirect path a -> ... -> b of least loss (length term plus turns), given the
-        bend points each end sees; None when no chain joins them."""
+        bend points each end sees; None when no chain joins them.
+
+        Shortcuts that change no answer: the turn at the first bend depends only on
+        (first, second) and the turn at the last only on (before last, last), so each is
+        costed once per query; and a chain longer than the best path so far could cost
+        with no turns at all (`_longest`) is passed over unpriced, as it could not win.
+        """
         nodes, per90, k = self.nodes, self.per_90_db, 10.0 * self.exponent
+        log10, dist = math.log10, math.dist
         found: tuple[float, float, float, tuple[int, ...]] | None = None
+        longest = math.inf
         vb_set = set(vb)
+        to_b = {j: dist(nodes[j], b) for j in vb}
+        last_turn: dict[tuple[int, int], float] = {}
         for i in va:
             ni = nodes[i]
-            da = math.dist(a, ni)
+            da = dist(a, ni)
             if i in vb_set:  # one bend
-                length = da + math.dist(ni, b)
+                length = da + to_b[i]
                 t = turn_loss_db(_turn_deg(a, ni, b), per90)
-                cost = k * math.log10(max(length, 0.5)) + t
+                cost = k * log10(max(length, 0.5)) + t
                 if found is None or cost < found[0]:
                     found = (cost, length, t, (i,))
+                    longest = self._longest(cost)
             chains = self.chains[i]
+            first_turn: dict[int, float] = {}
             for j in vb:
                 if j == i:
                     continue
-                nj = nodes[j]
-                db = math.dist(nj, b)
-                for c in chains.get(j, ()):
+                cs = chains.get(j)
+                if not cs:
+                    continue
+                db = to_b[j]
+                for c in cs:
                     length = da + c.length_m + db
-                    t = (
-                        c.turns_db
-                        + turn_loss_db(_turn_deg(a, ni, nodes[c.second]), per90)
-                        + turn_loss_db(_turn_deg(nodes[c.before_last], nj, b), per90)
-                    )
-                    cost = k * math.log10(max(length, 0.5)) + t
+                    if length > longest:
+                        continue
+                    ti = first_turn.get(c.second)
+                    if ti is None:
+                        ti = first_turn[c.second] = turn_loss_db(
+                            _turn_deg(a, ni, nodes[c.second]), per90
+                        )
+                    tj = last_turn.get((c.before_last, j))
+                    if tj is None:
+                        tj = last_turn[(c.before_last, j)] = turn_loss_db(
+                            _turn_deg(nodes[c.before_last], nodes[j], b), per90
+                        )
+                    t = c.turns_db + ti + tj
+                    cost = k * log10(max(length, 0.5)) + t
                     if found is None or cost < found[0]:
                         found = (cost, length, t, (i, c.second, c.before_last, j))
+                        longest = self._longest(cost)
         if found is None:
             return None
         _, length, t, ids = found
         return BentPath(length, t, nodes[ids[0]], nodes[ids[-1]])
+
+    def _longest(self, cost: float) -> float:
+        """A length beyond which a path costs more than `cost` whatever its turns: turns
+        cost >= 0, so its cost is at least k log10(length), which exceeds `cost` past
+        10^(cost / k); LONGEST_SLACK keeps float rounding (~1e-15) from deciding."""
+        k = 10.0 * self.exponent
+        if k <= 0 or self.per_90_db < 0:
+            return math.inf
+        try:
+            return float(10.0 ** (cost / k)) * (1.0 + LONGEST_SLACK)
+        except OverflowError:
+            return math.inf

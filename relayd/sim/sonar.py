@@ -83,6 +83,7 @@ class SonarReadings(Sequence[int]):
         "_echo",
         "_edges",
         "_got",
+        "_grazing",
         "_n_walls",
         "_point_radius_m",
         "_points",  # the scene's point query, when the map has points
@@ -109,18 +110,29 @@ class SonarReadings(Sequence[int]):
         x, y = self._x, self._y = x_mm / 1000.0, y_mm / 1000.0
         reach = cfg.max_range_m + 0.5
         x0, y0, x1, y1 = x - reach, y - reach, x + reach, y + reach
+        # A wall wholly on one side of the reach box cannot echo (both ends beyond it:
+        # the same test as max(ends) < x0 and its kin, without the calls).
         segs = [
             s
             for s in scene.obstacles_near(x0, y0, x1, y1)
             if not (
-                max(s.x1, s.x2) < x - reach
-                or min(s.x1, s.x2) > x + reach
-                or max(s.y1, s.y2) < y - reach
-                or min(s.y1, s.y2) > y + reach
+                (s.x1 < x0 and s.x2 < x0)
+                or (s.x1 > x1 and s.x2 > x1)
+                or (s.y1 < y0 and s.y2 < y0)
+                or (s.y1 > y1 and s.y2 > y1)
             )
         ]
         self._n_walls = len(segs)
         self._edges = _edge_points(segs) if cfg.specular else []
+        # Each wall's direction and its grazing threshold (the limit's cosine times its
+        # length), worked out once per ring rather than once per transducer (the same
+        # floats: _specular_targets).
+        cos_lim = math.cos(math.radians(cfg.grazing_limit_deg))
+        self._grazing = (
+            [(s, s.y2 - s.y1, s.x2 - s.x1, cos_lim * s.length_m) for s in segs]
+            if cfg.specular
+            else []
+        )
         # A map's scan points within reach echo as small discs (each sonar keeps those
         # that can meet its cone: _range_mm).
         self._points = scene.points_near
@@ -244,13 +256,11 @@ class SonarReadings(Sequence[int]):
         grazing limit of their normal, every corner and free end, and the bodies."""
         h = math.radians(heading_deg)
         dx, dy = math.cos(h), math.sin(h)
-        cos_lim = math.cos(math.radians(self._cfg.grazing_limit_deg))
-        walls = self._segs[: self._n_walls]
         segs = [
             w
-            for w in walls
+            for w, wy, wx, limit in self._grazing
             # |axis x wall direction| / |wall| is the cosine of the angle from the normal.
-            if abs(dx * (w.y2 - w.y1) - dy * (w.x2 - w.x1)) >= cos_lim * w.length_m
+            if abs(dx * wy - dy * wx) >= limit
         ]
         segs.extend(self._segs[self._n_walls :])
         return segs, self._circles + self._edges

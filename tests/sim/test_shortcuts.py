@@ -94,7 +94,10 @@ segment = st.builds(Segment, coord, coord, coord, coord)
     heading=st.floats(-360.0, 360.0),
     half=st.sampled_from([15.0, 7.5, 30.0, 0.0]),
     segs=st.lists(segment, max_size=8),
-    circles=st.lists(st.tuples(coord, coord, st.floats(0.05, 1.0)), max_size=2),
+    # Radius 0: a specular ring's wall corners and free ends, points it hears from any angle.
+    circles=st.lists(
+        st.tuples(coord, coord, st.one_of(st.just(0.0), st.floats(0.05, 1.0))), max_size=4
+    ),
 )
 def test_cone_range_is_its_definition_bit_for_bit(
     ox: float,
