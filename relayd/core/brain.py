@@ -193,7 +193,7 @@ class Brain:
             for index, range_mm in ev.sip.sonar:
                 if 0 <= index < SONAR_COUNT:
                     self._sonar[index] = range_mm
-        self.nav.sonar(ev.t, self._pose, self._sonar)
+        self.nav.sonar(ev.t, self._pose, ev.sip.sonar)  # only what this SIP read
         return self._step(ev.t, ev.t)
 
     def _on_device(self, ev: DeviceEvent) -> list[Action]:

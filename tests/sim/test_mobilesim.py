@@ -128,9 +128,9 @@ def _records_ok(records: list[dict[str, object]]) -> None:
 
 async def test_box_dead_ahead(sim: MobileSim, tmp_path: Path) -> None:
     """A box 2.3 m ahead on the line to a leader standing still beyond it: MobileSim's own
-    sonar shows it, and the relay stops short of it and starts its escape, never touching.
-    (Getting round a box this exactly symmetric takes 40 s to over a minute of real time,
-    or a few back-up-and-retry rounds: bench/RESULTS.md; not a short test's business.)"""
+    sonar shows it, and the relay turns off the straight way before it (a detour round the
+    sonar map, or the escape), never touching. (Getting all the way round takes longer
+    than a short test's business: bench/RESULTS.md.)"""
     await _park(sim, "relay2")
     doc = {
         "name": "ms-box",
@@ -148,12 +148,12 @@ async def test_box_dead_ahead(sim: MobileSim, tmp_path: Path) -> None:
     _records_ok(res.records)
     relay = [r["relays"][0] for r in res.records]
     reasons = {r["reason"] for r in relay}
-    assert "obstacle" in reasons, f"the relay never saw the box: {reasons}"
-    assert "avoiding" in reasons, f"the relay never started its escape: {reasons}"
-    # It drove toward the box, and its front (0.31 m ahead of its centre) never reached
-    # the box's near face at x = 6.0.
-    front = max(r["x"] for r in relay) + 0.313
-    assert 5.2 < front < 6.0, f"relay1's front got to x = {front:.2f}"
+    assert reasons & {"detour", "avoiding"}, f"the relay never went round the box: {reasons}"
+    # It drove toward the box, and while on the line to it its front (0.31 m ahead of its
+    # centre) never reached the box's near face at x = 6.0.
+    on_line = [r["x"] + 0.313 for r in relay if abs(r["y"] - 14.0) < 0.3]
+    assert on_line and max(on_line) < 6.0, f"relay1's front got to x = {max(on_line):.2f}"
+    assert max(r["x"] for r in relay) + 0.313 > 5.0, "relay1 never drove toward the box"
 
 
 def _convoy_ok(res: SimResult, map_path: Path, relay1_m: float) -> None:

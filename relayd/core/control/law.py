@@ -17,7 +17,9 @@ from relayd.core.control.params import ControlParams as ControlParams
 from relayd.core.control.rangecue import far_by_sonar, release_speed_mm_s
 from relayd.core.control.search import SearchState, search_step, search_wheels
 from relayd.core.control.steer import (
+    away_from_near_side,
     detour_speed,
+    detour_watch,
     retry_detour,
     speed_scale,
     steering,
@@ -91,6 +93,8 @@ class ControlMemory:
     #: hold, manual and every fault.
     search: SearchState = field(default_factory=SearchState)
     trail_block: BlockedState = field(default_factory=BlockedState)
+    #: A detour's progress watch: where (mm) and when it last got 0.3 m on (steer.py).
+    detour_anchor: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -314,6 +318,7 @@ def control_step(
         # Near echoes along a planned path (a door's jambs): slow by what lies in the
         # robot's own path, crawl past the rest, keep to the path.
         v = detour_speed(v, inputs.front_sonar, params)
+        bearing = away_from_near_side(bearing, inputs.front_sonar, params.stop_distance_m)
         left, right = wheel_law(v, bearing, None, params.kp, params.kd, params.v_max_mm_s)
         state, reason = DriveState.DRIVING, "detour"
         memory = replace(memory, prev_steer_deg=None)
@@ -339,11 +344,13 @@ def control_step(
     vel, rvel = guard(vel, rvel, inputs.front_sonar, params.stop_distance_m)
     # Along a planned detour the escape stands by while the robot makes way: a jamb
     # beside it is what the plan passes between, not a dead end.
-    passing = detouring and vel > 0 and memory.avoid.mode is AvoidMode.FOLLOW
     if detouring and retry_detour(memory.avoid, inputs.t_s):
         # A blocked escape waits for the leader's bearing to clear, which a way round
         # never gives; the map has a path: after the wait, the detour tries it again.
         memory = replace(memory, avoid=AvoidState())
+    anchor, stalled = detour_watch(memory.detour_anchor if detouring else None, inputs)
+    memory = replace(memory, detour_anchor=anchor)
+    passing = detouring and vel > 0 and memory.avoid.mode is AvoidMode.FOLLOW and not stalled
     if params.escape and not passing:
         memory, escaped = _escape(inputs, params, memory, bearing, situation)
         if escaped is not None:

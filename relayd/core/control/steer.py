@@ -41,18 +41,42 @@ def retry_detour(avoid: AvoidState, t_s: float | None) -> bool:
     )
 
 
-#: The speed past near echoes beside a planned path (mm/s).
-PASSAGE_MM_S = 150.0
+#: A detour that has not got DETOUR_PROGRESS_MM on in DETOUR_STALL_S has stalled: the
+#: escape (and its own watchdog) takes over from it.
+DETOUR_PROGRESS_MM, DETOUR_STALL_S = 300.0, 10.0
+
+
+def detour_watch(
+    anchor: tuple[float, float, float] | None, inputs: ControlInputs
+) -> tuple[tuple[float, float, float] | None, bool]:
+    """(the new anchor (x mm, y mm, t s), stalled): None in, a fresh watch from here."""
+    odom, t = inputs.odom, inputs.t_s
+    if odom is None or t is None:
+        return None, False
+    if anchor is None or math.hypot(odom[0] - anchor[0], odom[1] - anchor[1]) > DETOUR_PROGRESS_MM:
+        return (odom[0], odom[1], t), False
+    return anchor, t - anchor[2] > DETOUR_STALL_S
+
+
+def away_from_near_side(steer_deg: float, front: tuple[SonarReading, ...], stop_m: float) -> float:
+    """No turn toward a side whose 50 or 90 deg sonar reads below stop_m (a jamb beside the
+    robot: turning into it would swing the body's corner onto it)."""
+    r = by_heading(front)
+    side = 1 if steer_deg > 0 else -1
+    if min(r.get(side * 90.0, SONAR_MAX_RANGE_M), r.get(side * 50.0, SONAR_MAX_RANGE_M)) < stop_m:
+        return 0.0
+    return steer_deg
 
 
 def detour_speed(v_mm_s: float, front: tuple[SonarReading, ...], params: ControlParams) -> float:
     """The paper's speed along a detour: scaled by the nearest echo that may lie in the
-    robot's forward path, and no faster than PASSAGE_MM_S past echoes beside it."""
+    robot's forward path, and no faster than the door passage's crawl (avoidance.door_speed_mm_s)
+    past echoes beside it."""
     r = by_heading(front)
     in_path = min((d for h, d in r.items() if d < in_path_below_m(h)), default=SONAR_MAX_RANGE_M)
     v_mm_s *= speed_scale(in_path, params.threshold_o_m, params.stop_distance_m)
     if min(r.values(), default=SONAR_MAX_RANGE_M) < params.threshold_o_m:
-        v_mm_s = min(v_mm_s, PASSAGE_MM_S)
+        v_mm_s = min(v_mm_s, params.avoid.door_speed_mm_s)
     return v_mm_s
 
 

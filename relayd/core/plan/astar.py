@@ -5,14 +5,14 @@ heuristic, weighted by `greed` (weighted A*: a path at most that factor longer t
 shortest on the grid, for a fraction of the expansions). A cell is blocked when
 an occupied cell lies within `inflate_m` of it (the robot's half width and a margin: the
 robot is then a point); cells within `soft_m` cost `soft_cost` more, so the path keeps
-to the middle of a door rather than brushing its jamb. Unknown cells are free: the
-relay plans optimistically and replans as the sonars see more, which is how a robot
-finds the door in a wall it has only seen part of.
+to the middle of a door rather than brushing its jamb. Unknown cells are passable at
+`unknown_cost` more: the relay plans optimistically and replans as the sonars see
+more, which is how a robot finds the door in a wall it has only seen part of.
 
 The search is bounded (a box round start and goal with `margin_m`, at most
-`max_expand` cells) and, when the goal cannot be reached (the estimate lies inside a
-wall, or every way is closed), returns the path to the reachable cell nearest the
-goal, if that is nearer than the start. The path is then shortened by line of sight
+`max_expand` cells). When the goal cannot be reached (the estimate lies inside a wall,
+or every way is closed) it returns the path to the reachable cell nearest the goal, if
+that is nearer than the start; a search that ran out of expansions returns none. The path is then shortened by line of sight
 (string pulling), so the robot drives straight between its corners.
 """
 
@@ -124,7 +124,9 @@ def plan(
             if ng < cost.get(n, math.inf):
                 cost[n], came[n] = ng, c
                 heapq.heappush(frontier, (ng + greed * h(n), ng, n))
-    if best == s:
+    if best == s or (frontier and expanded >= p.max_expand and best != g):
+        # No way nearer, or the search ran out before it knew: a greedy partial path may
+        # lead into a dead end (the back of a U), so none; the escape handles it.
         return None
     cells = [best]
     while cells[-1] != s:

@@ -65,7 +65,8 @@ class SonarGrid:
         #: When each cell last echoed (s, the SIP's time), and the newest update's time.
         self.hit_t: dict[Cell, float] = {}
         self.now_s = 0.0
-        self._last: tuple[tuple[float, float, float], tuple[int | None, ...]] | None = None
+        #: Readings not yet laid (sonar index -> mm), and when the last were.
+        self._pending: dict[int, int] = {}
         self._last_t = -math.inf
         #: The cells at or above `occupied`, by BUCKET x BUCKET block: the queries read
         #: these few instead of every cell a beam has touched.
@@ -91,23 +92,29 @@ class SonarGrid:
         return self.now_s - self.hit_t.get(cell, -math.inf) <= self.p.ttl_s
 
     def update(
-        self, t_s: float, pose_mm_deg: tuple[float, float, float], ranges_mm: Sequence[int | None]
+        self,
+        t_s: float,
+        pose_mm_deg: tuple[float, float, float],
+        readings: Sequence[tuple[int, int]],
     ) -> None:
-        """One SIP's ring (index order, None: never read) seen from this odometry pose at t_s."""
+        """A SIP's new readings (sonar index, range mm) seen from this odometry pose at t_s.
+
+        Readings come as the SIPs carry them (each only the sonars it updated) and are laid
+        every `every_s` at the pose of that moment, each reading once."""
         self.now_s = t_s
-        if t_s - self._last_t < self.p.every_s - 1e-9:
+        for index, mm in readings:
+            if 0 <= index < len(SONAR_POSES) and mm >= 0:
+                self._pending[index] = mm
+        if not self._pending or t_s - self._last_t < self.p.every_s - 1e-9:
             return
-        seen = (pose_mm_deg, tuple(ranges_mm))
-        if seen == self._last:
-            return  # a robot standing still re-reads the same ring: nothing new to map
-        self._last, self._last_t = seen, t_s
+        pending, self._pending, self._last_t = self._pending, {}, t_s
         x0, y0, th_deg = pose_mm_deg[0] / 1000.0, pose_mm_deg[1] / 1000.0, pose_mm_deg[2]
         th = math.radians(th_deg)
         c, s = math.cos(th), math.sin(th)
         p = self.p
-        for pose, mm in zip(SONAR_POSES, ranges_mm, strict=False):
-            if mm is None or mm < 0:
-                continue
+        share = p.hit * ARC_WEIGHT / len(ARC)
+        for index, mm in pending.items():
+            pose = SONAR_POSES[index]
             sx = x0 + (pose.x_mm * c - pose.y_mm * s) / 1000.0
             sy = y0 + (pose.x_mm * s + pose.y_mm * c) / 1000.0
             h = th + math.radians(pose.heading_deg)
@@ -117,10 +124,10 @@ class SonarGrid:
             r = mm / 1000.0
             for off in CLEAR_RAYS:
                 self._clear(sx, sy, math.cos(h + off), math.sin(h + off), r - p.cell_m, p.miss)
-            # The echo came from somewhere on the beam's arc: each point of it gets a share.
-            cells = {self.cell(sx + r * math.cos(h + a), sy + r * math.sin(h + a)) for a in ARC}
-            share = p.hit * ARC_WEIGHT / len(cells) if len(cells) > 1 else p.hit
-            for cell in cells:
+            # The echo came from somewhere on the beam's arc: each of its points gets a share
+            # (a near echo's points fall in fewer cells, each summing its points' shares).
+            for a in ARC:
+                cell = self.cell(sx + r * math.cos(h + a), sy + r * math.sin(h + a))
                 self._add(cell, share)
                 self.hit_t[cell] = t_s
 
@@ -195,7 +202,7 @@ class SonarGrid:
         return True
 
     def forget(self, x_m: float, y_m: float, keep_m: float) -> None:
-        """Drop every cell farther than keep_m from this point (bounded memory)."""
+        """Drop every cell outside the square of half-side keep_m round this point (bounded memory)."""
         cx, cy = self.cell(x_m, y_m)
         n = keep_m / self.p.cell_m
         self.logodds = {

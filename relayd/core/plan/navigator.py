@@ -38,6 +38,8 @@ class NavParams:
     goal_free_m: float = 1.2
     lookahead_m: float = 0.8
     replan_s: float = 1.5
+    #: ... and never sooner than this after the last plan, found or not.
+    min_replan_s: float = 0.5
     retarget_m: float = 1.0
     hold_s: float = 3.0
     #: The map keeps this much round the relay (m).
@@ -68,12 +70,15 @@ class Navigator:
         self.plans = 0
 
     def sonar(
-        self, t_s: float, pose_mm_deg: tuple[float, float, float], ranges_mm: Sequence[int | None]
+        self,
+        t_s: float,
+        pose_mm_deg: tuple[float, float, float],
+        readings: Sequence[tuple[int, int]],
     ) -> None:
-        """One SIP's ring onto the map."""
+        """One SIP's new sonar readings (index, range mm) onto the map."""
         if not self.p.enabled:
             return
-        self.grid.update(t_s, pose_mm_deg, ranges_mm)
+        self.grid.update(t_s, pose_mm_deg, readings)
         if self._forgot_t is None:
             self._forgot_t = t_s
         elif t_s - self._forgot_t > self.p.forget_every_s:
@@ -127,19 +132,27 @@ class Navigator:
 
     def _replan_due(self, t_s: float, here: tuple[float, float], goal: tuple[float, float]) -> bool:
         p = self.p
-        if self.path is None or self._plan_t is None or self._plan_goal is None:
+        if self._plan_t is None or self._plan_goal is None:
             return True
-        if t_s - self._plan_t >= p.replan_s or math.dist(goal, self._plan_goal) > p.retarget_m:
+        since = t_s - self._plan_t
+        if since < p.min_replan_s:
+            return False  # a plan, found or not, stands at least this long: A* is not free
+        if since >= p.replan_s or self.path is None:
             return True
-        # The path ahead runs into something seen since: replan at once.
+        if math.dist(goal, self._plan_goal) > p.retarget_m:
+            return True
+        # The path ahead runs into something seen since: replan.
         return not self._ahead_clear(here)
 
     def _ahead_clear(self, here: tuple[float, float]) -> bool:
         """The path's next check_m from the relay's place on it keeps clear of the map."""
         assert self.path is not None
         inflate = self.p.plan.inflate_m * 0.8
+        # From inflate_m on: where the robot stands, a wall beside it is no news.
         pts = _ahead(self.path, here, self.p.check_m)
-        return all(self.grid.segment_clear(a, b, inflate) for a, b in itertools.pairwise(pts))
+        skip = _ahead(self.path, here, self.p.plan.inflate_m)
+        rest = [skip[-1], *pts[len(skip) - 1 :][1:]] if len(pts) >= len(skip) else pts
+        return all(self.grid.segment_clear(a, b, inflate) for a, b in itertools.pairwise(rest))
 
     def path_json(self) -> list[list[float]] | None:
         """/status's `trail.detour_m`: the detour's path in force (m), or None."""

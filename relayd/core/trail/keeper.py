@@ -220,7 +220,8 @@ class TrailKeeper:
         if pose_mm_deg is None:
             return None
         last = self.last
-        if self.params.pursuit == "trail" and self._source == SOURCE_FEED and last is not None:
+        feeding = self.params.pursuit == "trail" and self._source == SOURCE_FEED
+        if feeding and last is not None and last.target_xy_m is not None:
             return last.target_xy_m
         est = self.estimate
         if est is not None and est.sigma_m <= self.params.max_sigma_m:

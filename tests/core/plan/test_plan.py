@@ -45,12 +45,13 @@ def min_clearance(grid: SonarGrid, path: tuple[tuple[float, float], ...]) -> flo
 # --- the map ---------------------------------------------------------------------------
 
 
-def ring(front_m: float | None, others_m: float | None = None) -> list[int | None]:
-    """16 readings: sonars 3 and 4 (+-10 deg) at front_m, the rest at others_m (None: no echo)."""
-    out: list[int | None] = []
+def ring(front_m: float | None, others_m: float | None = None) -> list[tuple[int, int]]:
+    """A SIP's 16 readings (index, mm): sonars 3 and 4 (+-10 deg) at front_m, the rest at
+    others_m (None: no echo)."""
+    out: list[tuple[int, int]] = []
     for i in range(16):
         r = front_m if i in (3, 4) else others_m
-        out.append(5000 if r is None else int(r * 1000))
+        out.append((i, 5000 if r is None else int(r * 1000)))
     return out
 
 
@@ -66,34 +67,46 @@ def test_an_echo_ahead_maps_the_wall_and_the_beam_clears_the_way_to_it() -> None
     assert grid.logodds[grid.cell(1.2, 0.0)] < 0.0
 
 
-def test_a_single_reading_is_not_yet_an_obstacle_and_a_robot_standing_still_adds_nothing() -> None:
+def test_one_far_reading_is_not_yet_an_obstacle_two_are_and_each_is_laid_once() -> None:
     grid = SonarGrid()
     grid.update(0.0, (0.0, 0.0, 0.0), ring(1.5))
     assert not any(True for _ in grid.occupied_cells())  # one reading spread over its arc
     before = dict(grid.logodds)
-    grid.update(0.5, (0.0, 0.0, 0.0), ring(1.5))  # the same pose, the same ring
+    grid.update(0.1, (0.0, 0.0, 0.0), [])  # a SIP that read no sonar: nothing to lay
     assert grid.logodds == before
-    grid.update(0.6, (0.0, 0.0, 0.0), ring(1.5 - 0.001))
+    grid.update(0.1, (0.0, 0.0, 0.0), ring(1.5))  # held: within every_s of the last
+    assert grid.logodds == before
+    grid.update(0.2, (0.0, 0.0, 0.0), [])  # laid now, once, at this pose
     assert any(True for _ in grid.occupied_cells())
     after = dict(grid.logodds)
-    grid.update(0.7, (0.0, 0.0, 0.0), ring(1.0))  # within every_s of the last ring: skipped
+    grid.update(0.4, (0.0, 0.0, 0.0), [])  # nothing new: the old readings are not laid again
     assert grid.logodds == after
+
+
+def test_a_near_reading_counts_at_once_a_far_one_is_spread_thin() -> None:
+    # At 0.4 m the arc is 0.17 m wide: its points fall in a cell or two, each summing
+    # their shares; at 2.5 m it is 1 m wide and each cell gets a fifth.
+    near, far = SonarGrid(), SonarGrid()
+    near.update(0.0, (0.0, 0.0, 0.0), [(3, 400)])
+    far.update(0.0, (0.0, 0.0, 0.0), [(3, 2500)])
+    assert max(near.logodds.values()) >= GridParams().occupied
+    assert max(far.logodds.values()) < GridParams().occupied
 
 
 def test_no_echo_clears_only_weakly_so_a_wall_seen_once_survives_a_grazing_miss() -> None:
     grid = SonarGrid()
     wall(grid, (2.0, -1.0), (2.0, 1.0))
     for k in range(5):
-        grid.update(0.2 * k, (float(k), 0.0, 0.0), [5000] * 16)  # poses in mm: hardly moving
+        grid.update(0.2 * k, (float(k), 0.0, 0.0), ring(None))  # poses in mm: hardly moving
     assert grid.occupied_near(2.0, 0.0, 0.1)
 
 
 def test_an_echo_not_seen_again_for_ttl_s_no_longer_blocks() -> None:
     grid = SonarGrid()
     wall(grid, (2.0, -1.0), (2.0, 1.0))  # seen at t = 0
-    grid.update(GridParams().ttl_s - 1.0, (0.0, 0.0, 180.0), [5000] * 16)
+    grid.update(GridParams().ttl_s - 1.0, (0.0, 0.0, 180.0), ring(None))
     assert grid.occupied_near(2.0, 0.0, 0.1)
-    grid.update(GridParams().ttl_s + 1.0, (0.0, 0.0, 180.0), [5000] * 16)
+    grid.update(GridParams().ttl_s + 1.0, (0.0, 0.0, 180.0), ring(None))
     assert not grid.occupied_near(2.0, 0.0, 0.1)
 
 
@@ -235,7 +248,7 @@ def test_between_jambs_a_detour_crawls_on_instead_of_escaping() -> None:
     p = ControlParams()
     out = control_step(follow_inputs(sonar, 0.0), p, ControlMemory())
     assert out.reason == "detour"
-    assert 0 < (out.left_mm_s + out.right_mm_s) / 2 <= 150.0
+    assert 0 < (out.left_mm_s + out.right_mm_s) / 2 <= p.avoid.door_speed_mm_s
     # Without a detour the same jambs start the escape.
     assert control_step(follow_inputs(sonar, None), p, ControlMemory()).reason != "detour"
 
