@@ -26,6 +26,17 @@ import os, signal, socket, sys
 args = sys.argv[1:]
 if os.environ.get("FAKE_MS_IGNORE_TERM"):
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
+pids = [os.getpid()]
+if os.environ.get("FAKE_MS_FORK"):
+    child = os.fork()
+    if child == 0:
+        while True:
+            signal.pause()
+    pids.append(child)
+# The pids first: start() returns once the ports listen, and the test reads them then.
+with open(os.environ["FAKE_MS_PIDS"] + ".tmp", "w") as f:
+    f.write(" ".join(map(str, pids)))
+os.rename(os.environ["FAKE_MS_PIDS"] + ".tmp", os.environ["FAKE_MS_PIDS"])
 socks = []
 if not os.environ.get("FAKE_MS_NO_PORTS"):
     base = int(args[args.index("-p") + 1])
@@ -34,16 +45,6 @@ if not os.environ.get("FAKE_MS_NO_PORTS"):
         s.bind(("127.0.0.1", base + k))
         s.listen()
         socks.append(s)
-pids = [os.getpid()]
-if os.environ.get("FAKE_MS_FORK"):
-    child = os.fork()
-    if child == 0:
-        while True:
-            signal.pause()
-    pids.append(child)
-with open(os.environ["FAKE_MS_PIDS"] + ".tmp", "w") as f:
-    f.write(" ".join(map(str, pids)))
-os.rename(os.environ["FAKE_MS_PIDS"] + ".tmp", os.environ["FAKE_MS_PIDS"])
 while True:
     signal.pause()
 """
