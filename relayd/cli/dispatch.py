@@ -228,19 +228,20 @@ def _prepare(argv: Sequence[str] | None) -> tuple[argparse.Namespace, Any]:
 
 def _run(args: argparse.Namespace, runner: Any) -> int:
     code = (
-        asyncio.run(_until_signal(runner(args)))
+        asyncio.run(until_signal(runner(args)))
         if inspect.iscoroutinefunction(runner)
         else runner(args)
     )
     return int(code or 0)
 
 
-async def _until_signal(command: Coroutine[Any, Any, int | None]) -> int | None:
+async def until_signal(command: Coroutine[Any, Any, int | None]) -> int | None:
     """Run an async command; SIGTERM or SIGINT cancels it so its `finally` cleans up.
 
     Without this SIGTERM kills a fake outright and leaves its pty symlinks behind.
     SIGTERM is a normal stop (exit 0), Ctrl-C keeps the shell's 130. `relayd run`
-    installs its own handlers for every catchable fatal signal, which replace these.
+    installs its own handlers for every catchable fatal signal, which replace these;
+    `relayd sim`, which picks its own event loop, runs its command through this.
     """
     loop = asyncio.get_running_loop()
     task = asyncio.ensure_future(command)

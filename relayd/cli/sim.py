@@ -11,7 +11,10 @@ terminal, then a short summary; writes summary.json, trace.jsonl, sim.log and PN
 plots (if matplotlib imports) into --out, and with --record each relay's recording,
 <out>/<relay name>.mcap, made by that relay's daemon exactly as on a robot. `--relays all` runs the scenario once per
 relay count (0, 1, ... N) into DIR/relays-K/ and draws their throughput in one plot.
-Exit status: 0 when the run(s) completed, 2 for a bad scenario or argument.
+Exit status: 0 when the run(s) completed, 2 for a bad scenario or argument. SIGTERM
+or Ctrl-C stops a run in order (the relays' daemons, then MobileSim and its Xvfb with
+`--engine mobilesim`) and exits 0 or 130, as every relayd command does; the outputs of
+the run cut short are incomplete.
 """
 
 from __future__ import annotations
@@ -325,14 +328,27 @@ def _load(args: argparse.Namespace) -> Any:
 
 def run(args: argparse.Namespace) -> int:
     """On a virtual-time loop: deterministic, paced to --speed x wall time (or flat out)."""
+    from relayd.cli.dispatch import until_signal
     from relayd.runtime import vtime
 
     if args.engine == "mobilesim":
         import asyncio
 
         # MobileSim runs in real time: a plain event loop, whatever --speed says.
-        return asyncio.run(_run(args))
-    return vtime.run(_run(args), speed=args.speed)
+        return asyncio.run(until_signal(_stoppable(args))) or 0
+    return vtime.run(until_signal(_stoppable(args)), speed=args.speed) or 0
+
+
+async def _stoppable(args: argparse.Namespace) -> int:
+    """`_run`, saying so when a signal cuts it short (the runners' `finally` blocks have
+    stopped the daemons, MobileSim and Xvfb by the time the cancellation gets here)."""
+    import asyncio
+
+    try:
+        return await _run(args)
+    except asyncio.CancelledError:
+        print("relayd sim: stopped before the end of the run", file=sys.stderr, flush=True)
+        raise
 
 
 async def _run(args: argparse.Namespace) -> int:

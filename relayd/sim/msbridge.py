@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 
 from drivers.arcos.codec import Decoder, PacketType, encode_command, encode_packet
 from drivers.arcos.sip import decode_raw_sip
+from relayd.sim.tasks import cancel_and_wait
 
 SIM_SET_POSE = 224
 SIM_STAT = 237
@@ -89,11 +90,7 @@ class ArcosBridge:
     async def close(self) -> None:
         if self._server is not None:
             self._server.close()
-        for t in list(self._tasks):
-            t.cancel()
-        for t in list(self._tasks):
-            with contextlib.suppress(asyncio.CancelledError, Exception):
-                await t
+        await cancel_and_wait(list(self._tasks))
         if self._server is not None:
             with contextlib.suppress(Exception):
                 await self._server.wait_closed()

@@ -36,6 +36,7 @@ from relayd.sim.msproc import MobileSim, MobileSimError
 from relayd.sim.relay import AP_PASSWORD_ENV, API_TOKEN_ENV, PULSE_US, SimRelay, relay_settings
 from relayd.sim.runner import AIROS_UPDATE_S, TRACE_HZ, SimRunner
 from relayd.sim.scenario import Scenario
+from relayd.sim.tasks import cancel_and_wait
 
 LEADER = "leader"
 #: MobileSim's model for a person leader.
@@ -168,29 +169,23 @@ class MobileSimRunner(SimRunner):
             ) from None
         return ports
 
-    async def _teardown(self) -> None:
-        for r in self.relays:
-            if r.task is not None:
-                r.task.cancel()
-        for r in self.relays:
-            if r.task is not None:
-                with contextlib.suppress(asyncio.CancelledError, Exception):
-                    await r.task
-            with contextlib.suppress(Exception):
-                r.maestro.close()
+    async def _close_devices(self, r: SimRelay) -> None:
+        # The robot is MobileSim's (its bridge is closed in _stop_all); the radios are in-process.
+        with contextlib.suppress(Exception):
+            r.maestro.close()
 
     async def _stop_all(self) -> None:
-        if self.leader_robot is not None:
-            with contextlib.suppress(Exception):
-                await self.leader_robot.shutdown()
-        if self._leader_task is not None:
-            self._leader_task.cancel()
-            with contextlib.suppress(asyncio.CancelledError, Exception):
-                await self._leader_task
-        for b in self.bridges.values():
-            await b.close()
-        if self._own_sim:
-            await self.sim.stop()
+        """The leader's driver, the bridges, then MobileSim: stopped whatever happens before."""
+        try:
+            if self.leader_robot is not None:
+                with contextlib.suppress(Exception):
+                    await self.leader_robot.shutdown()
+            await cancel_and_wait([self._leader_task])
+            for b in self.bridges.values():
+                await b.close()
+        finally:
+            if self._own_sim:
+                await self.sim.stop()
 
     # -- the world tick ---------------------------------------------------------------
     def _sync_bodies(self) -> None:

@@ -8,17 +8,30 @@ a GTK display, so a private Xvfb is started when the machine has one (the displa
 the only X client it serves). Robots listen on consecutive loopback ports from a free
 base; a port is ready once it is LISTEN in /proc/net/tcp (connecting to test it would
 use up the session).
+
+Neither process may outlive the run, however it ends. `stop()` (every runner's `finally`)
+sends SIGTERM to each one's process group, then SIGKILL after `stop_timeout_s`; a stop
+that is itself cancelled kills what is left outright. Each runs in a session of its own:
+its group takes whatever it forks along, and a Ctrl-C at the terminal reaches relayd
+alone, which then stops them in order (bridges first) instead of MobileSim dying under
+its clients. For an end with no `finally` at all (relayd killed with SIGKILL, a crash)
+each is started with Linux's parent-death signal (prctl PR_SET_PDEATHSIG): the kernel
+kills it when the thread that started it (the event loop's) is gone.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import ctypes
 import os
 import random
 import shutil
+import signal
 import socket
+import sys
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -27,8 +40,42 @@ ENV_PROGRAM = "RELAYD_MOBILESIM"
 START_TIMEOUT_S = 30.0
 
 
+#: How long MobileSim and Xvfb get to exit on SIGTERM before SIGKILL (each exits in
+#: tens of milliseconds).
+STOP_TIMEOUT_S = 2.0
+#: prctl(2)'s option: the signal a process gets when its parent thread exits.
+PR_SET_PDEATHSIG = 1
+
+
 class MobileSimError(RuntimeError):
     """MobileSim cannot be found or started; the message says why."""
+
+
+def die_with_parent() -> Callable[[], None] | None:
+    """A `preexec_fn` that makes the child get SIGKILL when this thread ends (Linux); None
+    where there is no prctl. The child also kills itself if this process is gone already
+    (it died between the fork and the prctl)."""
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        prctl = ctypes.CDLL(None, use_errno=True).prctl  # looked up before the fork
+    except (OSError, AttributeError):
+        return None
+    parent = os.getpid()
+
+    def preexec() -> None:
+        prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+        if os.getppid() != parent:
+            os.kill(os.getpid(), signal.SIGKILL)
+
+    return preexec
+
+
+def _signal_group(proc: asyncio.subprocess.Process, sig: signal.Signals) -> None:
+    """`sig` to the process group `proc` leads (its own session), unless it has been reaped."""
+    if proc.returncode is None:
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.killpg(proc.pid, sig)
 
 
 def find_program(explicit: str | None = None) -> Path:
@@ -89,11 +136,17 @@ class MobileSim:
     models: dict[str, str] = field(default_factory=dict)
     base_port: int = 0
     log_path: Path | None = None
+    stop_timeout_s: float = STOP_TIMEOUT_S
     _procs: list[asyncio.subprocess.Process] = field(default_factory=list)
     _tmp: tempfile.TemporaryDirectory[str] | None = None
 
     def port(self, name: str) -> int:
         return self.base_port + self.names.index(name)
+
+    @property
+    def pids(self) -> list[int]:
+        """The processes started and not yet stopped: Xvfb's (when started), MobileSim's."""
+        return [p.pid for p in self._procs if p.returncode is None]
 
     async def _xvfb(self) -> str | None:
         """A private X display (its number) when Xvfb is installed; None: use $DISPLAY."""
@@ -112,6 +165,7 @@ class MobileSim:
                 xvfb, "-displayfd", str(fd), "-nolisten", "tcp",
                 pass_fds=(fd,), stdout=asyncio.subprocess.DEVNULL,
                 stderr=asyncio.subprocess.DEVNULL,
+                start_new_session=True, preexec_fn=die_with_parent(),
             )  # fmt: skip
         finally:
             os.close(fd)
@@ -124,7 +178,15 @@ class MobileSim:
         return disp.read_text(encoding="ascii").strip()
 
     async def start(self) -> None:
-        """Start Xvfb and MobileSim; return once every robot's port is listening."""
+        """Start Xvfb and MobileSim; return once every robot's port is listening. On any
+        failure or cancellation on the way, whatever was started is stopped again."""
+        try:
+            await self._start()
+        except BaseException:
+            await self.stop()
+            raise
+
+    async def _start(self) -> None:
         self._tmp = tempfile.TemporaryDirectory(prefix="relayd-mobilesim-")
         env = dict(os.environ)
         env.setdefault("MOBILESIM", str(self.program.parent))
@@ -143,6 +205,7 @@ class MobileSim:
             proc = await asyncio.create_subprocess_exec(
                 *args, env=env, cwd=self._tmp.name, stdout=out, stderr=asyncio.subprocess.STDOUT,
                 stdin=asyncio.subprocess.DEVNULL,
+                start_new_session=True, preexec_fn=die_with_parent(),
             )  # fmt: skip
         self._procs.append(proc)
         try:
@@ -153,23 +216,24 @@ class MobileSim:
                         raise MobileSimError(f"MobileSim exited with {proc.returncode}: {tail}")
                     await asyncio.sleep(0.1)
         except TimeoutError:
-            await self.stop()
             raise MobileSimError(f"MobileSim opened no port in {START_TIMEOUT_S:.0f} s") from None
 
     async def stop(self) -> None:
-        """Stop MobileSim, then Xvfb (terminate, kill after 3 s). Idempotent."""
-        for proc in reversed(self._procs):
-            if proc.returncode is None:
-                with contextlib.suppress(ProcessLookupError):
-                    proc.terminate()
+        """Stop MobileSim, then Xvfb: SIGTERM to each one's group, SIGKILL after
+        `stop_timeout_s`. Idempotent. Cancelled while it waits: SIGKILL to what is left."""
+        try:
+            for proc in reversed(self._procs):
+                _signal_group(proc, signal.SIGTERM)
                 try:
-                    async with asyncio.timeout(3.0):
+                    async with asyncio.timeout(self.stop_timeout_s):
                         await proc.wait()
                 except TimeoutError:
-                    with contextlib.suppress(ProcessLookupError):
-                        proc.kill()
+                    _signal_group(proc, signal.SIGKILL)
                     await proc.wait()
-        self._procs.clear()
-        if self._tmp is not None:
-            self._tmp.cleanup()
-            self._tmp = None
+        finally:
+            for proc in self._procs:
+                _signal_group(proc, signal.SIGKILL)
+            self._procs.clear()
+            if self._tmp is not None:
+                self._tmp.cleanup()
+                self._tmp = None

@@ -46,6 +46,7 @@ from relayd.runtime.vtime import LoopClock, VirtualTimeLoop
 from relayd.sim.relay import SimRelay, pulse_to_deg, start_relay
 from relayd.sim.scenario import Scenario
 from relayd.sim.summary import summarize, unapplied_command_s
+from relayd.sim.tasks import cancel_and_wait
 from relayd.sim.world import World
 
 __all__ = ["SimResult", "SimRunner", "summarize", "unapplied_command_s"]
@@ -338,19 +339,17 @@ class SimRunner:
         return result
 
     async def _teardown(self) -> None:
+        await cancel_and_wait(r.task for r in self.relays)
         for r in self.relays:
-            if r.task is not None:
-                r.task.cancel()
-        for r in self.relays:
-            if r.task is not None:
-                with contextlib.suppress(asyncio.CancelledError, Exception):
-                    await r.task
-        for r in self.relays:
-            for closer in (r.robot.stop, r.rear.stop, r.front.stop):
-                with contextlib.suppress(Exception):
-                    await closer()
+            await self._close_devices(r)
+
+    async def _close_devices(self, r: SimRelay) -> None:
+        """Stop one relay's fakes once its daemon has ended."""
+        for closer in (r.robot.stop, r.rear.stop, r.front.stop):
             with contextlib.suppress(Exception):
-                r.maestro.close()
+                await closer()
+        with contextlib.suppress(Exception):
+            r.maestro.close()
 
     def sim_time(self) -> float:
         """Simulated seconds since the world started (trace.jsonl's `t`); 0 while relays start."""

@@ -6,14 +6,21 @@ project's tests/fixtures/maps/corner.map), placed anew by each test; the office 
 (skipped without it). Skipped, with the
 reason, when RELAYD_MOBILESIM does not name the program (CI provisions it). Real time:
 each run is short, and the assertions are ones every run must meet (no stall, the
-leader arrives, the relays follow and end on the link rule), not exact figures.
+leader arrives, the relays follow and end on the link rule), not exact figures. And
+`relayd sim --engine mobilesim` stopped by SIGTERM (in order) or SIGKILL (no `finally`
+at all) leaves no MobileSim or Xvfb of its own running.
 """
 
 from __future__ import annotations
 
+import asyncio
 import math
+import os
+import shutil
+import signal
 import subprocess
 import sys
+import time
 import tomllib
 from collections.abc import AsyncIterator
 from pathlib import Path
@@ -29,7 +36,8 @@ from relayd.sim.msengine import MobileSimRunner
 from relayd.sim.msproc import MobileSim, MobileSimError, find_program
 from relayd.sim.runner import SimResult
 from relayd.sim.scenario import parse_scenario
-from tests.support import until
+from tests.sim.procs import children, running
+from tests.support import ROOT, until
 
 MAP = Path(__file__).resolve().parents[1] / "fixtures" / "maps" / "corner.map"
 #: The office convoy's scenario (bench/engines.py runs it too: bench/RESULTS.md).
@@ -213,3 +221,63 @@ async def test_two_relay_convoy_through_the_office(tmp_path: Path) -> None:
     relay1, relay2 = res.records[-1]["relays"]
     assert relay1["y"] < -1.5, f"relay1 ended at ({relay1['x']:.2f}, {relay1['y']:.2f})"
     assert relay2["y"] < 0.0, f"relay2 ended at ({relay2['x']:.2f}, {relay2['y']:.2f})"
+
+
+#: How long `relayd sim` may take to exit after SIGTERM, and its MobileSim and Xvfb to be
+#: gone after it: measured 0.2 s from the signal to the exit, and nothing left at the exit.
+STOPPED_S = 5.0
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL], ids=["SIGTERM", "SIGKILL"])
+async def test_a_stopped_sim_leaves_no_mobilesim_or_xvfb(
+    tmp_path: Path, sig: signal.Signals
+) -> None:
+    """One relay in the corner map, stopped once it is up: SIGTERM is an orderly stop
+    (exit 0), SIGKILL leaves it to the kernel's parent-death signal. Either way
+    MobileSim and Xvfb (where relayd started one) are gone within STOPPED_S."""
+    try:
+        program = find_program()
+    except MobileSimError as exc:
+        pytest.skip(f"{exc} (the MobileSim tier needs it)")
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "relayd", "sim", "--engine", "mobilesim", "--mobilesim",
+        str(program), "--map", str(MAP), "--relays", "1", "--seconds", "120", "--no-plots",
+        "--out", str(tmp_path / "out"),
+        env={**os.environ, "PYTHONPATH": str(ROOT), "PYTHONUNBUFFERED": "1"},
+        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT,
+    )  # fmt: skip
+    lines: list[str] = []
+
+    async def drain() -> None:
+        assert proc.stdout is not None
+        async for raw in proc.stdout:
+            lines.append(raw.decode(errors="replace").rstrip("\n"))
+
+    reader = asyncio.create_task(drain())
+    try:
+        # Its relay's API is announced once MobileSim is up and the relay reads its robot.
+        await until(lambda: any("API and live page" in ln for ln in lines), "the relay up", 60.0)
+        kids = children(proc.pid)
+        assert "MobileSim" in kids, (kids, lines)
+        if shutil.which("Xvfb"):
+            assert "Xvfb" in kids, kids
+        t0 = time.monotonic()
+        proc.send_signal(sig)
+        async with asyncio.timeout(STOPPED_S):
+            code = await proc.wait()
+        await until(
+            lambda: not any(running(k) for k in kids.values()),
+            f"{sorted(kids)} gone after {sig.name}",
+            max(0.1, STOPPED_S - (time.monotonic() - t0)),
+        )
+        print(f"{sig.name} -> exit and nothing left: {time.monotonic() - t0:.2f} s")
+        if sig == signal.SIGTERM:
+            assert code == 0, lines
+            assert "relayd sim: stopped before the end of the run" in lines, lines
+        else:
+            assert code == -signal.SIGKILL
+    finally:
+        if proc.returncode is None:
+            proc.kill()
+            await proc.wait()
+        await reader

@@ -128,3 +128,22 @@ async def test_run_exits_quickly_after_sigterm(tmp_path: Path) -> None:
     finally:
         rig.send_signal(signal.SIGTERM)
         await rig.wait()
+
+
+async def test_sim_stops_in_order_after_sigterm(tmp_path: Path) -> None:
+    """`relayd sim` cancels the run (the relays' daemons stopped in its `finally`), says so
+    and exits 0, instead of dying without cleaning up (the MobileSim engine's processes:
+    tests/sim/test_mobilesim.py)."""
+    out = tmp_path / "out"
+    proc, lines = await _start(
+        "sim", "--relays", "1", "--speed", "1", "--no-plots", "--out", str(out)
+    )
+    try:
+        await until(lambda: any("API and live page" in ln for ln in lines), "the relay up")
+        exit_s = await _sigterm_exit_s(proc, lines)
+    finally:
+        if proc.returncode is None:
+            proc.kill()
+    assert "relayd sim: stopped before the end of the run" in lines, lines
+    assert not (out / "summary.json").exists()  # the run did not end: no summary
+    assert exit_s <= EXIT_LIMIT_S
