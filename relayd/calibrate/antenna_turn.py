@@ -27,11 +27,10 @@ import asyncio
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Any
 
 from relayd.calibrate.antenna import AntennaSample
 from relayd.calibrate.antenna_sources import samples_from_status
-from relayd.calibrate.sources import SourceError
+from relayd.calibrate.sources import DaemonApi, SourceError
 from relayd.calibrate.sources import _num as _num
 
 #: Resend the drive command this often: well inside the daemon's 0.5 s dead-man time.
@@ -83,21 +82,8 @@ async def sample_turning(  # noqa: C901
     loop = asyncio.get_running_loop()
     out: list[AntennaSample] = []
     async with aiohttp.ClientSession(timeout=timeout, headers=headers) as session:
-
-        async def post(path: str, body: dict[str, Any]) -> None:
-            async with session.post(base + path, json=body) as resp:
-                if resp.status != 200:
-                    text = await resp.text()
-                    raise SourceError(f"{path}: HTTP {resp.status}: {text[:200]}")
-
-        async def status() -> dict[str, Any]:
-            async with session.get(base + "/status") as resp:
-                if resp.status != 200:
-                    raise SourceError(f"/status: HTTP {resp.status}")
-                doc = await resp.json()
-            if not isinstance(doc, dict) or "pose" not in doc:
-                raise SourceError(f"{base}/status is not a relayd status document")
-            return doc
+        api = DaemonApi(session, base)
+        post, status = api.post, api.status
 
         async def collect(first_sweep: int) -> list[AntennaSample]:
             """`sweeps_per_step` whole sweeps at rest: the scan on show when it starts and

@@ -28,7 +28,10 @@ import math
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    import aiohttp
 
 #: Which link a calibration measures.
 LINKS = ("rear", "front", "leader")
@@ -219,8 +222,31 @@ DRIVE_RESEND_S = 0.2
 STOP_REASONS = ("obstacle", "no_sip", "deadman", "shutdown")
 
 
+class DaemonApi:
+    """The two calls a live calibration makes of a running daemon: a command posted to its
+    API (an HTTP error is a SourceError naming the path), and GET /status."""
+
+    def __init__(self, session: aiohttp.ClientSession, base: str) -> None:
+        self.session, self.base = session, base
+
+    async def post(self, path: str, body: dict[str, Any]) -> None:
+        async with self.session.post(self.base + path, json=body) as resp:
+            if resp.status != 200:
+                text = await resp.text()
+                raise SourceError(f"{path}: HTTP {resp.status}: {text[:200]}")
+
+    async def status(self) -> dict[str, Any]:
+        async with self.session.get(self.base + "/status") as resp:
+            if resp.status != 200:
+                raise SourceError(f"/status: HTTP {resp.status}")
+            doc = await resp.json()
+        if not isinstance(doc, dict) or "pose" not in doc:
+            raise SourceError(f"{self.base}/status is not a relayd status document")
+        return doc
+
+
 # Complexity: one polling loop with its stop conditions (distance, time, a lost daemon, a stall) side by side.
-async def sample_live(opts: LiveOptions, *, progress: Any = None) -> tuple[list[Reading], str]:  # noqa: C901
+async def sample_live(opts: LiveOptions, *, progress: Any = None) -> tuple[list[Reading], str]:
     """Poll a running relayd (and with `drive`, move it) until the distance or time is reached.
 
     Returns the readings and why sampling ended. The daemon is left in hold mode after
@@ -237,21 +263,8 @@ async def sample_live(opts: LiveOptions, *, progress: Any = None) -> tuple[list[
     why = "time"
     timeout = aiohttp.ClientTimeout(total=3.0)
     async with aiohttp.ClientSession(timeout=timeout, headers=headers) as session:
-
-        async def post(path: str, body: dict[str, Any]) -> None:
-            async with session.post(base + path, json=body) as resp:
-                if resp.status != 200:
-                    text = await resp.text()
-                    raise SourceError(f"{path}: HTTP {resp.status}: {text[:200]}")
-
-        async def status() -> dict[str, Any]:
-            async with session.get(base + "/status") as resp:
-                if resp.status != 200:
-                    raise SourceError(f"/status: HTTP {resp.status}")
-                doc = await resp.json()
-                if not isinstance(doc, dict) or "pose" not in doc:
-                    raise SourceError(f"{base}/status is not a relayd status document")
-                return doc
+        api = DaemonApi(session, base)
+        post, status = api.post, api.status
 
         loop = asyncio.get_running_loop()
         start = loop.time()
