@@ -21,6 +21,7 @@ from relayd.core.control.law import ControlParams
 from relayd.core.control.search import SearchParams
 from relayd.core.link.model import LinkPolicyParams
 from relayd.core.params import BrainParams
+from relayd.core.plan.navigator import NavParams
 from relayd.core.recovery.state import RecoveryParams
 from relayd.core.scan.estimator import EstimatorParams
 from relayd.core.scan.leader import LeaderParams
@@ -29,7 +30,6 @@ from relayd.core.scan.window import WindowParams
 from relayd.core.trail.align import Frame
 from relayd.core.trail.estimate import EstimateParams, RangeModel
 from relayd.core.trail.feed import FeedParams
-from relayd.core.plan.navigator import NavParams
 from relayd.core.trail.keeper import TrailParams
 
 P = TypeVar("P")
