@@ -11,7 +11,9 @@ the same step between SIPs) and the scans never produce a command of their own: 
 VEL/RVEL the fake receives is caused by the SIP before it. The robot is held in place
 (a motion guard that refuses every move), so the leader's distance and the link
 thresholds never change during the run; the obstacle escape is off
-(`control.escape = false`), since a robot that cannot move is what it would act on.
+(`control.escape = false`), since a robot that cannot move is what it would act on, and
+so is the detour round the sonar map (`control.detour = false`): its path would replace
+the sonar centroid's steering this measures.
 
 Two measurements of the same cycles. In relayd (the project's definition, "SIP
 received to wheel command written"): the driver times each SIP from its bytes arriving to the
@@ -266,7 +268,7 @@ async def measure(
                 extra["foxglove"] = {"enabled": True, "port": foxglove_port}
             async with RelaydProcess(
                 rig,
-                control={"w1": 0.0, "w2": -300.0, "kd": 0.0, "escape": False},
+                control={"w1": 0.0, "w2": -300.0, "kd": 0.0, "escape": False, "detour": False},
                 scan=scan or {},
                 log={"level": "warning"},
                 command_prefix=command_prefix,

@@ -33,12 +33,12 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 #: The laws compared, each as its `[control]` keys over the scenario's own: the shipped
-#: default (the scan bearing, with the detour round the sonar map), the paper's direct
-#: pursuit (the bearing, no detour), and the trail pursuit (with the detour).
+#: default (the paper's direct pursuit at the scan bearing, with the escape), the same
+#: with the detour round the sonar map (`control.detour`), and the trail pursuit with it.
 VARIANTS: dict[str, dict[str, object]] = {
     "default": {},
-    "paper": {"pursuit": "bearing", "detour": False},
-    "trail": {"pursuit": "trail"},
+    "detour": {"detour": True},
+    "trail": {"pursuit": "trail", "detour": True},
 }
 PURSUITS = tuple(VARIANTS)
 

@@ -277,9 +277,10 @@ class ControlSettings(_Section):
     #: pursuit), "bearing" at the scan bearing as the paper's relays did.
     pursuit: Literal["trail", "bearing"] = "bearing"
     #: (relayd/core/plan) Go round what the sonar map shows in the straight way to the
-    #: leader (a wall its signal comes through, the arm of a U) on a planned path; false:
-    #: the pursuit's straight way and the escape alone, as the paper's relays drove.
-    detour: bool = True
+    #: leader (a wall its signal comes through, the arm of a U) on a planned path; false
+    #: (the default until it wins everywhere, docs/CONTROL.md 7.2): the pursuit's straight
+    #: way and the escape alone, as the paper's relays drove.
+    detour: bool = False
     #: The path-loss model the leader's range is estimated with (`relayd calibrate` fits
     #: them): RSSI = L0 - 10 n log10(d) + N(0, sigma).
     pathloss_l0_dbm: Dbm = -15.0

@@ -35,4 +35,4 @@ class BrainParams:
     #: The leader's trail and the pursuit along it (relayd/core/trail; docs/CONTROL.md 7.1).
     trail: TrailParams = field(default_factory=TrailParams)
     #: The sonar map and the detours round what it shows (relayd/core/plan).
-    nav: NavParams = field(default_factory=NavParams)
+    nav: NavParams = field(default_factory=lambda: NavParams(enabled=False))

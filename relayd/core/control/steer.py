@@ -60,12 +60,26 @@ def detour_watch(
 
 def away_from_near_side(steer_deg: float, front: tuple[SonarReading, ...], stop_m: float) -> float:
     """No turn toward a side whose 50 or 90 deg sonar reads below stop_m (a jamb beside the
-    robot: turning into it would swing the body's corner onto it)."""
+    robot: turning into it would swing the body's corner onto it), and only a gentle one
+    (TIGHT_STEER_DEG) while either side is within PASSAGE_SIDE_M more: a sharp turn in a
+    gap swings the robot's tail onto what it is passing."""
     r = by_heading(front)
+
+    def side_m(side: int) -> float:
+        return min(r.get(side * 90.0, SONAR_MAX_RANGE_M), r.get(side * 50.0, SONAR_MAX_RANGE_M))
+
     side = 1 if steer_deg > 0 else -1
-    if min(r.get(side * 90.0, SONAR_MAX_RANGE_M), r.get(side * 50.0, SONAR_MAX_RANGE_M)) < stop_m:
+    if side_m(side) < stop_m:
         return 0.0
+    if min(side_m(1), side_m(-1)) < stop_m + PASSAGE_SIDE_M:
+        return max(-TIGHT_STEER_DEG, min(TIGHT_STEER_DEG, steer_deg))
     return steer_deg
+
+
+#: Within this much beyond the stop distance of a side echo, a detour steers gently ...
+PASSAGE_SIDE_M = 0.15
+#: ... at most this far off the nose (deg).
+TIGHT_STEER_DEG = 10.0
 
 
 def detour_speed(v_mm_s: float, front: tuple[SonarReading, ...], params: ControlParams) -> float:

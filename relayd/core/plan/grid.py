@@ -50,7 +50,7 @@ class GridParams:
     occupied: float = 0.5
     #: ... while its last echo is no older than this (s): people and robots move on, and
     #: a place no beam has looked at since may have changed.
-    ttl_s: float = 30.0
+    ttl_s: float = 10.0
     #: At most one ring every this many seconds (the SIP's 10 Hz halved: at walking speed
     #: the robot moves 8 cm between two, far less than a beam's width at any range).
     every_s: float = 0.2
@@ -96,6 +96,8 @@ class SonarGrid:
         t_s: float,
         pose_mm_deg: tuple[float, float, float],
         readings: Sequence[tuple[int, int]],
+        skip_xy: tuple[float, float] | None = None,
+        skip_m: float = 0.0,
     ) -> None:
         """A SIP's new readings (sonar index, range mm) seen from this odometry pose at t_s.
 
@@ -127,7 +129,10 @@ class SonarGrid:
             # The echo came from somewhere on the beam's arc: each of its points gets a share
             # (a near echo's points fall in fewer cells, each summing its points' shares).
             for a in ARC:
-                cell = self.cell(sx + r * math.cos(h + a), sy + r * math.sin(h + a))
+                ex, ey = sx + r * math.cos(h + a), sy + r * math.sin(h + a)
+                if skip_xy is not None and math.hypot(ex - skip_xy[0], ey - skip_xy[1]) < skip_m:
+                    continue  # the leader's own echo (the caller's estimate of where it is)
+                cell = self.cell(ex, ey)
                 self._add(cell, share)
                 self.hit_t[cell] = t_s
 

@@ -42,6 +42,9 @@ class NavParams:
     min_replan_s: float = 0.5
     retarget_m: float = 1.0
     hold_s: float = 3.0
+    #: Echoes this close to the leader's estimate are the leader's own (m): a person or a
+    #: robot walks on, and the doorway it walked through must not read as closed.
+    leader_free_m: float = 1.0
     #: The map keeps this much round the relay (m).
     keep_m: float = 30.0
     forget_every_s: float = 30.0
@@ -74,11 +77,13 @@ class Navigator:
         t_s: float,
         pose_mm_deg: tuple[float, float, float],
         readings: Sequence[tuple[int, int]],
+        leader_xy: tuple[float, float] | None = None,
     ) -> None:
-        """One SIP's new sonar readings (index, range mm) onto the map."""
+        """One SIP's new sonar readings (index, range mm) onto the map; echoes within
+        leader_free_m of where the leader is estimated are its own, not mapped."""
         if not self.p.enabled:
             return
-        self.grid.update(t_s, pose_mm_deg, readings)
+        self.grid.update(t_s, pose_mm_deg, readings, leader_xy, self.p.leader_free_m)
         if self._forgot_t is None:
             self._forgot_t = t_s
         elif t_s - self._forgot_t > self.p.forget_every_s:

@@ -214,15 +214,14 @@ class TrailKeeper:
     def goal_xy(
         self, pose_mm_deg: tuple[float, float, float] | None, bearing_deg: float | None
     ) -> tuple[float, float] | None:
-        """Where a detour round the sonar map heads (relayd/core/plan): the feed's lookahead
-        point while a robot leader's own path leads, else the leader's estimate while it is
-        sure enough, else a point FALLBACK_M along the scan bearing."""
+        """Where a detour round the sonar map heads (relayd/core/plan): nowhere while a robot
+        leader's own driven path leads (it is free where the leader went), else the leader's
+        estimate while it is sure enough, else a point FALLBACK_M along the scan bearing."""
         if pose_mm_deg is None:
             return None
         last = self.last
-        feeding = self.params.pursuit == "trail" and self._source == SOURCE_FEED
-        if feeding and last is not None and last.target_xy_m is not None:
-            return last.target_xy_m
+        if self.params.pursuit == "trail" and self._source == SOURCE_FEED and last is not None:
+            return None  # the leader relay's own driven path: free where it went, no detour
         est = self.estimate
         if est is not None and est.sigma_m <= self.params.max_sigma_m:
             return est.xy_m
