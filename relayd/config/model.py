@@ -339,7 +339,7 @@ class AvoidanceSettings(_Section):
     #: The door passage (relayd/core/avoid/door.py): through a gap at least the robot's
     #: width plus door_margin_m, slowly and in its middle, instead of slowing to a stop in
     #: it and going round. False: the paper's law and the escape alone.
-    door_pass: bool = True
+    door_pass: bool = False
     door_margin_m: Annotated[float, Field(ge=0.05, le=1.0)] = 0.2
     door_speed_mm_s: Annotated[float, Field(ge=20, le=400)] = 120.0
 

@@ -90,7 +90,7 @@ class AvoidParams:
     #: beyond door_ahead_m, the leader within door_bearing_deg of the nose; at
     #: door_speed_mm_s, steering for the gap's middle. False: the paper's law slows to a
     #: stop in a narrow door and the escape goes round it.
-    door_pass: bool = True
+    door_pass: bool = False
     door_margin_m: float = 0.2
     door_side_m: float = 0.8
     door_ahead_m: float = 0.6

@@ -18,7 +18,7 @@ from relayd.sim.model import Step, run_model
 from relayd.sim.scenario import Scenario, parse_scenario
 from tests.core.avoid.test_escape import ring, sense
 
-P = AvoidParams()
+P = AvoidParams(door_pass=True)  # opt-in: the tests are of the passage
 ACT = Actuator()
 
 
@@ -120,7 +120,12 @@ def _never_toward_an_echo(step: Step) -> None:
 @pytest.mark.parametrize("width_m", [0.8, 0.9, 1.0])
 def test_a_relay_passes_a_narrow_door(width_m: float) -> None:
     out = run_model(
-        door_world(width_m), seed=1, past_m=3.6, seconds=60.0, on_step=_never_toward_an_echo
+        door_world(width_m),
+        seed=1,
+        past_m=3.6,
+        seconds=60.0,
+        on_step=_never_toward_an_echo,
+        params=ControlParams(rear_link_required=False, avoid=P),
     )
     assert out.passed_at_s is not None and out.collisions == 0, out
     # Through the middle: the centre no nearer a jamb than the half-width plus most of the spare.
@@ -128,7 +133,7 @@ def test_a_relay_passes_a_narrow_door(width_m: float) -> None:
 
 
 def test_without_the_passage_an_08_m_door_is_not_passed() -> None:
-    params = ControlParams(rear_link_required=False)
+    params = ControlParams(rear_link_required=False, avoid=P)
     off = dataclasses.replace(params, avoid=dataclasses.replace(params.avoid, door_pass=False))
     out = run_model(door_world(0.8), seed=1, past_m=3.6, seconds=60.0, params=off)
     assert out.passed_at_s is None and out.collisions == 0, out
