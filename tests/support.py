@@ -18,6 +18,7 @@ import contextlib
 import inspect
 import math
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -226,3 +227,26 @@ def diff_drive(
     w = math.degrees((right_mm_s - left_mm_s) / track_mm)
     mid = math.radians(th + w * dt_s / 2.0)
     return x + v * dt_s * math.cos(mid), y + v * dt_s * math.sin(mid), th + w * dt_s
+
+
+def dask_scheduler(dask_cli: str, log_path: Path) -> tuple[subprocess.Popen[bytes], int]:
+    """A real `dask scheduler` on loopback, on a port it picks itself (port 0: a port
+    picked here and handed over could be taken by another test's server in between, and
+    the client would then read that server's bytes), in its own process group; its
+    output goes to log_path. Returns the process and its port, once it listens."""
+    log = log_path.open("wb")
+    proc = subprocess.Popen(
+        [dask_cli, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard"],
+        stdout=log,
+        stderr=log,
+        start_new_session=True,
+    )
+    log.close()
+
+    def port() -> int | None:
+        found = re.search(
+            r"Scheduler at:\s*tcp://127\.0\.0\.1:(\d+)", log_path.read_text("utf-8", "replace")
+        )
+        return int(found.group(1)) if found else None
+
+    return proc, int(until_sync(port, "the dask scheduler's address in its log", 60.0))

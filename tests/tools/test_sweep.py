@@ -18,7 +18,6 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import IO
 
 import pytest
 
@@ -26,7 +25,7 @@ from relayd.cli import main
 from relayd.sweep.child import series_1hz, start_mean_mbps
 from relayd.sweep.driver import SweepProgress, columns
 from relayd.sweep.grid import GridError, apply_override, build_grid, parse_set, parse_value
-from tests.support import until_sync
+from tests.support import dask_scheduler, until_sync
 
 pytest.importorskip("distributed")
 
@@ -268,21 +267,10 @@ def _kill_group(p: subprocess.Popen[bytes]) -> None:
         pass
 
 
-def _scheduler(dask_cli: str, port: int, log: IO[bytes]) -> subprocess.Popen[bytes]:
-    return subprocess.Popen(
-        [dask_cli, "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
-        stdout=log,
-        stderr=log,
-        start_new_session=True,
-    )
-
-
 @pytest.mark.timeout(120)
 def test_a_cluster_without_workers_does_not_hang_the_sweep(tmp_path: Path) -> None:
     dask_cli = str(Path(sys.executable).parent / "dask")
-    port = _free_port()
-    log = (tmp_path / "dask.log").open("wb")
-    sched = _scheduler(dask_cli, port, log)
+    sched, port = dask_scheduler(dask_cli, tmp_path / "dask.log")
     try:
         from distributed import Client
 
@@ -311,7 +299,6 @@ def test_a_cluster_without_workers_does_not_hang_the_sweep(tmp_path: Path) -> No
         assert all("no Dask worker for 3 s" in r["error"] for r in rows)
     finally:
         _kill_group(sched)
-        log.close()
 
 
 @pytest.mark.timeout(300)
@@ -320,12 +307,12 @@ def test_external_scheduler_two_workers_one_killed(tmp_path: Path) -> None:
     (its whole process group, nanny included) while the sweep runs: every run still
     finishes, on the survivor, and the sweep exits."""
     dask_cli = str(Path(sys.executable).parent / "dask")
-    port = _free_port()
-    addr = f"tcp://127.0.0.1:{port}"
     procs: list[subprocess.Popen[bytes]] = []
     log = (tmp_path / "dask.log").open("wb")
     try:
-        procs.append(_scheduler(dask_cli, port, log))
+        sched, port = dask_scheduler(dask_cli, tmp_path / "scheduler.log")
+        procs.append(sched)
+        addr = f"tcp://127.0.0.1:{port}"
         for _ in range(2):
             procs.append(
                 subprocess.Popen(

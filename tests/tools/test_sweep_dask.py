@@ -14,7 +14,6 @@ from __future__ import annotations
 import csv
 import os
 import signal
-import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -22,6 +21,7 @@ from pathlib import Path
 import pytest
 
 from relayd.cli import main
+from tests.support import dask_scheduler
 
 pytest.importorskip("distributed")
 
@@ -49,12 +49,6 @@ def _rows(path: Path) -> list[dict[str, str]]:
     return sorted(rows, key=lambda r: (r["scenario"], r["relays"], r["seed"]))
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 def _kill_group(p: subprocess.Popen[bytes]) -> None:
     if p.poll() is None:
         try:
@@ -71,20 +65,13 @@ def _kill_group(p: subprocess.Popen[bytes]) -> None:
 @pytest.mark.timeout(600)
 def test_fifty_generated_worlds_on_a_scheduler_equal_the_local_cluster(tmp_path: Path) -> None:
     dask_cli = str(Path(sys.executable).parent / "dask")
-    port = _free_port()
-    addr = f"tcp://127.0.0.1:{port}"
     procs: list[subprocess.Popen[bytes]] = []
     log = (tmp_path / "dask.log").open("wb")
     common = ["--host", "127.0.0.1", "--no-dashboard"]
     try:
-        procs.append(
-            subprocess.Popen(
-                [dask_cli, "scheduler", "--port", str(port), *common],
-                stdout=log,
-                stderr=log,
-                start_new_session=True,
-            )
-        )
+        sched, port = dask_scheduler(dask_cli, tmp_path / "scheduler.log")
+        procs.append(sched)
+        addr = f"tcp://127.0.0.1:{port}"
         for _ in range(2):
             procs.append(
                 subprocess.Popen(
