@@ -193,8 +193,7 @@ class Brain:
             for index, range_mm in ev.sip.sonar:
                 if 0 <= index < SONAR_COUNT:
                     self._sonar[index] = range_mm
-        est = self.trail.estimate  # the leader's own echo is not an obstacle to plan round
-        self.nav.sonar(ev.t, self._pose, ev.sip.sonar, None if est is None else est.xy_m)
+        self.nav.sonar(ev.t, self._pose, ev.sip.sonar, self.trail.leader_xy_m)  # its echo: unmapped
         return self._step(ev.t, ev.t)
 
     def _on_device(self, ev: DeviceEvent) -> list[Action]:

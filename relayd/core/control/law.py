@@ -348,8 +348,9 @@ def control_step(
         # A blocked escape waits for the leader's bearing to clear, which a way round
         # never gives; the map has a path: after the wait, the detour tries it again.
         memory = replace(memory, avoid=AvoidState())
-    anchor, stalled = detour_watch(memory.detour_anchor if detouring else None, inputs)
-    memory = replace(memory, detour_anchor=anchor)
+    anchor, stalled = detour_watch(memory.detour_anchor, inputs) if detouring else (None, False)
+    if anchor != memory.detour_anchor:
+        memory = replace(memory, detour_anchor=anchor)
     passing = detouring and vel > 0 and memory.avoid.mode is AvoidMode.FOLLOW and not stalled
     if params.escape and not passing:
         memory, escaped = _escape(inputs, params, memory, bearing, situation)

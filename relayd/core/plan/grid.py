@@ -80,9 +80,6 @@ class SonarGrid:
         c = self.p.cell_m
         return ((cell[0] + 0.5) * c, (cell[1] + 0.5) * c)
 
-    def is_occupied(self, cell: Cell) -> bool:
-        return self.logodds.get(cell, 0.0) >= self.p.occupied and self._fresh(cell)
-
     def set_occupied(self, cell: Cell, t_s: float) -> None:
         """Mark a cell occupied as of t_s, at full confidence (for a known map: tests, tools)."""
         self._add(cell, self.p.ceiling - self.logodds.get(cell, 0.0))

@@ -211,6 +211,11 @@ class TrailKeeper:
             return math.dist(xy, self.estimate.xy_m)
         return None
 
+    @property
+    def leader_xy_m(self) -> tuple[float, float] | None:
+        """The leader's estimated position (m, odometry frame); None before a scan placed it."""
+        return None if self.estimate is None else self.estimate.xy_m
+
     def goal_xy(
         self, pose_mm_deg: tuple[float, float, float] | None, bearing_deg: float | None
     ) -> tuple[float, float] | None:
