@@ -19,6 +19,7 @@ import inspect
 import math
 import os
 import re
+import signal
 import subprocess
 import sys
 import tempfile
@@ -227,6 +228,16 @@ def diff_drive(
     w = math.degrees((right_mm_s - left_mm_s) / track_mm)
     mid = math.radians(th + w * dt_s / 2.0)
     return x + v * dt_s * math.cos(mid), y + v * dt_s * math.sin(mid), th + w * dt_s
+
+
+def kill_group(p: subprocess.Popen[bytes]) -> None:
+    """SIGKILL a child started with start_new_session=True, its whole process group (a
+    Dask nanny and its worker), and reap it."""
+    if p.poll() is None:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(p.pid, signal.SIGKILL)
+    with contextlib.suppress(subprocess.TimeoutExpired):
+        p.wait(timeout=10)
 
 
 def dask_scheduler(dask_cli: str, log_path: Path) -> tuple[subprocess.Popen[bytes], int]:

@@ -11,8 +11,6 @@ import contextlib
 import csv
 import io
 import json
-import os
-import signal
 import socket
 import subprocess
 import sys
@@ -25,7 +23,7 @@ from relayd.cli import main
 from relayd.sweep.child import series_1hz, start_mean_mbps
 from relayd.sweep.driver import SweepProgress, columns
 from relayd.sweep.grid import GridError, apply_override, build_grid, parse_set, parse_value
-from tests.support import dask_scheduler, until_sync
+from tests.support import dask_scheduler, kill_group, until_sync
 
 pytest.importorskip("distributed")
 
@@ -255,18 +253,6 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def _kill_group(p: subprocess.Popen[bytes]) -> None:
-    if p.poll() is None:
-        try:
-            os.killpg(p.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
-    try:
-        p.wait(timeout=10)
-    except subprocess.TimeoutExpired:
-        pass
-
-
 @pytest.mark.timeout(120)
 def test_a_cluster_without_workers_does_not_hang_the_sweep(tmp_path: Path) -> None:
     dask_cli = str(Path(sys.executable).parent / "dask")
@@ -298,7 +284,7 @@ def test_a_cluster_without_workers_does_not_hang_the_sweep(tmp_path: Path) -> No
         assert [r["status"] for r in rows] == ["failed", "failed"]
         assert all("no Dask worker for 3 s" in r["error"] for r in rows)
     finally:
-        _kill_group(sched)
+        kill_group(sched)
 
 
 @pytest.mark.timeout(300)
@@ -365,14 +351,14 @@ def test_external_scheduler_two_workers_one_killed(tmp_path: Path) -> None:
             return bool(list(out.glob("runs/**/run.json")))
 
         until_sync(a_run_done, "the first finished run", 120.0, poll_s=0.2)
-        _kill_group(procs[2])
+        kill_group(procs[2])
         text, _ = sweep.communicate(timeout=200)
         assert sweep.returncode == 0, text.decode()
         rows = _rows(out / "runs.csv")
         assert len(rows) == 4 and all(r["status"] == "ok" for r in rows), rows
     finally:
         for p in reversed(procs):
-            _kill_group(p)
+            kill_group(p)
         log.close()
 
 

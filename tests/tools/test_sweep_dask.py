@@ -12,8 +12,6 @@ bench/RESULTS.md). Every process the test starts is bounded in time and killed i
 from __future__ import annotations
 
 import csv
-import os
-import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -21,7 +19,7 @@ from pathlib import Path
 import pytest
 
 from relayd.cli import main
-from tests.support import dask_scheduler
+from tests.support import dask_scheduler, kill_group
 
 pytest.importorskip("distributed")
 
@@ -47,18 +45,6 @@ def _rows(path: Path) -> list[dict[str, str]]:
     with path.open(encoding="utf-8") as f:
         rows = [{k: v for k, v in r.items() if k != "wall_s"} for r in csv.DictReader(f)]
     return sorted(rows, key=lambda r: (r["scenario"], r["relays"], r["seed"]))
-
-
-def _kill_group(p: subprocess.Popen[bytes]) -> None:
-    if p.poll() is None:
-        try:
-            os.killpg(p.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
-    try:
-        p.wait(timeout=10)
-    except subprocess.TimeoutExpired:
-        pass
 
 
 @pytest.mark.slow
@@ -94,7 +80,7 @@ def test_fifty_generated_worlds_on_a_scheduler_equal_the_local_cluster(tmp_path:
         assert sum(executed.values()) >= 50, executed
     finally:
         for p in reversed(procs):
-            _kill_group(p)
+            kill_group(p)
         log.close()
     assert main(["sweep", *GRID, "--workers", "2", "--out", str(local)]) == 0
 
