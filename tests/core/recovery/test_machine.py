@@ -448,9 +448,9 @@ def test_property_never_drives_on_stale_input(
     assert out.command is None or out.command.reason in REASONS
     if out.command is not None and (out.command.left_mm_s or out.command.right_mm_s):
         assert not inputs_stale(inp, P, need_rear=out.memory.kind is Kind.REAR)
-        assert sip is not None and sip <= P.sip_timeout_s
-        assert rssi is not None and rssi <= P.rssi_timeout_s
-        assert rear is not None and rear <= P.rear_timeout_s and rb is not None
+        assert sip is not None and sip <= P.control.sip_timeout_s
+        assert rssi is not None and rssi <= P.control.rssi_timeout_s
+        assert rear is not None and rear <= P.control.rear_timeout_s and rb is not None
         assert scan is None or scan <= (P.scan_timeout_s or math.inf)
 
 
