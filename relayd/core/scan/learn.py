@@ -18,10 +18,10 @@ to the scan's level (distance, shadowing). This module collects those samples:
   loudest readings are the ones with the luckiest noise, and a level read from them
   lifts the peak's bins above the rest (a 90 deg lobe was learnt 77 deg wide that way).
   What error is left is a constant on one scan, and shrinks as the table learns.
-- **Bins with a prior.** Off-axis angle in `bin_deg` bins round the circle; each bin's
-  value is a running mean that starts at the prior with the weight of `prior_weight`
-  samples, so a bin the data never reach stays the prior and a well-visited one is the
-  data's. The prior is the built-in lobe the main-lobe fit assumes: a parabola in dB,
+- **Bins with a prior.** Off-axis angle in `bin_deg` bins round the circle; a bin the
+  data never reach stays the prior, and a visited one is the running mean of its samples
+  alone (a prior kept in the mean with even one sample's weight pulled a narrow lobe's
+  floor 0.4 dB towards a 90 deg prior's shoulder). The prior is the built-in lobe the main-lobe fit assumes: a parabola in dB,
   12 dB down at one beamwidth off axis (the beamwidth learnt from two-sided fits when
   known, else `prior_beamwidth_deg`), floored at `prior_floor_db`.
 - **Forgetting.** A bin remembers at most `max_weight` samples (beyond, the running mean
@@ -63,8 +63,6 @@ class LearnParams:
     sure_sd_deg: float = 4.0
     #: ... and its bearing at least this far (deg) inside the sweep's ends.
     edge_margin_deg: float = 30.0
-    #: Each bin starts at the prior with this many samples' weight.
-    prior_weight: float = 1.0
     #: A bin remembers at most this many samples (older ones fade).
     max_weight: float = 400.0
     #: The prior lobe: 12 dB down at this beamwidth off axis (3 dB at half of it) ...
@@ -79,6 +77,9 @@ class LearnParams:
     #: steps (7.5 deg) sample the same off-axis angles scan after scan while the leader
     #: stands still, and the lobe between them is interpolated, not the prior.
     gap_fill_deg: float = 10.0
+    #: A bin where the slope turns by more than this (dB per bin, over three bins each
+    #: side) is a corner, smoothed over its nearest neighbours only.
+    kink_db_per_bin: float = 0.6
     #: The table is used once this many sure scans have entered it and it is covered this
     #: far (deg) each side of its peak.
     ready_scans: int = 15
@@ -93,8 +94,8 @@ class LearnParams:
     def __post_init__(self) -> None:
         if not 0.0 < self.bin_deg <= 10.0 or 360.0 % self.bin_deg > 1e-9:
             raise ValueError(f"bin_deg must divide 360 and be in (0, 10], got {self.bin_deg}")
-        if self.prior_weight <= 0.0 or self.max_weight < self.prior_weight:
-            raise ValueError("prior_weight must be > 0 and max_weight >= prior_weight")
+        if self.max_weight < 1.0:
+            raise ValueError(f"max_weight must be >= 1, got {self.max_weight}")
         if self.sure_sd_deg <= 0.0 or self.prior_beamwidth_deg <= 0.0:
             raise ValueError("sure_sd_deg and prior_beamwidth_deg must be > 0")
 
@@ -135,7 +136,7 @@ class PatternLearner:
         bw = bw or params.prior_beamwidth_deg
         self._prior = tuple(prior_db(c, bw, params.prior_floor_db) for c in self._centres)
         self._mean = list(self._prior)
-        self._weight = [params.prior_weight] * n
+        self._weight = [0.0] * n
         self._samples = [0] * n
         self.scans = 0
         self.refused = 0
@@ -181,8 +182,11 @@ class PatternLearner:
         values = list(raw)
         for i in range(n):
             if filled[i]:
+                reach = 1 if self._kink(raw, filled, i) else 2
                 pairs = [
-                    (3 - abs(k), raw[(i + k) % n]) for k in range(-2, 3) if filled[(i + k) % n]
+                    (reach + 1 - abs(k), raw[(i + k) % n])
+                    for k in range(-reach, reach + 1)
+                    if filled[(i + k) % n]
                 ]
                 values[i] = sum(w * v for w, v in pairs) / sum(w for w, _ in pairs)
         if self.params.symmetric:
@@ -214,6 +218,18 @@ class PatternLearner:
                 else:
                     values[i] = max(min(last_v, self._prior[i] + last_v - last_p), floor)
         return values, filled
+
+    def _kink(self, raw: list[float], filled: list[bool], i: int) -> bool:
+        """Whether the slope turns sharply at bin i (a narrow lobe meeting its floor): the
+        10 deg triangle would round that corner by a dB, so it is smoothed over 6 deg only.
+        A lobe's own curvature turns the slope by a tenth of a dB per bin at most."""
+        n = len(raw)
+        ends = [(i + k) % n for k in (-3, 3)]
+        if not all(filled[j] for j in ends):
+            return False
+        left_db = (raw[i] - raw[ends[0]]) / 3.0
+        right_db = (raw[ends[1]] - raw[i]) / 3.0
+        return abs(right_db - left_db) > self.params.kink_db_per_bin
 
     def _lobe_extent(self, peak: int, filled: list[bool]) -> tuple[float, float] | None:
         """The off-axis angles (deg) covered without a break round the peak, or None when

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from fractions import Fraction
 import math
 import random
 
@@ -199,13 +200,31 @@ def test_the_closed_forms_solve_the_normal_equations(rows, prior) -> None:
     m = [[s[0], s[1], s[2]], [s[1], s[2], s[3]], [s[2], s[3], s[4]]]
     inv = _inverse_sym3(*s)
     if inv is not None:
-        for i in range(3):
-            for j in range(3):
-                terms = [inv[i][k] * m[k][j] for k in range(3)]
-                # The rounding of a 3x3 inverse grows with the terms it cancels (the
-                # powers of u up to 90^4 make them large): bound it by their size.
-                tol = 1e-6 + 1e-12 * sum(abs(t) for t in terms)
-                assert sum(terms) == pytest.approx(1.0 if i == j else 0.0, abs=tol)
+        # Against the exact inverse of the same floats (rational arithmetic). The adjugate's
+        # rounding is bounded by the terms each cofactor and the determinant cancel: a few
+        # ulps of those, relative to what is left (an ill-conditioned draw cancels 1e10).
+        q = [Fraction(v) for v in s]
+        cof = {
+            (0, 0): (q[2] * q[4], q[3] * q[3]),
+            (0, 1): (q[2] * q[3], q[1] * q[4]),
+            (0, 2): (q[1] * q[3], q[2] * q[2]),
+            (1, 1): (q[0] * q[4], q[2] * q[2]),
+            (1, 2): (q[1] * q[2], q[0] * q[3]),
+            (2, 2): (q[0] * q[2], q[1] * q[1]),
+        }
+        det = q[0] * (cof[0, 0][0] - cof[0, 0][1]) + q[1] * (cof[0, 1][0] - cof[0, 1][1])
+        det += q[2] * (cof[0, 2][0] - cof[0, 2][1])
+        det_terms = sum(
+            abs(q[k]) * (abs(a) + abs(b))
+            for k, (a, b) in enumerate((cof[0, 0], cof[0, 1], cof[0, 2]))
+        )
+        eps = Fraction(2) ** -52
+        for (i, j), (a, b) in cof.items():
+            exact = (a - b) / det
+            slack = 8 * eps * ((abs(a) + abs(b)) / abs(det) + (det_terms / abs(det)) * abs(exact))
+            err = abs(Fraction(inv[i][j]) - exact)
+            assert err <= slack, (i, j, float(err), float(slack))
+            assert inv[j][i] == inv[i][j]
     # Pooled: (b, c) minimise the weighted squares with one free level per scan.
     fit = _wls_pooled(us, ys, ws, prior, gs)
     groups = sorted(set(gs))
