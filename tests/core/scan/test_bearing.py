@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from fractions import Fraction
 import math
 import random
+from fractions import Fraction
 
 import pytest
 from hypothesis import given, settings
