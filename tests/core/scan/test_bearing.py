@@ -197,7 +197,6 @@ def test_the_closed_forms_solve_the_normal_equations(rows, prior) -> None:
 
     us, ys, ws, gs = (list(x) for x in zip(*rows, strict=True))
     s = [sum(w * u**k for u, w in zip(us, ws, strict=True)) for k in range(5)]
-    m = [[s[0], s[1], s[2]], [s[1], s[2], s[3]], [s[2], s[3], s[4]]]
     inv = _inverse_sym3(*s)
     if inv is not None:
         # Against the exact inverse of the same floats (rational arithmetic). The adjugate's
