@@ -7,6 +7,7 @@ stuck on their way) can be read and tested without starting a simulation.
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Sequence
 from typing import Any
 
@@ -40,6 +41,34 @@ def unapplied_command_s(records: Sequence[dict[str, Any]], i: int, grace_s: floa
         else:
             since = None
         prev_t = r["t"]
+    return round(total, 2)
+
+
+def stuck_s(
+    records: Sequence[dict[str, Any]], i: int, window_s: float = 10.0, progress_m: float = 0.5
+) -> float:
+    """Seconds relay i spent stuck: off the link rule (avoiding, lost, searching, blocked:
+    not following anyone, core/vocab.py LINK_RULE_ENDS) while it had moved less than
+    `progress_m` over the last `window_s`. A relay that avoids its way round a box keeps
+    moving and does not count; one pressed against a wall, or scanning in place for a
+    leader it lost, does."""
+    total = 0.0
+    trail: deque[tuple[float, float, float]] = deque()  # (t, x, y) within the window
+    prev_t: float | None = None
+    for r in records:
+        rel = r["relays"][i]
+        t, x, y = r["t"], rel["x"], rel["y"]
+        trail.append((t, x, y))
+        while trail[0][0] < t - window_s:
+            trail.popleft()
+        if (
+            prev_t is not None
+            and rel["reason"] not in LINK_RULE_ENDS
+            and t - records[0]["t"] >= window_s
+            and max(math.hypot(x - px, y - py) for _, px, py in trail) < progress_m
+        ):
+            total += t - prev_t
+        prev_t = t
     return round(total, 2)
 
 
@@ -89,6 +118,7 @@ def summarize(
                 "collisions": f["collisions"],
                 "travelled_m": round(f["travelled_m"], 3),
                 "unapplied_command_s": unapplied_command_s(records, i) if records else 0.0,
+                "stuck_s": stuck_s(records, i),
                 "recovery_episodes": recovery_episodes(records, i),
             }
         )

@@ -128,6 +128,7 @@ def row_for(
 RELAY_FIELDS = (
     ("reason", "stopped_reason"),
     ("final_gap_m", "final_gap_m"),
+    ("stuck_s", "stuck_s"),
     ("collisions", "collisions"),
     ("travelled_m", "travelled_m"),
 )

@@ -57,7 +57,15 @@ def _rec(
         "e2e_mbps": e2e,
         "broken": broken,
         "relays": [
-            {"name": f"r{i}", "gap_m": g, "state": state, "reason": "why", "rssi_l_dbm": -40.0}
+            {
+                "name": f"r{i}",
+                "x": 0.0,
+                "y": 0.0,
+                "gap_m": g,
+                "state": state,
+                "reason": "why",
+                "rssi_l_dbm": -40.0,
+            }
             for i, g in enumerate(gaps)
         ],
     }
@@ -199,6 +207,29 @@ def test_unapplied_command_time() -> None:
     assert unapplied_command_s(moving, 0) == 0.0
     idle = [rec(0.1 * k, [0, 0], 0) for k in range(31)]
     assert unapplied_command_s(idle, 0) == 0.0
+
+
+def test_stuck_time_counts_only_a_relay_off_the_link_rule_and_going_nowhere() -> None:
+    from relayd.sim.summary import stuck_s
+
+    def rec(t: float, x: float, reason: str) -> dict:
+        return {"t": t, "relays": [{"x": x, "y": 0.0, "reason": reason}]}
+
+    # 60 s pressed against a wall, avoiding: stuck from 10 s on (a full window) to the end.
+    wall = [rec(0.1 * k, 5.0, "avoiding (obstacle)") for k in range(601)]
+    assert stuck_s(wall, 0) == pytest.approx(50.0, abs=0.15)
+    # Avoiding while it goes round a box at 0.2 m/s: never stuck.
+    going = [rec(0.1 * k, 0.02 * k, "avoiding (obstacle)") for k in range(601)]
+    assert stuck_s(going, 0) == 0.0
+    # Standing still on the link rule (leader near, rear weak) is the job, not stuck.
+    assert stuck_s([rec(0.1 * k, 5.0, "rear_weak") for k in range(601)], 0) == 0.0
+    # Driving 20 s at 0.2 m/s, then lost and scanning in place for 30 s: stuck 22.5 s of
+    # those 30 (for 2.5 s the window still holds more than 0.5 m of the driving).
+    lost = [
+        rec(0.1 * k, 0.02 * min(k, 200), "driving" if k <= 200 else "leader_lost")
+        for k in range(501)
+    ]
+    assert stuck_s(lost, 0) == pytest.approx(22.5, abs=0.15)
 
 
 def test_progress_line_only_on_a_terminal() -> None:

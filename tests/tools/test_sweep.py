@@ -144,7 +144,13 @@ def test_two_workers_equal_one_worker_and_resume(
     assert list(rows[0])[: len(fixed)] == fixed
     # The split outcome, then per-relay outcome columns, filled for the 1-relay runs only.
     split = ["leader_arrived", "link_held", "relays_ok"]
-    per_relay = ["relay1_reason", "relay1_final_gap_m", "relay1_collisions", "relay1_travelled_m"]
+    per_relay = [
+        "relay1_reason",
+        "relay1_final_gap_m",
+        "relay1_stuck_s",
+        "relay1_collisions",
+        "relay1_travelled_m",
+    ]
     assert list(rows[0])[len(fixed) :] == split + per_relay
     for r in rows:
         assert (r["relay1_reason"] != "") == (r["relays"] == "1")
