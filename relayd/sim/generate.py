@@ -5,8 +5,10 @@ room by its corridor door and leaves it by an inner door into the next, plans th
 person's route with A* (relayd/sim/planner.py) keeping the P3-AT's half-width plus a
 margin from every wall and box, and writes an ordinary scenario document. The same
 kind and seed give the same text, byte for byte (random.Random seeded from the string).
-Kinds: "office" (below) and "corridors" (a corridor network with L-corners and
-T-junctions, relayd/sim/gen_corridors.py); other kinds are refused by name.
+Kinds: "office" (below), "corridors" (a corridor network with L-corners and T-junctions,
+relayd/sim/gen_corridors.py), and "hall" (an open hall with pillars), "warehouse" (aisles
+between racks) and "mixed" (a hall, then a warehouse) (relayd/sim/gen_halls.py); other
+kinds are refused by name.
 
 Each relay scans with an antenna drawn from the simulator's family
 (relayd/sim/antennas.py), one draw per relay from a stream of its own seeded from the same
@@ -21,10 +23,13 @@ import random
 
 from relayd.sim.antennas import DRAWN
 from relayd.sim.gen_corridors import corridors
+from relayd.sim.gen_halls import building
 from relayd.sim.planner import Point, Segment, plan, route_length_m
 from relayd.sim.radio import DEFAULT_WALL_LOSS_DB
 
-KINDS = ("office", "corridors")
+KINDS = ("office", "corridors", "hall", "warehouse", "mixed")
+#: The open kinds' sections, east of their entrance corridor (relayd/sim/gen_halls.py).
+SECTIONS = {"hall": ["hall"], "warehouse": ["racks"], "mixed": ["hall", "racks"]}
 #: P3-AT: 0.50 m wide (half 0.25 m) plus a 0.25 m margin on each side.
 CLEARANCE_M = 0.5
 #: Below this route length the corridor's straight hops carry the link with one relay.
@@ -118,7 +123,9 @@ def build(kind: str, seed: int) -> tuple[dict[str, object], list[Point]]:
             loss = {
                 m: _r(v * rng.uniform(0.8, 1.2)) for m, v in sorted(DEFAULT_WALL_LOSS_DB.items())
             }
-            world = corridors(rng, loss)
+            world = (
+                corridors(rng, loss) if kind == "corridors" else building(rng, SECTIONS[kind], loss)
+            )
         route = plan(_segments(world), START, world["goal"], CLEARANCE_M)  # type: ignore[arg-type]
         if route is not None and route_length_m(route) >= MIN_ROUTE_M:
             return world, [(_r(x), _r(y)) for x, y in route]
