@@ -50,17 +50,30 @@ def _setting(row: dict[str, Any], set_keys: Sequence[str]) -> str:
     return ", ".join(f"{k}={row.get(k, '')}" for k in set_keys)
 
 
+def kind(row: dict[str, Any]) -> str:
+    """A generated world's kind (generated-office-12 -> office), else the scenario's name."""
+    name = str(row.get("scenario", ""))
+    if name.startswith("generated-"):
+        return name.removeprefix("generated-").rsplit("-", 1)[0]
+    return name
+
+
 def _by_setting(ok: Sequence[dict[str, Any]], set_keys: Sequence[str]) -> list[str]:
-    """One row per combination of `--set` values: the laws side by side on the same worlds."""
+    """One row per combination of `--set` values (per generated kind, when the sweep has
+    more than one): the laws side by side on the same worlds."""
+    kinds = {kind(r) for r in ok if str(r.get("scenario", "")).startswith("generated-")}
     groups: dict[str, list[dict[str, Any]]] = {}
     for r in ok:
-        groups.setdefault(_setting(r, set_keys), []).append(r)
+        name = _setting(r, set_keys)
+        if len(kinds) > 1:
+            name = f"{kind(r)}{', ' + name if name else ''}"
+        groups.setdefault(name, []).append(r)
     cats = sorted({category(r) for r in ok} - {"clean"})
     lines = [
         "| setting | clean | Wilson 95 % | " + " | ".join(cats) + " |",
         "|---|---|---|" + "---|" * len(cats),
     ]
-    for name, rs in groups.items():
+    for name, rs in sorted(groups.items()):
         k = sum(category(r) == "clean" for r in rs)
         lo, hi = wilson(k, len(rs))
         counts = Counter(category(r) for r in rs)
@@ -89,7 +102,8 @@ def section(rows: Sequence[dict[str, Any]], set_keys: Sequence[str] = ()) -> lis
         *(f"| {c} | {n} |" for c, n in sorted(cats.items())),
         "",
     ]
-    if set_keys:
+    generated = {kind(r) for r in ok if str(r.get("scenario", "")).startswith("generated-")}
+    if set_keys or len(generated) > 1:
         lines += _by_setting(ok, set_keys)
     worst = sorted(ok, key=lambda r: float(r.get("min_e2e_mbps") or 0))
     worst = [r for r in worst if category(r) != "clean"][:5] or worst[:5]

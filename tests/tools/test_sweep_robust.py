@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from relayd.sweep.robust import category, section, wilson
+from relayd.sweep.robust import category, kind, section, wilson
 
 
 def test_wilson_matches_hand_values() -> None:
@@ -57,6 +57,23 @@ def test_section_sets_the_settings_side_by_side() -> None:
     assert "| control.pursuit=bearing | 2/2 (100.0 %) | 34.2-100.0 % | 0 |" in text
     assert "| control.pursuit=trail | 1/2 (50.0 %) | 9.5-90.5 % | 1 |" in text
     assert "seed 1, control.pursuit=trail (lost)" in text
+
+
+def test_section_splits_generated_kinds() -> None:
+    rows = [
+        _row(**{"control.detour": "False"}),
+        _row(**{"control.detour": "True", "relay2_reason": "avoiding (obstacle)"}),
+        _row(scenario="generated-corridors-7", **{"control.detour": "False"}),
+        _row(scenario="generated-corridors-7", **{"control.detour": "True"}),
+    ]
+    text = "\n".join(section(rows, ["control.detour"]))
+    assert "| corridors, control.detour=False | 1/1 (100.0 %) |" in text
+    assert "| office, control.detour=True | 0/1 (0.0 %) |" in text
+    assert kind({"scenario": "generated-office-12"}) == "office"
+    assert kind({"scenario": "corridor"}) == "corridor"
+    # Kinds apart even with no --set axis.
+    text = "\n".join(section(rows[::2]))
+    assert "| corridors | 1/1 (100.0 %) |" in text and "| office | 1/1 (100.0 %) |" in text
 
 
 def test_sweep_without_dask_names_the_extra_and_exits_2() -> None:

@@ -1,0 +1,87 @@
+"""The headline robustness table: generated worlds, the shipped default beside a variant.
+
+    python -m bench.robustness                     # 200 office + 200 corridors worlds, 2 relays,
+                                                   # control.detour = false (shipped) and true
+    python -m bench.robustness --worlds 20 --kind hall --kind mixed
+    python -m bench.robustness --from SWEEP_DIR    # the table of a sweep already run
+
+Runs `relayd sweep --generated KIND:N ... --seeds 1 --relays 2 --set AXIS --no-plots` on
+the embedded LocalCluster (two workers: the development machine's two cores) and prints,
+per kind and setting, the clean share (relayd/sweep/robust.py: the leader arrived, the
+link held, no collision, every relay on the link rule) with its Wilson 95 % interval and
+the failures by category, then the sweep's wall time and what a simulated second cost.
+With `--from` it reads that directory's runs.csv (and the timing it wrote, when this
+script ran the sweep).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from relayd.sweep.robust import section
+
+
+def run_sweep(args: argparse.Namespace, out: Path) -> dict[str, float]:
+    cmd = [sys.executable, "-m", "relayd", "sweep", "--seeds", "1", "--relays", "2"]
+    for k in args.kind:
+        cmd += ["--generated", f"{k}:{args.worlds}"]
+    cmd += ["--set", args.set, "--workers", str(args.workers), "--out", str(out), "--no-plots"]
+    print("$", " ".join(cmd[2:]), file=sys.stderr)
+    t0 = time.monotonic()
+    subprocess.run(cmd, check=True)
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    timing = {"wall_s": time.monotonic() - t0, "cpu_s": ru.ru_utime + ru.ru_stime}
+    (out / "bench-timing.json").write_text(json.dumps(timing), encoding="utf-8")
+    return timing
+
+
+def table(out: Path, set_key: str) -> list[str]:
+    with (out / "runs.csv").open(encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    lines = section(rows, [set_key] if set_key else [])
+    sim_s = sum(float(r["sim_seconds"] or 0) for r in rows)
+    run_wall_s = sum(float(r["wall_s"] or 0) for r in rows)
+    lines += [
+        f"Runs: {len(rows)} ({sum(r['status'] == 'ok' for r in rows)} ok), "
+        f"{sim_s:,.0f} simulated s, {run_wall_s / max(sim_s, 1e-9) * 1000:.1f} ms of run "
+        f"wall per simulated second (each run's own wall time; {len(rows)} runs, "
+        f"mean {sim_s / max(len(rows), 1):.0f} simulated s a run).",
+    ]
+    timing_path = out / "bench-timing.json"
+    if timing_path.exists():
+        t = json.loads(timing_path.read_text(encoding="utf-8"))
+        lines.append(
+            f"Sweep: {t['wall_s'] / 60:.1f} min of wall, {t['cpu_s'] / 60:.1f} min of CPU "
+            f"(every process of the sweep), {t['cpu_s'] / max(sim_s, 1e-9) * 1000:.1f} ms of "
+            "CPU per simulated second."
+        )
+    return lines
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--worlds", type=int, default=200, help="worlds per kind (seeds 0..N-1)")
+    ap.add_argument("--kind", action="append", default=None, help="office, corridors, hall, ...")
+    ap.add_argument("--set", default="control.detour=false,true", help="the variant axis")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--out", type=Path, default=Path("robustness-out"))
+    ap.add_argument("--from", dest="src", type=Path, help="a sweep directory already run")
+    args = ap.parse_args()
+    args.kind = args.kind or ["office", "corridors"]
+    out = args.src or args.out
+    if args.src is None:
+        run_sweep(args, out)
+    set_key = args.set.split("=", 1)[0] if args.set else ""
+    print("\n".join(table(out, set_key)))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
