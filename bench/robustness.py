@@ -9,7 +9,8 @@ Runs `relayd sweep --generated KIND:N ... --seeds 1 --relays 2 --set AXIS --no-p
 the embedded LocalCluster (two workers: the development machine's two cores) and prints,
 per kind and setting, the clean share (relayd/sweep/robust.py: the leader arrived, the
 link held, no collision, every relay on the link rule) with its Wilson 95 % interval and
-the failures by category, then the sweep's wall time and what a simulated second cost.
+the failures by category, the five worst runs with their worlds drawn (DIR/plots/worst-K.png),
+then the sweep's wall time and what a simulated second cost.
 With `--from` it reads that directory's runs.csv (and the timing it wrote, when this
 script ran the sweep).
 """
@@ -45,7 +46,8 @@ def run_sweep(args: argparse.Namespace, out: Path) -> dict[str, float]:
 def table(out: Path, set_key: str) -> list[str]:
     with (out / "runs.csv").open(encoding="utf-8") as fh:
         rows = list(csv.DictReader(fh))
-    lines = section(rows, [set_key] if set_key else [])
+    (out / "plots").mkdir(exist_ok=True)
+    lines = section(rows, [set_key] if set_key else [], maps=out)
     sim_s = sum(float(r["sim_seconds"] or 0) for r in rows)
     run_wall_s = sum(float(r["wall_s"] or 0) for r in rows)
     lines += [

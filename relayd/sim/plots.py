@@ -107,6 +107,9 @@ def relay_thresholds(world: World, i: int) -> tuple[float, float]:
     return float(c.threshold_l_dbm), float(c.threshold_b_dbm)
 
 
+RELAY_COLORS = ("tab:blue", "tab:green", "tab:purple", "tab:orange", "tab:cyan")
+
+
 def plot_map(world: World, records: Sequence[dict[str, Any]], path: Path) -> None:
     """Walls, boxes, the command center, the leader's path and every relay's path, with
     a filled start marker, circles every 20 s labelled with their time (as in the paper's
@@ -137,17 +140,30 @@ def plot_map(world: World, records: Sequence[dict[str, Any]], path: Path) -> Non
             color="dimgray",
         )
     ax.plot(*world.cc, marker="s", color="black", ms=9, ls="", label="command center")
+    route = world.scenario.leader.waypoints
+    if len(route) > 1:
+        ax.plot(
+            [w.x for w in route],
+            [w.y for w in route],
+            color="red",
+            lw=1.0,
+            ls="--",
+            alpha=0.5,
+            label="leader's route (planned)",
+        )
+    if not records:  # the world alone: where the convoy starts
+        for i, body in enumerate(world.relays):
+            ax.plot(body.x_m, body.y_m, marker="o", color=RELAY_COLORS[i % 5], ms=7, ls="")
     if records:
         lx = [r["leader"]["x"] for r in records]
         ly = [r["leader"]["y"] for r in records]
         ax.plot(lx, ly, color="red", lw=1.5, label="leader")
         ax.plot(lx[0], ly[0], marker="o", color="red", ms=8, ls="", label="start")
         ax.plot(lx[-1], ly[-1], marker="*", color="red", ms=14, ls="")
-        colors = ["tab:blue", "tab:green", "tab:purple", "tab:orange", "tab:cyan"]
         for i, body in enumerate(world.relays):
             xs = [r["relays"][i]["x"] for r in records]
             ys = [r["relays"][i]["y"] for r in records]
-            c = colors[i % len(colors)]
+            c = RELAY_COLORS[i % len(RELAY_COLORS)]
             ax.plot(xs, ys, color=c, lw=1.5, label=body.name)
             ax.plot(xs[0], ys[0], marker="o", color=c, ms=8, ls="")
             ax.plot(xs[-1], ys[-1], marker="D", color=c, ms=7, ls="")

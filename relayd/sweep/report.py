@@ -141,7 +141,7 @@ def write_report(
         lines.append("")
     from relayd.sweep.robust import section
 
-    lines += section(rows, set_keys)
+    lines += section(rows, set_keys, maps=out if plots else None)
     path = out / "report.md"
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path

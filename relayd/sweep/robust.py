@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 from relayd.core.vocab import LINK_RULE_ENDS
@@ -84,7 +85,35 @@ def _by_setting(ok: Sequence[dict[str, Any]], set_keys: Sequence[str]) -> list[s
     return [*lines, ""]
 
 
-def section(rows: Sequence[dict[str, Any]], set_keys: Sequence[str] = ()) -> list[str]:
+def _repro_ref(row: dict[str, Any]) -> str:
+    ref = str(row["scenario"])
+    if ref.startswith("generated-"):
+        ref = "generated:" + ref.removeprefix("generated-").replace("-", ":", 1)
+    return ref
+
+
+def draw_world(row: dict[str, Any], path: Path) -> bool:
+    """The run's world (walls, boxes, the leader's planned route, the convoy's start) as a
+    map, for the report's worst runs; False when the scenario cannot be loaded here."""
+    from relayd.sim.plots import available, plot_map
+    from relayd.sim.scenario import ScenarioError, load_scenario
+    from relayd.sim.world import World
+
+    if not available():
+        return False
+    try:
+        scenario = load_scenario(_repro_ref(row))
+    except (ScenarioError, OSError):
+        return False
+    plot_map(World(scenario, int(row["seed"])), [], path)
+    return True
+
+
+def section(
+    rows: Sequence[dict[str, Any]], set_keys: Sequence[str] = (), maps: Path | None = None
+) -> list[str]:
+    """The report's robustness section; with `maps` (the report's folder) each worst run's
+    world is drawn to maps/plots/worst-K.png and shown under its line."""
     ok = [r for r in rows if r.get("status") == "ok" and _reasons(r)]
     if not ok:
         return []
@@ -111,15 +140,19 @@ def section(rows: Sequence[dict[str, Any]], set_keys: Sequence[str] = ()) -> lis
         "Worst runs (the failures, else all runs; lowest minimum end-to-end throughput first):",
         "",
     ]
-    for r in worst:
-        ref = str(r["scenario"])
-        if ref.startswith("generated-"):
-            ref = "generated:" + ref.removeprefix("generated-").replace("-", ":", 1)
+    for k, r in enumerate(worst, 1):
         setting = _setting(r, set_keys)
         lines.append(
             f"- {r['scenario']} seed {r['seed']}{', ' + setting if setting else ''} "
             f"({category(r)}): "
-            f"`relayd sim --scenario {ref} --relays {r['relays']} --seed {r['seed']}`"
+            f"`relayd sim --scenario {_repro_ref(r)} --relays {r['relays']} --seed {r['seed']}`"
             + (" with that setting in the scenario (--save-scenario, then edit)" if setting else "")
         )
+        png = Path("plots") / f"worst-{k}.png"
+        if maps is not None and draw_world(r, maps / png):
+            lines += [
+                "",
+                f"  ![{r['scenario']}: the world and the leader's route]({png.as_posix()})",
+                "",
+            ]
     return [*lines, ""]

@@ -88,3 +88,13 @@ def test_sweep_without_dask_names_the_extra_and_exits_2() -> None:
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
     assert out.returncode == 2, out.stderr
     assert "relayd[sweep]" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_worst_runs_come_with_their_world_drawn(tmp_path) -> None:
+    pytest.importorskip("matplotlib")
+    (tmp_path / "plots").mkdir()
+    rows = [_row(relay1_reason="leader_lost"), _row(seed=2)]
+    text = "\n".join(section(rows, maps=tmp_path))
+    assert "![generated-office-3: the world and the leader's route](plots/worst-1.png)" in text
+    assert (tmp_path / "plots" / "worst-1.png").stat().st_size > 10_000
+    assert not (tmp_path / "plots" / "worst-2.png").exists()  # one failure: one map
