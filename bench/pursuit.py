@@ -23,7 +23,7 @@ import argparse
 import collections
 import math
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -40,6 +40,22 @@ VARIANTS: dict[str, dict[str, object]] = {
     "detour": {"detour": True},
     "trail": {"pursuit": "trail", "detour": True},
 }
+#: Variants that change `[avoidance]` keys instead: the escape leaving by the lane test.
+AVOIDANCE: dict[str, dict[str, object]] = {"lane": {"leave_by_lane": True}}
+for _name in AVOIDANCE:
+    VARIANTS[_name] = {}
+
+
+def variant_of(sc: Any, variant: str, extra: Mapping[str, object]) -> Any:
+    """The scenario with the variant's `[control]` keys (over `extra`) and `[avoidance]` keys."""
+    return sc.model_copy(
+        update={
+            "control": {**sc.control, **extra, **VARIANTS[variant]},
+            "avoidance": {**sc.avoidance, **AVOIDANCE.get(variant, {})},
+        }
+    )
+
+
 PURSUITS = tuple(VARIANTS)
 
 
@@ -82,7 +98,7 @@ async def _one(scenario: str, seed: int, pursuit: str, calibrate: bool) -> list[
 
     sc = load_scenario(scenario)
     keys = calibrated(sc) if calibrate else {}
-    sc = sc.model_copy(update={"control": {**sc.control, **keys, **VARIANTS[pursuit]}})
+    sc = variant_of(sc, pursuit, keys)
     result = await SimRunner(sc, speed=None, seed=seed).run()
     last: dict[str, Any] = result.records[-1]
     return [
@@ -172,7 +188,7 @@ def _share_job(job: tuple[str, int]) -> list[float]:
     variant, seed = job
     setup_logging("error", "console", StdStream("stderr"))
     sc = policy_scenario("convoy", POLICIES[2], {"estimator": "lobe", "window": "adaptive"})
-    sc = sc.model_copy(update={"control": {**sc.control, **calibrated(sc), **VARIANTS[variant]}})
+    sc = variant_of(sc, variant, calibrated(sc))
     result = vtime.run(SimRunner(sc, speed=None, seed=seed).run())
     return [s.within for s in relay_shares(result.records)]
 

@@ -342,6 +342,11 @@ class AvoidanceSettings(_Section):
     door_pass: bool = False
     door_margin_m: Annotated[float, Field(ge=0.05, le=1.0)] = 0.2
     door_speed_mm_s: Annotated[float, Field(ge=20, le=400)] = 120.0
+    #: The escape leaves for the leader once the lane toward it (the robot's width plus
+    #: leave_lane_margin_m each side) is free of echoes for leave_clear_m, rather than once every
+    #: sonar near the leader's bearing sees that far (docs/AVOIDANCE.md). False: as before.
+    leave_by_lane: bool = False
+    leave_lane_margin_m: Annotated[float, Field(ge=0.0, le=0.5)] = 0.1
 
     @model_validator(mode="after")
     def _cross_key_rules(self) -> AvoidanceSettings:

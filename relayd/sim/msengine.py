@@ -125,6 +125,7 @@ class MobileSimRunner(SimRunner):
             control=control,
             scan=dict(self.scenario.scan),
             recovery=self._recovery_section(),
+            avoidance=self.scenario.avoidance,
         )
         devices = DeviceOverrides(
             rssi_source=rssi,

@@ -82,10 +82,12 @@ def relay_settings(
     control: dict[str, Any],
     scan: dict[str, Any],
     recovery: dict[str, Any] | None = None,
+    avoidance: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The config document (config/relayd.toml's sections and keys) of one simulated relay."""
     return {
         "recovery": dict(recovery or {}),
+        "avoidance": dict(avoidance or {}),
         "robot": {"port": robot_port, "baud": 9600},
         "pantilt": {
             "port": servo_port,
@@ -215,6 +217,7 @@ async def start_relay(
         control=control,
         scan=scenario.daemon_scan(),
         recovery=recovery,
+        avoidance=scenario.avoidance,
     )
     if record_dir is not None:
         doc["record"] = {"enabled": True, "path": str(record_dir / f"{body.name}.mcap")}

@@ -205,6 +205,8 @@ class Scenario(_Model):
     scan: dict[str, Any] = Field(default_factory=dict)
     #: Keys of the daemon's [recovery] section for every relay (the bench overrides enabled).
     recovery: dict[str, Any] = Field(default_factory=dict)
+    #: Keys of the daemon's [avoidance] section for every relay (unset: its defaults).
+    avoidance: dict[str, Any] = Field(default_factory=dict)
     #: An ARIA map the world was read from (relayd/sim/mapscenario.py; the resolved path).
     map: str | None = None
     #: The material of the map's LINES, and per-line exceptions.

@@ -23,7 +23,6 @@ from relayd.core.avoid.ring import (
     by_heading,
     choose_side,
     guard,
-    leader_clear,
     min_at,
     rear_min_m,
 )
@@ -38,7 +37,7 @@ from relayd.core.avoid.state import (
     enter,
     turn_cmd,
 )
-from relayd.core.avoid.wall import on_wall, proj_m
+from relayd.core.avoid.wall import on_wall, proj_m, way_open
 from relayd.core.control.actuator import Actuator
 from relayd.core.geometry import wrap_deg
 from relayd.core.scan.estimator import SONAR_MAX_RANGE_M
@@ -109,11 +108,7 @@ def _step(
 
 def _on_blocked(st: AvoidState, v: StepView) -> Verdict:
     s, p = v.s, v.p
-    if (
-        abs(s.bearing_deg) < 30.0
-        and leader_clear(v.r, s.bearing_deg, p.leave_clear_m)
-        and v.d_min_m > p.threshold_o_m
-    ):
+    if abs(s.bearing_deg) < 30.0 and way_open(v) and v.d_min_m > p.threshold_o_m:
         st = enter(
             AvoidState(), AvoidMode.FOLLOW, v.t, anchor=s.pose[:2], anchor_t=v.t, last_pose=s.pose
         )

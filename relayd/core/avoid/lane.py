@@ -8,6 +8,7 @@ distance and hands back to the paper's law (docs/AVOIDANCE.md).
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 from relayd.core.avoid.ring import (
     LATERAL_M,
@@ -15,6 +16,7 @@ from relayd.core.avoid.ring import (
     boundary_echo_m,
     echo_m,
     forward_min_m,
+    lane_clear,
     min_at,
     wall_fit,
 )
@@ -50,7 +52,7 @@ def maybe_lane(
         expected = boundary_echo_m(fit, st.side, st.side * h)
         if r.get(st.side * h, SONAR_MAX_RANGE_M) < expected - 0.15:
             return st
-    return enter(st, AvoidMode.LANE, t, lane_ref=s.pose)
+    return enter(st, AvoidMode.LANE, t, lane_ref=s.pose, lane_beside=False)
 
 
 def lane_step(
@@ -75,6 +77,28 @@ def lane_step(
         and min_at(r, tuple(w * h for h in (90.0, 50.0, 30.0))) > p.leave_clear_m
         and min(rear_abeam, default=SONAR_MAX_RANGE_M) > p.leave_clear_m
     )
+    if p.leave_by_lane and not passed:
+        # In a corridor the obstacle side's far wall may never be leave_clear_m away: past
+        # it once nothing is abeam on that side within the robot's own width, front or
+        # back, and the lane to the leader is free (ring.lane_clear).
+        beside = min([r.get(w * 90.0, SONAR_MAX_RANGE_M), *rear_abeam]) <= 2.0 * HALF_WIDTH_M
+        if beside and not st.lane_beside:
+            st = replace(st, lane_beside=True)
+        passed = (
+            st.lane_beside
+            and not beside
+            and lane_clear(r, s.bearing_deg, p.leave_clear_m, HALF_WIDTH_M + p.leave_lane_margin_m)
+        )
+        if passed:
+            return enter(
+                st,
+                AvoidMode.FOLLOW,
+                t,
+                lane_ref=None,
+                lane_beside=False,
+                anchor=s.pose[:2],
+                anchor_t=t,
+            ), AvoidCommand(True)
     if passed and forward_min_m(s.sonar) >= p.threshold_o_m:
         # Out of the gap and clear of its sides: the paper's law takes over, turning
         # gently onto the leader as it drives.

@@ -27,6 +27,8 @@ LATERAL_M: dict[float, float] = {p.heading_deg: abs(p.y_mm) / 1000.0 for p in SO
 POSE_M: dict[float, tuple[float, float]] = {
     p.heading_deg: (p.x_mm / 1000.0, p.y_mm / 1000.0) for p in SONAR_POSES[:8]
 }
+#: Side echoes within this (m) are fitted as a boundary alongside (lane_clear).
+SIDE_FIT_M = 1.5
 #: From the centre of rotation back to the rear corners.
 REAR_M = HALF_LENGTH_M
 #: Clearance kept between the swept circle of a turn in place and any echo.
@@ -181,6 +183,53 @@ def leader_clear(
             # The leader abeam, beyond an opening (a door) the abeam sonar sees through.
             return r.get(wall_side * 90.0, SONAR_MAX_RANGE_M) > clear_m
         return min_at(r, tuple(wall_side * h for h in (90.0, 50.0, 30.0))) > clear_m
+    return True
+
+
+def lane_clear(
+    r: dict[float, float], bearing_deg: float, clear_m: float, half_width_m: float
+) -> bool:
+    """No echo in the lane the robot would drive toward the leader: `clear_m` long ahead of
+    the centre along the bearing, `half_width_m` each side of its axis. Unlike
+    leader_clear, a wall running along the way (a 2 m corridor's side, 0.65 m off) is
+    beside the lane, not in it.
+
+    A sonar reports the nearest echo anywhere in its 30 degree cone. An echo that a
+    boundary fitted on its side explains (what the sonar would read off that line and
+    nothing else, as `boundary_echo_m` works it out) is that line, and the line is what
+    is tested against the lane. Any other echo is taken at every angle across its beam,
+    except where a neighbour whose cone covers that angle saw further."""
+    if abs(bearing_deg) > 100.0:
+        return False
+    b = math.radians(bearing_deg)
+    ux, uy = math.cos(b), math.sin(b)
+    explained: set[float] = set()
+    for w in (1, -1):
+        fit = wall_fit(r, w, SIDE_FIT_M, edge=True)
+        if fit is None:
+            continue
+        mine = [w * h for h in (90.0, 50.0, 30.0) if w * h in r]
+        explained.update(h for h in mine if abs(r[h] - boundary_echo_m(fit, w, h)) < 0.1)
+        lat, angle = fit
+        a = math.radians(angle)
+        nx, ny = -w * math.sin(a), w * math.cos(a)  # unit normal toward the boundary
+        spread = half_width_m * abs(-uy * nx + ux * ny)
+        steps = max(1, math.ceil(clear_m / 0.05))
+        if any((nx * ux + ny * uy) * clear_m * k / steps + spread >= lat for k in range(steps + 1)):
+            return False
+    for h, d in r.items():
+        if d >= SONAR_MAX_RANGE_M or h in explained:
+            continue
+        x0, y0 = POSE_M.get(h, (0.0, 0.0))
+        for k in (-15.0, -7.5, 0.0, 7.5, 15.0):
+            a = h + k
+            if any(abs(a - h2) <= 15.0 and d2 > d + 0.1 for h2, d2 in r.items() if h2 != h):
+                continue  # a neighbour saw through there
+            x = x0 + d * math.cos(math.radians(a))
+            y = y0 + d * math.sin(math.radians(a))
+            along, across = x * ux + y * uy, -x * uy + y * ux
+            if 0.0 < along <= clear_m and abs(across) < half_width_m:
+                return False
     return True
 
 

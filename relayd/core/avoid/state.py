@@ -92,6 +92,12 @@ class AvoidParams:
     #: stop in a narrow door and the escape goes round it.
     door_pass: bool = False
     door_margin_m: float = 0.2
+    #: The escape leaves for the leader when the lane toward it (the robot's width plus
+    #: leave_lane_margin_m each side, leave_clear_m long) holds no echo (ring.lane_clear), not
+    #: only when every sonar within 25 degrees of it sees beyond leave_clear_m (a corridor
+    #: wall 0.65 m off fails that for ever, and the escape follows the corridor to its end).
+    leave_by_lane: bool = False
+    leave_lane_margin_m: float = 0.1
     door_side_m: float = 0.8
     door_ahead_m: float = 0.6
     door_bearing_deg: float = 40.0
@@ -125,6 +131,7 @@ class AvoidState:
     after_backoff: AvoidMode = AvoidMode.TURN  # where a back-off hands over
     unjam: bool = False  # this back-off makes room to turn: it runs its length whatever is ahead
     lane_ref: tuple[float, float, float] | None = None  # pose where the lane change began
+    lane_beside: bool = False  # LANE (leave_by_lane): the obstacle has been abeam
     mode_heading_deg: float = 0.0  # odometry heading when the current mode began
     had_wall: bool = False  # WALL: the boundary has been in reach since WALL began
     opening_at: tuple[float, float] | None = None  # WALL: where an opening abeam began

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
-from relayd.core.avoid.ring import LATERAL_M, leader_clear, min_at, wall_fit
+from relayd.core.avoid.ring import LATERAL_M, lane_clear, leader_clear, min_at, wall_fit
 from relayd.core.avoid.state import (
     AvoidCommand,
     AvoidMode,
@@ -47,9 +47,7 @@ def on_wall(st: AvoidState, v: StepView) -> Verdict:
             return st, drive_cmd(act, s, p, p.wall_speed_mm_s, 0.0)
     else:
         st = replace(st, opening_at=None)
-    if progress > (p.door_progress_m if door else p.leave_progress_m) and leader_clear(
-        r, s.bearing_deg, p.leave_clear_m, w
-    ):
+    if progress > (p.door_progress_m if door else p.leave_progress_m) and way_open(v, w):
         st = enter(st, AvoidMode.ALIGN, t)
         if abs(s.bearing_deg) <= p.align_tol_deg:
             st = enter(st, AvoidMode.FOLLOW, t, anchor=s.pose[:2], anchor_t=t)
@@ -88,6 +86,14 @@ def on_wall(st: AvoidState, v: StepView) -> Verdict:
     rvel = p.wall_angle_gain * angle + w * p.wall_gain_deg_s_per_m * (lateral - target)
     rvel = max(-p.turn_rate_deg_s, min(p.turn_rate_deg_s, rvel))
     return st, drive_cmd(act, s, p, p.wall_speed_mm_s, rvel)
+
+
+def way_open(v: StepView, w: int = 0) -> bool:
+    """The escape may leave for the leader: its way is open (AvoidParams.leave_by_lane)."""
+    p, r, bearing = v.p, v.r, v.s.bearing_deg
+    if p.leave_by_lane and abs(bearing) < 60.0:
+        return lane_clear(r, bearing, p.leave_clear_m, HALF_WIDTH_M + p.leave_lane_margin_m)
+    return leader_clear(r, bearing, p.leave_clear_m, w)
 
 
 def corner(st: AvoidState, v: StepView, w: int) -> Verdict:
