@@ -39,11 +39,10 @@ VARIANTS: dict[str, dict[str, object]] = {
     "default": {},
     "detour": {"detour": True},
     "trail": {"pursuit": "trail", "detour": True},
+    "lane": {},  # [avoidance] keys only, below
 }
-#: Variants that change `[avoidance]` keys instead: the escape leaving by the lane test.
+#: Each variant's `[avoidance]` keys: "lane" is the escape leaving by the lane test.
 AVOIDANCE: dict[str, dict[str, object]] = {"lane": {"leave_by_lane": True}}
-for _name in AVOIDANCE:
-    VARIANTS[_name] = {}
 
 
 def variant_of(sc: Any, variant: str, extra: Mapping[str, object]) -> Any:
@@ -214,7 +213,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--per-run", action="store_true", help="also print every relay-run")
     ap.add_argument("--calibrated", action="store_true", help="path-loss keys from the radio")
     ap.add_argument("--jobs", type=int, default=2, help="worker processes")
-    ap.add_argument("--variants", nargs="*", default=list(PURSUITS), choices=PURSUITS)
+    ap.add_argument(
+        "--variants", nargs="*", default=["default", "detour", "trail"], choices=PURSUITS
+    )
     ap.add_argument(
         "--convoy-share",
         action="store_true",

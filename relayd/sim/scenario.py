@@ -386,8 +386,14 @@ def _pattern_problems(data: dict[str, Any]) -> list[str]:
 
 
 def _daemon_sections(data: dict[str, Any]) -> list[str]:
-    """`control`, `scan` and `recovery` tables (and each relay's `control`) checked as the daemon will check them."""
-    from relayd.config.model import ControlSettings, RecoverySettings, ScanSettings
+    """`control`, `scan`, `recovery` and `avoidance` tables (and each relay's `control`)
+    checked as the daemon will check them."""
+    from relayd.config.model import (
+        AvoidanceSettings,
+        ControlSettings,
+        RecoverySettings,
+        ScanSettings,
+    )
 
     out: list[str] = []
     base = _dict(data.get("control"))
@@ -399,6 +405,7 @@ def _daemon_sections(data: dict[str, Any]) -> list[str]:
             {k: v for k, v in _dict(data.get("scan")).items() if k != "pattern"},
         ),
         ("recovery", RecoverySettings, _dict(data.get("recovery"))),
+        ("avoidance", AvoidanceSettings, _dict(data.get("avoidance"))),
     )
     for key, model, doc in sections:
         try:

@@ -105,7 +105,8 @@ def draw_world(row: dict[str, Any], path: Path) -> bool:
         scenario = load_scenario(_repro_ref(row))
     except (ScenarioError, OSError):
         return False
-    plot_map(World(scenario, int(row["seed"])), [], path)
+    # The run's relay count; its --set values are daemon keys and change nothing drawn.
+    plot_map(World(scenario.with_relays(int(row["relays"])), int(row["seed"])), [], path)
     return True
 
 

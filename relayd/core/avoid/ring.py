@@ -205,11 +205,17 @@ def lane_clear(
     ux, uy = math.cos(b), math.sin(b)
     explained: set[float] = set()
     for w in (1, -1):
+        mine = [w * h for h in (90.0, 50.0, 30.0) if r.get(w * h, SONAR_MAX_RANGE_M) <= SIDE_FIT_M]
+        for h in mine:
+            # Explained by the boundary the side's *other* echoes show: a lone echo (a box
+            # corner) is never its own wall.
+            others = {k: v for k, v in r.items() if k != h}
+            fit = wall_fit(others, w, SIDE_FIT_M, edge=True)
+            if fit is not None and abs(r[h] - boundary_echo_m(fit, w, h)) < 0.1:
+                explained.add(h)
         fit = wall_fit(r, w, SIDE_FIT_M, edge=True)
-        if fit is None:
+        if fit is None or not explained.intersection(mine):
             continue
-        mine = [w * h for h in (90.0, 50.0, 30.0) if w * h in r]
-        explained.update(h for h in mine if abs(r[h] - boundary_echo_m(fit, w, h)) < 0.1)
         lat, angle = fit
         a = math.radians(angle)
         nx, ny = -w * math.sin(a), w * math.cos(a)  # unit normal toward the boundary

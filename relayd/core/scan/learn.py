@@ -169,7 +169,8 @@ class PatternLearner:
         raw = list(self._mean)
         seen = [i for i in range(n) if covered[i]]
         if not seen:
-            return list(self._mean), covered
+            # Nothing covered yet: the prior, not one or two raw samples in some bins.
+            return list(self._prior), covered
         max_gap = round(self.params.gap_fill_deg / self.params.bin_deg)
         filled = list(covered)
         for a, b in zip(seen, seen[1:] + seen[:1], strict=True):
