@@ -20,12 +20,13 @@ HEADINGS = (-90.0, -50.0, -30.0, -10.0, 10.0, 30.0, 50.0, 90.0)
 LANE_HALF_M = HALF_WIDTH_M + AvoidParams().leave_lane_margin_m
 
 
-def _cone_range(
-    h: float, walls_y: tuple[float, float], box: tuple[float, float, float] | None
-) -> float:
+#: A box in the robot frame: (centre x, centre y, half side), m.
+Post = tuple[float, float, float]
+
+
+def _cone_range(h: float, walls_y: tuple[float, float], post: Post | None) -> float:
     """The nearest echo across sonar h's 30 degree cone: two walls parallel to the heading
-    at y = walls_y (robot frame, m) and optionally a box face across the way at x = box[0]
-    spanning y box[1]..box[2]."""
+    at y = walls_y (robot frame, m) and optionally a square post."""
     x0, y0 = POSE_M[h]
     best = 5.0
     for k in range(-15, 16):
@@ -34,17 +35,25 @@ def _cone_range(
         for wy in walls_y:
             if s * (wy - y0) > 0:
                 best = min(best, (wy - y0) / s)
-        if box is not None and c > 0:
-            d = (box[0] - x0) / c
-            if box[1] <= y0 + d * s <= box[2]:
+        if post is None:
+            continue
+        cx, cy, half = post
+        for fx in (cx - half, cx + half):
+            if abs(c) > 1e-9 and (d := (fx - x0) / c) > 0 and abs(y0 + d * s - cy) <= half:
+                best = min(best, d)
+        for fy in (cy - half, cy + half):
+            if abs(s) > 1e-9 and (d := (fy - y0) / s) > 0 and abs(x0 + d * c - cx) <= half:
                 best = min(best, d)
     return best
 
 
-def _ring(y_offset_m: float, box: tuple[float, float, float] | None = None) -> dict[float, float]:
-    """The front ring in a 2 m corridor, the robot `y_offset_m` left of its middle."""
-    walls = (1.0 - y_offset_m, -1.0 - y_offset_m)
-    return {h: round(_cone_range(h, walls, box), 3) for h in HEADINGS}
+def _ring(
+    y_offset_m: float, post: Post | None = None, half_width_m: float = 1.0
+) -> dict[float, float]:
+    """The front ring in a corridor `2 half_width_m` wide, the robot `y_offset_m` left of
+    its middle."""
+    walls = (half_width_m - y_offset_m, -half_width_m - y_offset_m)
+    return {h: round(_cone_range(h, walls, post), 3) for h in HEADINGS}
 
 
 @pytest.mark.parametrize("bearing", [-8.0, 0.0, 8.0])
@@ -61,10 +70,10 @@ def test_a_corridor_wall_beside_the_way_is_not_in_the_lane(bearing: float) -> No
 
 @pytest.mark.parametrize("y_box", [-0.3, 0.0, 0.3])
 def test_a_box_in_the_way_closes_the_lane(y_box: float) -> None:
-    r = _ring(0.0, box=(1.0, y_box - 0.25, y_box + 0.25))
+    r = _ring(0.0, post=(1.25, y_box, 0.25))
     assert not lane_clear(r, 0.0, 1.2, LANE_HALF_M)
     # Beyond clear_m it does not.
-    far = _ring(0.0, box=(1.8, y_box - 0.25, y_box + 0.25))
+    far = _ring(0.0, post=(2.05, y_box, 0.25))
     assert lane_clear(far, 0.0, 1.2, LANE_HALF_M)
 
 
@@ -85,26 +94,7 @@ def test_an_obstacle_in_the_lane_always_closes_it(
     b = math.radians(bearing)
     cx = along_m * math.cos(b) - across_m * math.sin(b)
     cy = along_m * math.sin(b) + across_m * math.cos(b)
-    h = side_m / 2.0
-    walls = (1.0, -1.0) if corridor else (50.0, -50.0)
-    r = {}
-    for k in HEADINGS:
-        x0, y0 = POSE_M[k]
-        best = 5.0
-        for j in range(-15, 16):
-            a = math.radians(k + j)
-            c, s = math.cos(a), math.sin(a)
-            for wy in walls:
-                if s * (wy - y0) > 0:
-                    best = min(best, (wy - y0) / s)
-            # The post's four faces.
-            for fx in (cx - h, cx + h):
-                if abs(c) > 1e-9 and (d := (fx - x0) / c) > 0 and abs(y0 + d * s - cy) <= h:
-                    best = min(best, d)
-            for fy in (cy - h, cy + h):
-                if abs(s) > 1e-9 and (d := (fy - y0) / s) > 0 and abs(x0 + d * c - cx) <= h:
-                    best = min(best, d)
-        r[k] = round(best, 3)
+    r = _ring(0.0, post=(cx, cy, side_m / 2.0), half_width_m=1.0 if corridor else 50.0)
     if min(r.values()) < 0.05:
         return  # the post is on a transducer: not a pose the robot can be in
     assert not lane_clear(r, bearing, 1.2, LANE_HALF_M), r
@@ -162,5 +152,5 @@ def test_leave_by_lane_reaches_the_escape_from_config_and_from_a_scenario() -> N
     assert parse_scenario({**base, "avoidance": {"leave_by_lane": True}}).avoidance == {
         "leave_by_lane": True
     }
-    with pytest.raises(ScenarioError, match="avoidance.leave_by_lan"):
+    with pytest.raises(ScenarioError, match=r"avoidance\.leave_by_lan"):
         parse_scenario({**base, "avoidance": {"leave_by_lan": True}})
