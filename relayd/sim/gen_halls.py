@@ -43,97 +43,123 @@ def _apart(box: Box, others: list[Box], gap_m: float) -> bool:
     )
 
 
-def _pillars(rng: random.Random, x0: float, x1: float, half_h: float, boxes: list[Box]) -> None:
-    spacing = rng.uniform(5.0, 8.0)
-    side = _r(rng.uniform(0.4, 0.8))
-    x = x0 + spacing / 2 + 1.0
-    while x + side < x1 - 2.0:
-        y = -half_h + spacing / 2
-        while y + side < half_h - 2.0:
-            box = ((_r(x), _r(y)), (_r(x + side), _r(y + side)))
+def _pillars(
+    rng: random.Random, x0_m: float, x1_m: float, half_depth_m: float, boxes: list[Box]
+) -> None:
+    spacing_m = rng.uniform(5.0, 8.0)
+    side_m = _r(rng.uniform(0.4, 0.8))
+    x = x0_m + spacing_m / 2 + 1.0
+    while x + side_m < x1_m - 2.0:
+        y = -half_depth_m + spacing_m / 2
+        while y + side_m < half_depth_m - 2.0:
+            box = ((_r(x), _r(y)), (_r(x + side_m), _r(y + side_m)))
             if _apart(box, boxes, GAP_M):
                 boxes.append(box)
-            y += spacing
-        x += spacing
+            y += spacing_m
+        x += spacing_m
 
 
 def _furniture(
-    rng: random.Random, x0: float, x1: float, half_h: float, boxes: list[Box], count: int
+    rng: random.Random, x0_m: float, x1_m: float, half_depth_m: float, boxes: list[Box], count: int
 ) -> None:
     for _ in range(count):
         w, d = _r(rng.uniform(0.6, 1.6)), _r(rng.uniform(0.6, 1.0))
-        x = _r(rng.uniform(x0 + GAP_M, x1 - GAP_M - w))
-        y = _r(rng.uniform(-half_h + GAP_M, half_h - GAP_M - d))
+        x = _r(rng.uniform(x0_m + GAP_M, x1_m - GAP_M - w))
+        y = _r(rng.uniform(-half_depth_m + GAP_M, half_depth_m - GAP_M - d))
         box = ((x, y), (_r(x + w), _r(y + d)))
         if _apart(box, boxes, GAP_M):
             boxes.append(box)
 
 
-def _racks(rng: random.Random, x0: float, x1: float, half_h: float, boxes: list[Box]) -> Point:
+def _racks(
+    rng: random.Random, x0_m: float, x1_m: float, half_depth_m: float, boxes: list[Box]
+) -> Point:
     """Racks running north-south between cross aisles; the goal, in one of the last aisles."""
-    depth = _r(rng.uniform(1.0, 1.4))
-    cross = (_r(rng.uniform(2.0, 3.5)), _r(rng.uniform(2.0, 3.5)))
-    y0, y1 = _r(-half_h + cross[0]), _r(half_h - cross[1])
-    x = x0 + 3.0  # room to come in through the door before the first rack
+    rack_depth_m = _r(rng.uniform(1.0, 1.4))
+    cross_m = (_r(rng.uniform(2.0, 3.5)), _r(rng.uniform(2.0, 3.5)))
+    y0_m, y1_m = _r(-half_depth_m + cross_m[0]), _r(half_depth_m - cross_m[1])
+    x = x0_m + 3.0  # room to come in through the door before the first rack
     aisles: list[tuple[float, float]] = []
     while True:
-        aisle = _r(rng.uniform(1.5, 4.0))
-        if x + depth + aisle + depth > x1 - 3.0:
+        aisle_m = _r(rng.uniform(1.5, 4.0))
+        if x + rack_depth_m + aisle_m + rack_depth_m > x1_m - 3.0:
             break
-        boxes.append(((_r(x), y0), (_r(x + depth), y1)))
-        aisles.append((x + depth, x + depth + aisle))
-        x += depth + aisle
-    boxes.append(((_r(x), y0), (_r(x + depth), y1)))
+        boxes.append(((_r(x), y0_m), (_r(x + rack_depth_m), y1_m)))
+        aisles.append((x + rack_depth_m, x + rack_depth_m + aisle_m))
+        x += rack_depth_m + aisle_m
+    boxes.append(((_r(x), y0_m), (_r(x + rack_depth_m), y1_m)))
     a, b = rng.choice(aisles[-3:])
-    return _r((a + b) / 2), _r(rng.uniform(y0 + 0.25 * (y1 - y0), y1 - 0.25 * (y1 - y0)))
+    return _r((a + b) / 2), _r(
+        rng.uniform(y0_m + 0.25 * (y1_m - y0_m), y1_m - 0.25 * (y1_m - y0_m))
+    )
 
 
 def building(rng: random.Random, sections: list[str], loss: dict[str, float]) -> dict[str, object]:
     """One world of the given sections ("hall" or "racks") east of the entrance corridor
     (the generator's world dict; see generate._office)."""
-    w0 = rng.choice([1.5, 2.0, 2.5, 3.0])
-    x0 = _r(rng.uniform(8.0, 14.0))
-    half_h = _r(rng.uniform(7.0, 13.0))
+    entry_w_m = rng.choice([1.5, 2.0, 2.5, 3.0])
+    x0_m = _r(rng.uniform(8.0, 14.0))
+    half_depth_m = _r(rng.uniform(7.0, 13.0))
     outer = rng.choice(["brick", "concrete"])
     inner = rng.choice(["light", "brick", "light"])
     alone = len(sections) == 1
     lengths = [
         _r(rng.uniform(*(HALL_M if s == "hall" else RACKS_M)[0 if alone else 1])) for s in sections
     ]
-    edges = [x0]
+    edges = [x0_m]
     for length in lengths:
         edges.append(_r(edges[-1] + length))
-    x_end = edges[-1]
+    x_end_m = edges[-1]
     walls: list[tuple[list[Point], str]] = []
     doors: list[tuple[Point, Point]] = []
     # The entrance corridor, then the shell round the sections.
-    corridor = [(x0, _r(-w0 / 2)), (WEST_M, _r(-w0 / 2)), (WEST_M, _r(w0 / 2)), (x0, _r(w0 / 2))]
+    corridor = [
+        (x0_m, _r(-entry_w_m / 2)),
+        (WEST_M, _r(-entry_w_m / 2)),
+        (WEST_M, _r(entry_w_m / 2)),
+        (x0_m, _r(entry_w_m / 2)),
+    ]
     walls.append((corridor, outer))
-    walls.append(([(x0, -half_h), (x_end, -half_h), (x_end, half_h), (x0, half_h)], outer))
+    walls.append(
+        (
+            [
+                (x0_m, -half_depth_m),
+                (x_end_m, -half_depth_m),
+                (x_end_m, half_depth_m),
+                (x0_m, half_depth_m),
+            ],
+            outer,
+        )
+    )
     # Each section's west wall with its doorway: from the corridor, or at a drawn height.
     keep: list[Box] = []
-    for k, xa in enumerate(edges[:-1]):
+    for k, xa_m in enumerate(edges[:-1]):
         if k == 0:
-            dw = _r(rng.uniform(0.8, min(1.4, w0 - 0.2)))
-            dy = _r(rng.uniform(-w0 / 2 + 0.1, w0 / 2 - 0.1 - dw))
+            door_w_m = _r(rng.uniform(0.8, min(1.4, entry_w_m - 0.2)))
+            door_y_m = _r(rng.uniform(-entry_w_m / 2 + 0.1, entry_w_m / 2 - 0.1 - door_w_m))
         else:
-            dw = _r(rng.uniform(0.8, 1.4))
-            dy = _r(rng.uniform(-half_h + 2.0, half_h - 2.0 - dw))
+            door_w_m = _r(rng.uniform(0.8, 1.4))
+            door_y_m = _r(rng.uniform(-half_depth_m + 2.0, half_depth_m - 2.0 - door_w_m))
         material = outer if k == 0 else inner
-        walls.append(([(xa, -half_h), (xa, dy)], material))
-        walls.append(([(xa, _r(dy + dw)), (xa, half_h)], material))
-        doors.append(((xa, dy), (xa, _r(dy + dw))))
+        walls.append(([(xa_m, -half_depth_m), (xa_m, door_y_m)], material))
+        walls.append(([(xa_m, _r(door_y_m + door_w_m)), (xa_m, half_depth_m)], material))
+        doors.append(((xa_m, door_y_m), (xa_m, _r(door_y_m + door_w_m))))
         # No furniture in front of a doorway, on either side.
-        keep.append(((_r(xa - 2.5), _r(dy - 0.5)), (_r(xa + 2.5), _r(dy + dw + 0.5))))
+        keep.append(
+            ((_r(xa_m - 2.5), _r(door_y_m - 0.5)), (_r(xa_m + 2.5), _r(door_y_m + door_w_m + 0.5)))
+        )
     boxes: list[Box] = list(keep)
     goal: Point = (0.0, 0.0)
-    for kind, xa, xb in zip(sections, edges[:-1], edges[1:], strict=True):
+    for kind, xa_m, xb_m in zip(sections, edges[:-1], edges[1:], strict=True):
         if kind == "hall":
-            _pillars(rng, xa, xb, half_h, boxes)
-            _furniture(rng, xa, xb, half_h, boxes, rng.randint(3, 7))
-            goal = (_r(xb - rng.uniform(2.0, 4.0)), _r(rng.uniform(-half_h + 2.0, half_h - 2.0)))
+            _pillars(rng, xa_m, xb_m, half_depth_m, boxes)
+            _furniture(rng, xa_m, xb_m, half_depth_m, boxes, rng.randint(3, 7))
+            goal = (
+                _r(xb_m - rng.uniform(2.0, 4.0)),
+                _r(rng.uniform(-half_depth_m + 2.0, half_depth_m - 2.0)),
+            )
         else:
-            goal = _racks(rng, xa, xb, half_h, boxes)
+            goal = _racks(rng, xa_m, xb_m, half_depth_m, boxes)
     return {
         "walls": walls,
         "doors": doors,
