@@ -8,6 +8,7 @@ every relay ended on the link rule. It reads runs.csv's per-relay columns (<rela
 from __future__ import annotations
 
 import math
+import re
 from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
@@ -59,6 +60,18 @@ def kind(row: dict[str, Any]) -> str:
     return name
 
 
+def _natural(text: str) -> list[tuple[int, float | str]]:
+    """A sort key that orders numbers by value ("=9" before "=10", "-75" before "-70")."""
+    parts = re.findall(r"-?\d+(?:\.\d+)?|[^-\d]+|-", text)
+    out: list[tuple[int, float | str]] = []
+    for p in parts:
+        try:
+            out.append((0, float(p)))
+        except ValueError:
+            out.append((1, p))
+    return out
+
+
 def _by_setting(ok: Sequence[dict[str, Any]], set_keys: Sequence[str]) -> list[str]:
     """One row per combination of `--set` values (per generated kind, when the sweep has
     more than one): the laws side by side on the same worlds."""
@@ -74,7 +87,7 @@ def _by_setting(ok: Sequence[dict[str, Any]], set_keys: Sequence[str]) -> list[s
         "| setting | clean | Wilson 95 % | " + " | ".join(cats) + " |",
         "|---|---|---|" + "---|" * len(cats),
     ]
-    for name, rs in sorted(groups.items()):
+    for name, rs in sorted(groups.items(), key=lambda kv: _natural(kv[0])):
         k = sum(category(r) == "clean" for r in rs)
         lo, hi = wilson(k, len(rs))
         counts = Counter(category(r) for r in rs)

@@ -98,3 +98,12 @@ def test_worst_runs_come_with_their_world_drawn(tmp_path) -> None:
     assert "![generated-office-3: the world and the leader's route](plots/worst-1.png)" in text
     assert (tmp_path / "plots" / "worst-1.png").stat().st_size > 10_000
     assert not (tmp_path / "plots" / "worst-2.png").exists()  # one failure: one map
+
+
+def test_settings_are_listed_in_numeric_order() -> None:
+    rows = [
+        _row(seed=k, **{"control.threshold_b_dbm": v}) for k, v in enumerate(("-70", "-75", "-8"))
+    ]
+    text = "\n".join(section(rows, ["control.threshold_b_dbm"]))
+    at = [text.index(f"control.threshold_b_dbm={v} |") for v in ("-75", "-70", "-8")]
+    assert at == sorted(at)
