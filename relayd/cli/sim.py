@@ -406,7 +406,9 @@ async def _run(args: argparse.Namespace) -> int:
                 encoding="utf-8",
             )
             if plots:
-                sim_plots.plot_throughput(
+                from relayd.sim.plots_throughput import plot_throughput
+
+                plot_throughput(
                     runs,
                     out / "throughput.png",
                     f"{scenario.name}: end-to-end throughput by number of relays",

@@ -27,7 +27,7 @@ def available() -> bool:
     return True
 
 
-def _plt() -> Any:
+def pyplot() -> Any:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -114,7 +114,7 @@ def plot_map(world: World, records: Sequence[dict[str, Any]], path: Path) -> Non
     """Walls, boxes, the command center, the leader's path and every relay's path, with
     a filled start marker, circles every 20 s labelled with their time (as in the paper's
     convoy figure) and the goal; the legend sits outside the map."""
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(9.5, 6))
     for w in world.walls:
         ax.plot(
@@ -258,7 +258,7 @@ def plot_rssi_bearing(
 ) -> None:
     """Per relay: RSSI$^l$ and RSSI$^b$ over time with the thresholds, and the estimated
     vs true bearing; the relay's drive state shaded behind both, its stop reason hatched."""
-    plt = _plt()
+    plt = pyplot()
     n = len(records[0]["relays"]) if records else 0
     fig, axes = plt.subplots(max(1, n), 2, figsize=(11, 3.4 * max(1, n)), squeeze=False)
     t = [r["t"] for r in records]
@@ -308,7 +308,7 @@ def plot_paths(
     beside the plot."""
     from matplotlib.ticker import MaxNLocator
 
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(8, 6))
     xs_all: list[float] = []
     ys_all: list[float] = []
@@ -336,66 +336,10 @@ def plot_paths(
     save(fig, path, dpi=110, bbox_inches="tight")
 
 
-def plot_throughput(
-    runs: Sequence[tuple[str, Sequence[dict[str, Any]]]], path: Path, title: str
-) -> None:
-    """End-to-end throughput over time; several runs (e.g. 0/1/2 relays) on one axis."""
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(9, 4))
-    for label, records in runs:
-        ax.plot([r["t"] for r in records], [r["e2e_mbps"] for r in records], label=label)
-    _finish_throughput(fig, ax, title, path)
-
-
-def plot_throughput_bands(
-    curves: Sequence[tuple[str, Sequence[float], Sequence[float], Sequence[float]]],
-    path: Path,
-    title: str,
-    marks: Sequence[tuple[float, str]] = (),
-    hlines: Sequence[tuple[float, str]] = (),
-) -> None:
-    """Paper-style throughput over time for several seeds: per curve (label, t, mean, sd)
-    a mean line and a +-1 sd band (clipped at 0 Mbps); `marks` are labelled vertical
-    lines (e.g. when the leader passes a corner), `hlines` labelled horizontal ones."""
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(9, 4))
-    for x, label in marks:
-        ax.axvline(x, color="grey", ls="--", lw=0.8)
-        ax.annotate(
-            label,
-            (x, 1.0),
-            xycoords=("data", "axes fraction"),
-            xytext=(3, -12),
-            textcoords="offset points",
-            fontsize=8,
-            color="dimgrey",
-        )
-    for y, label in hlines:
-        ax.axhline(y, color="grey", ls=":", lw=0.8)
-        ax.annotate(
-            label,
-            (0.0, y),
-            xycoords=("axes fraction", "data"),
-            xytext=(3, 2),
-            textcoords="offset points",
-            fontsize=8,
-            color="dimgrey",
-        )
-    for label, t, mean, sd in curves:
-        (line,) = ax.plot(t, mean, label=label)
-        ax.fill_between(
-            t,
-            [max(0.0, m - s) for m, s in zip(mean, sd, strict=True)],
-            [m + s for m, s in zip(mean, sd, strict=True)],
-            color=line.get_color(),
-            alpha=0.2,
-            lw=0,
-        )
-    _finish_throughput(fig, ax, title, path)
-
-
 def write_run_plots(world: World, records: Sequence[dict[str, Any]], out: Path) -> list[Path]:
     """The standard figures of one run into `out`; returns the files written."""
+    from relayd.sim.plots_throughput import plot_throughput
+
     out.mkdir(parents=True, exist_ok=True)
     files = [out / "map.png", out / "throughput.png"]
     plot_map(world, records, files[0])
@@ -410,15 +354,3 @@ def write_run_plots(world: World, records: Sequence[dict[str, Any]], out: Path) 
             records, files[-1], [relay_thresholds(world, i) for i in range(len(world.relays))]
         )
     return files
-
-
-def _finish_throughput(fig: Any, ax: Any, title: str, path: Path) -> None:
-    """The axes, title, legend and file every throughput-over-time plot shares."""
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("end-to-end throughput (Mbps)")
-    ax.set_ylim(bottom=0)
-    ax.set_title(title)
-    ax.legend()
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    save(fig, path, dpi=100)

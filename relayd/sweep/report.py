@@ -76,7 +76,7 @@ def _slug(text: str) -> str:
 def plot_cell(
     out: Path, title: str, by_relays: dict[int, list[dict[str, list[float]]]], path: Path
 ) -> None:
-    from relayd.sim.plots import plot_throughput_bands
+    from relayd.sim.plots_throughput import plot_throughput_bands
 
     curves = []
     for n in sorted(by_relays):

@@ -147,7 +147,7 @@ def _table(
 
 
 def write_plots(curves: dict[str, dict[int, list[Series]]], docs: Path) -> list[Path]:
-    from relayd.sim.plots import plot_throughput_bands
+    from relayd.sim.plots_throughput import plot_throughput_bands
     from relayd.sweep.report import band
 
     files = []

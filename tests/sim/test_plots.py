@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from relayd.sim import plots
+from relayd.sim import plots, plots_throughput
 from relayd.sim.scenario import load_scenario
 from relayd.sim.world import World
 from relayd.sweep.validation import FIGURES, Check, first_below, verdict, window_mean
@@ -67,7 +67,7 @@ def test_figures_are_written(tmp_path: Path) -> None:
     files = plots.write_run_plots(world, _recs(), tmp_path)
     assert [f.name for f in files] == ["map.png", "throughput.png", "rssi_bearing.png"]
     assert all(f.stat().st_size > 10_000 for f in files)
-    plots.plot_throughput_bands(
+    plots_throughput.plot_throughput_bands(
         [("0 relays", [0.0, 1.0], [30.0, 20.0], [1.0, 2.0])],
         tmp_path / "b.png",
         "t",
