@@ -146,3 +146,38 @@ def proc_status_kb(pid: int, key: str) -> int | None:
 
 def proc_threads(pid: int) -> int | None:
     return proc_status_kb(pid, "Threads")
+
+
+# -- a `relayd` command with another tree's code, timed ---------------------------------
+
+
+def run_relayd_of(
+    tree: Path, argv: Sequence[str], cwd: Path, env: dict[str, str], what: str
+) -> tuple[float, float]:
+    """Run `relayd ARGV` with the code of `tree` (its PYTHONPATH in `env`; checked, not
+    assumed, in the child) in a child process; its (wall, CPU) seconds, the CPU of every
+    process it started included. A non-zero exit raises, naming `what` and the tree."""
+    import resource
+    import subprocess
+    import time
+
+    code = (
+        "import sys, relayd; from relayd.cli import main; "
+        f"assert relayd.__file__.startswith({str(tree) + os.sep!r}), relayd.__file__; "
+        "sys.exit(main(sys.argv[1:]))"
+    )
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    proc = subprocess.run(
+        [sys.executable, "-c", code, *argv],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if proc.returncode != 0:
+        raise RuntimeError(f"{what} on {tree}: exit {proc.returncode}\n{proc.stderr[-2000:]}")
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)

@@ -32,17 +32,18 @@ import hashlib
 import json
 import math
 import os
-import resource
 import statistics
-import subprocess
 import sys
 import tempfile
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+if __package__ in (None, ""):
+    sys.path.insert(0, str(ROOT))
+
+from bench.common import run_relayd_of  # noqa: E402 (after ROOT, which the path needs)
 
 DEFAULT_CASES = (
     "convoy:2:1",
@@ -125,33 +126,12 @@ def run_case(case: Case, tree: Path) -> Run:
     with tempfile.TemporaryDirectory(prefix="simspeed-") as tmp:
         out = Path(tmp) / "out"
         # The tree's own code, not whatever the venv has installed (checked, not assumed).
-        code = (
-            "import sys, relayd; from relayd.cli import main; "
-            f"assert relayd.__file__.startswith({str(tree) + os.sep!r}), relayd.__file__; "
-            "sys.exit(main(sys.argv[1:]))"
-        )
-        before = resource.getrusage(resource.RUSAGE_CHILDREN)
-        t0 = time.perf_counter()
-        proc = subprocess.run(
-            [sys.executable, "-c", code, *case.argv(out)],
-            cwd=tmp,
-            env=env,
-            capture_output=True,
-            text=True,
-            check=False,
-        )
-        wall = time.perf_counter() - t0
-        after = resource.getrusage(resource.RUSAGE_CHILDREN)
-        if proc.returncode != 0:
-            raise RuntimeError(
-                f"{case.label()} on {tree}: exit {proc.returncode}\n{proc.stderr[-2000:]}"
-            )
+        wall, cpu = run_relayd_of(tree, case.argv(out), Path(tmp), env, case.label())
         digest = hashlib.sha256()
         for name in ("summary.json", "trace.jsonl"):
             digest.update((out / name).read_bytes())
         summary = json.loads((out / "summary.json").read_text())
         trace = (out / "trace.jsonl").read_bytes()
-    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     return Run(wall, cpu, float(summary["sim_seconds"]), digest.hexdigest()[:12], summary, trace)
 
 

@@ -23,16 +23,17 @@ from __future__ import annotations
 import argparse
 import csv
 import os
-import resource
-import subprocess
 import sys
 import tempfile
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+if __package__ in (None, ""):
+    sys.path.insert(0, str(ROOT))
+
+from bench.common import run_relayd_of  # noqa: E402 (after ROOT, which the path needs)
 
 
 @dataclass(frozen=True, slots=True)
@@ -48,11 +49,6 @@ class Sweep:
 def run_sweep(tree: Path, worlds: int, workers: int, extra: Sequence[str]) -> Sweep:
     """One sweep with the code of `tree`, in a child process; its figures and rows."""
     env = dict(os.environ, PYTHONPATH=str(tree))
-    code = (
-        "import sys, relayd; from relayd.cli import main; "
-        f"assert relayd.__file__.startswith({str(tree) + os.sep!r}), relayd.__file__; "
-        "sys.exit(main(sys.argv[1:]))"
-    )
     with tempfile.TemporaryDirectory(prefix="sweepspeed-") as tmp:
         out = Path(tmp) / "out"
         argv = [
@@ -73,23 +69,9 @@ def run_sweep(tree: Path, worlds: int, workers: int, extra: Sequence[str]) -> Sw
             *extra,
         ]
         load0 = os.getloadavg()[0]
-        before = resource.getrusage(resource.RUSAGE_CHILDREN)
-        t0 = time.perf_counter()
-        proc = subprocess.run(
-            [sys.executable, "-c", code, *argv],
-            cwd=tmp,
-            env=env,
-            capture_output=True,
-            text=True,
-            check=False,
-        )
-        wall = time.perf_counter() - t0
-        after = resource.getrusage(resource.RUSAGE_CHILDREN)
-        if proc.returncode != 0:
-            raise RuntimeError(f"sweep on {tree}: exit {proc.returncode}\n{proc.stderr[-2000:]}")
+        wall, cpu = run_relayd_of(tree, argv, Path(tmp), env, "sweep")
         with (out / "runs.csv").open(encoding="utf-8") as f:
             rows = list(csv.DictReader(f))
-    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     sim = sum(float(r["sim_seconds"]) for r in rows if r["sim_seconds"])
     return Sweep(len(rows), wall, cpu, sim, rows, (load0, os.getloadavg()[0]))
 
