@@ -77,6 +77,9 @@ def lane_step(
         and min_at(r, tuple(w * h for h in (90.0, 50.0, 30.0))) > p.leave_clear_m
         and min(rear_abeam, default=SONAR_MAX_RANGE_M) > p.leave_clear_m
     )
+    # Out of the gap and clear of its sides: the paper's law takes over, turning gently
+    # onto the leader as it drives.
+    leave = passed and forward_min_m(s.sonar) >= p.threshold_o_m
     if p.leave_by_lane and not passed:
         # In a corridor the obstacle side's far wall may never be leave_clear_m away: past
         # it once nothing is abeam on that side within the robot's own width, front or
@@ -84,26 +87,20 @@ def lane_step(
         beside = min([r.get(w * 90.0, SONAR_MAX_RANGE_M), *rear_abeam]) <= 2.0 * HALF_WIDTH_M
         if beside and not st.lane_beside:
             st = replace(st, lane_beside=True)
-        passed = (
+        leave = (
             st.lane_beside
             and not beside
             and lane_clear(r, s.bearing_deg, p.leave_clear_m, HALF_WIDTH_M + p.leave_lane_margin_m)
         )
-        if passed:
-            return enter(
-                st,
-                AvoidMode.FOLLOW,
-                t,
-                lane_ref=None,
-                lane_beside=False,
-                anchor=s.pose[:2],
-                anchor_t=t,
-            ), AvoidCommand(True)
-    if passed and forward_min_m(s.sonar) >= p.threshold_o_m:
-        # Out of the gap and clear of its sides: the paper's law takes over, turning
-        # gently onto the leader as it drives.
+    if leave:
         return enter(
-            st, AvoidMode.FOLLOW, t, lane_ref=None, anchor=s.pose[:2], anchor_t=t
+            st,
+            AvoidMode.FOLLOW,
+            t,
+            lane_ref=None,
+            lane_beside=False,
+            anchor=s.pose[:2],
+            anchor_t=t,
         ), AvoidCommand(True)
     if max(r.get(10.0, SONAR_MAX_RANGE_M), r.get(-10.0, SONAR_MAX_RANGE_M)) < p.front_clear_m:
         # Both forward sonars close: something across the lane (a diagonal approach to
