@@ -72,14 +72,17 @@ def _natural(text: str) -> list[tuple[int, float | str]]:
     return out
 
 
-def _by_setting(ok: Sequence[dict[str, Any]], set_keys: Sequence[str]) -> list[str]:
-    """One row per combination of `--set` values (per generated kind, when the sweep has
-    more than one): the laws side by side on the same worlds."""
-    kinds = {kind(r) for r in ok if str(r.get("scenario", "")).startswith("generated-")}
+def _generated_kinds(rows: Sequence[dict[str, Any]]) -> set[str]:
+    return {kind(r) for r in rows if str(r.get("scenario", "")).startswith("generated-")}
+
+
+def _by_setting(ok: Sequence[dict[str, Any]], set_keys: Sequence[str], by_kind: bool) -> list[str]:
+    """One row per combination of `--set` values (and per generated kind with `by_kind`):
+    the laws side by side on the same worlds."""
     groups: dict[str, list[dict[str, Any]]] = {}
     for r in ok:
         name = _setting(r, set_keys)
-        if len(kinds) > 1:
+        if by_kind:
             name = f"{kind(r)}{', ' + name if name else ''}"
         groups.setdefault(name, []).append(r)
     cats = sorted({category(r) for r in ok} - {"clean"})
@@ -145,9 +148,9 @@ def section(
         *(f"| {c} | {n} |" for c, n in sorted(cats.items())),
         "",
     ]
-    generated = {kind(r) for r in ok if str(r.get("scenario", "")).startswith("generated-")}
-    if set_keys or len(generated) > 1:
-        lines += _by_setting(ok, set_keys)
+    by_kind = len(_generated_kinds(ok)) > 1
+    if set_keys or by_kind:
+        lines += _by_setting(ok, set_keys, by_kind)
     worst = sorted(ok, key=lambda r: float(r.get("min_e2e_mbps") or 0))
     worst = [r for r in worst if category(r) != "clean"][:5] or worst[:5]
     lines += [
