@@ -34,9 +34,21 @@ LABELS_PER_PAIR = 3
 #: angles at the default 10 dB: the straight path through a few walls is stronger).
 MAX_INNER_TURNS_DB = 40.0
 _SLACK = 1e-9
+#: Bend points sit NODE_OFFSET_M off their corners, so a best path may turn a hair the
+#: wrong way at one, or leave it a hair inside its walls' angle: `_wraps` lets turns of
+#: about 0.6 degrees the wrong way through, `_tangent` lines about 3 degrees inside (the
+#: sines). Tighter, a few of tests/sim/test_dominant.py's sampled paths lose 0.006 dB.
+WRAP_SLACK = 0.01
+TANGENT_SLACK = 0.05
 #: CornerGraph._longest's margin (relative): far above the rounding of log10 and of the
 #: power, so a chain it passes over costs more than the best path, never the same.
 LONGEST_SLACK = 1e-9
+#: Bend points sit NODE_OFFSET_M off their corners, so a best path may turn a hair the
+#: wrong way at one, or leave it a hair inside its walls' angle: `_wraps` lets turns of
+#: about 0.6 degrees the wrong way through, `_tangent` lines about 3 degrees inside (the
+#: sines). Tighter, a few of tests/sim/test_dominant.py's sampled paths lose 0.006 dB.
+WRAP_SLACK = 0.01
+TANGENT_SLACK = 0.05
 #: segments_intersect's touching tolerance (relayd/sim/geometry.py), written out in _clear.
 _TOUCH = 1e-12
 
@@ -74,6 +86,17 @@ def bend_points(walls: Sequence[Segment], offset_m: float = NODE_OFFSET_M) -> li
     partition) and just outside every convex corner (where two walls meet at an angle, on
     the side of the larger angle). Ends that butt against another wall, junctions of three
     or more walls and straight joints are no bend points."""
+    return [p for p, _ in bend_corners(walls, offset_m)]
+
+
+#: A bend point's corner: the wall end it bends round and the walls' directions from it.
+Corner = tuple[Point, tuple[tuple[float, float], ...]]
+
+
+def bend_corners(
+    walls: Sequence[Segment], offset_m: float = NODE_OFFSET_M
+) -> list[tuple[Point, Corner]]:
+    """`bend_points`, each with the corner it sits off (what a path bending there wraps)."""
     ends: dict[tuple[float, float], list[tuple[float, float]]] = {}
     for s in walls:
         length = s.length_m
@@ -82,20 +105,20 @@ def bend_points(walls: Sequence[Segment], offset_m: float = NODE_OFFSET_M) -> li
         ux, uy = (s.x2 - s.x1) / length, (s.y2 - s.y1) / length
         ends.setdefault((round(s.x1, 9), round(s.y1, 9)), []).append((ux, uy))
         ends.setdefault((round(s.x2, 9), round(s.y2, 9)), []).append((-ux, -uy))
-    out: list[Point] = []
+    out: list[tuple[Point, Corner]] = []
     for p, dirs in ends.items():
         if len(dirs) == 1:
             if any(_on_interior(p, s) for s in walls):
                 continue
             (ux, uy) = dirs[0]
-            out.append((p[0] - offset_m * ux, p[1] - offset_m * uy))
+            out.append(((p[0] - offset_m * ux, p[1] - offset_m * uy), (p, tuple(dirs))))
         elif len(dirs) == 2:
             (ax, ay), (bx, by) = dirs
             if abs(ax * by - ay * bx) < 1e-6:
                 continue  # straight on (or a wall folded back on itself)
             mx, my = ax + bx, ay + by
             n = math.hypot(mx, my)
-            out.append((p[0] - offset_m * mx / n, p[1] - offset_m * my / n))
+            out.append(((p[0] - offset_m * mx / n, p[1] - offset_m * my / n), (p, tuple(dirs))))
     return sorted(out)
 
 
@@ -212,7 +235,15 @@ class CornerGraph:
         self.walls = tuple(walls)
         self.per_90_db = per_90_db
         self.exponent = exponent
-        self.nodes = bend_points(self.walls)
+        corners = bend_corners(self.walls)
+        self.nodes = [p for p, _ in corners]
+        #: Unit vector from each bend point to the corner it wraps.
+        self._to_corner = [
+            ((cx - x) / NODE_OFFSET_M, (cy - y) / NODE_OFFSET_M)
+            for (x, y), ((cx, cy), _) in corners
+        ]
+        #: Directions of each corner's walls, from the corner.
+        self._walls_at = [dirs for _, (_, dirs) in corners]
         n = len(self.nodes)
         self._sectors = [_sectors(node, self.walls) for node in self.nodes]
         self.sees: list[list[int]] = [[] for _ in range(n)]
@@ -221,7 +252,7 @@ class CornerGraph:
         self._turns: dict[tuple[int, int, int], float] = {}
         for i in range(n):
             for j in range(i + 1, n):
-                if self._sees(i, self.nodes[j]):
+                if self._tangent(i, j) and self._tangent(j, i) and self._sees(i, self.nodes[j]):
                     self.sees[i].append(j)
                     self.sees[j].append(i)
                     (xi, yi), (xj, yj) = self.nodes[i], self.nodes[j]
@@ -240,6 +271,32 @@ class CornerGraph:
             cos = max(-1.0, min(1.0, ax * bx + ay * by))
             t = self._turns[key] = turn_loss_db(math.degrees(math.acos(cos)), self.per_90_db)
         return t
+
+    def _tangent(self, i: int, j: int) -> bool:
+        """True if the line from bend point i to j leaves i's corner with all its walls on
+        one side. A path that bends at i and goes on to j wraps the corner only then; a
+        line between the corner's walls cuts into the obstacle's angle and is never part of
+        a best path bending there (the same taut-string argument as `_wraps`)."""
+        (xi, yi), (xj, yj) = self.nodes[i], self.nodes[j]
+        dx, dy = xj - xi, yj - yi
+        slack = TANGENT_SLACK * math.hypot(dx, dy)
+        sides = [dx * ey - dy * ex for ex, ey in self._walls_at[i]]
+        return all(c >= -slack for c in sides) or all(c <= slack for c in sides)
+
+    def _wraps(self, prev: int, u: int, w: int) -> bool:
+        """True if the bend prev -> u -> w turns round u's corner (or goes straight on).
+
+        A path that bends away from the corner is never the best: inside the triangle
+        (prev, u, w) the taut string from prev to w is no longer and turns no more, and it
+        bends only at corners (a visibility graph's shortest paths are taut). Searching
+        only taut bends keeps every answer and halves the states of a hall of pillars.
+        """
+        (ax, ay), (bx, by) = self._unit[(prev, u)], self._unit[(u, w)]
+        turn = ax * by - ay * bx
+        if abs(turn) < WRAP_SLACK and ax * bx + ay * by > 0:
+            return True
+        cx, cy = self._to_corner[u]
+        return (turn > 0) == (ax * cy - ay * cx > 0)
 
     def _from(self, src: int) -> dict[int, list[Chain]]:
         """Best chains from node src: Dijkstra over (node, previous node) states, ordered by
@@ -261,7 +318,7 @@ class CornerGraph:
             if len(labels) < LABELS_PER_PAIR:
                 labels.append(Chain(length, turns, second, prev))
             for w in self.sees[u]:
-                if w in (prev, src) or (w, u) in best:
+                if w in (prev, src) or (w, u) in best or not self._wraps(prev, u, w):
                     continue
                 t = turns + self._turn_db(prev, u, w)
                 if t > MAX_INNER_TURNS_DB:

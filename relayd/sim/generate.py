@@ -3,7 +3,9 @@
 `generate("office", seed)` builds a corridor with a row of rooms north of it, enters one
 room by its corridor door and leaves it by an inner door into the next, plans the
 person's route with A* (relayd/sim/planner.py) keeping the P3-AT's half-width plus a
-margin from every wall and box, and writes an ordinary scenario document. The same
+margin from every wall and box, and writes an ordinary scenario document. A draw is kept
+only when its own radio says two relays are needed to keep the link to the person's goal
+and two are enough (relayd/sim/linkneed.py); otherwise the next draw is tried. The same
 kind and seed give the same text, byte for byte (random.Random seeded from the string).
 Kinds: "office" (below), "corridors" (a corridor network with L-corners and T-junctions,
 relayd/sim/gen_corridors.py), and "hall" (an open hall with pillars), "warehouse" (aisles
@@ -17,6 +19,7 @@ kind and seed, so adding the antennas left every floor plan, route and loss tabl
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 import random
@@ -24,6 +27,7 @@ import random
 from relayd.sim.antennas import DRAWN
 from relayd.sim.gen_corridors import corridors
 from relayd.sim.gen_halls import building
+from relayd.sim.linkneed import relays_needed
 from relayd.sim.planner import Point, Segment, plan, route_length_m
 from relayd.sim.radio import DEFAULT_WALL_LOSS_DB
 
@@ -32,7 +36,8 @@ KINDS = ("office", "corridors", "hall", "warehouse", "mixed")
 SECTIONS = {"hall": ["hall"], "warehouse": ["racks"], "mixed": ["hall", "racks"]}
 #: P3-AT: 0.50 m wide (half 0.25 m) plus a 0.25 m margin on each side.
 CLEARANCE_M = 0.5
-#: Below this route length the corridor's straight hops carry the link with one relay.
+#: A first, cheap filter before the radio's count (relayd/sim/linkneed.py): shorter routes
+#: keep the link with one relay in nearly every draw, and the count costs far more.
 MIN_ROUTE_M = 40.0
 MAX_TRIES = 50
 #: The person starts ahead of the convoy, as in corridor.toml.
@@ -127,9 +132,29 @@ def build(kind: str, seed: int) -> tuple[dict[str, object], list[Point]]:
                 corridors(rng, loss) if kind == "corridors" else building(rng, SECTIONS[kind], loss)
             )
         route = plan(_segments(world), START, world["goal"], CLEARANCE_M)  # type: ignore[arg-type]
-        if route is not None and route_length_m(route) >= MIN_ROUTE_M:
-            return world, [(_r(x), _r(y)) for x, y in route]
+        if route is None or route_length_m(route) < MIN_ROUTE_M:
+            continue
+        route = [(_r(x), _r(y)) for x, y in route]
+        if needed(_render(kind, seed, world, route)) == 2:
+            return world, route
     raise GenerateError(f"generated:{kind}:{seed}: no valid world in {MAX_TRIES} draws")
+
+
+def needed(text: str) -> int:
+    """Relays the world of scenario `text` needs by its own radio (relayd/sim/linkneed.py)."""
+    # Imported here: the scenario loader imports this module for `generated:` names.
+    import tomllib
+
+    from relayd.sim.scenario import parse_scenario
+    from relayd.sim.world import World
+
+    sc = parse_scenario(tomllib.loads(text))
+    radio = World(sc, 0).radio
+    # The building's own budget: no shadowing, the same for every run seed.
+    radio.params = dataclasses.replace(radio.params, shadow_sigma_db=0.0)
+    route = [(w.x, w.y) for w in sc.leader.waypoints]
+    cc = (sc.command_center.x, sc.command_center.y)
+    return relays_needed(lambda a, b: radio.mean_power_dbm(a, b)[0], cc, route)
 
 
 def antennas(kind: str, seed: int, relays: int) -> list[str]:
@@ -148,6 +173,10 @@ def _pts(points: list[Point]) -> str:
 def generate(kind: str, seed: int) -> str:
     """The scenario TOML of world `kind`:`seed`."""
     world, route = build(kind, seed)
+    return _render(kind, seed, world, route)
+
+
+def _render(kind: str, seed: int, world: dict[str, object], route: list[Point]) -> str:
     pattern1, pattern2 = antennas(kind, seed, 2)
     length = route_length_m(route)
     name = f"generated-{kind}-{seed}"

@@ -1,0 +1,66 @@
+"""How many relays a world needs: hand-checked budgets on a straight corridor and a wall."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from relayd.sim.linkneed import MORE, NEED_HOP_DBM, along, relays_needed
+
+Point = tuple[float, float]
+
+
+def free_space(a: Point, b: Point) -> float:
+    """-15 dBm at 1 m, exponent 3: a hop holds -60 dBm up to 10^1.5 = 31.6 m."""
+    return -15.0 - 30.0 * math.log10(max(0.5, math.dist(a, b)))
+
+
+def test_the_threshold_is_the_relays_own_rear_limit() -> None:
+    assert NEED_HOP_DBM == -60.0
+
+
+@pytest.mark.parametrize(
+    ("length_m", "relays"),
+    [(30.0, 0), (33.0, 1), (62.0, 1), (65.0, 2), (92.0, 2), (96.0, MORE)],
+)
+def test_a_straight_corridor_needs_a_relay_every_31_6_m(length_m: float, relays: int) -> None:
+    """Relays stand on whole metres of the route, so k of them hold up to 31(k + 1) m."""
+    route = [(0.0, 0.0), (length_m, 0.0)]
+    assert relays_needed(free_space, (0.0, 0.0), route) == relays
+
+
+def test_a_wall_on_the_way_costs_a_relay() -> None:
+    """20 m of corridor alone needs none; a 15 dB wall at x = 10 m between the command
+    center and the goal does, and one relay past it holds both hops (the wall is charged
+    only to the hop that crosses it)."""
+
+    def walled(a: Point, b: Point) -> float:
+        crosses = (a[0] - 10.0) * (b[0] - 10.0) < 0
+        return free_space(a, b) - (15.0 if crosses else 0.0)
+
+    route = [(0.0, 0.0), (20.0, 0.0)]
+    assert relays_needed(free_space, (0.0, 0.0), route) == 0
+    assert relays_needed(walled, (0.0, 0.0), route) == 1
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(min_value=5.0, max_value=120.0), st.floats(min_value=-75.0, max_value=-50.0))
+def test_the_count_grows_with_the_route_and_the_threshold(length_m: float, hop_dbm: float) -> None:
+    """On a straight corridor k relays hold k + 1 hops of at most r = 10^((-15 - t) / 30) m
+    each, so the count is the least k with (k + 1) r >= L (relays stand on whole metres
+    of the route: a metre of slack either way)."""
+    r = 10 ** ((-15.0 - hop_dbm) / 30.0)
+    route = [(0.0, 0.0), (length_m, 0.0)]
+    got = relays_needed(free_space, (0.0, 0.0), route, hop_dbm)
+    lo = max(0, math.ceil((length_m - 1.0) / r) - 1)
+    hi = max(0, math.ceil((length_m + 1.0) / r) - 1)
+    assert min(lo, MORE) <= got <= min(hi, MORE)
+
+
+def test_along_keeps_the_ends_and_steps_a_metre() -> None:
+    pts = along([(0.0, 0.0), (3.0, 0.0), (3.0, 2.0)])
+    assert pts[0] == (0.0, 0.0) and pts[-1] == (3.0, 2.0)
+    assert (3.0, 0.0) in pts and len(pts) == 6
