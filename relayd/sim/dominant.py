@@ -12,7 +12,10 @@ wall at all; the stronger of the two wins.
 What is precomputed once per set of walls (`CornerGraph`): the points a path may bend
 at (a little way off every free wall end and every convex wall corner), which of them see
 each other, and for every ordered pair the best chain of bends between them (a
-Dijkstra search over (node, previous node) states, so each turn's angle is known). A
+Dijkstra search over (node, previous node) states, so each turn's angle is known). The
+search follows only lines tangent to the corners at both ends and bends that wrap their
+corner, as a taut string would: the others never carry a best path, and leaving them out
+makes a hall of pillars' graph several times cheaper. A
 query then only finds which nodes each end sees and joins the two ends to the
 precomputed chains, exactly costing the turns at the first and last node.
 """
@@ -249,7 +252,7 @@ class CornerGraph:
         self.sees: list[list[int]] = [[] for _ in range(n)]
         self._dist: dict[tuple[int, int], float] = {}
         self._unit: dict[tuple[int, int], tuple[float, float]] = {}
-        self._turns: dict[tuple[int, int, int], float] = {}
+        self._next: dict[tuple[int, int], list[tuple[int, float, float]]] = {}
         for i in range(n):
             for j in range(i + 1, n):
                 if self._tangent(i, j) and self._tangent(j, i) and self._sees(i, self.nodes[j]):
@@ -261,16 +264,13 @@ class CornerGraph:
                     ux, uy = (xj - xi) / d, (yj - yi) / d
                     self._unit[(i, j)], self._unit[(j, i)] = (ux, uy), (-ux, -uy)
         self.chains: list[dict[int, list[Chain]]] = [self._from(i) for i in range(n)]
+        self._next.clear()  # the searches' working lists; the chains are what queries read
 
     def _turn_db(self, prev: int, u: int, w: int) -> float:
-        """Loss of the bend prev -> u -> w (kept: every source's search meets the same bends)."""
-        key = (prev, u, w)
-        t = self._turns.get(key)
-        if t is None:
-            (ax, ay), (bx, by) = self._unit[(prev, u)], self._unit[(u, w)]
-            cos = max(-1.0, min(1.0, ax * bx + ay * by))
-            t = self._turns[key] = turn_loss_db(math.degrees(math.acos(cos)), self.per_90_db)
-        return t
+        """Loss of the bend prev -> u -> w."""
+        (ax, ay), (bx, by) = self._unit[(prev, u)], self._unit[(u, w)]
+        cos = max(-1.0, min(1.0, ax * bx + ay * by))
+        return turn_loss_db(math.degrees(math.acos(cos)), self.per_90_db)
 
     def _tangent(self, i: int, j: int) -> bool:
         """True if the line from bend point i to j leaves i's corner with all its walls on
@@ -302,29 +302,46 @@ class CornerGraph:
         """Best chains from node src: Dijkstra over (node, previous node) states, ordered by
         the loss a path of that length and those inner turns would have (turns at src are
         the query's: they depend on where the path comes from)."""
-        k, dist = 10.0 * self.exponent, self._dist
-        best: dict[tuple[int, int], tuple[float, float, int]] = {}
+        k, dist, log10 = 10.0 * self.exponent, self._dist, math.log10
+        done: set[tuple[int, int]] = set()
         heap: list[tuple[float, int, int, float, float, int]] = []
         for v in self.sees[src]:
             d = dist[(src, v)]
-            heapq.heappush(heap, (k * math.log10(max(d, 0.5)), v, src, d, 0.0, v))
+            heapq.heappush(heap, (k * log10(max(d, 0.5)), v, src, d, 0.0, v))
         out: dict[int, list[Chain]] = {}
         while heap:
             _, u, prev, length, turns, second = heapq.heappop(heap)
-            if (u, prev) in best:
+            if (u, prev) in done:
                 continue
-            best[(u, prev)] = (length, turns, second)
+            done.add((u, prev))
             labels = out.setdefault(u, [])
             if len(labels) < LABELS_PER_PAIR:
                 labels.append(Chain(length, turns, second, prev))
-            for w in self.sees[u]:
-                if w in (prev, src) or (w, u) in best or not self._wraps(prev, u, w):
-                    continue
-                t = turns + self._turn_db(prev, u, w)
+            for w, turn_db, d_uw in self._onward(prev, u):
+                t = turns + turn_db
                 if t > MAX_INNER_TURNS_DB:
-                    continue  # a path bent this much never dominates: not worth a search
-                d = length + dist[(u, w)]
-                heapq.heappush(heap, (k * math.log10(max(d, 0.5)) + t, w, u, d, t, second))
+                    break  # a path bent this much never dominates; the rest turn more
+                if w == src or (w, u) in done:
+                    continue
+                d = length + d_uw
+                heapq.heappush(heap, (k * log10(max(d, 0.5)) + t, w, u, d, t, second))
+        return out
+
+    def _onward(self, prev: int, u: int) -> list[tuple[int, float, float]]:
+        """Where a path that came from prev may bend on to at u: (w, the bend's loss, u-w
+        length) for every taut bend, least loss first. Every source's search meets the same
+        bends, so each list is worked out once."""
+        key = (prev, u)
+        out = self._next.get(key)
+        if out is None:
+            out = self._next[key] = sorted(
+                (
+                    (w, self._turn_db(prev, u, w), self._dist[(u, w)])
+                    for w in self.sees[u]
+                    if w != prev and self._wraps(prev, u, w)
+                ),
+                key=lambda e: e[1],
+            )
         return out
 
     def _sees(self, i: int, p: Point) -> bool:
