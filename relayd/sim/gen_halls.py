@@ -26,6 +26,9 @@ WEST_M = -3.0
 #: Each section's length (m), alone and in a mixed building.
 HALL_M = ((28.0, 40.0), (14.0, 22.0))
 RACKS_M = ((30.0, 42.0), (20.0, 28.0))
+#: A hall's back room, across its far end.
+ROOM_M = ((4.0, 7.0), (4.0, 7.0))
+LENGTHS_M = {"hall": HALL_M, "racks": RACKS_M, "room": ROOM_M}
 #: Obstacles keep this far (m) from walls and from each other: a passage of at least
 #: twice the planner's clearance.
 GAP_M = 1.6
@@ -46,7 +49,7 @@ def _apart(box: Box, others: list[Box], gap_m: float) -> bool:
 def _pillars(
     rng: random.Random, x0_m: float, x1_m: float, half_depth_m: float, boxes: list[Box]
 ) -> None:
-    spacing_m = rng.uniform(5.0, 8.0)
+    spacing_m = rng.uniform(7.0, 10.0)
     side_m = _r(rng.uniform(0.4, 0.8))
     x = x0_m + spacing_m / 2 + 1.0
     while x + side_m < x1_m - 2.0:
@@ -102,10 +105,8 @@ def building(rng: random.Random, sections: list[str], loss: dict[str, float]) ->
     half_depth_m = _r(rng.uniform(7.0, 13.0))
     outer = rng.choice(["brick", "concrete"])
     inner = rng.choice(["light", "brick", "light"])
-    alone = len(sections) == 1
-    lengths = [
-        _r(rng.uniform(*(HALL_M if s == "hall" else RACKS_M)[0 if alone else 1])) for s in sections
-    ]
+    alone = len([s for s in sections if s != "room"]) == 1
+    lengths = [_r(rng.uniform(*LENGTHS_M[s][0 if alone else 1])) for s in sections]
     edges = [x0_m]
     for length in lengths:
         edges.append(_r(edges[-1] + length))
@@ -156,6 +157,11 @@ def building(rng: random.Random, sections: list[str], loss: dict[str, float]) ->
             _furniture(rng, xa_m, xb_m, half_depth_m, boxes, rng.randint(3, 7))
             goal = (
                 _r(xb_m - rng.uniform(2.0, 4.0)),
+                _r(rng.uniform(-half_depth_m + 2.0, half_depth_m - 2.0)),
+            )
+        elif kind == "room":
+            goal = (
+                _r((xa_m + xb_m) / 2),
                 _r(rng.uniform(-half_depth_m + 2.0, half_depth_m - 2.0)),
             )
         else:

@@ -48,10 +48,15 @@ def along(route: Sequence[Point], step_m: float = 1.0) -> list[Point]:
 
 
 def relays_needed(
-    power: PowerFn, cc: Point, route: Sequence[Point], hop_dbm: float = NEED_HOP_DBM
+    power: PowerFn,
+    cc: Point,
+    route: Sequence[Point],
+    hop_dbm: float = NEED_HOP_DBM,
+    most: int = 2,
 ) -> int:
     """Relays needed to hold every hop from `cc` to the route's end at `hop_dbm` (0-2, or
-    MORE), relays standing on the route."""
+    MORE), relays standing on the route; with `most` = 1 it stops at "more than one"
+    (returned as 2) without the search for a pair."""
     goal = route[-1]
     if power(cc, goal) >= hop_dbm:
         return 0
@@ -61,11 +66,11 @@ def relays_needed(
     near_goal = [p for p in pts if power(p, goal) >= hop_dbm]
     if set(near_cc) & set(near_goal):
         return 1
+    if most < 2:
+        return 2
     # Nearest pairs first (relay 2 far along, relay 1 early): the likeliest to hold, so an
     # accepted world is found after a few queries; a refused one costs them all.
-    pairs = sorted(
-        itertools.product(near_cc, near_goal), key=lambda pq: math.dist(pq[0], pq[1])
-    )
+    pairs = sorted(itertools.product(near_cc, near_goal), key=lambda pq: math.dist(pq[0], pq[1]))
     if any(power(p, q) >= hop_dbm for p, q in pairs):
         return 2
     return MORE

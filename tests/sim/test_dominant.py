@@ -7,7 +7,6 @@ import itertools
 import math
 
 import pytest
-
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
