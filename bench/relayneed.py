@@ -1,48 +1,41 @@
 """How many relays a generated world needs by its own radio's link budget.
 
-    python -m bench.relayneed [--worlds 40] [--kind office] [--dbm -82 --dbm -70]
+    python -m bench.relayneed [--worlds 40] [--kind office] [--dbm -60 --dbm -70 --dbm -82]
 
-The generator accepts a world when the person's route is at least 40 m long, a proxy for
-"needs two relays". This checks the proxy against the world's radio model (the same
-dominant-path model the runs use, local mean power between omnidirectional antennas, no
-fading): per kind and threshold, how many worlds the command center reaches at the
-person's goal directly (no relay), how many more one relay somewhere on the route joins
-with both hops at or above the threshold (one relay), and the rest (two or more).
--82 dBm is the slowest rate's sensitivity (a hop that is up at all); -70 dBm leaves a
-fading margin and about 24 Mbps of PHY rate.
+The generator keeps a world only when two relays are needed at the relays' own rear
+limit (-60 dBm, relayd/sim/linkneed.py) and two are enough. This counts, per kind and
+threshold, how many worlds the command center reaches at the person's goal directly (no
+relay), with one relay somewhere on the route, with two, and only with more: at -60 dBm
+every world must read "two"; the other thresholds show what the same buildings ask of a
+link that must only stay up (-82 dBm, the slowest rate's sensitivity) or keep 36 Mbit/s
+of PHY rate (-70 dBm). Local mean power between perfectly pointed antennas, no fading or
+shadowing: the count the generator itself makes.
 """
 
 from __future__ import annotations
 
 import argparse
-import itertools
-import math
+import dataclasses
 
 from relayd.sim.generate import KINDS
+from relayd.sim.linkneed import NEED_HOP_DBM, relays_needed
 from relayd.sim.scenario import load_scenario
 from relayd.sim.world import World
 
-Point = tuple[float, float]
-
-
-def _along(route: list[Point], step_m: float = 1.0) -> list[Point]:
-    pts: list[Point] = []
-    for a, b in itertools.pairwise(route):
-        k = max(1, int(math.dist(a, b) / step_m))
-        pts += [(a[0] + (b[0] - a[0]) * i / k, a[1] + (b[1] - a[1]) * i / k) for i in range(k)]
-    return pts + route[-1:]
+COLUMNS = ("no relay", "one relay", "two relays", "more")
 
 
 def needs(kind: str, seed: int, thresholds_dbm: list[float]) -> list[int]:
-    """Relays the world needs (0, 1 or 2 meaning two or more) at each threshold."""
+    """Relays the world needs at each threshold (0, 1, 2, or 3 meaning more than two)."""
     sc = load_scenario(f"generated:{kind}:{seed}")
-    world = World(sc, 0)
+    radio = World(sc, 0).radio
+    radio.params = dataclasses.replace(radio.params, shadow_sigma_db=0.0)
     route = [(w.x, w.y) for w in sc.leader.waypoints]
-    goal = route[-1]
-    power = world.radio.mean_power_dbm
-    direct = power(world.cc, goal)[0]
-    one = max(min(power(world.cc, p)[0], power(p, goal)[0]) for p in _along(route))
-    return [0 if direct >= t else 1 if one >= t else 2 for t in thresholds_dbm]
+    cc = (sc.command_center.x, sc.command_center.y)
+    return [
+        relays_needed(lambda a, b: radio.mean_power_dbm(a, b)[0], cc, route, t)
+        for t in thresholds_dbm
+    ]
 
 
 def main() -> int:
@@ -51,16 +44,16 @@ def main() -> int:
     ap.add_argument("--kind", action="append", choices=KINDS, default=None)
     ap.add_argument("--dbm", action="append", type=float, default=None)
     args = ap.parse_args()
-    thresholds = args.dbm or [-82.0, -70.0]
-    print("| kind | worlds | threshold (dBm) | no relay | one relay | two or more |")
-    print("|---|---|---|---|---|---|")
+    thresholds = args.dbm or [NEED_HOP_DBM, -70.0, -82.0]
+    print("| kind | worlds | threshold (dBm) | " + " | ".join(COLUMNS) + " |")
+    print("|---|---|---|" + "---|" * len(COLUMNS))
     for kind in args.kind or list(KINDS):
-        counts = [[0, 0, 0] for _ in thresholds]
+        counts = [[0] * len(COLUMNS) for _ in thresholds]
         for seed in range(args.worlds):
             for k, n in enumerate(needs(kind, seed, thresholds)):
                 counts[k][n] += 1
-        for t, (c0, c1, c2) in zip(thresholds, counts, strict=True):
-            print(f"| {kind} | {args.worlds} | {t:.0f} | {c0} | {c1} | {c2} |")
+        for t, row in zip(thresholds, counts, strict=True):
+            print(f"| {kind} | {args.worlds} | {t:.0f} | " + " | ".join(map(str, row)) + " |")
     return 0
 
 

@@ -64,3 +64,12 @@ def test_along_keeps_the_ends_and_steps_a_metre() -> None:
     pts = along([(0.0, 0.0), (3.0, 0.0), (3.0, 2.0)])
     assert pts[0] == (0.0, 0.0) and pts[-1] == (3.0, 2.0)
     assert (3.0, 0.0) in pts and len(pts) == 6
+
+
+def test_the_bench_counts_two_relays_for_a_generated_world() -> None:
+    """bench/relayneed.py counts with the generator's own rule: a generated world reads
+    "two" at the rear limit (and no fewer at a stricter threshold)."""
+    from bench.relayneed import needs
+
+    at_limit, stricter = needs("office", 0, [NEED_HOP_DBM, NEED_HOP_DBM + 5.0])
+    assert at_limit == 2 and stricter >= 2
