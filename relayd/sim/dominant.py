@@ -14,8 +14,11 @@ at (a little way off every free wall end and every convex wall corner), which of
 each other, and for every ordered pair the best chain of bends between them (a
 Dijkstra search over (node, previous node) states, so each turn's angle is known). The
 search follows only lines tangent to the corners at both ends and bends that wrap their
-corner, as a taut string would: the others never carry a best path, and leaving them out
-makes a hall of pillars' graph several times cheaper. A
+corner, as a taut string would: for points on corners themselves the others never carry
+a best path, and leaving them out makes a hall of pillars' graph several times cheaper.
+Bend points sit 5 cm off their corners, so now and then (a line that skims a second
+corner, a box against a door jamb) the best path was one of the others and the search
+takes the next best: tests/sim/test_dominant.py bounds how often and by how much. A
 query then only finds which nodes each end sees and joins the two ends to the
 precomputed chains, exactly costing the turns at the first and last node.
 """
@@ -40,18 +43,12 @@ _SLACK = 1e-9
 #: Bend points sit NODE_OFFSET_M off their corners, so a best path may turn a hair the
 #: wrong way at one, or leave it a hair inside its walls' angle: `_wraps` lets turns of
 #: about 0.6 degrees the wrong way through, `_tangent` lines about 3 degrees inside (the
-#: sines). Tighter, a few of tests/sim/test_dominant.py's sampled paths lose 0.006 dB.
+#: sines). The pruning is still not exact everywhere (`CornerGraph._tangent`).
 WRAP_SLACK = 0.01
 TANGENT_SLACK = 0.05
 #: CornerGraph._longest's margin (relative): far above the rounding of log10 and of the
 #: power, so a chain it passes over costs more than the best path, never the same.
 LONGEST_SLACK = 1e-9
-#: Bend points sit NODE_OFFSET_M off their corners, so a best path may turn a hair the
-#: wrong way at one, or leave it a hair inside its walls' angle: `_wraps` lets turns of
-#: about 0.6 degrees the wrong way through, `_tangent` lines about 3 degrees inside (the
-#: sines). Tighter, a few of tests/sim/test_dominant.py's sampled paths lose 0.006 dB.
-WRAP_SLACK = 0.01
-TANGENT_SLACK = 0.05
 #: segments_intersect's touching tolerance (relayd/sim/geometry.py), written out in _clear.
 _TOUCH = 1e-12
 
@@ -275,8 +272,8 @@ class CornerGraph:
     def _tangent(self, i: int, j: int) -> bool:
         """True if the line from bend point i to j leaves i's corner with all its walls on
         one side. A path that bends at i and goes on to j wraps the corner only then; a
-        line between the corner's walls cuts into the obstacle's angle and is never part of
-        a best path bending there (the same taut-string argument as `_wraps`)."""
+        line between the corner's walls cuts into the obstacle's angle and is (nearly) never
+        part of a best path bending there (the same taut-string argument as `_wraps`)."""
         (xi, yi), (xj, yj) = self.nodes[i], self.nodes[j]
         dx, dy = xj - xi, yj - yi
         slack = TANGENT_SLACK * math.hypot(dx, dy)
@@ -286,10 +283,10 @@ class CornerGraph:
     def _wraps(self, prev: int, u: int, w: int) -> bool:
         """True if the bend prev -> u -> w turns round u's corner (or goes straight on).
 
-        A path that bends away from the corner is never the best: inside the triangle
-        (prev, u, w) the taut string from prev to w is no longer and turns no more, and it
-        bends only at corners (a visibility graph's shortest paths are taut). Searching
-        only taut bends keeps every answer and halves the states of a hall of pillars.
+        A path that bends away from the corner is (nearly) never the best: inside the
+        triangle (prev, u, w) the taut string from prev to w is no longer and turns no
+        more, and it bends only at corners (a visibility graph's shortest paths are
+        taut). Searching only taut bends halves the states of a hall of pillars.
         """
         (ax, ay), (bx, by) = self._unit[(prev, u)], self._unit[(u, w)]
         turn = ax * by - ay * bx

@@ -126,7 +126,7 @@ def build(kind: str, seed: int) -> tuple[dict[str, object], list[Point]]:
 
 #: A sweep runs each world once per setting and the tests ask for one several times; a
 #: hall's draws cost seconds (the radio's corner graph of every draw counted).
-@functools.lru_cache(maxsize=32)
+@functools.lru_cache(maxsize=32, typed=True)
 def _build(kind: str, seed: int) -> tuple[dict[str, object], list[Point]]:
     if kind not in KINDS:
         raise GenerateError(f"generated: unknown kind {kind!r} (known: {', '.join(KINDS)})")

@@ -11,11 +11,14 @@ hop is kept when its local-mean power is at or above that. A world needs
 - two when one cannot but some two on the route hold all three hops,
 - more (returned as 3) otherwise.
 
-Relays are placed anywhere on the route (every metre), with perfectly pointed antennas
-(no pointing loss) and no fading or shadowing: the building's own budget, the same for
-every run seed, and the most a convoy could get from it. A world that needs two by this
-count cannot be held with one however well the relay is placed; one that needs three
-could not be held by two, so failing it would say nothing about the convoy.
+Relays are tried at points 1-2 m apart along the route, relay 2 no further along it than
+relay 1 (a convoy keeps its order), with perfectly pointed antennas (no pointing loss) and
+no fading or shadowing: the building's own budget, the same for every run seed. A world
+that needs two by this count is not held by one relay at any of those points; one that
+needs three is not held by two, so failing it would say little about the convoy. The
+person's own hop (to relay 1, or to the command center) is held to the same -60 dBm: on
+the robots that hop is the leader's, which `threshold_l_dbm` governs, but a kept link
+needs it as much as the others.
 
 Pure: it takes the radio's power function, so the tests give it a hand-made one.
 """
@@ -39,7 +42,8 @@ MORE = 3
 
 
 def along(route: Sequence[Point], step_m: float = 1.0) -> list[Point]:
-    """The route's points every `step_m` (each leg's start, then evenly along it), and its end."""
+    """Points along the route: each leg's start, then evenly along it at least `step_m`
+    and less than twice that apart (a 1.9 m leg gives its start only), and the route's end."""
     pts: list[Point] = []
     for a, b in itertools.pairwise(route):
         k = max(1, int(math.dist(a, b) / step_m))
@@ -57,20 +61,26 @@ def relays_needed(
     """Relays needed to hold every hop from `cc` to the route's end at `hop_dbm` (0-2, or
     MORE), relays standing on the route; with `most` = 1 it stops at "more than one"
     (returned as 2) without the search for a pair."""
+    if not route:
+        raise ValueError("relays_needed: the route has no points")
     goal = route[-1]
     if power(cc, goal) >= hop_dbm:
         return 0
     pts = along(route)
-    # The points each end of the chain reaches on its own: relay 2's (behind) and relay 1's.
-    near_cc = [p for p in pts if power(cc, p) >= hop_dbm]
-    near_goal = [p for p in pts if power(p, goal) >= hop_dbm]
-    if set(near_cc) & set(near_goal):
+    # Where each end of the chain can stand: relay 2 (behind, by the command center) and
+    # relay 1 (ahead, by the goal), as indices along the route.
+    behind = [i for i, p in enumerate(pts) if power(cc, p) >= hop_dbm]
+    ahead = [j for j, p in enumerate(pts) if power(p, goal) >= hop_dbm]
+    if set(behind) & set(ahead):
         return 1
     if most < 2:
         return 2
-    # Nearest pairs first (relay 2 far along, relay 1 early): the likeliest to hold, so an
-    # accepted world is found after a few queries; a refused one costs them all.
-    pairs = sorted(itertools.product(near_cc, near_goal), key=lambda pq: math.dist(pq[0], pq[1]))
-    if any(power(p, q) >= hop_dbm for p, q in pairs):
+    # A convoy keeps its order: relay 2 stands no further along the route than relay 1.
+    # Nearest pairs first, the likeliest to hold, so an accepted world is found after a
+    # few queries; a refused one costs them all.
+    pairs = sorted(
+        ((i, j) for i in behind for j in ahead if i <= j), key=lambda ij: ij[1] - ij[0]
+    )
+    if any(power(pts[i], pts[j]) >= hop_dbm for i, j in pairs):
         return 2
     return MORE

@@ -60,6 +60,30 @@ def test_the_count_grows_with_the_route_and_the_threshold(length_m: float, hop_d
     assert min(lo, MORE) <= got <= min(hi, MORE)
 
 
+def test_an_empty_route_is_an_error() -> None:
+    with pytest.raises(ValueError, match="no points"):
+        relays_needed(free_space, (0.0, 0.0), [])
+
+
+def test_the_convoy_keeps_its_order() -> None:
+    """The command center hears only the stretch 40-50 m along the route and the goal only
+    the first 10 m; any two route points hear each other. Two relays would hold every hop
+    only standing out of order (relay 2, by the command center, ahead of relay 1), which
+    a convoy cannot do: more than two are needed."""
+    cc, goal = (0.0, -100.0), (60.0, 0.0)
+
+    def power(a: Point, b: Point) -> float:
+        if cc in (a, b):
+            other = b if a == cc else a
+            return -50.0 if 40.0 <= other[0] <= 50.0 and other[1] == 0.0 else -90.0
+        if goal in (a, b):
+            other = b if a == goal else a
+            return -50.0 if other[0] <= 10.0 else -90.0
+        return -50.0
+
+    assert relays_needed(power, cc, [(0.0, 0.0), goal]) == MORE
+
+
 def test_along_keeps_the_ends_and_steps_a_metre() -> None:
     pts = along([(0.0, 0.0), (3.0, 0.0), (3.0, 2.0)])
     assert pts[0] == (0.0, 0.0) and pts[-1] == (3.0, 2.0)
