@@ -196,3 +196,10 @@ def test_sweep_generated_arg_expands_to_seeds() -> None:
     for bad in ("office", "office:0", "office:x"):
         with pytest.raises(argparse.ArgumentTypeError):
             _generated_arg(bad)
+
+
+def test_a_seed_that_needs_many_draws_still_gets_a_world() -> None:
+    """Office seed 759 finds its two-relay world at the 63rd draw (50 draws once left it,
+    and one seed in 500, without a world)."""
+    world, route = build("office", 759)
+    assert needed(generate("office", 759)) == 2 and route
