@@ -41,8 +41,9 @@ CLEARANCE_M = 0.5
 #: A first, cheap filter before the radio's count (relayd/sim/linkneed.py): shorter routes
 #: keep the link with one relay in nearly every draw, and the count costs far more.
 MIN_ROUTE_M = 40.0
-#: About one office draw in eight needs two relays and no more: 200 draws leave a chance
-#: of about 1e-11 that a seed finds none (50 left two seeds of 1000 without a world).
+#: About one office draw in eight and one hall draw in thirteen needs two relays and no
+#: more: 200 draws leave a seed without a world about once in ten million (50 left 2
+#: office and 17 hall seeds of 1000 without one).
 MAX_TRIES = 200
 #: The person starts ahead of the convoy, as in corridor.toml.
 START: Point = (3.5, 0.0)
