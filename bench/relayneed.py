@@ -15,12 +15,10 @@ shadowing: the count the generator itself makes.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 
-from relayd.sim.generate import KINDS
+from relayd.sim.generate import KINDS, budget
 from relayd.sim.linkneed import NEED_HOP_DBM, relays_needed
 from relayd.sim.scenario import load_scenario
-from relayd.sim.world import World
 
 COLUMNS = ("no relay", "one relay", "two relays", "more")
 
@@ -28,14 +26,10 @@ COLUMNS = ("no relay", "one relay", "two relays", "more")
 def needs(kind: str, seed: int, thresholds_dbm: list[float]) -> list[int]:
     """Relays the world needs at each threshold (0, 1, 2, or 3 meaning more than two)."""
     sc = load_scenario(f"generated:{kind}:{seed}")
-    radio = World(sc, 0).radio
-    radio.params = dataclasses.replace(radio.params, shadow_sigma_db=0.0)
+    power = budget(sc)
     route = [(w.x, w.y) for w in sc.leader.waypoints]
     cc = (sc.command_center.x, sc.command_center.y)
-    return [
-        relays_needed(lambda a, b: radio.mean_power_dbm(a, b)[0], cc, route, t)
-        for t in thresholds_dbm
-    ]
+    return [relays_needed(power, cc, route, t) for t in thresholds_dbm]
 
 
 def main() -> int:

@@ -25,13 +25,17 @@ import functools
 import itertools
 import math
 import random
+from typing import TYPE_CHECKING
 
 from relayd.sim.antennas import DRAWN
 from relayd.sim.gen_corridors import corridors
 from relayd.sim.gen_halls import building
-from relayd.sim.linkneed import relays_needed
+from relayd.sim.linkneed import PowerFn, relays_needed
 from relayd.sim.planner import Point, Segment, plan, route_length_m
-from relayd.sim.radio import DEFAULT_WALL_LOSS_DB
+from relayd.sim.radio import DEFAULT_WALL_LOSS_DB, Radio
+
+if TYPE_CHECKING:
+    from relayd.sim.scenario import Scenario
 
 KINDS = ("office", "corridors", "hall", "warehouse", "mixed")
 #: The open kinds' sections, east of their entrance corridor (relayd/sim/gen_halls.py).
@@ -163,17 +167,21 @@ def needed(text: str, model: str | None = None, most: int = 2) -> int:
     import tomllib
 
     from relayd.sim.scenario import parse_scenario
-    from relayd.sim.world import World
 
     sc = parse_scenario(tomllib.loads(text))
-    radio = World(sc, 0).radio
-    # The building's own budget: no shadowing, the same for every run seed.
-    radio.params = dataclasses.replace(
-        radio.params, shadow_sigma_db=0.0, model=model or radio.params.model
-    )
     route = [(w.x, w.y) for w in sc.leader.waypoints]
     cc = (sc.command_center.x, sc.command_center.y)
-    return relays_needed(lambda a, b: radio.mean_power_dbm(a, b)[0], cc, route, most=most)
+    return relays_needed(budget(sc, model), cc, route, most=most)
+
+
+def budget(sc: Scenario, model: str | None = None) -> PowerFn:
+    """The local-mean power between two points of scenario `sc`'s world: its radio (or the
+    `model` named instead) through its walls and boxes, as the simulator's World builds it,
+    without shadowing, so every run seed of the world gets the same answer."""
+    params = sc.radio_params()
+    params = dataclasses.replace(params, shadow_sigma_db=0.0, model=model or params.model)
+    radio = Radio(params, sc.wall_segments() + [s for b in sc.box_shapes() for s in b.segments()])
+    return lambda a, b: radio.mean_power_dbm(a, b)[0]
 
 
 def antennas(kind: str, seed: int, relays: int) -> list[str]:

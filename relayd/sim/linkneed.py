@@ -78,9 +78,7 @@ def relays_needed(
     # A convoy keeps its order: relay 2 stands no further along the route than relay 1.
     # Nearest pairs first, the likeliest to hold, so an accepted world is found after a
     # few queries; a refused one costs them all.
-    pairs = sorted(
-        ((i, j) for i in behind for j in ahead if i <= j), key=lambda ij: ij[1] - ij[0]
-    )
+    pairs = sorted(((i, j) for i in behind for j in ahead if i <= j), key=lambda ij: ij[1] - ij[0])
     if any(power(pts[i], pts[j]) >= hop_dbm for i, j in pairs):
         return 2
     return MORE

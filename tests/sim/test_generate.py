@@ -201,5 +201,5 @@ def test_sweep_generated_arg_expands_to_seeds() -> None:
 def test_a_seed_that_needs_many_draws_still_gets_a_world() -> None:
     """Office seed 759 finds its two-relay world at the 63rd draw (50 draws once left it,
     and one seed in 500, without a world)."""
-    world, route = build("office", 759)
+    _, route = build("office", 759)
     assert needed(generate("office", 759)) == 2 and route
