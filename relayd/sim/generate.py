@@ -152,26 +152,34 @@ def _build(kind: str, seed: int) -> tuple[dict[str, object], list[Point]]:
         if route is None or route_length_m(route) < MIN_ROUTE_M:
             continue
         route = [(_r(x), _r(y)) for x, y in route]
-        text = _render(kind, seed, world, route)
+        sc = _scenario(_render(kind, seed, world, route))
         # The straight path through the walls is never stronger than the dominant one, so
         # a world the wall count holds with one relay is refused without the corner graph.
-        if needed(text, "wall-count", most=1) >= 2 and needed(text) == 2:
+        if count(sc, "wall-count", most=1) >= 2 and count(sc) == 2:
             return world, route
     raise GenerateError(f"generated:{kind}:{seed}: no valid world in {MAX_TRIES} draws")
 
 
-def needed(text: str, model: str | None = None, most: int = 2) -> int:
-    """Relays the world of scenario `text` needs by its own radio (relayd/sim/linkneed.py),
-    or by the radio `model` named instead of its own; `most` as relays_needed's."""
+def needed(text: str) -> int:
+    """Relays the world of scenario `text` needs by its own radio (relayd/sim/linkneed.py)."""
+    return count(_scenario(text))
+
+
+def count(sc: Scenario, model: str | None = None, most: int = 2) -> int:
+    """Relays scenario `sc`'s world needs by its own radio, or by the radio `model` named
+    instead of its own; `most` as relays_needed's."""
+    route = [(w.x, w.y) for w in sc.leader.waypoints]
+    cc = (sc.command_center.x, sc.command_center.y)
+    return relays_needed(budget(sc, model), cc, route, most=most)
+
+
+def _scenario(text: str) -> Scenario:
     # Imported here: the scenario loader imports this module for `generated:` names.
     import tomllib
 
     from relayd.sim.scenario import parse_scenario
 
-    sc = parse_scenario(tomllib.loads(text))
-    route = [(w.x, w.y) for w in sc.leader.waypoints]
-    cc = (sc.command_center.x, sc.command_center.y)
-    return relays_needed(budget(sc, model), cc, route, most=most)
+    return parse_scenario(tomllib.loads(text))
 
 
 def budget(sc: Scenario, model: str | None = None) -> PowerFn:
