@@ -281,6 +281,9 @@ class ControlSettings(_Section):
     #: (the default until it wins everywhere, docs/CONTROL.md 7.2): the pursuit's straight
     #: way and the escape alone, as the paper's relays drove.
     detour: bool = False
+    #: Steer off a wall beside the robot nearer than this to its 90 deg sonar (m), in
+    #: proportion; 0: the paper's law alone (relayd/core/control/steer.py keep_off_sides).
+    side_keep_m: Annotated[float, Field(ge=0, le=1.5, allow_inf_nan=False)] = 0.0
     #: The path-loss model the leader's range is estimated with (`relayd calibrate` fits
     #: them): RSSI = L0 - 10 n log10(d) + N(0, sigma).
     pathloss_l0_dbm: Dbm = -15.0

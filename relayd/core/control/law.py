@@ -20,6 +20,7 @@ from relayd.core.control.steer import (
     away_from_near_side,
     detour_speed,
     detour_watch,
+    keep_off_sides,
     retry_detour,
     speed_scale,
     steering,
@@ -334,7 +335,9 @@ def control_step(
             replace(memory, prev_steer_deg=steer),
         )
     else:
-        left, right = wheel_law(v, bearing, prev, params.kp, params.kd, params.v_max_mm_s)
+        kept = keep_off_sides(bearing, inputs.front_sonar, params.side_keep_m)
+        prev = None if prev is None else prev + kept - bearing  # the D term sees the bearing
+        left, right = wheel_law(v, kept, prev, params.kp, params.kd, params.v_max_mm_s)
         state, memory = DriveState.DRIVING, replace(memory, prev_steer_deg=None)
         reason = "detour" if detouring else ("leader_far_sonar" if released else "driving")
 

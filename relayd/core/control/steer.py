@@ -76,6 +76,28 @@ def away_from_near_side(steer_deg: float, front: tuple[SonarReading, ...], stop_
     return steer_deg
 
 
+#: At a side wall this near (0: the paper's law alone) ...
+#: ... the steer is pushed away from it by up to this much (deg), in proportion.
+KEEP_PUSH_DEG = 30.0
+
+
+def keep_off_sides(steer_deg: float, front: tuple[SonarReading, ...], keep_m: float) -> float:
+    """The steer pushed away from a wall beside the robot nearer than keep_m (its 90 deg
+    sonar), in proportion to how much nearer: KEEP_PUSH_DEG at touching, both sides summed
+    (between two, toward the middle). The paper's law drives at the leader's bearing, and a
+    wall met at a glancing angle echoes into the side sonar alone (the forward ones see it
+    specularly: not at all), so nothing else turns the robot off it before it scrapes."""
+    if keep_m <= 0.0:
+        return steer_deg
+    r = by_heading(front)
+    push = 0.0
+    for side in (1, -1):
+        d = r.get(side * 90.0, SONAR_MAX_RANGE_M)
+        if d < keep_m:
+            push -= side * KEEP_PUSH_DEG * (keep_m - d) / keep_m
+    return steer_deg + push
+
+
 #: Within this much beyond the stop distance of a side echo, a detour steers gently ...
 PASSAGE_SIDE_M = 0.15
 #: ... at most this far off the nose (deg).
