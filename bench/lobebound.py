@@ -7,9 +7,10 @@ knowledge than a relay has (every scan a full sweep of the relay's own 25 servo 
 over -90..90, the level steady between scans, the leader known to lie within +-85):
 
 - **The oracle.** A least-squares fit over the whole class itself (bench/lobeclass.py's
-  three shapes on a 2.5 deg x 2.5 dB grid of widths and depths) and the bearing, the
+  three shapes on a 1.25 deg x 1.25 dB grid of widths and depths) and the bearing, the
   level free: the estimator that knows every lobe the class holds. Run on the class's
-  lobes at 60-85 deg with the readings a real adapter gives (whole dB, +-1 dB uniform
+  lobes at 60-85 deg (each draw's width and depth moved within half a grid step, so the
+  truth is never exactly one of the oracle's lobes) with the readings a real adapter gives (whole dB, +-1 dB uniform
   jitter), `--trials` draws each: its worst error and how often it is beyond 5 deg.
   `--grid-to 125` takes away its knowledge that the leader is within 85 deg.
 - **The two-point bound.** Two lobes of the class, at two bearings more than 10 deg
@@ -59,10 +60,15 @@ class Lobe:
         return np.array([g(bearing_deg - a) for a in ANGLES_DEG])
 
 
-def class_bank() -> list[Lobe]:
-    """The class on a grid: 3 shapes x widths 30..90 every 2.5 x depths 10..30 every 2.5."""
-    widths = np.arange(30.0, 90.01, 2.5)
-    depths = np.arange(10.0, 30.01, 2.5)
+#: The oracle's grid of widths (deg) and depths (dB). On a coarser grid it does worse, the
+#: truth lying between its lobes (`--grid-step 2.5`, bench/RESULTS.md).
+GRID_STEP = 1.25
+
+
+def class_bank(step: float = GRID_STEP) -> list[Lobe]:
+    """The class on a grid: 3 shapes x widths 30..90 x depths 10..30, every `step`."""
+    widths = np.arange(30.0, 90.01, step)
+    depths = np.arange(10.0, 30.01, step)
     return [Lobe(s, float(w), float(d)) for s in SHAPES for w in widths for d in depths]
 
 
@@ -128,9 +134,22 @@ def closest_pair(
     return best
 
 
-def oracle_rows(trials: int, quick: bool, grid_to_deg: float = 85.0) -> list[Result]:
+def _between(lobe: Lobe, rng: np.random.Generator, step: float) -> Lobe:
+    """The lobe with its width and depth moved anywhere within half a grid step: a real
+    antenna is not on the oracle's grid, and one that is would be recognised too well."""
+    half = step / 2.0
+    return Lobe(
+        lobe.shape,
+        lobe.beamwidth_deg + rng.uniform(-half, half),
+        lobe.depth_db + rng.uniform(-half, half),
+    )
+
+
+def oracle_rows(
+    trials: int, quick: bool, grid_to_deg: float = 85.0, step: float = GRID_STEP
+) -> list[Result]:
     rng = np.random.default_rng(2026)
-    bank = class_bank()
+    bank = class_bank(step)
     grid = np.arange(40.0, grid_to_deg + 0.01, 0.5)
     tmpl = templates(bank, grid)
     widths = (45.0, 90.0) if quick else (30.0, 45.0, 60.0, 75.0, 90.0)
@@ -143,7 +162,8 @@ def oracle_rows(trials: int, quick: bool, grid_to_deg: float = 85.0) -> list[Res
                 lobe = Lobe(shape, bw, depth)
                 errs = np.array(
                     [
-                        oracle(tmpl, grid, readings(lobe.gains(b) - 60.0, rng)) - b
+                        oracle(tmpl, grid, readings(_between(lobe, rng, step).gains(b) - 60.0, rng))
+                        - b
                         for b in truths
                         for _ in range(trials)
                     ]
@@ -154,7 +174,8 @@ def oracle_rows(trials: int, quick: bool, grid_to_deg: float = 85.0) -> list[Res
                     Result(
                         NAME,
                         f"oracle, {lobe}: share of draws beyond {TARGET_DEG:g} deg, "
-                        f"{truths[0]:g}..{truths[-1]:g} deg, bearings tried to {grid_to_deg:g}",
+                        f"{truths[0]:g}..{truths[-1]:g} deg, bearings to {grid_to_deg:g}, "
+                        f"grid {step:g}",
                         100.0 * beyond,
                         "%",
                         "",
@@ -203,11 +224,14 @@ def main(argv: list[str] | None = None) -> int:
         default=85.0,
         help="the oracle's last bearing (85: it knows the leader is within reach)",
     )
+    p.add_argument(
+        "--grid-step", type=float, default=GRID_STEP, help="the oracle's grid (deg and dB)"
+    )
     args = p.parse_args(argv)
     t0 = time.perf_counter()
     trials = args.trials or (5 if args.quick else 40)
     rows = [pair_row(4000 if args.quick else 100_000)]
-    rows += oracle_rows(trials, args.quick, args.grid_to)
+    rows += oracle_rows(trials, args.quick, args.grid_to, args.grid_step)
     print(table(rows))
     print(f"\n{time.perf_counter() - t0:.0f} s", file=sys.stderr)
     return 0
