@@ -40,6 +40,7 @@ VARIANTS: dict[str, dict[str, object]] = {
     "detour": {"detour": True},
     "trail": {"pursuit": "trail", "detour": True},
     "lane": {},  # [avoidance] keys only, below
+    "paper": {"side_keep_m": 0.0},  # the paper's law as it was: no push off a side wall
 }
 #: Each variant's `[avoidance]` keys: "lane" is the escape leaving by the lane test.
 AVOIDANCE: dict[str, dict[str, object]] = {"lane": {"leave_by_lane": True}}

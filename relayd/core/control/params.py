@@ -51,7 +51,7 @@ class ControlParams:
     #: The turn toward a lost leader beyond the servo's reach (relayd/core/control/search.py).
     search: SearchParams = field(default_factory=SearchParams)
     #: Steer off a side wall nearer than this (m; 0: off), relayd/core/control/steer.py.
-    side_keep_m: float = 0.0
+    side_keep_m: float = 0.35
     #: "bearing": at the scan bearing (the paper's); "trail": along the trail (docs 7.1).
     pursuit: str = "bearing"
     #: An escape no nearer the trail's head stops on "trail_blocked" (core/trail/blocked.py).

@@ -20,8 +20,8 @@ def sides(left_mm: int | None, right_mm: int | None) -> tuple[SonarReading, ...]
     return sonar(**{f"s{LEFT}": left_mm, f"s{RIGHT}": right_mm})
 
 
-def test_off_by_default_and_at_zero() -> None:
-    assert ControlParams().side_keep_m == 0.0
+def test_on_by_default_and_off_at_zero() -> None:
+    assert ControlParams().side_keep_m == 0.35
     assert keep_off_sides(7.0, sides(100, 100), 0.0) == 7.0
 
 
@@ -56,8 +56,9 @@ def test_the_push_is_bounded_and_never_toward_the_nearer_side(
 
 def test_the_law_turns_off_a_glancing_wall_and_stays_within_v_max() -> None:
     near_right = sides(None, 200)
-    plain = step(bearing_deg=0.0, prev_bearing_deg=0.0, front_sonar=near_right)
-    keep = dataclasses.replace(ControlParams(), side_keep_m=0.35)
+    paper = dataclasses.replace(ControlParams(), side_keep_m=0.0)
+    plain = step(params=paper, bearing_deg=0.0, prev_bearing_deg=0.0, front_sonar=near_right)
+    keep = ControlParams()
     kept = step(params=keep, bearing_deg=0.0, prev_bearing_deg=0.0, front_sonar=near_right)
     assert plain.left_mm_s == plain.right_mm_s  # the paper's law: straight at the bearing
     assert kept.right_mm_s > kept.left_mm_s  # turning left, off the wall on the right
