@@ -335,8 +335,8 @@ def control_step(
             replace(memory, prev_steer_deg=steer),
         )
     else:
-        kept = keep_off_sides(bearing, inputs.front_sonar, params.side_keep_m)
-        prev = None if prev is None else prev + kept - bearing  # the D term sees the bearing
+        keep_m = 0.0 if detouring else params.side_keep_m  # a detour's path is the map's
+        kept, prev = keep_off_sides(bearing, prev, inputs.front_sonar, keep_m)
         left, right = wheel_law(v, kept, prev, params.kp, params.kd, params.v_max_mm_s)
         state, memory = DriveState.DRIVING, replace(memory, prev_steer_deg=None)
         reason = "detour" if detouring else ("leader_far_sonar" if released else "driving")

@@ -76,26 +76,31 @@ def away_from_near_side(steer_deg: float, front: tuple[SonarReading, ...], stop_
     return steer_deg
 
 
-#: At a side wall this near (0: the paper's law alone) ...
-#: ... the steer is pushed away from it by up to this much (deg), in proportion.
+#: The push off a side wall (deg) were its sonar to read 0; the transducer sits 0.12 m
+#: inside the body's side, so at touching it reads about that and the push is less (20 deg
+#: with the shipped control.side_keep_m of 0.35 m).
 KEEP_PUSH_DEG = 30.0
 
 
-def keep_off_sides(steer_deg: float, front: tuple[SonarReading, ...], keep_m: float) -> float:
-    """The steer pushed away from a wall beside the robot nearer than keep_m (its 90 deg
-    sonar), in proportion to how much nearer: KEEP_PUSH_DEG at touching, both sides summed
-    (between two, toward the middle). The paper's law drives at the leader's bearing, and a
-    wall met at a glancing angle echoes into the side sonar alone (the forward ones see it
-    specularly: not at all), so nothing else turns the robot off it before it scrapes."""
+def keep_off_sides(
+    steer_deg: float, prev_deg: float | None, front: tuple[SonarReading, ...], keep_m: float
+) -> tuple[float, float | None]:
+    """(steer, previous steer for the D term): the steer pushed away from a wall beside the
+    robot nearer than keep_m (its 90 deg sonar), in proportion to how much nearer
+    (KEEP_PUSH_DEG x (keep_m - range) / keep_m), both sides summed (between two, toward the
+    middle); the previous steer moved by the same push, so the D term sees the bearing's
+    own change. The paper's law drives at the leader's bearing, and a wall met at a
+    glancing angle echoes into the side sonar alone (the forward ones see it specularly:
+    not at all), so nothing else turns the robot off it before it scrapes."""
     if keep_m <= 0.0:
-        return steer_deg
+        return steer_deg, prev_deg
     r = by_heading(front)
     push = 0.0
     for side in (1, -1):
         d = r.get(side * 90.0, SONAR_MAX_RANGE_M)
         if d < keep_m:
             push -= side * KEEP_PUSH_DEG * (keep_m - d) / keep_m
-    return steer_deg + push
+    return steer_deg + push, None if prev_deg is None else prev_deg + push
 
 
 #: Within this much beyond the stop distance of a side echo, a detour steers gently ...
