@@ -2,23 +2,25 @@
 
 `python -m bench.lobebound [--quick]` asks whether "within 5 deg, uncalibrated, for every
 symmetric main lobe 30-90 deg wide and 10-30 dB deep, leader anywhere in +-85" is a goal
-a better fit could reach, or one the measurements rule out. Two figures, both with more
-knowledge than a relay has (every scan a full sweep of the relay's own 25 servo angles
-over -90..90, the level steady between scans, the leader known to lie within +-85):
+a better fit could reach, or one the measurements rule out. Both figures are for five full
+sweeps of the relay's own 25 servo angles over -90..90 (the relay's adaptive window
+samples other angles), the level steady between scans, no fading:
 
-- **The oracle.** A least-squares fit over the whole class itself (bench/lobeclass.py's
-  three shapes on a 1.25 deg x 1.25 dB grid of widths and depths) and the bearing, the
-  level free: the estimator that knows every lobe the class holds. Run on the class's
-  lobes at 60-85 deg (each draw's width and depth moved within half a grid step, so the
-  truth is never exactly one of the oracle's lobes) with the readings a real adapter gives (whole dB, +-1 dB uniform
-  jitter), `--trials` draws each: its worst error and how often it is beyond 5 deg.
-  `--grid-to 125` takes away its knowledge that the leader is within 85 deg.
 - **The two-point bound.** Two lobes of the class, at two bearings more than 10 deg
-  apart (both within 85), whose five scans a reading cannot tell apart well: for ANY
-  estimator, P(error > 5 deg) >= (1 - TV) / 2 on at least one of them (Le Cam), where TV
-  is the total-variation distance between the two lobes' distributions of readings,
-  computed for the exact whole-dB jitter by Monte Carlo of the likelihood ratio, the
-  second lobe's level set where it matches the first best.
+  apart (both within 85), whose five sweeps a reading cannot tell apart well: for ANY
+  estimator of those sweeps, P(error > 5 deg) >= (1 - TV) / 2 on at least one of them
+  (Le Cam), where TV is the total-variation distance between the two lobes' laws of
+  readings, computed for the exact whole-dB jitter by Monte Carlo of the likelihood ratio
+  (the second lobe's level set where it matches the first best, then TV estimated again
+  there with fresh draws).
+- **The oracle.** A least-squares fit (not the exact likelihood of whole-dB readings) over
+  the class itself (bench/lobeclass.py's three shapes on a 1.25 deg x 1.25 dB grid of
+  widths and depths) and the bearing, the level free, bearings tried from 40 deg to 85
+  (it knows the leader lies there). Run on the class's lobes at 60-85 deg (each draw's
+  width and depth moved within half a grid step, inside the class, so the truth is
+  rarely one of the oracle's lobes) with the readings a real adapter gives (whole dB, +-1
+  dB uniform jitter), `--trials` draws each: its worst error and how often it is beyond
+  5 deg. `--grid-to 125` takes away its knowledge that the leader is within 85 deg.
 
 Needs NumPy (matplotlib's own dependency, so in every install that has `[sim]`).
 """
@@ -135,14 +137,14 @@ def closest_pair(
 
 
 def _between(lobe: Lobe, rng: np.random.Generator, step: float) -> Lobe:
-    """The lobe with its width and depth moved anywhere within half a grid step: a real
-    antenna is not on the oracle's grid, and one that is would be recognised too well."""
+    """The lobe with its width and depth moved anywhere within half a grid step, inside the
+    class: a real antenna is not on the oracle's grid, and one that is would be
+    recognised too well."""
     half = step / 2.0
-    return Lobe(
-        lobe.shape,
-        lobe.beamwidth_deg + rng.uniform(-half, half),
-        lobe.depth_db + rng.uniform(-half, half),
-    )
+    # Within the class: a row at its edge (10 dB deep, 90 deg wide) moves inward only.
+    width = rng.uniform(max(30.0, lobe.beamwidth_deg - half), min(90.0, lobe.beamwidth_deg + half))
+    depth = rng.uniform(max(10.0, lobe.depth_db - half), min(30.0, lobe.depth_db + half))
+    return Lobe(lobe.shape, width, depth)
 
 
 def oracle_rows(
@@ -198,7 +200,10 @@ def pair_row(draws: int, apart_deg: float = 2.0 * TARGET_DEG) -> Result:
     a = bank[li].gains(float(grid[bi]))
     b = bank[lj].gains(float(grid[bj]))
     b = b + (a - b).mean()
-    tv = min(total_variation(a, b + s, draws) for s in np.arange(-0.2, 0.21, 0.05))
+    # The level shift that makes them likest, then TV there on fresh draws (the minimum of
+    # several Monte Carlo estimates is biased low).
+    shift = min(np.arange(-0.2, 0.21, 0.05), key=lambda s: total_variation(a, b + s, draws))
+    tv = total_variation(a, b + shift, draws, seed=1)
     return Result(
         NAME,
         f"any estimator: P(error > {TARGET_DEG:g} deg) on one of two class lobes, "

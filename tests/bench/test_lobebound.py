@@ -7,6 +7,7 @@ import pytest
 
 from bench.lobebound import (
     ANGLES_DEG,
+    SCANS,
     Lobe,
     _probs,
     class_bank,
@@ -35,6 +36,21 @@ def test_identical_lobes_cannot_be_told_apart_and_far_ones_can() -> None:
     assert total_variation(a, a, draws=2000) == pytest.approx(0.0)
     far = Lobe("cos^n", 60.0, 20.0).gains(40.0)
     assert total_variation(a, far, draws=2000) > 0.999
+
+
+def test_the_monte_carlo_tv_matches_exact_enumeration() -> None:
+    """One servo angle, five scans: few enough outcomes to sum the TV exactly."""
+    import itertools
+
+    a, b = np.array([-60.3]), np.array([-59.6])
+    ks = np.arange(-64.0, -55.0)
+    pa, pb = _probs(a, ks)[0], _probs(b, ks)[0]
+    exact = 0.5 * sum(
+        abs(np.prod(pa[list(o)]) - np.prod(pb[list(o)]))
+        for o in itertools.product(range(ks.size), repeat=SCANS)
+    )
+    assert 0.2 < exact < 0.9
+    assert total_variation(a, b, draws=200_000, seed=3) == pytest.approx(exact, abs=0.01)
 
 
 def test_the_documented_pair_is_ten_degrees_apart_yet_hard_to_tell() -> None:
