@@ -1,7 +1,9 @@
 """The headline robustness table: generated worlds, the shipped default beside a variant.
 
     python -m bench.robustness                     # 200 office + 200 corridors worlds, 2 relays,
-                                                   # control.detour = false (shipped) and true
+                                                   # the shipped default (side_keep_m 0.35) beside
+                                                   # the paper's law (0)
+    python -m bench.robustness --set control.detour=false,true
     python -m bench.robustness --worlds 20 --kind hall --kind mixed
     python -m bench.robustness --from SWEEP_DIR    # the table of a sweep already run
 
@@ -71,7 +73,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--worlds", type=int, default=200, help="worlds per kind (seeds 0..N-1)")
     ap.add_argument("--kind", action="append", default=None, help="office, corridors, hall, ...")
-    ap.add_argument("--set", default="control.detour=false,true", help="the variant axis")
+    ap.add_argument("--set", default="control.side_keep_m=0.35,0", help="the variant axis")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", type=Path, default=Path("robustness-out"))
     ap.add_argument("--from", dest="src", type=Path, help="a sweep directory already run")
