@@ -188,7 +188,7 @@ def budget(sc: Scenario, model: str | None = None) -> PowerFn:
     without shadowing, so every run seed of the world gets the same answer."""
     params = sc.radio_params()
     params = dataclasses.replace(params, shadow_sigma_db=0.0, model=model or params.model)
-    radio = Radio(params, sc.wall_segments() + [s for b in sc.box_shapes() for s in b.segments()])
+    radio = Radio(params, sc.static_segments())
     return lambda a, b: radio.mean_power_dbm(a, b)[0]
 
 

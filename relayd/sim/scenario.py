@@ -297,6 +297,11 @@ class Scenario(_Model):
         """The boxes present the whole run (timed ones: `timed_obstacles`)."""
         return [_box(b) for b in self.boxes if not b.timed]
 
+    def static_segments(self) -> list[Segment]:
+        """Every wall and box outline present the whole run, walls first: what the radio
+        and the sonar meet (timed ones: `timed_obstacles`)."""
+        return self.wall_segments() + [s for b in self.box_shapes() for s in b.segments()]
+
     def timed_obstacles(self) -> list[tuple[float, float | None, tuple[Segment, ...]]]:
         """(appear_s, disappear_s, outline) of every timed wall and box: doors and the like."""
         out: list[tuple[float, float | None, tuple[Segment, ...]]] = []

@@ -96,9 +96,7 @@ class World:
         self.seed = seed
         self.walls: list[Segment] = scenario.wall_segments()
         self.boxes = scenario.box_shapes()
-        self._static: list[Segment] = list(self.walls)
-        for b in self.boxes:
-            self._static.extend(b.segments())
+        self._static: list[Segment] = scenario.static_segments()
         # Timed world events (a door): (appear_s, disappear_s, outline), and which are present.
         self.timed = scenario.timed_obstacles()
         self.timed_present = [False] * len(self.timed)
