@@ -41,9 +41,13 @@ VARIANTS: dict[str, dict[str, object]] = {
     "trail": {"pursuit": "trail", "detour": True},
     "lane": {},  # [avoidance] keys only, below
     "paper": {"side_keep_m": 0.0},  # the paper's law as it was: no push off a side wall
+    "pass": {},  # [avoidance] keys only, below
 }
 #: Each variant's `[avoidance]` keys: "lane" is the escape leaving by the lane test.
-AVOIDANCE: dict[str, dict[str, object]] = {"lane": {"leave_by_lane": True}}
+AVOIDANCE: dict[str, dict[str, object]] = {
+    "lane": {"leave_by_lane": True},
+    "pass": {"lane_pass_margin_m": 0.5},
+}
 
 
 def variant_of(sc: Any, variant: str, extra: Mapping[str, object]) -> Any:

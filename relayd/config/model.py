@@ -350,6 +350,9 @@ class AvoidanceSettings(_Section):
     #: sonar near the leader's bearing sees that far (docs/AVOIDANCE.md). False: as before.
     leave_by_lane: bool = False
     leave_lane_margin_m: Annotated[float, Field(ge=0.0, le=0.5)] = 0.1
+    #: A lane change is past its obstacle once the obstacle side sees this much beyond
+    #: the nearest it came abeam (docs/AVOIDANCE.md); 0: only beyond 1.2 m, as before.
+    lane_pass_margin_m: Annotated[float, Field(ge=0.0, le=1.2)] = 0.0
 
     @model_validator(mode="after")
     def _cross_key_rules(self) -> AvoidanceSettings:

@@ -52,7 +52,7 @@ def maybe_lane(
         expected = boundary_echo_m(fit, st.side, st.side * h)
         if r.get(st.side * h, SONAR_MAX_RANGE_M) < expected - 0.15:
             return st
-    return enter(st, AvoidMode.LANE, t, lane_ref=s.pose, lane_beside=False)
+    return enter(st, AvoidMode.LANE, t, lane_ref=s.pose, lane_beside=False, lane_near_m=None)
 
 
 def lane_step(
@@ -72,10 +72,16 @@ def lane_step(
     # Past the obstacle once the sonars on its side, the rear one abeam included (the
     # robot's back half is still beside it when the front ring clears), see open space.
     rear_abeam = [echo_m(x) for x in s.rear if x.index == (15 if w > 0 else 8)]
+    abeam_m = min([r.get(w * 90.0, SONAR_MAX_RANGE_M), *rear_abeam])
+    near_m = abeam_m if st.lane_near_m is None else min(st.lane_near_m, abeam_m)
+    st = replace(st, lane_near_m=near_m)
+    clear_m = p.leave_clear_m
+    if p.lane_pass_margin_m > 0.0:
+        clear_m = min(clear_m, near_m + p.lane_pass_margin_m)
     passed = (
         along > 0.5
-        and min_at(r, tuple(w * h for h in (90.0, 50.0, 30.0))) > p.leave_clear_m
-        and min(rear_abeam, default=SONAR_MAX_RANGE_M) > p.leave_clear_m
+        and min_at(r, tuple(w * h for h in (90.0, 50.0, 30.0))) > clear_m
+        and min(rear_abeam, default=SONAR_MAX_RANGE_M) > clear_m
     )
     # Out of the gap and clear of its sides: the paper's law takes over, turning gently
     # onto the leader as it drives.
@@ -99,13 +105,14 @@ def lane_step(
             t,
             lane_ref=None,
             lane_beside=False,
+            lane_near_m=None,
             anchor=s.pose[:2],
             anchor_t=t,
         ), AvoidCommand(True)
     if max(r.get(10.0, SONAR_MAX_RANGE_M), r.get(-10.0, SONAR_MAX_RANGE_M)) < p.front_clear_m:
         # Both forward sonars close: something across the lane (a diagonal approach to
         # the side boundary shows in one of them only). Go round it instead.
-        return enter(st, AvoidMode.TURN, t, lane_ref=None), None
+        return enter(st, AvoidMode.TURN, t, lane_ref=None, lane_near_m=None), None
     fit = wall_fit(r, st.side, p.fit_range_m, edge=True)
     if fit is not None:
         # The free side's boundary is in reach: run parallel to it at the lane's distance
@@ -137,12 +144,14 @@ def lane_step(
         err = wrap_deg(st.side * toward + wall_angle)
     else:
         # The boundary that made this a passage is gone: no lane to keep, go round instead.
-        return enter(st, AvoidMode.TURN, t, lane_ref=None), None
+        return enter(st, AvoidMode.TURN, t, lane_ref=None, lane_near_m=None), None
     rvel = max(-p.turn_rate_deg_s, min(p.turn_rate_deg_s, 2.0 * err))
     # Keep rolling while turning: between close boundaries there is no room to turn in
     # place, only to arc (the guard still stops the wheels before anything in the path).
     vel = p.lane_speed_mm_s * max(0.4, math.cos(math.radians(min(90.0, 3.0 * abs(err)))))
     cmd = drive_cmd(act, s, p, vel, rvel)
     if cmd.vel_mm_s == 0 and cmd.rvel_deg_s == 0 and forward_min_m(s.sonar) < p.front_clear_m:
-        return enter(st, AvoidMode.TURN, t, lane_ref=None), None  # the lane is shut: go round
+        return enter(
+            st, AvoidMode.TURN, t, lane_ref=None, lane_near_m=None
+        ), None  # the lane is shut: go round
     return st, cmd

@@ -98,6 +98,11 @@ class AvoidParams:
     #: wall 0.65 m off fails that for ever, and the escape follows the corridor to its end).
     leave_by_lane: bool = False
     leave_lane_margin_m: float = 0.1
+    #: A lane change is past its obstacle once the obstacle side's sonars see this much
+    #: beyond the nearest the obstacle came abeam (or leave_clear_m, if nearer): a 2 m
+    #: corridor's far wall is never leave_clear_m away from a robot that kept to the lane.
+    #: 0: leave_clear_m alone.
+    lane_pass_margin_m: float = 0.0
     door_side_m: float = 0.8
     door_ahead_m: float = 0.6
     door_bearing_deg: float = 40.0
@@ -132,6 +137,7 @@ class AvoidState:
     unjam: bool = False  # this back-off makes room to turn: it runs its length whatever is ahead
     lane_ref: tuple[float, float, float] | None = None  # pose where the lane change began
     lane_beside: bool = False  # LANE (leave_by_lane): the obstacle has been abeam
+    lane_near_m: float | None = None  # LANE: the nearest the obstacle side came abeam (m)
     mode_heading_deg: float = 0.0  # odometry heading when the current mode began
     had_wall: bool = False  # WALL: the boundary has been in reach since WALL began
     opening_at: tuple[float, float] | None = None  # WALL: where an opening abeam began
