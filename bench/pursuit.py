@@ -42,6 +42,7 @@ VARIANTS: dict[str, dict[str, object]] = {
     "lane": {},  # [avoidance] keys only, below
     "paper": {"side_keep_m": 0.0},  # the paper's law as it was: no push off a side wall
     "pass": {},  # [avoidance] keys only, below
+    "slide": {"wall_slide_m": 1.0},
 }
 #: Each variant's `[avoidance]` keys: "lane" is the escape leaving by the lane test.
 AVOIDANCE: dict[str, dict[str, object]] = {

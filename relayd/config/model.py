@@ -284,6 +284,7 @@ class ControlSettings(_Section):
     #: Steer off a wall beside the robot nearer than this to its 90 deg sonar (m), in
     #: proportion; 0: the paper's law alone (relayd/core/control/steer.py keep_off_sides).
     side_keep_m: Annotated[float, Field(ge=0, le=1.5, allow_inf_nan=False)] = 0.35
+    wall_slide_m: Annotated[float, Field(ge=0, le=1.5, allow_inf_nan=False)] = 0.0
     #: The path-loss model the leader's range is estimated with (`relayd calibrate` fits
     #: them): RSSI = L0 - 10 n log10(d) + N(0, sigma).
     pathloss_l0_dbm: Dbm = -15.0

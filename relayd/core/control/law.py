@@ -22,6 +22,7 @@ from relayd.core.control.steer import (
     detour_watch,
     keep_off_sides,
     retry_detour,
+    slide_along_wall,
     speed_scale,
     steering,
     trail_hold,
@@ -336,7 +337,9 @@ def control_step(
         )
     else:
         keep_m = 0.0 if detouring else params.side_keep_m  # a detour's path is the map's
-        kept, prev = keep_off_sides(bearing, prev, inputs.front_sonar, keep_m)
+        slide_m = 0.0 if detouring else params.wall_slide_m
+        slid = slide_along_wall(bearing, inputs.front_sonar, slide_m)
+        kept, prev = keep_off_sides(slid, prev, inputs.front_sonar, keep_m)
         left, right = wheel_law(v, kept, prev, params.kp, params.kd, params.v_max_mm_s)
         state, memory = DriveState.DRIVING, replace(memory, prev_steer_deg=None)
         reason = "detour" if detouring else ("leader_far_sonar" if released else "driving")

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING
 
-from relayd.core.avoid.ring import by_heading, in_path_below_m
+from relayd.core.avoid.ring import by_heading, in_path_below_m, wall_fit
 from relayd.core.avoid.state import AvoidMode, AvoidState
 from relayd.core.control.params import ControlParams
 from relayd.core.scan.estimator import SONAR_MAX_RANGE_M, SonarReading
@@ -101,6 +101,28 @@ def keep_off_sides(
         if d < keep_m:
             push -= side * KEEP_PUSH_DEG * (keep_m - d) / keep_m
     return steer_deg + push, None if prev_deg is None else prev_deg + push
+
+
+#: The slide along a wall acts on a leader at most this far off the nose (deg): one
+#: behind is the turn round's, and sliding on would run the robot away along the wall.
+SLIDE_MAX_DEG = 100.0
+
+
+def slide_along_wall(steer_deg: float, front: tuple[SonarReading, ...], reach_m: float) -> float:
+    """The steer no further into a wall on its side than the wall's own direction: the
+    leader's signal comes through walls, and a relay that steers at it into one meets the
+    paper's slow-down, turns off, steers back in and crawls. Along the wall instead it
+    drives on until the wall ends or opens (a door), and the bearing has the way again.
+    The wall is the line through that side's two nearest 90/50/30 deg echoes within
+    reach_m (relayd.core.avoid.ring.wall_fit); 0: off."""
+    if reach_m <= 0.0 or steer_deg == 0.0 or abs(steer_deg) > SLIDE_MAX_DEG:
+        return steer_deg
+    side = 1 if steer_deg > 0 else -1
+    fit = wall_fit(by_heading(front), side, reach_m)
+    if fit is None:
+        return steer_deg
+    _, along_deg = fit
+    return min(steer_deg, along_deg) if side > 0 else max(steer_deg, along_deg)
 
 
 #: Within this much beyond the stop distance of a side echo, a detour steers gently ...
