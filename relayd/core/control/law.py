@@ -20,9 +20,8 @@ from relayd.core.control.steer import (
     away_from_near_side,
     detour_speed,
     detour_watch,
-    keep_off_sides,
+    off_walls,
     retry_detour,
-    slide_along_wall,
     speed_scale,
     steering,
     trail_hold,
@@ -336,10 +335,7 @@ def control_step(
             replace(memory, prev_steer_deg=steer),
         )
     else:
-        keep_m = 0.0 if detouring else params.side_keep_m  # a detour's path is the map's
-        slide_m = 0.0 if detouring else params.wall_slide_m
-        slid = slide_along_wall(bearing, inputs.front_sonar, slide_m)
-        kept, prev = keep_off_sides(slid, prev, inputs.front_sonar, keep_m)
+        kept, prev = off_walls(bearing, prev, inputs.front_sonar, params, detouring)
         left, right = wheel_law(v, kept, prev, params.kp, params.kd, params.v_max_mm_s)
         state, memory = DriveState.DRIVING, replace(memory, prev_steer_deg=None)
         reason = "detour" if detouring else ("leader_far_sonar" if released else "driving")

@@ -125,6 +125,24 @@ def slide_along_wall(steer_deg: float, front: tuple[SonarReading, ...], reach_m:
     return min(steer_deg, along_deg) if side > 0 else max(steer_deg, along_deg)
 
 
+def off_walls(
+    steer_deg: float,
+    prev_deg: float | None,
+    front: tuple[SonarReading, ...],
+    params: ControlParams,
+    detouring: bool,
+) -> tuple[float, float | None]:
+    """The plain pursuit's steer and its previous value, slid along a wall it points into
+    (control.wall_slide_m) and pushed off one beside it (control.side_keep_m); a detour's
+    path is the map's, and neither acts on it."""
+    if detouring:
+        return steer_deg, prev_deg
+    slid = slide_along_wall(steer_deg, front, params.wall_slide_m)
+    if slid != steer_deg:
+        prev_deg = None  # the steer is the wall's, not the bearing's: no D term on it
+    return keep_off_sides(slid, prev_deg, front, params.side_keep_m)
+
+
 #: Within this much beyond the stop distance of a side echo, a detour steers gently ...
 PASSAGE_SIDE_M = 0.15
 #: ... at most this far off the nose (deg).
