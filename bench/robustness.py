@@ -1,14 +1,15 @@
 """The headline robustness table: generated worlds, the shipped default beside a variant.
 
     python -m bench.robustness                     # 200 office + 200 corridors worlds, 2 relays,
-                                                   # the shipped default (side_keep_m 0.35) beside
-                                                   # the paper's law (0)
+                                                   # the shipped default beside the paper's law
+                                                   # (PAPER: its keys that differ, all at 0)
     python -m bench.robustness --set control.detour=false,true
     python -m bench.robustness --worlds 20 --kind hall --kind mixed
     python -m bench.robustness --from SWEEP_DIR    # the table of a sweep already run
 
-Runs `relayd sweep --generated KIND:N ... --seeds 1 --relays 2 --set AXIS --no-plots` on
-the embedded LocalCluster (two workers: the development machine's two cores) and prints,
+Runs `relayd sweep --generated KIND:N ... --seeds 1 --relays 2 [--set AXIS] --no-plots` on
+the embedded LocalCluster (without --set: once as shipped, into DIR/default, and once with
+the PAPER keys, into DIR/paper, the two tabulated as one by their `law`) (two workers: the development machine's two cores) and prints,
 per kind and setting, the clean share (relayd/sweep/robust.py: the leader arrived, the
 link held, no collision, every relay on the link rule) with its Wilson 95 % interval and
 the failures by category, the five worst runs with their worlds drawn (DIR/plots/worst-K.png),
@@ -30,12 +31,20 @@ from pathlib import Path
 
 from relayd.sweep.robust import section
 
+#: The paper's law as it was: the keys of the shipped default that differ from it, each at
+#: the value that turns it off (docs/CONTROL.md 7.3 and 7.4, docs/AVOIDANCE.md).
+PAPER = ("control.side_keep_m=0", "control.wall_slide_m=0", "avoidance.lane_pass_margin_m=0")
+#: The law column of the two sweeps without --set.
+LAWS = {"default": (), "paper": PAPER}
 
-def run_sweep(args: argparse.Namespace, out: Path) -> dict[str, float]:
+
+def run_sweep(args: argparse.Namespace, out: Path, sets: tuple[str, ...]) -> dict[str, float]:
     cmd = [sys.executable, "-m", "relayd", "sweep", "--seeds", "1", "--relays", "2"]
     for k in args.kind:
         cmd += ["--generated", f"{k}:{args.worlds}"]
-    cmd += ["--set", args.set, "--workers", str(args.workers), "--out", str(out), "--no-plots"]
+    for axis in sets:
+        cmd += ["--set", axis]
+    cmd += ["--workers", str(args.workers), "--out", str(out), "--no-plots"]
     print("$", " ".join(cmd[2:]), file=sys.stderr)
     t0 = time.monotonic()
     subprocess.run(cmd, check=True)
@@ -45,11 +54,24 @@ def run_sweep(args: argparse.Namespace, out: Path) -> dict[str, float]:
     return timing
 
 
+def read_rows(out: Path, set_key: str) -> list[dict[str, str]]:
+    """The sweep's runs.csv; without a set key, both laws' sweeps, each row with its `law`."""
+    if set_key:
+        with (out / "runs.csv").open(encoding="utf-8") as fh:
+            return list(csv.DictReader(fh))
+    rows: list[dict[str, str]] = []
+    for law in LAWS:
+        with (out / law / "runs.csv").open(encoding="utf-8") as fh:
+            for row in csv.DictReader(fh):
+                row["law"] = law
+                rows.append(row)
+    return rows
+
+
 def table(out: Path, set_key: str) -> list[str]:
-    with (out / "runs.csv").open(encoding="utf-8") as fh:
-        rows = list(csv.DictReader(fh))
+    rows = read_rows(out, set_key)
     (out / "plots").mkdir(exist_ok=True)
-    lines = section(rows, [set_key] if set_key else [], maps=out)
+    lines = section(rows, [set_key or "law"], maps=out)
     sim_s = sum(float(r["sim_seconds"] or 0) for r in rows)
     run_wall_s = sum(float(r["wall_s"] or 0) for r in rows)
     lines += [
@@ -58,9 +80,14 @@ def table(out: Path, set_key: str) -> list[str]:
         f"wall per simulated second (each run's own wall time; {len(rows)} runs, "
         f"mean {sim_s / max(len(rows), 1):.0f} simulated s a run).",
     ]
-    timing_path = out / "bench-timing.json"
-    if timing_path.exists():
-        t = json.loads(timing_path.read_text(encoding="utf-8"))
+    paths = (
+        [out / "bench-timing.json"]
+        if set_key
+        else [out / law / "bench-timing.json" for law in LAWS]
+    )
+    if all(p.exists() for p in paths):
+        ts = [json.loads(p.read_text(encoding="utf-8")) for p in paths]
+        t = {k: sum(x[k] for x in ts) for k in ("wall_s", "cpu_s")}
         lines.append(
             f"Sweep: {t['wall_s'] / 60:.1f} min of wall, {t['cpu_s'] / 60:.1f} min of CPU "
             f"(every process of the sweep), {t['cpu_s'] / max(sim_s, 1e-9) * 1000:.1f} ms of "
@@ -73,16 +100,21 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--worlds", type=int, default=200, help="worlds per kind (seeds 0..N-1)")
     ap.add_argument("--kind", action="append", default=None, help="office, corridors, hall, ...")
-    ap.add_argument("--set", default="control.side_keep_m=0.35,0", help="the variant axis")
+    ap.add_argument(
+        "--set", default=None, help="a variant axis (default: the shipped law and the paper's)"
+    )
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", type=Path, default=Path("robustness-out"))
     ap.add_argument("--from", dest="src", type=Path, help="a sweep directory already run")
     args = ap.parse_args()
     args.kind = args.kind or ["office", "corridors"]
     out = args.src or args.out
-    if args.src is None:
-        run_sweep(args, out)
     set_key = args.set.split("=", 1)[0] if args.set else ""
+    if args.src is None and args.set:
+        run_sweep(args, out, (args.set,))
+    elif args.src is None:
+        for law, sets in LAWS.items():
+            run_sweep(args, out / law, sets)
     print("\n".join(table(out, set_key)))
     return 0
 

@@ -284,7 +284,9 @@ class ControlSettings(_Section):
     #: Steer off a wall beside the robot nearer than this to its 90 deg sonar (m), in
     #: proportion; 0: the paper's law alone (relayd/core/control/steer.py keep_off_sides).
     side_keep_m: Annotated[float, Field(ge=0, le=1.5, allow_inf_nan=False)] = 0.35
-    wall_slide_m: Annotated[float, Field(ge=0, le=1.5, allow_inf_nan=False)] = 0.0
+    #: Steer no further into a wall whose echoes are within this of the side sonars than
+    #: along it (m); 0: the paper's law alone (relayd/core/control/steer.py slide_along_wall).
+    wall_slide_m: Annotated[float, Field(ge=0, le=1.5, allow_inf_nan=False)] = 1.0
     #: The path-loss model the leader's range is estimated with (`relayd calibrate` fits
     #: them): RSSI = L0 - 10 n log10(d) + N(0, sigma).
     pathloss_l0_dbm: Dbm = -15.0
@@ -353,7 +355,7 @@ class AvoidanceSettings(_Section):
     leave_lane_margin_m: Annotated[float, Field(ge=0.0, le=0.5)] = 0.1
     #: A lane change is past its obstacle once the obstacle side sees this much beyond
     #: the nearest it came abeam (docs/AVOIDANCE.md); 0: only beyond 1.2 m, as before.
-    lane_pass_margin_m: Annotated[float, Field(ge=0.0, le=1.2)] = 0.0
+    lane_pass_margin_m: Annotated[float, Field(ge=0.0, le=1.2)] = 0.5
 
     @model_validator(mode="after")
     def _cross_key_rules(self) -> AvoidanceSettings:

@@ -101,8 +101,8 @@ class AvoidParams:
     #: A lane change is past its obstacle once the obstacle side's sonars see this much
     #: beyond the nearest the obstacle came abeam (or leave_clear_m, if nearer): a 2 m
     #: corridor's far wall is never leave_clear_m away from a robot that kept to the lane.
-    #: 0: leave_clear_m alone.
-    lane_pass_margin_m: float = 0.0
+    #: 0: leave_clear_m alone (as before).
+    lane_pass_margin_m: float = 0.5
     door_side_m: float = 0.8
     door_ahead_m: float = 0.6
     door_bearing_deg: float = 40.0
