@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from relayd.sim.linkneed import MORE, NEED_HOP_DBM, along, relays_needed
@@ -47,16 +47,20 @@ def test_a_wall_on_the_way_costs_a_relay() -> None:
 
 
 @settings(max_examples=60, deadline=None)
+@example(49.5, -52.0)
 @given(st.floats(min_value=5.0, max_value=120.0), st.floats(min_value=-75.0, max_value=-50.0))
 def test_the_count_grows_with_the_route_and_the_threshold(length_m: float, hop_dbm: float) -> None:
     """On a straight corridor k relays hold k + 1 hops of at most r = 10^((-15 - t) / 30) m
-    each, so the count is the least k with (k + 1) r >= L (relays stand on whole metres
-    of the route: a metre of slack either way)."""
+    each, so the count is the least k with (k + 1) r >= L. Relays stand on the route's
+    points, `along`'s spacing s apart (1-2 m): never fewer than that, and each of the two
+    may stand up to s short of where it would hold, so as many as for L + 2 s (L = 49.5 m
+    at -52 dBm: s = 1.01 m, three relays where the continuous count is two)."""
     r = 10 ** ((-15.0 - hop_dbm) / 30.0)
     route = [(0.0, 0.0), (length_m, 0.0)]
     got = relays_needed(free_space, (0.0, 0.0), route, hop_dbm)
-    lo = max(0, math.ceil((length_m - 1.0) / r) - 1)
-    hi = max(0, math.ceil((length_m + 1.0) / r) - 1)
+    spacing = length_m / max(1, int(length_m))
+    lo = max(0, math.ceil(length_m / r) - 1)
+    hi = max(0, math.ceil((length_m + 2.0 * spacing) / r) - 1)
     assert min(lo, MORE) <= got <= min(hi, MORE)
 
 

@@ -114,11 +114,17 @@ def slide_along_wall(steer_deg: float, front: tuple[SonarReading, ...], reach_m:
     paper's slow-down, turns off, steers back in and crawls. Along the wall instead it
     drives on until the wall ends or opens (a door), and the bearing has the way again.
     The wall is the line through that side's two nearest 90/50/30 deg echoes within
-    reach_m (relayd.core.avoid.ring.wall_fit); 0: off."""
+    reach_m (relayd.core.avoid.ring.wall_fit), and only while the 90 deg sonar hears it
+    abeam; 0: off."""
     if reach_m <= 0.0 or steer_deg == 0.0 or abs(steer_deg) > SLIDE_MAX_DEG:
         return steer_deg
     side = 1 if steer_deg > 0 else -1
-    fit = wall_fit(by_heading(front), side, reach_m)
+    r = by_heading(front)
+    if r.get(side * 90.0, SONAR_MAX_RANGE_M) > reach_m:
+        # Nothing abeam on that side: a door or a side corridor there, or the wall still
+        # ahead, where the paper's obstacle rule has it; the bearing has the way.
+        return steer_deg
+    fit = wall_fit(r, side, reach_m)
     if fit is None:
         return steer_deg
     _, along_deg = fit

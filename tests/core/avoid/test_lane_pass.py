@@ -61,9 +61,14 @@ def step(st: AvoidState, s: Sense, p: AvoidParams) -> tuple[AvoidState, object]:
     return lane_step(st, s, r, p, Actuator(), 0.0)
 
 
+def test_on_by_default() -> None:
+    assert AvoidParams().lane_pass_margin_m == 0.5
+    assert ControlParams().avoid.lane_pass_margin_m == 0.5
+
+
 def test_past_the_person_a_corridor_wall_at_1_15_m_ends_the_lane_with_the_margin_only() -> None:
     s = sense(1200.0, corridor_beyond(1.15), rear_left_m=1.15)
-    off_st, _ = step(lane(0.24), s, AvoidParams())
+    off_st, _ = step(lane(0.24), s, AvoidParams(lane_pass_margin_m=0.0))
     assert off_st.mode is AvoidMode.LANE  # the old test wants 1.2 m: never, in this corridor
     on_st, _ = step(lane(0.24), s, ON)
     assert on_st.mode is AvoidMode.FOLLOW and on_st.lane_near_m is None
@@ -111,10 +116,10 @@ def test_past_a_person_in_a_corridor_the_relay_hands_back_with_the_margin(seed: 
     # change hands back past the person and the relay is 8 m down the corridor in time,
     # keeping 0.1 m from everything; without it, it is not.
     sc = load_scenario("person-in-corridor")
-    base = ControlParams(rear_link_required=False)
-    on = dataclasses.replace(base, avoid=ON)
+    on = ControlParams(rear_link_required=False, avoid=ON)
     out = run_model(sc, seed=seed, past_m=8.0, seconds=120.0, params=on)
     assert out.passed_at_s is not None and out.passed_at_s < 100.0, out
     assert out.collisions == 0 and out.min_clearance_m >= 0.1, out
-    off = run_model(sc, seed=seed, past_m=8.0, seconds=120.0, params=base)
+    old = dataclasses.replace(on, avoid=AvoidParams(lane_pass_margin_m=0.0))
+    off = run_model(sc, seed=seed, past_m=8.0, seconds=120.0, params=old)
     assert off.passed_at_s is None, off

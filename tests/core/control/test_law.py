@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
+from dataclasses import replace
 
 import pytest
 from hypothesis import given
@@ -433,9 +434,16 @@ def test_situation_two_drives_on_the_scan_bearing() -> None:
 
 
 def test_side_wall_in_a_corridor_does_not_slow_the_robot() -> None:
-    out = step(front_sonar=sonar(s0=400, s7=400))
+    walls = sonar(s0=400, s7=400)
+    paper = replace(P, wall_slide_m=0.0)
+    out = step(params=paper, front_sonar=walls)
     assert out.state is DriveState.DRIVING and out.situation == 0
     assert (out.left_mm_s, out.right_mm_s) == pytest.approx(wire(338.2, 361.8))
+    # As shipped, the bearing's few degrees into the left wall slide along it (section
+    # 7.4): straight on, at the same speed.
+    slid = step(front_sonar=walls)
+    assert slid.state is DriveState.DRIVING and slid.situation == 0
+    assert slid.left_mm_s == slid.right_mm_s == pytest.approx(sum(wire(338.2, 361.8)) / 2, abs=1)
 
 
 inputs_st = st.builds(

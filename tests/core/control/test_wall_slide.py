@@ -18,7 +18,8 @@ from tests.core.control.test_law import sonar, step
 
 #: The front ring's indices by heading (sonar 0 is +90, the left side).
 INDEX = {90.0: 0, 50.0: 1, 30.0: 2, 10.0: 3, -10.0: 4, -30.0: 5, -50.0: 6, -90.0: 7}
-SLIDE = dataclasses.replace(ControlParams(), wall_slide_m=1.0)
+SLIDE = ControlParams()  # the slide is on by default (1.0 m)
+PAPER = dataclasses.replace(SLIDE, wall_slide_m=0.0)
 
 
 def wall_ring(side: int, lateral_m: float, angle_deg: float = 0.0) -> tuple[SonarReading, ...]:
@@ -74,7 +75,7 @@ def test_the_slide_only_ever_turns_the_steer_out_of_the_wall(
 
 def test_the_law_drives_along_the_wall_where_the_paper_turns_into_it() -> None:
     ring = wall_ring(-1, 0.8)
-    paper = step(bearing_deg=-84.0, prev_bearing_deg=-84.0, front_sonar=ring)
+    paper = step(params=PAPER, bearing_deg=-84.0, prev_bearing_deg=-84.0, front_sonar=ring)
     slid = step(params=SLIDE, bearing_deg=-84.0, prev_bearing_deg=-84.0, front_sonar=ring)
     assert paper.left_mm_s > paper.right_mm_s  # turning right, into the wall
     assert slid.reason == "driving" and slid.left_mm_s > 0 and slid.right_mm_s > 0
@@ -89,3 +90,11 @@ def test_no_d_term_kick_when_the_slide_takes_the_steer() -> None:
     still = step(params=SLIDE, bearing_deg=-84.0, prev_bearing_deg=-84.0, front_sonar=ring)
     moved = step(params=SLIDE, bearing_deg=-84.0, prev_bearing_deg=-60.0, front_sonar=ring)
     assert (moved.left_mm_s, moved.right_mm_s) == (still.left_mm_s, still.right_mm_s)
+
+
+def test_on_by_default_off_at_zero_from_config() -> None:
+    from relayd.config.model import Settings
+    from relayd.config.params import control_params
+
+    assert control_params(Settings()).wall_slide_m == 1.0
+    assert ControlParams().wall_slide_m == 1.0
