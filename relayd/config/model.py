@@ -286,7 +286,7 @@ class ControlSettings(_Section):
     side_keep_m: Annotated[float, Field(ge=0, le=1.5, allow_inf_nan=False)] = 0.35
     #: Steer no further into a wall whose echoes are within this of the side sonars than
     #: along it (m); 0: the paper's law alone (relayd/core/control/steer.py slide_along_wall).
-    wall_slide_m: Annotated[float, Field(ge=0, le=1.5, allow_inf_nan=False)] = 1.0
+    wall_slide_m: Annotated[float, Field(ge=0, le=3.0, allow_inf_nan=False)] = 1.0
     #: The path-loss model the leader's range is estimated with (`relayd calibrate` fits
     #: them): RSSI = L0 - 10 n log10(d) + N(0, sigma).
     pathloss_l0_dbm: Dbm = -15.0
