@@ -286,7 +286,7 @@ class ControlSettings(_Section):
     side_keep_m: Annotated[float, Field(ge=0, le=1.5, allow_inf_nan=False)] = 0.35
     #: Steer no further into a wall whose echoes are within this of the side sonars than
     #: along it (m); 0: the paper's law alone (relayd/core/control/steer.py slide_along_wall).
-    wall_slide_m: Annotated[float, Field(ge=0, le=3.0, allow_inf_nan=False)] = 1.0
+    wall_slide_m: Annotated[float, Field(ge=0, le=3.0, allow_inf_nan=False)] = 1.5
     #: The path-loss model the leader's range is estimated with (`relayd calibrate` fits
     #: them): RSSI = L0 - 10 n log10(d) + N(0, sigma).
     pathloss_l0_dbm: Dbm = -15.0
@@ -356,6 +356,9 @@ class AvoidanceSettings(_Section):
     #: A lane change is past its obstacle once the obstacle side sees this much beyond
     #: the nearest it came abeam (docs/AVOIDANCE.md); 0: only beyond 1.2 m, as before.
     lane_pass_margin_m: Annotated[float, Field(ge=0.0, le=1.2)] = 0.5
+    #: A stop for a lost leader keeps the escape's episode (the side it goes round on, its
+    #: hit point), so it goes on round what it was going round; false: it starts afresh.
+    keep_episode_when_lost: bool = True
 
     @model_validator(mode="after")
     def _cross_key_rules(self) -> AvoidanceSettings:

@@ -75,6 +75,11 @@ class AvoidParams:
     align_tol_deg: float = 5.0
     tie_m: float = 0.05
     episode_clear_s: float = 8.0  # free this long after an escape: the next obstacle is a new one
+    #: A stop for a lost leader keeps the escape's episode (its side, hit point and
+    #: spending), not its manoeuvre: turned away from the leader while going round, the
+    #: antenna loses it, and an escape that forgot the U it was in drives back into it.
+    #: False: every stop starts the escape afresh.
+    keep_episode_when_lost: bool = True
     max_escape_s: float = 300.0
     max_escape_m: float = 40.0
     max_turn_deg: float = 1080.0
@@ -178,6 +183,23 @@ class StepView:
 
 #: A handler's verdict: the command, or the handler that decides this same step instead.
 Verdict = tuple[AvoidState, "AvoidCommand | AvoidMode"]
+
+
+def episode_only(st: AvoidState) -> AvoidState:
+    """The escape's episode without its manoeuvre (AvoidParams.keep_episode_when_lost): the
+    side it goes round on, where it hit and toward what, and what it has spent (its limits
+    still bound it); it resumes in FOLLOW, and the next hit goes on round the same way."""
+    if st.escape_t is None:
+        return AvoidState()
+    return AvoidState(
+        escape_t=st.escape_t,
+        side=st.side,
+        goal_deg=st.goal_deg,
+        hit_proj_m=st.hit_proj_m,
+        hit_at=st.hit_at,
+        path_m=st.path_m,
+        turned_deg=st.turned_deg,
+    )
 
 
 def enter(st: AvoidState, mode: AvoidMode, t: float, **changes: object) -> AvoidState:

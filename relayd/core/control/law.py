@@ -12,7 +12,7 @@ from dataclasses import dataclass, field, replace
 
 from relayd.core.avoid.escape import avoid_step
 from relayd.core.avoid.ring import guard
-from relayd.core.avoid.state import AvoidMode, AvoidState, Sense
+from relayd.core.avoid.state import AvoidMode, AvoidState, Sense, episode_only
 from relayd.core.control.params import ControlParams as ControlParams
 from relayd.core.control.rangecue import far_by_sonar, release_speed_mm_s
 from relayd.core.control.search import SearchState, search_step, search_wheels
@@ -178,9 +178,11 @@ def _stopped(
     return ControlOutput(0.0, 0.0, state, reason, situation, _not_driving(memory))
 
 
-def _not_driving(memory: ControlMemory) -> ControlMemory:
-    """The memory of a step that did not follow: no D-term angle, no escape, no release."""
-    return replace(memory, prev_steer_deg=None, avoid=AvoidState(), sonar_release=False)
+def _not_driving(memory: ControlMemory, keep: bool = False) -> ControlMemory:
+    """The memory of a step that did not follow: no D-term angle, no release, no escape
+    (`keep`: its episode alone, AvoidParams.keep_episode_when_lost)."""
+    avoid = episode_only(memory.avoid) if keep else AvoidState()
+    return replace(memory, prev_steer_deg=None, avoid=avoid, sonar_release=False)
 
 
 def _lost(
@@ -200,11 +202,9 @@ def _lost(
         params.stop_distance_m,
         params.v_max_mm_s,
     )
-    if left == 0.0 and right == 0.0:
-        return _stopped(DriveState.LEADER_LOST, "leader_lost", situation, memory)
-    return ControlOutput(
-        left, right, DriveState.LEADER_LOST, "leader_search", situation, _not_driving(memory)
-    )
+    kept = _not_driving(memory, keep=params.avoid.keep_episode_when_lost)
+    reason = "leader_lost" if left == 0.0 and right == 0.0 else "leader_search"
+    return ControlOutput(left, right, DriveState.LEADER_LOST, reason, situation, kept)
 
 
 def _stale(age_s: float | None, timeout_s: float) -> bool:

@@ -53,7 +53,7 @@ class ControlParams:
     #: Steer off a side wall nearer than this (m; 0: off), relayd/core/control/steer.py.
     side_keep_m: float = 0.35
     #: Steer no further into a wall within this of the side sonars than along it (m; 0: off).
-    wall_slide_m: float = 1.0
+    wall_slide_m: float = 1.5
     #: "bearing": at the scan bearing (the paper's); "trail": along the trail (docs 7.1).
     pursuit: str = "bearing"
     #: An escape no nearer the trail's head stops on "trail_blocked" (core/trail/blocked.py).

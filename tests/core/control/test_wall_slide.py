@@ -18,7 +18,7 @@ from tests.core.control.test_law import sonar, step
 
 #: The front ring's indices by heading (sonar 0 is +90, the left side).
 INDEX = {90.0: 0, 50.0: 1, 30.0: 2, 10.0: 3, -10.0: 4, -30.0: 5, -50.0: 6, -90.0: 7}
-SLIDE = ControlParams()  # the slide is on by default (1.0 m)
+SLIDE = ControlParams()  # the slide is on by default (1.5 m)
 PAPER = dataclasses.replace(SLIDE, wall_slide_m=0.0)
 
 
@@ -96,5 +96,5 @@ def test_on_by_default_off_at_zero_from_config() -> None:
     from relayd.config.model import Settings
     from relayd.config.params import control_params
 
-    assert control_params(Settings()).wall_slide_m == 1.0
-    assert ControlParams().wall_slide_m == 1.0
+    assert control_params(Settings()).wall_slide_m == 1.5
+    assert ControlParams().wall_slide_m == 1.5
