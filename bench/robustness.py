@@ -33,7 +33,12 @@ from relayd.sweep.robust import section
 
 #: The paper's law as it was: the keys of the shipped default that differ from it, each at
 #: the value that turns it off (docs/CONTROL.md 7.3 and 7.4, docs/AVOIDANCE.md).
-PAPER = ("control.side_keep_m=0", "control.wall_slide_m=0", "avoidance.lane_pass_margin_m=0")
+PAPER = (
+    "control.side_keep_m=0",
+    "control.wall_slide_m=0",
+    "avoidance.lane_pass_margin_m=0",
+    "avoidance.keep_episode_when_lost=false",
+)
 #: The law column of the two sweeps without --set.
 LAWS = {"default": (), "paper": PAPER}
 
