@@ -294,7 +294,9 @@ def test_a_relay_that_overran_a_corner_turns_round_it_toward_its_leader(seed: in
         x, y, _ = step.inputs.odom
         further[0] = max(further[0], math.dist(leader, (x / 1000.0, y / 1000.0)) - d0)
 
-    out = run_model(sc, seed=seed, past_m=3.0, seconds=90.0, on_step=watch)
+    # 2.5 m along the line to the leader is round the corner; with the slide along a wall
+    # (control.wall_slide_m) the relay stops there on leader_near, 3.1 m from it.
+    out = run_model(sc, seed=seed, past_m=2.5, seconds=90.0, on_step=watch)
     assert out.passed_at_s is not None and out.collisions == 0 and out.min_clearance_m >= 0.1, out
     assert further[0] < 0.3
 
