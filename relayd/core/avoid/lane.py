@@ -151,7 +151,6 @@ def lane_step(
     vel = p.lane_speed_mm_s * max(0.4, math.cos(math.radians(min(90.0, 3.0 * abs(err)))))
     cmd = drive_cmd(act, s, p, vel, rvel)
     if cmd.vel_mm_s == 0 and cmd.rvel_deg_s == 0 and forward_min_m(s.sonar) < p.front_clear_m:
-        return enter(
-            st, AvoidMode.TURN, t, lane_ref=None, lane_near_m=None
-        ), None  # the lane is shut: go round
+        # The lane is shut: go round.
+        return enter(st, AvoidMode.TURN, t, lane_ref=None, lane_near_m=None), None
     return st, cmd

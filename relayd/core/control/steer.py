@@ -114,8 +114,8 @@ def slide_along_wall(steer_deg: float, front: tuple[SonarReading, ...], reach_m:
     paper's slow-down, turns off, steers back in and crawls. Along the wall instead it
     drives on until the wall ends or opens (a door), and the bearing has the way again.
     The wall is the line through that side's two nearest 90/50/30 deg echoes within
-    reach_m (relayd.core.avoid.ring.wall_fit), and only while the 90 deg sonar hears it
-    abeam; 0: off."""
+    reach_m (relayd.core.avoid.ring.wall_fit; one echo alone is taken as parallel to the
+    heading), and only while the 90 deg sonar hears it abeam; 0: off."""
     if reach_m <= 0.0 or steer_deg == 0.0 or abs(steer_deg) > SLIDE_MAX_DEG:
         return steer_deg
     side = 1 if steer_deg > 0 else -1
