@@ -5,7 +5,9 @@
                                                    # (PAPER: its keys that differ, all at 0)
     python -m bench.robustness --set control.detour=false,true
     python -m bench.robustness --worlds 20 --kind hall --kind mixed
-    python -m bench.robustness --from SWEEP_DIR    # the table of a sweep already run
+    python -m bench.robustness --from DIR          # the table of the two laws' sweeps already
+                                                   # run (DIR/default, DIR/paper), or of one
+                                                   # sweep (DIR/runs.csv, its --set axis given)
 
 Runs `relayd sweep --generated KIND:N ... --seeds 1 --relays 2 [--set AXIS] --no-plots` on
 the embedded LocalCluster (without --set: once as shipped, into DIR/default, and once with

@@ -185,11 +185,14 @@ class StepView:
 Verdict = tuple[AvoidState, "AvoidCommand | AvoidMode"]
 
 
-def episode_only(st: AvoidState) -> AvoidState:
+def episode_only(st: AvoidState, t_s: float | None, p: AvoidParams) -> AvoidState:
     """The escape's episode without its manoeuvre (AvoidParams.keep_episode_when_lost): the
     side it goes round on, where it hit and toward what, and what it has spent (its limits
-    still bound it); it resumes in FOLLOW, and the next hit goes on round the same way."""
-    if st.escape_t is None:
+    still bound it); it resumes in FOLLOW, and the next hit goes on round the same way.
+    Nothing when off, without a time, or past max_escape_s (resumed, it would be "blocked")."""
+    if not p.keep_episode_when_lost or st.escape_t is None or t_s is None:
+        return AvoidState()
+    if t_s - st.escape_t > p.max_escape_s:
         return AvoidState()
     return AvoidState(
         escape_t=st.escape_t,

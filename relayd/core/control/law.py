@@ -178,10 +178,12 @@ def _stopped(
     return ControlOutput(0.0, 0.0, state, reason, situation, _not_driving(memory))
 
 
-def _not_driving(memory: ControlMemory, keep: bool = False) -> ControlMemory:
+def _not_driving(
+    memory: ControlMemory, lost: ControlParams | None = None, t_s: float | None = None
+) -> ControlMemory:
     """The memory of a step that did not follow: no D-term angle, no release, no escape
-    (`keep`: its episode alone, AvoidParams.keep_episode_when_lost)."""
-    avoid = episode_only(memory.avoid) if keep else AvoidState()
+    (a lost leader's stop, `lost`: the escape's episode, AvoidParams.keep_episode_when_lost)."""
+    avoid = AvoidState() if lost is None else episode_only(memory.avoid, t_s, lost.avoid)
     return replace(memory, prev_steer_deg=None, avoid=avoid, sonar_release=False)
 
 
@@ -202,9 +204,9 @@ def _lost(
         params.stop_distance_m,
         params.v_max_mm_s,
     )
-    kept = _not_driving(memory, keep=params.avoid.keep_episode_when_lost)
+    held = _not_driving(memory, params, inputs.t_s)
     reason = "leader_lost" if left == 0.0 and right == 0.0 else "leader_search"
-    return ControlOutput(left, right, DriveState.LEADER_LOST, reason, situation, kept)
+    return ControlOutput(left, right, DriveState.LEADER_LOST, reason, situation, held)
 
 
 def _stale(age_s: float | None, timeout_s: float) -> bool:

@@ -115,7 +115,10 @@ def slide_along_wall(steer_deg: float, front: tuple[SonarReading, ...], reach_m:
     drives on until the wall ends or opens (a door), and the bearing has the way again.
     The wall is the line through that side's two nearest 90/50/30 deg echoes within
     reach_m (relayd.core.avoid.ring.wall_fit; one echo alone is taken as parallel to the
-    heading), and only while the 90 deg sonar hears it abeam; 0: off."""
+    heading), and only while the 90 deg sonar hears it abeam; 0: off. The echoes sit on
+    their beams' axes, which reads a parallel wall 7-14 deg turned off it (the nearest
+    echo comes from the beam's edge): as measured, the slide eases the robot off the wall
+    by about that much (docs/CONTROL.md 7.4)."""
     if reach_m <= 0.0 or steer_deg == 0.0 or abs(steer_deg) > SLIDE_MAX_DEG:
         return steer_deg
     side = 1 if steer_deg > 0 else -1

@@ -36,10 +36,10 @@ def test_on_by_default() -> None:
 
 
 def test_a_lost_leader_stops_the_wheels_and_keeps_the_episode_not_the_manoeuvre() -> None:
-    out = step(memory=MEMORY, leader_lost=True)
+    out = step(memory=MEMORY, leader_lost=True, t_s=30.0)
     assert out.left_mm_s == out.right_mm_s == 0.0 and out.reason == "leader_lost"
     kept = out.memory.avoid
-    assert kept == episode_only(GOING_ROUND)
+    assert kept == episode_only(GOING_ROUND, 30.0, AvoidParams())
     assert kept.mode is AvoidMode.FOLLOW and kept.lane_ref is None and not kept.had_wall
     assert (kept.side, kept.escape_t, kept.hit_proj_m, kept.hit_at) == (
         1,
@@ -52,15 +52,19 @@ def test_a_lost_leader_stops_the_wheels_and_keeps_the_episode_not_the_manoeuvre(
 
 def test_off_and_every_other_stop_start_the_escape_afresh() -> None:
     off = ControlParams(avoid=AvoidParams(keep_episode_when_lost=False))
-    assert step(memory=MEMORY, params=off, leader_lost=True).memory.avoid == AvoidState()
+    assert step(memory=MEMORY, params=off, leader_lost=True, t_s=30.0).memory.avoid == AvoidState()
     for changes in ({"scan_servo_ok": False}, {"rssi_behind_dbm": -80.0}, {"sip_age_s": 9.0}):
-        out = step(memory=MEMORY, **changes)
+        out = step(memory=MEMORY, t_s=30.0, **changes)
         assert out.left_mm_s == out.right_mm_s == 0.0, changes
         assert out.memory.avoid == AvoidState(), changes
 
 
 def test_no_episode_nothing_kept() -> None:
-    assert episode_only(AvoidState(mode=AvoidMode.DOOR, mode_t=3.0)) == AvoidState()
+    assert (
+        episode_only(AvoidState(mode=AvoidMode.DOOR, mode_t=3.0), 30.0, AvoidParams())
+        == AvoidState()
+    )
+    assert episode_only(GOING_ROUND, None, AvoidParams()) == AvoidState()  # no time: no episode
 
 
 @pytest.mark.slow
@@ -80,3 +84,13 @@ def test_the_u_trap_is_left_by_real_daemons(seed: int) -> None:
     old = sc.model_copy(update={"avoidance": {**sc.avoidance, "keep_episode_when_lost": False}})
     before = vtime.run(SimRunner(old, speed=None, seed=seed).run()).records[-1]["relays"][0]
     assert before["x"] < 3.5, before
+
+
+def test_an_episode_past_its_time_limit_is_dropped_during_the_stop() -> None:
+    # Lost for longer than the escape may last: resumed, it would go straight to
+    # "blocked"; it starts afresh instead.
+    late = GOING_ROUND.escape_t + AvoidParams().max_escape_s + 1.0  # type: ignore[operator]
+    assert step(memory=MEMORY, leader_lost=True, t_s=late).memory.avoid == AvoidState()
+    early = GOING_ROUND.escape_t + 10.0  # type: ignore[operator]
+    kept = step(memory=MEMORY, leader_lost=True, t_s=early).memory.avoid
+    assert kept == episode_only(GOING_ROUND, early, AvoidParams())

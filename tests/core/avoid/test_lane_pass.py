@@ -24,10 +24,6 @@ INDEX = {90.0: 0, 50.0: 1, 30.0: 2, 10.0: 3, -10.0: 4, -30.0: 5, -50.0: 6, -90.0
 ON = AvoidParams(lane_pass_margin_m=0.5)
 
 
-def ring(**by_heading: float) -> dict[float, float]:
-    return {h: by_heading.get(f"h{int(h)}".replace("-", "m"), 5.0) for h in INDEX}
-
-
 def sense(x_mm: float, left: dict[float, float], rear_left_m: float) -> Sense:
     ranges: list[int | None] = [None] * 16
     for h, d in left.items():

@@ -98,3 +98,5 @@ def test_on_by_default_off_at_zero_from_config() -> None:
 
     assert control_params(Settings()).wall_slide_m == 1.5
     assert ControlParams().wall_slide_m == 1.5
+    off = control_params(Settings.model_validate({"control": {"wall_slide_m": 0}}))
+    assert off.wall_slide_m == 0.0
