@@ -63,7 +63,7 @@ def run_sweep(args: argparse.Namespace, out: Path, sets: tuple[str, ...]) -> dic
 
 def read_rows(out: Path, set_key: str) -> list[dict[str, str]]:
     """The sweep's runs.csv; without a set key, both laws' sweeps, each row with its `law`."""
-    if set_key:
+    if set_key or not (out / "default").is_dir():
         with (out / "runs.csv").open(encoding="utf-8") as fh:
             return list(csv.DictReader(fh))
     rows: list[dict[str, str]] = []
@@ -78,7 +78,8 @@ def read_rows(out: Path, set_key: str) -> list[dict[str, str]]:
 def table(out: Path, set_key: str) -> list[str]:
     rows = read_rows(out, set_key)
     (out / "plots").mkdir(exist_ok=True)
-    lines = section(rows, [set_key or "law"], maps=out)
+    law = not set_key and (out / "default").is_dir()
+    lines = section(rows, [set_key] if set_key else ["law"] if law else [], maps=out)
     sim_s = sum(float(r["sim_seconds"] or 0) for r in rows)
     run_wall_s = sum(float(r["wall_s"] or 0) for r in rows)
     lines += [
@@ -87,11 +88,7 @@ def table(out: Path, set_key: str) -> list[str]:
         f"wall per simulated second (each run's own wall time; {len(rows)} runs, "
         f"mean {sim_s / max(len(rows), 1):.0f} simulated s a run).",
     ]
-    paths = (
-        [out / "bench-timing.json"]
-        if set_key
-        else [out / law / "bench-timing.json" for law in LAWS]
-    )
+    paths = [out / f"{k}/bench-timing.json" for k in LAWS] if law else [out / "bench-timing.json"]
     if all(p.exists() for p in paths):
         ts = [json.loads(p.read_text(encoding="utf-8")) for p in paths]
         t = {k: sum(x[k] for x in ts) for k in ("wall_s", "cpu_s")}

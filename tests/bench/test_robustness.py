@@ -65,3 +65,10 @@ def test_both_laws_in_one_table(tmp_path: Path) -> None:
     text = "\n".join(table(tmp_path, ""))
     assert "| law=default | 3/3 (100.0 %)" in text
     assert "| law=paper | 1/3 (33.3 %)" in text
+
+
+def test_one_sweep_without_the_laws_is_read_as_it_is(tmp_path: Path) -> None:
+    _sweep(tmp_path / "one", ["rear_weak", "avoiding"])
+    tmp_path = tmp_path / "one"
+    assert len(read_rows(tmp_path, "")) == 2
+    assert any("Clean: 1/2" in line for line in table(tmp_path, ""))
