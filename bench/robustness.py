@@ -10,10 +10,11 @@
                                                    # sweep (DIR/runs.csv, its --set axis given)
 
 Runs `relayd sweep --generated KIND:N ... --seeds 1 --relays 2 [--set AXIS] --no-plots` on
-the embedded LocalCluster (without --set: once as shipped, into DIR/default, and once with
-the PAPER keys, into DIR/paper, the two tabulated as one by their `law`) (two workers: the development machine's two cores) and prints,
-per kind and setting, the clean share (relayd/sweep/robust.py: the leader arrived, the
-link held, no collision, every relay on the link rule) with its Wilson 95 % interval and
+the embedded LocalCluster (two workers: the development machine's two cores; without
+--set: once as shipped, into DIR/default, and once with the PAPER keys, into DIR/paper,
+the two tabulated as one by their `law`) and prints, per kind and setting, the clean
+share (relayd/sweep/robust.py: the leader arrived, the link held, no collision, every
+relay on the link rule) with its Wilson 95 % interval and
 the failures by category, the five worst runs with their worlds drawn (DIR/plots/worst-K.png),
 then the sweep's wall time and what a simulated second cost.
 With `--from` it reads that directory's runs.csv (and the timing it wrote, when this
@@ -31,15 +32,18 @@ import sys
 import time
 from pathlib import Path
 
+from bench.pursuit import AVOIDANCE, VARIANTS
 from relayd.sweep.robust import section
 
-#: The paper's law as it was: the keys of the shipped default that differ from it, each at
-#: the value that turns it off (docs/CONTROL.md 7.3 and 7.4, docs/AVOIDANCE.md).
-PAPER = (
-    "control.side_keep_m=0",
-    "control.wall_slide_m=0",
-    "avoidance.lane_pass_margin_m=0",
-    "avoidance.keep_episode_when_lost=false",
+
+def _axis(key: str, value: object) -> str:
+    return f"{key}={str(value).lower() if isinstance(value, bool) else value}"
+
+
+#: The paper's law as it was: bench/pursuit.py's "paper" variant (the keys of the shipped
+#: default that differ from it, each at the value that turns it off) as sweep axes.
+PAPER = tuple(_axis(f"control.{k}", v) for k, v in VARIANTS["paper"].items()) + tuple(
+    _axis(f"avoidance.{k}", v) for k, v in AVOIDANCE["paper"].items()
 )
 #: The law column of the two sweeps without --set.
 LAWS = {"default": (), "paper": PAPER}
@@ -61,9 +65,14 @@ def run_sweep(args: argparse.Namespace, out: Path, sets: tuple[str, ...]) -> dic
     return timing
 
 
+def by_law(out: Path, set_key: str) -> bool:
+    """Is `out` the two laws' sweeps (no --set axis, DIR/default and DIR/paper)?"""
+    return not set_key and (out / "default").is_dir()
+
+
 def read_rows(out: Path, set_key: str) -> list[dict[str, str]]:
-    """The sweep's runs.csv; without a set key, both laws' sweeps, each row with its `law`."""
-    if set_key or not (out / "default").is_dir():
+    """The sweep's runs.csv; the two laws' sweeps, each row with its `law`."""
+    if not by_law(out, set_key):
         with (out / "runs.csv").open(encoding="utf-8") as fh:
             return list(csv.DictReader(fh))
     rows: list[dict[str, str]] = []
@@ -78,7 +87,7 @@ def read_rows(out: Path, set_key: str) -> list[dict[str, str]]:
 def table(out: Path, set_key: str) -> list[str]:
     rows = read_rows(out, set_key)
     (out / "plots").mkdir(exist_ok=True)
-    law = not set_key and (out / "default").is_dir()
+    law = by_law(out, set_key)
     lines = section(rows, [set_key] if set_key else ["law"] if law else [], maps=out)
     sim_s = sum(float(r["sim_seconds"] or 0) for r in rows)
     run_wall_s = sum(float(r["wall_s"] or 0) for r in rows)

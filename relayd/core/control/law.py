@@ -178,13 +178,9 @@ def _stopped(
     return ControlOutput(0.0, 0.0, state, reason, situation, _not_driving(memory))
 
 
-def _not_driving(
-    memory: ControlMemory, lost: ControlParams | None = None, t_s: float | None = None
-) -> ControlMemory:
-    """The memory of a step that did not follow: no D-term angle, no release, no escape
-    (a lost leader's stop, `lost`: the escape's episode, AvoidParams.keep_episode_when_lost)."""
-    avoid = AvoidState() if lost is None else episode_only(memory.avoid, t_s, lost.avoid)
-    return replace(memory, prev_steer_deg=None, avoid=avoid, sonar_release=False)
+def _not_driving(memory: ControlMemory) -> ControlMemory:
+    """The memory of a step that did not follow: no D-term angle, no escape, no release."""
+    return replace(memory, prev_steer_deg=None, avoid=AvoidState(), sonar_release=False)
 
 
 def _lost(
@@ -204,7 +200,9 @@ def _lost(
         params.stop_distance_m,
         params.v_max_mm_s,
     )
-    held = _not_driving(memory, params, inputs.t_s)
+    # The escape's episode outlives the stop (AvoidParams.keep_episode_when_lost).
+    episode = episode_only(memory.avoid, inputs.t_s, params.avoid)
+    held = replace(_not_driving(memory), avoid=episode)
     reason = "leader_lost" if left == 0.0 and right == 0.0 else "leader_search"
     return ControlOutput(left, right, DriveState.LEADER_LOST, reason, situation, held)
 
