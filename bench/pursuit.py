@@ -5,9 +5,10 @@ each pursuit, one `relayd sim` run in virtual time; per relay the reason it ende
 and its final gap to its own leader. A relay "ends on the link rule" when its last
 reason is one of relayd.core.vocab.LINK_RULE_ENDS: leader_near / rear_weak (or their
 adaptive forms), or still following (driving, detour, leader_far_sonar, trail_head);
-anything else (obstacle, avoiding, rejoining, blocked, trail_blocked, leader_lost,
-leader_search) is counted against the pursuit. "obstacle" (the paper's slow-down by a
-near echo) is counted against too: a relay that ends on it may be standing at a wall.
+anything else (avoiding, rejoining, blocked, trail_blocked, leader_lost, leader_search)
+is counted against the pursuit. "obstacle" (the paper's slow-down by a near echo) counts
+only if the relay still got 0.5 m on in the last 10 s: one standing at a wall on it does
+not (summary.json's on_link_rule, relayd.sim.summary.ended_on_rule).
 
 Each scenario runs with its own configuration (the project's defaults where it sets
 nothing); `--calibrated` sets the path-loss keys as `relayd calibrate` would find them.
@@ -76,12 +77,12 @@ class Ending:
     reason: str
     gap_m: float
     collisions: int
+    #: summary.json's on_link_rule (relayd.sim.summary.ended_on_rule)
+    on_rule: bool
 
     @property
     def good(self) -> bool:
-        from relayd.core.vocab import LINK_RULE_ENDS
-
-        return self.reason in LINK_RULE_ENDS
+        return self.on_rule
 
 
 def calibrated(sc: Any) -> dict[str, float]:
@@ -109,6 +110,7 @@ async def _one(scenario: str, seed: int, pursuit: str, calibrate: bool) -> list[
     sc = variant_of(sc, pursuit, keys)
     result = await SimRunner(sc, speed=None, seed=seed).run()
     last: dict[str, Any] = result.records[-1]
+    on_rule = {f["name"]: bool(f["on_link_rule"]) for f in result.summary["followers"]}
     return [
         Ending(
             scenario,
@@ -118,6 +120,7 @@ async def _one(scenario: str, seed: int, pursuit: str, calibrate: bool) -> list[
             str(r["reason"]),
             float(r["gap_m"]),
             int(r["collisions"]),
+            on_rule[r["name"]],
         )
         for r in last["relays"]
     ]

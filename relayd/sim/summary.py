@@ -11,7 +11,7 @@ from collections import deque
 from collections.abc import Sequence
 from typing import Any
 
-from relayd.core.vocab import LINK_RULE_ENDS
+from relayd.core.vocab import LINK_RULE_ENDS, Reason
 from relayd.sim.outcomes import downtime_s, link_breaks, recovery_episodes
 
 
@@ -72,6 +72,32 @@ def stuck_s(
     return round(total, 2)
 
 
+def ended_on_rule(
+    records: Sequence[dict[str, Any]], i: int, window_s: float = 10.0, progress_m: float = 0.5
+) -> bool:
+    """Did relay i end on the link rule or still following (core/vocab.py LINK_RULE_ENDS)?
+
+    The paper's situation 1 ("obstacle": slowing and steering off a near echo) is its
+    following law too: a relay that ends on it while it still got somewhere (at least
+    `progress_m` within the last `window_s`, the measure of `stuck_s`) is following round
+    a corner or closing on a leader the sonar hears. One standing at a wall on it is not.
+    """
+    if not records:
+        return False
+    last = records[-1]
+    reason = last["relays"][i]["reason"]
+    if reason in LINK_RULE_ENDS:
+        return True
+    if reason != Reason.OBSTACLE or last["t"] - records[0]["t"] < window_s:
+        return False
+    x, y = last["relays"][i]["x"], last["relays"][i]["y"]
+    return any(
+        math.hypot(x - r["relays"][i]["x"], y - r["relays"][i]["y"]) >= progress_m
+        for r in records
+        if r["t"] >= last["t"] - window_s
+    )
+
+
 def summarize(
     records: Sequence[dict[str, Any]],
     *,
@@ -90,7 +116,7 @@ def summarize(
     also split three ways, so that a stuck relay never reads as a green run:
     leader_arrived (the leader reached its goal), link_held (no hop was ever down), and
     relays_ok (every relay ended on the link rule or still following, each follower's
-    on_link_rule; core/vocab.py LINK_RULE_ENDS).
+    on_link_rule: `ended_on_rule`).
     """
     broken_at = next((r["t"] for r in records if r["broken"]), None)
     arrived_at = next(
@@ -113,7 +139,7 @@ def summarize(
                 "max_gap_m": round(max(gaps), 3) if gaps else None,
                 "final_gap_m": round(gaps[-1], 3) if gaps else None,
                 "stopped_reason": None if last is None else last["relays"][i]["reason"],
-                "on_link_rule": last is not None and last["relays"][i]["reason"] in LINK_RULE_ENDS,
+                "on_link_rule": ended_on_rule(records, i),
                 "final_state": None if last is None else last["relays"][i]["state"],
                 "collisions": f["collisions"],
                 "travelled_m": round(f["travelled_m"], 3),

@@ -127,6 +127,7 @@ def row_for(
 #: Per-relay outcome columns, from summary.json's followers (named <relay>_<field>).
 RELAY_FIELDS = (
     ("reason", "stopped_reason"),
+    ("on_rule", "on_link_rule"),
     ("final_gap_m", "final_gap_m"),
     ("stuck_s", "stuck_s"),
     ("collisions", "collisions"),

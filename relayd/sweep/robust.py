@@ -42,10 +42,28 @@ def category(row: dict[str, Any]) -> str:
         return "link broke"
     if str(row.get("goal_reached")) != "True":
         return "leader never arrived"
-    for r in _reasons(row):
-        if r not in LINK_RULE:
-            return "stuck avoiding" if "avoid" in r else "lost"
+    for relay, reason in _relay_reasons(row).items():
+        if not _on_rule(row, relay, reason):
+            return "stuck avoiding" if "avoid" in reason or reason == "obstacle" else "lost"
     return "clean"
+
+
+def _relay_reasons(row: dict[str, Any]) -> dict[str, str]:
+    return {
+        k.removesuffix("_reason"): str(v)
+        for k, v in row.items()
+        if k.endswith("_reason") and v not in ("", None)
+    }
+
+
+def _on_rule(row: dict[str, Any], relay: str, reason: str) -> bool:
+    """summary.json's on_link_rule for the relay (its `obstacle` end counts when it was
+    still getting somewhere, relayd.sim.summary.ended_on_rule); a runs.csv written before
+    that column was kept falls back to the reason alone."""
+    flag = row.get(f"{relay}_on_rule")
+    if flag in ("", None):
+        return reason in LINK_RULE
+    return str(flag) == "True"
 
 
 def _setting(row: dict[str, Any], set_keys: Sequence[str]) -> str:

@@ -156,6 +156,30 @@ def test_the_printed_summary_says_what_happened() -> None:
     )
 
 
+def test_an_obstacle_end_is_following_only_while_the_relay_gets_somewhere() -> None:
+    from relayd.sim.summary import ended_on_rule
+
+    def run(xs: list[float], reason: str = "obstacle") -> list[dict]:
+        recs = [_rec(float(t), 0, 27, False, [2.0]) for t in range(len(xs))]
+        for r, x in zip(recs, xs, strict=True):
+            r["relays"][0]["x"] = x
+        recs[-1]["relays"][0]["reason"] = reason
+        return recs
+
+    # The paper's slow-down by a near echo, 0.6 m on in the last 10 s: closing on a leader
+    # the sonar hears, or round a corner.
+    assert ended_on_rule(run([0.1 * t for t in range(12)]), 0) is True
+    # Standing at a wall (0.4 m in 10 s), or a run too short to tell: not following.
+    assert ended_on_rule(run([0.03 * t for t in range(15)]), 0) is False
+    assert ended_on_rule(run([0.0, 5.0]), 0) is False
+    # The window is the last 10 s: a relay that got on long ago and stands now is stuck.
+    assert ended_on_rule(run([0.5 * min(t, 4) for t in range(20)]), 0) is False
+    # Other ends are the reason alone, moving or not.
+    assert ended_on_rule(run([0.1 * t for t in range(12)], "avoiding"), 0) is False
+    assert ended_on_rule(run([0.0] * 12, "leader_near"), 0) is True
+    assert ended_on_rule([], 0) is False
+
+
 def test_goal_reached_is_split_so_a_stuck_relay_is_never_a_green_run() -> None:
     f = [{"name": "r0", "collisions": 0, "travelled_m": 3.0}]
 

@@ -40,6 +40,15 @@ def test_categories() -> None:
     assert category(_row(goal_reached="False")) == "leader never arrived"
 
 
+def test_an_obstacle_end_counts_by_the_summarys_own_flag() -> None:
+    # The summary knows whether the relay still got somewhere; an old runs.csv without
+    # the column falls back to the reason alone, where "obstacle" is not following.
+    assert category(_row(relay1_reason="obstacle", relay1_on_rule="True")) == "clean"
+    assert category(_row(relay1_reason="obstacle", relay1_on_rule="False")) == "stuck avoiding"
+    assert category(_row(relay1_reason="obstacle")) == "stuck avoiding"
+    assert category(_row(relay1_reason="leader_near", relay1_on_rule="")) == "clean"
+
+
 def test_section_names_the_repro_command() -> None:
     text = "\n".join(section([_row(), _row(seed=2, relay1_reason="leader_lost")]))
     assert "Clean: 1/2" in text
