@@ -42,16 +42,24 @@ VARIANTS: dict[str, dict[str, object]] = {
     "trail": {"pursuit": "trail", "detour": True},
     "lane": {},  # [avoidance] keys only, below
     # The paper's law as it was: no push off a side wall, no slide along one; the
-    # escape's lane change handing back only beyond 1.2 m, every stop forgetting it.
+    # escape's lane change handing back only beyond 1.2 m, every stop forgetting it, a
+    # lost leader stopping it.
     "paper": {"side_keep_m": 0.0, "wall_slide_m": 0.0},
     "nokeep": {},  # [avoidance] keys only, below
+    "noround": {},  # [avoidance] keys only, below
 }
 #: Each variant's `[avoidance]` keys: "lane" is the escape leaving by the lane test.
 AVOIDANCE: dict[str, dict[str, object]] = {
     "lane": {"leave_by_lane": True},
-    "paper": {"lane_pass_margin_m": 0.0, "keep_episode_when_lost": False},
+    "paper": {
+        "lane_pass_margin_m": 0.0,
+        "keep_episode_when_lost": False,
+        "lost_manoeuvre_s": 0.0,
+    },
     # The shipped configuration but every stop forgetting the escape.
     "nokeep": {"keep_episode_when_lost": False},
+    # The shipped configuration but a lost leader stopping the escape's manoeuvre.
+    "noround": {"lost_manoeuvre_s": 0.0},
 }
 
 

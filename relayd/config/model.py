@@ -359,6 +359,9 @@ class AvoidanceSettings(_Section):
     #: A stop for a lost leader keeps the escape's episode (the side it goes round on, its
     #: hit point), so it goes on round what it was going round; false: it starts afresh.
     keep_episode_when_lost: bool = True
+    #: The leader lost mid-manoeuvre: the escape goes on round this long (s) toward where
+    #: the scans last put it, while the rear link allows; 0: the loss stops it.
+    lost_manoeuvre_s: Annotated[float, Field(ge=0, le=60)] = 10.0
 
     @model_validator(mode="after")
     def _cross_key_rules(self) -> AvoidanceSettings:

@@ -80,6 +80,9 @@ class AvoidParams:
     #: antenna loses it, and an escape that forgot the U it was in drives back into it.
     #: False: every stop starts the escape afresh.
     keep_episode_when_lost: bool = True
+    #: The leader lost mid-manoeuvre (turned away from it while going round): the
+    #: manoeuvre goes on this long toward where the scans last put it; 0: it stops.
+    lost_manoeuvre_s: float = 10.0
     max_escape_s: float = 300.0
     max_escape_m: float = 40.0
     max_turn_deg: float = 1080.0

@@ -15,6 +15,7 @@ from relayd.core.avoid.ring import guard
 from relayd.core.avoid.state import AvoidMode, AvoidState, Sense, episode_only
 from relayd.core.control.params import ControlParams as ControlParams
 from relayd.core.control.rangecue import far_by_sonar, release_speed_mm_s
+from relayd.core.geometry import wrap_deg
 from relayd.core.control.search import SearchState, search_step, search_wheels
 from relayd.core.control.steer import (
     away_from_near_side,
@@ -96,6 +97,8 @@ class ControlMemory:
     trail_block: BlockedState = field(default_factory=BlockedState)
     #: A detour's progress watch: where (mm) and when it last got 0.3 m on (steer.py).
     detour_anchor: tuple[float, float, float] | None = None
+    #: When the leader was lost (s); None while it is found.
+    lost_t: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -186,7 +189,13 @@ def _not_driving(memory: ControlMemory) -> ControlMemory:
 def _lost(
     inputs: ControlInputs, params: ControlParams, situation: int, memory: ControlMemory
 ) -> ControlOutput:
-    """Leader lost: stand, or turn toward where it was last seen beyond the servo's reach."""
+    """Leader lost: go on round what the escape is going round, or stand, or turn toward
+    where it was last seen beyond the servo's reach."""
+    lost_t = memory.lost_t if memory.lost_t is not None else inputs.t_s
+    memory = replace(memory, lost_t=lost_t)
+    going_round = _round_while_lost(inputs, params, situation, memory)
+    if going_round is not None:
+        return going_round
     heading = inputs.odom[2] if inputs.odom is not None else None
     search, rvel = search_step(
         memory.search, inputs.search_bearing_deg, heading, inputs.t_s, params.search
@@ -205,6 +214,33 @@ def _lost(
     held = replace(_not_driving(memory), avoid=episode)
     reason = "leader_lost" if left == 0.0 and right == 0.0 else "leader_search"
     return ControlOutput(left, right, DriveState.LEADER_LOST, reason, situation, held)
+
+
+def _round_while_lost(
+    inputs: ControlInputs, params: ControlParams, situation: int, memory: ControlMemory
+) -> ControlOutput | None:
+    """The escape's manoeuvre through a short loss (AvoidParams.lost_manoeuvre_s): going
+    round a box turns the antenna off the leader; the way round goes on toward where the
+    scans last put it, while the rear half of the link rule allows driving. None: stop."""
+    av, t, odom = memory.avoid, inputs.t_s, inputs.odom
+    if (
+        params.avoid.lost_manoeuvre_s <= 0.0
+        or av.mode in (AvoidMode.FOLLOW, AvoidMode.BLOCKED)
+        or t is None
+        or odom is None
+        or memory.lost_t is None
+        or t - memory.lost_t > params.avoid.lost_manoeuvre_s
+    ):
+        return None
+    rear_ok, _ = link_rule(
+        -math.inf, inputs.rssi_behind_dbm, params, memory.link_drive, params.rear_link_required
+    )
+    if not rear_ok:
+        return None
+    seen = inputs.search_bearing_deg
+    bearing = seen if seen is not None and math.isfinite(seen) else wrap_deg(av.goal_deg - odom[2])
+    kept, out = _escape(inputs, params, memory, bearing, situation)
+    return None if out is None or out.state is not DriveState.AVOIDING else out
 
 
 def _stale(age_s: float | None, timeout_s: float) -> bool:
@@ -273,8 +309,9 @@ def control_step(
         return first
     if inputs.leader_lost:
         return _lost(inputs, params, situation, memory)
-    if memory.search != SearchState():
-        memory = replace(memory, search=SearchState())  # found: the next loss searches afresh
+    if memory.search != SearchState() or memory.lost_t is not None:
+        # Found: the next loss searches afresh.
+        memory = replace(memory, search=SearchState(), lost_t=None)
     bearing, rssi_l = inputs.bearing_deg, inputs.rssi_leader_dbm
     if bearing is None or rssi_l is None or not (math.isfinite(bearing) and math.isfinite(rssi_l)):
         return _stopped(DriveState.STOPPED, "no_scan_yet", situation, memory)
