@@ -372,7 +372,9 @@ def control_step(
             replace(memory, prev_steer_deg=steer),
         )
     else:
-        kept, prev = off_walls(bearing, prev, inputs.front_sonar, params, detouring)
+        kept, prev = off_walls(
+            bearing, prev, inputs.front_sonar, params, detouring, inputs.rear_sonar
+        )
         left, right = wheel_law(v, kept, prev, params.kp, params.kd, params.v_max_mm_s)
         state, memory = DriveState.DRIVING, replace(memory, prev_steer_deg=None)
         reason = "detour" if detouring else ("leader_far_sonar" if released else "driving")

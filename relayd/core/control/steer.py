@@ -12,9 +12,10 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING
 
-from relayd.core.avoid.ring import by_heading, in_path_below_m, wall_fit
+from relayd.core.avoid.ring import by_heading, in_path_below_m
 from relayd.core.avoid.state import AvoidMode, AvoidState
 from relayd.core.control.params import ControlParams
+from relayd.core.geometry import SONAR_POSES
 from relayd.core.scan.estimator import SONAR_MAX_RANGE_M, SonarReading
 from relayd.core.trail.blocked import waiting
 
@@ -108,30 +109,51 @@ def keep_off_sides(
 SLIDE_MAX_DEG = 100.0
 
 
-def slide_along_wall(steer_deg: float, front: tuple[SonarReading, ...], reach_m: float) -> float:
+#: How far apart along the heading the front and rear rings' 90 deg sonars sit (m).
+ABEAM_BASE_M = (SONAR_POSES[0].x_mm - SONAR_POSES[15].x_mm) / 1000.0
+#: A rear echo abeam this much beyond the reach still lies on the same wall (one 30 deg
+#: off the heading, the most the 90 deg sonars read it at all).
+ABEAM_SPAN_M = 0.2
+
+
+def slide_along_wall(
+    steer_deg: float,
+    front: tuple[SonarReading, ...],
+    reach_m: float,
+    rear: tuple[SonarReading, ...] = (),
+) -> float:
     """The steer no further into a wall on its side than the wall's own direction: the
     leader's signal comes through walls, and a relay that steers at it into one meets the
     paper's slow-down, turns off, steers back in and crawls. Along the wall instead it
     drives on until the wall ends or opens (a door), and the bearing has the way again.
-    The wall is the line through that side's two nearest 90/50/30 deg echoes within
-    reach_m (relayd.core.avoid.ring.wall_fit; one echo alone is taken as parallel to the
-    heading), and only while the 90 deg sonar hears it abeam; 0: off. The echoes sit on
-    their beams' axes, which reads a parallel wall 7-14 deg turned off it (the nearest
-    echo comes from the beam's edge): as measured, the slide eases the robot off the wall
-    by about that much (docs/CONTROL.md 7.4)."""
+    Only while that side's front 90 deg sonar hears a wall within reach_m; 0: off. The
+    wall's direction is the line through the two echoes abeam, the front ring's 90 deg
+    and the rear ring's (0.29 m apart; each reads its distance to a wall within 15 deg of
+    parallel), and parallel to the heading without a rear echo. Not the 50 and 30 deg
+    echoes: before a wall across the way (a door's), those come from it, and a fit
+    through them turned the relay off the door (door, seed 2; docs/CONTROL.md 7.4)."""
     if reach_m <= 0.0 or steer_deg == 0.0 or abs(steer_deg) > SLIDE_MAX_DEG:
         return steer_deg
     side = 1 if steer_deg > 0 else -1
-    r = by_heading(front)
-    if r.get(side * 90.0, SONAR_MAX_RANGE_M) > reach_m:
+    abeam_m = by_heading(front).get(side * 90.0, SONAR_MAX_RANGE_M)
+    if abeam_m > reach_m:
         # Nothing abeam on that side: a door or a side corridor there, or the wall still
         # ahead, where the paper's obstacle rule has it; the bearing has the way.
         return steer_deg
-    fit = wall_fit(r, side, reach_m)
-    if fit is None:
-        return steer_deg
-    _, along_deg = fit
+    along_deg = 0.0
+    behind_m = _rear_abeam_m(rear, side)
+    if behind_m is not None and behind_m <= reach_m + ABEAM_SPAN_M:
+        along_deg = math.degrees(math.atan2(side * (abeam_m - behind_m), ABEAM_BASE_M))
     return min(steer_deg, along_deg) if side > 0 else max(steer_deg, along_deg)
+
+
+def _rear_abeam_m(rear: tuple[SonarReading, ...], side: int) -> float | None:
+    """The rear ring's 90 deg echo on `side` (sonar 15 left, 8 right), None if unheard."""
+    index = 15 if side > 0 else 8
+    for reading in rear:
+        if reading.index == index and reading.range_m is not None:
+            return reading.range_m if reading.range_m < SONAR_MAX_RANGE_M else None
+    return None
 
 
 def off_walls(
@@ -140,13 +162,14 @@ def off_walls(
     front: tuple[SonarReading, ...],
     params: ControlParams,
     detouring: bool,
+    rear: tuple[SonarReading, ...] = (),
 ) -> tuple[float, float | None]:
     """The plain pursuit's steer and its previous value, slid along a wall it points into
     (control.wall_slide_m) and pushed off one beside it (control.side_keep_m); a detour's
     path is the map's, and neither acts on it."""
     if detouring:
         return steer_deg, prev_deg
-    slid = slide_along_wall(steer_deg, front, params.wall_slide_m)
+    slid = slide_along_wall(steer_deg, front, params.wall_slide_m, rear)
     if slid != steer_deg:
         prev_deg = None  # the steer is the wall's, not the bearing's: no D term on it
     return keep_off_sides(slid, prev_deg, front, params.side_keep_m)

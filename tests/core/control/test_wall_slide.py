@@ -10,7 +10,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from relayd.core.avoid.ring import POSE_M
+from relayd.core.avoid.ring import POSE_M, rear_readings
+from relayd.core.geometry import SONAR_POSES
 from relayd.core.control.law import ControlParams
 from relayd.core.control.steer import SLIDE_MAX_DEG, slide_along_wall
 from relayd.core.scan.estimator import SonarReading
@@ -38,13 +39,53 @@ def wall_ring(side: int, lateral_m: float, angle_deg: float = 0.0) -> tuple[Sona
     return sonar(**ranges)
 
 
+def rear_ring(side: int, lateral_m: float, angle_deg: float = 0.0) -> tuple[SonarReading, ...]:
+    """The rear ring's 90 deg sonar on `side` beside the same wall: a beam within 15 deg
+    of the wall's normal reads the transducer's distance to it (the front one too)."""
+    a = math.radians(angle_deg)
+    nx, ny = -side * math.sin(a), side * math.cos(a)
+    index = 15 if side > 0 else 8
+    pose = SONAR_POSES[index]
+    gap = lateral_m - (nx * pose.x_mm + ny * pose.y_mm) / 1000.0
+    ranges: list[int | None] = [None] * 16
+    ranges[index] = round(1000 * gap)
+    return rear_readings(ranges)
+
+
+def abeam_ring(side: int, lateral_m: float, angle_deg: float = 0.0) -> tuple[SonarReading, ...]:
+    """wall_ring with the front 90 deg sonar reading the perpendicular, as rear_ring."""
+    a = math.radians(angle_deg)
+    nx, ny = -side * math.sin(a), side * math.cos(a)
+    h = side * 90.0
+    x0, y0 = POSE_M[h]
+    ring = list(wall_ring(side, lateral_m, angle_deg))
+    i = next(k for k, r in enumerate(ring) if r.heading_deg == h)
+    ring[i] = dataclasses.replace(ring[i], range_m=round(lateral_m - (nx * x0 + ny * y0), 3))
+    return tuple(ring)
+
+
 @pytest.mark.parametrize("side", [1, -1])
 def test_a_leader_through_the_wall_beside_is_followed_along_it(side: int) -> None:
     ring = wall_ring(side, 0.8)
-    assert slide_along_wall(side * 84.0, ring, 1.0) == pytest.approx(0.0, abs=1.0)
+    assert slide_along_wall(side * 84.0, ring, 1.0, rear_ring(side, 0.8)) == pytest.approx(
+        0.0, abs=0.5
+    )
     # The wall converging ahead (the robot heading 10 deg into it): along it is away.
-    into = wall_ring(side, 0.8, angle_deg=-side * 10.0)
-    assert slide_along_wall(side * 84.0, into, 1.0) == pytest.approx(-side * 10.0, abs=1.5)
+    into = abeam_ring(side, 0.8, angle_deg=-side * 10.0)
+    behind = rear_ring(side, 0.8, angle_deg=-side * 10.0)
+    assert slide_along_wall(side * 84.0, into, 1.0, behind) == pytest.approx(-side * 10.0, abs=1.5)
+    # No rear echo abeam: the wall is taken as parallel to the heading.
+    assert slide_along_wall(side * 84.0, into, 1.0) == 0.0
+
+
+def test_a_wall_across_the_way_ahead_does_not_turn_the_relay_off_its_door() -> None:
+    """A 3 m corridor, the relay 0.28 m right of its middle before a fire door in a wall
+    across it (door, seed 2): the 50 and 30 deg echoes come from that wall, and a fit
+    through them steered 12 deg left, off the door, onto its jamb. The two abeam echoes
+    are the side walls: parallel, and the steer toward the leader is held straight."""
+    ring = sonar(s0=1310, s1=1360, s2=1210, s3=None, s4=None, s5=1200, s6=1200, s7=1430)
+    behind = rear_readings([None] * 8 + [1430] + [None] * 6 + [1310])
+    assert slide_along_wall(-13.9, ring, 1.5, behind) == pytest.approx(0.0, abs=0.5)
 
 
 def test_off_at_zero_behind_and_away_from_the_wall() -> None:
@@ -66,7 +107,7 @@ def test_the_slide_only_ever_turns_the_steer_out_of_the_wall(
     steer: float, side: int, lateral: float, angle: float
 ) -> None:
     ring = wall_ring(side, lateral, angle)
-    out = slide_along_wall(steer, ring, 1.0)
+    out = slide_along_wall(steer, ring, 1.0, rear_ring(side, lateral, angle))
     if steer * side <= 0 or abs(steer) > SLIDE_MAX_DEG:
         assert out == steer  # away from the wall, or behind: untouched
     else:
