@@ -111,9 +111,11 @@ SLIDE_MAX_DEG = 100.0
 
 #: How far apart along the heading the front and rear rings' 90 deg sonars sit (m).
 ABEAM_BASE_M = (SONAR_POSES[0].x_mm - SONAR_POSES[15].x_mm) / 1000.0
-#: A rear echo abeam this much beyond the reach still lies on the same wall (one 30 deg
-#: off the heading, the most the 90 deg sonars read it at all).
-ABEAM_SPAN_M = 0.2
+#: The two abeam echoes are one wall beside the robot only if it runs within this of
+#: the heading (a 90 deg beam reads a wall's distance to about 15 deg off its normal).
+ABEAM_MAX_DEG = 30.0
+#: ... so the rear echo may lie this much beyond the reach (m).
+ABEAM_SPAN_M = ABEAM_BASE_M * math.tan(math.radians(ABEAM_MAX_DEG))
 
 
 def slide_along_wall(
@@ -127,11 +129,11 @@ def slide_along_wall(
     paper's slow-down, turns off, steers back in and crawls. Along the wall instead it
     drives on until the wall ends or opens (a door), and the bearing has the way again.
     Only while that side's front 90 deg sonar hears a wall within reach_m; 0: off. The
-    wall's direction is the line through the two echoes abeam, the front ring's 90 deg
-    and the rear ring's (0.29 m apart; each reads its distance to a wall within 15 deg of
-    parallel), and parallel to the heading without a rear echo. Not the 50 and 30 deg
-    echoes: before a wall across the way (a door's), those come from it, and a fit
-    through them turned the relay off the door (door, seed 2; docs/CONTROL.md 7.4)."""
+    wall is beside only if the rear ring's 90 deg sonar hears it too, and its direction
+    is the line through the two echoes abeam (0.29 m apart; each reads its distance to a
+    wall within 15 deg of parallel). Not the 50 and 30 deg echoes: before a wall across
+    the way (a door's), those come from it, and a fit through them turned the relay off
+    the door onto its jamb (door, seed 2; docs/CONTROL.md 7.4)."""
     if reach_m <= 0.0 or steer_deg == 0.0 or abs(steer_deg) > SLIDE_MAX_DEG:
         return steer_deg
     side = 1 if steer_deg > 0 else -1
@@ -140,10 +142,15 @@ def slide_along_wall(
         # Nothing abeam on that side: a door or a side corridor there, or the wall still
         # ahead, where the paper's obstacle rule has it; the bearing has the way.
         return steer_deg
-    along_deg = 0.0
     behind_m = _rear_abeam_m(rear, side)
-    if behind_m is not None and behind_m <= reach_m + ABEAM_SPAN_M:
-        along_deg = math.degrees(math.atan2(side * (abeam_m - behind_m), ABEAM_BASE_M))
+    if behind_m is None or behind_m > reach_m + ABEAM_SPAN_M:
+        # The front sonar alone: the edge of its beam hears a wall across the way ahead
+        # (a door's) as well as one beside; only a wall the rear one hears too is beside.
+        return steer_deg
+    along_deg = math.degrees(math.atan2(side * (abeam_m - behind_m), ABEAM_BASE_M))
+    if abs(along_deg) > ABEAM_MAX_DEG:
+        # Two surfaces, not one wall beside (a jamb ahead, a wall further back).
+        return steer_deg
     return min(steer_deg, along_deg) if side > 0 else max(steer_deg, along_deg)
 
 

@@ -11,10 +11,10 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from relayd.core.avoid.ring import rear_readings
+from relayd.core.avoid.ring import path_blocked, rear_readings
 from relayd.core.avoid.state import AvoidMode, AvoidParams, AvoidState, episode_only
 from relayd.core.control.law import ControlMemory, ControlParams, control_step
-from relayd.core.scan.estimator import front_readings, nearest_front_m
+from relayd.core.scan.estimator import front_readings
 from relayd.core.vocab import DriveState
 from relayd.sim.runner import SimRunner
 from relayd.sim.scenario import load_scenario
@@ -107,9 +107,8 @@ def test_going_round_lost_keeps_every_promise(
     memory = replace(MEMORY, avoid=replace(GOING_ROUND, mode=mode))
     out = lost_step(memory=memory, front_sonar=front, search_bearing_deg=seen)
     assert max(abs(out.left_mm_s), abs(out.right_mm_s)) <= P.v_max_mm_s + 1e-9
-    near = nearest_front_m(front)
-    if near is not None and near < P.stop_distance_m:
-        # Never forward into an echo nearer than the stop distance.
+    if path_blocked(front, P.stop_distance_m):
+        # Never forward into an echo nearer than the stop distance in the robot's path.
         assert out.left_mm_s + out.right_mm_s <= 1e-9
 
 

@@ -74,8 +74,9 @@ def test_a_leader_through_the_wall_beside_is_followed_along_it(side: int) -> Non
     into = abeam_ring(side, 0.8, angle_deg=-side * 10.0)
     behind = rear_ring(side, 0.8, angle_deg=-side * 10.0)
     assert slide_along_wall(side * 84.0, into, 1.0, behind) == pytest.approx(-side * 10.0, abs=1.5)
-    # No rear echo abeam: the wall is taken as parallel to the heading.
-    assert slide_along_wall(side * 84.0, into, 1.0) == 0.0
+    # No rear echo abeam: the front one may be the edge of its beam on a wall across
+    # the way ahead; the slide leaves the steer alone.
+    assert slide_along_wall(side * 84.0, into, 1.0) == side * 84.0
 
 
 def test_a_wall_across_the_way_ahead_does_not_turn_the_relay_off_its_door() -> None:
@@ -89,12 +90,13 @@ def test_a_wall_across_the_way_ahead_does_not_turn_the_relay_off_its_door() -> N
 
 
 def test_off_at_zero_behind_and_away_from_the_wall() -> None:
-    ring = wall_ring(-1, 0.8)
-    assert slide_along_wall(-84.0, ring, 0.0) == -84.0
-    assert slide_along_wall(-(SLIDE_MAX_DEG + 5.0), ring, 1.0) == -(SLIDE_MAX_DEG + 5.0)
-    assert slide_along_wall(40.0, ring, 1.0) == 40.0  # toward the open side: as it was
+    ring, behind = wall_ring(-1, 0.8), rear_ring(-1, 0.8)
+    assert slide_along_wall(-84.0, ring, 0.0, behind) == -84.0
+    assert slide_along_wall(-(SLIDE_MAX_DEG + 5.0), ring, 1.0, behind) == -(SLIDE_MAX_DEG + 5.0)
+    assert slide_along_wall(40.0, ring, 1.0, behind) == 40.0  # toward the open side: as it was
     # A wall beyond reach is no wall.
-    assert slide_along_wall(-84.0, wall_ring(-1, 1.6), 1.0) == -84.0
+    far = slide_along_wall(-84.0, wall_ring(-1, 1.6), 1.0, rear_ring(-1, 1.6))
+    assert far == -84.0
 
 
 @given(
@@ -115,9 +117,10 @@ def test_the_slide_only_ever_turns_the_steer_out_of_the_wall(
 
 
 def test_the_law_drives_along_the_wall_where_the_paper_turns_into_it() -> None:
-    ring = wall_ring(-1, 0.8)
-    paper = step(params=PAPER, bearing_deg=-84.0, prev_bearing_deg=-84.0, front_sonar=ring)
-    slid = step(params=SLIDE, bearing_deg=-84.0, prev_bearing_deg=-84.0, front_sonar=ring)
+    ring, behind = wall_ring(-1, 0.8), rear_ring(-1, 0.8)
+    beside = {"front_sonar": ring, "rear_sonar": behind}
+    paper = step(params=PAPER, bearing_deg=-84.0, prev_bearing_deg=-84.0, **beside)
+    slid = step(params=SLIDE, bearing_deg=-84.0, prev_bearing_deg=-84.0, **beside)
     assert paper.left_mm_s > paper.right_mm_s  # turning right, into the wall
     assert slid.reason == "driving" and slid.left_mm_s > 0 and slid.right_mm_s > 0
     assert abs(slid.left_mm_s - slid.right_mm_s) < 0.1 * (slid.left_mm_s + slid.right_mm_s)
@@ -127,9 +130,9 @@ def test_the_law_drives_along_the_wall_where_the_paper_turns_into_it() -> None:
 def test_no_d_term_kick_when_the_slide_takes_the_steer() -> None:
     """Bearing -84 after -60 into a wall: the wheels are those of the wall's direction
     alone, not a D term on the jump from the bearing to it."""
-    ring = wall_ring(-1, 0.8)
-    still = step(params=SLIDE, bearing_deg=-84.0, prev_bearing_deg=-84.0, front_sonar=ring)
-    moved = step(params=SLIDE, bearing_deg=-84.0, prev_bearing_deg=-60.0, front_sonar=ring)
+    beside = {"front_sonar": wall_ring(-1, 0.8), "rear_sonar": rear_ring(-1, 0.8)}
+    still = step(params=SLIDE, bearing_deg=-84.0, prev_bearing_deg=-84.0, **beside)
+    moved = step(params=SLIDE, bearing_deg=-84.0, prev_bearing_deg=-60.0, **beside)
     assert (moved.left_mm_s, moved.right_mm_s) == (still.left_mm_s, still.right_mm_s)
 
 
