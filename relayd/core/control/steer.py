@@ -129,11 +129,14 @@ def slide_along_wall(
     paper's slow-down, turns off, steers back in and crawls. Along the wall instead it
     drives on until the wall ends or opens (a door), and the bearing has the way again.
     Only while that side's front 90 deg sonar hears a wall within reach_m; 0: off. The
-    wall is beside only if the rear ring's 90 deg sonar hears it too, and its direction
-    is the line through the two echoes abeam (0.29 m apart; each reads its distance to a
-    wall within 15 deg of parallel). Not the 50 and 30 deg echoes: before a wall across
-    the way (a door's), those come from it, and a fit through them turned the relay off
-    the door onto its jamb (door, seed 2; docs/CONTROL.md 7.4)."""
+    wall is beside only if the rear ring's 90 deg sonar hears it too, and it is a wall
+    (longer than the robot) only if the 50 deg sonars ahead and behind hear it as well:
+    a robot abeam is not (the leader a close convoy passes). Its direction is the line
+    through the two echoes abeam (0.29 m apart; each reads its distance to a wall within
+    15 deg of parallel), and they must agree within 30 deg of the heading. Not the 50
+    and 30 deg echoes: before a wall across the way (a door's), those come from it, and a
+    fit through them turned the relay off the door onto its jamb (door, seed 2;
+    docs/CONTROL.md 7.4)."""
     if reach_m <= 0.0 or steer_deg == 0.0 or abs(steer_deg) > SLIDE_MAX_DEG:
         return steer_deg
     side = 1 if steer_deg > 0 else -1
@@ -142,7 +145,7 @@ def slide_along_wall(
         # Nothing abeam on that side: a door or a side corridor there, or the wall still
         # ahead, where the paper's obstacle rule has it; the bearing has the way.
         return steer_deg
-    behind_m = _rear_abeam_m(rear, side)
+    behind_m = _rear_echo_m(rear, side, 90.0)
     if behind_m is None or behind_m > reach_m + ABEAM_SPAN_M:
         # The front sonar alone: the edge of its beam hears a wall across the way ahead
         # (a door's) as well as one beside; only a wall the rear one hears too is beside.
@@ -151,12 +154,22 @@ def slide_along_wall(
     if abs(along_deg) > ABEAM_MAX_DEG:
         # Two surfaces, not one wall beside (a jamb ahead, a wall further back).
         return steer_deg
+    oblique_m = (reach_m + ABEAM_SPAN_M) / math.sin(math.radians(50.0))
+    if (
+        by_heading(front).get(side * 50.0, SONAR_MAX_RANGE_M) > oblique_m
+        or (_rear_echo_m(rear, side, 130.0) or SONAR_MAX_RANGE_M) > oblique_m
+    ):
+        # Not a wall longer than the robot: the 50 deg sonars ahead and behind it do not
+        # hear it. A robot beside (the leader a close convoy's relay passes) is not to
+        # be slid along; the law turns to it (convoy, seed 4).
+        return steer_deg
     return min(steer_deg, along_deg) if side > 0 else max(steer_deg, along_deg)
 
 
-def _rear_abeam_m(rear: tuple[SonarReading, ...], side: int) -> float | None:
-    """The rear ring's 90 deg echo on `side` (sonar 15 left, 8 right), None if unheard."""
-    index = 15 if side > 0 else 8
+def _rear_echo_m(rear: tuple[SonarReading, ...], side: int, off_tail_deg: float) -> float | None:
+    """The rear ring's echo on `side` at 90 or 130 deg off the nose (sonars 15 and 14
+    left, 8 and 9 right), None if unheard."""
+    index = {(1, 90.0): 15, (1, 130.0): 14, (-1, 90.0): 8, (-1, 130.0): 9}[(side, off_tail_deg)]
     for reading in rear:
         if reading.index == index and reading.range_m is not None:
             return reading.range_m if reading.range_m < SONAR_MAX_RANGE_M else None

@@ -40,15 +40,18 @@ def wall_ring(side: int, lateral_m: float, angle_deg: float = 0.0) -> tuple[Sona
 
 
 def rear_ring(side: int, lateral_m: float, angle_deg: float = 0.0) -> tuple[SonarReading, ...]:
-    """The rear ring's 90 deg sonar on `side` beside the same wall: a beam within 15 deg
-    of the wall's normal reads the transducer's distance to it (the front one too)."""
+    """The rear ring's 90 and 130 deg sonars on `side` beside the same wall: a beam within
+    15 deg of the wall's normal reads the transducer's distance to it (the front one too),
+    the 130 deg one its axis to the line."""
     a = math.radians(angle_deg)
     nx, ny = -side * math.sin(a), side * math.cos(a)
-    index = 15 if side > 0 else 8
-    pose = SONAR_POSES[index]
-    gap = lateral_m - (nx * pose.x_mm + ny * pose.y_mm) / 1000.0
     ranges: list[int | None] = [None] * 16
-    ranges[index] = round(1000 * gap)
+    for index in (15, 14) if side > 0 else (8, 9):
+        pose = SONAR_POSES[index]
+        gap = lateral_m - (nx * pose.x_mm + ny * pose.y_mm) / 1000.0
+        h = math.radians(pose.heading_deg)
+        dot = 1.0 if abs(pose.heading_deg) == 90 else nx * math.cos(h) + ny * math.sin(h)
+        ranges[index] = round(1000 * gap / dot) if dot > 1e-6 and gap > 0 else None
     return rear_readings(ranges)
 
 
@@ -85,8 +88,19 @@ def test_a_wall_across_the_way_ahead_does_not_turn_the_relay_off_its_door() -> N
     through them steered 12 deg left, off the door, onto its jamb. The two abeam echoes
     are the side walls: parallel, and the steer toward the leader is held straight."""
     ring = sonar(s0=1310, s1=1360, s2=1210, s3=None, s4=None, s5=1200, s6=1200, s7=1430)
-    behind = rear_readings([None] * 8 + [1430] + [None] * 6 + [1310])
+    behind = rear_readings([None] * 8 + [1430, 1870] + [None] * 4 + [1710, 1310])
     assert slide_along_wall(-13.9, ring, 1.5, behind) == pytest.approx(0.0, abs=0.5)
+
+
+def test_a_robot_beside_is_no_wall() -> None:
+    """The leader relay 1.2 m abeam (a close convoy's relay passing it, convoy seed 4):
+    both 90 deg sonars hear it, the 50 deg ones ahead and behind do not. The law turns to
+    it, as the paper's does."""
+    ring = sonar(s7=1200)
+    behind = rear_readings([None] * 8 + [1200] + [None] * 7)
+    assert slide_along_wall(-70.0, ring, 1.5, behind) == -70.0
+    wall_ring_, wall_behind = wall_ring(-1, 1.2), rear_ring(-1, 1.2)
+    assert slide_along_wall(-70.0, wall_ring_, 1.5, wall_behind) == pytest.approx(0.0, abs=0.5)
 
 
 def test_off_at_zero_behind_and_away_from_the_wall() -> None:
