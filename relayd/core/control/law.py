@@ -15,7 +15,6 @@ from relayd.core.avoid.ring import guard
 from relayd.core.avoid.state import AvoidMode, AvoidState, Sense, episode_only
 from relayd.core.control.params import ControlParams as ControlParams
 from relayd.core.control.rangecue import far_by_sonar, release_speed_mm_s
-from relayd.core.geometry import wrap_deg
 from relayd.core.control.search import SearchState, search_step, search_wheels
 from relayd.core.control.steer import (
     away_from_near_side,
@@ -27,6 +26,7 @@ from relayd.core.control.steer import (
     steering,
     trail_hold,
 )
+from relayd.core.geometry import wrap_deg
 from relayd.core.scan.estimator import (
     SonarReading,
     avoidance_bearing,
@@ -239,7 +239,7 @@ def _round_while_lost(
         return None
     seen = inputs.search_bearing_deg
     bearing = seen if seen is not None and math.isfinite(seen) else wrap_deg(av.goal_deg - odom[2])
-    kept, out = _escape(inputs, params, memory, bearing, situation)
+    _, out = _escape(inputs, params, memory, bearing, situation)
     return None if out is None or out.state is not DriveState.AVOIDING else out
 
 

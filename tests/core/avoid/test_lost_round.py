@@ -12,7 +12,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from relayd.core.avoid.ring import path_blocked, rear_readings
-from relayd.core.avoid.state import AvoidMode, AvoidParams, AvoidState, episode_only
+from relayd.core.avoid.state import AvoidMode, AvoidParams, episode_only
 from relayd.core.control.law import ControlMemory, ControlParams, control_step
 from relayd.core.scan.estimator import front_readings
 from relayd.core.vocab import DriveState

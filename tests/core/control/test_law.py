@@ -442,7 +442,10 @@ def test_side_wall_in_a_corridor_does_not_slow_the_robot() -> None:
     assert (out.left_mm_s, out.right_mm_s) == pytest.approx(wire(338.2, 361.8))
     # As shipped, the bearing's few degrees into the left wall slide along it (section
     # 7.4; the rear ring hears both walls abeam too): straight on, at the same speed.
-    slid = step(front_sonar=walls, rear_sonar=rear_readings([None] * 8 + [900, 1100] + [None] * 4 + [1100, 900]))
+    slid = step(
+        front_sonar=walls,
+        rear_sonar=rear_readings([None] * 8 + [900, 1100] + [None] * 4 + [1100, 900]),
+    )
     assert slid.state is DriveState.DRIVING and slid.situation != 1
     assert slid.left_mm_s == slid.right_mm_s == pytest.approx(sum(wire(338.2, 361.8)) / 2, abs=1)
 

@@ -11,9 +11,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from relayd.core.avoid.ring import POSE_M, rear_readings
-from relayd.core.geometry import SONAR_POSES
 from relayd.core.control.law import ControlParams
 from relayd.core.control.steer import SLIDE_MAX_DEG, slide_along_wall
+from relayd.core.geometry import SONAR_POSES
 from relayd.core.scan.estimator import SonarReading
 from tests.core.control.test_law import sonar, step
 
