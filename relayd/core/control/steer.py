@@ -20,7 +20,7 @@ from relayd.core.scan.estimator import SONAR_MAX_RANGE_M, SonarReading
 from relayd.core.trail.blocked import waiting
 
 if TYPE_CHECKING:
-    from relayd.core.control.law import ControlInputs, ControlMemory
+    from relayd.core.control.inputs import ControlInputs, ControlMemory
 
 
 def speed_scale(d_min_m: float, threshold_o_m: float, stop_distance_m: float) -> float:

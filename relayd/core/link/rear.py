@@ -14,7 +14,8 @@ import math
 from dataclasses import replace
 
 from drivers.airos.model import LinkQuality, Station
-from relayd.core.control.law import ControlInputs, ControlOutput, ControlParams
+from relayd.core.control.inputs import ControlInputs, ControlOutput
+from relayd.core.control.params import ControlParams
 from relayd.core.events import Action, LinkEvent, LinkModelView, RearLink
 from relayd.core.link.model import LinkModel, LinkPolicyParams, LinkSample
 from relayd.core.link.retreat import RetreatMemory, held_limit, record_poll, retreat_step

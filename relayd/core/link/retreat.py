@@ -16,7 +16,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-from relayd.core.control.law import ControlInputs, ControlOutput, ControlParams
+from relayd.core.control.inputs import ControlInputs, ControlOutput
+from relayd.core.control.params import ControlParams
 from relayd.core.recovery.trail import REAR_SONARS, TrailPoint, reverse_toward
 from relayd.core.vocab import DriveState, Mode
 
