@@ -20,11 +20,13 @@ from relayd.core.control.params import ControlParams as ControlParams
 from relayd.core.control.rangecue import far_by_sonar, release_speed_mm_s
 from relayd.core.control.search import SearchState, search_step, search_wheels
 from relayd.core.control.steer import (
+    SLIDE_MAX_DEG,
     away_from_near_side,
     detour_speed,
     detour_watch,
     off_walls,
     retry_detour,
+    slide_along_wall,
     speed_scale,
     steering,
     trail_hold,
@@ -119,9 +121,11 @@ def _lost(
     where it was last seen beyond the servo's reach."""
     lost_t = memory.lost_t if memory.lost_t is not None else inputs.t_s
     memory = replace(memory, lost_t=lost_t)
-    going_round = _round_while_lost(inputs, params, situation, memory)
-    if going_round is not None:
-        return going_round
+    going_on = _round_while_lost(inputs, params, situation, memory) or _search_along_wall(
+        inputs, params, situation, memory
+    )
+    if going_on is not None:
+        return going_on
     heading = inputs.odom[2] if inputs.odom is not None else None
     search, rvel = search_step(
         memory.search, inputs.search_bearing_deg, heading, inputs.t_s, params.search
@@ -142,31 +146,66 @@ def _lost(
     return ControlOutput(left, right, DriveState.LEADER_LOST, reason, situation, held)
 
 
-def _round_while_lost(
-    inputs: ControlInputs, params: ControlParams, situation: int, memory: ControlMemory
-) -> ControlOutput | None:
-    """The escape's manoeuvre through a short loss (AvoidParams.lost_manoeuvre_s): going
-    round a box turns the antenna off the leader; the way round goes on toward where the
-    scans last put it, while the rear half of the link rule allows driving. None: stop."""
-    av, t, odom = memory.avoid, inputs.t_s, inputs.odom
-    if (
-        params.avoid.lost_manoeuvre_s <= 0.0
-        or av.mode in (AvoidMode.FOLLOW, AvoidMode.BLOCKED)
-        or t is None
-        or odom is None
-        or memory.lost_t is None
-        or t - memory.lost_t > params.avoid.lost_manoeuvre_s
-    ):
-        return None
+def _lost_may_drive(inputs: ControlInputs, params: ControlParams, memory: ControlMemory) -> bool:
+    """A lost relay may drive on (AvoidParams.lost_manoeuvre_s): that soon after the
+    loss, and while the rear half of the link rule allows driving."""
+    t, limit_s = inputs.t_s, params.avoid.lost_manoeuvre_s
+    if limit_s <= 0.0 or t is None or memory.lost_t is None or t - memory.lost_t > limit_s:
+        return False
     rear_ok, _ = link_rule(
         -math.inf, inputs.rssi_behind_dbm, params, memory.link_drive, params.rear_link_required
     )
-    if not rear_ok:
+    return rear_ok
+
+
+def _round_while_lost(
+    inputs: ControlInputs, params: ControlParams, situation: int, memory: ControlMemory
+) -> ControlOutput | None:
+    """The escape's manoeuvre through a short loss: going round a box turns the antenna
+    off the leader; the way round goes on toward where the scans last put it. None: no."""
+    av, odom = memory.avoid, inputs.odom
+    if (
+        av.mode in (AvoidMode.FOLLOW, AvoidMode.BLOCKED)
+        or odom is None
+        or not _lost_may_drive(inputs, params, memory)
+    ):
         return None
     seen = inputs.search_bearing_deg
     bearing = seen if seen is not None and math.isfinite(seen) else wrap_deg(av.goal_deg - odom[2])
     _, out = _escape(inputs, params, memory, bearing, situation)
     return None if out is None or out.state is not DriveState.AVOIDING else out
+
+
+def _search_along_wall(
+    inputs: ControlInputs, params: ControlParams, situation: int, memory: ControlMemory
+) -> ControlOutput | None:
+    """Lost beyond the servo's reach on the side of a wall beside (the slide's, 7.4): it
+    was heard through that wall, and the way to it is where the wall opens. On along the
+    wall at the escape's wall speed, not a search turn into it. None: no such wall."""
+    seen = inputs.search_bearing_deg
+    if (
+        seen is None
+        or not math.isfinite(seen)
+        or abs(seen) < params.search.min_bearing_deg
+        or not _lost_may_drive(inputs, params, memory)
+    ):
+        return None
+    toward = math.copysign(SLIDE_MAX_DEG, seen)
+    along = slide_along_wall(toward, inputs.front_sonar, params.wall_slide_m, inputs.rear_sonar)
+    if along == toward:
+        return None
+    v = params.avoid.wall_speed_mm_s
+    if situation == 1 and (d_min := nearest_front_m(inputs.front_sonar)) is not None:
+        v *= speed_scale(d_min, params.threshold_o_m, params.stop_distance_m)
+    act = params.actuator
+    left, right = wheel_law(v, along, None, params.kp, params.kd, params.v_max_mm_s)
+    vel, rvel = act.within(*act.express(*act.vel_rvel(left, right)), params.v_max_mm_s)
+    vel, rvel = guard(vel, rvel, inputs.front_sonar, params.stop_distance_m)
+    if vel <= 0:
+        return None
+    held = replace(_not_driving(memory), avoid=episode_only(memory.avoid, inputs.t_s, params.avoid))
+    left, right = act.wheels(vel, rvel)
+    return ControlOutput(left, right, DriveState.LEADER_LOST, "leader_search", situation, held)
 
 
 def _stale(age_s: float | None, timeout_s: float) -> bool:
