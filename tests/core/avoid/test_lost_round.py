@@ -1,7 +1,9 @@
-"""The escape's manoeuvre through a short loss of the leader ([avoidance] lost_manoeuvre_s):
-going round a box offset to one side turned the antenna off the leader, the lost stop
-ended the manoeuvre, the leader was found again straight through the box and the paper's
-law drove back into it, for the rest of the run (box-dead-ahead-offset seed 5)."""
+"""A lost leader does not end the way on at once ([avoidance] lost_manoeuvre_s). The
+escape's manoeuvre goes on through a short loss: going round a box offset to one side
+turned the antenna off the leader, the lost stop ended the manoeuvre, the leader was found again straight through the box and the paper's
+law drove back into it, for the rest of the run (box-dead-ahead-offset seed 5). And a
+leader lost beyond the servo's reach through a wall beside is sought along the wall,
+where it opens, not by a turn into it (corridor seed 1, the README's main job)."""
 
 from __future__ import annotations
 
@@ -20,6 +22,7 @@ from relayd.sim.runner import SimRunner
 from relayd.sim.scenario import load_scenario
 from tests.core.avoid.test_keep_episode import GOING_ROUND
 from tests.core.control.test_law import healthy
+from tests.core.control.test_wall_slide import rear_ring, wall_ring
 
 P = ControlParams()
 MEMORY = ControlMemory(link_drive=True, avoid=GOING_ROUND)
@@ -123,3 +126,94 @@ def test_the_offset_box_is_passed_by_real_daemons() -> None:
     result = vtime.run(SimRunner(sc, speed=None, seed=5).run())
     (f,) = result.summary["followers"]
     assert f["stopped_reason"] == "leader_near" and f["collisions"] == 0, f
+
+
+# --- lost beyond reach beside a wall: on along it, not a turn into it -------------------
+
+#: A 3 m corridor's right wall 0.85 m off; the leader last seen 100 deg right, beyond
+#: the servo's reach, through that wall (corridor seed 1, the north corridor's end).
+BESIDE = {"front_sonar": wall_ring(-1, 0.85), "rear_sonar": rear_ring(-1, 0.85)}
+
+
+def search_step_(**changes: object):
+    base = {
+        "leader_lost": True,
+        "t_s": 45.0,
+        "odom": (20650.0, 17000.0, 90.0),
+        "search_bearing_deg": -100.0,
+        **BESIDE,
+    }
+    return control_step(healthy(**{**base, **changes}), P, ControlMemory(link_drive=True))
+
+
+def test_lost_beside_the_wall_it_was_heard_through_drives_on_along_it() -> None:
+    out = search_step_()
+    assert out.state is DriveState.LEADER_LOST and out.reason == "leader_search"
+    assert out.left_mm_s > 0 and out.right_mm_s > 0  # forward, not a turn in place
+    assert abs(out.left_mm_s - out.right_mm_s) < 0.1 * (out.left_mm_s + out.right_mm_s)
+    assert max(out.left_mm_s, out.right_mm_s) <= P.avoid.wall_speed_mm_s + 1.0
+
+
+def test_where_the_wall_opens_the_search_turns_as_before() -> None:
+    # No wall abeam on the leader's side (the corridor's corner): the search turn.
+    out = search_step_(front_sonar=CLEAR, rear_sonar=ROOM_BEHIND)
+    assert out.reason == "leader_search" and out.left_mm_s == -out.right_mm_s != 0.0
+    # Last seen within the sweep: no search at all, as before.
+    within = search_step_(search_bearing_deg=-30.0)
+    assert within.reason == "leader_lost" and within.left_mm_s == within.right_mm_s == 0.0
+
+
+@pytest.mark.parametrize(
+    "changes",
+    [
+        {"rssi_behind_dbm": -80.0},  # the link behind at its limit
+        {"t_s": None},
+        {"search_bearing_deg": None},
+    ],
+)
+def test_no_search_along_without_the_rear_link_or_a_time(changes: dict[str, object]) -> None:
+    out = search_step_(**changes)
+    assert out.left_mm_s + out.right_mm_s <= 1e-9  # at most a turn in place
+
+
+def test_the_search_along_a_wall_is_bounded_in_time() -> None:
+    first = search_step_(t_s=45.0)
+    later = control_step(
+        healthy(
+            leader_lost=True,
+            t_s=55.5,
+            odom=(20650.0, 18500.0, 90.0),
+            search_bearing_deg=-100.0,
+            **BESIDE,
+        ),
+        P,
+        first.memory,
+    )
+    assert later.left_mm_s + later.right_mm_s <= 1e-9
+
+
+@given(
+    ranges=st.lists(st.one_of(st.none(), st.integers(100, 5000)), min_size=16, max_size=16),
+    seen=st.floats(-180.0, 180.0),
+)
+def test_searching_along_keeps_every_promise(ranges: list[int | None], seen: float) -> None:
+    front = front_readings(ranges[:8] + [None] * 8)
+    rear = rear_readings([None] * 8 + ranges[8:])
+    out = search_step_(front_sonar=front, rear_sonar=rear, search_bearing_deg=seen)
+    assert max(abs(out.left_mm_s), abs(out.right_mm_s)) <= P.v_max_mm_s + 1e-9
+    if path_blocked(front, P.stop_distance_m):
+        assert out.left_mm_s + out.right_mm_s <= 1e-9
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(180)
+def test_the_readmes_main_job_ends_on_the_link_rule() -> None:
+    # corridor seed 1 (`relayd sim` as the README runs it): relay1 lost its leader at the
+    # north corridor's end, turned toward it into the corner and was still getting out
+    # when the run ended ("avoiding", 21.4 m from the person).
+    from relayd.runtime import vtime
+
+    sc = load_scenario("corridor")
+    result = vtime.run(SimRunner(sc, speed=None, seed=1).run())
+    for f in result.summary["followers"]:
+        assert f["on_link_rule"] and f["collisions"] == 0, f
