@@ -7,8 +7,9 @@ reason is one of relayd.core.vocab.LINK_RULE_ENDS: leader_near / rear_weak (or t
 adaptive forms), or still following (driving, detour, leader_far_sonar, trail_head);
 anything else (avoiding, rejoining, blocked, trail_blocked, leader_lost, leader_search)
 is counted against the pursuit. "obstacle" (the paper's slow-down by a near echo) counts
-only if the relay still got 0.5 m on in the last 10 s: one standing at a wall on it does
-not (summary.json's on_link_rule, relayd.sim.summary.ended_on_rule).
+only while the relay is closing on its leader (0.3 m on in the last 3 s, its gap not
+grown): one standing at a wall on it does not (summary.json's on_link_rule,
+relayd.sim.summary.ended_on_rule). The table says how many ends counted so.
 
 Each scenario runs with its own configuration (the project's defaults where it sets
 nothing); `--calibrated` sets the path-loss keys as `relayd calibrate` would find them.
@@ -168,6 +169,11 @@ def run(
     return out
 
 
+def _shown(e: Ending) -> str:
+    """The end's reason, "obstacle (closing)" where summary.json counts it as following."""
+    return f"{e.reason} (closing)" if e.good and e.reason == "obstacle" else e.reason
+
+
 def table(endings: Sequence[Ending]) -> str:
     by: dict[tuple[str, str], list[Ending]] = collections.defaultdict(list)
     for e in endings:
@@ -182,7 +188,7 @@ def table(endings: Sequence[Ending]) -> str:
             if not es:
                 continue
             good = sum(e.good for e in es)
-            reasons = collections.Counter(e.reason for e in es)
+            reasons = collections.Counter(_shown(e) for e in es)
             rs = ", ".join(f"{k} {v}" for k, v in sorted(reasons.items()))
             gap = sum(e.gap_m for e in es) / len(es)
             lines.append(f"| {scenario} | {pursuit} | {good}/{len(es)} | {rs} | {gap:.1f} |")

@@ -73,29 +73,27 @@ def stuck_s(
 
 
 def ended_on_rule(
-    records: Sequence[dict[str, Any]], i: int, window_s: float = 10.0, progress_m: float = 0.5
+    records: Sequence[dict[str, Any]], i: int, window_s: float = 3.0, progress_m: float = 0.3
 ) -> bool:
     """Did relay i end on the link rule or still following (core/vocab.py LINK_RULE_ENDS)?
 
-    The paper's situation 1 ("obstacle": slowing and steering off a near echo) is its
-    following law too: a relay that ends on it while it still got somewhere (at least
-    `progress_m` within the last `window_s`, the measure of `stuck_s`) is following round
-    a corner or closing on a leader the sonar hears. One standing at a wall on it is not.
+    The paper's situation 1 ("obstacle": slowing and steering off a near echo) is part
+    of its following law too, and a relay closing on a leader the sonar hears ends on
+    it. It counts only while the relay is closing: it got at least `progress_m` on
+    within the last `window_s` and the gap to its own leader did not grow over them. One
+    standing at a wall on it, or losing ground to its leader, is not following.
     """
     if not records:
         return False
     last = records[-1]
-    reason = last["relays"][i]["reason"]
-    if reason in LINK_RULE_ENDS:
+    rel = last["relays"][i]
+    if rel["reason"] in LINK_RULE_ENDS:
         return True
-    if reason != Reason.OBSTACLE or last["t"] - records[0]["t"] < window_s:
+    if rel["reason"] != Reason.OBSTACLE or last["t"] - records[0]["t"] < window_s:
         return False
-    x, y = last["relays"][i]["x"], last["relays"][i]["y"]
-    return any(
-        math.hypot(x - r["relays"][i]["x"], y - r["relays"][i]["y"]) >= progress_m
-        for r in records
-        if r["t"] >= last["t"] - window_s
-    )
+    recent = [r["relays"][i] for r in records if r["t"] >= last["t"] - window_s]
+    moved = max(math.hypot(rel["x"] - r["x"], rel["y"] - r["y"]) for r in recent)
+    return moved >= progress_m and rel["gap_m"] <= recent[0]["gap_m"]
 
 
 def summarize(

@@ -29,7 +29,7 @@ RELAYD = Path(recovery.__file__).resolve().parents[2]
 
 def _reason_positions(trees: list[ast.Module]) -> dict[str, set[int | None]]:
     """name -> positions of its `reason` argument (None: keyword-only), for every function
-    and every field class (dataclass, NamedTuple) that takes one: `_stopped(state,
+    and every field class (dataclass, NamedTuple) that takes one: `stopped(state,
     reason, ...)`, `ControlOutput(l, r, state, reason, ...)`, `turn_cmd(act, s, p, rvel,
     reason)`; a set, as two modules may each have a `_zero`. A `reason=` that lands in
     `**fields` (a log line's field) is not a code."""

@@ -156,27 +156,35 @@ def test_the_printed_summary_says_what_happened() -> None:
     )
 
 
-def test_an_obstacle_end_is_following_only_while_the_relay_gets_somewhere() -> None:
+def test_an_obstacle_end_is_following_only_while_the_relay_closes_on_its_leader() -> None:
     from relayd.sim.summary import ended_on_rule
 
-    def run(xs: list[float], reason: str = "obstacle") -> list[dict]:
-        recs = [_rec(float(t), 0, 27, False, [2.0]) for t in range(len(xs))]
+    def run(xs: list[float], gaps: list[float] | None = None, reason: str = "obstacle") -> list:
+        """One record a second, the relay at x, its gap to its leader."""
+        gaps = gaps or [2.0] * len(xs)
+        recs = [_rec(float(t), 0, 27, False, [g]) for t, g in enumerate(gaps)]
         for r, x in zip(recs, xs, strict=True):
             r["relays"][0]["x"] = x
         recs[-1]["relays"][0]["reason"] = reason
         return recs
 
-    # The paper's slow-down by a near echo, 0.6 m on in the last 10 s: closing on a leader
-    # the sonar hears, or round a corner.
-    assert ended_on_rule(run([0.1 * t for t in range(12)]), 0) is True
-    # Standing at a wall (0.4 m in 10 s), or a run too short to tell: not following.
-    assert ended_on_rule(run([0.03 * t for t in range(15)]), 0) is False
+    # The paper's slow-down by a near echo, closing on a stopped leader the sonar hears
+    # (convoy seed 2): 0.4 m on in the last 3 s, the gap shrinking.
+    closing = run([0.1 * t for t in range(12)], [3.0 - 0.1 * t for t in range(12)])
+    assert ended_on_rule(closing, 0) is True
+    # Moving, but losing ground to the leader: not following.
+    losing = run([0.1 * t for t in range(12)], [2.0 + 0.1 * t for t in range(12)])
+    assert ended_on_rule(losing, 0) is False
+    # Got 0.6 m on, then stood at a wall: the last 3 s decide.
+    stood = run([0.6 * min(t, 1) for t in range(12)], [3.0 - 0.1 * t for t in range(12)])
+    assert ended_on_rule(stood, 0) is False
+    # Creeping (0.2 m in 3 s), or a run too short to tell: not following.
+    creep = run([0.07 * t for t in range(12)], [3.0 - 0.1 * t for t in range(12)])
+    assert ended_on_rule(creep, 0) is False
     assert ended_on_rule(run([0.0, 5.0]), 0) is False
-    # The window is the last 10 s: a relay that got on long ago and stands now is stuck.
-    assert ended_on_rule(run([0.5 * min(t, 4) for t in range(20)]), 0) is False
     # Other ends are the reason alone, moving or not.
-    assert ended_on_rule(run([0.1 * t for t in range(12)], "avoiding"), 0) is False
-    assert ended_on_rule(run([0.0] * 12, "leader_near"), 0) is True
+    assert ended_on_rule(run([0.1 * t for t in range(12)], reason="avoiding"), 0) is False
+    assert ended_on_rule(run([0.0] * 12, reason="leader_near"), 0) is True
     assert ended_on_rule([], 0) is False
 
 

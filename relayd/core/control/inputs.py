@@ -8,7 +8,7 @@ why. Kept apart from the law so that a reader sees the route before the rules.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from relayd.core.avoid.state import AvoidState
 from relayd.core.control.search import SearchState
@@ -91,3 +91,13 @@ class ControlOutput:
     reason: str  # short snake_case cause
     situation: int
     memory: ControlMemory
+
+
+def stopped(state: DriveState, reason: str, situation: int, memory: ControlMemory) -> ControlOutput:
+    """Wheels at zero, and the memory of a step that did not follow."""
+    return ControlOutput(0.0, 0.0, state, reason, situation, not_driving(memory))
+
+
+def not_driving(memory: ControlMemory) -> ControlMemory:
+    """The memory of a step that did not follow: no D-term angle, no escape, no release."""
+    return replace(memory, prev_steer_deg=None, avoid=AvoidState(), sonar_release=False)

@@ -16,6 +16,8 @@ from relayd.core.avoid.state import AvoidMode, AvoidState, Sense, episode_only
 from relayd.core.control.inputs import ControlInputs as ControlInputs
 from relayd.core.control.inputs import ControlMemory as ControlMemory
 from relayd.core.control.inputs import ControlOutput as ControlOutput
+from relayd.core.control.inputs import not_driving, stopped
+from relayd.core.control.modes import fail_safe_or_mode
 from relayd.core.control.params import ControlParams as ControlParams
 from relayd.core.control.rangecue import far_by_sonar, release_speed_mm_s
 from relayd.core.control.search import SearchState, search_step, search_wheels
@@ -38,7 +40,7 @@ from relayd.core.scan.estimator import (
     nearest_front_m,
 )
 from relayd.core.trail.blocked import blocked_step
-from relayd.core.vocab import DriveState, Mode
+from relayd.core.vocab import DriveState
 
 
 def _clamp(value: float, low: float, high: float) -> float:
@@ -103,29 +105,28 @@ def link_rule(
     return True, "driving"
 
 
-def _stopped(
-    state: DriveState, reason: str, situation: int, memory: ControlMemory
-) -> ControlOutput:
-    return ControlOutput(0.0, 0.0, state, reason, situation, _not_driving(memory))
-
-
-def _not_driving(memory: ControlMemory) -> ControlMemory:
-    """The memory of a step that did not follow: no D-term angle, no escape, no release."""
-    return replace(memory, prev_steer_deg=None, avoid=AvoidState(), sonar_release=False)
-
-
 def _lost(
     inputs: ControlInputs, params: ControlParams, situation: int, memory: ControlMemory
 ) -> ControlOutput:
     """Leader lost: go on round what the escape is going round, or stand, or turn toward
     where it was last seen beyond the servo's reach."""
-    lost_t = memory.lost_t if memory.lost_t is not None else inputs.t_s
-    memory = replace(memory, lost_t=lost_t)
-    going_on = _round_while_lost(inputs, params, situation, memory) or _search_along_wall(
-        inputs, params, situation, memory
-    )
-    if going_on is not None:
-        return going_on
+    t = inputs.t_s
+    if memory.lost_t is None and t is not None and math.isfinite(t):
+        memory = replace(memory, lost_t=t)
+    if _lost_window_open(inputs, params, memory):
+        # Only the rear half of the link rule can hold a relay that has no leader: its
+        # latch moves here as it does while following.
+        rear_ok, _ = link_rule(
+            -math.inf, inputs.rssi_behind_dbm, params, memory.link_drive, params.rear_link_required
+        )
+        memory = replace(memory, link_drive=rear_ok)
+        going_on = None
+        if rear_ok:
+            going_on = _round_while_lost(inputs, params, situation, memory) or (
+                _search_along_wall(inputs, params, situation, memory)
+            )
+        if going_on is not None:
+            return going_on
     heading = inputs.odom[2] if inputs.odom is not None else None
     search, rvel = search_step(
         memory.search, inputs.search_bearing_deg, heading, inputs.t_s, params.search
@@ -141,21 +142,18 @@ def _lost(
     )
     # The escape's episode outlives the stop (AvoidParams.keep_episode_when_lost).
     episode = episode_only(memory.avoid, inputs.t_s, params.avoid)
-    held = replace(_not_driving(memory), avoid=episode)
+    held = replace(not_driving(memory), avoid=episode)
     reason = "leader_lost" if left == 0.0 and right == 0.0 else "leader_search"
     return ControlOutput(left, right, DriveState.LEADER_LOST, reason, situation, held)
 
 
-def _lost_may_drive(inputs: ControlInputs, params: ControlParams, memory: ControlMemory) -> bool:
-    """A lost relay may drive on (AvoidParams.lost_manoeuvre_s): that soon after the
-    loss, and while the rear half of the link rule allows driving."""
-    t, limit_s = inputs.t_s, params.avoid.lost_manoeuvre_s
-    if limit_s <= 0.0 or t is None or memory.lost_t is None or t - memory.lost_t > limit_s:
+def _lost_window_open(inputs: ControlInputs, params: ControlParams, memory: ControlMemory) -> bool:
+    """A lost relay may drive on that soon after the loss (AvoidParams.lost_manoeuvre_s),
+    by a clock that is finite and has not gone back."""
+    t, lost_t, limit_s = inputs.t_s, memory.lost_t, params.avoid.lost_manoeuvre_s
+    if limit_s <= 0.0 or t is None or lost_t is None or not math.isfinite(t):
         return False
-    rear_ok, _ = link_rule(
-        -math.inf, inputs.rssi_behind_dbm, params, memory.link_drive, params.rear_link_required
-    )
-    return rear_ok
+    return 0.0 <= t - lost_t <= limit_s
 
 
 def _round_while_lost(
@@ -164,11 +162,7 @@ def _round_while_lost(
     """The escape's manoeuvre through a short loss: going round a box turns the antenna
     off the leader; the way round goes on toward where the scans last put it. None: no."""
     av, odom = memory.avoid, inputs.odom
-    if (
-        av.mode in (AvoidMode.FOLLOW, AvoidMode.BLOCKED)
-        or odom is None
-        or not _lost_may_drive(inputs, params, memory)
-    ):
+    if av.mode in (AvoidMode.FOLLOW, AvoidMode.BLOCKED) or odom is None:
         return None
     seen = inputs.search_bearing_deg
     bearing = seen if seen is not None and math.isfinite(seen) else wrap_deg(av.goal_deg - odom[2])
@@ -184,11 +178,13 @@ def _search_along_wall(
     wall at the escape's wall speed, not a search turn into it. None: no such wall."""
     seen = inputs.search_bearing_deg
     if (
-        seen is None
+        not params.search.enabled
+        or seen is None
         or not math.isfinite(seen)
-        or abs(seen) < params.search.min_bearing_deg
-        or not _lost_may_drive(inputs, params, memory)
+        or not params.search.min_bearing_deg <= abs(seen) <= SLIDE_MAX_DEG
     ):
+        # Behind the robot (beyond the slide's 100 deg) is the turn round's: on along the
+        # wall would run it away from the leader.
         return None
     toward = math.copysign(SLIDE_MAX_DEG, seen)
     along = slide_along_wall(toward, inputs.front_sonar, params.wall_slide_m, inputs.rear_sonar)
@@ -203,62 +199,9 @@ def _search_along_wall(
     vel, rvel = guard(vel, rvel, inputs.front_sonar, params.stop_distance_m)
     if vel <= 0:
         return None
-    held = replace(_not_driving(memory), avoid=episode_only(memory.avoid, inputs.t_s, params.avoid))
+    held = replace(not_driving(memory), avoid=episode_only(memory.avoid, inputs.t_s, params.avoid))
     left, right = act.wheels(vel, rvel)
     return ControlOutput(left, right, DriveState.LEADER_LOST, "leader_search", situation, held)
-
-
-def _stale(age_s: float | None, timeout_s: float) -> bool:
-    return age_s is None or math.isnan(age_s) or age_s > timeout_s
-
-
-def _manual(
-    inputs: ControlInputs, params: ControlParams, situation: int, memory: ControlMemory
-) -> ControlOutput:
-    left, right = inputs.manual_left_mm_s, inputs.manual_right_mm_s
-    if (
-        left is None
-        or right is None
-        or not (math.isfinite(left) and math.isfinite(right))
-        or _stale(inputs.manual_age_s, params.manual_deadman_s)
-    ):
-        return _stopped(DriveState.STOPPED, "deadman", situation, memory)
-    v_max = params.v_max_mm_s
-    left, right = _clamp(left, -v_max, v_max), _clamp(right, -v_max, v_max)
-    reason = "manual"
-    d_min = nearest_front_m(inputs.front_sonar)
-    forward = (left + right) / 2.0
-    if d_min is not None and d_min < params.stop_distance_m and forward > 0:
-        # Keep the turn and any backing off, drop only the part that drives into the object.
-        left, right = left - forward, right - forward
-        reason = "obstacle"
-    state = DriveState.DRIVING if (left != 0.0 or right != 0.0) else DriveState.STOPPED
-    return ControlOutput(
-        left, right, state, reason, situation, replace(memory, prev_steer_deg=None)
-    )
-
-
-def _fail_safe_or_mode(
-    inputs: ControlInputs, params: ControlParams, situation: int, halted: ControlMemory
-) -> ControlOutput | None:
-    """Section 6's first rules: a stale input or servo stops, hold and manual decide."""
-    if _stale(inputs.sip_age_s, params.sip_timeout_s):
-        return _stopped(DriveState.FAULT, "no_sip", situation, halted)
-    if inputs.mode is Mode.FOLLOW:
-        if _stale(inputs.rssi_age_s, params.rssi_timeout_s):
-            return _stopped(DriveState.FAULT, "rssi_stale", situation, halted)
-        if not inputs.scan_servo_ok:
-            return _stopped(DriveState.FAULT, "scan_servo", situation, halted)
-        if params.rear_link_required and (
-            _stale(inputs.rear_age_s, params.rear_timeout_s) or inputs.rssi_behind_dbm is None
-        ):
-            return _stopped(DriveState.FAULT, "rear_link_stale", situation, halted)
-
-    if inputs.mode is Mode.HOLD:
-        return _stopped(DriveState.STOPPED, "hold", situation, halted)
-    if inputs.mode is Mode.MANUAL:
-        return _manual(inputs, params, situation, halted)
-    return None
 
 
 def control_step(
@@ -269,7 +212,7 @@ def control_step(
     # Hold, manual and the fail-safes end a search episode: its heading and time bookkeeping
     # mean nothing after them (the operator may have moved the robot); a relay still lost
     # afterwards searches afresh, on evidence still recent (docs/CONTROL.md 6.1).
-    first = _fail_safe_or_mode(inputs, params, situation, replace(memory, search=SearchState()))
+    first = fail_safe_or_mode(inputs, params, situation, memory)
     if first is not None:
         return first
     if inputs.leader_lost:
@@ -279,7 +222,7 @@ def control_step(
         memory = replace(memory, search=SearchState(), lost_t=None)
     bearing, rssi_l = inputs.bearing_deg, inputs.rssi_leader_dbm
     if bearing is None or rssi_l is None or not (math.isfinite(bearing) and math.isfinite(rssi_l)):
-        return _stopped(DriveState.STOPPED, "no_scan_yet", situation, memory)
+        return stopped(DriveState.STOPPED, "no_scan_yet", situation, memory)
     prev = inputs.prev_bearing_deg
     if prev is not None and not math.isfinite(prev):
         prev = None  # a broken B' only loses the D term for one scan
@@ -302,13 +245,13 @@ def control_step(
         )
     memory = replace(memory, link_drive=drive or released, sonar_release=released)
     if not (drive or released):
-        return _stopped(DriveState.STOPPED, reason, situation, memory)
+        return stopped(DriveState.STOPPED, reason, situation, memory)
 
     # Trail pursuit: the stop rule above stands; the trail's direction replaces the scan
     # bearing for the wheel law and the escape (back onto the trail, not through a wall).
     held = trail_hold(inputs, params, memory)
     if held is not None:
-        return _stopped(DriveState.STOPPED, held, situation, memory)
+        return stopped(DriveState.STOPPED, held, situation, memory)
     bearing, prev, detouring = steering(inputs, params, bearing, prev)
     v = (
         release_speed_mm_s(params.threshold_l_dbm, params.w1, params.w2, params.v_max_mm_s)
@@ -390,7 +333,7 @@ def _escape(
         )
         memory = replace(memory, trail_block=block)
         if stop:  # _stopped clears the escape: it starts afresh after the wait
-            return memory, _stopped(DriveState.STOPPED, "trail_blocked", situation, memory)
+            return memory, stopped(DriveState.STOPPED, "trail_blocked", situation, memory)
     if cmd.follow:
         return memory, None
     # The escape's turn rates are fixed; a v_max below them still bounds every wheel.

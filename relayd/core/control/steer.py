@@ -157,13 +157,17 @@ def slide_along_wall(
     oblique_m = (reach_m + ABEAM_SPAN_M) / math.sin(math.radians(50.0))
     if (
         by_heading(front).get(side * 50.0, SONAR_MAX_RANGE_M) > oblique_m
-        or (_rear_echo_m(rear, side, 130.0) or SONAR_MAX_RANGE_M) > oblique_m
+        or _or_max(_rear_echo_m(rear, side, 130.0)) > oblique_m
     ):
         # Not a wall longer than the robot: the 50 deg sonars ahead and behind it do not
         # hear it. A robot beside (the leader a close convoy's relay passes) is not to
         # be slid along; the law turns to it (convoy, seed 4).
         return steer_deg
     return min(steer_deg, along_deg) if side > 0 else max(steer_deg, along_deg)
+
+
+def _or_max(range_m: float | None) -> float:
+    return SONAR_MAX_RANGE_M if range_m is None else range_m
 
 
 def _rear_echo_m(rear: tuple[SonarReading, ...], side: int, off_tail_deg: float) -> float | None:

@@ -14,10 +14,10 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from relayd.core.avoid.ring import path_blocked, rear_readings
-from relayd.core.avoid.state import AvoidMode, AvoidParams, episode_only
+from relayd.core.avoid.state import AvoidMode, AvoidParams, AvoidState, episode_only
 from relayd.core.control.law import ControlMemory, ControlParams, control_step
 from relayd.core.scan.estimator import front_readings
-from relayd.core.vocab import DriveState
+from relayd.core.vocab import DriveState, Mode
 from relayd.sim.runner import SimRunner
 from relayd.sim.scenario import load_scenario
 from tests.core.avoid.test_keep_episode import GOING_ROUND
@@ -85,7 +85,7 @@ def test_found_again_the_next_loss_is_timed_afresh() -> None:
 def test_no_going_round_without_the_rear_link_or_a_pose(changes: dict[str, object]) -> None:
     out = lost_step(**changes)
     assert out.state is DriveState.LEADER_LOST
-    assert out.left_mm_s == out.right_mm_s == 0.0 or out.reason == "leader_search"
+    assert out.left_mm_s + out.right_mm_s <= 1e-9  # at most the search's turn in place
 
 
 def test_off_or_not_mid_manoeuvre_stops_as_before() -> None:
@@ -193,16 +193,121 @@ def test_the_search_along_a_wall_is_bounded_in_time() -> None:
 
 
 @given(
-    ranges=st.lists(st.one_of(st.none(), st.integers(100, 5000)), min_size=16, max_size=16),
+    side=st.sampled_from([1, -1]),
+    lateral=st.floats(0.3, 1.6),
+    angle=st.floats(-30.0, 30.0),
+    ahead_mm=st.one_of(st.none(), st.integers(100, 3000)),
     seen=st.floats(-180.0, 180.0),
 )
-def test_searching_along_keeps_every_promise(ranges: list[int | None], seen: float) -> None:
-    front = front_readings(ranges[:8] + [None] * 8)
-    rear = rear_readings([None] * 8 + ranges[8:])
-    out = search_step_(front_sonar=front, rear_sonar=rear, search_bearing_deg=seen)
+def test_searching_along_keeps_every_promise(
+    side: int, lateral: float, angle: float, ahead_mm: int | None, seen: float
+) -> None:
+    """Beside a wall (as the slide sees one) with something ahead or not, the leader last
+    seen anywhere: within v_max, never forward into an echo in the path, and forward
+    only along a wall on the side the leader was last seen, 60-100 deg off the nose."""
+    front = wall_ring(side, lateral, angle)
+    if ahead_mm is not None:
+        front = tuple(
+            replace(r, range_m=min(r.range_m or 5.0, ahead_mm / 1000.0))
+            if abs(r.heading_deg) == 10.0
+            else r
+            for r in front
+        )
+    out = search_step_(
+        front_sonar=front, rear_sonar=rear_ring(side, lateral, angle), search_bearing_deg=seen
+    )
     assert max(abs(out.left_mm_s), abs(out.right_mm_s)) <= P.v_max_mm_s + 1e-9
+    forward = out.left_mm_s + out.right_mm_s > 1e-9
     if path_blocked(front, P.stop_distance_m):
-        assert out.left_mm_s + out.right_mm_s <= 1e-9
+        assert not forward
+    if forward:
+        assert 60.0 <= abs(seen) <= 100.0 and seen * side > 0, (seen, side)
+
+
+def test_the_search_along_drives_in_the_property_above() -> None:
+    # The property's drive is reachable: a wall 0.85 m off, nothing ahead, last seen -90.
+    out = search_step_(search_bearing_deg=-90.0)
+    assert out.left_mm_s > 0 and out.right_mm_s > 0
+
+
+def test_no_search_along_with_the_search_off_or_the_leader_behind() -> None:
+    from relayd.core.control.search import SearchParams
+
+    off = replace(P, search=SearchParams(enabled=False))
+    base = {"leader_lost": True, "t_s": 45.0, "odom": (0.0, 0.0, 90.0), **BESIDE}
+    out = control_step(
+        healthy(**base, search_bearing_deg=-100.0), off, ControlMemory(link_drive=True)
+    )
+    assert out.left_mm_s == out.right_mm_s == 0.0
+    # Behind (beyond the slide's 100 deg): the turn round's, not a drive away from it.
+    behind = search_step_(search_bearing_deg=-170.0)
+    assert behind.left_mm_s + behind.right_mm_s <= 1e-9
+
+
+@pytest.mark.parametrize("t_s", [float("nan"), float("inf")])
+def test_a_clock_that_is_not_a_number_never_drives_a_lost_relay(t_s: float) -> None:
+    first = search_step_(t_s=t_s)
+    assert first.left_mm_s + first.right_mm_s <= 1e-9
+    assert first.memory.lost_t is None  # nothing stored to time a later step by
+    out = lost_step(t_s=t_s)
+    assert out.left_mm_s + out.right_mm_s <= 1e-9
+
+
+def test_a_clock_gone_back_never_drives_a_lost_relay() -> None:
+    first = search_step_(t_s=45.0)
+    back = control_step(
+        healthy(
+            leader_lost=True,
+            t_s=40.0,
+            odom=(20650.0, 17000.0, 90.0),
+            search_bearing_deg=-100.0,
+            **BESIDE,
+        ),
+        P,
+        first.memory,
+    )
+    assert back.left_mm_s + back.right_mm_s <= 1e-9
+
+
+@pytest.mark.parametrize("mode", [Mode.HOLD, Mode.MANUAL])
+def test_hold_and_manual_end_the_manoeuvre_and_the_loss(mode: Mode) -> None:
+    going = lost_step(t_s=45.0)
+    assert going.memory.avoid.mode is not AvoidMode.FOLLOW
+    halted = control_step(
+        healthy(
+            mode=mode,
+            t_s=46.0,
+            odom=POSE,
+            manual_left_mm_s=0.0,
+            manual_right_mm_s=0.0,
+            manual_age_s=0.1,
+        ),
+        P,
+        going.memory,
+    )
+    assert halted.memory.avoid == AvoidState() and halted.memory.lost_t is None
+    # Back in follow, the leader still lost: nothing to go on with, the loss timed afresh.
+    again = lost_step(memory=halted.memory, t_s=47.0, search_bearing_deg=-20.0)
+    assert again.state is DriveState.LEADER_LOST and again.left_mm_s == again.right_mm_s == 0.0
+    assert again.memory.lost_t == 47.0
+
+
+def test_the_rear_latch_moves_while_lost() -> None:
+    """The link behind at its limit stops the going on and sets the latch; standing, the
+    hysteresis band holds it until the link is that much better."""
+    hb = P.threshold_b_dbm
+    weak = lost_step(rssi_behind_dbm=hb - 0.5)
+    assert weak.memory.link_drive is False
+    edge = lost_step(
+        memory=replace(weak.memory, avoid=GOING_ROUND), rssi_behind_dbm=hb + 0.5, t_s=46.0
+    )
+    assert edge.left_mm_s + edge.right_mm_s <= 1e-9  # inside the band: still standing
+    clear = lost_step(
+        memory=replace(weak.memory, avoid=GOING_ROUND),
+        rssi_behind_dbm=hb + P.hysteresis_db + 0.5,
+        t_s=46.0,
+    )
+    assert clear.state is DriveState.AVOIDING
 
 
 @pytest.mark.slow
