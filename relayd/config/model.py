@@ -361,7 +361,7 @@ class AvoidanceSettings(_Section):
     keep_episode_when_lost: bool = True
     #: The leader lost mid-manoeuvre: the escape goes on round this long (s) toward where
     #: the scans last put it, while the rear link allows; 0: the loss stops it.
-    lost_manoeuvre_s: Annotated[float, Field(ge=0, le=60)] = 10.0
+    lost_manoeuvre_s: Annotated[float, Field(ge=0, le=60)] = 5.0
 
     @model_validator(mode="after")
     def _cross_key_rules(self) -> AvoidanceSettings:

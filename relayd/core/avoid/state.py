@@ -82,7 +82,7 @@ class AvoidParams:
     keep_episode_when_lost: bool = True
     #: The leader lost mid-manoeuvre (turned away from it while going round): the
     #: manoeuvre goes on this long toward where the scans last put it; 0: it stops.
-    lost_manoeuvre_s: float = 10.0
+    lost_manoeuvre_s: float = 5.0
     max_escape_s: float = 300.0
     max_escape_m: float = 40.0
     max_turn_deg: float = 1080.0

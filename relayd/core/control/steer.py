@@ -130,8 +130,9 @@ def slide_along_wall(
     drives on until the wall ends or opens (a door), and the bearing has the way again.
     Only while that side's front 90 deg sonar hears a wall within reach_m; 0: off. The
     wall is beside only if the rear ring's 90 deg sonar hears it too, and it is a wall
-    (longer than the robot) only if the 50 deg sonars ahead and behind hear it as well:
-    a robot abeam is not (the leader a close convoy passes). Its direction is the line
+    (longer than the robot) only if the 50 deg sonar ahead or the one behind hears it as
+    well: a robot abeam is not (the leader a close convoy passes), a wall with a door in
+    it still is. Its direction is the line
     through the two echoes abeam (0.29 m apart; each reads its distance to a wall within
     15 deg of parallel), and they must agree within 30 deg of the heading. Not the 50
     and 30 deg echoes: before a wall across the way (a door's), those come from it, and a
@@ -157,10 +158,10 @@ def slide_along_wall(
     oblique_m = (reach_m + ABEAM_SPAN_M) / math.sin(math.radians(50.0))
     if (
         by_heading(front).get(side * 50.0, SONAR_MAX_RANGE_M) > oblique_m
-        or _or_max(_rear_echo_m(rear, side, 130.0)) > oblique_m
+        and _or_max(_rear_echo_m(rear, side, 130.0)) > oblique_m
     ):
-        # Not a wall longer than the robot: the 50 deg sonars ahead and behind it do not
-        # hear it. A robot beside (the leader a close convoy's relay passes) is not to
+        # Not a wall longer than the robot: neither 50 deg sonar, ahead or behind, hears
+        # it. A robot beside (the leader a close convoy's relay passes) is not to
         # be slid along; the law turns to it (convoy, seed 4).
         return steer_deg
     return min(steer_deg, along_deg) if side > 0 else max(steer_deg, along_deg)

@@ -45,7 +45,7 @@ def lost_step(memory: ControlMemory = MEMORY, params: ControlParams = P, **chang
 
 
 def test_on_by_default() -> None:
-    assert AvoidParams().lost_manoeuvre_s == 10.0 and P.avoid.lost_manoeuvre_s == 10.0
+    assert AvoidParams().lost_manoeuvre_s == 5.0 and P.avoid.lost_manoeuvre_s == 5.0
 
 
 def test_a_loss_mid_manoeuvre_goes_on_round() -> None:
@@ -62,10 +62,10 @@ def test_the_loss_is_bounded_in_time_then_the_stop_keeps_the_episode() -> None:
     assert first.state is DriveState.AVOIDING
     # (Last seen 20 deg off the nose: within the sweep, so no search turn either.)
     later = lost_step(
-        memory=replace(first.memory, avoid=GOING_ROUND), t_s=55.5, search_bearing_deg=-20.0
+        memory=replace(first.memory, avoid=GOING_ROUND), t_s=50.5, search_bearing_deg=-20.0
     )
     assert later.state is DriveState.LEADER_LOST and later.left_mm_s == later.right_mm_s == 0.0
-    assert later.memory.avoid == episode_only(GOING_ROUND, 55.5, P.avoid)
+    assert later.memory.avoid == episode_only(GOING_ROUND, 50.5, P.avoid)
 
 
 def test_found_again_the_next_loss_is_timed_afresh() -> None:
@@ -181,7 +181,7 @@ def test_the_search_along_a_wall_is_bounded_in_time() -> None:
     later = control_step(
         healthy(
             leader_lost=True,
-            t_s=55.5,
+            t_s=50.5,
             odom=(20650.0, 18500.0, 90.0),
             search_bearing_deg=-100.0,
             **BESIDE,

@@ -101,6 +101,11 @@ def test_a_robot_beside_is_no_wall() -> None:
     assert slide_along_wall(-70.0, ring, 1.5, behind) == -70.0
     wall_ring_, wall_behind = wall_ring(-1, 1.2), rear_ring(-1, 1.2)
     assert slide_along_wall(-70.0, wall_ring_, 1.5, wall_behind) == pytest.approx(0.0, abs=0.5)
+    # A wall with a door ahead in it (the front 50 deg sonar hears nothing): still a wall.
+    door_ahead = tuple(
+        dataclasses.replace(r, range_m=None) if r.heading_deg == -50.0 else r for r in wall_ring_
+    )
+    assert slide_along_wall(-70.0, door_ahead, 1.5, wall_behind) == pytest.approx(0.0, abs=0.5)
 
 
 def test_off_at_zero_behind_and_away_from_the_wall() -> None:
