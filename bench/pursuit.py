@@ -7,8 +7,8 @@ reason is one of relayd.core.vocab.LINK_RULE_ENDS: leader_near / rear_weak (or t
 adaptive forms), or still following (driving, detour, leader_far_sonar, trail_head);
 anything else (avoiding, rejoining, blocked, trail_blocked, leader_lost, leader_search)
 is counted against the pursuit. "obstacle" (the paper's slow-down by a near echo) counts
-only while the relay is closing on its leader (0.3 m on in the last 3 s, its gap not
-grown): one standing at a wall on it does not (summary.json's on_link_rule,
+only while the relay is closing on a leader within 3 m (0.3 m on in the last 3 s, its
+gap not grown): one standing at a wall on it, or crawling along one, does not (summary.json's on_link_rule,
 relayd.sim.summary.ended_on_rule). The table says how many ends counted so.
 
 Each scenario runs with its own configuration (the project's defaults where it sets

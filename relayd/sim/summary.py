@@ -72,6 +72,10 @@ def stuck_s(
     return round(total, 2)
 
 
+#: A leader within this of its relay (m, centre to centre) is one the sonar may hear.
+SONAR_NEAR_M = 3.0
+
+
 def ended_on_rule(
     records: Sequence[dict[str, Any]], i: int, window_s: float = 3.0, progress_m: float = 0.3
 ) -> bool:
@@ -79,9 +83,10 @@ def ended_on_rule(
 
     The paper's situation 1 ("obstacle": slowing and steering off a near echo) is part
     of its following law too, and a relay closing on a leader the sonar hears ends on
-    it. It counts only while the relay is closing: it got at least `progress_m` on
-    within the last `window_s` and the gap to its own leader did not grow over them. One
-    standing at a wall on it, or losing ground to its leader, is not following.
+    it. It counts only for that: the leader within SONAR_NEAR_M, and the relay closing,
+    at least `progress_m` on within the last `window_s` and its gap not grown over them.
+    One standing at a wall on it, crawling along one with its leader far beyond (the
+    paper's failure this project's slide is for), or losing ground, is not following.
     """
     if not records:
         return False
@@ -93,7 +98,8 @@ def ended_on_rule(
         return False
     recent = [r["relays"][i] for r in records if r["t"] >= last["t"] - window_s]
     moved = max(math.hypot(rel["x"] - r["x"], rel["y"] - r["y"]) for r in recent)
-    return moved >= progress_m and rel["gap_m"] <= recent[0]["gap_m"]
+    closing = rel["gap_m"] <= recent[0]["gap_m"]
+    return moved >= progress_m and closing and rel["gap_m"] <= SONAR_NEAR_M
 
 
 def summarize(

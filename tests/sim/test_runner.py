@@ -172,6 +172,10 @@ def test_an_obstacle_end_is_following_only_while_the_relay_closes_on_its_leader(
     # (convoy seed 2): 0.4 m on in the last 3 s, the gap shrinking.
     closing = run([0.1 * t for t in range(12)], [3.0 - 0.1 * t for t in range(12)])
     assert ended_on_rule(closing, 0) is True
+    # Crawling along a wall on the paper's slow-down, the leader 20 m beyond it, even
+    # with the gap shrinking as the leader waits: not a leader the sonar hears.
+    crawl = run([0.1 * t for t in range(12)], [21.0 - 0.1 * t for t in range(12)])
+    assert ended_on_rule(crawl, 0) is False
     # Moving, but losing ground to the leader: not following.
     losing = run([0.1 * t for t in range(12)], [2.0 + 0.1 * t for t in range(12)])
     assert ended_on_rule(losing, 0) is False
