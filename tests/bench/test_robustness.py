@@ -53,6 +53,7 @@ def test_the_paper_keys_are_sweep_axes_and_turn_each_addition_off() -> None:
         "control.wall_slide_m": (0,),
         "avoidance.lane_pass_margin_m": (0,),
         "avoidance.keep_episode_when_lost": (False,),
+        "avoidance.lost_manoeuvre_s": (0,),
     }
     assert set(LAWS) == {"default", "paper"} and LAWS["default"] == ()
 

@@ -146,6 +146,7 @@ def test_two_workers_equal_one_worker_and_resume(
     split = ["leader_arrived", "link_held", "relays_ok"]
     per_relay = [
         "relay1_reason",
+        "relay1_on_rule",
         "relay1_final_gap_m",
         "relay1_stuck_s",
         "relay1_collisions",
