@@ -187,7 +187,7 @@ def _search_along_wall(
         # wall would run it away from the leader.
         return None
     toward = math.copysign(SLIDE_MAX_DEG, seen)
-    along = slide_along_wall(toward, inputs.front_sonar, params.wall_slide_m, inputs.rear_sonar)
+    along = slide_along_wall(toward, inputs.front_sonar, params.wall_slide_m)
     if along == toward:
         return None
     v = params.avoid.wall_speed_mm_s
@@ -280,9 +280,7 @@ def control_step(
             replace(memory, prev_steer_deg=steer),
         )
     else:
-        kept, prev = off_walls(
-            bearing, prev, inputs.front_sonar, params, detouring, inputs.rear_sonar
-        )
+        kept, prev = off_walls(bearing, prev, inputs.front_sonar, params, detouring)
         left, right = wheel_law(v, kept, prev, params.kp, params.kd, params.v_max_mm_s)
         state, memory = DriveState.DRIVING, replace(memory, prev_steer_deg=None)
         reason = "detour" if detouring else ("leader_far_sonar" if released else "driving")

@@ -12,10 +12,9 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING
 
-from relayd.core.avoid.ring import by_heading, in_path_below_m
+from relayd.core.avoid.ring import by_heading, in_path_below_m, wall_fit
 from relayd.core.avoid.state import AvoidMode, AvoidState
 from relayd.core.control.params import ControlParams
-from relayd.core.geometry import SONAR_POSES
 from relayd.core.scan.estimator import SONAR_MAX_RANGE_M, SonarReading
 from relayd.core.trail.blocked import waiting
 
@@ -109,76 +108,30 @@ def keep_off_sides(
 SLIDE_MAX_DEG = 100.0
 
 
-#: How far apart along the heading the front and rear rings' 90 deg sonars sit (m).
-ABEAM_BASE_M = (SONAR_POSES[0].x_mm - SONAR_POSES[15].x_mm) / 1000.0
-#: The two abeam echoes are one wall beside the robot only if it runs within this of
-#: the heading (a 90 deg beam reads a wall's distance to about 15 deg off its normal).
-ABEAM_MAX_DEG = 30.0
-#: ... so the rear echo may lie this much beyond the reach (m).
-ABEAM_SPAN_M = ABEAM_BASE_M * math.tan(math.radians(ABEAM_MAX_DEG))
-
-
-def slide_along_wall(
-    steer_deg: float,
-    front: tuple[SonarReading, ...],
-    reach_m: float,
-    rear: tuple[SonarReading, ...] = (),
-) -> float:
+def slide_along_wall(steer_deg: float, front: tuple[SonarReading, ...], reach_m: float) -> float:
     """The steer no further into a wall on its side than the wall's own direction: the
     leader's signal comes through walls, and a relay that steers at it into one meets the
     paper's slow-down, turns off, steers back in and crawls. Along the wall instead it
     drives on until the wall ends or opens (a door), and the bearing has the way again.
-    Only while that side's front 90 deg sonar hears a wall within reach_m; 0: off. The
-    wall is beside only if the rear ring's 90 deg sonar hears it too, and it is a wall
-    (longer than the robot) only if the 50 deg sonar ahead or the one behind hears it as
-    well: a robot abeam is not (the leader a close convoy passes), a wall with a door in
-    it still is. Its direction is the line
-    through the two echoes abeam (0.29 m apart; each reads its distance to a wall within
-    15 deg of parallel), and they must agree within 30 deg of the heading. Not the 50
-    and 30 deg echoes: before a wall across the way (a door's), those come from it, and a
-    fit through them turned the relay off the door onto its jamb (door, seed 2;
-    docs/CONTROL.md 7.4)."""
+    The wall is the line through that side's two nearest 90/50/30 deg echoes within
+    reach_m (relayd.core.avoid.ring.wall_fit; one echo alone is taken as parallel to the
+    heading), and only while the 90 deg sonar hears it abeam; 0: off. The echoes sit on
+    their beams' axes, which reads a parallel wall 7-14 deg turned off it (the nearest
+    echo comes from the beam's edge): as measured, the slide eases the robot off the wall
+    by about that much (docs/CONTROL.md 7.4)."""
     if reach_m <= 0.0 or steer_deg == 0.0 or abs(steer_deg) > SLIDE_MAX_DEG:
         return steer_deg
     side = 1 if steer_deg > 0 else -1
-    abeam_m = by_heading(front).get(side * 90.0, SONAR_MAX_RANGE_M)
-    if abeam_m > reach_m:
+    r = by_heading(front)
+    if r.get(side * 90.0, SONAR_MAX_RANGE_M) > reach_m:
         # Nothing abeam on that side: a door or a side corridor there, or the wall still
         # ahead, where the paper's obstacle rule has it; the bearing has the way.
         return steer_deg
-    behind_m = _rear_echo_m(rear, side, 90.0)
-    if behind_m is None or behind_m > reach_m + ABEAM_SPAN_M:
-        # The front sonar alone: the edge of its beam hears a wall across the way ahead
-        # (a door's) as well as one beside; only a wall the rear one hears too is beside.
+    fit = wall_fit(r, side, reach_m)
+    if fit is None:
         return steer_deg
-    along_deg = math.degrees(math.atan2(side * (abeam_m - behind_m), ABEAM_BASE_M))
-    if abs(along_deg) > ABEAM_MAX_DEG:
-        # Two surfaces, not one wall beside (a jamb ahead, a wall further back).
-        return steer_deg
-    oblique_m = (reach_m + ABEAM_SPAN_M) / math.sin(math.radians(50.0))
-    if (
-        by_heading(front).get(side * 50.0, SONAR_MAX_RANGE_M) > oblique_m
-        and _or_max(_rear_echo_m(rear, side, 130.0)) > oblique_m
-    ):
-        # Not a wall longer than the robot: neither 50 deg sonar, ahead or behind, hears
-        # it. A robot beside (the leader a close convoy's relay passes) is not to
-        # be slid along; the law turns to it (convoy, seed 4).
-        return steer_deg
+    _, along_deg = fit
     return min(steer_deg, along_deg) if side > 0 else max(steer_deg, along_deg)
-
-
-def _or_max(range_m: float | None) -> float:
-    return SONAR_MAX_RANGE_M if range_m is None else range_m
-
-
-def _rear_echo_m(rear: tuple[SonarReading, ...], side: int, off_tail_deg: float) -> float | None:
-    """The rear ring's echo on `side` at 90 or 130 deg off the nose (sonars 15 and 14
-    left, 8 and 9 right), None if unheard."""
-    index = {(1, 90.0): 15, (1, 130.0): 14, (-1, 90.0): 8, (-1, 130.0): 9}[(side, off_tail_deg)]
-    for reading in rear:
-        if reading.index == index and reading.range_m is not None:
-            return reading.range_m if reading.range_m < SONAR_MAX_RANGE_M else None
-    return None
 
 
 def off_walls(
@@ -187,14 +140,13 @@ def off_walls(
     front: tuple[SonarReading, ...],
     params: ControlParams,
     detouring: bool,
-    rear: tuple[SonarReading, ...] = (),
 ) -> tuple[float, float | None]:
     """The plain pursuit's steer and its previous value, slid along a wall it points into
     (control.wall_slide_m) and pushed off one beside it (control.side_keep_m); a detour's
     path is the map's, and neither acts on it."""
     if detouring:
         return steer_deg, prev_deg
-    slid = slide_along_wall(steer_deg, front, params.wall_slide_m, rear)
+    slid = slide_along_wall(steer_deg, front, params.wall_slide_m)
     if slid != steer_deg:
         prev_deg = None  # the steer is the wall's, not the bearing's: no D term on it
     return keep_off_sides(slid, prev_deg, front, params.side_keep_m)

@@ -22,7 +22,7 @@ from relayd.sim.runner import SimRunner
 from relayd.sim.scenario import load_scenario
 from tests.core.avoid.test_keep_episode import GOING_ROUND
 from tests.core.control.test_law import healthy
-from tests.core.control.test_wall_slide import rear_ring, wall_ring
+from tests.core.control.test_wall_slide import wall_ring
 
 P = ControlParams()
 MEMORY = ControlMemory(link_drive=True, avoid=GOING_ROUND)
@@ -132,7 +132,7 @@ def test_the_offset_box_is_passed_by_real_daemons() -> None:
 
 #: A 3 m corridor's right wall 0.85 m off; the leader last seen 100 deg right, beyond
 #: the servo's reach, through that wall (corridor seed 1, the north corridor's end).
-BESIDE = {"front_sonar": wall_ring(-1, 0.85), "rear_sonar": rear_ring(-1, 0.85)}
+BESIDE = {"front_sonar": wall_ring(-1, 0.85), "rear_sonar": ROOM_BEHIND}
 
 
 def search_step_(**changes: object):
@@ -213,9 +213,7 @@ def test_searching_along_keeps_every_promise(
             else r
             for r in front
         )
-    out = search_step_(
-        front_sonar=front, rear_sonar=rear_ring(side, lateral, angle), search_bearing_deg=seen
-    )
+    out = search_step_(front_sonar=front, search_bearing_deg=seen)
     assert max(abs(out.left_mm_s), abs(out.right_mm_s)) <= P.v_max_mm_s + 1e-9
     forward = out.left_mm_s + out.right_mm_s > 1e-9
     if path_blocked(front, P.stop_distance_m):
