@@ -135,7 +135,8 @@ def test_the_offset_box_is_passed_by_real_daemons() -> None:
 BESIDE = {"front_sonar": wall_ring(-1, 0.85), "rear_sonar": ROOM_BEHIND}
 
 
-def search_step_(**changes: object):
+def search_step_(memory: ControlMemory | None = None, **changes: object):
+    """A step lost beside the wall, from `memory` (a fresh lost relay's by default)."""
     base = {
         "leader_lost": True,
         "t_s": 45.0,
@@ -143,7 +144,8 @@ def search_step_(**changes: object):
         "search_bearing_deg": -100.0,
         **BESIDE,
     }
-    return control_step(healthy(**{**base, **changes}), P, ControlMemory(link_drive=True))
+    memory = memory if memory is not None else ControlMemory(link_drive=True)
+    return control_step(healthy(**{**base, **changes}), P, memory)
 
 
 def test_lost_beside_the_wall_it_was_heard_through_drives_on_along_it() -> None:
@@ -178,17 +180,7 @@ def test_no_search_along_without_the_rear_link_or_a_time(changes: dict[str, obje
 
 def test_the_search_along_a_wall_is_bounded_in_time() -> None:
     first = search_step_(t_s=45.0)
-    later = control_step(
-        healthy(
-            leader_lost=True,
-            t_s=50.5,
-            odom=(20650.0, 18500.0, 90.0),
-            search_bearing_deg=-100.0,
-            **BESIDE,
-        ),
-        P,
-        first.memory,
-    )
+    later = search_step_(first.memory, t_s=50.5, odom=(20650.0, 18500.0, 90.0))
     assert later.left_mm_s + later.right_mm_s <= 1e-9
 
 
@@ -253,17 +245,7 @@ def test_a_clock_that_is_not_a_number_never_drives_a_lost_relay(t_s: float) -> N
 
 def test_a_clock_gone_back_never_drives_a_lost_relay() -> None:
     first = search_step_(t_s=45.0)
-    back = control_step(
-        healthy(
-            leader_lost=True,
-            t_s=40.0,
-            odom=(20650.0, 17000.0, 90.0),
-            search_bearing_deg=-100.0,
-            **BESIDE,
-        ),
-        P,
-        first.memory,
-    )
+    back = search_step_(first.memory, t_s=40.0)
     assert back.left_mm_s + back.right_mm_s <= 1e-9
 
 
