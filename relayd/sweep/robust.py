@@ -31,7 +31,7 @@ def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
 
 
 def _reasons(row: dict[str, Any]) -> list[str]:
-    return [str(v) for k, v in row.items() if k.endswith("_reason") and v not in ("", None)]
+    return list(_relay_reasons(row).values())
 
 
 def category(row: dict[str, Any]) -> str:

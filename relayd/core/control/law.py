@@ -17,7 +17,7 @@ from relayd.core.control.inputs import ControlInputs as ControlInputs
 from relayd.core.control.inputs import ControlMemory as ControlMemory
 from relayd.core.control.inputs import ControlOutput as ControlOutput
 from relayd.core.control.inputs import not_driving, stopped
-from relayd.core.control.modes import fail_safe_or_mode
+from relayd.core.control.modes import clamp, fail_safe_or_mode
 from relayd.core.control.params import ControlParams as ControlParams
 from relayd.core.control.rangecue import far_by_sonar, release_speed_mm_s
 from relayd.core.control.search import SearchState, search_step, search_wheels
@@ -35,16 +35,13 @@ from relayd.core.control.steer import (
 )
 from relayd.core.geometry import wrap_deg
 from relayd.core.scan.estimator import (
+    SonarReading,
     avoidance_bearing,
     classify_situation,
     nearest_front_m,
 )
 from relayd.core.trail.blocked import blocked_step
 from relayd.core.vocab import DriveState
-
-
-def _clamp(value: float, low: float, high: float) -> float:
-    return min(max(value, low), high)
 
 
 def within_v_max(out: ControlOutput, params: ControlParams) -> ControlOutput:
@@ -59,7 +56,7 @@ def within_v_max(out: ControlOutput, params: ControlParams) -> ControlOutput:
 
 def background_speed(rssi_leader_dbm: float, w1: float, w2: float, v_max_mm_s: float) -> float:
     """v = -w1 * RSSI^l - w2, clamped to [0, v_max]: faster the fainter the leader."""
-    return _clamp(-w1 * rssi_leader_dbm - w2, 0.0, v_max_mm_s)
+    return clamp(-w1 * rssi_leader_dbm - w2, 0.0, v_max_mm_s)
 
 
 def wheel_law(
@@ -74,8 +71,8 @@ def wheel_law(
     derivative = 0.0 if prev_bearing_deg is None else bearing_deg - prev_bearing_deg
     turn = kp * bearing_deg + kd * derivative
     return (
-        _clamp(v_mm_s - turn, -v_max_mm_s, v_max_mm_s),
-        _clamp(v_mm_s + turn, -v_max_mm_s, v_max_mm_s),
+        clamp(v_mm_s - turn, -v_max_mm_s, v_max_mm_s),
+        clamp(v_mm_s + turn, -v_max_mm_s, v_max_mm_s),
     )
 
 
@@ -140,11 +137,15 @@ def _lost(
         params.stop_distance_m,
         params.v_max_mm_s,
     )
-    # The escape's episode outlives the stop (AvoidParams.keep_episode_when_lost).
-    episode = episode_only(memory.avoid, inputs.t_s, params.avoid)
-    held = replace(not_driving(memory), avoid=episode)
     reason = "leader_lost" if left == 0.0 and right == 0.0 else "leader_search"
+    held = _lost_memory(memory, inputs.t_s, params)
     return ControlOutput(left, right, DriveState.LEADER_LOST, reason, situation, held)
+
+
+def _lost_memory(memory: ControlMemory, t_s: float | None, params: ControlParams) -> ControlMemory:
+    """The memory of a lost step that does not escape: the escape's episode outlives it
+    (AvoidParams.keep_episode_when_lost), its manoeuvre does not."""
+    return replace(not_driving(memory), avoid=episode_only(memory.avoid, t_s, params.avoid))
 
 
 def _lost_window_open(inputs: ControlInputs, params: ControlParams, memory: ControlMemory) -> bool:
@@ -193,14 +194,12 @@ def _search_along_wall(
     v = params.avoid.wall_speed_mm_s
     if situation == 1 and (d_min := nearest_front_m(inputs.front_sonar)) is not None:
         v *= speed_scale(d_min, params.threshold_o_m, params.stop_distance_m)
-    act = params.actuator
     left, right = wheel_law(v, along, None, params.kp, params.kd, params.v_max_mm_s)
-    vel, rvel = act.within(*act.express(*act.vel_rvel(left, right)), params.v_max_mm_s)
-    vel, rvel = guard(vel, rvel, inputs.front_sonar, params.stop_distance_m)
+    vel, rvel = _on_the_wire(left, right, inputs.front_sonar, params)
     if vel <= 0:
         return None
-    held = replace(not_driving(memory), avoid=episode_only(memory.avoid, inputs.t_s, params.avoid))
-    left, right = act.wheels(vel, rvel)
+    left, right = params.actuator.wheels(vel, rvel)
+    held = _lost_memory(memory, inputs.t_s, params)
     return ControlOutput(left, right, DriveState.LEADER_LOST, "leader_search", situation, held)
 
 
@@ -285,10 +284,7 @@ def control_step(
         state, memory = DriveState.DRIVING, replace(memory, prev_steer_deg=None)
         reason = "detour" if detouring else ("leader_far_sonar" if released else "driving")
 
-    act = params.actuator
-    # The paper's command, as the wire will carry it, never into a near echo.
-    vel, rvel = act.within(*act.express(*act.vel_rvel(left, right)), params.v_max_mm_s)
-    vel, rvel = guard(vel, rvel, inputs.front_sonar, params.stop_distance_m)
+    vel, rvel = _on_the_wire(left, right, inputs.front_sonar, params)
     # Along a planned detour the escape stands by while the robot makes way: a jamb
     # beside it is what the plan passes between, not a dead end.
     if detouring and retry_detour(memory.avoid, inputs.t_s):
@@ -303,8 +299,18 @@ def control_step(
         memory, escaped = _escape(inputs, params, memory, bearing, situation)
         if escaped is not None:
             return escaped
-    left, right = act.wheels(vel, rvel)
+    left, right = params.actuator.wheels(vel, rvel)
     return ControlOutput(left, right, state, reason, situation, memory)
+
+
+def _on_the_wire(
+    left_mm_s: float, right_mm_s: float, front: tuple[SonarReading, ...], params: ControlParams
+) -> tuple[int, int]:
+    """(VEL, RVEL): the law's wheels as the wire will carry them, within v_max, and never
+    into a near echo (the guard)."""
+    act = params.actuator
+    vel, rvel = act.within(*act.express(*act.vel_rvel(left_mm_s, right_mm_s)), params.v_max_mm_s)
+    return guard(vel, rvel, front, params.stop_distance_m)
 
 
 def _escape(

@@ -19,11 +19,12 @@ from relayd.core.scan.estimator import nearest_front_m
 from relayd.core.vocab import DriveState, Mode
 
 
-def _clamp(value: float, low: float, high: float) -> float:
+def clamp(value: float, low: float, high: float) -> float:
     return min(max(value, low), high)
 
 
-def _stale(age_s: float | None, timeout_s: float) -> bool:
+def stale(age_s: float | None, timeout_s: float) -> bool:
+    """No reading yet, a NaN age, or older than the timeout."""
     return age_s is None or math.isnan(age_s) or age_s > timeout_s
 
 
@@ -35,11 +36,11 @@ def _manual(
         left is None
         or right is None
         or not (math.isfinite(left) and math.isfinite(right))
-        or _stale(inputs.manual_age_s, params.manual_deadman_s)
+        or stale(inputs.manual_age_s, params.manual_deadman_s)
     ):
         return stopped(DriveState.STOPPED, "deadman", situation, memory)
     v_max = params.v_max_mm_s
-    left, right = _clamp(left, -v_max, v_max), _clamp(right, -v_max, v_max)
+    left, right = clamp(left, -v_max, v_max), clamp(right, -v_max, v_max)
     reason = "manual"
     d_min = nearest_front_m(inputs.front_sonar)
     forward = (left + right) / 2.0
@@ -61,15 +62,15 @@ def fail_safe_or_mode(
     halted = replace(memory, search=SearchState())
     if inputs.mode is not Mode.FOLLOW:
         halted = replace(halted, avoid=AvoidState(), lost_t=None)
-    if _stale(inputs.sip_age_s, params.sip_timeout_s):
+    if stale(inputs.sip_age_s, params.sip_timeout_s):
         return stopped(DriveState.FAULT, "no_sip", situation, halted)
     if inputs.mode is Mode.FOLLOW:
-        if _stale(inputs.rssi_age_s, params.rssi_timeout_s):
+        if stale(inputs.rssi_age_s, params.rssi_timeout_s):
             return stopped(DriveState.FAULT, "rssi_stale", situation, halted)
         if not inputs.scan_servo_ok:
             return stopped(DriveState.FAULT, "scan_servo", situation, halted)
         if params.rear_link_required and (
-            _stale(inputs.rear_age_s, params.rear_timeout_s) or inputs.rssi_behind_dbm is None
+            stale(inputs.rear_age_s, params.rear_timeout_s) or inputs.rssi_behind_dbm is None
         ):
             return stopped(DriveState.FAULT, "rear_link_stale", situation, halted)
 

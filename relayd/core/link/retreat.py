@@ -17,6 +17,7 @@ import math
 from dataclasses import dataclass, replace
 
 from relayd.core.control.inputs import ControlInputs, ControlOutput
+from relayd.core.control.modes import stale
 from relayd.core.control.params import ControlParams
 from relayd.core.recovery.trail import REAR_SONARS, TrailPoint, reverse_toward
 from relayd.core.vocab import DriveState, Mode
@@ -145,16 +146,12 @@ def held_limit(params: ControlParams, m: RetreatMemory, upper_dbm: float) -> Con
     return replace(params, threshold_b_dbm=min(m.floor_dbm, max(upper_dbm, params.threshold_b_dbm)))
 
 
-def _stale(age: float | None, limit: float) -> bool:
-    return age is None or not age <= limit  # `not <=`: a NaN age is stale too
-
-
 def _doubt(ci: ControlInputs, p: ControlParams) -> bool:
     return (
         not _pose_ok(ci.odom)
-        or _stale(ci.sip_age_s, p.sip_timeout_s)
-        or _stale(ci.rssi_age_s, p.rssi_timeout_s)
-        or _stale(ci.rear_age_s, p.rear_timeout_s)
+        or stale(ci.sip_age_s, p.sip_timeout_s)
+        or stale(ci.rssi_age_s, p.rssi_timeout_s)
+        or stale(ci.rear_age_s, p.rear_timeout_s)
         or ci.rssi_behind_dbm is None
         or not math.isfinite(ci.rssi_behind_dbm)
     )
