@@ -154,6 +154,15 @@ def avoidance_rules(a: Mapping[str, Any]) -> list[Problem]:
                 "in place is ever commanded slower than that",
             )
         ]
+    first, most = _num(a.get("blocked_retry_s")), _num(a.get("blocked_retry_max_s"))
+    if first is not None and most is not None and first > 0 and most < first:
+        return [
+            (
+                "avoidance.blocked_retry_max_s",
+                f"must be at least blocked_retry_s ({first:g}): the longest wait "
+                "before a blocked escape starts afresh",
+            )
+        ]
     return []
 
 

@@ -287,6 +287,11 @@ class ControlSettings(_Section):
     #: Steer no further into a wall whose echoes are within this of the side sonars than
     #: along it (m); 0: the paper's law alone (relayd/core/control/steer.py slide_along_wall).
     wall_slide_m: Annotated[float, Field(ge=0, le=3.0, allow_inf_nan=False)] = 1.5
+    #: The paper's situation 1 slows by the nearest forward echo, to a stop at
+    #: stop_distance_m; an echo beside the robot's path (a corridor's wall seen by the 50
+    #: deg sonars) slows it no lower than this share of its speed, while what may lie in
+    #: its path still slows it to a stop. 0: the paper's law (relayd/core/control/steer.py).
+    beside_speed_floor: Annotated[float, Field(ge=0, le=1.0, allow_inf_nan=False)] = 0.3
     #: The path-loss model the leader's range is estimated with (`relayd calibrate` fits
     #: them): RSSI = L0 - 10 n log10(d) + N(0, sigma).
     pathloss_l0_dbm: Dbm = -15.0
@@ -338,6 +343,18 @@ class AvoidanceSettings(_Section):
     #: paper's law (the doorway room's far corner is 5.2 m from its door wall): what needs
     #: more is going round a building, away from the leader, not an obstacle.
     max_stray_m: Annotated[float, Field(gt=0, le=100)] = 6.0
+    #: A "blocked" escape starts afresh after this wait (s), twice as long at each block
+    #: of the same run of escapes, up to blocked_retry_max_s; 0: it holds until the
+    #: leader is ahead with its way open, or the operator (as before).
+    blocked_retry_s: Annotated[float, Field(ge=0, le=600)] = 10.0
+    blocked_retry_max_s: Annotated[float, Field(ge=0, le=3600)] = 80.0
+    #: A turn in place the guard refuses with no room behind: creep on along an arc away
+    #: from the nearer side until the corners have room; false: hold (as before).
+    unpin: bool = True
+    #: An escape's first move, when the leader is at least this far off the nose (deg)
+    #: and its direction open: turn onto it (a jamb beside the way, not between); 0: go
+    #: round what is near, as before (only a leader 60 deg or more off is turned onto).
+    align_open_deg: Annotated[float, Field(ge=0, le=60)] = 15.0
     #: Turns in place during the escape.
     turn_rate_deg_s: Annotated[float, Field(gt=0, le=100)] = 20.0
     #: No turn in place is ever commanded slower than this (a rate the tyres execute).

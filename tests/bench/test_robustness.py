@@ -51,9 +51,13 @@ def test_the_paper_keys_are_sweep_axes_and_turn_each_addition_off() -> None:
     assert {a.key: a.values for a in axes} == {
         "control.side_keep_m": (0,),
         "control.wall_slide_m": (0,),
+        "control.beside_speed_floor": (0,),
         "avoidance.lane_pass_margin_m": (0,),
         "avoidance.keep_episode_when_lost": (False,),
         "avoidance.lost_manoeuvre_s": (0,),
+        "avoidance.blocked_retry_s": (0,),
+        "avoidance.unpin": (False,),
+        "avoidance.align_open_deg": (0,),
     }
     assert set(LAWS) == {"default", "paper"} and LAWS["default"] == ()
 

@@ -177,6 +177,15 @@ def test_avoidance_keys_reach_the_escape_and_default_to_its_own() -> None:
         parse_settings({"control": alone, "avoidance": {"turn_rate_deg_s": 6}})
     with pytest.raises(ConfigError, match=r"avoidance\.max_escape_s"):
         parse_settings({"control": alone, "avoidance": {"max_escape_s": 0}})
+    with pytest.raises(ConfigError, match=r"avoidance\.blocked_retry_max_s.*blocked_retry_s"):
+        parse_settings(
+            {"control": alone, "avoidance": {"blocked_retry_s": 30, "blocked_retry_max_s": 20}}
+        )
+    # 0: a block holds (as before), whatever the longest wait says.
+    held = parse_settings(
+        {"control": alone, "avoidance": {"blocked_retry_s": 0, "blocked_retry_max_s": 0}}
+    )
+    assert held.avoidance.blocked_retry_s == 0
     with pytest.raises(ConfigError, match=r"did you mean 'max_turn_deg'"):
         parse_settings({"control": alone, "avoidance": {"max_turns_deg": 720}})
 

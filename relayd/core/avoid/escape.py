@@ -34,6 +34,7 @@ from relayd.core.avoid.state import (
     Sense,
     StepView,
     Verdict,
+    drive_cmd,
     enter,
     turn_cmd,
 )
@@ -113,7 +114,22 @@ def _on_blocked(st: AvoidState, v: StepView) -> Verdict:
             AvoidState(), AvoidMode.FOLLOW, v.t, anchor=s.pose[:2], anchor_t=v.t, last_pose=s.pose
         )
         return st, AvoidCommand(True)
+    wait = _retry_wait(st, p)
+    if wait > 0.0 and v.t - st.mode_t >= wait:
+        # The wait is over: a fresh escape from here, toward where the scans put the
+        # leader now (which a dead end's limits never look at again); the next block
+        # waits twice as long.
+        fresh = AvoidState(retry_wait_s=wait)
+        st = enter(fresh, AvoidMode.FOLLOW, v.t, anchor=s.pose[:2], anchor_t=v.t, last_pose=s.pose)
+        return st, AvoidCommand(True)
     return st, AvoidCommand(False, reason=Reason.BLOCKED)
+
+
+def _retry_wait(st: AvoidState, p: AvoidParams) -> float:
+    """How long this block waits before a fresh escape (s); 0: it waits for the leader."""
+    if p.blocked_retry_s <= 0.0:
+        return 0.0
+    return min(p.blocked_retry_max_s, max(p.blocked_retry_s, 2.0 * st.retry_wait_s))
 
 
 def _on_follow(st: AvoidState, v: StepView) -> Verdict:
@@ -135,6 +151,7 @@ def _on_follow(st: AvoidState, v: StepView) -> Verdict:
                 turned_deg=0.0,
                 clear_since_t=None,
                 hit_at=None,
+                retry_wait_s=0.0,
             )
     stuck = t - st.anchor_t > p.no_progress_s
     if not stuck and at_door(v):
@@ -154,7 +171,9 @@ def _on_follow(st: AvoidState, v: StepView) -> Verdict:
             goal_deg=s.pose[2] + s.bearing_deg,
             hit_proj_m=proj_m(s.pose, s.pose[2] + s.bearing_deg),
         )
-        if abs(s.bearing_deg) >= p.align_first_deg:
+        if abs(s.bearing_deg) >= p.align_first_deg or (
+            p.align_open_deg > 0.0 and abs(s.bearing_deg) >= p.align_open_deg and way_open(v)
+        ):
             # The leader is off to a side or behind (round a corner the robot overran):
             # what blocks the way ahead is not between them, and going round it would
             # take the robot away. Turn onto the leader first; the side is chosen only
@@ -256,7 +275,23 @@ def _on_turn(st: AvoidState, v: StepView) -> Verdict:
             unjam=True,
         )
         return st, _back_off(v, Reason.AVOIDING)
+    if cmd.rvel_deg_s == 0 and p.unpin:
+        return _unpin(st, v, cmd)
     return st, cmd
+
+
+def _unpin(st: AvoidState, v: StepView, held: AvoidCommand) -> Verdict:
+    """A turn in place the guard refuses (an echo inside the circle the corners sweep)
+    with no room behind to back off. Held there, nothing would ever change (generated
+    corridors 2: a corridor's corner along the right and behind, the way ahead open,
+    "blocked" for the rest of the run). So it creeps on, along an arc away from the
+    nearer side, as the guard allows, until the corners have room to turn; the rear
+    corner's swing toward that side is a few centimetres at this radius. With nothing
+    the guard allows, it holds."""
+    s, p, r = v.s, v.p, v.r
+    away = 1.0 if min_at(r, (-90.0, -50.0)) < min_at(r, (90.0, 50.0)) else -1.0
+    creep = drive_cmd(v.act, s, p, p.backoff_speed_mm_s, away * p.turn_rate_deg_s / 2.0)
+    return st, (creep if creep.vel_mm_s > 0 else held)
 
 
 def _on_corner(st: AvoidState, v: StepView) -> Verdict:

@@ -83,6 +83,9 @@ class AvoidParams:
     #: The leader lost mid-manoeuvre (turned away from it while going round): the
     #: manoeuvre goes on this long toward where the scans last put it; 0: it stops.
     lost_manoeuvre_s: float = 5.0
+    #: A turn in place the guard refuses, with no room to back off: creep on along an arc
+    #: away from the nearer side until the corners have room. False: hold.
+    unpin: bool = True
     max_escape_s: float = 300.0
     max_escape_m: float = 40.0
     max_turn_deg: float = 1080.0
@@ -90,9 +93,19 @@ class AvoidParams:
     #: from the paper's law (the doorway room's far corner is 5.2 m from its door wall):
     #: what needs more is not an obstacle to go round.
     max_stray_m: float = 6.0
+    #: A BLOCKED escape starts afresh after this wait (s), doubling at each block of the
+    #: same run of escapes up to blocked_retry_max_s, while the scans go on: in a building
+    #: the leader moves on and the way to it changes. 0: it holds until the leader is
+    #: ahead and its way open, or the operator.
+    blocked_retry_s: float = 10.0
+    blocked_retry_max_s: float = 80.0
     #: A leader this far off the nose is not beyond what blocks the way ahead: the escape
     #: turns onto it first (ALIGN) instead of going round the obstacle.
     align_first_deg: float = 60.0
+    #: ... nor is it when the leader's own direction is open, this far or more off the
+    #: nose: a corridor's mouth seen from beside its jamb (generated corridors 141: the
+    #: escape went round the jamb, back up the hall it came down). 0: off.
+    align_open_deg: float = 15.0
     #: The door passage (relayd/core/avoid/door.py): through a gap at least the robot's
     #: width plus door_margin_m, jambs within door_side_m each side, the way on open
     #: beyond door_ahead_m, the leader within door_bearing_deg of the nose; at
@@ -149,6 +162,7 @@ class AvoidState:
     mode_heading_deg: float = 0.0  # odometry heading when the current mode began
     had_wall: bool = False  # WALL: the boundary has been in reach since WALL began
     opening_at: tuple[float, float] | None = None  # WALL: where an opening abeam began
+    retry_wait_s: float = 0.0  # the last BLOCKED wait before a fresh escape; 0: none yet
 
 
 @dataclass(frozen=True, slots=True)

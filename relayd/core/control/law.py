@@ -28,6 +28,7 @@ from relayd.core.control.steer import (
     detour_watch,
     off_walls,
     retry_detour,
+    situation_speed,
     slide_along_wall,
     speed_scale,
     steering,
@@ -269,7 +270,7 @@ def control_step(
         memory = replace(memory, prev_steer_deg=None)
     elif d_min is not None:
         steer = avoidance_bearing(inputs.front_sonar, params.gamma_o_m)
-        v *= speed_scale(d_min, params.threshold_o_m, params.stop_distance_m)
+        v *= situation_speed(d_min, inputs.front_sonar, params)
         left, right = wheel_law(
             v, steer, memory.prev_steer_deg, params.kp, params.kd, params.v_max_mm_s
         )

@@ -54,6 +54,9 @@ class ControlParams:
     side_keep_m: float = 0.35
     #: Steer no further into a wall within this of the side sonars than along it (m; 0: off).
     wall_slide_m: float = 1.5
+    #: Situation 1 slows no lower than this share of the speed for echoes that cannot lie
+    #: in the robot's forward path (0: by the nearest forward echo, the paper's), steer.py.
+    beside_speed_floor: float = 0.3
     #: "bearing": at the scan bearing (the paper's); "trail": along the trail (docs 7.1).
     pursuit: str = "bearing"
     #: An escape no nearer the trail's head stops on "trail_blocked" (core/trail/blocked.py).

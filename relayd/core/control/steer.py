@@ -158,13 +158,43 @@ PASSAGE_SIDE_M = 0.15
 TIGHT_STEER_DEG = 10.0
 
 
+def in_path_m(r: dict[float, float]) -> float:
+    """The nearest echo of the front ring (by heading) that may lie in the forward path."""
+    return min((d for h, d in r.items() if d < in_path_below_m(h)), default=SONAR_MAX_RANGE_M)
+
+
+#: Over this much beyond the stop distance (m) the beside floor fades to the paper's scale.
+BESIDE_RAMP_M = 0.1
+
+
+def situation_speed(
+    d_min_m: float, front: tuple[SonarReading, ...], params: ControlParams
+) -> float:
+    """The share of its speed the paper's situation 1 leaves the robot: by the nearest
+    forward echo, linearly to 0 at the stop distance. An echo that cannot lie in the
+    forward path (in_path_below_m) slows it no lower than beside_speed_floor (fading to
+    the paper's scale within BESIDE_RAMP_M of the stop distance): in a 1.5 m
+    corridor the 50 deg sonars read 0.4-0.7 m off its walls, and the paper's law slowed
+    a relay a little off centre to a stop there, for the escape's watchdog to take it as
+    stuck and back it off 1.2 m (generated corridors 40)."""
+    stop = params.stop_distance_m
+    paper = speed_scale(d_min_m, params.threshold_o_m, stop)
+    if params.beside_speed_floor <= 0.0:
+        return paper
+    ahead = speed_scale(in_path_m(by_heading(front)), params.threshold_o_m, stop)
+    # The floor fades out over the last BESIDE_RAMP_M to the stop distance: at the floor's
+    # speed the robot would otherwise close on a box corner beside it below the stop
+    # distance before the escape takes over (0.096 m of clearance, against 0.129).
+    floor = params.beside_speed_floor * min(max((d_min_m - stop) / BESIDE_RAMP_M, 0.0), 1.0)
+    return min(ahead, max(floor, paper))
+
+
 def detour_speed(v_mm_s: float, front: tuple[SonarReading, ...], params: ControlParams) -> float:
     """The paper's speed along a detour: scaled by the nearest echo that may lie in the
     robot's forward path, and no faster than the door passage's crawl (avoidance.door_speed_mm_s)
     past echoes beside it."""
     r = by_heading(front)
-    in_path = min((d for h, d in r.items() if d < in_path_below_m(h)), default=SONAR_MAX_RANGE_M)
-    v_mm_s *= speed_scale(in_path, params.threshold_o_m, params.stop_distance_m)
+    v_mm_s *= speed_scale(in_path_m(r), params.threshold_o_m, params.stop_distance_m)
     if min(r.values(), default=SONAR_MAX_RANGE_M) < params.threshold_o_m:
         v_mm_s = min(v_mm_s, params.avoid.door_speed_mm_s)
     return v_mm_s
