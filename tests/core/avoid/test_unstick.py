@@ -104,7 +104,7 @@ TURNING = AvoidState(
 
 
 def test_pinned_it_creeps_on_along_an_arc_away_from_the_wall() -> None:
-    st, cmd = avoid_step(TURNING, sense(120.2, PINNED, 42.0), P, ACT)
+    _, cmd = avoid_step(TURNING, sense(120.2, PINNED, 42.0), P, ACT)
     assert not cmd.follow and cmd.reason == "avoiding"
     assert cmd.vel_mm_s > 0 and cmd.rvel_deg_s > 0  # on, veering left: away from the wall
     # What the wheels are told is what the guard allows.
@@ -113,7 +113,7 @@ def test_pinned_it_creeps_on_along_an_arc_away_from_the_wall() -> None:
         cmd.rvel_deg_s,
     )
     off = dataclasses.replace(P, unpin=False)
-    st, cmd = avoid_step(TURNING, sense(120.2, PINNED, 42.0), off, ACT)
+    _, cmd = avoid_step(TURNING, sense(120.2, PINNED, 42.0), off, ACT)
     assert (cmd.vel_mm_s, cmd.rvel_deg_s, cmd.reason) == (0, 0, "blocked")  # as before
 
 
