@@ -161,7 +161,11 @@ def test_a_jamb_with_the_leaders_way_open_is_turned_from_onto_the_leader() -> No
     jamb = ring(s4=250, s5=400)
     assert _first_escape(jamb, 32.0).mode is AvoidMode.ALIGN
     off = dataclasses.replace(P, align_open_deg=0.0)
-    assert _first_escape(jamb, 32.0, off).mode in (AvoidMode.BACKOFF, AvoidMode.TURN, AvoidMode.LANE)
+    assert _first_escape(jamb, 32.0, off).mode in (
+        AvoidMode.BACKOFF,
+        AvoidMode.TURN,
+        AvoidMode.LANE,
+    )
 
 
 def test_an_obstacle_in_the_leaders_way_is_still_gone_round() -> None:
