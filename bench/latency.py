@@ -13,7 +13,9 @@ VEL/RVEL the fake receives is caused by the SIP before it. The robot is held in 
 thresholds never change during the run; the obstacle escape is off
 (`control.escape = false`), since a robot that cannot move is what it would act on, and
 so is the detour round the sonar map (`control.detour = false`): its path would replace
-the sonar centroid's steering this measures.
+the sonar centroid's steering this measures. The obstacle sits beside the path (the 50 deg
+sonars), so `control.beside_speed_floor = 0` keeps the paper's speed formula that
+`expected_vel` matches by value.
 
 Two measurements of the same cycles. In relayd (the project's definition, "SIP
 received to wheel command written"): the driver times each SIP from its bytes arriving to the
@@ -268,7 +270,14 @@ async def measure(
                 extra["foxglove"] = {"enabled": True, "port": foxglove_port}
             async with RelaydProcess(
                 rig,
-                control={"w1": 0.0, "w2": -300.0, "kd": 0.0, "escape": False, "detour": False},
+                control={
+                    "w1": 0.0,
+                    "w2": -300.0,
+                    "kd": 0.0,
+                    "escape": False,
+                    "detour": False,
+                    "beside_speed_floor": 0.0,
+                },
                 scan=scan or {},
                 log={"level": "warning"},
                 command_prefix=command_prefix,
