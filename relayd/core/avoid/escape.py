@@ -4,9 +4,10 @@ The paper's situation 1 cannot get a robot past an obstacle symmetric about its 
 (the centroid is 0, the speed scale 0). `avoid_step` notices that and runs an escape:
 one handler per mode (HANDLERS: FOLLOW, BACKOFF, ALIGN, LANE, TURN, WALL, CORNER,
 BLOCKED, DOOR) over the escape's memory, with the hand-overs within one step as a table
-(HANDS_OVER). It promises: the escape is bounded (time, distance, turning, stray from
-where it took over; then BLOCKED with wheels at zero), and its commands are guarded by
-the sonars. The state diagram and each rule: docs/AVOIDANCE.md. The vocabulary and the
+(HANDS_OVER). It promises: each escape is bounded (time, distance, turning, stray from
+where it took over; then BLOCKED with wheels at zero, and a fresh escape only after a wait
+that doubles with each block of a run, blocked_retry_s to blocked_retry_max_s), and its
+commands are guarded by the sonars. The state diagram and each rule: docs/AVOIDANCE.md. The vocabulary and the
 guarded commands are in relayd/core/avoid/state.py; the lane and the boundary
 following in lane.py and wall.py. Pure: time, pose, sonars and bearing come in a `Sense`.
 """
@@ -40,7 +41,7 @@ from relayd.core.avoid.state import (
 )
 from relayd.core.avoid.wall import on_wall, proj_m, way_open
 from relayd.core.control.actuator import Actuator
-from relayd.core.geometry import wrap_deg
+from relayd.core.geometry import HALF_LENGTH_M, HALF_WIDTH_M, SONAR_POSES, wrap_deg
 from relayd.core.scan.estimator import SONAR_MAX_RANGE_M
 from relayd.core.vocab import Reason
 
@@ -136,8 +137,9 @@ def _on_follow(st: AvoidState, v: StepView) -> Verdict:
     s, p, t, d_min = v.s, v.p, v.t, v.d_min_m
     if st.anchor is None or math.dist(st.anchor, s.pose[:2]) > p.progress_m * 1000.0:
         st = replace(st, anchor=s.pose[:2], anchor_t=t)
-    if st.escape_t is not None:
-        # An episode ends once the robot has run free for a while.
+    if st.escape_t is not None or st.retry_wait_s > 0.0:
+        # An episode ends once the robot has run free for a while (and so does a run of
+        # retried blocks, the fresh escape after the last one having no episode yet).
         since = st.clear_since_t if d_min > p.threshold_o_m else None
         if d_min > p.threshold_o_m and since is None:
             since = t
@@ -290,8 +292,35 @@ def _unpin(st: AvoidState, v: StepView, held: AvoidCommand) -> Verdict:
     the guard allows, it holds."""
     s, p, r = v.s, v.p, v.r
     away = 1.0 if min_at(r, (-90.0, -50.0)) < min_at(r, (90.0, 50.0)) else -1.0
-    creep = drive_cmd(v.act, s, p, p.backoff_speed_mm_s, away * p.turn_rate_deg_s / 2.0)
+    rvel = away * p.turn_rate_deg_s / 2.0
+    # The guard checks a forward command against the forward path only; the arc's own
+    # swing of the near side's rear corner is checked here, against that side's rear
+    # sonar (none read: no creep).
+    near_rear = [x for x in s.rear if x.heading_deg == -away * 90.0 and x.index is not None]
+    if not near_rear:
+        return st, held
+    sonar = near_rear[0]
+    # The transducer sits inside the body's side: what is beyond the side is less.
+    inset_m = HALF_WIDTH_M - abs(SONAR_POSES[sonar.index or 0].y_mm) / 1000.0
+    beside_m = (sonar.range_m if sonar.range_m is not None else SONAR_MAX_RANGE_M) - inset_m
+    if beside_m < rear_swing_m(p.backoff_speed_mm_s, rvel) + UNPIN_MARGIN_M:
+        return st, held
+    creep = drive_cmd(v.act, s, p, p.backoff_speed_mm_s, rvel)
     return st, (creep if creep.vel_mm_s > 0 else held)
+
+
+#: Clearance (m) kept beside the rear corner's swing while unpinning.
+UNPIN_MARGIN_M = 0.05
+
+
+def rear_swing_m(vel_mm_s: float, rvel_deg_s: float) -> float:
+    """How far a rear corner swings outward, beyond the body's side, on an arc at (vel,
+    rvel): the corner's distance from the arc's centre less the side's."""
+    w = math.radians(abs(rvel_deg_s))
+    if w == 0.0:
+        return 0.0
+    radius_m = vel_mm_s / 1000.0 / w
+    return math.hypot(HALF_LENGTH_M, radius_m + HALF_WIDTH_M) - (radius_m + HALF_WIDTH_M)
 
 
 def _on_corner(st: AvoidState, v: StepView) -> Verdict:

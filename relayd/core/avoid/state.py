@@ -212,6 +212,7 @@ def episode_only(st: AvoidState, t_s: float | None, p: AvoidParams) -> AvoidStat
     if t_s - st.escape_t > p.max_escape_s:
         return AvoidState()
     return AvoidState(
+        retry_wait_s=st.retry_wait_s,
         escape_t=st.escape_t,
         side=st.side,
         goal_deg=st.goal_deg,

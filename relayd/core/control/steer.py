@@ -183,8 +183,8 @@ def situation_speed(
         return paper
     ahead = speed_scale(in_path_m(by_heading(front)), params.threshold_o_m, stop)
     # The floor fades out over the last BESIDE_RAMP_M to the stop distance: at the floor's
-    # speed the robot would otherwise close on a box corner beside it below the stop
-    # distance before the escape takes over (0.096 m of clearance, against 0.129).
+    # speed the robot closed on a box corner beside it to 0.096 m before the escape took
+    # over, under the 0.1 m the escape's property test asks (0.126 m with the fade).
     floor = params.beside_speed_floor * min(max((d_min_m - stop) / BESIDE_RAMP_M, 0.0), 1.0)
     return min(ahead, max(floor, paper))
 

@@ -16,10 +16,11 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from relayd.core.avoid.escape import avoid_step
+from relayd.core.avoid.escape import UNPIN_MARGIN_M, avoid_step, rear_swing_m
 from relayd.core.avoid.ring import guard
-from relayd.core.avoid.state import AvoidMode, AvoidParams, AvoidState
+from relayd.core.avoid.state import AvoidMode, AvoidParams, AvoidState, episode_only
 from relayd.core.control.law import ControlParams
+from relayd.core.geometry import HALF_WIDTH_M, SONAR_POSES
 from tests.core.avoid.test_escape import ACT, P, ring, sense
 
 #: A BLOCKED escape since t=100 s, the leader 56 deg left (not ahead), the way open.
@@ -61,6 +62,22 @@ def test_an_escape_that_ends_free_forgets_the_waits() -> None:
     moved = (2000.0, 0.0, 0.0)  # it drove on: no progress watchdog
     st, cmd = avoid_step(st, sense(60.0 + P.episode_clear_s + 0.1, OPEN, 0.0, moved), P, ACT)
     assert cmd.follow and st.escape_t is None and st.retry_wait_s == 0.0
+
+
+def test_a_retried_escape_that_runs_free_forgets_the_waits() -> None:
+    # The fresh escape after a block has no episode; running free for episode_clear_s
+    # ends the run of blocks all the same, so a block much later waits the first wait.
+    st = AvoidState(retry_wait_s=80.0, anchor=(0.0, 0.0), anchor_t=0.0)
+    for i, x in enumerate((0.0, 500.0, 1000.0, 1500.0)):
+        t = i * (P.episode_clear_s / 2.0)
+        st, cmd = avoid_step(st, sense(t, OPEN, 0.0, (x, 0.0, 0.0)), P, ACT)
+        assert cmd.follow
+    assert st.retry_wait_s == 0.0
+
+
+def test_a_lost_leaders_stop_keeps_the_wait() -> None:
+    st = dataclasses.replace(BLOCKED, mode=AvoidMode.WALL, retry_wait_s=40.0)
+    assert episode_only(st, 120.0, P).retry_wait_s == 40.0
 
 
 def test_off_a_block_holds_until_the_leader_is_ahead() -> None:
@@ -117,6 +134,26 @@ def test_pinned_it_creeps_on_along_an_arc_away_from_the_wall() -> None:
     assert (cmd.vel_mm_s, cmd.rvel_deg_s, cmd.reason) == (0, 0, "blocked")  # as before
 
 
+def test_pinned_with_something_beside_the_rear_corner_it_holds() -> None:
+    # The arc away from the wall swings the near side's rear corner out by rear_swing_m
+    # (5.7 cm at the back-off speed and half the turn rate): an echo nearer than that
+    # and the margin beside it (sonar 8, the rear ring's right side) holds the robot.
+    swing = rear_swing_m(P.backoff_speed_mm_s, P.turn_rate_deg_s / 2.0)
+    assert 0.05 < swing < 0.06
+    inset_mm = 1000 * HALF_WIDTH_M - abs(SONAR_POSES[8].y_mm)  # the transducer's inside the side
+    edge = round(inset_mm + 1000 * (swing + UNPIN_MARGIN_M))
+    for mm, moves in ((140, False), (edge - 5, False), (edge + 5, True)):
+        ranges = list(PINNED)
+        ranges[8] = mm
+        _, cmd = avoid_step(TURNING, sense(120.2, ranges, 42.0), P, ACT)
+        assert (cmd.vel_mm_s > 0) is moves, (mm, cmd)
+    # A rear ring never read: no creep either.
+    blind = list(PINNED)
+    blind[8] = None
+    _, cmd = avoid_step(TURNING, sense(120.2, blind, 42.0), P, ACT)
+    assert (cmd.vel_mm_s, cmd.rvel_deg_s) == (0, 0)
+
+
 def test_boxed_in_it_holds() -> None:
     closed = ring(**{f"s{i}": 250 for i in range(16)})
     _, cmd = avoid_step(TURNING, sense(120.2, closed, 42.0), P, ACT)
@@ -138,11 +175,19 @@ def test_unpinning_never_moves_toward_a_near_echo(ranges: list[int], side: int) 
 
 
 def test_the_settings_reach_the_escape_from_the_config() -> None:
-    from relayd.config.model import AvoidanceSettings
+    from relayd.config.load import parse_settings
+    from relayd.config.params import control_params
 
-    s = AvoidanceSettings(blocked_retry_s=0, blocked_retry_max_s=30, unpin=False)
-    assert (s.blocked_retry_s, s.blocked_retry_max_s, s.unpin) == (0, 30, False)
-    assert AvoidParams().blocked_retry_s == AvoidanceSettings().blocked_retry_s
+    keys = {"blocked_retry_s": 5, "blocked_retry_max_s": 30, "unpin": False, "align_open_deg": 0}
+    a = control_params(
+        parse_settings({"control": {"rear_link": "ignore"}, "avoidance": keys})
+    ).avoid
+    assert (a.blocked_retry_s, a.blocked_retry_max_s, a.unpin, a.align_open_deg) == (
+        5,
+        30,
+        False,
+        0,
+    )
 
 
 # --- a jamb beside the way to the leader ----------------------------------------------------

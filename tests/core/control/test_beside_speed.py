@@ -48,9 +48,11 @@ def test_a_wall_beside_slows_no_lower_than_the_floor(index: int) -> None:
 
 
 @pytest.mark.parametrize("index", [3, 4, 2, 5])  # ahead, and the 30 deg sonars near the path
-def test_what_may_lie_in_the_path_still_slows_to_a_stop(index: int) -> None:
-    ahead = sonar(**{f"s{index}": 300})
-    assert situation_speed(0.3, ahead, FLOOR) == 0.0
+def test_what_may_lie_in_the_path_still_slows_by_the_papers_scale(index: int) -> None:
+    # 0.4 m, beyond the floor's fade: the paper's 0.2, not the floor's 0.3.
+    ahead = sonar(**{f"s{index}": 400})
+    assert situation_speed(0.4, ahead, FLOOR) == pytest.approx(0.2)
+    assert situation_speed(0.3, sonar(**{f"s{index}": 300}), FLOOR) == 0.0
 
 
 @given(
@@ -67,6 +69,9 @@ def test_never_faster_than_the_papers_scale_or_the_floor(
     params = dataclasses.replace(FLOOR, beside_speed_floor=floor)
     share = situation_speed(d, ring, params)
     assert 0.0 <= share <= max(paper(ring), floor) + 1e-9
+    # Never faster than what may lie in the path allows (the paper's scale for it).
+    in_path = in_path_m(by_heading(ring))
+    assert share <= speed_scale(in_path, FLOOR.threshold_o_m, FLOOR.stop_distance_m) + 1e-9
     if in_path_m(by_heading(ring)) >= FLOOR.threshold_o_m:
         # Nothing near that may lie in the path: the paper's scale or the (faded) floor,
         # whichever is more.
