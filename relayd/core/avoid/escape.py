@@ -5,10 +5,10 @@ The paper's situation 1 cannot get a robot past an obstacle symmetric about its 
 one handler per mode (HANDLERS: FOLLOW, BACKOFF, ALIGN, LANE, TURN, WALL, CORNER,
 BLOCKED, DOOR) over the escape's memory, with the hand-overs within one step as a table
 (HANDS_OVER). It promises: each escape is bounded (time, distance, turning, stray from
-where it took over; then BLOCKED with wheels at zero, and a fresh escape only after a wait
-that doubles with each block of a run, blocked_retry_s to blocked_retry_max_s), and its
-commands are guarded by the sonars. The state diagram and each rule: docs/AVOIDANCE.md. The vocabulary and the
-guarded commands are in relayd/core/avoid/state.py; the lane and the boundary
+where it took over; then BLOCKED with wheels at zero, and a fresh escape only after a
+wait that doubles with each block of a run, blocked_retry_s to blocked_retry_max_s), and
+its commands are guarded by the sonars. The state diagram and each rule:
+docs/AVOIDANCE.md. The vocabulary and the guarded commands are in relayd/core/avoid/state.py; the lane and the boundary
 following in lane.py and wall.py. Pure: time, pose, sonars and bearing come in a `Sense`.
 """
 
@@ -287,28 +287,28 @@ def _unpin(st: AvoidState, v: StepView, held: AvoidCommand) -> Verdict:
     with no room behind to back off. Held there, nothing would ever change (generated
     corridors 2: a corridor's corner along the right and behind, the way ahead open,
     "blocked" for the rest of the run). So it creeps on, along an arc away from the
-    nearer side, as the guard allows, until the corners have room to turn; the rear
-    corner's swing toward that side is a few centimetres at this radius. With nothing
-    the guard allows, it holds."""
+    nearer side, as the guard allows, until the corners have room to turn. The guard
+    checks a forward command against the forward path only: the arc's swing of the near
+    side's rear corner is checked here, against that side's rear sonar (unread: no
+    creep). With nothing allowed, it holds."""
     s, p, r = v.s, v.p, v.r
     away = 1.0 if min_at(r, (-90.0, -50.0)) < min_at(r, (90.0, 50.0)) else -1.0
     rvel = away * p.turn_rate_deg_s / 2.0
-    # The guard checks a forward command against the forward path only; the arc's own
-    # swing of the near side's rear corner is checked here, against that side's rear
-    # sonar (none read: no creep).
-    near_rear = [x for x in s.rear if x.heading_deg == -away * 90.0 and x.index is not None]
-    if not near_rear:
+    index = REAR_SIDE_SONAR[-away]
+    read = [x.range_m for x in s.rear if x.index == index]
+    if not read:
         return st, held
-    sonar = near_rear[0]
     # The transducer sits inside the body's side: what is beyond the side is less.
-    inset_m = HALF_WIDTH_M - abs(SONAR_POSES[sonar.index or 0].y_mm) / 1000.0
-    beside_m = (sonar.range_m if sonar.range_m is not None else SONAR_MAX_RANGE_M) - inset_m
+    inset_m = HALF_WIDTH_M - abs(SONAR_POSES[index].y_mm) / 1000.0
+    beside_m = (read[0] if read[0] is not None else SONAR_MAX_RANGE_M) - inset_m
     if beside_m < rear_swing_m(p.backoff_speed_mm_s, rvel) + UNPIN_MARGIN_M:
         return st, held
     creep = drive_cmd(v.act, s, p, p.backoff_speed_mm_s, rvel)
     return st, (creep if creep.vel_mm_s > 0 else held)
 
 
+#: The rear ring's sonar looking out of each side from the rear corner (+1 left, -1 right).
+REAR_SIDE_SONAR: dict[float, int] = {1.0: 15, -1.0: 8}
 #: Clearance (m) kept beside the rear corner's swing while unpinning.
 UNPIN_MARGIN_M = 0.05
 
