@@ -45,7 +45,7 @@ VARIANTS: dict[str, dict[str, object]] = {
     # The paper's law as it was: no push off a side wall, no slide along one, the
     # slow-down by the nearest echo wherever it is; the escape's lane change handing back
     # only beyond 1.2 m, every stop forgetting it, a lost leader stopping it, a block
-    # held for good, a refused turn held, a jamb gone round.
+    # held for good, a refused turn held, a jamb gone round, a graze backed from.
     "paper": {"side_keep_m": 0.0, "wall_slide_m": 0.0, "beside_speed_floor": 0.0},
     "nokeep": {},  # [avoidance] keys only, below
     "noround": {},  # [avoidance] keys only, below
@@ -60,6 +60,7 @@ AVOIDANCE: dict[str, dict[str, object]] = {
         "blocked_retry_s": 0.0,
         "unpin": False,
         "align_open_deg": 0.0,
+        "beside_turn": False,
     },
     # The shipped configuration but every stop forgetting the escape.
     "nokeep": {"keep_episode_when_lost": False},

@@ -355,6 +355,10 @@ class AvoidanceSettings(_Section):
     #: and its direction open: turn onto it (a jamb beside the way, not between); 0: go
     #: round what is near, as before (only a leader 60 deg or more off is turned onto).
     align_open_deg: Annotated[float, Field(ge=0, le=60)] = 15.0
+    #: A hit by an echo beside the way (the +-10 and +-30 deg sonars see the way ahead
+    #: open): turn away at once instead of backing off 1.2 m first; false: back off as for
+    #: any hit (as before).
+    beside_turn: bool = True
     #: Turns in place during the escape.
     turn_rate_deg_s: Annotated[float, Field(gt=0, le=100)] = 20.0
     #: No turn in place is ever commanded slower than this (a rate the tyres execute).

@@ -58,6 +58,7 @@ def test_the_paper_keys_are_sweep_axes_and_turn_each_addition_off() -> None:
         "avoidance.blocked_retry_s": (0,),
         "avoidance.unpin": (False,),
         "avoidance.align_open_deg": (0,),
+        "avoidance.beside_turn": (False,),
     }
     assert set(LAWS) == {"default", "paper"} and LAWS["default"] == ()
 

@@ -8,8 +8,10 @@ BLOCKED, DOOR) over the escape's memory, with the hand-overs within one step as 
 where it took over; then BLOCKED with wheels at zero, and a fresh escape only after a
 wait that doubles with each block of a run, blocked_retry_s to blocked_retry_max_s), and
 its commands are guarded by the sonars. The state diagram and each rule:
-docs/AVOIDANCE.md. The vocabulary and the guarded commands are in relayd/core/avoid/state.py; the lane and the boundary
-following in lane.py and wall.py. Pure: time, pose, sonars and bearing come in a `Sense`.
+docs/AVOIDANCE.md. The vocabulary and the guarded commands are in
+relayd/core/avoid/state.py; the lane and the boundary following in lane.py and wall.py,
+the creep past a refused turn in unpin.py. Pure: time, pose, sonars and bearing come in
+a `Sense`.
 """
 
 from __future__ import annotations
@@ -35,15 +37,19 @@ from relayd.core.avoid.state import (
     Sense,
     StepView,
     Verdict,
-    drive_cmd,
     enter,
     turn_cmd,
 )
+from relayd.core.avoid.unpin import creep_beside, unpin_cmd
 from relayd.core.avoid.wall import on_wall, proj_m, way_open
 from relayd.core.control.actuator import Actuator
-from relayd.core.geometry import HALF_LENGTH_M, HALF_WIDTH_M, SONAR_POSES, wrap_deg
+from relayd.core.geometry import wrap_deg
 from relayd.core.scan.estimator import SONAR_MAX_RANGE_M
 from relayd.core.vocab import Reason
+
+#: The forward sonars that see the way ahead, not beside it (a corridor's walls echo in
+#: the 50 and 90 deg sonars).
+AHEAD_DEG = (-30.0, -10.0, 10.0, 30.0)
 
 
 def _strayed(st: AvoidState, s: Sense, p: AvoidParams) -> bool:
@@ -184,7 +190,11 @@ def _on_follow(st: AvoidState, v: StepView) -> Verdict:
     if st.side == 0:
         st = replace(st, side=choose_side(s.sonar, s.bearing_deg, p.tie_m))
     st = enter(st, AvoidMode.TURN, t)
-    if d_min < p.backoff_below_m and rear_min_m(s.rear) > p.stop_distance_m + 0.1:
+    if (
+        d_min < p.backoff_below_m
+        and rear_min_m(s.rear) > p.stop_distance_m + 0.1
+        and not (p.beside_turn and min_at(v.r, AHEAD_DEG) >= p.backoff_to_m)
+    ):
         st = enter(
             st,
             AvoidMode.BACKOFF,
@@ -238,6 +248,8 @@ def _on_align(st: AvoidState, v: StepView) -> Verdict:
     cmd = turn_cmd(v.act, s, p, math.copysign(p.turn_rate_deg_s, s.bearing_deg), Reason.REJOINING)
     if cmd.rvel_deg_s != 0:
         return st, cmd
+    if (crept := creep_beside(v, cmd)) is not None:
+        return st, crept
     if rear_min_m(s.rear) > p.stop_distance_m + 0.1:
         # No room to turn here (in a doorway): back off a little and turn there.
         st = enter(
@@ -250,6 +262,12 @@ def _on_align(st: AvoidState, v: StepView) -> Verdict:
             after_backoff=AvoidMode.ALIGN,
         )
         return st, _back_off(v, Reason.REJOINING)
+    if p.unpin and v.d_min_m > p.threshold_o_m:
+        # No turn in place, no room behind, but the way ahead open: the paper's law turns
+        # on the move. (Rounding would hand straight back here, the leader's direction
+        # being open, and hold: generated corridors 63 stood so for 87 s.)
+        st = enter(st, AvoidMode.FOLLOW, t, anchor=s.pose[:2], anchor_t=t)
+        return st, AvoidCommand(True)
     # Too close to turn: keep rounding (on the freer side, if none is latched yet).
     side = st.side or choose_side(s.sonar, s.bearing_deg, p.tie_m)
     return enter(st, AvoidMode.WALL, t, lost_at=None, side=side), AvoidMode.WALL
@@ -266,6 +284,8 @@ def _on_turn(st: AvoidState, v: StepView) -> Verdict:
     ):
         return enter(st, AvoidMode.WALL, t, lost_at=None), AvoidMode.WALL
     cmd = turn_cmd(v.act, s, p, st.side * p.turn_rate_deg_s, Reason.AVOIDING)
+    if cmd.rvel_deg_s == 0 and (crept := creep_beside(v, cmd)) is not None:
+        return st, crept
     if cmd.rvel_deg_s == 0 and rear_min_m(s.rear) > p.stop_distance_m + 0.1:
         # No room to turn here (a corner, a passage): back off a little and retry.
         st = enter(
@@ -278,49 +298,8 @@ def _on_turn(st: AvoidState, v: StepView) -> Verdict:
         )
         return st, _back_off(v, Reason.AVOIDING)
     if cmd.rvel_deg_s == 0 and p.unpin:
-        return _unpin(st, v, cmd)
+        return st, unpin_cmd(v, cmd)
     return st, cmd
-
-
-def _unpin(st: AvoidState, v: StepView, held: AvoidCommand) -> Verdict:
-    """A turn in place the guard refuses (an echo inside the circle the corners sweep)
-    with no room behind to back off. Held there, nothing would ever change (generated
-    corridors 2: a corridor's corner along the right and behind, the way ahead open,
-    "blocked" for the rest of the run). So it creeps on, along an arc away from the
-    nearer side, as the guard allows, until the corners have room to turn. The guard
-    checks a forward command against the forward path only: the arc's swing of the near
-    side's rear corner is checked here, against that side's rear sonar (unread: no
-    creep). With nothing allowed, it holds."""
-    s, p, r = v.s, v.p, v.r
-    away = 1.0 if min_at(r, (-90.0, -50.0)) < min_at(r, (90.0, 50.0)) else -1.0
-    rvel = away * p.turn_rate_deg_s / 2.0
-    index = REAR_SIDE_SONAR[-away]
-    read = [x.range_m for x in s.rear if x.index == index]
-    if not read:
-        return st, held
-    # The transducer sits inside the body's side: what is beyond the side is less.
-    inset_m = HALF_WIDTH_M - abs(SONAR_POSES[index].y_mm) / 1000.0
-    beside_m = (read[0] if read[0] is not None else SONAR_MAX_RANGE_M) - inset_m
-    if beside_m < rear_swing_m(p.backoff_speed_mm_s, rvel) + UNPIN_MARGIN_M:
-        return st, held
-    creep = drive_cmd(v.act, s, p, p.backoff_speed_mm_s, rvel)
-    return st, (creep if creep.vel_mm_s > 0 else held)
-
-
-#: The rear ring's sonar looking out of each side from the rear corner (+1 left, -1 right).
-REAR_SIDE_SONAR: dict[float, int] = {1.0: 15, -1.0: 8}
-#: Clearance (m) kept beside the rear corner's swing while unpinning.
-UNPIN_MARGIN_M = 0.05
-
-
-def rear_swing_m(vel_mm_s: float, rvel_deg_s: float) -> float:
-    """How far a rear corner swings outward, beyond the body's side, on an arc at (vel,
-    rvel): the corner's distance from the arc's centre less the side's."""
-    w = math.radians(abs(rvel_deg_s))
-    if w == 0.0:
-        return 0.0
-    radius_m = vel_mm_s / 1000.0 / w
-    return math.hypot(HALF_LENGTH_M, radius_m + HALF_WIDTH_M) - (radius_m + HALF_WIDTH_M)
 
 
 def _on_corner(st: AvoidState, v: StepView) -> Verdict:

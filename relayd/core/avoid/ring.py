@@ -91,6 +91,37 @@ def turn_room(sonar: Sequence[SonarReading], rear: Sequence[SonarReading], margi
     return True
 
 
+#: The sonars looking straight out of each side (+1 left, -1 right): the front ring's
+#: 0 and 7, the rear ring's 15 and 8 at the rear corners.
+SIDE_SONARS: dict[int, tuple[int, int]] = {1: (0, 15), -1: (7, 8)}
+#: How much further than the sweep (m) the rear corner's side sonar may see the same wall.
+WALL_ALONG_SLACK_M = 0.15
+
+
+def jammed_beside(
+    sonar: Sequence[SonarReading], rear: Sequence[SonarReading], margin_m: float
+) -> bool:
+    """What keeps a turn in place from having room is a wall along a side: that side's
+    front sonar echoes inside the corners' sweep plus margin_m, and its rear corner's sonar
+    sees the same wall (a jamb ends before the rear corner). Backing off along a wall
+    gains no room; backing out of a door does."""
+    ranges = {r.index: r.range_m for r in (*sonar, *rear) if r.index is not None}
+    limit = SWEEP_RADIUS_M + margin_m
+
+    def near(index: int, within_m: float) -> bool:
+        range_m = ranges.get(index)
+        return (
+            range_m is not None
+            and range_m < SONAR_MAX_RANGE_M
+            and _echo_centre_m(index, range_m) < within_m
+        )
+
+    return any(
+        near(front, limit) and near(back, limit + WALL_ALONG_SLACK_M)
+        for front, back in SIDE_SONARS.values()
+    )
+
+
 def echo_m(reading: SonarReading) -> float:
     r = reading.range_m
     return SONAR_MAX_RANGE_M if r is None or r >= SONAR_MAX_RANGE_M else r

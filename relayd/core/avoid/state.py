@@ -106,6 +106,12 @@ class AvoidParams:
     #: nose: a corridor's mouth seen from beside its jamb (generated corridors 141: the
     #: escape went round the jamb, back up the hall it came down). 0: off.
     align_open_deg: float = 15.0
+    #: A hit by an echo beside the way (the forward sonars at +-10 and +-30 deg see beyond
+    #: backoff_to_m): turn away at once, backing off only the unjam's 0.3 m if the turn
+    #: has no room. A back-off is for room ahead, and there is room ahead; in a corridor
+    #: the 50 deg sonars never see backoff_to_m, so the back-off ran its whole 1.2 m (12 s)
+    #: at every graze. False: back off as for any hit.
+    beside_turn: bool = True
     #: The door passage (relayd/core/avoid/door.py): through a gap at least the robot's
     #: width plus door_margin_m, jambs within door_side_m each side, the way on open
     #: beyond door_ahead_m, the leader within door_bearing_deg of the nose; at

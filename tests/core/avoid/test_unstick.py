@@ -16,9 +16,10 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from relayd.core.avoid.escape import UNPIN_MARGIN_M, avoid_step, rear_swing_m
+from relayd.core.avoid.escape import avoid_step
 from relayd.core.avoid.ring import guard
 from relayd.core.avoid.state import AvoidMode, AvoidParams, AvoidState, episode_only
+from relayd.core.avoid.unpin import UNPIN_MARGIN_M, rear_swing_m
 from relayd.core.control.law import ControlParams
 from relayd.core.geometry import HALF_WIDTH_M, SONAR_POSES
 from tests.core.avoid.test_escape import ACT, P, ring, sense
@@ -253,8 +254,9 @@ def test_a_block_tried_again_takes_relay1_on_down_the_corridors() -> None:
 @pytest.mark.timeout(120)
 def test_a_corridors_mouth_beside_a_jamb_is_turned_into() -> None:
     # Generated corridors 141: without align_open_deg relay1 went round the jamb, back up
-    # the hall, and lost its leader 32 m away.
+    # the hall, and lost its leader 32 m away. (Turning from a graze without backing off,
+    # beside_turn, also gets it through on its own, so both are off for the comparison.)
     on = _final("generated:corridors:141")
-    off = _final("generated:corridors:141", align_open_deg=0)
+    off = _final("generated:corridors:141", align_open_deg=0, beside_turn=False)
     assert [r["reason"] for r in on] == ["rear_weak", "rear_weak"], on
     assert off[0]["reason"] == "leader_lost", off
