@@ -348,16 +348,19 @@ class AvoidanceSettings(_Section):
     #: leader is ahead with its way open, or the operator (as before).
     blocked_retry_s: Annotated[float, Field(ge=0, le=600)] = 10.0
     blocked_retry_max_s: Annotated[float, Field(ge=0, le=3600)] = 80.0
-    #: A turn in place the guard refuses with no room behind: creep on along an arc away
-    #: from the nearer side until the corners have room; false: hold (as before).
+    #: A turn in place the guard refuses with no room behind, or for a wall along a side:
+    #: creep on along an arc away from that side until the corners have room (an ALIGN
+    #: that cannot, the way ahead open: straight on); false: back off along the wall, go
+    #: round, or hold (as before).
     unpin: bool = True
     #: An escape's first move, when the leader is at least this far off the nose (deg)
     #: and its direction open: turn onto it (a jamb beside the way, not between); 0: go
     #: round what is near, as before (only a leader 60 deg or more off is turned onto).
     align_open_deg: Annotated[float, Field(ge=0, le=60)] = 15.0
     #: A hit by an echo beside the way (the +-10 and +-30 deg sonars see the way ahead
-    #: open): turn away at once instead of backing off 1.2 m first; false: back off as for
-    #: any hit (as before).
+    #: open): the escape starts with its turn (backing off at most the unjam's 0.3 m, or
+    #: creeping off a wall along the side) instead of backing off 1.2 m first; false: back
+    #: off as for any hit (as before).
     beside_turn: bool = True
     #: Turns in place during the escape.
     turn_rate_deg_s: Annotated[float, Field(gt=0, le=100)] = 20.0

@@ -40,7 +40,7 @@ from relayd.core.avoid.state import (
     enter,
     turn_cmd,
 )
-from relayd.core.avoid.unpin import creep_beside, unpin_cmd
+from relayd.core.avoid.unpin import creep_beside, straight_on, unpin_cmd
 from relayd.core.avoid.wall import on_wall, proj_m, way_open
 from relayd.core.control.actuator import Actuator
 from relayd.core.geometry import wrap_deg
@@ -262,12 +262,10 @@ def _on_align(st: AvoidState, v: StepView) -> Verdict:
             after_backoff=AvoidMode.ALIGN,
         )
         return st, _back_off(v, Reason.REJOINING)
-    if p.unpin and v.d_min_m > p.threshold_o_m:
-        # No turn in place, no room behind, but the way ahead open: the paper's law turns
-        # on the move. (Rounding would hand straight back here, the leader's direction
-        # being open, and hold: generated corridors 63 stood so for 87 s.)
-        st = enter(st, AvoidMode.FOLLOW, t, anchor=s.pose[:2], anchor_t=t)
-        return st, AvoidCommand(True)
+    if (ahead := straight_on(v)) is not None:
+        # Rounding would hand straight back here, the leader's direction being open, and
+        # hold: generated corridors 63 stood so for 87 s.
+        return st, ahead
     # Too close to turn: keep rounding (on the freer side, if none is latched yet).
     side = st.side or choose_side(s.sonar, s.bearing_deg, p.tie_m)
     return enter(st, AvoidMode.WALL, t, lost_at=None, side=side), AvoidMode.WALL

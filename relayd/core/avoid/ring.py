@@ -98,13 +98,14 @@ SIDE_SONARS: dict[int, tuple[int, int]] = {1: (0, 15), -1: (7, 8)}
 WALL_ALONG_SLACK_M = 0.15
 
 
-def jammed_beside(
+def wall_along_side(
     sonar: Sequence[SonarReading], rear: Sequence[SonarReading], margin_m: float
-) -> bool:
-    """What keeps a turn in place from having room is a wall along a side: that side's
-    front sonar echoes inside the corners' sweep plus margin_m, and its rear corner's sonar
-    sees the same wall (a jamb ends before the rear corner). Backing off along a wall
-    gains no room; backing out of a door does."""
+) -> int:
+    """The side (+1 left, -1 right; 0: neither) where a wall along the robot keeps a turn
+    in place from having room: that side's front sonar echoes inside the corners' sweep
+    plus margin_m, and its rear corner's sonar sees the same wall (a jamb ends before the
+    rear corner). Backing off along a wall gains no room; backing out of a door does.
+    Walls along both sides: 0 (no side to creep away from)."""
     ranges = {r.index: r.range_m for r in (*sonar, *rear) if r.index is not None}
     limit = SWEEP_RADIUS_M + margin_m
 
@@ -116,10 +117,12 @@ def jammed_beside(
             and _echo_centre_m(index, range_m) < within_m
         )
 
-    return any(
-        near(front, limit) and near(back, limit + WALL_ALONG_SLACK_M)
-        for front, back in SIDE_SONARS.values()
-    )
+    sides = [
+        side
+        for side, (front, back) in SIDE_SONARS.items()
+        if near(front, limit) and near(back, limit + WALL_ALONG_SLACK_M)
+    ]
+    return sides[0] if len(sides) == 1 else 0
 
 
 def echo_m(reading: SonarReading) -> float:

@@ -83,8 +83,10 @@ class AvoidParams:
     #: The leader lost mid-manoeuvre (turned away from it while going round): the
     #: manoeuvre goes on this long toward where the scans last put it; 0: it stops.
     lost_manoeuvre_s: float = 5.0
-    #: A turn in place the guard refuses, with no room to back off: creep on along an arc
-    #: away from the nearer side until the corners have room. False: hold.
+    #: A turn in place the guard refuses, with no room to back off or for a wall along a
+    #: side: creep on along an arc away from that side until the corners have room (an
+    #: ALIGN that cannot, with the way ahead open: straight on; relayd/core/avoid/unpin.py).
+    #: False: back off along the wall, go round, or hold, as before.
     unpin: bool = True
     max_escape_s: float = 300.0
     max_escape_m: float = 40.0
@@ -107,10 +109,11 @@ class AvoidParams:
     #: escape went round the jamb, back up the hall it came down). 0: off.
     align_open_deg: float = 15.0
     #: A hit by an echo beside the way (the forward sonars at +-10 and +-30 deg see beyond
-    #: backoff_to_m): turn away at once, backing off only the unjam's 0.3 m if the turn
-    #: has no room. A back-off is for room ahead, and there is room ahead; in a corridor
-    #: the 50 deg sonars never see backoff_to_m, so the back-off ran its whole 1.2 m (12 s)
-    #: at every graze. False: back off as for any hit.
+    #: backoff_to_m): the escape starts with its turn (or a lane change), backing off only
+    #: the unjam's 0.3 m, or creeping off a wall along the side, where the turn has no
+    #: room. A back-off is for room ahead, and there is room ahead; in a corridor the 50
+    #: deg sonars never see backoff_to_m, so the back-off ran its whole 1.2 m (12 s) at
+    #: every graze. False: back off as for any hit.
     beside_turn: bool = True
     #: The door passage (relayd/core/avoid/door.py): through a gap at least the robot's
     #: width plus door_margin_m, jambs within door_side_m each side, the way on open

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 
-from relayd.core.avoid.ring import TURN_MARGIN_M, jammed_beside, min_at
+from relayd.core.avoid.ring import TURN_MARGIN_M, min_at, wall_along_side
 from relayd.core.avoid.state import AvoidCommand, StepView, drive_cmd
 from relayd.core.geometry import HALF_LENGTH_M, HALF_WIDTH_M, SONAR_POSES
 from relayd.core.scan.estimator import SONAR_MAX_RANGE_M
@@ -23,30 +23,38 @@ UNPIN_MARGIN_M = 0.05
 
 
 def creep_beside(v: StepView, held: AvoidCommand) -> AvoidCommand | None:
-    """A refused turn whose jam is a wall beside the robot: the unpin's creep, not a
-    back-off. Backing off runs along that wall and gains no room, and a long reverse at a
-    few degrees to it closes on it unseen (generated corridors 116: ALIGN and its 0.3 m
-    back-off took turns for 2.4 m until a rear corner touched the wall). None: not
-    jammed beside, or the creep is not allowed either (the caller's rules go on)."""
-    if not v.p.unpin or not jammed_beside(v.s.sonar, v.s.rear, TURN_MARGIN_M):
+    """A refused turn whose jam is a wall along one side: the unpin's creep away from that
+    wall, not a back-off. Backing off runs along the wall and gains no room, and a long
+    reverse at a few degrees to it closes on it unseen (generated corridors 116: ALIGN
+    and its 0.3 m back-off took turns for 2.4 m until a rear corner touched the wall).
+    None: no such wall, or the creep is not allowed either (the caller's rules go on)."""
+    if not v.p.unpin:
         return None
-    cmd = unpin_cmd(v, held)
+    wall = wall_along_side(v.s.sonar, v.s.rear, TURN_MARGIN_M)
+    if wall == 0:
+        return None
+    cmd = unpin_cmd(v, held, away=-wall)
     return cmd if cmd.vel_mm_s > 0 else None
 
 
-def unpin_cmd(v: StepView, held: AvoidCommand) -> AvoidCommand:
+def unpin_cmd(v: StepView, held: AvoidCommand, away: int = 0) -> AvoidCommand:
     """A turn in place the guard refuses (an echo inside the circle the corners sweep)
     with no room behind to back off. Held there, nothing would ever change (generated
     corridors 2: a corridor's corner along the right and behind, the way ahead open,
     "blocked" for the rest of the run). So it creeps on, along an arc away from the
-    nearer side, as the guard allows, until the corners have room to turn. The guard
-    checks a forward command against the forward path only: the arc's swing of the near
-    side's rear corner is checked here, against that side's rear sonar (unread: no
-    creep). With nothing allowed, it holds (`held`)."""
+    nearer side (or `away`, +1 left, -1 right), as the guard allows, until the corners
+    have room to turn. The guard checks a forward command against the forward path only,
+    so the arc's two outer corners are checked here: the rear one swings out beyond the
+    near side (against that side's rear sonar; unread: no creep), the front one moves
+    out toward the far side (whose 50 and 90 deg sonars must see the stop distance).
+    With nothing allowed, it holds (`held`)."""
     s, p, r = v.s, v.p, v.r
-    away = 1.0 if min_at(r, (-90.0, -50.0)) < min_at(r, (90.0, 50.0)) else -1.0
-    rvel = away * p.turn_rate_deg_s / 2.0
-    index = REAR_SIDE_SONAR[-away]
+    nearer = 1.0 if min_at(r, (-90.0, -50.0)) < min_at(r, (90.0, 50.0)) else -1.0
+    turn = float(away) if away else nearer
+    if min_at(r, (turn * 90.0, turn * 50.0)) < p.stop_distance_m:
+        return held
+    rvel = turn * p.turn_rate_deg_s / 2.0
+    index = REAR_SIDE_SONAR[-turn]
     read = [x.range_m for x in s.rear if x.index == index]
     if not read:
         return held
@@ -57,6 +65,18 @@ def unpin_cmd(v: StepView, held: AvoidCommand) -> AvoidCommand:
         return held
     creep = drive_cmd(v.act, s, p, p.backoff_speed_mm_s, rvel)
     return creep if creep.vel_mm_s > 0 else held
+
+
+def straight_on(v: StepView) -> AvoidCommand | None:
+    """A turn in place refused, no creep and no room behind, the way ahead open (nothing
+    within threshold_o of the +-10 and +-30 deg sonars): on straight ahead at the
+    back-off speed, which swings no corner out and whose whole path the guard checks,
+    until the corners have room to turn. None: not open ahead, or the guard says no."""
+    p = v.p
+    if not p.unpin or min_at(v.r, (-30.0, -10.0, 10.0, 30.0)) <= p.threshold_o_m:
+        return None
+    cmd = drive_cmd(v.act, v.s, p, p.backoff_speed_mm_s, 0.0)
+    return cmd if cmd.vel_mm_s > 0 else None
 
 
 def rear_swing_m(vel_mm_s: float, rvel_deg_s: float) -> float:
