@@ -23,11 +23,13 @@ from dataclasses import replace
 from relayd.core.avoid.door import at_door, door_step
 from relayd.core.avoid.lane import lane_step, maybe_lane
 from relayd.core.avoid.ring import (
+    TURN_MARGIN_M,
     by_heading,
     choose_side,
     guard,
     min_at,
     rear_min_m,
+    wall_along_side,
 )
 from relayd.core.avoid.state import (
     AvoidCommand,
@@ -248,6 +250,12 @@ def _on_align(st: AvoidState, v: StepView) -> Verdict:
     cmd = turn_cmd(v.act, s, p, math.copysign(p.turn_rate_deg_s, s.bearing_deg), Reason.REJOINING)
     if cmd.rvel_deg_s != 0:
         return st, cmd
+    wall = wall_along_side(s.sonar, s.rear, TURN_MARGIN_M) if p.unpin else 0
+    if wall * s.bearing_deg > 0:
+        # The leader beyond the wall along the side that jams the turn onto it: creeping
+        # off the wall turns away from the leader, and round in circles (generated
+        # corridors 78: 187 deg in 21 s); on along the wall instead, where it opens.
+        return enter(st, AvoidMode.WALL, t, lost_at=None, side=-wall), AvoidMode.WALL
     if (crept := creep_beside(v, cmd)) is not None:
         return st, crept
     if rear_min_m(s.rear) > p.stop_distance_m + 0.1:

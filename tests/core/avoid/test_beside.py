@@ -110,6 +110,17 @@ def test_a_turn_refused_by_a_jamb_still_backs_out_of_the_door() -> None:
     assert st.mode is AvoidMode.BACKOFF and cmd.vel_mm_s < 0
 
 
+def test_aligning_onto_a_leader_beyond_the_wall_that_jams_it_goes_along_the_wall() -> None:
+    # The leader 78 deg left, beyond the wall along the left that refuses the turn: the
+    # creep off that wall would turn away from the leader, and round in circles
+    # (corridors 78: 187 deg in 21 s). It goes along the wall (boundary on the left).
+    st, cmd = avoid_step(ALIGNING, sense(151.5, ALONG_LEFT, 78.0), P, ACT)
+    assert st.mode is AvoidMode.WALL and st.side == -1 and cmd.vel_mm_s >= 0
+    off = dataclasses.replace(P, unpin=False)
+    st, _ = avoid_step(ALIGNING, sense(151.5, ALONG_LEFT, 78.0), off, ACT)
+    assert st.mode is AvoidMode.BACKOFF  # the unjam's back-off along the wall, as before
+
+
 def test_pinned_in_align_with_the_way_ahead_open_it_goes_straight_on() -> None:
     # Corridors 63 at t = 132.4 s: the creep's rear corner would swing into the wall
     # (sonar 15 at 0.2 m), nothing behind has room, the way ahead is open. Rounding would
