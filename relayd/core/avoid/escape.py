@@ -23,6 +23,7 @@ from dataclasses import replace
 from relayd.core.avoid.door import at_door, door_step
 from relayd.core.avoid.lane import lane_step, maybe_lane
 from relayd.core.avoid.ring import (
+    AHEAD_DEG,
     TURN_MARGIN_M,
     by_heading,
     choose_side,
@@ -48,10 +49,6 @@ from relayd.core.control.actuator import Actuator
 from relayd.core.geometry import wrap_deg
 from relayd.core.scan.estimator import SONAR_MAX_RANGE_M
 from relayd.core.vocab import Reason
-
-#: The forward sonars that see the way ahead, not beside it (a corridor's walls echo in
-#: the 50 and 90 deg sonars).
-AHEAD_DEG = (-30.0, -10.0, 10.0, 30.0)
 
 
 def _strayed(st: AvoidState, s: Sense, p: AvoidParams) -> bool:
@@ -256,7 +253,7 @@ def _on_align(st: AvoidState, v: StepView) -> Verdict:
         # off the wall turns away from the leader, and round in circles (generated
         # corridors 78: 187 deg in 21 s); on along the wall instead, where it opens.
         return enter(st, AvoidMode.WALL, t, lost_at=None, side=-wall), AvoidMode.WALL
-    if (crept := creep_beside(v, cmd)) is not None:
+    if (crept := creep_beside(v, cmd, wall)) is not None:
         return st, crept
     if rear_min_m(s.rear) > p.stop_distance_m + 0.1:
         # No room to turn here (in a doorway): back off a little and turn there.
@@ -281,7 +278,7 @@ def _on_align(st: AvoidState, v: StepView) -> Verdict:
 
 def _on_turn(st: AvoidState, v: StepView) -> Verdict:
     s, p, t, r = v.s, v.p, v.t, v.r
-    front = min_at(r, (10.0, -10.0, 30.0, -30.0))
+    front = min_at(r, AHEAD_DEG)
     turned = abs(wrap_deg(s.pose[2] - st.mode_heading_deg))
     if (
         front > p.front_clear_m

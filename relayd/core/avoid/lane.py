@@ -13,6 +13,7 @@ from dataclasses import replace
 from relayd.core.avoid.ring import (
     LATERAL_M,
     REAR_M,
+    REAR_SIDE_SONAR,
     boundary_echo_m,
     echo_m,
     forward_min_m,
@@ -71,7 +72,7 @@ def lane_step(
     w = -st.side  # the obstacle's side
     # Past the obstacle once the sonars on its side, the rear one abeam included (the
     # robot's back half is still beside it when the front ring clears), see open space.
-    rear_abeam = [echo_m(x) for x in s.rear if x.index == (15 if w > 0 else 8)]
+    rear_abeam = [echo_m(x) for x in s.rear if x.index == REAR_SIDE_SONAR[w]]
     abeam_m = min([r.get(w * 90.0, SONAR_MAX_RANGE_M), *rear_abeam])
     near_m = abeam_m if st.lane_near_m is None else min(st.lane_near_m, abeam_m)
     st = replace(st, lane_near_m=near_m)

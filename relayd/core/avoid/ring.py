@@ -94,6 +94,11 @@ def turn_room(sonar: Sequence[SonarReading], rear: Sequence[SonarReading], margi
 #: The sonars looking straight out of each side (+1 left, -1 right): the front ring's
 #: 0 and 7, the rear ring's 15 and 8 at the rear corners.
 SIDE_SONARS: dict[int, tuple[int, int]] = {1: (0, 15), -1: (7, 8)}
+#: The rear corner's sonar looking out of each side.
+REAR_SIDE_SONAR: dict[int, int] = {side: rear for side, (_, rear) in SIDE_SONARS.items()}
+#: The forward sonars that see the way ahead, not beside it (a corridor's walls echo in
+#: the 50 and 90 deg sonars).
+AHEAD_DEG = (-30.0, -10.0, 10.0, 30.0)
 #: How much further than the sweep (m) the rear corner's side sonar may see the same wall.
 WALL_ALONG_SLACK_M = 0.15
 

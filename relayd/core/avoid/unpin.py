@@ -11,26 +11,32 @@ from __future__ import annotations
 
 import math
 
-from relayd.core.avoid.ring import TURN_MARGIN_M, min_at, wall_along_side
+from relayd.core.avoid.ring import (
+    AHEAD_DEG,
+    REAR_SIDE_SONAR,
+    TURN_MARGIN_M,
+    echo_m,
+    min_at,
+    wall_along_side,
+)
 from relayd.core.avoid.state import AvoidCommand, StepView, drive_cmd
 from relayd.core.geometry import HALF_LENGTH_M, HALF_WIDTH_M, SONAR_POSES
-from relayd.core.scan.estimator import SONAR_MAX_RANGE_M
 
-#: The rear ring's sonar looking out of each side from the rear corner (+1 left, -1 right).
-REAR_SIDE_SONAR: dict[float, int] = {1.0: 15, -1.0: 8}
 #: Clearance (m) kept beside the rear corner's swing while unpinning.
 UNPIN_MARGIN_M = 0.05
 
 
-def creep_beside(v: StepView, held: AvoidCommand) -> AvoidCommand | None:
+def creep_beside(v: StepView, held: AvoidCommand, wall: int | None = None) -> AvoidCommand | None:
     """A refused turn whose jam is a wall along one side: the unpin's creep away from that
     wall, not a back-off. Backing off runs along the wall and gains no room, and a long
     reverse at a few degrees to it closes on it unseen (generated corridors 116: ALIGN
     and its 0.3 m back-off took turns for 2.4 m until a rear corner touched the wall).
-    None: no such wall, or the creep is not allowed either (the caller's rules go on)."""
+    None: no such wall, or the creep is not allowed either (the caller's rules go on).
+    `wall`: ring.wall_along_side's answer, when the caller has it already."""
     if not v.p.unpin:
         return None
-    wall = wall_along_side(v.s.sonar, v.s.rear, TURN_MARGIN_M)
+    if wall is None:
+        wall = wall_along_side(v.s.sonar, v.s.rear, TURN_MARGIN_M)
     if wall == 0:
         return None
     cmd = unpin_cmd(v, held, away=-wall)
@@ -49,18 +55,18 @@ def unpin_cmd(v: StepView, held: AvoidCommand, away: int = 0) -> AvoidCommand:
     out toward the far side (whose 50 and 90 deg sonars must see the stop distance).
     With nothing allowed, it holds (`held`)."""
     s, p, r = v.s, v.p, v.r
-    nearer = 1.0 if min_at(r, (-90.0, -50.0)) < min_at(r, (90.0, 50.0)) else -1.0
-    turn = float(away) if away else nearer
+    nearer = 1 if min_at(r, (-90.0, -50.0)) < min_at(r, (90.0, 50.0)) else -1
+    turn = away or nearer
     if min_at(r, (turn * 90.0, turn * 50.0)) < p.stop_distance_m:
         return held
     rvel = turn * p.turn_rate_deg_s / 2.0
     index = REAR_SIDE_SONAR[-turn]
-    read = [x.range_m for x in s.rear if x.index == index]
-    if not read:
+    reading = next((x for x in s.rear if x.index == index), None)
+    if reading is None:
         return held
     # The transducer sits inside the body's side: what is beyond the side is less.
     inset_m = HALF_WIDTH_M - abs(SONAR_POSES[index].y_mm) / 1000.0
-    beside_m = (read[0] if read[0] is not None else SONAR_MAX_RANGE_M) - inset_m
+    beside_m = echo_m(reading) - inset_m
     if beside_m < rear_swing_m(p.backoff_speed_mm_s, rvel) + UNPIN_MARGIN_M:
         return held
     creep = drive_cmd(v.act, s, p, p.backoff_speed_mm_s, rvel)
@@ -73,7 +79,7 @@ def straight_on(v: StepView) -> AvoidCommand | None:
     back-off speed, which swings no corner out and whose whole path the guard checks,
     until the corners have room to turn. None: not open ahead, or the guard says no."""
     p = v.p
-    if not p.unpin or min_at(v.r, (-30.0, -10.0, 10.0, 30.0)) <= p.threshold_o_m:
+    if not p.unpin or min_at(v.r, AHEAD_DEG) <= p.threshold_o_m:
         return None
     cmd = drive_cmd(v.act, v.s, p, p.backoff_speed_mm_s, 0.0)
     return cmd if cmd.vel_mm_s > 0 else None

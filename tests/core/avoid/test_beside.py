@@ -22,9 +22,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from relayd.core.avoid.escape import avoid_step
-from relayd.core.avoid.ring import by_heading, guard, min_at, wall_along_side
+from relayd.core.avoid.ring import REAR_SIDE_SONAR, by_heading, guard, min_at, wall_along_side
 from relayd.core.avoid.state import AvoidMode, AvoidState
-from relayd.core.avoid.unpin import REAR_SIDE_SONAR, UNPIN_MARGIN_M, rear_swing_m
+from relayd.core.avoid.unpin import UNPIN_MARGIN_M, rear_swing_m
 from relayd.core.geometry import HALF_WIDTH_M, SONAR_POSES
 from tests.core.avoid.test_escape import ACT, P, ring, sense
 from tests.core.avoid.test_unstick import _final
@@ -176,7 +176,7 @@ def test_a_creep_checks_both_outer_corners_of_its_arc(
         cmd.rvel_deg_s,
     )
     if cmd.vel_mm_s > 0 and cmd.rvel_deg_s != 0 and cmd.vel_mm_s <= P.backoff_speed_mm_s:
-        turn = 1.0 if cmd.rvel_deg_s > 0 else -1.0
+        turn = 1 if cmd.rvel_deg_s > 0 else -1
         assert min_at(by_heading(s.sonar), (turn * 90.0, turn * 50.0)) >= P.stop_distance_m
         index = REAR_SIDE_SONAR[-turn]
         inset_m = HALF_WIDTH_M - abs(SONAR_POSES[index].y_mm) / 1000.0
