@@ -72,7 +72,7 @@ def test_never_faster_than_the_papers_scale_or_the_floor(
     # Never faster than what may lie in the path allows (the paper's scale for it).
     in_path = in_path_m(by_heading(ring))
     assert share <= speed_scale(in_path, FLOOR.threshold_o_m, FLOOR.stop_distance_m) + 1e-9
-    if in_path_m(by_heading(ring)) >= FLOOR.threshold_o_m:
+    if in_path >= FLOOR.threshold_o_m:
         # Nothing near that may lie in the path: the paper's scale or the (faded) floor,
         # whichever is more.
         ramp = min(max((d - FLOOR.stop_distance_m) / BESIDE_RAMP_M, 0.0), 1.0)
